@@ -1,0 +1,21 @@
+# Two entry points (see README): `make run` and `make test`. Both create .venv with pinned versions when missing.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+
+$(BIN)/.installed: pyproject.toml constraints.txt
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]"
+	touch $@
+
+.PHONY: run test lint
+run: $(BIN)/.installed
+	$(BIN)/angora-jax run
+
+test: $(BIN)/.installed
+	$(BIN)/ruff check .
+	$(BIN)/python -m pytest -q --durations=15
+
+lint: $(BIN)/.installed
+	$(BIN)/ruff check .

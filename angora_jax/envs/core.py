@@ -1,0 +1,199 @@
+"""The environment contract: `Sensation`, `State`, `ActionSpec` and the `Env` base class.
+
+Every environment is a pair of pure functions, `reset(key) -> State` and `step(state, action) -> State`,
+that can be jitted and vmapped. `step` resets an episode by itself when it ends (auto-reset), so a batch of
+environments can be rolled out with `lax.scan` without leaving the compiled program; the observation at the
+episode's end is kept in `State.final_obs` for value bootstrapping on truncation.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+
+@struct.dataclass
+class Sensation:
+    """Observation as a pytree of modalities; each field is a float32 array of shape `(..., size)`.
+
+    A modality that a task does not provide is an empty array of shape `(..., 0)`, never None, so that all
+    tasks share one pytree structure. `asymmetric` holds privileged inputs that only the value function reads.
+    """
+
+    proprioception: jax.Array
+    touch: jax.Array
+    vision: jax.Array
+    goal: jax.Array
+    asymmetric: jax.Array
+
+    @classmethod
+    def make(cls, **modalities: jax.Array) -> Sensation:
+        """Build a Sensation from the given modalities; missing ones become empty float32 arrays."""
+        fields = ("proprioception", "touch", "vision", "goal", "asymmetric")
+        unknown = set(modalities) - set(fields)
+        if unknown:
+            raise ValueError(f"Unknown modalities {sorted(unknown)}; a Sensation has {fields}.")
+        batch = next(iter(modalities.values())).shape[:-1] if modalities else ()
+        empty = jnp.zeros(batch + (0,), jnp.float32)
+        return cls(**{f: jnp.asarray(modalities.get(f, empty), jnp.float32) for f in fields})
+
+    def sizes(self) -> dict[str, int]:
+        """Feature size of each modality (the last axis)."""
+        return {k: int(v.shape[-1]) for k, v in self.__dict__.items()}
+
+
+@struct.dataclass
+class ActionSpec:
+    """Continuous actions lie in the box `[low, high]` (float32, shape `(size,)`); discrete actions are integers
+    in `[0, num_actions)` and have `low`/`high` of shape `(0,)`."""
+
+    low: jax.Array
+    high: jax.Array
+    num_actions: int = struct.field(pytree_node=False, default=0)
+
+    @property
+    def discrete(self) -> bool:
+        return self.num_actions > 0
+
+    @property
+    def size(self) -> int:
+        """Length of one action vector (1 for a discrete action)."""
+        return 1 if self.discrete else int(self.low.shape[-1])
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return () if self.discrete else (self.size,)
+
+
+@struct.dataclass
+class State:
+    """One environment's state after `reset` or `step` (add a leading axis for a batch).
+
+    physics: the simulator's state (an `mjx.Data` for MuJoCo tasks, a small array pytree for classic ones).
+    obs: the observation the agent sees now; after an auto-reset, the first observation of the new episode.
+    reward: float32 scalar, the reward of the step that led here (0 after reset).
+    done: float32 scalar, 1 if the episode ended at this step (terminated or truncated).
+    truncated: float32 scalar, 1 if the episode ended only because of its time limit.
+    final_obs: the observation at the episode's end, before any auto-reset; equals `obs` when not done.
+    steps: int32 scalar, policy steps taken in the current episode.
+    info: task state that is not physics (goal, target finger, timers), a dict of arrays.
+    metrics: task metrics of the current episode at this step (e.g. `success`), float32 scalars; a trainer
+        reports their values at episode ends.
+    key: the environment's own PRNG key (goal sampling, resets).
+    """
+
+    physics: Any
+    obs: Sensation
+    reward: jax.Array
+    done: jax.Array
+    truncated: jax.Array
+    final_obs: Sensation
+    steps: jax.Array
+    info: dict[str, jax.Array]
+    metrics: dict[str, jax.Array]
+    key: jax.Array
+
+
+class Env(abc.ABC):
+    """Base class of all environments: subclasses write `_reset` and `_step`; auto-reset, time limits and input
+    checks are done here once.
+
+    Attributes a subclass sets: `action_spec`, `max_episode_steps` (policy steps per episode), `dt` (seconds of
+    simulated time per policy step) and `metric_names`.
+    """
+
+    action_spec: ActionSpec
+    max_episode_steps: int
+    dt: float
+    metric_names: tuple[str, ...] = ()
+
+    @abc.abstractmethod
+    def _reset(self, key: jax.Array) -> tuple[Any, Sensation, dict[str, jax.Array]]:
+        """Start an episode: return (physics, observation, info)."""
+
+    @abc.abstractmethod
+    def _step(
+        self, physics: Any, info: dict[str, jax.Array], action: jax.Array, key: jax.Array
+    ) -> tuple[Any, Sensation, jax.Array, jax.Array, dict[str, jax.Array], dict[str, jax.Array]]:
+        """Advance one policy step: return (physics, observation, reward, terminated, info, metrics)."""
+
+    def reset(self, key: jax.Array) -> State:
+        """Start a new episode. `key` is a PRNG key; vmap over a batch of keys for a batch of environments."""
+        key, reset_key = jax.random.split(key)
+        physics, obs, info = self._reset(reset_key)
+        zero = jnp.zeros((), jnp.float32)
+        return State(
+            physics=physics,
+            obs=obs,
+            reward=zero,
+            done=zero,
+            truncated=zero,
+            final_obs=obs,
+            steps=jnp.zeros((), jnp.int32),
+            info=info,
+            metrics={name: zero for name in self.metric_names},
+            key=key,
+        )
+
+    def step(self, state: State, action: jax.Array) -> State:
+        """Apply one action (shape `action_spec.shape`, or a batch under vmap) and return the next state.
+
+        When the episode ends, the returned state already holds the first observation of a fresh episode in
+        `obs` and the last one of the ended episode in `final_obs`; `done`, `reward` and `metrics` describe the
+        ended step.
+        """
+        ended, reset_key = self.advance(state, action)
+        fresh = self.reset(reset_key)
+        done = ended.done > 0
+
+        def pick(new, old):
+            return jnp.where(done, new, old)
+
+        return ended.replace(
+            physics=jax.tree.map(pick, fresh.physics, ended.physics),
+            obs=jax.tree.map(pick, fresh.obs, ended.obs),
+            steps=jnp.where(done, 0, ended.steps),
+            info=jax.tree.map(pick, fresh.info, ended.info),
+        )
+
+    def advance(self, state: State, action: jax.Array) -> tuple[State, jax.Array]:
+        """One step without auto-reset: return the state at the step's end and the key to reset with."""
+        action = self.check_action(action)
+        key, step_key, reset_key = jax.random.split(state.key, 3)
+        physics, obs, reward, terminated, info, metrics = self._step(state.physics, state.info, action, step_key)
+        steps = state.steps + 1
+        terminated = jnp.asarray(terminated, bool)
+        truncated = jnp.logical_and(steps >= self.max_episode_steps, jnp.logical_not(terminated))
+        ended = State(
+            physics=physics,
+            obs=obs,
+            reward=jnp.asarray(reward, jnp.float32),
+            done=jnp.logical_or(terminated, truncated).astype(jnp.float32),
+            truncated=truncated.astype(jnp.float32),
+            final_obs=obs,
+            steps=steps,
+            info=info,
+            metrics={k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()},
+            key=key,
+        )
+        return ended, reset_key
+
+    def check_action(self, action: jax.Array) -> jax.Array:
+        """Raise a ValueError naming the expected shape when `action` does not fit `action_spec`."""
+        action = jnp.asarray(action)
+        if action.shape != self.action_spec.shape:
+            raise ValueError(
+                f"{type(self).__name__}.step expects one action of shape {self.action_spec.shape}, got "
+                f"{action.shape}; for a batch of environments use jax.vmap(env.step)."
+            )
+        if self.action_spec.discrete:
+            return action.astype(jnp.int32)
+        return action.astype(jnp.float32)
+
+    def observation_shapes(self) -> Sensation:
+        """Shapes and dtypes of one observation, as a Sensation of `jax.ShapeDtypeStruct`, without simulating."""
+        return jax.eval_shape(self.reset, jax.random.key(0)).obs

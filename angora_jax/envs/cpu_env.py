@@ -1,0 +1,71 @@
+"""`CpuEnv`: the eager twin of `MjxEnv`, for evaluation, rendering and the gymnasium view.
+
+Physics runs in C MuJoCo (`mujoco.mj_step` on one `MjData`, float64); task logic is the very same
+`MujocoTask` functions as on the MJX path, jitted once for a single environment. PRNG keys are split exactly as
+in `Env.reset`/`Env.advance`, so the same key gives the same goals on both paths.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from angora_jax.envs.core import ActionSpec, Env, Sensation, State
+from angora_jax.envs.mujoco_task import MujocoTask, Snapshot
+
+
+class CpuEnv(Env):
+    """One environment of `task` on C MuJoCo. Stateful: `reset(key)` starts an episode and `step(state, action)`
+    must be passed the state it returned last. It never auto-resets: call `reset` when `state.done` is 1."""
+
+    def __init__(self, task: MujocoTask, frame_skip: int, max_episode_steps: int):
+        self.task = task
+        self.frame_skip = frame_skip
+        self.max_episode_steps = max_episode_steps
+        self.dt = float(task.model.opt.timestep) * frame_skip
+        self.metric_names = task.metric_names
+        nu = task.model.nu
+        self.action_spec = ActionSpec(low=-jnp.ones(nu, jnp.float32), high=jnp.ones(nu, jnp.float32))
+        self.model = task.model
+        self.data = mujoco.MjData(self.model)
+        self._initial_qpos = jax.jit(task.initial_qpos)
+        self._initial_control = jax.jit(task.initial_control)
+        self._begin = jax.jit(task.begin)
+        self._advance = jax.jit(task.advance)
+        self._control = jax.jit(task.control)
+        self._last: State | None = None
+
+    def _reset(self, key: jax.Array) -> tuple[Snapshot, Sensation, dict[str, jax.Array]]:
+        pose_key, task_key = jax.random.split(key)
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[:] = np.asarray(self._initial_qpos(pose_key), np.float64)
+        mujoco.mj_forward(self.model, self.data)
+        self.data.ctrl[:] = np.asarray(self._initial_control(Snapshot.of(self.data)), np.float64)
+        snap = Snapshot.of(self.data)
+        info, obs = self._begin(task_key, snap)
+        return snap, obs, info
+
+    def _step(self, physics: Snapshot, info: dict[str, jax.Array], action: jax.Array, key: jax.Array):
+        self.data.ctrl[:] = np.asarray(self._control(action, physics), np.float64)
+        mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+        snap = Snapshot.of(self.data)
+        obs, reward, terminated, info, metrics = self._advance(key, physics, snap, info)
+        return snap, obs, reward, terminated, info, metrics
+
+    def reset(self, key: jax.Array) -> State:
+        """Start an episode; `key` as for the MJX environment gives the same initial state and goal."""
+        self._last = super().reset(key)
+        return self._last
+
+    def step(self, state: State, action: jax.Array) -> State:
+        """Advance one policy step from `state` (the last state returned); no auto-reset."""
+        if self._last is None:
+            raise RuntimeError("CpuEnv.step called before reset: call env.reset(key) first.")
+        if state is not self._last:
+            raise ValueError("CpuEnv is stateful: pass the State returned by its last reset or step.")
+        if self._last.done > 0:
+            raise RuntimeError("The episode has ended (state.done == 1): call env.reset(key) first.")
+        self._last, _ = self.advance(state, action)
+        return self._last

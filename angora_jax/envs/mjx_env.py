@@ -1,0 +1,42 @@
+"""`MjxEnv`: a `MujocoTask` simulated with MuJoCo MJX, pure and batched (the training path)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from mujoco import mjx
+
+from angora_jax.envs.core import ActionSpec, Env, Sensation
+from angora_jax.envs.mujoco_task import MujocoTask, Snapshot
+
+
+class MjxEnv(Env):
+    """Run `task` in MJX: each policy step applies `task.control(action)` and advances `frame_skip` physics
+    steps of `task.model.opt.timestep` seconds. Actions are float32 in [-1, 1] (shape `(nu,)`)."""
+
+    def __init__(self, task: MujocoTask, frame_skip: int, max_episode_steps: int):
+        if frame_skip < 1 or max_episode_steps < 1:
+            raise ValueError(f"frame_skip and max_episode_steps must be >= 1, got {frame_skip}, {max_episode_steps}.")
+        self.task = task
+        self.frame_skip = frame_skip
+        self.max_episode_steps = max_episode_steps
+        self.dt = float(task.model.opt.timestep) * frame_skip
+        self.metric_names = task.metric_names
+        nu = task.model.nu
+        self.action_spec = ActionSpec(low=-jnp.ones(nu, jnp.float32), high=jnp.ones(nu, jnp.float32))
+        self.mjx_model = mjx.put_model(task.model)
+        self._data0 = mjx.make_data(self.mjx_model)
+
+    def _reset(self, key: jax.Array) -> tuple[mjx.Data, Sensation, dict[str, jax.Array]]:
+        pose_key, task_key = jax.random.split(key)
+        data = mjx.forward(self.mjx_model, self._data0.replace(qpos=self.task.initial_qpos(pose_key)))
+        data = data.replace(ctrl=self.task.initial_control(Snapshot.of(data)))
+        info, obs = self.task.begin(task_key, Snapshot.of(data))
+        return data, obs, info
+
+    def _step(self, physics: mjx.Data, info: dict[str, jax.Array], action: jax.Array, key: jax.Array):
+        prev = Snapshot.of(physics)
+        data = physics.replace(ctrl=self.task.control(action, prev))
+        data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(self.mjx_model, d), data)
+        obs, reward, terminated, info, metrics = self.task.advance(key, prev, Snapshot.of(data), info)
+        return data, obs, reward, terminated, info, metrics

@@ -1,0 +1,97 @@
+"""Task logic over a MuJoCo model, written once for both physics paths.
+
+A `MujocoTask` reads the simulation only through a `Snapshot`, a small pytree of arrays whose fields have the
+same names in `mjx.Data` (the batched GPU path) and `mujoco.MjData` (the eager CPU path). Its methods are pure
+JAX functions, so the MJX environment calls them inside its compiled step and the CPU twin calls the same
+functions, jitted for one environment, between calls to `mujoco.mj_step`.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+
+from angora_jax.envs.core import Sensation
+
+SNAPSHOT_FIELDS = ("time", "qpos", "qvel", "ctrl", "actuator_length", "actuator_force", "site_xpos", "xpos",
+                   "xquat", "sensordata")
+
+
+@struct.dataclass
+class Snapshot:
+    """What task logic may read of the simulation: `mjData` fields of the same name, as float32 arrays
+    (time in s, positions in m, site/body arrays indexed by MuJoCo ids)."""
+
+    time: jax.Array
+    qpos: jax.Array
+    qvel: jax.Array
+    ctrl: jax.Array
+    actuator_length: jax.Array
+    actuator_force: jax.Array
+    site_xpos: jax.Array
+    xpos: jax.Array
+    xquat: jax.Array
+    sensordata: jax.Array
+
+    @classmethod
+    def of(cls, data: Any) -> Snapshot:
+        """Take a snapshot of an `mjx.Data` or a `mujoco.MjData`."""
+        return cls(**{f: jnp.asarray(np.copy(v) if isinstance(v, np.ndarray) else v, jnp.float32)
+                      for f in SNAPSHOT_FIELDS for v in [getattr(data, f)]})
+
+
+class MujocoTask(abc.ABC):
+    """Goal, observation, reward and termination of a task on one MuJoCo model.
+
+    Subclasses hold only static configuration (ids resolved from the model, coefficients) and implement pure
+    functions of snapshots and the task's `info` dict. Attributes: `model` (the compiled `mujoco.MjModel`,
+    shared by both physics paths), `metric_names`.
+    """
+
+    model: mujoco.MjModel
+    metric_names: tuple[str, ...] = ()
+
+    @abc.abstractmethod
+    def initial_qpos(self, key: jax.Array) -> jax.Array:
+        """Joint positions at the start of an episode, shape `(nq,)`."""
+
+    @abc.abstractmethod
+    def initial_info(self, key: jax.Array, snap: Snapshot) -> dict[str, jax.Array]:
+        """Task state at the start of an episode (e.g. a sampled goal), given the initial snapshot."""
+
+    @abc.abstractmethod
+    def observe(self, snap: Snapshot, info: dict[str, jax.Array]) -> Sensation:
+        """The agent's observation of the current snapshot."""
+
+    @abc.abstractmethod
+    def evaluate(
+        self, key: jax.Array, prev: Snapshot, snap: Snapshot, info: dict[str, jax.Array]
+    ) -> tuple[jax.Array, jax.Array, dict[str, jax.Array], dict[str, jax.Array]]:
+        """Judge one policy step from `prev` to `snap`: return (reward, terminated, next info, metrics)."""
+
+    @abc.abstractmethod
+    def control(self, action: jax.Array, snap: Snapshot) -> jax.Array:
+        """Map a policy action to `ctrl` (shape `(nu,)`), given the snapshot the action was chosen in."""
+
+    def initial_control(self, snap: Snapshot) -> jax.Array:
+        """`ctrl` that holds the initial pose: position actuators target their current lengths."""
+        low, high = self.model.actuator_ctrlrange.T.astype(np.float32)
+        return jnp.clip(snap.actuator_length, low, high)
+
+    def begin(self, key: jax.Array, snap: Snapshot) -> tuple[dict[str, jax.Array], Sensation]:
+        """Start an episode from `snap`: return (info, observation)."""
+        info = self.initial_info(key, snap)
+        return info, self.observe(snap, info)
+
+    def advance(
+        self, key: jax.Array, prev: Snapshot, snap: Snapshot, info: dict[str, jax.Array]
+    ) -> tuple[Sensation, jax.Array, jax.Array, dict[str, jax.Array], dict[str, jax.Array]]:
+        """Everything after the physics of one step: return (observation, reward, terminated, info, metrics)."""
+        reward, terminated, info, metrics = self.evaluate(key, prev, snap, info)
+        return self.observe(snap, info), reward, terminated, info, metrics

@@ -1,0 +1,65 @@
+"""What all Shadow-hand tasks share: fingertips, proprioception and the mapping from actions to joint targets."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from angora_jax.envs.mujoco_task import MujocoTask, Snapshot
+from angora_jax.envs.shadow_hand.model import FINGERTIP_SITES, PALM_BODY
+
+# OpenAI Gym HandReach's initial pose (joint name -> rad): a relaxed, slightly flexed hand.
+REACH_INITIAL_QPOS = {
+    "robot0:WRJ1": -0.16514339750464327, "robot0:WRJ0": -0.31973286565062153,
+    "robot0:FFJ3": 0.14340512546557435, "robot0:FFJ2": 0.32028208333591573,
+    "robot0:FFJ1": 0.7126053607727917, "robot0:FFJ0": 0.6705281001412586,
+    "robot0:MFJ3": 0.000246444303701037, "robot0:MFJ2": 0.3152655251085491,
+    "robot0:MFJ1": 0.7659800313729842, "robot0:MFJ0": 0.7323156897425923,
+    "robot0:RFJ3": 0.00038520700007378114, "robot0:RFJ2": 0.36743546201985233,
+    "robot0:RFJ1": 0.7119514095008576, "robot0:RFJ0": 0.6699446327514138,
+    "robot0:LFJ4": 0.0525442258033891, "robot0:LFJ3": -0.13615534724474673,
+    "robot0:LFJ2": 0.39872030433433003, "robot0:LFJ1": 0.7415570009679252,
+    "robot0:LFJ0": 0.704096378652974, "robot0:THJ4": 0.003673823825070126,
+    "robot0:THJ3": 0.5506291436028695, "robot0:THJ2": -0.014515151997119306,
+    "robot0:THJ1": -0.0015229223564485414, "robot0:THJ0": -0.7894883021600622,
+}
+
+
+class HandTask(MujocoTask):
+    """Base of Shadow-hand tasks on one compiled model.
+
+    Actions are 20 values in [-1, 1], one per actuator. With `relative_control` (AngoraPy's default) an action
+    moves each joint target from the joint's current position by up to half its control range; otherwise it
+    maps [-1, 1] onto the control range (absolute joint targets).
+    """
+
+    def __init__(self, model: mujoco.MjModel, relative_control: bool = True,
+                 initial_qpos: dict[str, float] | None = None):
+        self.model = model
+        self.relative_control = relative_control
+        self.fingertip_ids = np.array([model.site(n).id for n in FINGERTIP_SITES])
+        self.palm_id = model.body(PALM_BODY).id
+        qpos = model.qpos0.astype(np.float32).copy()
+        for name, value in (initial_qpos or REACH_INITIAL_QPOS).items():
+            qpos[model.joint(name).qposadr[0]] = value
+        self._qpos0 = qpos
+        low, high = model.actuator_ctrlrange.T.astype(np.float32)
+        self._ctrl_low, self._ctrl_high = low, high
+        self._ctrl_half_range = (high - low) / 2
+
+    def initial_qpos(self, key: jax.Array) -> jax.Array:
+        return jnp.asarray(self._qpos0)
+
+    def control(self, action: jax.Array, snap: Snapshot) -> jax.Array:
+        center = snap.actuator_length if self.relative_control else (self._ctrl_low + self._ctrl_high) / 2
+        return jnp.clip(center + action * self._ctrl_half_range, self._ctrl_low, self._ctrl_high)
+
+    def fingertips(self, snap: Snapshot) -> jax.Array:
+        """Fingertip positions (m, world frame), shape `(5, 3)` in the order FF, MF, RF, LF, thumb."""
+        return snap.site_xpos[self.fingertip_ids]
+
+    def proprioception(self, snap: Snapshot) -> jax.Array:
+        """Joint positions (rad) and velocities (rad/s), shape `(2 * nq,)`."""
+        return jnp.concatenate([snap.qpos, snap.qvel])

@@ -1,0 +1,113 @@
+"""Finger reaching on the Shadow hand, after AngoraPy's `Reach` and `FreeReach` tasks.
+
+Both bring the thumb tip to a target finger's tip (first, middle, ring or little finger, drawn per episode).
+`reach` asks for all five fingertips at sampled positions (the non-target fingers where they started, thumb and
+target at a meeting point above the palm); `freereach` only asks thumb and target to meet and penalises other
+fingertips that enter a zone around the thumb. Rewards are a prototype function plus `ReachReward` coefficients,
+so ablations change a config, not code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+
+from angora_jax.envs.core import Sensation
+from angora_jax.envs.mujoco_task import Snapshot
+from angora_jax.envs.shadow_hand.hand import HandTask
+
+THUMB = 4
+NUM_TARGET_FINGERS = 4
+# Gym HandReach's meeting point relative to the palm (m), for the hand's pose in reach.xml; fingers point to -y.
+MEETING_OFFSET = (0.0, -0.09, 0.05)
+
+
+@dataclasses.dataclass(frozen=True)
+class ReachReward:
+    """Reward coefficients (AngoraPy's REACH_BASE). Distances in m.
+
+    success_distance: a reach succeeds when the goal distance is below this.
+    success_bonus: reward added on every step that is a success.
+    force_multiplier: weight of the squared actuator forces (wrist excluded), a metabolic cost.
+    auxiliary_zone_radius: freereach only; non-target fingertips closer than this to the thumb are penalised.
+    auxiliary_penalty_multiplier: freereach only; penalty per metre of intrusion into that zone.
+    stay_probability: reach only; share of episodes whose goal is to hold the initial pose.
+    """
+
+    success_distance: float = 0.02
+    success_bonus: float = 0.1
+    force_multiplier: float = 0.0
+    auxiliary_zone_radius: float = 0.06015
+    auxiliary_penalty_multiplier: float = 0.01
+    stay_probability: float = 0.1
+
+    @classmethod
+    def from_dict(cls, values: dict[str, float] | None) -> ReachReward:
+        """Coefficients from a dict; unknown keys raise a ValueError that lists the known ones."""
+        values = dict(values or {})
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"Unknown reward coefficients {unknown}; known: {sorted(known)}.")
+        return cls(**{k: float(v) for k, v in values.items()})
+
+
+class Reach(HandTask):
+    """Bring all fingertips to goal positions: thumb and target finger meet, the others stay.
+
+    Observation: proprioception (24 joint positions and 24 velocities), goal (15 goal coordinates in m and a
+    one-hot target finger over 5, all zero for a hold-still goal), asymmetric (15 fingertip coordinates in m).
+    """
+
+    metric_names = ("success", "goal_distance")
+
+    def __init__(self, model: mujoco.MjModel, reward: ReachReward = ReachReward(), free: bool = False,
+                 relative_control: bool = True):
+        super().__init__(model, relative_control=relative_control)
+        self.reward_config = reward
+        self.free = free
+
+    def initial_info(self, key: jax.Array, snap: Snapshot) -> dict[str, jax.Array]:
+        finger_key, meet_key, stay_key = jax.random.split(key, 3)
+        target = jax.random.randint(finger_key, (), 0, NUM_TARGET_FINGERS)
+        tips = self.fingertips(snap)
+        meeting = snap.xpos[self.palm_id] + jnp.asarray(MEETING_OFFSET) + 0.005 * jax.random.normal(meet_key, (3,))
+        goal = tips
+        for idx in (THUMB, target):
+            # Stop 5 mm short of the meeting point along the approach so the two goals do not coincide.
+            direction = meeting - tips[idx]
+            goal = goal.at[idx].set(meeting - 0.005 * direction / jnp.linalg.norm(direction))
+        stay = jnp.logical_and(jnp.logical_not(self.free),
+                               jax.random.uniform(stay_key) < self.reward_config.stay_probability)
+        return {"goal": jnp.where(stay, tips, goal), "target": target, "stay": stay.astype(jnp.float32)}
+
+    def goal_distance(self, snap: Snapshot, info: dict[str, jax.Array]) -> jax.Array:
+        """reach: distance (m) of all 15 fingertip coordinates to the goal; freereach: thumb to target tip."""
+        tips = self.fingertips(snap)
+        if self.free:
+            return jnp.linalg.norm(tips[THUMB] - tips[info["target"]])
+        return jnp.linalg.norm(tips - info["goal"])
+
+    def observe(self, snap: Snapshot, info: dict[str, jax.Array]) -> Sensation:
+        target = jax.nn.one_hot(info["target"], 5) * (1.0 - info["stay"])
+        goal = target if self.free else jnp.concatenate([info["goal"].reshape(-1), target])
+        return Sensation.make(proprioception=self.proprioception(snap), goal=goal,
+                              asymmetric=self.fingertips(snap).reshape(-1))
+
+    def evaluate(self, key, prev, snap, info):
+        c = self.reward_config
+        distance = self.goal_distance(snap, info)
+        success = (distance < c.success_distance).astype(jnp.float32)
+        force = jnp.sum(snap.actuator_force[2:] ** 2)
+        reward = -distance + c.success_bonus * success - c.force_multiplier * force
+        if self.free:
+            tips = self.fingertips(snap)
+            to_thumb = jnp.linalg.norm(tips[:THUMB] - tips[THUMB], axis=-1)
+            others = jnp.arange(THUMB) != info["target"]
+            intrusion = jnp.maximum(c.auxiliary_zone_radius - to_thumb, 0.0) * others
+            reward = reward - c.auxiliary_penalty_multiplier * jnp.sum(intrusion)
+        metrics = {"success": success, "goal_distance": distance}
+        return reward, jnp.zeros((), bool), info, metrics
