@@ -1,0 +1,150 @@
+"""Built-in networks. Each follows the network contract (see `angora_jax.nets`): one time step for a batch,
+`__call__(carry, obs) -> (carry, policy_features, value)`, plus `initial_carry(batch_size)`.
+
+Policy inputs are the modalities proprioception, touch, vision and goal; `asymmetric` reaches only the value
+function. Empty modalities (size 0) are skipped, so no model assumes any particular one is present.
+"""
+
+from __future__ import annotations
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from angora_jax.envs.core import Sensation
+
+POLICY_MODALITIES = ("proprioception", "touch", "vision", "goal")
+
+_HIDDEN_INIT = nn.initializers.orthogonal(np.sqrt(2.0))
+_VALUE_INIT = nn.initializers.orthogonal(1.0)
+
+
+def policy_inputs(obs: Sensation) -> jax.Array:
+    """The modalities the policy may read, concatenated: `(B, sum of sizes)`."""
+    return jnp.concatenate([getattr(obs, name) for name in POLICY_MODALITIES], axis=-1)
+
+
+def value_inputs(obs: Sensation) -> jax.Array:
+    """Policy modalities plus `asymmetric`, concatenated: `(B, sum of sizes)`."""
+    return jnp.concatenate([policy_inputs(obs), obs.asymmetric], axis=-1)
+
+
+class MLP(nn.Module):
+    """Dense layers with tanh, orthogonal init (gain sqrt 2)."""
+
+    sizes: tuple[int, ...]
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for size in self.sizes:
+            x = jnp.tanh(nn.Dense(size, kernel_init=_HIDDEN_INIT)(x))
+        return x
+
+
+def _value_head(features: jax.Array, name: str = "value") -> jax.Array:
+    return nn.Dense(1, kernel_init=_VALUE_INIT, name=name)(features)[..., 0]
+
+
+class FeedForward(nn.Module):
+    """MLP policy and value; the carry is an empty `(B, 0)` array so it shares the recurrent training path.
+
+    shared: one trunk over the policy modalities; the value head reads its features and `asymmetric`. Otherwise a
+    separate value trunk reads all modalities including `asymmetric`.
+    """
+
+    sizes: tuple[int, ...] = (64, 64)
+    shared: bool = False
+
+    def initial_carry(self, batch_size: int) -> jax.Array:
+        return jnp.zeros((batch_size, 0), jnp.float32)
+
+    @nn.compact
+    def __call__(self, carry: jax.Array, obs: Sensation) -> tuple[jax.Array, jax.Array, jax.Array]:
+        features = MLP(self.sizes, name="policy_trunk")(policy_inputs(obs))
+        if self.shared:
+            value = _value_head(jnp.concatenate([features, obs.asymmetric], axis=-1))
+        else:
+            value = _value_head(MLP(self.sizes, name="value_trunk")(value_inputs(obs)))
+        return carry, features, value
+
+
+class ModalityEncoder(nn.Module):
+    """Embeds each non-empty modality with its own dense layer and concatenates the embeddings, so modalities
+    enter separately (a subclass can route them to different sub-networks)."""
+
+    width: int
+    modalities: tuple[str, ...] = POLICY_MODALITIES
+
+    @nn.compact
+    def __call__(self, obs: Sensation) -> jax.Array:
+        parts = [
+            jnp.tanh(nn.Dense(self.width, kernel_init=_HIDDEN_INIT, name=f"embed_{name}")(getattr(obs, name)))
+            for name in self.modalities
+            if getattr(obs, name).shape[-1] > 0
+        ]
+        return jnp.concatenate(parts, axis=-1)
+
+
+class ConcatEncoder(nn.Module):
+    """Concatenates the modalities, then one dense embedding (OpenAI-style)."""
+
+    width: int
+    modalities: tuple[str, ...] = POLICY_MODALITIES
+
+    @nn.compact
+    def __call__(self, obs: Sensation) -> jax.Array:
+        x = jnp.concatenate([getattr(obs, name) for name in self.modalities], axis=-1)
+        return jnp.tanh(nn.Dense(self.width, kernel_init=_HIDDEN_INIT)(x))
+
+
+def _cell(kind: str, size: int, name: str) -> nn.RNNCellBase:
+    if kind == "lstm":
+        return nn.OptimizedLSTMCell(size, name=name)
+    if kind == "gru":
+        return nn.GRUCell(size, name=name)
+    raise ValueError(f"Unknown recurrent cell {kind!r}; use 'lstm' or 'gru'.")
+
+
+class Recurrent(nn.Module):
+    """Encoder, then an LSTM or GRU, then the heads.
+
+    cell: "lstm" or "gru". encoder: "modality" (one embedding per modality) or "concat" (one embedding of all).
+    shared: the value head reads the policy's recurrent features and `asymmetric`; otherwise a second encoder +
+    cell reads all modalities including `asymmetric` and the carry holds both cells' states.
+    """
+
+    width: int = 64
+    cell_size: int = 64
+    cell: str = "lstm"
+    encoder: str = "modality"
+    shared: bool = False
+
+    def _single_carry(self, batch_size: int):
+        zeros = jnp.zeros((batch_size, self.cell_size), jnp.float32)
+        return (zeros, zeros) if self.cell == "lstm" else zeros
+
+    def initial_carry(self, batch_size: int):
+        if self.shared:
+            return {"policy": self._single_carry(batch_size)}
+        return {"policy": self._single_carry(batch_size), "value": self._single_carry(batch_size)}
+
+    def _encode(self, obs: Sensation, modalities: tuple[str, ...], name: str) -> jax.Array:
+        encoder = ModalityEncoder if self.encoder == "modality" else ConcatEncoder
+        return encoder(self.width, modalities, name=name)(obs)
+
+    @nn.compact
+    def __call__(self, carry, obs: Sensation):
+        policy_carry, features = _cell(self.cell, self.cell_size, "policy_cell")(
+            carry["policy"], self._encode(obs, POLICY_MODALITIES, "policy_encoder")
+        )
+        new_carry = {"policy": policy_carry}
+        if self.shared:
+            value = _value_head(jnp.concatenate([features, obs.asymmetric], axis=-1))
+        else:
+            all_modalities = POLICY_MODALITIES + ("asymmetric",)
+            new_carry["value"], value_features = _cell(self.cell, self.cell_size, "value_cell")(
+                carry["value"], self._encode(obs, all_modalities, "value_encoder")
+            )
+            value = _value_head(value_features)
+        return new_carry, features, value

@@ -1,0 +1,57 @@
+"""Network registry: `make_network(NetworkConfig)` builds a registered model; `register_network` adds one."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import flax.linen as nn
+
+from angora_jax.nets.models import FeedForward, Recurrent
+
+if TYPE_CHECKING:  # nets must not import ppo at runtime: ppo imports nets
+    from angora_jax.ppo.config import NetworkConfig
+
+_BUILDERS: dict[str, Callable[[NetworkConfig], nn.Module]] = {}
+
+
+def register_network(name: str, builder: Callable[[NetworkConfig], nn.Module]) -> None:
+    """Make `builder(network_config) -> module` (a module following the network contract) available by name."""
+    if name in _BUILDERS:
+        raise ValueError(f"Network {name!r} is already registered.")
+    _BUILDERS[name] = builder
+
+
+def list_networks() -> list[str]:
+    """Names of all registered networks, sorted."""
+    return sorted(_BUILDERS)
+
+
+def make_network(config: NetworkConfig) -> nn.Module:
+    """Build the network `config.name` with the sizes in `config`."""
+    try:
+        builder = _BUILDERS[config.name]
+    except KeyError:
+        raise ValueError(f"Unknown network {config.name!r}. Known networks: {', '.join(list_networks())}.") from None
+    return builder(config)
+
+
+def _recurrent(cell: str, encoder: str, width: int, cell_size: int) -> Callable[[NetworkConfig], nn.Module]:
+    def build(config: NetworkConfig) -> nn.Module:
+        return Recurrent(
+            width=config.width or width,
+            cell_size=config.cell_size or cell_size,
+            cell=cell,
+            encoder=encoder,
+            shared=config.shared_trunk,
+        )
+
+    return build
+
+
+register_network("simple", lambda c: FeedForward(sizes=(c.width or 64,) * 2, shared=c.shared_trunk))
+register_network("deeper", lambda c: FeedForward(sizes=(c.width or 64,) * 4, shared=c.shared_trunk))
+register_network("lstm", _recurrent("lstm", "modality", width=64, cell_size=64))
+register_network("gru", _recurrent("gru", "modality", width=64, cell_size=64))
+# OpenAI's in-hand manipulation policy: modalities concatenated, a dense embedding, then a wide LSTM.
+register_network("wide", _recurrent("lstm", "concat", width=512, cell_size=1024))

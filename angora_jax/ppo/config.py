@@ -1,0 +1,160 @@
+"""`PPOConfig`: every setting of a training run as a frozen tree of plain dataclasses holding primitives.
+
+The defaults follow AngoraPy (Weidler et al. 2023) and "Implementation matters" (Engstrom et al. 2020), scaled so
+that a run fits a workstation. `validate()` checks the config alone; `validate_for(env)` also checks it against a
+task (head vs action space, batch shapes).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from angora_jax.envs.core import Env
+from angora_jax.ppo.distributions import list_heads
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Which registered network to build and its sizes; `None` sizes mean the model's own default.
+
+    name: a name from `angora_jax.nets.list_networks()` ("simple", "deeper", "lstm", "gru", "wide").
+    width: units of the dense layers (embedding width for recurrent models).
+    cell_size: units of the recurrent cell (ignored by feed-forward models).
+    shared_trunk: one trunk for policy and value (the value head also reads `asymmetric`) instead of two.
+    """
+
+    name: str = "simple"
+    width: int | None = None
+    cell_size: int | None = None
+    shared_trunk: bool = False
+
+
+@dataclass(frozen=True)
+class NormalizationConfig:
+    """Running normalisation of observations (per modality) and of rewards (by the discounted return's std)."""
+
+    observations: bool = True
+    rewards: bool = True
+    clip: float = 10.0
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """One PPO run. A cycle collects `num_envs * rollout_length` transitions, then runs `num_epochs` passes of
+    minibatch updates over them.
+
+    rollout_length: policy steps per environment per cycle (T).
+    chunk_length: truncated-BPTT chunk length s; the rollout stores the recurrent carry every s steps. Must divide
+        `rollout_length`; equal to it means full BPTT.
+    minibatch_size: transitions per minibatch, a multiple of `chunk_length`; a minibatch is a tile of n
+        trajectories x m chunks with n * m * chunk_length = minibatch_size.
+    head: "categorical" (discrete), "multicategorical" (continuous, `bins` per dimension), "gaussian", "beta", or
+        "auto" (categorical for discrete tasks, gaussian for continuous ones), or a head added with `register_head`.
+    value_clip: clip the value update to +-`clip_epsilon` around the rollout's values.
+    lr_decay: decay the learning rate linearly to 0 over `num_cycles`.
+    """
+
+    task: str = "CartPole"
+    seed: int = 0
+    num_cycles: int = 100
+    num_envs: int = 16
+    rollout_length: int = 128
+    chunk_length: int = 16
+    num_epochs: int = 3
+    minibatch_size: int = 512
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_epsilon: float = 0.2
+    value_clip: bool = True
+    value_coef: float = 1.0
+    entropy_coef: float = 0.01
+    learning_rate: float = 1e-3
+    lr_decay: bool = False
+    max_grad_norm: float = 0.5
+    normalize_advantages: bool = True
+    head: str = "auto"
+    bins: int = 11
+    init_log_std: float = 0.0
+    network: NetworkConfig = field(default_factory=NetworkConfig)
+    normalization: NormalizationConfig = field(default_factory=NormalizationConfig)
+
+    def replace(self, **changes) -> PPOConfig:
+        """A copy with `changes` applied (frozen dataclasses cannot be edited in place)."""
+        return dataclasses.replace(self, **changes)
+
+    def validate(self) -> PPOConfig:
+        """Raise a ValueError naming the field when a setting is out of range or inconsistent; return self."""
+        positive = ("num_cycles", "num_envs", "rollout_length", "chunk_length", "num_epochs", "minibatch_size")
+        for name in positive:
+            if getattr(self, name) < 1:
+                raise ValueError(f"PPOConfig.{name} must be >= 1, got {getattr(self, name)}.")
+        for name in ("gamma", "gae_lambda"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"PPOConfig.{name} must lie in [0, 1], got {getattr(self, name)}.")
+        for name in ("clip_epsilon", "learning_rate", "max_grad_norm"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"PPOConfig.{name} must be > 0, got {getattr(self, name)}.")
+        for name in ("value_coef", "entropy_coef"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"PPOConfig.{name} must be >= 0, got {getattr(self, name)}.")
+        if self.head != "auto" and self.head not in list_heads():
+            raise ValueError(f"PPOConfig.head must be 'auto' or one of {list_heads()}, got {self.head!r}.")
+        if self.bins < 2:
+            raise ValueError(f"PPOConfig.bins must be >= 2, got {self.bins}.")
+        if self.rollout_length % self.chunk_length:
+            raise ValueError(
+                f"PPOConfig.chunk_length ({self.chunk_length}) must divide rollout_length ({self.rollout_length})."
+            )
+        batch = self.num_envs * self.rollout_length
+        if self.minibatch_size % self.chunk_length or batch % self.minibatch_size:
+            raise ValueError(
+                f"PPOConfig.minibatch_size ({self.minibatch_size}) must be a multiple of chunk_length "
+                f"({self.chunk_length}) and divide num_envs * rollout_length ({batch})."
+            )
+        if tile_shape(self) is None:
+            raise ValueError(
+                f"PPOConfig.minibatch_size ({self.minibatch_size}) admits no tile of n trajectories x m chunks with n "
+                f"dividing num_envs ({self.num_envs}) and m dividing the {self.rollout_length // self.chunk_length} "
+                "chunks per trajectory; pick a minibatch_size of (divisor of num_envs) * (divisor of chunks) * "
+                "chunk_length."
+            )
+        if self.normalization.clip <= 0:
+            raise ValueError(f"PPOConfig.normalization.clip must be > 0, got {self.normalization.clip}.")
+        return self
+
+    def validate_for(self, env: Env) -> PPOConfig:
+        """`validate()`, then check the head against the task's action space; return self."""
+        self.validate()
+        head = self.head_for(env)
+        if env.action_spec.discrete and head in ("multicategorical", "gaussian", "beta"):
+            raise ValueError(
+                f"PPOConfig.head={head!r} needs continuous actions, but {type(env).__name__} has "
+                f"{env.action_spec.num_actions} discrete actions; use head='categorical' or 'auto'."
+            )
+        if not env.action_spec.discrete and head == "categorical":
+            raise ValueError(
+                f"PPOConfig.head='categorical' needs discrete actions, but {type(env).__name__} has continuous "
+                "actions; use 'gaussian', 'beta', 'multicategorical' or 'auto'."
+            )
+        return self
+
+    def head_for(self, env: Env) -> str:
+        """The head name after resolving "auto" for `env`."""
+        if self.head != "auto":
+            return self.head
+        return "categorical" if env.action_spec.discrete else "gaussian"
+
+
+def tile_shape(config: PPOConfig) -> tuple[int, int] | None:
+    """The minibatch tile (n trajectories, m chunks) with the most trajectories, or None when none fits.
+
+    The rollout holds `num_envs` trajectories of `rollout_length // chunk_length` chunks each; a tile needs n to
+    divide num_envs, m to divide the chunk count and n * m * chunk_length == minibatch_size.
+    """
+    chunks = config.rollout_length // config.chunk_length
+    per_minibatch = config.minibatch_size // config.chunk_length
+    for n in range(min(config.num_envs, per_minibatch), 0, -1):
+        if config.num_envs % n == 0 and per_minibatch % n == 0 and chunks % (per_minibatch // n) == 0:
+            return n, per_minibatch // n
+    return None

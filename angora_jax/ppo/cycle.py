@@ -1,0 +1,230 @@
+"""One PPO training cycle as one compiled program: rollout, GAE, then epochs of truncated-BPTT minibatch updates.
+
+`init, cycle = make_cycle(env, network, config)`; `state = init(key)`; `state, metrics = cycle(state)`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from angora_jax.envs.core import Env, Sensation
+from angora_jax.nets import ActorCritic, make_network
+from angora_jax.ppo.config import PPOConfig, tile_shape
+from angora_jax.ppo.distributions import PolicyHead, make_head
+from angora_jax.ppo.gae import gae, next_values
+from angora_jax.ppo.losses import LossInputs, ppo_loss
+from angora_jax.ppo.normalization import RunningMeanStd, discounted_returns, observation_stats
+from angora_jax.ppo.rollout import ActorState, make_rollout
+from angora_jax.ppo.tbptt import gather_carries, gather_sequences, minibatch_indices, unroll
+
+
+@struct.dataclass
+class TrainState:
+    """Everything a run carries from cycle to cycle; arrays only, so it can be checkpointed and resumed.
+
+    params: network parameters. opt_state: optimizer state. obs_stats: a Sensation of `RunningMeanStd`, one per
+    modality. reward_stats: running stats of the discounted return; discounted_return `(N,)` its per-env value.
+    actor: environment states, recurrent carries and episode accumulators of the N environments. key: PRNG key.
+    cycle: int32 count of finished cycles.
+    """
+
+    params: Any
+    opt_state: Any
+    obs_stats: Sensation
+    reward_stats: RunningMeanStd
+    discounted_return: jax.Array
+    actor: ActorState
+    key: jax.Array
+    cycle: jax.Array
+
+
+@struct.dataclass
+class Batch:
+    """Training data of one cycle, leaves `(C, s, N, ...)`: the inputs to replay plus the loss inputs."""
+
+    obs: Sensation
+    resets: jax.Array
+    loss: LossInputs
+
+
+def average_gradients(grads: Any) -> Any:
+    """The one place where gradients are combined across devices; a single device needs no averaging.
+
+    Multi-device training replaces this with `jax.lax.pmean(grads, axis_name)`.
+    """
+    return grads
+
+
+def build_head(env: Env, config: PPOConfig) -> PolicyHead:
+    """The policy head named by `config.head` for `env`'s action space, with the config's head options."""
+    name = config.head_for(env)
+    options = {"multicategorical": {"bins": config.bins}, "gaussian": {"init_log_std": config.init_log_std}}
+    return make_head(name, env.action_spec, **options.get(name, {}))
+
+
+def make_cycle(
+    env: Env, network: nn.Module | None, config: PPOConfig
+) -> tuple[Callable[[jax.Array], TrainState], Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]]:
+    """Build the jitted `init(key) -> TrainState` and `cycle(state) -> (state, metrics)`.
+
+    network: a module following the network contract (see `angora_jax.nets`), or None to build
+    `config.network` from the registry. Each cycle consumes `num_envs * rollout_length` environment steps.
+    Metrics are float32 scalars: episodes (finished in this cycle), episode_return and episode_length (means over
+    them, NaN if none finished), `metric/<name>` task metrics at episode ends, the loss parts averaged over all
+    minibatches, explained_variance, learning_rate and finite (1 if the losses and parameters are finite).
+    """
+    config.validate_for(env)
+    network = make_network(config.network) if network is None else network
+    head = build_head(env, config)
+    model = ActorCritic(network, head)
+    num_envs, chunk_length = config.num_envs, config.chunk_length
+    num_chunks = config.rollout_length // chunk_length
+    tile = tile_shape(config)
+    minibatch_rows = tile[0] * tile[1]
+    updates_per_cycle = config.num_epochs * (config.num_envs * config.rollout_length // config.minibatch_size)
+    if config.lr_decay:
+        schedule = optax.linear_schedule(config.learning_rate, 0.0, config.num_cycles * updates_per_cycle)
+    else:
+        schedule = optax.constant_schedule(config.learning_rate)
+    optimizer = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(schedule, eps=1e-5))
+    norm = config.normalization
+
+    def apply_fn(params, carry, obs):
+        return model.apply({"params": params}, carry, obs)
+
+    rollout = make_rollout(
+        env,
+        apply_fn,
+        head,
+        network.initial_carry(num_envs),
+        num_chunks,
+        chunk_length,
+        norm.observations,
+        norm.clip,
+    )
+
+    def init(key: jax.Array) -> TrainState:
+        env_key, param_key, key = jax.random.split(key, 3)
+        env_state = jax.vmap(env.reset)(jax.random.split(env_key, num_envs))
+        carry = network.initial_carry(num_envs)
+        params = model.init(param_key, carry, env_state.obs)["params"]
+        zeros = jnp.zeros((num_envs,), jnp.float32)
+        return TrainState(
+            params=params,
+            opt_state=optimizer.init(params),
+            obs_stats=observation_stats(env.observation_shapes()),
+            reward_stats=RunningMeanStd.create(),
+            discounted_return=zeros,
+            actor=ActorState(env_state, carry, zeros, zeros),
+            key=key,
+            cycle=jnp.zeros((), jnp.int32),
+        )
+
+    def loss_fn(params, sequences: Batch, start_carry):
+        _, policy_params, values = unroll(
+            lambda carry, obs: apply_fn(params, carry, obs),
+            jax.lax.stop_gradient(start_carry),  # truncated BPTT: no gradient across chunk borders
+            network.initial_carry(minibatch_rows),
+            sequences.obs,
+            sequences.resets,
+        )
+        return ppo_loss(
+            head,
+            policy_params,
+            values,
+            sequences.loss,
+            config.clip_epsilon,
+            config.value_coef,
+            config.entropy_coef,
+            config.value_clip,
+            config.normalize_advantages,
+        )
+
+    def update_minibatch(batch: Batch, start_carries, train, index):
+        params, opt_state = train
+        env_index, chunk_index = index
+        sequences = gather_sequences(batch, chunk_index, env_index)
+        start_carry = gather_carries(start_carries, chunk_index, env_index)
+        grads, parts = jax.grad(loss_fn, has_aux=True)(params, sequences, start_carry)
+        grads = average_gradients(grads)
+        parts["grad_norm"] = optax.global_norm(grads)
+        updates, opt_state = optimizer.update(grads, opt_state, params)
+        return (optax.apply_updates(params, updates), opt_state), parts
+
+    def update_epoch(batch: Batch, start_carries, train, key):
+        indices = minibatch_indices(key, num_envs, num_chunks, tile)
+        return jax.lax.scan(lambda t, i: update_minibatch(batch, start_carries, t, i), train, indices)
+
+    def cycle(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
+        key, rollout_key, update_key = jax.random.split(state.key, 3)
+        actor, obs_stats, traj, start_carries, last_value = rollout(
+            state.params, state.obs_stats, state.actor, rollout_key
+        )
+
+        def flat(x):  # (C, s, N, ...) -> (T, N, ...)
+            return x.reshape((config.rollout_length,) + x.shape[2:])
+
+        def chunked(x):  # (T, N, ...) -> (C, s, N, ...)
+            return x.reshape((num_chunks, chunk_length) + x.shape[1:])
+
+        rewards, dones, values = flat(traj.rewards), flat(traj.dones), flat(traj.values)
+        reward_stats, discounted = state.reward_stats, state.discounted_return
+        if norm.rewards:
+            seen, discounted = discounted_returns(discounted, rewards, dones, config.gamma)
+            reward_stats = reward_stats.update(seen)
+            rewards = reward_stats.scale(rewards, norm.clip)
+        following = next_values(values, last_value, flat(traj.final_values), dones, flat(traj.truncated))
+        advantages, targets = gae(rewards, values, following, dones, config.gamma, config.gae_lambda)
+        batch = Batch(
+            obs=traj.obs,
+            resets=traj.resets,
+            loss=LossInputs(traj.actions, traj.log_probs, traj.values, chunked(advantages), chunked(targets)),
+        )
+        (params, opt_state), parts = jax.lax.scan(
+            lambda t, k: update_epoch(batch, start_carries, t, k),
+            (state.params, state.opt_state),
+            jax.random.split(update_key, config.num_epochs),
+        )
+        metrics = {name: value.mean() for name, value in parts.items()}
+        metrics |= episode_metrics(traj.dones, traj.episode_return, traj.episode_length, traj.metrics)
+        metrics["explained_variance"] = 1.0 - jnp.var(targets - values) / (jnp.var(targets) + 1e-8)
+        metrics["learning_rate"] = jnp.asarray(schedule(state.cycle * updates_per_cycle), jnp.float32)
+        params_finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(p)) for p in jax.tree.leaves(params)]))
+        metrics["finite"] = (jnp.all(jnp.isfinite(parts["loss"])) & params_finite).astype(jnp.float32)
+        new_state = TrainState(
+            params=params,
+            opt_state=opt_state,
+            obs_stats=obs_stats,
+            reward_stats=reward_stats,
+            discounted_return=discounted,
+            actor=actor,
+            key=key,
+            cycle=state.cycle + 1,
+        )
+        return new_state, metrics
+
+    return jax.jit(init), jax.jit(cycle)
+
+
+def episode_metrics(
+    dones: jax.Array, returns: jax.Array, lengths: jax.Array, task_metrics: dict[str, jax.Array]
+) -> dict[str, jax.Array]:
+    """Means over the episodes that ended in a rollout (NaN when none did); inputs are per-step arrays that are 0
+    except where an episode ended, `task_metrics` holds the task's metrics at every step."""
+    episodes = dones.sum()
+    denominator = jnp.where(episodes > 0, episodes, jnp.nan)
+    metrics = {
+        "episodes": episodes,
+        "episode_return": returns.sum() / denominator,
+        "episode_length": lengths.sum() / denominator,
+    }
+    for name, value in task_metrics.items():
+        metrics[f"metric/{name}"] = (value * dones).sum() / denominator
+    return metrics

@@ -1,0 +1,91 @@
+"""Running normalisation as pure functional state: observations per modality, rewards by the return's scale.
+
+`RunningMeanStd` merges batches with the parallel (Chan et al.) form of Welford's algorithm, so one update per
+batch gives the same result as feeding the samples one at a time.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from angora_jax.envs.core import Sensation
+
+_EPS = 1e-8
+
+
+@struct.dataclass
+class RunningMeanStd:
+    """Mean and (population) variance of everything seen so far, per feature; `count` is a float32 scalar."""
+
+    mean: jax.Array
+    var: jax.Array
+    count: jax.Array
+
+    @classmethod
+    def create(cls, shape: tuple[int, ...] = ()) -> RunningMeanStd:
+        """Start with mean 0, variance 1 and a tiny count, so the first batch dominates at once."""
+        return cls(jnp.zeros(shape, jnp.float32), jnp.ones(shape, jnp.float32), jnp.asarray(1e-4, jnp.float32))
+
+    def update(self, batch: jax.Array) -> RunningMeanStd:
+        """Merge `batch` of shape `(..., *mean.shape)`; all leading axes are samples."""
+        samples = math.prod(batch.shape[: batch.ndim - self.mean.ndim])
+        x = batch.reshape((samples,) + self.mean.shape).astype(jnp.float32)
+        n = jnp.asarray(samples, jnp.float32)
+        batch_mean, batch_var = x.mean(0), x.var(0)
+        total = self.count + n
+        delta = batch_mean - self.mean
+        mean = self.mean + delta * n / total
+        m2 = self.var * self.count + batch_var * n + delta**2 * self.count * n / total
+        return RunningMeanStd(mean, m2 / total, total)
+
+    def normalize(self, x: jax.Array, clip: float) -> jax.Array:
+        """`(x - mean) / std`, clipped to +-clip."""
+        return jnp.clip((x - self.mean) / jnp.sqrt(self.var + _EPS), -clip, clip)
+
+    def scale(self, x: jax.Array, clip: float) -> jax.Array:
+        """`x / std` (no centring, as for rewards), clipped to +-clip."""
+        return jnp.clip(x / jnp.sqrt(self.var + _EPS), -clip, clip)
+
+
+def observation_stats(obs: Sensation) -> Sensation:
+    """One `RunningMeanStd` per modality, shaped like a single observation `obs` (no batch axis).
+
+    `obs` may hold arrays or `jax.ShapeDtypeStruct`s (e.g. `env.observation_shapes()`).
+    """
+    return jax.tree.map(lambda leaf: RunningMeanStd.create(leaf.shape[-1:]), obs)
+
+
+def update_observation_stats(stats: Sensation, obs: Sensation) -> Sensation:
+    """Merge a batch of observations (leaves `(..., size)`) into the per-modality stats."""
+    return jax.tree.map(lambda s, x: s.update(x), stats, obs, is_leaf=_is_stats)
+
+
+def normalize_observation(stats: Sensation, obs: Sensation, clip: float) -> Sensation:
+    """Normalise every modality of `obs` (leaves `(..., size)`) by its running stats."""
+    return jax.tree.map(lambda s, x: s.normalize(x, clip), stats, obs, is_leaf=_is_stats)
+
+
+def discounted_returns(
+    returns: jax.Array, rewards: jax.Array, dones: jax.Array, gamma: float
+) -> tuple[jax.Array, jax.Array]:
+    """Per-env running discounted return, whose std sets the reward scale.
+
+    returns: `(N,)` carried over from the previous cycle; rewards, dones: `(T, N)`. Returns the return after each
+    step's reward `(T, N)` and the `(N,)` value to carry on (reset to 0 where the last step ended an episode).
+    """
+
+    def step(ret, x):
+        reward, done = x
+        ret = ret * gamma + reward
+        return ret * (1.0 - done), ret
+
+    carried, seen = jax.lax.scan(step, returns, (rewards, dones))
+    return seen, carried
+
+
+def _is_stats(node) -> bool:
+    return isinstance(node, RunningMeanStd)

@@ -1,0 +1,83 @@
+"""Truncated BPTT: unrolling a network over a chunk from a stored carry, and tiling chunks into minibatches.
+
+The rollout is kept as chunks: arrays of shape `(C, s, N, ...)` (C chunks of s steps for N environments) and the
+carry at each chunk's start `(C, N, ...)`. A minibatch is a tile of n trajectories x m chunks, flattened to a
+batch of B = m * n sequences of s steps.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+
+def reset_carry(carry: Any, initial: Any, reset: jax.Array) -> Any:
+    """Replace the carry by `initial` in the rows where `reset` `(B,)` is nonzero (an episode starts there)."""
+
+    def pick(init, current):
+        mask = reset.reshape(reset.shape + (1,) * (current.ndim - 1)) > 0
+        return jnp.where(mask, init, current)
+
+    return jax.tree.map(pick, initial, carry)
+
+
+def unroll(
+    step: Callable[[Any, Any], tuple[Any, jax.Array, jax.Array]],
+    carry: Any,
+    initial: Any,
+    obs: Any,
+    resets: jax.Array,
+) -> tuple[Any, jax.Array, jax.Array]:
+    """Run `step(carry, obs_t) -> (carry, policy_params, value)` over a sequence, resetting the carry first
+    wherever `resets[t]` is set.
+
+    carry, initial: pytrees with leading axis B; obs: pytree with leaves `(s, B, ...)`; resets: `(s, B)`.
+    Returns the final carry, policy parameters `(s, B, P)` and values `(s, B)`.
+    """
+
+    def body(carry, x):
+        obs_t, reset_t = x
+        carry, params, value = step(reset_carry(carry, initial, reset_t), obs_t)
+        return carry, (params, value)
+
+    carry, (params, values) = jax.lax.scan(body, carry, (obs, resets))
+    return carry, params, values
+
+
+def minibatch_indices(key: jax.Array, num_envs: int, num_chunks: int, tile: tuple[int, int]) -> tuple[jax.Array, ...]:
+    """A random partition of the (trajectory, chunk) grid into tiles for one epoch.
+
+    Trajectories and chunk positions are shuffled separately, then cut into groups of n and m. Returns
+    `env_index (K, n)` and `chunk_index (K, m)` int32 arrays, one row per minibatch, K = (N / n) * (C / m).
+    """
+    n, m = tile
+    env_key, chunk_key = jax.random.split(key)
+    envs = jax.random.permutation(env_key, num_envs).reshape(-1, n)
+    chunks = jax.random.permutation(chunk_key, num_chunks).reshape(-1, m)
+    env_rows, chunk_rows = jnp.meshgrid(jnp.arange(envs.shape[0]), jnp.arange(chunks.shape[0]), indexing="ij")
+    return envs[env_rows.ravel()], chunks[chunk_rows.ravel()]
+
+
+def gather_sequences(data: Any, chunk_index: jax.Array, env_index: jax.Array) -> Any:
+    """Select a tile from chunked data with leaves `(C, s, N, ...)`; returns leaves `(s, m * n, ...)`."""
+
+    def take(x):
+        tile = x[chunk_index][:, :, env_index]
+        tile = jnp.swapaxes(tile, 0, 1)
+        return tile.reshape((tile.shape[0], tile.shape[1] * tile.shape[2]) + tile.shape[3:])
+
+    return jax.tree.map(take, data)
+
+
+def gather_carries(carries: Any, chunk_index: jax.Array, env_index: jax.Array) -> Any:
+    """Select the start carries of a tile from leaves `(C, N, ...)`; returns leaves `(m * n, ...)`, ordered like
+    `gather_sequences`."""
+
+    def take(x):
+        tile = x[chunk_index][:, env_index]
+        return tile.reshape((tile.shape[0] * tile.shape[1],) + tile.shape[2:])
+
+    return jax.tree.map(take, carries)
