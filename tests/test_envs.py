@@ -1,0 +1,167 @@
+"""The environment contract on the Shadow-hand reach task: shapes, auto-reset, rewards, errors, MJX/CPU parity.
+
+One environment (max 50 policy steps per episode) is compiled once, batched, for the whole module: MJX compiles of
+the hand take tens of seconds on a CPU. The MJX/CPU parity test replays the recorded batched rollout.
+"""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import angora_jax as aj
+from angora_jax.envs.mujoco_task import Snapshot
+from angora_jax.envs.shadow_hand.reach import Reach, ReachReward
+
+BATCH = 3
+EPISODE = 50
+
+
+@pytest.fixture(scope="module")
+def env():
+    return aj.make("ShadowHandReach", max_episode_steps=EPISODE)
+
+
+@pytest.fixture(scope="module")
+def batched(env):
+    return jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+
+
+@pytest.fixture(scope="module")
+def rollout(env, batched):
+    """States of a batch over one episode and one more step under random actions, and the actions."""
+    reset, step = batched
+    state = reset(jax.random.split(jax.random.key(0), BATCH))
+    actions = jnp.asarray(np.random.default_rng(0).uniform(-1, 1, (EPISODE + 1, BATCH, 20)), jnp.float32)
+    states = [state]
+    for action in actions:
+        state = step(state, action)
+        states.append(state)
+    return states, actions
+
+
+def test_registry_lists_tasks_and_rejects_unknown_names():
+    assert {"ShadowHandReach", "ShadowHandFreeReach"} <= set(aj.list_tasks())
+    with pytest.raises(ValueError, match="Unknown task 'ShadowHandRech'.*ShadowHandReach"):
+        aj.make("ShadowHandRech")
+    with pytest.raises(ValueError, match="Unknown backend"):
+        aj.make("ShadowHandReach", backend="gpu")
+    with pytest.raises(ValueError, match="Unknown reward coefficients.*success_bonus"):
+        aj.make("ShadowHandReach", reward={"sucess_bonus": 1.0})
+
+
+def test_wrong_action_shape_names_the_expected_shape(env):
+    # The action is checked before the state is touched, so no state is needed to see the error.
+    with pytest.raises(ValueError, match=r"expects one action of shape \(20,\), got \(19,\)"):
+        env.step(None, jnp.zeros(19))
+    with pytest.raises(ValueError, match=r"got \(4, 20\); for a batch of environments use jax.vmap"):
+        env.step(None, jnp.zeros((4, 20)))
+
+
+def test_batched_shapes_dtypes_and_finite_values(rollout):
+    rollout, _ = rollout
+    sizes = {"proprioception": 48, "touch": 0, "vision": 0, "goal": 20, "asymmetric": 15}
+    for state in rollout:
+        for name, size in sizes.items():
+            value = getattr(state.obs, name)
+            assert value.shape == (BATCH, size) and value.dtype == jnp.float32, name
+            assert np.isfinite(np.asarray(value)).all(), name
+        assert state.reward.shape == state.done.shape == (BATCH,)
+        assert state.reward.dtype == jnp.float32 and state.steps.dtype == jnp.int32
+        assert set(state.metrics) == {"success", "goal_distance"}
+        assert np.isfinite(np.asarray(state.reward)).all()
+    rewards = np.stack([np.asarray(s.reward) for s in rollout[1:]])
+    assert (rewards < 0.2).all() and (rewards > -1.0).all()
+    assert np.ptp(rewards) > 0, "random actions should change the reward"
+
+
+def test_auto_reset_at_time_limit_keeps_final_observation(rollout):
+    rollout, _ = rollout
+    before, at_limit, after = rollout[EPISODE - 1], rollout[EPISODE], rollout[EPISODE + 1]
+    assert np.all(np.asarray(before.done) == 0)
+    assert np.all(np.asarray(at_limit.done) == 1) and np.all(np.asarray(at_limit.truncated) == 1)
+    assert np.all(np.asarray(at_limit.steps) == 0) and np.all(np.asarray(after.steps) == 1)
+    # obs restarted from the initial pose while final_obs holds the ended episode's last observation.
+    first = rollout[0].obs.proprioception
+    np.testing.assert_allclose(at_limit.obs.proprioception[:, :24], first[:, :24], atol=1e-6)
+    assert np.abs(np.asarray(at_limit.final_obs.proprioception - at_limit.obs.proprioception)).max() > 1e-3
+    assert not np.array_equal(np.asarray(at_limit.info["goal"]), np.asarray(before.info["goal"]))
+
+
+def test_goal_sampling_puts_thumb_and_target_at_meeting_point(rollout):
+    state = rollout[0][0]
+    goal = np.asarray(state.info["goal"])
+    tips = np.asarray(state.obs.asymmetric).reshape(BATCH, 5, 3)
+    for b in range(BATCH):
+        if state.info["stay"][b]:
+            np.testing.assert_allclose(goal[b], tips[b], atol=1e-6)
+            continue
+        target = int(state.info["target"][b])
+        # Thumb and target goals sit 5 mm short of a common meeting point, far from where the tips start.
+        assert 1e-3 < np.linalg.norm(goal[b, 4] - goal[b, target]) <= 0.01 + 1e-6
+        assert np.linalg.norm(goal[b, 4] - tips[b, 4]) > 0.02
+        others = [i for i in range(4) if i != target]
+        np.testing.assert_allclose(goal[b, others], tips[b, others], atol=1e-6)
+
+
+def test_reward_coefficients_change_the_reward(env, rollout):
+    prev, state = rollout[0][4], rollout[0][5]
+    one = jax.tree.map(lambda x: x[0], (prev, state))
+    prev_snap, snap = Snapshot.of(one[0].physics), Snapshot.of(one[1].physics)
+    key = jax.random.key(1)
+    info = one[0].info
+
+    def reward(free, **coefficients):
+        task = Reach(env.task.model, dataclasses.replace(ReachReward(), **coefficients), free=free)
+        return float(task.evaluate(key, prev_snap, snap, info)[0])
+
+    base = reward(False)
+    np.testing.assert_allclose(base, float(one[1].reward), atol=1e-6)
+    assert reward(False, force_multiplier=1e-3) < base
+    assert reward(False, success_distance=1.0, success_bonus=5.0) == pytest.approx(base + 5.0, abs=1e-5)
+    free_base = reward(True)
+    assert reward(True, auxiliary_zone_radius=1.0) < free_base
+    assert reward(True, auxiliary_zone_radius=1.0, auxiliary_penalty_multiplier=0.0) == pytest.approx(free_base)
+
+
+def test_freereach_goal_is_the_target_finger_one_hot(env, rollout):
+    task = Reach(env.task.model, free=True)
+    snap = Snapshot.of(jax.tree.map(lambda x: x[0], rollout[0][0].physics))
+    info = task.initial_info(jax.random.key(7), snap)
+    goal = np.asarray(task.observe(snap, info).goal)
+    assert goal.shape == (5,) and goal.sum() == 1.0 and goal[int(info["target"])] == 1.0 and goal[4] == 0.0
+
+
+def test_mjx_and_cpu_paths_agree_for_50_steps(rollout):
+    """Same key and actions: joint positions within 2e-3 rad and rewards within 1e-4 over 50 policy steps.
+
+    The CPU twin is float64 C MuJoCo and MJX runs float32, so the trajectories drift apart slowly; the hand has no
+    contacts here, so the drift stays far below the tolerance (measured about 2e-4 rad over 60 steps).
+    """
+    states, actions = rollout
+    cpu = aj.make("ShadowHandReach", max_episode_steps=EPISODE, backend="cpu")
+    cpu_state = cpu.reset(jax.random.split(jax.random.key(0), BATCH)[0])
+    np.testing.assert_allclose(states[0].info["goal"][0], cpu_state.info["goal"], atol=1e-5)
+    for t in range(EPISODE):
+        cpu_state = cpu.step(cpu_state, actions[t, 0])
+        mjx_qpos = states[t + 1].final_obs.proprioception[0, :24]
+        np.testing.assert_allclose(mjx_qpos, cpu_state.physics.qpos, atol=2e-3)
+        np.testing.assert_allclose(states[t + 1].reward[0], cpu_state.reward, atol=1e-4)
+    assert float(cpu_state.done) == 1.0
+    assert float(jnp.abs(cpu_state.physics.qpos - cpu.task.initial_qpos(None)).max()) > 0.05, "the hand must move"
+
+
+def test_cpu_twin_refuses_misuse():
+    cpu = aj.make("ShadowHandReach", max_episode_steps=2, backend="cpu")
+    with pytest.raises(RuntimeError, match="before reset"):
+        cpu.step(None, jnp.zeros(20))
+    first = cpu.reset(jax.random.key(0))
+    second = cpu.step(first, jnp.zeros(20))
+    with pytest.raises(ValueError, match="stateful"):
+        cpu.step(first, jnp.zeros(20))
+    last = cpu.step(second, jnp.zeros(20))
+    assert float(last.done) == 1.0 and float(last.truncated) == 1.0
+    with pytest.raises(RuntimeError, match="episode has ended"):
+        cpu.step(last, jnp.zeros(20))
