@@ -1,0 +1,40 @@
+"""PPO with recurrent truncated BPTT, compiled as one program per training cycle.
+
+`train(config)` runs a whole experiment; `make_cycle(env, network, config)` gives the compiled pieces.
+"""
+
+from angora_jax.ppo.config import NetworkConfig, NormalizationConfig, PPOConfig, tile_shape
+from angora_jax.ppo.cycle import TrainState, average_gradients, build_head, make_cycle
+from angora_jax.ppo.distributions import (
+    Beta,
+    Categorical,
+    Gaussian,
+    MultiCategorical,
+    PolicyHead,
+    list_heads,
+    make_head,
+    register_head,
+)
+from angora_jax.ppo.train import TrainingDivergedError, format_metrics, train
+
+__all__ = [
+    "Beta",
+    "Categorical",
+    "Gaussian",
+    "MultiCategorical",
+    "NetworkConfig",
+    "NormalizationConfig",
+    "PPOConfig",
+    "PolicyHead",
+    "TrainState",
+    "TrainingDivergedError",
+    "average_gradients",
+    "build_head",
+    "format_metrics",
+    "list_heads",
+    "make_cycle",
+    "make_head",
+    "register_head",
+    "tile_shape",
+    "train",
+]

@@ -154,7 +154,7 @@ def make_cycle(
         start_carry = gather_carries(start_carries, chunk_index, env_index)
         grads, parts = jax.grad(loss_fn, has_aux=True)(params, sequences, start_carry)
         grads = average_gradients(grads)
-        parts["grad_norm"] = optax.global_norm(grads)
+        parts["grad_norm"] = optax.tree.norm(grads)
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), parts
 

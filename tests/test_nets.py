@@ -1,0 +1,116 @@
+"""Networks: every registered model on hand-like and minimal inputs, the asymmetric-input rule, options, a custom
+module through the compiled cycle."""
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from angora_jax.envs.classic import CartPole
+from angora_jax.envs.core import ActionSpec, Sensation
+from angora_jax.nets import ActorCritic, list_networks, make_network, register_network
+from angora_jax.ppo import NetworkConfig, PPOConfig, make_cycle, make_head
+
+BATCH = 3
+HEAD = make_head("gaussian", ActionSpec(low=-jnp.ones(20), high=jnp.ones(20)))
+
+
+def hand_like_obs(key: jax.Array, asymmetric_scale: float = 1.0) -> Sensation:
+    """Shaped like Shadow-hand reach: proprioception and goal, privileged fingertips, no touch or vision."""
+    k1, k2, k3 = jax.random.split(key, 3)
+    return Sensation.make(
+        proprioception=jax.random.normal(k1, (BATCH, 48)),
+        goal=jax.random.normal(k2, (BATCH, 15)),
+        asymmetric=asymmetric_scale * jax.random.normal(k3, (BATCH, 15)),
+    )
+
+
+def small(name: str, shared: bool = False) -> NetworkConfig:
+    return NetworkConfig(name=name, width=16, cell_size=16, shared_trunk=shared)
+
+
+def test_registry_has_the_required_models():
+    assert {"simple", "deeper", "lstm", "gru", "wide"} <= set(list_networks())
+    with pytest.raises(ValueError, match="Unknown network 'nope'"):
+        make_network(NetworkConfig(name="nope"))
+
+
+@pytest.mark.parametrize("shared", [False, True], ids=["separate", "shared"])
+@pytest.mark.parametrize("name", ["simple", "deeper", "lstm", "gru", "wide"])
+def test_network_contract_shapes_and_asymmetric_reaches_only_the_value(name, shared):
+    model = ActorCritic(make_network(small(name, shared)), HEAD)
+    obs = hand_like_obs(jax.random.key(0))
+    carry = model.network.initial_carry(BATCH)
+    params = model.init(jax.random.key(1), carry, obs)
+    new_carry, policy_params, value = model.apply(params, carry, obs)
+    assert policy_params.shape == (BATCH, HEAD.num_params)
+    assert value.shape == (BATCH,)
+    assert jax.tree.map(jnp.shape, new_carry) == jax.tree.map(jnp.shape, carry)
+    assert all(leaf.shape[0] == BATCH for leaf in jax.tree.leaves(carry))
+
+    other = obs.replace(asymmetric=obs.asymmetric + 5.0)
+    _, other_policy, other_value = model.apply(params, carry, other)
+    np.testing.assert_array_equal(policy_params, other_policy)
+    assert not np.allclose(value, other_value)
+
+
+def test_shared_trunk_has_fewer_parameters_than_separate_trunks():
+    obs = hand_like_obs(jax.random.key(0))
+
+    def count(shared):
+        network = make_network(small("lstm", shared))
+        params = ActorCritic(network, HEAD).init(jax.random.key(0), network.initial_carry(BATCH), obs)
+        return sum(leaf.size for leaf in jax.tree.leaves(params))
+
+    assert count(True) < count(False)
+
+
+def test_recurrent_carry_carries_memory_and_feed_forward_carry_is_empty():
+    obs = hand_like_obs(jax.random.key(0))
+    for name, remembers in [("simple", False), ("gru", True)]:
+        model = ActorCritic(make_network(small(name)), HEAD)
+        carry = model.network.initial_carry(BATCH)
+        params = model.init(jax.random.key(1), carry, obs)
+        carry_after, first, _ = model.apply(params, carry, obs)
+        _, second, _ = model.apply(params, carry_after, obs)
+        assert (not np.allclose(first, second)) == remembers, name
+    assert make_network(small("simple")).initial_carry(4).shape == (4, 0)
+
+
+def test_modalities_enter_separately():
+    network = make_network(small("lstm"))
+    params = ActorCritic(network, HEAD).init(
+        jax.random.key(0), network.initial_carry(BATCH), hand_like_obs(jax.random.key(0))
+    )
+    encoder = params["params"]["network"]["policy_encoder"]
+    assert set(encoder) == {"embed_proprioception", "embed_goal"}  # empty touch and vision get no layer
+
+
+class TinyUserNet(nn.Module):
+    """A user-written module following the contract: a GRU over proprioception only."""
+
+    def initial_carry(self, batch_size):
+        return jnp.zeros((batch_size, 8))
+
+    @nn.compact
+    def __call__(self, carry, obs):
+        carry, features = nn.GRUCell(8)(carry, obs.proprioception)
+        return carry, features, nn.Dense(1)(features)[..., 0]
+
+
+def test_user_module_and_registered_builder_run_in_the_compiled_cycle():
+    register_network("test_tiny_user_net", lambda config: TinyUserNet())
+    config = PPOConfig(
+        num_envs=4,
+        rollout_length=16,
+        chunk_length=8,
+        minibatch_size=32,
+        num_epochs=1,
+        network=NetworkConfig(name="test_tiny_user_net"),
+    )
+    init, cycle = make_cycle(CartPole(), None, config)
+    state, metrics = cycle(init(jax.random.key(0)))
+    assert state.actor.carry.shape == (4, 8)
+    assert float(metrics["finite"]) == 1.0
+    assert int(state.cycle) == 1
