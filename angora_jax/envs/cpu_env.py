@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 
 from angora_jax.envs.core import ActionSpec, Env, Sensation, State
-from angora_jax.envs.mujoco_task import MujocoTask, Snapshot
+from angora_jax.envs.mujoco_task import MujocoTask, Snapshot, start_physics
 
 
 class CpuEnv(Env):
@@ -31,7 +31,6 @@ class CpuEnv(Env):
         self.model = task.model
         self.data = mujoco.MjData(self.model)
         self._initial_qpos = jax.jit(task.initial_qpos)
-        self._initial_control = jax.jit(task.initial_control)
         self._begin = jax.jit(task.begin)
         self._advance = jax.jit(task.advance)
         self._control = jax.jit(task.control)
@@ -39,10 +38,7 @@ class CpuEnv(Env):
 
     def _reset(self, key: jax.Array) -> tuple[Snapshot, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)
-        mujoco.mj_resetData(self.model, self.data)
-        self.data.qpos[:] = np.asarray(self._initial_qpos(pose_key), np.float64)
-        mujoco.mj_forward(self.model, self.data)
-        self.data.ctrl[:] = np.asarray(self._initial_control(Snapshot.of(self.data)), np.float64)
+        start_physics(self.task, np.asarray(self._initial_qpos(pose_key), np.float64), self.data)
         snap = Snapshot.of(self.data)
         info, obs = self._begin(task_key, snap)
         return snap, obs, info

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from mujoco import mjx
 
 from angora_jax.envs.core import ActionSpec, Env, Sensation
-from angora_jax.envs.mujoco_task import MujocoTask, Snapshot
+from angora_jax.envs.mujoco_task import MujocoTask, Snapshot, start_physics
 
 
 class MjxEnv(Env):
@@ -25,12 +26,18 @@ class MjxEnv(Env):
         nu = task.model.nu
         self.action_spec = ActionSpec(low=-jnp.ones(nu, jnp.float32), high=jnp.ones(nu, jnp.float32))
         self.mjx_model = mjx.put_model(task.model)
+        # A fixed start is computed once on the CPU: it spares the compiled step (with its auto-reset) a forward pass.
+        fixed_qpos = None if task.random_initial_qpos else np.asarray(task.initial_qpos(jax.random.key(0)))
+        self._start = mjx.put_data(task.model, start_physics(task, fixed_qpos)) if fixed_qpos is not None else None
         self._data0 = mjx.make_data(self.mjx_model)
 
     def _reset(self, key: jax.Array) -> tuple[mjx.Data, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)
-        data = mjx.forward(self.mjx_model, self._data0.replace(qpos=self.task.initial_qpos(pose_key)))
-        data = data.replace(ctrl=self.task.initial_control(Snapshot.of(data)))
+        if self._start is None:
+            data = mjx.forward(self.mjx_model, self._data0.replace(qpos=self.task.initial_qpos(pose_key)))
+            data = data.replace(ctrl=self.task.initial_control(Snapshot.of(data)))
+        else:
+            data = self._start
         info, obs = self.task.begin(task_key, Snapshot.of(data))
         return data, obs, info
 

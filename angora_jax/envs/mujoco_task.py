@@ -56,6 +56,8 @@ class MujocoTask(abc.ABC):
 
     model: mujoco.MjModel
     metric_names: tuple[str, ...] = ()
+    # When False, `initial_qpos` ignores its key and the initial physics are computed once, in C MuJoCo.
+    random_initial_qpos: bool = False
 
     @abc.abstractmethod
     def initial_qpos(self, key: jax.Array) -> jax.Array:
@@ -95,3 +97,15 @@ class MujocoTask(abc.ABC):
         """Everything after the physics of one step: return (observation, reward, terminated, info, metrics)."""
         reward, terminated, info, metrics = self.evaluate(key, prev, snap, info)
         return self.observe(snap, info), reward, terminated, info, metrics
+
+
+def start_physics(task: MujocoTask, qpos: np.ndarray, data: mujoco.MjData | None = None) -> mujoco.MjData:
+    """C MuJoCo data at an episode's start: `qpos` set, kinematics computed, `ctrl` holding the pose.
+    Resets and reuses `data` when given."""
+    if data is None:
+        data = mujoco.MjData(task.model)
+    mujoco.mj_resetData(task.model, data)
+    data.qpos[:] = qpos
+    mujoco.mj_forward(task.model, data)
+    data.ctrl[:] = np.asarray(task.initial_control(Snapshot.of(data)), np.float64)
+    return data
