@@ -10,7 +10,7 @@ import pytest
 from angora_jax.envs.classic import CartPole
 from angora_jax.envs.core import ActionSpec, Sensation
 from angora_jax.nets import ActorCritic, list_networks, make_network, register_network
-from angora_jax.ppo import NetworkConfig, PPOConfig, make_cycle, make_head
+from angora_jax.ppo import NetworkConfig, NormalizationConfig, PPOConfig, make_cycle, make_head
 
 BATCH = 3
 HEAD = make_head("gaussian", ActionSpec(low=-jnp.ones(20), high=jnp.ones(20)))
@@ -108,9 +108,18 @@ def test_user_module_and_registered_builder_run_in_the_compiled_cycle():
         minibatch_size=32,
         num_epochs=1,
         network=NetworkConfig(name="test_tiny_user_net"),
+        normalization=NormalizationConfig(observations=False, rewards=False),
     )
     init, cycle = make_cycle(CartPole(), None, config)
-    state, metrics = cycle(init(jax.random.key(0)))
+    start = init(jax.random.key(0))
+    state, metrics = cycle(start)
     assert state.actor.carry.shape == (4, 8)
     assert float(metrics["finite"]) == 1.0
     assert int(state.cycle) == 1
+    # Normalisation switched off: its state is left alone.
+    for before, after in zip(
+        jax.tree.leaves((start.obs_stats, start.reward_stats)),
+        jax.tree.leaves((state.obs_stats, state.reward_stats)),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(before, after)

@@ -1,12 +1,14 @@
 """PPO learns: with fixed seeds, classic tasks are solved past stated return bars with feed-forward and recurrent
 models and discrete and continuous heads; divergence is reported clearly."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from angora_jax.envs.classic import CartPole
-from angora_jax.ppo import NetworkConfig, PPOConfig, TrainingDivergedError, train
+from angora_jax.envs.registry import make
+from angora_jax.ppo import NetworkConfig, PPOConfig, TrainingDivergedError, make_evaluate, train
 
 # Random policies score about 22 on CartPole (max 500) and about -1200 on Pendulum (best about -150).
 CARTPOLE = PPOConfig(
@@ -35,10 +37,9 @@ def final_return(history: list[dict[str, float]]) -> float:
 @pytest.mark.parametrize("case", CASES)
 def test_ppo_solves_classic_task(case):
     config, bar = CASES[case]
-    _, history = train(config, log=None)
+    state, history = train(config, log=None)
     first = float(np.nanmean([m["episode_return"] for m in history[: len(history) // 10]]))
     reached = final_return(history)
-    print(f"{case}: return {first:.1f} -> {reached:.1f} (bar {bar})")
     assert reached > bar, f"{case}: final return {reached:.1f} did not pass the bar {bar} (started at {first:.1f})"
     last = history[-1]
     for name in ("episode_length", "policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction"):
@@ -46,7 +47,15 @@ def test_ppo_solves_classic_task(case):
     # Explained variance is meaningless once returns barely vary (CartPole at 500 steps): ask for it while learning.
     assert max(m["explained_variance"] for m in history) > 0.5
     assert last["env_steps"] == config.num_cycles * config.num_envs * config.rollout_length
+    print(f"{case}: return {first:.1f} -> {reached:.1f} (bar {bar}), deterministic", end=" ")
     assert last["steps_per_second"] > 0 and history[0]["compile_seconds"] > 0
+    # Normalisation is on by default: the stats have seen every observation and every step's return.
+    np.testing.assert_allclose(state.obs_stats.proprioception.count, last["env_steps"], rtol=1e-3)
+    np.testing.assert_allclose(state.reward_stats.count, last["env_steps"], rtol=1e-3)
+    # The deterministic policy (the head's mode) does at least as well as the bar too.
+    evaluation = make_evaluate(make(config.task), None, config, num_envs=8)(state, jax.random.key(123))
+    print(f"{float(evaluation['episode_return']):.1f}")
+    assert float(evaluation["episode_return"]) > bar, evaluation
     if config.lr_decay:
         assert history[0]["learning_rate"] == pytest.approx(config.learning_rate)
         assert history[-1]["learning_rate"] < 0.02 * config.learning_rate

@@ -15,6 +15,7 @@ from angora_jax.ppo.distributions import (
     make_head,
     register_head,
 )
+from angora_jax.ppo.evaluate import make_evaluate
 from angora_jax.ppo.train import TrainingDivergedError, format_metrics, train
 
 __all__ = [
@@ -33,6 +34,7 @@ __all__ = [
     "format_metrics",
     "list_heads",
     "make_cycle",
+    "make_evaluate",
     "make_head",
     "register_head",
     "tile_shape",
