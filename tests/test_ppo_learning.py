@@ -37,7 +37,9 @@ def final_return(history: list[dict[str, float]]) -> float:
 @pytest.mark.parametrize("case", CASES)
 def test_ppo_solves_classic_task(case):
     config, bar = CASES[case]
-    state, history = train(config, log=None)
+    lines = []
+    state, history = train(config, log=lines.append)
+    assert len(lines) == config.num_cycles and "episode_return=" in lines[-1] and "sps=" in lines[-1]
     first = float(np.nanmean([m["episode_return"] for m in history[: len(history) // 10]]))
     reached = final_return(history)
     assert reached > bar, f"{case}: final return {reached:.1f} did not pass the bar {bar} (started at {first:.1f})"
