@@ -41,13 +41,21 @@ def peak_memory_bytes() -> int | None:
     return stats.get("peak_bytes_in_use")
 
 
-def time_compiled(fn: Callable, *args, repeats: int = 3) -> tuple[float, float, object]:
-    """Compile `fn(*args)`, then run it `repeats` times; return (compile s, best run s, last output)."""
+def time_compiled(fn: Callable, *args, repeats: int = 3, chain: Callable | None = None) -> tuple[float, float, object]:
+    """Compile `jit(fn)` for `args`, run it once to warm up, then time `repeats` runs; return (compile s, seconds
+    per run, last output). With `chain`, each run takes `chain(previous output)` as its arguments (a training
+    cycle continues from the state it returned); otherwise every run takes `args` and the best run counts."""
     start = time.perf_counter()
     compiled = jax.jit(fn).lower(*args).compile()
     compile_s = time.perf_counter() - start
+    out = jax.block_until_ready(compiled(*args))
+    if chain is not None:
+        start = time.perf_counter()
+        for _ in range(repeats):
+            out = compiled(*chain(out))
+        jax.block_until_ready(out)
+        return compile_s, (time.perf_counter() - start) / repeats, out
     best = float("inf")
-    out = None
     for _ in range(repeats):
         start = time.perf_counter()
         out = jax.block_until_ready(compiled(*args))

@@ -1,84 +1,45 @@
 """Training throughput: environment steps consumed per wall second by the compiled PPO cycle, against the raw
-batched env-step rate at the same batch size (random actions, same `lax.scan` over `vmap(env.step)`).
+batched env-step rate at the same batch size (random actions, the same `lax.scan` over `vmap(env.step)`).
 
     python benchmarks/train_throughput.py --task CartPole --num-envs 64 256 --model simple lstm
+    python benchmarks/train_throughput.py --task ShadowHandReach --num-envs 4096 --rollout-length 32   # GPU
 
 Prints a Markdown table and writes JSON (device, versions, config, numbers) under benchmarks/results/. Compile time
-is measured separately (ahead-of-time lowering + compilation) and excluded from the rates.
+is measured separately (ahead-of-time lowering and compilation) and excluded from the rates.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import datetime
-import importlib.metadata
-import json
-import pathlib
-import platform
-import time
 
 import jax
+from common import markdown_table, peak_memory_bytes, time_compiled, write_results
 
-import angora_jax.envs.classic  # noqa: F401  (registers the classic tasks)
 from angora_jax.envs.core import Env
+from angora_jax.envs.random_rollout import batched_reset, make_random_rollout
 from angora_jax.envs.registry import make
 from angora_jax.ppo import NetworkConfig, PPOConfig, make_cycle
-
-RESULTS = pathlib.Path(__file__).parent / "results"
-PACKAGES = ("jax", "jaxlib", "flax", "optax", "distrax", "mujoco", "mujoco-mjx")
-
-
-def random_actions(env: Env, key: jax.Array, num_envs: int) -> jax.Array:
-    spec = env.action_spec
-    if spec.discrete:
-        return jax.random.randint(key, (num_envs,), 0, spec.num_actions)
-    return jax.random.uniform(key, (num_envs, spec.size), minval=spec.low, maxval=spec.high)
-
-
-def time_compiled(fn, arg, repeats: int, next_arg=lambda out: out) -> tuple[float, float]:
-    """Compile the jitted `fn` for `arg` ahead of time, then time `repeats` chained calls, each fed
-    `next_arg(previous output)`; returns (compile seconds, seconds per call)."""
-    start = time.perf_counter()
-    compiled = fn.lower(arg).compile()
-    compile_seconds = time.perf_counter() - start
-    out = jax.block_until_ready(compiled(arg))  # warm-up: first-call allocations
-    start = time.perf_counter()
-    for _ in range(repeats):
-        out = compiled(next_arg(out))
-    jax.block_until_ready(out)
-    return compile_seconds, (time.perf_counter() - start) / repeats
 
 
 def raw_env_rate(env: Env, num_envs: int, steps: int, repeats: int) -> dict[str, float]:
     """Env steps per second of a jitted scan of `steps` batched random-action steps."""
-
-    @jax.jit
-    def run(carry):
-        state, key = carry
-
-        def body(state, key):
-            return jax.vmap(env.step)(state, random_actions(env, key, num_envs)), None
-
-        key, scan_key = jax.random.split(key)
-        state, _ = jax.lax.scan(body, state, jax.random.split(scan_key, steps))
-        return state, key
-
-    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), num_envs))
-    compile_seconds, seconds = time_compiled(run, (state, jax.random.key(1)), repeats)
-    return {"compile_seconds": compile_seconds, "steps_per_second": num_envs * steps / seconds}
+    rollout = make_random_rollout(env, num_envs, steps)
+    state = jax.jit(batched_reset, static_argnums=(0, 2))(env, jax.random.key(0), num_envs)
+    compile_s, seconds, _ = time_compiled(rollout, state, jax.random.key(1), repeats=repeats)
+    return {"compile_s": compile_s, "steps_per_s": num_envs * steps / seconds}
 
 
 def train_rate(env: Env, config: PPOConfig, repeats: int) -> dict[str, float]:
     """Env steps consumed per second by the full cycle (rollout + GAE + all minibatch updates)."""
     init, cycle = make_cycle(env, None, config)
     state = init(jax.random.key(config.seed))
-    compile_seconds, seconds = time_compiled(cycle, state, repeats, next_arg=lambda out: out[0])
-    return {"compile_seconds": compile_seconds, "steps_per_second": config.num_envs * config.rollout_length / seconds}
+    compile_s, seconds, _ = time_compiled(cycle, state, repeats=repeats, chain=lambda out: (out[0],))
+    return {"compile_s": compile_s, "steps_per_s": config.num_envs * config.rollout_length / seconds}
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="CartPole")
     parser.add_argument("--num-envs", type=int, nargs="+", default=[64])
     parser.add_argument("--model", nargs="+", default=["simple", "lstm"])
@@ -87,6 +48,7 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=3)
     parser.add_argument("--minibatches", type=int, default=4, help="minibatches per epoch")
     parser.add_argument("--repeats", type=int, default=5, help="timed cycles per configuration")
+    parser.add_argument("--out", default=None, help="JSON path (default: results/train_throughput_<platform>.json)")
     args = parser.parse_args()
 
     env = make(args.task)
@@ -104,50 +66,27 @@ def main() -> None:
                 network=NetworkConfig(name=model),
             ).validate_for(env)
             trained = train_rate(env, config, args.repeats)
-            rows.append(
-                {
-                    "task": args.task,
-                    "model": model,
-                    "num_envs": num_envs,
-                    "raw_env_steps_per_second": raw["steps_per_second"],
-                    "train_steps_per_second": trained["steps_per_second"],
-                    "ratio": trained["steps_per_second"] / raw["steps_per_second"],
-                    "raw_compile_seconds": raw["compile_seconds"],
-                    "train_compile_seconds": trained["compile_seconds"],
-                    "config": dataclasses.asdict(config),
-                }
-            )
+            rows.append({
+                "task": args.task, "model": model, "num_envs": num_envs,
+                "raw_env_steps_per_s": raw["steps_per_s"],
+                "train_env_steps_per_s": trained["steps_per_s"],
+                "train_sim_s_per_s": trained["steps_per_s"] * env.dt,
+                "train_over_raw": trained["steps_per_s"] / raw["steps_per_s"],
+                "raw_compile_s": raw["compile_s"], "train_compile_s": trained["compile_s"],
+                "peak_memory_gib": (peak_memory_bytes() or 0) / 2**30 or None,
+                "config": dataclasses.asdict(config),
+            })
+            print(f"{model} @ {num_envs} envs: {trained['steps_per_s']:,.0f} train steps/s", flush=True)
 
-    print("| task | model | envs | raw env steps/s | train steps/s | ratio | compile train (s) | compile raw (s) |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|")
-    for r in rows:
-        print(
-            f"| {r['task']} | {r['model']} | {r['num_envs']} | {r['raw_env_steps_per_second']:,.0f} | "
-            f"{r['train_steps_per_second']:,.0f} | {r['ratio']:.1%} | {r['train_compile_seconds']:.1f} | "
-            f"{r['raw_compile_seconds']:.1f} |"
-        )
-
-    device = jax.devices()[0]
-    versions = {}
-    for package in PACKAGES:
-        try:
-            versions[package] = importlib.metadata.version(package)
-        except importlib.metadata.PackageNotFoundError:
-            versions[package] = None
-    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
-    record = {
-        "benchmark": "train_throughput",
-        "time": stamp,
-        "device": {"platform": device.platform, "kind": device.device_kind, "count": jax.device_count()},
-        "host": {"python": platform.python_version(), "machine": platform.machine(), "processor": platform.processor()},
-        "versions": versions,
-        "args": vars(args),
-        "results": rows,
-    }
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    path = RESULTS / f"train_throughput-{args.task}-{device.platform}-{stamp}.json"
-    path.write_text(json.dumps(record, indent=2))
-    print(f"\nwrote {path}")
+    print(markdown_table(rows, [
+        ("task", "task", "s"), ("model", "model", "s"), ("num_envs", "envs", "d"),
+        ("raw_env_steps_per_s", "raw env steps/s", ",.0f"), ("train_env_steps_per_s", "train env steps/s", ",.0f"),
+        ("train_sim_s_per_s", "train sim-s/s", ",.1f"), ("train_over_raw", "train / raw", ".1%"),
+        ("train_compile_s", "compile train s", ".1f"), ("raw_compile_s", "compile raw s", ".1f"),
+        ("peak_memory_gib", "peak GiB", ".2f"),
+    ]))
+    path = write_results("train_throughput", {"args": vars(args), "control_dt_s": env.dt}, rows, args.out)
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":
