@@ -1,0 +1,72 @@
+"""A training run's learning curve: PPO on a task, one JSON row per cycle and a PNG of return and task metrics.
+
+    python benchmarks/learning_curve.py --task ShadowHandReach --num-envs 2048 --cycles 24 --model simple  # GPU
+    python benchmarks/learning_curve.py --task CartPole --num-envs 16 --cycles 30                           # CPU
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from common import RESULTS, markdown_table, write_results  # noqa: E402
+
+from angora_jax.ppo import NetworkConfig, PPOConfig, train  # noqa: E402
+
+
+def plot(history: list[dict], title: str, path: str) -> None:
+    """Episode return and every `metric/*` against env steps, one panel each."""
+    keys = ["episode_return"] + sorted(k for k in history[0] if k.startswith("metric/"))
+    fig, axes = plt.subplots(1, len(keys), figsize=(4 * len(keys), 3.2), squeeze=False)
+    steps = [row["env_steps"] for row in history]
+    for ax, key in zip(axes[0], keys, strict=True):
+        ax.plot(steps, [row[key] for row in history], marker=".")
+        ax.set_xlabel("env steps")
+        ax.set_title(key.removeprefix("metric/"))
+        ax.grid(alpha=0.3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--task", default="CartPole")
+    parser.add_argument("--model", default="simple")
+    parser.add_argument("--head", default="auto")
+    parser.add_argument("--num-envs", type=int, default=16)
+    parser.add_argument("--cycles", type=int, default=30)
+    parser.add_argument("--rollout-length", type=int, default=32)
+    parser.add_argument("--minibatches", type=int, default=4)
+    parser.add_argument("--epochs", type=int, default=4)
+    parser.add_argument("--learning-rate", type=float, default=3e-4)
+    parser.add_argument("--init-log-std", type=float, default=-1.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default=None, help="JSON path; the PNG goes beside it")
+    args = parser.parse_args()
+
+    config = PPOConfig(
+        task=args.task, seed=args.seed, num_cycles=args.cycles, num_envs=args.num_envs,
+        rollout_length=args.rollout_length, chunk_length=16, num_epochs=args.epochs,
+        minibatch_size=args.num_envs * args.rollout_length // args.minibatches, learning_rate=args.learning_rate,
+        head=args.head, init_log_std=args.init_log_std, network=NetworkConfig(name=args.model),
+    )
+    _, history = train(config)
+    rows = [{k: v for k, v in row.items() if isinstance(v, int | float)} for row in history]
+    path = write_results(f"learning_curve_{args.task}", dataclasses.asdict(config), rows, args.out)
+    png = os.path.splitext(path)[0] + ".png"
+    plot(rows, f"{args.task}, {args.model}, {args.num_envs} envs", png)
+    columns = [("cycle", "cycle", "d"), ("env_steps", "env steps", ",d"), ("seconds", "cycle s", ".1f"),
+               ("episode_return", "return", ".2f")]
+    columns += [(k, k.removeprefix("metric/"), ".3f") for k in sorted(rows[0]) if k.startswith("metric/")]
+    print(markdown_table(rows[:: max(1, len(rows) // 12)] + rows[-1:], columns))
+    print(f"wrote {path} and {png} (results folder: {RESULTS})")
+
+
+if __name__ == "__main__":
+    main()
