@@ -5,26 +5,21 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from angora_jax.envs.core import Env
+from angora_jax.registry import Registry
 
-_FACTORIES: dict[str, Callable[..., Env]] = {}
+TASKS: Registry[Callable[..., Env]] = Registry("task", "tasks")
 
 
 def register(name: str, factory: Callable[..., Env]) -> None:
     """Make `factory(**options) -> Env` available as `make(name, **options)`."""
-    if name in _FACTORIES:
-        raise ValueError(f"Task {name!r} is already registered.")
-    _FACTORIES[name] = factory
+    TASKS.register(name, factory)
 
 
 def list_tasks() -> list[str]:
     """Names of all registered tasks, sorted."""
-    return sorted(_FACTORIES)
+    return TASKS.names()
 
 
 def make(name: str, **options) -> Env:
     """Build the task `name`; `options` go to its constructor (e.g. reward coefficients, episode length)."""
-    try:
-        factory = _FACTORIES[name]
-    except KeyError:
-        raise ValueError(f"Unknown task {name!r}. Known tasks: {', '.join(list_tasks())}.") from None
-    return factory(**options)
+    return TASKS.get(name)(**options)

@@ -8,32 +8,27 @@ from typing import TYPE_CHECKING
 import flax.linen as nn
 
 from angora_jax.nets.models import FeedForward, Recurrent
+from angora_jax.registry import Registry
 
 if TYPE_CHECKING:  # nets must not import ppo at runtime: ppo imports nets
     from angora_jax.ppo.config import NetworkConfig
 
-_BUILDERS: dict[str, Callable[[NetworkConfig], nn.Module]] = {}
+NETWORKS: Registry[Callable[[NetworkConfig], nn.Module]] = Registry("network", "networks")
 
 
 def register_network(name: str, builder: Callable[[NetworkConfig], nn.Module]) -> None:
     """Make `builder(network_config) -> module` (a module following the network contract) available by name."""
-    if name in _BUILDERS:
-        raise ValueError(f"Network {name!r} is already registered.")
-    _BUILDERS[name] = builder
+    NETWORKS.register(name, builder)
 
 
 def list_networks() -> list[str]:
     """Names of all registered networks, sorted."""
-    return sorted(_BUILDERS)
+    return NETWORKS.names()
 
 
 def make_network(config: NetworkConfig) -> nn.Module:
     """Build the network `config.name` with the sizes in `config`."""
-    try:
-        builder = _BUILDERS[config.name]
-    except KeyError:
-        raise ValueError(f"Unknown network {config.name!r}. Known networks: {', '.join(list_networks())}.") from None
-    return builder(config)
+    return NETWORKS.get(config.name)(config)
 
 
 def _recurrent(cell: str, encoder: str, width: int, cell_size: int) -> Callable[[NetworkConfig], nn.Module]:

@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from angora_jax.envs.core import ActionSpec
+from angora_jax.registry import Registry
 
 # Small policy-output weights make the initial policy nearly uniform / centred ("Implementation matters").
 _HEAD_INIT = nn.initializers.orthogonal(0.01)
@@ -163,30 +164,22 @@ class Beta(PolicyHead):
         return super().log_prob(params, self._inside(action))
 
 
-_HEADS: dict[str, Callable[..., PolicyHead]] = {
-    "categorical": Categorical,
-    "multicategorical": MultiCategorical,
-    "gaussian": Gaussian,
-    "beta": Beta,
-}
+HEADS: Registry[Callable[..., PolicyHead]] = Registry("policy head", "heads")
+for _name, _head in (("categorical", Categorical), ("multicategorical", MultiCategorical), ("gaussian", Gaussian),
+                     ("beta", Beta)):
+    HEADS.register(_name, _head)
 
 
 def register_head(name: str, factory: Callable[..., PolicyHead]) -> None:
     """Make `factory(action_spec, **options) -> PolicyHead` selectable as `PPOConfig.head = name`."""
-    if name in _HEADS:
-        raise ValueError(f"Policy head {name!r} is already registered.")
-    _HEADS[name] = factory
+    HEADS.register(name, factory)
 
 
 def list_heads() -> list[str]:
     """Names of the registered heads, sorted."""
-    return sorted(_HEADS)
+    return HEADS.names()
 
 
 def make_head(name: str, action_spec: ActionSpec, **options) -> PolicyHead:
     """Build the head `name` for `action_spec`; `options` (e.g. `bins`, `init_log_std`) go to its constructor."""
-    try:
-        factory = _HEADS[name]
-    except KeyError:
-        raise ValueError(f"Unknown policy head {name!r}. Known heads: {', '.join(list_heads())}.") from None
-    return factory(action_spec, **options)
+    return HEADS.get(name)(action_spec, **options)

@@ -1,0 +1,33 @@
+"""`Registry`: named factories with one behaviour for tasks, networks and policy heads."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Generic, TypeVar
+
+F = TypeVar("F", bound=Callable)
+
+
+class Registry(Generic[F]):
+    """Factories by name; `kind` (e.g. "task") and `plural` name them in error messages."""
+
+    def __init__(self, kind: str, plural: str):
+        self.kind, self.plural = kind, plural
+        self._factories: dict[str, F] = {}
+
+    def register(self, name: str, factory: F) -> None:
+        """Make `factory` available as `name`; a name can be registered once."""
+        if name in self._factories:
+            raise ValueError(f"{self.kind.capitalize()} {name!r} is already registered.")
+        self._factories[name] = factory
+
+    def names(self) -> list[str]:
+        """Registered names, sorted."""
+        return sorted(self._factories)
+
+    def get(self, name: str) -> F:
+        """The factory registered as `name`; a ValueError lists the known names otherwise."""
+        try:
+            return self._factories[name]
+        except KeyError:
+            raise ValueError(f"Unknown {self.kind} {name!r}. Known {self.plural}: {', '.join(self.names())}.") from None
