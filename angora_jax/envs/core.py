@@ -77,7 +77,8 @@ class State:
     obs: the observation the agent sees now; after an auto-reset, the first observation of the new episode.
     reward: float32 scalar, the reward of the step that led here (0 after reset).
     done: float32 scalar, 1 if the episode ended at this step (terminated or truncated).
-    truncated: float32 scalar, 1 if the episode ended only because of its time limit.
+    truncated: float32 scalar, 1 if the episode ended only because of a time limit: `max_episode_steps`, or a
+        task's own clock, signalled by a boolean `info["time_out"]` (e.g. the cube task's goal timer).
     final_obs: the observation at the episode's end, before any auto-reset; equals `obs` when not done.
     steps: int32 scalar, policy steps taken in the current episode.
     info: task state that is not physics (goal, target finger, timers), a dict of arrays.
@@ -167,7 +168,9 @@ class Env(abc.ABC):
         physics, obs, reward, terminated, info, metrics = self._step(state.physics, state.info, action, step_key)
         steps = state.steps + 1
         terminated = jnp.asarray(terminated, bool)
-        truncated = jnp.logical_and(steps >= self.max_episode_steps, jnp.logical_not(terminated))
+        # A task with its own clock (e.g. a goal timer) ends episodes early through info["time_out"]: a truncation.
+        time_out = jnp.logical_or(steps >= self.max_episode_steps, info.get("time_out", False))
+        truncated = jnp.logical_and(time_out, jnp.logical_not(terminated))
         ended = State(
             physics=physics,
             obs=obs,

@@ -1,4 +1,4 @@
-"""Shadow Dexterous Hand tasks, registered as `ShadowHandReach` and `ShadowHandFreeReach`."""
+"""Shadow Dexterous Hand tasks, registered as `ShadowHandReach`, `ShadowHandFreeReach` and `ShadowHandCube`."""
 
 from __future__ import annotations
 
@@ -6,6 +6,8 @@ from angora_jax.envs.core import Env
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.mjx_env import MjxEnv
 from angora_jax.envs.registry import register
+from angora_jax.envs.shadow_hand.cube import PhysicsSettings, load_cube_scene
+from angora_jax.envs.shadow_hand.ihom import Ihom, IhomReward
 from angora_jax.envs.shadow_hand.model import load_scene
 from angora_jax.envs.shadow_hand.reach import Reach, ReachReward
 
@@ -27,5 +29,32 @@ def make_free_reach(**options) -> Env:
     return make_reach(free=True, **options)
 
 
+def make_ihom(reward: dict[str, float] | None = None, touch: bool = True, success_angle: float = 0.4,
+              goal_timeout: float = 8.0, max_goals: int = 50, control_dt: float = 0.08,
+              physics: dict[str, float] | None = None, relative_control: bool = True, backend: str = "mjx") -> Env:
+    """Build in-hand cube reorientation (see `ihom.Ihom`). Times in s, angles in rad.
+
+    control_dt: simulated time per policy step, 0.08 s as in OpenAI's Dactyl (12.5 Hz) so that the 8 s goal timer
+    is 100 policy steps (AngoraPy's code runs 10 x 2 ms = 0.02 s per step with 100 steps per goal, i.e. 2 s).
+    physics: `PhysicsSettings` fields (timestep, iterations, ls_iterations); the frame skip is control_dt / timestep
+    (default 0.08 / 0.004 = 20). max_episode_steps is max_goals * goal steps, never reached before the goal timer or
+    the cap ends an episode.
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"Unknown backend {backend!r}; choose one of {sorted(BACKENDS)}.")
+    settings = PhysicsSettings(**(physics or {}))
+    frame_skip = round(control_dt / settings.timestep)
+    if frame_skip < 1 or abs(frame_skip * settings.timestep - control_dt) > 1e-9:
+        raise ValueError(f"control_dt ({control_dt} s) must be a whole multiple of the timestep "
+                         f"({settings.timestep} s).")
+    steps_per_goal = round(goal_timeout / control_dt)
+    if steps_per_goal < 1:
+        raise ValueError(f"goal_timeout ({goal_timeout} s) must last at least one policy step ({control_dt} s).")
+    task = Ihom(load_cube_scene(touch, settings), IhomReward.from_dict(reward), success_angle=success_angle,
+                steps_per_goal=steps_per_goal, max_goals=max_goals, relative_control=relative_control)
+    return BACKENDS[backend](task, frame_skip=frame_skip, max_episode_steps=max_goals * steps_per_goal)
+
+
 register("ShadowHandReach", make_reach)
 register("ShadowHandFreeReach", make_free_reach)
+register("ShadowHandCube", make_ihom)

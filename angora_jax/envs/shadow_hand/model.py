@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+from collections.abc import Callable
 
 import mujoco
 
@@ -25,8 +26,10 @@ def asset_dir() -> str:
     return os.path.join(os.path.dirname(spec.origin), "envs", "assets", "hand")
 
 
-def load_scene(scene: str = "reach.xml") -> mujoco.MjModel:
-    """Compile a Gym hand scene (`reach.xml`, `manipulate_block.xml`, ...) with our MJX preparations."""
+def load_scene(scene: str = "reach.xml", edit: Callable[[mujoco.MjSpec], None] | None = None) -> mujoco.MjModel:
+    """Compile a Gym hand scene (`reach.xml`, `manipulate_block.xml`, ...) with our MJX preparations.
+
+    `edit`, when given, changes the prepared `MjSpec` in place before compiling (a task's own scene changes)."""
     path = os.path.join(asset_dir(), scene)
     if not os.path.exists(path):
         raise FileNotFoundError(f"No Shadow-hand scene {scene!r} in {asset_dir()}.")
@@ -39,4 +42,6 @@ def load_scene(scene: str = "reach.xml") -> mujoco.MjModel:
     if floor is not None:
         # The hand hangs in the air: the floor can never be touched, yet a plane makes MJX test every hand geom.
         spec.delete(floor)
+    if edit is not None:
+        edit(spec)
     return spec.compile()
