@@ -16,6 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from common import RESULTS, markdown_table, write_results  # noqa: E402
 
+from angora_jax.envs import make  # noqa: E402
 from angora_jax.ppo import NetworkConfig, PPOConfig, train  # noqa: E402
 
 
@@ -51,14 +52,15 @@ def main() -> None:
     args = parser.parse_args()
 
     config = PPOConfig(
-        task=args.task, seed=args.seed, num_cycles=args.cycles, num_envs=args.num_envs,
+        seed=args.seed, num_cycles=args.cycles, num_envs=args.num_envs,
         rollout_length=args.rollout_length, chunk_length=16, num_epochs=args.epochs,
         minibatch_size=args.num_envs * args.rollout_length // args.minibatches, learning_rate=args.learning_rate,
         head=args.head, init_log_std=args.init_log_std, network=NetworkConfig(name=args.model),
     )
-    _, history = train(config)
+    _, history = train(config, make(args.task))
     rows = [{k: v for k, v in row.items() if isinstance(v, int | float)} for row in history]
-    path = write_results(f"learning_curve_{args.task}", dataclasses.asdict(config), rows, args.out)
+    settings = {"task": args.task, **dataclasses.asdict(config)}
+    path = write_results(f"learning_curve_{args.task}", settings, rows, args.out)
     png = os.path.splitext(path)[0] + ".png"
     plot(rows, f"{args.task}, {args.model}, {args.num_envs} envs", png)
     columns = [("cycle", "cycle", "d"), ("env_steps", "env steps", ",d"), ("seconds", "cycle s", ".1f"),

@@ -57,7 +57,6 @@ def main() -> None:
         raw = raw_env_rate(env, num_envs, args.rollout_length, args.repeats)
         for model in args.model:
             config = PPOConfig(
-                task=args.task,
                 num_envs=num_envs,
                 rollout_length=args.rollout_length,
                 chunk_length=args.chunk_length,

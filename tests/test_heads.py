@@ -119,7 +119,7 @@ def test_custom_head_can_be_registered_and_made():
     assert "test_narrow_gaussian" in list_heads()
     head = make_head("test_narrow_gaussian", BOX)
     assert head.sample(jnp.zeros((2, 3)), jax.random.key(0)).shape == (2, 3)
-    PPOConfig(task="Pendulum", head="test_narrow_gaussian").validate_for(Pendulum())
+    PPOConfig(head="test_narrow_gaussian").validate_for(Pendulum())
     with pytest.raises(ValueError, match="already registered"):
         register_head("test_narrow_gaussian", Deterministicish)
     with pytest.raises(ValueError, match="Unknown policy head 'nope'"):

@@ -12,16 +12,21 @@ from angora_jax.ppo import NetworkConfig, PPOConfig, TrainingDivergedError, make
 
 # Random policies score about 22 on CartPole (max 500) and about -1200 on Pendulum (best about -150).
 CARTPOLE = PPOConfig(
-    task="CartPole", num_envs=16, rollout_length=128, chunk_length=16, minibatch_size=512, num_epochs=4, gamma=0.99
+    num_envs=16, rollout_length=128, chunk_length=16, minibatch_size=512, num_epochs=4, gamma=0.99
 )
-PENDULUM = CARTPOLE.replace(task="Pendulum", gamma=0.95, num_cycles=150)
+PENDULUM = CARTPOLE.replace(gamma=0.95, num_cycles=150)
 
 CASES = {
-    "cartpole-simple-categorical": (CARTPOLE.replace(num_cycles=50), 400.0),
-    "cartpole-lstm-categorical": (CARTPOLE.replace(num_cycles=40, network=NetworkConfig(name="lstm")), 400.0),
-    "pendulum-simple-gaussian": (PENDULUM, -400.0),
-    "pendulum-gru-beta": (PENDULUM.replace(head="beta", network=NetworkConfig(name="gru")), -400.0),
+    "cartpole-simple-categorical": ("CartPole", CARTPOLE.replace(num_cycles=50), 400.0),
+    "cartpole-lstm-categorical": (
+        "CartPole",
+        CARTPOLE.replace(num_cycles=40, network=NetworkConfig(name="lstm")),
+        400.0,
+    ),
+    "pendulum-simple-gaussian": ("Pendulum", PENDULUM, -400.0),
+    "pendulum-gru-beta": ("Pendulum", PENDULUM.replace(head="beta", network=NetworkConfig(name="gru")), -400.0),
     "pendulum-shared-multicategorical-lrdecay": (
+        "Pendulum",
         PENDULUM.replace(head="multicategorical", lr_decay=True, network=NetworkConfig(shared_trunk=True)),
         -400.0,
     ),
@@ -36,9 +41,9 @@ def final_return(history: list[dict[str, float]]) -> float:
 
 @pytest.mark.parametrize("case", CASES)
 def test_ppo_solves_classic_task(case):
-    config, bar = CASES[case]
+    task, config, bar = CASES[case]
     lines = []
-    state, history = train(config, log=lines.append)
+    state, history = train(config, make(task), log=lines.append)
     assert len(lines) == config.num_cycles and "episode_return=" in lines[-1] and "sps=" in lines[-1]
     first = float(np.nanmean([m["episode_return"] for m in history[: len(history) // 10]]))
     reached = final_return(history)
@@ -55,7 +60,7 @@ def test_ppo_solves_classic_task(case):
     np.testing.assert_allclose(state.obs_stats.proprioception.count, last["env_steps"], rtol=1e-3)
     np.testing.assert_allclose(state.reward_stats.count, last["env_steps"], rtol=1e-3)
     # The deterministic policy (the head's mode) does at least as well as the bar too.
-    evaluation = make_evaluate(make(config.task), None, config, num_envs=8)(state, jax.random.key(123))
+    evaluation = make_evaluate(make(task), None, config, num_envs=8)(state, jax.random.key(123))
     print(f"{float(evaluation['episode_return']):.1f}")
     assert float(evaluation["episode_return"]) > bar, evaluation
     if config.lr_decay:
@@ -72,4 +77,4 @@ class NaNRewardCartPole(CartPole):
 def test_divergence_raises_a_clear_error():
     config = CARTPOLE.replace(num_envs=4, rollout_length=16, minibatch_size=64, num_cycles=3)
     with pytest.raises(TrainingDivergedError, match="cycle 1.*Lower learning_rate"):
-        train(config, env=NaNRewardCartPole(), log=None)
+        train(config, NaNRewardCartPole(), log=None)

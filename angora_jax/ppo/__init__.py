@@ -16,7 +16,7 @@ from angora_jax.ppo.distributions import (
     register_head,
 )
 from angora_jax.ppo.evaluate import make_evaluate
-from angora_jax.ppo.train import TrainingDivergedError, format_metrics, train
+from angora_jax.ppo.train import TrainingDivergedError, format_metrics, train, training_cycles
 
 __all__ = [
     "Beta",
@@ -39,4 +39,5 @@ __all__ = [
     "register_head",
     "tile_shape",
     "train",
+    "training_cycles",
 ]

@@ -41,8 +41,8 @@ class NormalizationConfig:
 
 @dataclass(frozen=True)
 class PPOConfig:
-    """One PPO run. A cycle collects `num_envs * rollout_length` transitions, then runs `num_epochs` passes of
-    minibatch updates over them.
+    """One PPO run on a task given separately (the experiment config's `env` section names it). A cycle collects
+    `num_envs * rollout_length` transitions, then runs `num_epochs` passes of minibatch updates over them.
 
     rollout_length: policy steps per environment per cycle (T).
     chunk_length: truncated-BPTT chunk length s; the rollout stores the recurrent carry every s steps. Must divide
@@ -55,7 +55,6 @@ class PPOConfig:
     lr_decay: decay the learning rate linearly to 0 over `num_cycles`.
     """
 
-    task: str = "CartPole"
     seed: int = 0
     num_cycles: int = 100
     num_envs: int = 16

@@ -1,16 +1,16 @@
-"""`train(config)`: the thin Python loop around the compiled cycle, printing one line per cycle."""
+"""`train(config, env)`: the thin Python loop around the compiled cycle, printing one line per cycle;
+`training_cycles` is the same loop as a generator for callers that act between cycles (checkpoints, monitors)."""
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import flax.linen as nn
 import jax
 
 from angora_jax.envs.core import Env
-from angora_jax.envs.registry import make
 from angora_jax.ppo.config import PPOConfig
 from angora_jax.ppo.cycle import TrainState, make_cycle
 
@@ -21,24 +21,42 @@ class TrainingDivergedError(FloatingPointError):
 
 def train(
     config: PPOConfig,
-    env: Env | None = None,
+    env: Env,
     network: nn.Module | None = None,
     log: Callable[[str], None] | None = print,
+    state: TrainState | None = None,
 ) -> tuple[TrainState, list[dict[str, float]]]:
-    """Run `config.num_cycles` PPO cycles and return the final state and one metrics dict per cycle.
+    """Run PPO cycles up to `config.num_cycles` and return the final state and one metrics dict per cycle run.
 
-    env: defaults to `make(config.task)`; network: defaults to `config.network` from the registry. Besides the
-    cycle's metrics (see `make_cycle`), each dict holds cycle, env_steps, seconds (wall time of the cycle) and
-    steps_per_second; the first cycle's wall time includes compilation, reported as compile_seconds.
-    `log` receives one line per cycle (None for silence). Raises TrainingDivergedError when training produces
-    non-finite values.
+    env: the task (e.g. `angora_jax.make("CartPole")`); network: defaults to `config.network` from the registry.
+    state: continue from this state (e.g. restored from a checkpoint) instead of a fresh one from `config.seed`.
+    `log` receives one line per cycle (None for silence). Metrics are described in `training_cycles`. A state that
+    has already run all cycles comes back unchanged with an empty history.
     """
-    env = make(config.task) if env is None else env
-    init, cycle = make_cycle(env, network, config)
-    state = init(jax.random.key(config.seed))
-    steps_per_cycle = config.num_envs * config.rollout_length
     history: list[dict[str, float]] = []
-    for index in range(config.num_cycles):
+    for latest, metrics in training_cycles(config, env, network, state):
+        state = latest
+        history.append(metrics)
+        if log is not None:
+            log(format_metrics(metrics))
+    return state, history
+
+
+def training_cycles(
+    config: PPOConfig, env: Env, network: nn.Module | None = None, state: TrainState | None = None
+) -> Iterator[tuple[TrainState, dict[str, float]]]:
+    """Yield `(state, metrics)` after each cycle, from `state.cycle` (0 for a fresh state) to `config.num_cycles`.
+
+    A generator, so that a caller can checkpoint, log or stop between cycles. Besides the cycle's metrics (see
+    `make_cycle`), each dict holds cycle, env_steps, seconds (wall time of the cycle) and steps_per_second; the first
+    cycle run by this call includes compilation, reported as compile_seconds. Raises TrainingDivergedError when
+    training produces non-finite values.
+    """
+    init, cycle = make_cycle(env, network, config)
+    state = init(jax.random.key(config.seed)) if state is None else state
+    steps_per_cycle = config.num_envs * config.rollout_length
+    first = int(state.cycle)
+    for index in range(first, config.num_cycles):
         start = time.perf_counter()
         state, metrics = cycle(state)
         metrics = {name: float(value) for name, value in jax.device_get(metrics).items()}
@@ -49,9 +67,8 @@ def train(
             "seconds": seconds,
             "steps_per_second": steps_per_cycle / seconds,
         }
-        if index == 0:
+        if index == first:
             metrics["compile_seconds"] = seconds
-        history.append(metrics)
         if not metrics["finite"]:
             raise TrainingDivergedError(
                 f"Training diverged in cycle {index + 1}: the loss or the parameters are not finite "
@@ -59,9 +76,7 @@ def train(
                 f"{config.learning_rate}) or max_grad_norm, keep normalization on, and check the task's rewards and "
                 "observations for NaN or huge values."
             )
-        if log is not None:
-            log(format_metrics(metrics))
-    return state, history
+        yield state, metrics
 
 
 def format_metrics(metrics: dict[str, float]) -> str:
