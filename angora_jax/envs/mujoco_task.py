@@ -58,6 +58,8 @@ class MujocoTask(abc.ABC):
     metric_names: tuple[str, ...] = ()
     # When False, `initial_qpos` ignores its key and the initial physics are computed once, in C MuJoCo.
     random_initial_qpos: bool = False
+    # The body that cameras look at when rendering (None: the model's centre).
+    camera_body: str | None = None
 
     @abc.abstractmethod
     def initial_qpos(self, key: jax.Array) -> jax.Array:

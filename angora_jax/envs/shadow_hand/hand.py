@@ -35,6 +35,8 @@ class HandTask(MujocoTask):
     maps [-1, 1] onto the control range (absolute joint targets).
     """
 
+    camera_body = PALM_BODY
+
     def __init__(self, model: mujoco.MjModel, relative_control: bool = True,
                  initial_qpos: dict[str, float] | None = None):
         self.model = model

@@ -1,0 +1,106 @@
+"""A `gymnasium.Env` view of every task, for third-party agents and tools.
+
+MuJoCo tasks run on the eager C MuJoCo twin (`CpuEnv`, same task logic and keys as the MJX path); pure-JAX tasks
+run their own functions, jitted for one environment. Ids are `AngoraJax/<Task>-v0`, e.g.
+`gymnasium.make("AngoraJax/ShadowHandReach-v0", render_mode="rgb_array")`; keyword arguments go to the task.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from angora_jax.envs.core import Env, State
+from angora_jax.envs.cpu_env import CpuEnv
+from angora_jax.envs.mjx_env import MjxEnv
+from angora_jax.envs.registry import list_tasks, make
+
+NAMESPACE = "AngoraJax"
+MODALITIES = ("proprioception", "touch", "vision", "goal", "asymmetric")
+
+
+class GymEnv(gymnasium.Env):
+    """One environment of `task` behind the gymnasium API.
+
+    Observations are a dict with one float32 array per non-empty Sensation modality (`asymmetric` holds the
+    privileged value inputs; an agent may ignore it). `info` holds the task metrics of the step. With
+    `render_mode="rgb_array"`, `render()` returns a `(height, width, 3)` uint8 frame from a free camera that looks at
+    the task's `camera_body` (the palm for hand tasks) from `distance` m, `azimuth` and `elevation` degrees (MuJoCo
+    tasks only).
+    """
+
+    metadata = {"render_modes": ["rgb_array"]}
+
+    def __init__(self, task: str, render_mode: str | None = None, width: int = 320, height: int = 240,
+                 distance: float = 0.4, azimuth: float = 90.0, elevation: float = -40.0, **options: Any):
+        env = make(task, **options)
+        self._env: Env = CpuEnv(env.task, env.frame_skip, env.max_episode_steps) if isinstance(env, MjxEnv) else env
+        self._eager = isinstance(self._env, CpuEnv)
+        self._reset = self._env.reset if self._eager else jax.jit(self._env.reset)
+        self._advance = self._env.advance if self._eager else jax.jit(self._env.advance)
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}.")
+        if render_mode and not self._eager:
+            raise ValueError(f"Task {task!r} has no MuJoCo scene to render; use render_mode=None.")
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / self._env.dt)}
+        self._camera = (distance, azimuth, elevation)
+        self._size = (height, width)
+        self._renderer: mujoco.Renderer | None = None
+        self._state: State = self._reset(jax.random.key(0))
+        self._modalities = [m for m in MODALITIES if getattr(self._state.obs, m).shape[-1] > 0]
+        self.observation_space = gymnasium.spaces.Dict({
+            m: gymnasium.spaces.Box(-np.inf, np.inf, getattr(self._state.obs, m).shape, np.float32)
+            for m in self._modalities
+        })
+        spec = self._env.action_spec
+        self.action_space = (gymnasium.spaces.Discrete(spec.num_actions) if spec.discrete else
+                             gymnasium.spaces.Box(np.asarray(spec.low), np.asarray(spec.high), dtype=np.float32))
+
+    def _observation(self) -> dict[str, np.ndarray]:
+        return {m: np.asarray(getattr(self._state.obs, m), np.float32) for m in self._modalities}
+
+    def _info(self) -> dict[str, float]:
+        return {name: float(value) for name, value in self._state.metrics.items()}
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self._state = self._reset(jax.random.key(int(self.np_random.integers(2**31))))
+        return self._observation(), self._info()
+
+    def step(self, action):
+        self._state, _ = self._advance(self._state, jnp.asarray(action))
+        terminated = bool(self._state.done) and not bool(self._state.truncated)
+        return (self._observation(), float(self._state.reward), terminated, bool(self._state.truncated),
+                self._info())
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            return None
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self._env.model, *self._size)
+        camera = mujoco.MjvCamera()
+        mujoco.mjv_defaultFreeCamera(self._env.model, camera)
+        camera.distance, camera.azimuth, camera.elevation = self._camera
+        if self._env.task.camera_body is not None:
+            camera.lookat[:] = self._env.data.body(self._env.task.camera_body).xpos
+        self._renderer.update_scene(self._env.data, camera)
+        return self._renderer.render()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+def register_gymnasium_envs() -> None:
+    """Register `AngoraJax/<Task>-v0` for every task not registered yet."""
+    for task in list_tasks():
+        env_id = f"{NAMESPACE}/{task}-v0"
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point=GymEnv, kwargs={"task": task})

@@ -1,0 +1,66 @@
+"""The gymnasium view: registered ids, spaces, check_env, determinism and rendering."""
+
+import os
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import angora_jax  # noqa: F401  (registers the gymnasium ids)
+from angora_jax.envs.gym_view import GymEnv
+
+
+@pytest.fixture(scope="module")
+def reach():
+    env = gymnasium.make("AngoraJax/ShadowHandReach-v0", render_mode="rgb_array", max_episode_steps=5)
+    yield env
+    env.close()
+
+
+def test_every_task_has_a_gymnasium_id():
+    for task in angora_jax.list_tasks():
+        assert f"AngoraJax/{task}-v0" in gymnasium.registry
+
+
+def test_reach_spaces(reach):
+    space = reach.observation_space
+    assert set(space.spaces) == {"proprioception", "goal", "asymmetric"}
+    assert space["proprioception"].shape == (48,) and space["goal"].shape == (20,)
+    assert reach.action_space.shape == (20,) and np.all(reach.action_space.low == -1)
+
+
+def test_reach_passes_check_env(reach):
+    check_env(reach.unwrapped, skip_render_check=True)
+
+
+def test_reach_episode_is_seeded_and_truncates(reach):
+    first, _ = reach.reset(seed=3)
+    again, _ = reach.reset(seed=3)
+    np.testing.assert_array_equal(first["goal"], again["goal"])
+    for t in range(5):
+        obs, reward, terminated, truncated, info = reach.step(reach.action_space.sample())
+        assert reach.observation_space.contains(obs) and np.isfinite(reward) and not terminated
+        assert set(info) == {"success", "goal_distance"}
+        assert truncated == (t == 4)
+
+
+@pytest.mark.skipif(os.environ.get("MUJOCO_GL") == "disable", reason="rendering switched off")
+def test_reach_renders_frames_that_change(reach):
+    reach.reset(seed=0)
+    before = reach.render()
+    for _ in range(3):
+        reach.step(np.ones(20, np.float32))
+    after = reach.render()
+    assert before.shape == (240, 320, 3) and before.dtype == np.uint8
+    assert before.std() > 5, "a frame of one colour shows nothing"
+    assert np.abs(before.astype(int) - after.astype(int)).mean() > 0.5, "the hand moved, the frame must change"
+
+
+def test_pure_jax_task_through_gymnasium_and_errors():
+    cartpole = gymnasium.make("AngoraJax/CartPole-v0")
+    check_env(cartpole.unwrapped, skip_render_check=True)
+    with pytest.raises(ValueError, match="no MuJoCo scene to render"):
+        GymEnv("CartPole", render_mode="rgb_array")
+    with pytest.raises(ValueError, match="render_mode must be"):
+        GymEnv("ShadowHandReach", render_mode="human")
