@@ -1,16 +1,37 @@
-"""The `angora-jax` command."""
+"""The `angora-jax` command: train, resume, evaluate and compare runs.
+
+angora-jax train cartpole                       train configs/cartpole.yaml into runs/<name>/
+angora-jax train cartpole ppo.network.name=lstm logging.run_name=lstm
+angora-jax resume runs/lstm                     continue from the latest checkpoint, exactly
+angora-jax evaluate runs/lstm                   deterministic episodes with the best checkpoint
+angora-jax report runs/lstm runs/other          PNG curves + index.html comparing runs
+"""
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
+from pathlib import Path
 
 import jax
 import numpy as np
 
 from angora_jax.envs import list_tasks, make
 from angora_jax.envs.random_rollout import batched_reset, episode_mean, make_random_rollout
+from angora_jax.experiment import (
+    ConfigError,
+    RunDirError,
+    TrainingInterrupted,
+    TrainingRun,
+    load_agent,
+    read_metrics,
+    resume,
+    train,
+)
+from angora_jax.nets import list_networks
+from angora_jax.ppo import TrainingDivergedError, list_heads
 
 
 def run_random(task: str, num_envs: int, num_steps: int, seed: int) -> dict[str, float]:
@@ -43,25 +64,125 @@ def run_random(task: str, num_envs: int, num_steps: int, seed: int) -> dict[str,
     return result
 
 
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="angora-jax", description=__doc__)
-    commands = parser.add_subparsers(dest="command", required=True)
+    """Run the command; exit codes: 0 done, 1 training diverged, 2 bad usage or config (nothing was run or
+    changed), 128 + signal number (130 Ctrl-C, 143 SIGTERM) when training was interrupted after saving a
+    checkpoint."""
+    args = parser().parse_args(argv)
+    try:
+        return args.handler(args)
+    except (ConfigError, RunDirError, FileNotFoundError) as error:
+        print(f"angora-jax {args.command}: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    except TrainingInterrupted as stop:
+        print(f"angora-jax {args.command}: {stop}", file=sys.stderr)
+        return 128 + stop.signum
+    except TrainingDivergedError as error:
+        print(f"angora-jax {args.command}: {error}", file=sys.stderr)
+        return EXIT_FAILED
+
+
+def parser() -> argparse.ArgumentParser:
+    top = argparse.ArgumentParser(prog="angora-jax", description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    commands = top.add_subparsers(dest="command", required=True)
+
+    train = commands.add_parser("train", help="train a new run from a YAML config (see configs/)")
+    train.add_argument("config", help="YAML path or a name in configs/ (e.g. cartpole)")
+    train.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. ppo.num_cycles=20 ppo.network.name=lstm")
+    train.set_defaults(handler=command_train)
+
+    resume = commands.add_parser("resume", help="continue a run from its latest checkpoint, exactly")
+    resume.add_argument("run_dir")
+    resume.set_defaults(handler=command_resume)
+
+    evaluate = commands.add_parser("evaluate", help="run a trained policy for one episode per environment")
+    evaluate.add_argument("run_dir")
+    evaluate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
+    evaluate.add_argument("--num-envs", type=int, default=16, help="episodes, one per environment")
+    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--sample", action="store_true", help="sample actions instead of taking the mode")
+    evaluate.set_defaults(handler=command_evaluate)
+
+    report = commands.add_parser("report", help="PNG learning curves and an HTML page comparing runs")
+    report.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
+    report.add_argument("--out", default=None, help="output folder (default: RUN_DIR/report for one run, else report/)")
+    report.set_defaults(handler=command_report)
+
+    tasks = commands.add_parser("list-tasks", help="print the registered task names")
+    tasks.set_defaults(handler=lambda args: print("\n".join(list_tasks())) or EXIT_OK)
+    models = commands.add_parser("list-models", help="print the registered networks and policy heads")
+    models.set_defaults(handler=command_list_models)
+
     run = commands.add_parser("run", help="roll out a random policy in a batch of environments (smoke test)")
     run.add_argument("--task", default="ShadowHandReach", help="task name (see list-tasks)")
     run.add_argument("--num-envs", type=int, default=8)
     run.add_argument("--steps", type=int, default=100, help="policy steps per environment")
     run.add_argument("--seed", type=int, default=0)
-    commands.add_parser("list-tasks", help="print the registered task names")
-    args = parser.parse_args(argv)
-    if args.command == "list-tasks":
-        print("\n".join(list_tasks()))
-        return 0
+    run.set_defaults(handler=command_run)
+    return top
+
+
+def command_train(args: argparse.Namespace) -> int:
+    run = train(args.config, args.overrides)
+    print_finished(run)
+    return EXIT_OK
+
+
+def command_resume(args: argparse.Namespace) -> int:
+    run = resume(args.run_dir)
+    print_finished(run)
+    return EXIT_OK
+
+
+def print_finished(run: TrainingRun) -> None:
+    cycle = int(run.state.cycle)
+    print(f"Run {run.run_dir}: {cycle} cycles done ({len(run.history)} in this session).")
+    returns = [r["episode_return"] for r in read_metrics(run.run_dir) if math.isfinite(r["episode_return"])]
+    if len(returns) >= 2:
+        tenth = max(1, len(returns) // 10)
+        first, last = sum(returns[:tenth]) / tenth, sum(returns[-tenth:]) / tenth
+        print(f"Episode return: {first:.1f} in the first tenth of cycles, {last:.1f} in the last tenth.")
+    report = run.run_dir / "report" / "index.html"
+    if report.exists():
+        print(f"Report: {report}")
+    print(f"Next: angora-jax evaluate {run.run_dir}   |   from angora_jax import load_agent")
+
+
+def command_evaluate(args: argparse.Namespace) -> int:
+    checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
+    agent = load_agent(args.run_dir, checkpoint)
+    metrics = agent.evaluate(args.num_envs, args.seed, deterministic=not args.sample)
+    mode = "sampled" if args.sample else "deterministic (mode)"
+    print(f"{args.run_dir}, checkpoint of cycle {agent.cycle}, {args.num_envs} episodes, {mode} actions:")
+    for name, value in metrics.items():
+        print(f"  {name:>20}: {value:.4g}")
+    return EXIT_OK
+
+
+def command_report(args: argparse.Namespace) -> int:
+    from angora_jax.experiment.report import write_report  # matplotlib only when a report is made
+
+    out = args.out or (Path(args.run_dirs[0]) / "report" if len(args.run_dirs) == 1 else Path("report"))
+    print(f"Report: {write_report(args.run_dirs, out)}")
+    return EXIT_OK
+
+
+def command_list_models(args: argparse.Namespace) -> int:
+    print("networks (ppo.network.name):", ", ".join(list_networks()))
+    print("policy heads (ppo.head):", ", ".join(["auto", *list_heads()]))
+    return EXIT_OK
+
+
+def command_run(args: argparse.Namespace) -> int:
     try:
         run_random(args.task, args.num_envs, args.steps, args.seed)
     except ValueError as error:
         print(f"angora-jax: {error}", file=sys.stderr)
-        return 2
-    return 0
+        return EXIT_USAGE
+    return EXIT_OK
 
 
 if __name__ == "__main__":

@@ -1,0 +1,45 @@
+"""Experiments: configs from YAML, run directories, Orbax checkpoints with exact resume, the metrics monitor and
+reports. The `angora-jax` command is a thin layer over these functions.
+
+    config = load_config("cartpole", ["ppo.num_cycles=30"])   # configs/cartpole.yaml with an override
+    run = train(config)                                        # writes runs/<name>/ and returns TrainingRun
+    agent = load_agent(run.run_dir)                            # best checkpoint: act, evaluate, probe
+"""
+
+from angora_jax.experiment.agent import Agent, load_agent
+from angora_jax.experiment.checkpoint import Checkpoints
+from angora_jax.experiment.config import (
+    CheckpointConfig,
+    Config,
+    ConfigError,
+    DistributionConfig,
+    EnvConfig,
+    LoggingConfig,
+    load_config,
+    to_dict,
+    validate,
+)
+from angora_jax.experiment.monitor import read_metrics
+from angora_jax.experiment.run_dir import RunDirError
+from angora_jax.experiment.runner import TrainingInterrupted, TrainingRun, resume, train
+
+__all__ = [
+    "Agent",
+    "CheckpointConfig",
+    "Checkpoints",
+    "Config",
+    "ConfigError",
+    "DistributionConfig",
+    "EnvConfig",
+    "LoggingConfig",
+    "RunDirError",
+    "TrainingInterrupted",
+    "TrainingRun",
+    "load_agent",
+    "load_config",
+    "read_metrics",
+    "resume",
+    "to_dict",
+    "train",
+    "validate",
+]

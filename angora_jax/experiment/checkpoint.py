@@ -1,0 +1,160 @@
+"""Checkpoints of a run with Orbax: the latest state, the best state by a training metric, and kept snapshots.
+
+Each checkpoint holds the whole `TrainState` (params, optimizer state, normaliser statistics, environment states,
+recurrent carries, PRNG keys, cycle counter) plus JSON metadata (cycle, env steps, the cycle's metrics and the
+resolved config), so that a resumed run continues bit-for-bit. Layout: `checkpoints/{latest,best,snapshots}/<cycle>/`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import orbax.checkpoint as ocp
+
+from angora_jax.experiment.config import CheckpointConfig
+from angora_jax.ppo.cycle import TrainState
+
+KINDS = ("latest", "best", "snapshots")
+
+
+def to_storable(state: Any) -> dict[str, jax.Array]:
+    """The state as a flat dict that Orbax can write: keyed by the leaf's path (`params.Dense_0.kernel`), typed PRNG
+    keys (`jax.random.key`) as their raw uint32 data, and empty arrays (modalities a task lacks) left out."""
+    leaves = jax.tree_util.tree_flatten_with_path(state)[0]
+    return {_path(path): jax.random.key_data(x) if _is_key(x) else x for path, x in leaves if x.size}
+
+
+def from_storable(template: Any, stored: dict[str, jax.Array]) -> Any:
+    """Inverse of `to_storable`: the tree of `template` (arrays or `jax.ShapeDtypeStruct`s) filled from `stored`,
+    with keys wrapped back into typed keys and empty arrays recreated."""
+
+    def fill(path, t):
+        if not t.size:
+            return jnp.zeros(t.shape, t.dtype)
+        x = stored[_path(path)]
+        return jax.random.wrap_key_data(x) if _is_key(t) else x
+
+    return jax.tree_util.tree_map_with_path(fill, template)
+
+
+def _path(path: tuple) -> str:
+    return ".".join(str(getattr(entry, "name", getattr(entry, "key", getattr(entry, "idx", entry)))) for entry in path)
+
+
+def _is_key(x: Any) -> bool:
+    return jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
+@dataclass(frozen=True)
+class Restored:
+    """A state read back from a checkpoint and its metadata (cycle, env_steps, metrics, config)."""
+
+    state: TrainState
+    meta: dict[str, Any]
+
+
+class Checkpoints:
+    """The checkpoints of one run directory: decides what to save after a cycle, and restores.
+
+    Saving is synchronous: a checkpoint is complete on disk when `save` returns, which is what an interrupted run
+    needs, and states of the size trained here take milliseconds to write.
+    """
+
+    def __init__(self, directory: Path, config: CheckpointConfig, create: bool = True):
+        """directory: the run's checkpoints folder; create=False to only read an existing run's checkpoints."""
+        self.config = config
+        keep = {"latest": 1, "best": 1, "snapshots": None}
+        self._managers = {
+            kind: ocp.CheckpointManager(
+                Path(directory).resolve() / kind,
+                options=ocp.CheckpointManagerOptions(
+                    max_to_keep=keep[kind], create=create, enable_async_checkpointing=False
+                ),
+                item_names=("state", "meta"),
+            )
+            for kind in KINDS
+        }
+        best = self._managers["best"].latest_step()
+        self.best_value = None if best is None else self._read_meta("best", best)["metrics"].get(config.best_metric)
+
+    def steps(self, kind: str) -> list[int]:
+        """Cycles at which checkpoints of `kind` ("latest", "best", "snapshots") exist, ascending."""
+        return sorted(self._managers[kind].all_steps())
+
+    def save(
+        self, state: TrainState, metrics: dict[str, float], config: dict[str, Any], final: bool = False
+    ) -> list[str]:
+        """Save what is due after this cycle (latest every `every` cycles or when `final`; best when the metric
+        improved; a snapshot every `snapshot_every` cycles) and return the kinds saved."""
+        cycle = int(state.cycle)
+        meta = {"cycle": cycle, "env_steps": metrics.get("env_steps"), "metrics": _finite(metrics), "config": config}
+        due = {
+            "latest": final or cycle % self.config.every == 0,
+            "best": self._improves(metrics),
+            "snapshots": self.config.snapshot_every > 0 and cycle % self.config.snapshot_every == 0,
+        }
+        saved = []
+        for kind, is_due in due.items():
+            # A resumed run recomputes the cycles after its checkpoint exactly; those already saved stay as they are.
+            if is_due and cycle not in self._managers[kind].all_steps():
+                storable = to_storable(state)
+                self._managers[kind].save(
+                    cycle, args=ocp.args.Composite(state=ocp.args.StandardSave(storable), meta=ocp.args.JsonSave(meta))
+                )
+                saved.append(kind)
+        if "best" in saved:
+            self.best_value = metrics[self.config.best_metric]
+        return saved
+
+    def restore(self, template: TrainState, which: str | int = "latest") -> Restored:
+        """Read a state shaped like `template` (a TrainState or its `jax.eval_shape`).
+
+        which: "latest", "best", or a cycle number (found among latest, best and snapshots). Raises
+        FileNotFoundError listing what exists when there is no such checkpoint.
+        """
+        kind, cycle = self._locate(which)
+        abstract = jax.eval_shape(to_storable, template)
+        restored = self._managers[kind].restore(
+            cycle, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore())
+        )
+        return Restored(from_storable(template, restored["state"]), dict(restored["meta"]))
+
+    def close(self) -> None:
+        for manager in self._managers.values():
+            manager.close()
+
+    def _locate(self, which: str | int) -> tuple[str, int]:
+        if which in ("latest", "best"):
+            step = self._managers[which].latest_step()
+            if step is not None:
+                return which, step
+        elif isinstance(which, int):
+            for kind in KINDS:
+                if which in self._managers[kind].all_steps():
+                    return kind, which
+        existing = {kind: self.steps(kind) for kind in KINDS}
+        raise FileNotFoundError(
+            f"No checkpoint {which!r}. Saved cycles: {existing}; ask for 'latest', 'best' or one of them."
+        )
+
+    def _read_meta(self, kind: str, cycle: int) -> dict[str, Any]:
+        return dict(self._managers[kind].restore(cycle, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"])
+
+    def _improves(self, metrics: dict[str, float]) -> bool:
+        name = self.config.best_metric
+        value = metrics.get(name, math.nan) if name is not None else math.nan
+        if math.isnan(value):  # e.g. no episode finished in this cycle
+            return False
+        if self.best_value is None:
+            return True
+        return value > self.best_value if self.config.best_mode == "max" else value < self.best_value
+
+
+def _finite(metrics: dict[str, float]) -> dict[str, float | None]:
+    """JSON has no NaN: undefined metrics (no finished episode) become null."""
+    return {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in metrics.items()}

@@ -1,0 +1,274 @@
+"""The experiment config: typed frozen dataclasses loaded from YAML with `key.sub=value` overrides.
+
+A config file has five sections, each a dataclass below: `env` (task and its options), `ppo` (`PPOConfig`, with
+the model in `ppo.network` and the normalisation in `ppo.normalization`), `logging`, `checkpoint` and
+`distribution`. Keys left out take the dataclass defaults. `load_config` rejects unknown keys and wrong types;
+`validate` then checks the combination against the task, so that every mistake surfaces before anything compiles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import importlib.util
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from angora_jax.envs.core import Env
+from angora_jax.envs.registry import list_tasks, make
+from angora_jax.nets.registry import list_networks
+from angora_jax.ppo.config import PPOConfig
+
+# Named configs (`load_config("cartpole")`) live in the repository's configs/ folder.
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+
+
+class ConfigError(ValueError):
+    """A config that cannot run; the message names the key, what is allowed and how to fix it."""
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """task: a registered task name (`angora-jax list-tasks`). options: keyword arguments of
+    `angora_jax.make(task, **options)`, e.g. `max_episode_steps`, `reward` coefficients, `backend`."""
+
+    task: str = "CartPole"
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class LoggingConfig:
+    """Where a run is written and what is shown while it trains.
+
+    run_root: folder that holds run directories. run_name: the run directory's name; None makes one from task,
+    network and start time. progress: "auto" (a live line on a terminal, plain log lines otherwise), "bar" (live
+    line), "lines" (one line per cycle) or "none". tensorboard: also write TensorBoard event files (needs the
+    tensorboardX package). report: write the run's PNG and HTML report into `RUN_DIR/report` when training ends.
+    """
+
+    run_root: str = "runs"
+    run_name: str | None = None
+    progress: str = "auto"
+    tensorboard: bool = False
+    report: bool = True
+
+
+PROGRESS_MODES = ("auto", "bar", "lines", "none")
+
+
+@dataclass(frozen=True)
+class CheckpointConfig:
+    """Which checkpoints a run keeps (all in `RUN_DIR/checkpoints`).
+
+    every: save the latest state every this many cycles (also at the end and when interrupted); the previous
+    latest is replaced. best_metric: keep the state of the cycle with the best value of this per-cycle metric
+    ("episode_return", "episode_length" or "metric/<task metric>"); None keeps no best checkpoint. best_mode: "max"
+    or "min". snapshot_every: keep a snapshot every this many cycles for good, for probing later; 0 for none.
+    """
+
+    every: int = 10
+    best_metric: str | None = "episode_return"
+    best_mode: str = "max"
+    snapshot_every: int = 0
+
+
+@dataclass(frozen=True)
+class DistributionConfig:
+    """num_devices: devices to train on; only 1 is implemented (the gradients are combined in
+    `angora_jax.ppo.average_gradients`, the hook for multi-device training)."""
+
+    num_devices: int = 1
+
+
+@dataclass(frozen=True)
+class Config:
+    """Everything one experiment needs; `to_dict(config)` is its resolved form as saved with a run."""
+
+    env: EnvConfig = field(default_factory=EnvConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    logging: LoggingConfig = field(default_factory=LoggingConfig)
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+    distribution: DistributionConfig = field(default_factory=DistributionConfig)
+
+
+def load_config(source: str | Path | dict | None = None, overrides: typing.Iterable[str] = ()) -> Config:
+    """Read a config and apply `overrides` (strings `key.sub=value`, value in YAML syntax); no validation
+    against the task yet (see `validate`).
+
+    source: a YAML file path, the name of a file in configs/ ("cartpole" for configs/cartpole.yaml), a dict with
+    the same structure, or None for the defaults. Raises ConfigError for a missing file, bad YAML, an unknown key
+    or a value of the wrong type.
+    """
+    data = _read(source)
+    for override in overrides:
+        _apply_override(data, override)
+    return _build(Config, data, "")
+
+
+def to_dict(config: Config) -> dict[str, Any]:
+    """The config as nested plain dicts (what config.yaml in a run directory holds)."""
+    return dataclasses.asdict(config)
+
+
+def flatten(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested dicts as one dict with dotted keys (`{"ppo": {"gamma": 0.99}}` -> `{"ppo.gamma": 0.99}`)."""
+    flat: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, dict) and value:
+            flat |= flatten(value, f"{prefix}{key}.")
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def best_metric_choices(env: Env) -> list[str]:
+    """Per-cycle metrics that `checkpoint.best_metric` may name for `env`."""
+    return ["episode_return", "episode_length", *(f"metric/{name}" for name in env.metric_names)]
+
+
+def validate(config: Config) -> Env:
+    """Check the whole config, the task included, without compiling anything; return the task's environment.
+
+    Raises ConfigError naming the key (e.g. `ppo.minibatch_size`), the allowed values and the fix.
+    """
+    if config.env.task not in list_tasks():
+        raise ConfigError(_unknown("env.task", config.env.task, list_tasks(), "tasks"))
+    try:
+        env = make(config.env.task, **config.env.options)
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"env.options do not fit task {config.env.task!r}: {error}") from None
+    if config.ppo.network.name not in list_networks():
+        raise ConfigError(_unknown("ppo.network.name", config.ppo.network.name, list_networks(), "networks"))
+    try:
+        config.ppo.validate_for(env)
+    except ValueError as error:
+        raise ConfigError(f"ppo section: {error}") from None
+    logging, checkpoint = config.logging, config.checkpoint
+    if logging.progress not in PROGRESS_MODES:
+        raise ConfigError(_unknown("logging.progress", logging.progress, PROGRESS_MODES, "modes"))
+    if logging.tensorboard and importlib.util.find_spec("tensorboardX") is None:
+        raise ConfigError(
+            "logging.tensorboard=true needs the tensorboardX package: pip install 'angora-jax[tensorboard]', or set "
+            "logging.tensorboard=false (metrics.jsonl is always written)."
+        )
+    if checkpoint.every < 1:
+        raise ConfigError(f"checkpoint.every must be >= 1 (cycles between latest checkpoints), got {checkpoint.every}.")
+    if checkpoint.snapshot_every < 0:
+        raise ConfigError(f"checkpoint.snapshot_every must be >= 0 (0: no snapshots), got {checkpoint.snapshot_every}.")
+    if checkpoint.best_mode not in ("max", "min"):
+        raise ConfigError(_unknown("checkpoint.best_mode", checkpoint.best_mode, ("max", "min"), "modes"))
+    choices = best_metric_choices(env)
+    if checkpoint.best_metric is not None and checkpoint.best_metric not in choices:
+        raise ConfigError(_unknown("checkpoint.best_metric", checkpoint.best_metric, [*choices, "null"], "metrics"))
+    if config.distribution.num_devices != 1:
+        raise ConfigError(
+            f"distribution.num_devices={config.distribution.num_devices} is not supported yet; allowed: 1. "
+            "Multi-device training is future work (see angora_jax.ppo.average_gradients)."
+        )
+    return env
+
+
+def _read(source: str | Path | dict | None) -> dict[str, Any]:
+    if source is None:
+        return {}
+    if isinstance(source, dict):
+        return _deep_copy(source)
+    path = Path(source)
+    if not path.exists() and path.suffix == "" and (CONFIGS / f"{source}.yaml").exists():
+        path = CONFIGS / f"{source}.yaml"
+    if not path.exists():
+        names = sorted(p.stem for p in CONFIGS.glob("*.yaml"))
+        raise ConfigError(f"Config file {str(source)!r} not found. Give a YAML path or one of: {', '.join(names)}.")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        raise ConfigError(f"{path} is not valid YAML: {error}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path} must hold a mapping of sections (env, ppo, ...), got {type(data).__name__}.")
+    return data
+
+
+def _deep_copy(data: Any) -> Any:
+    if isinstance(data, dict):
+        return {key: _deep_copy(value) for key, value in data.items()}
+    if isinstance(data, list):
+        return [_deep_copy(value) for value in data]
+    return data
+
+
+def _apply_override(data: dict[str, Any], override: str) -> None:
+    key, sep, text = override.partition("=")
+    if not sep or not key or any(not part for part in key.split(".")):
+        raise ConfigError(f"Override {override!r} must look like key.sub=value, e.g. ppo.num_cycles=20.")
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        raise ConfigError(f"Override {override!r}: the value is not valid YAML ({error}).") from None
+    *sections, leaf = key.split(".")
+    node = data
+    for depth, section in enumerate(sections):
+        node = node.setdefault(section, {})
+        if not isinstance(node, dict):
+            raise ConfigError(f"Override {override!r}: {'.'.join(sections[: depth + 1])} is a value, not a section.")
+    node[leaf] = value
+
+
+def _build(cls: type, data: Any, path: str) -> Any:
+    where = path or "the config"
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where} must be a mapping of keys to values, got {data!r}.")
+    names = [f.name for f in dataclasses.fields(cls)]
+    for key in data:
+        if key not in names:
+            close = difflib.get_close_matches(str(key), names, n=1)
+            hint = f" Did you mean {close[0]!r}?" if close else ""
+            full = f"{path}.{key}" if path else str(key)
+            raise ConfigError(f"Unknown key {full!r}.{hint} Keys of {where}: {', '.join(names)}.")
+    hints = typing.get_type_hints(cls)
+    return cls(**{key: _convert(hints[key], value, f"{path}.{key}" if path else key) for key, value in data.items()})
+
+
+def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
+    if dataclasses.is_dataclass(kind):
+        return _build(kind, {} if value is None else value, key)
+    if isinstance(kind, types.UnionType) or typing.get_origin(kind) is typing.Union:
+        options = [arg for arg in typing.get_args(kind) if arg is not type(None)]
+        if value is None:
+            return None
+        return _convert(options[0], value, key, nullable=True)
+    if kind is Any:
+        return value
+    if typing.get_origin(kind) is dict:
+        if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
+            raise ConfigError(f"{key} must be a mapping with string keys, got {value!r}.")
+        return value
+    if kind is bool and isinstance(value, bool):
+        return value
+    if kind is int and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
+        return float(value)
+    if kind is float and isinstance(value, str):
+        try:  # YAML 1.1 reads `1e-3` (no dot) as a string
+            return float(value)
+        except ValueError:
+            pass
+    if kind is str and isinstance(value, str):
+        return value
+    allowed = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(kind, str(kind))
+    allowed += " or null" if nullable else ""
+    raise ConfigError(f"{key} must be {allowed}, got {value!r} ({type(value).__name__}).")
+
+
+def _unknown(key: str, value: Any, allowed: typing.Iterable[str], plural: str) -> str:
+    allowed = list(allowed)
+    close = difflib.get_close_matches(str(value), allowed, n=1)
+    hint = f" Did you mean {close[0]!r}?" if close else ""
+    return f"Unknown value {value!r} for {key}.{hint} Allowed {plural}: {', '.join(map(str, allowed))}."

@@ -1,0 +1,115 @@
+"""The experiment monitor: one JSON line per cycle in `RUN_DIR/metrics.jsonl`, optionally TensorBoard events.
+
+A line holds the cycle's training metrics (episode_return, episode_length, `metric/<task metric>`, the losses,
+entropy, approx_kl, clip_fraction, explained_variance, learning_rate, seconds, steps_per_second and, on the first
+cycle of a session, compile_seconds), normaliser statistics (`norm/...`), memory (`memory/...`, bytes) and
+`time` (Unix seconds). Undefined values (no episode finished) are written as null.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import resource
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from angora_jax.experiment.run_dir import METRICS_FILE
+from angora_jax.ppo.cycle import TrainState
+
+
+def normalizer_summary(state: TrainState) -> dict[str, float]:
+    """Scalars that show what the running normalisation has learned: the reward scale (std of the discounted
+    return) and, per observation modality that has features, the mean |mean| and mean std over features."""
+    stats = {"norm/reward_std": float(jnp.sqrt(state.reward_stats.var)), "norm/count": float(state.reward_stats.count)}
+    for name, modality in state.obs_stats.__dict__.items():
+        if modality.mean.size:
+            stats[f"norm/{name}_abs_mean"] = float(jnp.abs(modality.mean).mean())
+            stats[f"norm/{name}_std"] = float(jnp.sqrt(modality.var).mean())
+    return stats
+
+
+def memory_summary() -> dict[str, float]:
+    """Device memory in use and its peak (bytes) where the backend reports it (GPUs), and the process's peak
+    resident host memory."""
+    scale = 1 if sys.platform == "darwin" else 1024  # ru_maxrss is bytes on macOS, KiB on Linux
+    stats = {"memory/host_peak_bytes": float(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale)}
+    device = jax.devices()[0].memory_stats() or {}
+    for key in ("bytes_in_use", "peak_bytes_in_use"):
+        if key in device:
+            stats[f"memory/device_{key}"] = float(device[key])
+    return stats
+
+
+class Monitor:
+    """Appends one record per cycle to `metrics.jsonl` (and TensorBoard when asked)."""
+
+    def __init__(self, run_dir: Path, tensorboard: bool = False):
+        self.path = Path(run_dir) / METRICS_FILE
+        self._file = self.path.open("a")
+        self._writer = None
+        if tensorboard:
+            from tensorboardX import SummaryWriter  # optional dependency, checked by config.validate
+
+            self._writer = SummaryWriter(str(Path(run_dir) / "tensorboard"))
+
+    def record(self, metrics: dict[str, float], state: TrainState) -> dict[str, Any]:
+        """Write the cycle's record (metrics plus normaliser and memory statistics) and return it."""
+        record = {**metrics, **normalizer_summary(state), **memory_summary(), "time": time.time()}
+        self._file.write(json.dumps({k: _json_value(v) for k, v in record.items()}) + "\n")
+        self._file.flush()
+        if self._writer is not None:
+            step = int(metrics["env_steps"])
+            for key, value in record.items():
+                if isinstance(value, float) and math.isfinite(value) and key != "time":
+                    self._writer.add_scalar(key, value, step)
+            self._writer.flush()
+        return record
+
+    def close(self) -> None:
+        self._file.close()
+        if self._writer is not None:
+            self._writer.close()
+
+
+def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
+    """The records of `run_dir/metrics.jsonl` in order, nulls read back as NaN."""
+    path = Path(run_dir) / METRICS_FILE
+    if not path.exists():
+        return []
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return [{k: math.nan if v is None else v for k, v in row.items()} for row in rows]
+
+
+def set_aside_after(run_dir: str | Path, cycle: int) -> Path | None:
+    """Before resuming from `cycle`: move the records of later cycles (written after the checkpoint, before the
+    run was killed) from metrics.jsonl into a new side file, so the log holds each cycle once. Returns the side
+    file, or None when there was nothing to move."""
+    path = Path(run_dir) / METRICS_FILE
+    if not path.exists():
+        return None
+    lines = [line for line in path.read_text().splitlines() if line.strip()]
+    later = [line for line in lines if json.loads(line)["cycle"] > cycle]
+    if not later:
+        return None
+    side = path.with_name(f"metrics.after-cycle-{cycle}.jsonl")
+    index = 1
+    while side.exists():
+        index += 1
+        side = path.with_name(f"metrics.after-cycle-{cycle}-{index}.jsonl")
+    side.write_text("\n".join(later) + "\n")
+    kept = path.with_name(METRICS_FILE + ".tmp")
+    kept.write_text("".join(line + "\n" for line in lines if json.loads(line)["cycle"] <= cycle))
+    kept.replace(path)
+    return side
+
+
+def _json_value(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

@@ -1,0 +1,178 @@
+"""Reports: PNG learning curves comparing runs and one static HTML page that lists the runs with their configs.
+
+The page needs no server: open `index.html` from disk. It filters runs by any text of their name or config
+(the filter box, or `index.html#filter=lstm` in the address).
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only: no display needed
+import matplotlib.pyplot as plt  # noqa: E402
+import yaml  # noqa: E402
+
+from angora_jax.experiment.monitor import read_metrics  # noqa: E402
+from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError  # noqa: E402
+
+# Curves drawn when at least one run has them, in this order; task metrics (metric/*) follow the return.
+CURVES = (
+    "episode_return",
+    "episode_length",
+    "policy_loss",
+    "value_loss",
+    "entropy",
+    "approx_kl",
+    "clip_fraction",
+    "explained_variance",
+    "norm/reward_std",
+    "steps_per_second",
+)
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """A run as the report sees it: its name (directory name), directory, resolved config and metric rows."""
+
+    name: str
+    path: Path
+    config: dict[str, Any]
+    rows: list[dict[str, Any]]
+
+
+def load_run(run_dir: str | Path) -> RunRecord:
+    """Read a run directory's config and metrics; RunDirError when it is not a run directory."""
+    path = Path(run_dir)
+    if not (path / CONFIG_FILE).is_file():
+        raise RunDirError(f"{run_dir} is not a run directory: it has no {CONFIG_FILE}.")
+    return RunRecord(path.resolve().name, path, yaml.safe_load((path / CONFIG_FILE).read_text()), read_metrics(path))
+
+
+def curve_names(runs: list[RunRecord]) -> list[str]:
+    """The metrics to plot: those of CURVES and every task metric that some run recorded."""
+    present = {key for run in runs for row in run.rows for key in row}
+    task = sorted(k for k in present if k.startswith("metric/"))
+    ordered = [CURVES[0], *task, *CURVES[1:]]
+    return [name for name in ordered if name in present]
+
+
+def plot_curve(runs: list[RunRecord], name: str, path: Path) -> None:
+    """One PNG: metric `name` against env steps, one line per run."""
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    for run in runs:
+        points = [(r["env_steps"], r[name]) for r in run.rows if name in r and not math.isnan(r[name])]
+        if points:
+            ax.plot(*zip(*points, strict=True), marker="." if len(points) < 50 else None, label=run.name)
+    ax.set_xlabel("env steps")
+    ax.set_title(name)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def write_report(run_dirs: list[str | Path], out_dir: str | Path) -> Path:
+    """Write one PNG per metric (runs compared) and index.html into `out_dir`; return the HTML path.
+
+    The report's own files in `out_dir` are regenerated; nothing else there is touched.
+    """
+    runs = [load_run(d) for d in run_dirs]
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    images = []
+    for name in curve_names(runs):
+        image = out / (name.replace("/", "_") + ".png")
+        plot_curve(runs, name, image)
+        images.append((name, image.name))
+    page = out / "index.html"
+    page.write_text(render_html(runs, images))
+    return page
+
+
+def summary(run: RunRecord) -> dict[str, Any]:
+    """Table cells of a run: task, network, head, cycles done, env steps, final and best return."""
+    returns = [r["episode_return"] for r in run.rows if not math.isnan(r.get("episode_return", math.nan))]
+    tail = returns[-max(1, len(returns) // 10) :]
+    ppo = run.config.get("ppo", {})
+    return {
+        "task": run.config.get("env", {}).get("task", "?"),
+        "network": ppo.get("network", {}).get("name", "?"),
+        "head": ppo.get("head", "?"),
+        "cycles": f"{run.rows[-1]['cycle'] if run.rows else 0}/{ppo.get('num_cycles', '?')}",
+        "env steps": f"{run.rows[-1]['env_steps']:,}" if run.rows else "0",
+        "final return": f"{sum(tail) / len(tail):.2f}" if tail else "-",
+        "best return": f"{max(returns):.2f}" if returns else "-",
+    }
+
+
+def render_html(runs: list[RunRecord], images: list[tuple[str, str]]) -> str:
+    """The report page: a filterable table of runs (config in a fold-out) and the learning-curve images."""
+    columns = ["run", *summary(runs[0])] if runs else ["run"]
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
+    rows = []
+    for run in runs:
+        config_text = yaml.safe_dump(run.config, sort_keys=False)
+        cells = "".join(f"<td>{html.escape(str(v))}</td>" for v in summary(run).values())
+        search = html.escape(f"{run.name} {json.dumps(run.config)}".lower(), quote=True)
+        rows.append(
+            f'<tr class="run" data-search="{search}"><td><details><summary>{html.escape(run.name)}</summary>'
+            f"<pre>{html.escape(config_text)}</pre></details></td>{cells}</tr>"
+        )
+    figures = "".join(
+        f'<figure><img src="{html.escape(file)}" alt="{html.escape(name)}"><figcaption>{html.escape(name)}'
+        "</figcaption></figure>"
+        for name, file in images
+    )
+    return _PAGE.format(head=head, rows="\n".join(rows), figures=figures, count=len(runs))
+
+
+_PAGE = """<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>angora_jax runs</title>
+<style>
+body {{ font-family: sans-serif; margin: 1.5em; }}
+table {{ border-collapse: collapse; }}
+th, td {{ border-bottom: 1px solid #ddd; padding: 0.3em 0.8em; text-align: left; vertical-align: top; }}
+pre {{ font-size: 0.8em; max-height: 30em; overflow: auto; }}
+figure {{ display: inline-block; margin: 0.5em; }}
+#filter {{ width: 30em; padding: 0.3em; margin-bottom: 0.8em; }}
+</style></head>
+<body>
+<h1>angora_jax runs</h1>
+<input id="filter" placeholder="filter runs by name or any config value (e.g. lstm, CartPole)">
+<p><span id="shown">{count}</span> of {count} runs shown</p>
+<table><thead><tr>{head}</tr></thead><tbody>
+{rows}
+</tbody></table>
+<h2>Learning curves</h2>
+{figures}
+<script>
+const box = document.getElementById("filter");
+function applyFilter() {{
+  const words = box.value.toLowerCase().split(/\\s+/).filter(Boolean);
+  let shown = 0;
+  for (const row of document.querySelectorAll("tr.run")) {{
+    const match = words.every(w => row.dataset.search.includes(w));
+    row.hidden = !match;
+    shown += match;
+  }}
+  document.getElementById("shown").textContent = shown;
+}}
+box.addEventListener("input", applyFilter);
+const fromAddress = new URLSearchParams(location.hash.slice(1)).get("filter");
+if (fromAddress) {{ box.value = fromAddress; }}
+applyFilter();
+window.addEventListener("load", () => {{
+  const images = [...document.images];
+  document.body.dataset.imagesLoaded = images.filter(i => i.complete && i.naturalWidth > 0).length;
+}});
+</script>
+</body></html>
+"""

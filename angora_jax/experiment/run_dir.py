@@ -1,0 +1,76 @@
+"""A run directory: where one experiment's config, metrics, checkpoints and report live.
+
+    RUN_DIR/config.yaml           the resolved config (every key, defaults included); `resume` reads it back
+    RUN_DIR/hyperparameters.json  the same config flattened to dotted keys, for tables and filters
+    RUN_DIR/metrics.jsonl         one JSON object per cycle (see `monitor`)
+    RUN_DIR/checkpoints/          Orbax checkpoints (see `checkpoint`)
+    RUN_DIR/tensorboard/          TensorBoard event files, when logging.tensorboard is on
+    RUN_DIR/report/               PNG learning curves and index.html (see `report`)
+
+A new run never reuses an existing directory.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import yaml
+
+from angora_jax.experiment.config import Config, ConfigError, flatten, load_config, to_dict
+
+CONFIG_FILE = "config.yaml"
+HYPERPARAMETERS_FILE = "hyperparameters.json"
+METRICS_FILE = "metrics.jsonl"
+CHECKPOINTS = "checkpoints"
+
+
+class RunDirError(ValueError):
+    """A run directory that cannot be used as asked (exists already, or is not a run directory)."""
+
+
+def create_run_dir(config: Config) -> Path:
+    """Make a new run directory under `config.logging.run_root` and save the resolved config in it.
+
+    The name is `logging.run_name`, or task-network-date-time (with a -2, -3, ... suffix when taken). Raises
+    RunDirError when a named run directory exists already: nothing in it is touched.
+    """
+    root = Path(config.logging.run_root)
+    root.mkdir(parents=True, exist_ok=True)
+    if config.logging.run_name is not None:
+        path = root / config.logging.run_name
+        try:
+            path.mkdir()
+        except FileExistsError:
+            raise RunDirError(
+                f"Run directory {path} already exists and is left untouched. Continue it with `angora-jax resume "
+                f"{path}`, or start a new run with another logging.run_name (or none, for a dated name)."
+            ) from None
+    else:
+        stem = f"{config.env.task}-{config.ppo.network.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+        path, suffix = root / stem, 1
+        while True:
+            try:
+                path.mkdir()
+                break
+            except FileExistsError:
+                suffix += 1
+                path = root / f"{stem}-{suffix}"
+    resolved = to_dict(config)
+    (path / CONFIG_FILE).write_text(yaml.safe_dump(resolved, sort_keys=False))
+    (path / HYPERPARAMETERS_FILE).write_text(json.dumps(flatten(resolved), indent=1))
+    return path
+
+
+def read_run_config(run_dir: str | Path) -> Config:
+    """The config saved in `run_dir`; RunDirError when `run_dir` is not a run directory."""
+    path = Path(run_dir) / CONFIG_FILE
+    if not path.is_file():
+        raise RunDirError(
+            f"{run_dir} is not a run directory: it has no {CONFIG_FILE}. Start runs with `angora-jax train`."
+        )
+    try:
+        return load_config(path)
+    except ConfigError as error:
+        raise RunDirError(f"{path} does not load with this version of angora_jax: {error}") from None

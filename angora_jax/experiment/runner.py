@@ -1,0 +1,161 @@
+"""`train` and `resume`: a config-driven run with its run directory, checkpoints, monitor and progress display.
+
+The `angora-jax train` and `resume` commands call these functions; notebooks call them too (`angora_jax.train`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from angora_jax.envs.core import Env
+from angora_jax.experiment.checkpoint import Checkpoints
+from angora_jax.experiment.config import Config, load_config, to_dict, validate
+from angora_jax.experiment.monitor import Monitor, set_aside_after
+from angora_jax.experiment.progress import Progress
+from angora_jax.experiment.run_dir import CHECKPOINTS, create_run_dir, read_run_config
+from angora_jax.ppo.cycle import TrainState, make_cycle
+from angora_jax.ppo.train import training_cycles
+
+
+@dataclass
+class TrainingRun:
+    """What a finished (or already complete) run returns.
+
+    run_dir: the run directory. state: the final TrainState. history: the monitor records of the cycles run by
+    this call (see `monitor`).
+    """
+
+    run_dir: Path
+    state: TrainState
+    history: list[dict[str, Any]] = field(default_factory=list)
+
+
+class TrainingInterrupted(Exception):
+    """Training stopped on SIGINT (Ctrl-C) or SIGTERM after saving a checkpoint; `resume(run_dir)` continues."""
+
+    def __init__(self, signum: int, run_dir: Path, cycle: int):
+        self.signum, self.run_dir, self.cycle = signum, run_dir, cycle
+        super().__init__(
+            f"Interrupted by {signal.Signals(signum).name} after cycle {cycle}; a checkpoint of that cycle is saved. "
+            f"Continue with: angora-jax resume {run_dir}"
+        )
+
+
+def train(
+    config: Config | str | Path | dict | None = None,
+    overrides: Iterable[str] = (),
+    on_cycle: Callable[[dict[str, Any]], None] | None = None,
+) -> TrainingRun:
+    """Train a new run: validate the config, create its run directory, then run all cycles.
+
+    config: a Config, or anything `load_config` reads (YAML path, configs/ name, dict, None for defaults), with
+    `overrides` (`key.sub=value` strings) applied. on_cycle: called with each cycle's monitor record.
+    Raises ConfigError (before compiling) for a bad config, RunDirError when the named run directory exists,
+    TrainingInterrupted after Ctrl-C or SIGTERM (with a checkpoint saved), TrainingDivergedError on NaN.
+    """
+    if not isinstance(config, Config):
+        config = load_config(config, overrides)
+    elif overrides:
+        raise ValueError("Overrides apply to a config loaded from a file or dict; change a Config with replace().")
+    env = validate(config)
+    run_dir = create_run_dir(config)
+    return _run(config, env, run_dir, state=None, on_cycle=on_cycle)
+
+
+def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | None = None) -> TrainingRun:
+    """Continue `run_dir` from its latest checkpoint up to the config's `ppo.num_cycles`, exactly as if it had
+    not stopped (same device assumed). Without a checkpoint (killed before the first) the run starts over from
+    cycle 0, which gives the same result. A run that has already finished is returned as it is."""
+    run_dir = Path(run_dir)
+    config = read_run_config(run_dir)
+    env = validate(config)
+    checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint)
+    try:
+        state = None
+        if checkpoints.steps("latest"):
+            state = checkpoints.restore(initial_state_shape(config, env), "latest").state
+    finally:
+        checkpoints.close()
+    set_aside_after(run_dir, 0 if state is None else int(state.cycle))
+    return _run(config, env, run_dir, state=state, on_cycle=on_cycle)
+
+
+def initial_state_shape(config: Config, env: Env) -> TrainState:
+    """Shapes and dtypes of the run's TrainState (a tree of `jax.ShapeDtypeStruct`), computed without running."""
+    init, _ = make_cycle(env, None, config.ppo)
+    return jax.eval_shape(init, jax.random.key(config.ppo.seed))
+
+
+def _run(
+    config: Config,
+    env: Env,
+    run_dir: Path,
+    state: TrainState | None,
+    on_cycle: Callable[[dict[str, Any]], None] | None,
+) -> TrainingRun:
+    history: list[dict[str, Any]] = []
+    resolved = to_dict(config)
+    checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint)
+    monitor = Monitor(run_dir, config.logging.tensorboard)
+    progress = Progress(config.ppo.num_cycles, config.logging.progress)
+    try:
+        with _stop_requests() as stop:
+            for latest, metrics in training_cycles(config.ppo, env, None, state):
+                state = latest
+                record = monitor.record(metrics, state)
+                history.append(record)
+                progress.update(record)
+                if on_cycle is not None:
+                    on_cycle(record)
+                final = stop.signum is not None or record["cycle"] == config.ppo.num_cycles
+                checkpoints.save(state, record, resolved, final=final)
+                if stop.signum is not None:
+                    raise TrainingInterrupted(stop.signum, run_dir, int(record["cycle"]))
+    finally:
+        progress.close()
+        monitor.close()
+        checkpoints.close()
+    if config.logging.report:
+        from angora_jax.experiment.report import write_report  # matplotlib is loaded only when a report is made
+
+        write_report([run_dir], run_dir / "report")
+    return TrainingRun(run_dir, state, history)
+
+
+@dataclass
+class _StopRequest:
+    signum: int | None = None
+
+
+@contextlib.contextmanager
+def _stop_requests() -> Iterator[_StopRequest]:
+    """Turn the first SIGINT or SIGTERM into a request to stop after the current cycle (the compiled cycle cannot
+    be stopped halfway, and stopping between cycles lets the run save a checkpoint). A second signal acts as usual,
+    at once. Signal handlers can only be set from the main thread; elsewhere signals are left alone."""
+    request = _StopRequest()
+    if threading.current_thread() is not threading.main_thread():
+        yield request
+        return
+    signals = (signal.SIGINT, signal.SIGTERM)
+    previous = {signum: signal.getsignal(signum) for signum in signals}
+
+    def handle(signum, frame):
+        request.signum = signum
+        for other, handler in previous.items():
+            signal.signal(other, handler)
+
+    for signum in signals:
+        signal.signal(signum, handle)
+    try:
+        yield request
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
