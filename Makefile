@@ -11,7 +11,7 @@ $(BIN)/.installed: pyproject.toml constraints.txt
 
 .PHONY: run test lint
 run: $(BIN)/.installed
-	$(BIN)/angora-jax run
+	$(BIN)/angora-jax train cartpole
 
 test: $(BIN)/.installed
 	$(BIN)/ruff check .

@@ -127,8 +127,7 @@ def render_html(runs: list[RunRecord], images: list[tuple[str, str]]) -> str:
             f"<pre>{html.escape(config_text)}</pre></details></td>{cells}</tr>"
         )
     figures = "".join(
-        f'<figure><img src="{html.escape(file)}" alt="{html.escape(name)}"><figcaption>{html.escape(name)}'
-        "</figcaption></figure>"
+        f'<figure><img src="{html.escape(file)}" alt="{html.escape(name)}"></figure>'
         for name, file in images
     )
     return _PAGE.format(head=head, rows="\n".join(rows), figures=figures, count=len(runs))

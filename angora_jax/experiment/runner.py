@@ -115,10 +115,12 @@ def _run(
                 progress.update(record)
                 if on_cycle is not None:
                     on_cycle(record)
-                final = stop.signum is not None or record["cycle"] == config.ppo.num_cycles
-                checkpoints.save(state, record, resolved, final=final)
-                if stop.signum is not None:
-                    raise TrainingInterrupted(stop.signum, run_dir, int(record["cycle"]))
+                # Read the request once: a signal arriving during the save is acted on after the next cycle.
+                signum = stop.signum
+                last = record["cycle"] == config.ppo.num_cycles
+                checkpoints.save(state, record, resolved, final=signum is not None or last)
+                if signum is not None:
+                    raise TrainingInterrupted(signum, run_dir, int(record["cycle"]))
     finally:
         progress.close()
         monitor.close()

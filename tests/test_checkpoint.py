@@ -1,0 +1,101 @@
+"""Checkpoints: a run stopped by SIGTERM saves a loadable checkpoint, and `resume` continues bit-for-bit like
+an uninterrupted run; best and snapshot checkpoints are kept; run directories are never overwritten."""
+
+import os
+import signal
+
+import jax
+import numpy as np
+import pytest
+
+import angora_jax as aj
+from angora_jax.experiment import Checkpoints, RunDirError, TrainingInterrupted, read_metrics, resume
+from angora_jax.experiment.run_dir import CHECKPOINTS
+
+# A recurrent network, so that resuming must restore carries and env states mid-episode, not just parameters.
+TINY = [
+    "ppo.num_envs=4",
+    "ppo.rollout_length=16",
+    "ppo.chunk_length=8",
+    "ppo.minibatch_size=32",
+    "ppo.num_epochs=1",
+    "ppo.num_cycles=4",
+    "ppo.network.name=gru",
+    "ppo.network.width=16",
+    "ppo.network.cell_size=16",
+    "logging.progress=none",
+    "logging.report=false",
+    "checkpoint.every=100",
+    "checkpoint.snapshot_every=2",
+]
+# Wall-clock and memory readings differ between any two runs; everything else must match exactly.
+UNTIMED = {"seconds", "steps_per_second", "compile_seconds", "time", "memory/host_peak_bytes"}
+
+
+def config(tmp_path, name):
+    return aj.load_config("cartpole", [*TINY, f"logging.run_root={tmp_path}", f"logging.run_name={name}"])
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """An uninterrupted run, and a run that receives SIGTERM after cycle 2 and is then resumed."""
+    root = tmp_path_factory.mktemp("runs")
+    whole = aj.train(config(root, "whole"))
+
+    def terminate_after_cycle_2(record):
+        if record["cycle"] == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    with pytest.raises(TrainingInterrupted, match="SIGTERM after cycle 2.*angora-jax resume") as stopped:
+        aj.train(config(root, "split"), on_cycle=terminate_after_cycle_2)
+    split_dir = root / "split"
+    at_interrupt = Checkpoints(split_dir / CHECKPOINTS, config(root, "split").checkpoint).steps("latest")
+    resumed = resume(split_dir)
+    return whole, stopped.value, at_interrupt, resumed
+
+
+def test_sigterm_saves_a_loadable_checkpoint_and_restores_the_handler(runs):
+    _, stopped, at_interrupt, _ = runs
+    assert stopped.signum == signal.SIGTERM and stopped.cycle == 2
+    assert at_interrupt == [2]  # checkpoint.every=100: only the interruption made it save
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    agent = aj.load_agent(stopped.run_dir, checkpoint=2)
+    assert agent.cycle == 2 and int(agent.state.cycle) == 2
+
+
+def test_resume_equals_uninterrupted(runs):
+    whole, _, _, resumed = runs
+    assert [r["cycle"] for r in resumed.history] == [3, 4]
+    for a, b in zip(whole.history[2:], resumed.history, strict=True):
+        assert {k: v for k, v in a.items() if k not in UNTIMED} == {k: v for k, v in b.items() if k not in UNTIMED}
+    # The whole final state, parameters, optimizer, normalisers, env states, carries and keys, bit for bit.
+    for a, b in zip(jax.tree.leaves(whole.state), jax.tree.leaves(resumed.state), strict=True):
+        if jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key):
+            a, b = jax.random.key_data(a), jax.random.key_data(b)
+        np.testing.assert_array_equal(a, b)
+    # The split run's log holds each cycle once, like the whole run's.
+    assert [r["cycle"] for r in read_metrics(resumed.run_dir)] == [1, 2, 3, 4]
+
+
+def test_checkpoint_kinds_and_monitor_records(runs, tmp_path):
+    whole = runs[0]
+    checkpoints = Checkpoints(whole.run_dir / CHECKPOINTS, config(tmp_path, "whole").checkpoint, create=False)
+    assert checkpoints.steps("latest") == [4] and checkpoints.steps("snapshots") == [2, 4]
+    best = checkpoints.steps("best")
+    returns = {r["cycle"]: r["episode_return"] for r in whole.history}
+    assert len(best) == 1 and returns[best[0]] == np.nanmax(list(returns.values()))
+    with pytest.raises(FileNotFoundError, match="No checkpoint 3.*'snapshots': \\[2, 4\\]"):
+        checkpoints.restore(whole.state, 3)
+    checkpoints.close()
+    record = whole.history[0]
+    for key in ("episode_return", "policy_loss", "entropy", "approx_kl", "norm/reward_std", "memory/host_peak_bytes"):
+        assert key in record, key
+    assert record["compile_seconds"] > 0 and "compile_seconds" not in whole.history[1]
+
+
+def test_a_run_directory_is_never_overwritten(runs, tmp_path):
+    whole = runs[0]
+    before = {p: p.stat().st_mtime_ns for p in whole.run_dir.rglob("*")}
+    with pytest.raises(RunDirError, match="already exists and is left untouched.*angora-jax resume"):
+        aj.train(config(whole.run_dir.parent, "whole"))
+    assert {p: p.stat().st_mtime_ns for p in whole.run_dir.rglob("*")} == before

@@ -1,0 +1,113 @@
+"""The `angora-jax` command: exit codes, messages, SIGTERM on a real process, and the progress display."""
+
+import io
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+import angora_jax as aj
+from angora_jax.cli import main
+from angora_jax.experiment.monitor import read_metrics
+from angora_jax.experiment.progress import Progress, progress_line
+
+TINY = [
+    "ppo.num_envs=4",
+    "ppo.rollout_length=16",
+    "ppo.chunk_length=8",
+    "ppo.minibatch_size=32",
+    "ppo.num_epochs=1",
+    "logging.progress=lines",
+    "logging.report=false",
+]
+
+
+def test_list_commands(capsys):
+    assert main(["list-tasks"]) == 0
+    assert "CartPole" in capsys.readouterr().out.split()
+    assert main(["list-models"]) == 0
+    out = capsys.readouterr().out
+    assert "lstm" in out and "beta" in out
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["train", "cartpole", "ppo.gama=0.9"], "Unknown key 'ppo.gama'"),
+        (["train", "cartpole", "ppo.head=beta"], "needs continuous actions"),
+        (["train", "no-such-config"], "not found"),
+        (["resume", "no/such/run"], "not a run directory"),
+        (["evaluate", "no/such/run"], "not a run directory"),
+        (["report", "no/such/run"], "not a run directory"),
+    ],
+)
+def test_bad_input_exits_2_with_the_cause(argv, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
+
+
+def test_train_then_evaluate_exit_0(capsys, tmp_path):
+    argv = ["train", "cartpole", *TINY, "ppo.num_cycles=3", f"logging.run_root={tmp_path}", "logging.run_name=r"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "cycle 3/3" in out and "Run " in out and "angora-jax evaluate" in out
+    assert main(["evaluate", str(tmp_path / "r"), "--checkpoint", "latest", "--num-envs", "2"]) == 0
+    assert "episode_return" in capsys.readouterr().out
+    assert main(argv) == 2  # the run directory exists: refused, untouched
+    assert "already exists" in capsys.readouterr().err
+
+
+def test_sigterm_stops_the_command_with_a_checkpoint(tmp_path):
+    command = [sys.executable, "-m", "angora_jax.cli", "train", "cartpole", *TINY]
+    command += ["ppo.num_cycles=100000", f"logging.run_root={tmp_path}", "logging.run_name=long"]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    metrics = tmp_path / "long" / "metrics.jsonl"
+    deadline = time.monotonic() + 120
+    while not (metrics.exists() and metrics.read_text().count("\n") >= 2):
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+        time.sleep(0.2)
+    process.send_signal(signal.SIGTERM)
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 128 + signal.SIGTERM, err
+    assert "Interrupted by SIGTERM" in err and f"angora-jax resume {tmp_path / 'long'}" in err
+    cycles = len(read_metrics(tmp_path / "long"))
+    agent = aj.load_agent(tmp_path / "long", "latest")
+    assert agent.cycle == cycles >= 2
+
+
+class Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def metrics(cycle, seconds=0.5):
+    return {
+        "cycle": cycle,
+        "env_steps": 2048 * cycle,
+        "steps_per_second": 4096.0,
+        "seconds": seconds,
+        "episode_return": float("nan") if cycle == 1 else 100.0 + cycle,
+        "metric/success": 0.25,
+    }
+
+
+def test_progress_is_a_live_line_on_a_terminal_and_log_lines_elsewhere():
+    assert progress_line(metrics(2), 10, 65) == (
+        "cycle 2/10  env steps 4,096  4,096 steps/s  return 102.0  success 0.250  ETA 0:01:05"
+    )
+    assert "return -" in progress_line(metrics(1), 10, 0)
+    terminal, log = Terminal(), io.StringIO()
+    for stream in (terminal, log):
+        progress = Progress(10, "auto", stream)
+        progress.update(metrics(1, seconds=30.0) | {"compile_seconds": 30.0})
+        progress.update(metrics(2))
+        progress.close()
+    assert terminal.getvalue().count("\r") == 2 and terminal.getvalue().endswith("\n")
+    lines = log.getvalue().splitlines()
+    assert len(lines) == 2 and "\r" not in log.getvalue()
+    assert lines[1].endswith("ETA 0:00:04")  # 8 cycles left at 0.5 s: the compiling first cycle is not counted
+

@@ -1,0 +1,77 @@
+"""Experiment configs: YAML plus overrides load into typed dataclasses; bad input fails before any compile with
+a message that names the key and what is allowed."""
+
+from pathlib import Path
+
+import pytest
+
+from angora_jax.experiment.config import CONFIGS, Config, ConfigError, flatten, load_config, to_dict, validate
+from angora_jax.ppo import PPOConfig
+
+
+def test_named_config_loads_with_typed_overrides():
+    config = load_config(
+        "cartpole",
+        ["ppo.num_cycles=7", "ppo.learning_rate=3e-4", "ppo.network.name=lstm", "env.options.max_episode_steps=200"],
+    )
+    assert isinstance(config, Config) and isinstance(config.ppo, PPOConfig)
+    assert config.ppo.num_cycles == 7 and config.ppo.network.name == "lstm"
+    # YAML 1.1 reads 3e-4 as a string; a float field takes it as the number it means.
+    assert config.ppo.learning_rate == pytest.approx(3e-4) and isinstance(config.ppo.learning_rate, float)
+    assert config.env.options == {"max_episode_steps": 200}
+    assert validate(config).max_episode_steps == 200
+    # Keys the file leaves out keep their defaults; the resolved form has every key.
+    assert config.ppo.clip_epsilon == PPOConfig().clip_epsilon
+    flat = flatten(to_dict(config))
+    assert flat["ppo.network.name"] == "lstm" and "checkpoint.every" in flat and "distribution.num_devices" in flat
+
+
+def test_resolved_config_round_trips_through_a_dict():
+    config = load_config("cartpole", ["ppo.network.width=32", "logging.run_name=x"])
+    assert load_config(to_dict(config)) == config
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in CONFIGS.glob("*.yaml")))
+def test_shipped_configs_are_valid(name):
+    validate(load_config(name))
+
+
+BAD = {
+    "unknown key": (["ppo.gama=0.9"], r"Unknown key 'ppo.gama'.*Did you mean 'gamma'"),
+    "unknown section": (["model.name=lstm"], r"Unknown key 'model'.*Keys of the config: env, ppo"),
+    "int expected": (["ppo.num_cycles=1.5"], r"ppo.num_cycles must be an integer, got 1.5"),
+    "bool expected": (["ppo.normalization.rewards=maybe"], r"ppo.normalization.rewards must be true or false"),
+    "section expected": (["ppo.network=lstm"], r"ppo.network must be a mapping"),
+    "minibatch does not divide batch": (["ppo.minibatch_size=500"], r"minibatch_size \(500\).*divide"),
+    "beta head on a discrete task": (["ppo.head=beta"], r"head='beta' needs continuous actions.*'categorical'"),
+    "unknown network": (["ppo.network.name=lsmt"], r"ppo.network.name.*'lstm'.*Allowed networks: .*simple"),
+    "unknown task": (["env.task=Cartpole"], r"env.task.*Did you mean 'CartPole'.*Pendulum"),
+    "unknown env option": (["env.options.gravity_scale=2"], r"env.options do not fit task 'CartPole'.*gravity_scale"),
+    "best metric the task lacks": (
+        ["checkpoint.best_metric=metric/success"],
+        r"checkpoint.best_metric.*episode_return",
+    ),
+    "multi-device": (["distribution.num_devices=2"], r"distribution.num_devices=2 is not supported.*allowed: 1"),
+    "progress mode": (["logging.progress=fancy"], r"logging.progress.*auto, bar, lines, none"),
+    "override without =": (["ppo.num_cycles"], r"must look like key.sub=value"),
+}
+
+
+@pytest.mark.parametrize("case", BAD)
+def test_bad_config_fails_naming_the_key(case):
+    overrides, message = BAD[case]
+    with pytest.raises(ConfigError, match=message):
+        validate(load_config("cartpole", overrides))
+
+
+def test_bad_files_fail_clearly(tmp_path: Path):
+    with pytest.raises(ConfigError, match="not found. Give a YAML path or one of: .*cartpole"):
+        load_config("cartpol")
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("ppo: {num_cycles: 3\n")
+    with pytest.raises(ConfigError, match="broken.yaml is not valid YAML"):
+        load_config(broken)
+    listed = tmp_path / "list.yaml"
+    listed.write_text("- ppo\n")
+    with pytest.raises(ConfigError, match="must hold a mapping of sections"):
+        load_config(listed)
