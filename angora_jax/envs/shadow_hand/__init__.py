@@ -37,7 +37,7 @@ def make_ihom(reward: dict[str, float] | None = None, touch: bool = True, succes
     control_dt: simulated time per policy step, 0.08 s as in OpenAI's Dactyl (12.5 Hz) so that the 8 s goal timer
     is 100 policy steps (AngoraPy's code runs 10 x 2 ms = 0.02 s per step with 100 steps per goal, i.e. 2 s).
     physics: `PhysicsSettings` fields (timestep, iterations, ls_iterations); the frame skip is control_dt / timestep
-    (default 0.08 / 0.004 = 20). max_episode_steps is max_goals * goal steps, never reached before the goal timer or
+    (default 0.08 / 0.008 = 10). max_episode_steps is max_goals * goal steps, never reached before the goal timer or
     the cap ends an episode.
     """
     if backend not in BACKENDS:

@@ -12,8 +12,8 @@ a letter and colour per face, so every face is distinguishable). Our changes, ea
   collide with everything, but lie under the palm and the thumb's proximal capsule; box-box pairs are the most
   expensive in MJX). Under random actions from the episode start, C MuJoCo saw cube contacts only with palm,
   little-finger metacarpal and finger/thumb phalanges (see `benchmarks/results/ihom_solver_settings.md`).
-- Sensors: only the 92 touch sensors are kept, and only with `touch=True`; the Gym scene's joint-position sensors
-  duplicate `qpos`, and MJX evaluates every sensor at every physics step.
+- Sensors: only the 97 touch sensors (from Gym's `*_touch_sensors_92` files) are kept, and only with `touch=True`;
+  the Gym scene's joint-position sensors duplicate `qpos`, and MJX evaluates every sensor at every physics step.
 - Solver and timestep (`PhysicsSettings`): the defaults were chosen from measured dynamics error against the Gym
   scene's settings and measured speed; the evidence is in `benchmarks/results/ihom_solver_settings.md`.
 """
@@ -42,7 +42,7 @@ class PhysicsSettings:
     The Gym scene itself runs timestep 0.002, iterations 20 and MuJoCo's default ls_iterations 50 (`GYM`).
     """
 
-    timestep: float = 0.004
+    timestep: float = 0.008
     iterations: int = 4
     ls_iterations: int = 8
 

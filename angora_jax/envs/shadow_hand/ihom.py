@@ -105,7 +105,7 @@ class Ihom(HandTask):
 
     Observation (sizes for the Gym hand; touch only when the model has touch sensors):
       proprioception (48): hand joint positions (rad) and velocities (rad/s), 24 each;
-      touch (92 or 0): touch sensor readings (N, contact normal forces summed over each sensor zone);
+      touch (97 or 0): touch sensor readings (N, contact normal forces summed over each sensor zone);
       vision (7): the cube's pose in place of vision, position (m, world) and orientation quaternion (w, x, y, z);
       goal (4): the goal quaternion;
       asymmetric (25, value function only): fingertip positions (15, m), rotation from cube to goal (4,
