@@ -7,11 +7,13 @@ and simulated seconds per wall second (physics steps/s x timestep), the unit tha
 
     python benchmarks/env_throughput.py --batch-sizes 1,8,32 --steps 20          # CPU, small
     python benchmarks/env_throughput.py --batch-sizes 1024,4096,16384 --steps 100  # GPU
+    python benchmarks/env_throughput.py --task ShadowHandCube --batch-sizes 1024,4096,8192,16384 --steps 20  # GPU
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
 
 import jax
@@ -36,7 +38,8 @@ def raw_mjx(env, batch: int, steps: int, seed: int, repeats: int) -> dict:
     """`vmap(mjx.step)` with fresh uniform controls every `frame_skip` physics steps, nothing else."""
     model, task = env.mjx_model, env.task
     low, high = (jnp.asarray(x, jnp.float32) for x in task.model.actuator_ctrlrange.T)
-    data = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), env._start)
+    # Episode starts as our reset makes them (tasks with random initial poses have no single start).
+    data = jax.jit(batched_reset, static_argnums=(0, 2))(env, jax.random.key(seed), batch).physics
 
     def policy_step(data, key):
         ctrl = jax.random.uniform(key, (batch, task.model.nu), minval=low, maxval=high)
@@ -51,7 +54,7 @@ def raw_mjx(env, batch: int, steps: int, seed: int, repeats: int) -> dict:
     return {"compile_s": compile_s, "physics_steps_per_s": batch * steps * env.frame_skip / wall}
 
 
-def c_mujoco(env, task: str, seconds: float = 2.0) -> dict:
+def c_mujoco(env, task: str, options: dict, seconds: float = 2.0) -> dict:
     """Single-threaded C MuJoCo `mj_step` with uniform random controls, and our eager CPU twin."""
     model = env.task.model
     data = mujoco.MjData(model)
@@ -63,7 +66,7 @@ def c_mujoco(env, task: str, seconds: float = 2.0) -> dict:
         mujoco.mj_step(model, data, nstep=env.frame_skip)
         steps += env.frame_skip
     raw = steps / (time.perf_counter() - start)
-    cpu = aj.make(task, backend="cpu")
+    cpu = aj.make(task, backend="cpu", **options)
     state = cpu.reset(jax.random.key(0))
     state = cpu.step(state, jnp.zeros(model.nu))
     policy_steps, start = 0, time.perf_counter()
@@ -79,6 +82,7 @@ def c_mujoco(env, task: str, seconds: float = 2.0) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="ShadowHandReach")
+    parser.add_argument("--options", default="{}", help='task options as JSON, e.g. \'{"touch": false}\'')
     parser.add_argument("--batch-sizes", default="1,8,32")
     parser.add_argument("--steps", type=int, default=20, help="policy steps per environment per timed run")
     parser.add_argument("--seed", type=int, default=0)
@@ -86,9 +90,10 @@ def main() -> None:
     parser.add_argument("--out", default=None, help="JSON path (default: results/env_throughput_<platform>.json)")
     args = parser.parse_args()
 
-    env = aj.make(args.task)
+    options = json.loads(args.options)
+    env = aj.make(args.task, **options)
     timestep = float(env.task.model.opt.timestep)
-    single = c_mujoco(env, args.task)
+    single = c_mujoco(env, args.task, options)
     rows = []
     for batch in (int(b) for b in args.batch_sizes.split(",")):
         mine = ours(env, batch, args.steps, args.seed, args.repeats)
@@ -107,8 +112,8 @@ def main() -> None:
         rows.append(row)
         print(f"batch {batch}: {row['env_steps_per_s']:.0f} env steps/s, "
               f"ratio to raw MJX {row['ours_over_raw_mjx']:.2f}", flush=True)
-    config = {"task": args.task, "steps": args.steps, "frame_skip": env.frame_skip, "timestep_s": timestep,
-              "control_dt_s": env.dt, "solver_iterations": int(env.task.model.opt.iterations),
+    config = {"task": args.task, "options": options, "steps": args.steps, "frame_skip": env.frame_skip,
+              "timestep_s": timestep, "control_dt_s": env.dt, "solver_iterations": int(env.task.model.opt.iterations),
               "ls_iterations": int(env.task.model.opt.ls_iterations), **single}
     path = write_results("env_throughput", config, rows, args.out)
     print(markdown_table(rows, [
