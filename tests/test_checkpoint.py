@@ -1,6 +1,7 @@
 """Checkpoints: a run stopped by SIGTERM saves a loadable checkpoint, and `resume` continues bit-for-bit like
 an uninterrupted run; best and snapshot checkpoints are kept; run directories are never overwritten."""
 
+import json
 import os
 import signal
 
@@ -10,6 +11,7 @@ import pytest
 
 import angora_jax as aj
 from angora_jax.experiment import Checkpoints, RunDirError, TrainingInterrupted, read_metrics, resume
+from angora_jax.experiment.monitor import set_aside_after
 from angora_jax.experiment.run_dir import CHECKPOINTS
 
 # A recurrent network, so that resuming must restore carries and env states mid-episode, not just parameters.
@@ -99,3 +101,14 @@ def test_a_run_directory_is_never_overwritten(runs, tmp_path):
     with pytest.raises(RunDirError, match="already exists and is left untouched.*angora-jax resume"):
         aj.train(config(whole.run_dir.parent, "whole"))
     assert {p: p.stat().st_mtime_ns for p in whole.run_dir.rglob("*")} == before
+
+
+def test_records_after_the_checkpoint_are_set_aside_not_lost(tmp_path):
+    """A run killed hard (no chance to save) has logged cycles after its latest checkpoint; resuming recomputes them,
+    so they move to a side file and metrics.jsonl holds each cycle once."""
+    lines = [json.dumps({"cycle": c, "episode_return": float(c)}) for c in range(1, 6)]
+    (tmp_path / "metrics.jsonl").write_text("\n".join(lines) + "\n")
+    side = set_aside_after(tmp_path, 3)
+    assert [r["cycle"] for r in read_metrics(tmp_path)] == [1, 2, 3]
+    assert side.name == "metrics.after-cycle-3.jsonl" and side.read_text().splitlines() == lines[3:]
+    assert set_aside_after(tmp_path, 3) is None  # nothing later than cycle 3 any more
