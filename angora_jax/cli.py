@@ -108,7 +108,9 @@ def parser() -> argparse.ArgumentParser:
 
     report = commands.add_parser("report", help="PNG learning curves and an HTML page comparing runs")
     report.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
-    report.add_argument("--out", default=None, help="output folder (default: RUN_DIR/report for one run, else report/)")
+    report.add_argument(
+        "--out", default=None, help="default: RUN_DIR/report for one run, else report/ beside the first run"
+    )
     report.set_defaults(handler=command_report)
 
     tasks = commands.add_parser("list-tasks", help="print the registered task names")
@@ -165,7 +167,8 @@ def command_evaluate(args: argparse.Namespace) -> int:
 def command_report(args: argparse.Namespace) -> int:
     from angora_jax.experiment.report import write_report  # matplotlib only when a report is made
 
-    out = args.out or (Path(args.run_dirs[0]) / "report" if len(args.run_dirs) == 1 else Path("report"))
+    first = Path(args.run_dirs[0])
+    out = args.out or (first / "report" if len(args.run_dirs) == 1 else first.parent / "report")
     print(f"Report: {write_report(args.run_dirs, out)}")
     return EXIT_OK
 
