@@ -1,8 +1,8 @@
 """Evidence for the cube scene's physics settings: dynamics error against the Gym scene's settings, and speed.
 
 Dynamics error (C MuJoCo, float64, so it isolates the settings from float32 effects): every candidate and the
-reference (`cube.GYM`: timestep 2 ms, 20 Newton iterations, 50 line-search iterations) start from the same random
-initial cube poses and receive the same open-loop joint targets once per 0.08 s policy step: the initial pose's
+reference (`model.GYM_PHYSICS`: timestep 2 ms, 20 Newton iterations, 50 line-search iterations) start from the same
+random initial cube poses and receive the same open-loop joint targets once per 0.08 s policy step: the initial pose's
 targets plus a smoothed random walk of 30% of each actuator's half range, which keeps the cube in the hand while
 the fingers push it about. Reported per horizon (1, 5, 25 policy steps = 0.08, 0.4, 2 s), as medians over episodes:
 cube orientation error (rad) and position error (mm) against the reference, and how often the candidate disagrees
@@ -32,8 +32,9 @@ from common import RESULTS, markdown_table, time_compiled, write_results
 import angora_jax as aj
 from angora_jax.envs.mujoco_task import start_physics
 from angora_jax.envs.random_rollout import batched_reset, make_random_rollout
-from angora_jax.envs.shadow_hand.cube import GYM, PhysicsSettings
 from angora_jax.envs.shadow_hand.ihom import angular_distance
+from angora_jax.envs.shadow_hand.model import GYM_PHYSICS as GYM
+from angora_jax.envs.shadow_hand.model import PhysicsSettings
 
 CONTROL_DT = 0.08
 HORIZONS = (1, 5, 25)

@@ -22,7 +22,8 @@ from common import markdown_table, peak_memory_bytes, time_compiled, write_resul
 from mujoco import mjx
 
 from angora_jax.envs.mujoco_task import Snapshot, start_physics
-from angora_jax.envs.shadow_hand.model import load_scene
+from angora_jax.envs.shadow_hand import REACH_PHYSICS
+from angora_jax.envs.shadow_hand.model import GYM_PHYSICS, PhysicsSettings, load_scene
 from angora_jax.envs.shadow_hand.reach import Reach
 
 POLICY_DT = 0.02  # s per policy step, as in the reach tasks
@@ -31,29 +32,30 @@ POLICY_DT = 0.02  # s per policy step, as in the reach tasks
 @dataclasses.dataclass(frozen=True)
 class Variant:
     name: str
-    iterations: int
-    ls_iterations: int
-    timestep: float = 0.002
+    physics: PhysicsSettings
     solver: int = mujoco.mjtSolver.mjSOL_NEWTON
 
     @property
     def frame_skip(self) -> int:
-        return round(POLICY_DT / self.timestep)
+        return self.physics.frame_skip(POLICY_DT)
+
+    @property
+    def timestep(self) -> float:
+        return self.physics.timestep
 
     def model(self) -> mujoco.MjModel:
-        model = load_scene("reach.xml")
-        model.opt.iterations, model.opt.ls_iterations = self.iterations, self.ls_iterations
-        model.opt.timestep, model.opt.solver = self.timestep, self.solver
+        model = load_scene("reach.xml", physics=self.physics)
+        model.opt.solver = self.solver
         return model
 
 
 VARIANTS = (
-    Variant("stock (Newton 20/50, 2 ms)", 20, 50),
-    Variant("Newton 4/8, 2 ms", 4, 8),
-    Variant("Newton 1/4, 2 ms", 1, 4),
-    Variant("CG 4/8, 2 ms", 4, 8, solver=mujoco.mjtSolver.mjSOL_CG),
-    Variant("Newton 4/8, 4 ms", 4, 8, timestep=0.004),
-    Variant("Newton 2/4, 5 ms", 2, 4, timestep=0.005),
+    Variant("stock (Newton 20/50, 2 ms)", GYM_PHYSICS),
+    Variant("Newton 4/8, 2 ms", PhysicsSettings(0.002, 4, 8)),
+    Variant("Newton 1/4, 2 ms", PhysicsSettings(0.002, 1, 4)),
+    Variant("CG 4/8, 2 ms", PhysicsSettings(0.002, 4, 8), solver=mujoco.mjtSolver.mjSOL_CG),
+    Variant("Newton 4/8, 4 ms", PhysicsSettings(0.004, 4, 8)),
+    Variant("Newton 2/4, 5 ms (REACH_PHYSICS)", REACH_PHYSICS),
 )
 
 

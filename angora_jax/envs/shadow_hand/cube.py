@@ -20,11 +20,9 @@ a letter and colour per face, so every face is distinguishable). Our changes, ea
 
 from __future__ import annotations
 
-import dataclasses
-
 import mujoco
 
-from angora_jax.envs.shadow_hand.model import load_scene
+from angora_jax.envs.shadow_hand.model import PhysicsSettings, load_scene
 
 SCENE = "manipulate_block_touch_sensors.xml"
 CUBE_BODY = "object"
@@ -34,27 +32,11 @@ CUBE_HALF_SIZE = 0.025  # m
 UNREACHABLE_GEOMS = ("robot0:C_forearm", "robot0:V_thbase", "robot0:V_thhub")
 
 
-@dataclasses.dataclass(frozen=True)
-class PhysicsSettings:
-    """Simulation settings of the cube scene.
-
-    timestep: physics step in s. iterations / ls_iterations: Newton solver and line-search iteration caps.
-    The Gym scene itself runs timestep 0.002, iterations 20 and MuJoCo's default ls_iterations 50 (`GYM`).
-    """
-
-    timestep: float = 0.008
-    iterations: int = 4
-    ls_iterations: int = 8
-
-    def __post_init__(self):
-        if self.timestep <= 0 or self.iterations < 1 or self.ls_iterations < 1:
-            raise ValueError(f"PhysicsSettings need timestep > 0 and iterations, ls_iterations >= 1, got {self}.")
+# Chosen from the dynamics error against the Gym settings and the speed (benchmarks/results/ihom_solver_settings.md).
+CUBE_PHYSICS = PhysicsSettings(timestep=0.008, iterations=4, ls_iterations=8)
 
 
-GYM = PhysicsSettings(timestep=0.002, iterations=20, ls_iterations=50)
-
-
-def load_cube_scene(touch: bool = True, physics: PhysicsSettings = PhysicsSettings()) -> mujoco.MjModel:
+def load_cube_scene(touch: bool = True, physics: PhysicsSettings = CUBE_PHYSICS) -> mujoco.MjModel:
     """Compile the cube scene; `touch=False` drops the touch sensors (and their per-step cost)."""
 
     def edit(spec: mujoco.MjSpec) -> None:
@@ -66,8 +48,5 @@ def load_cube_scene(touch: bool = True, physics: PhysicsSettings = PhysicsSettin
         for sensor in list(spec.sensors):
             if not (touch and sensor.type == mujoco.mjtSensor.mjSENS_TOUCH):
                 spec.delete(sensor)
-        spec.option.timestep = physics.timestep
-        spec.option.iterations = physics.iterations
-        spec.option.ls_iterations = physics.ls_iterations
 
-    return load_scene(SCENE, edit)
+    return load_scene(SCENE, edit, physics)

@@ -6,6 +6,7 @@ and make every change for MJX in code on a `mujoco.MjSpec`, one line of reason e
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import os
 from collections.abc import Callable
@@ -14,6 +15,47 @@ import mujoco
 
 FINGERTIP_SITES = ("robot0:S_fftip", "robot0:S_mftip", "robot0:S_rftip", "robot0:S_lftip", "robot0:S_thtip")
 PALM_BODY = "robot0:palm"
+
+
+@dataclasses.dataclass(frozen=True)
+class PhysicsSettings:
+    """Simulation settings of a scene. Defaults are the Gym hand's own (`GYM_PHYSICS`); tasks choose faster ones
+    from measurements (`benchmarks/physics_throughput.py`, `benchmarks/ihom_solver_settings.py`).
+
+    timestep: physics step in s. iterations / ls_iterations: Newton solver and line-search iteration caps.
+    """
+
+    timestep: float = 0.002
+    iterations: int = 20
+    ls_iterations: int = 50
+
+    def __post_init__(self):
+        if self.timestep <= 0 or self.iterations < 1 or self.ls_iterations < 1:
+            raise ValueError(f"PhysicsSettings need timestep > 0 and iterations, ls_iterations >= 1, got {self}.")
+
+    def with_options(self, options: dict[str, float] | None) -> PhysicsSettings:
+        """These settings with `options` (field name -> value) changed; unknown names raise a ValueError."""
+        options = dict(options or {})
+        known = {f.name for f in dataclasses.fields(self)}
+        if set(options) - known:
+            raise ValueError(f"Unknown physics settings {sorted(set(options) - known)}; known: {sorted(known)}.")
+        return dataclasses.replace(self, **options)
+
+    def frame_skip(self, control_dt: float) -> int:
+        """Physics steps per policy step of `control_dt` s; a ValueError when it is not a whole multiple."""
+        skip = round(control_dt / self.timestep)
+        if skip < 1 or abs(skip * self.timestep - control_dt) > 1e-9:
+            raise ValueError(f"control_dt ({control_dt} s) must be a whole multiple of the timestep "
+                             f"({self.timestep} s).")
+        return skip
+
+    def apply(self, spec: mujoco.MjSpec) -> None:
+        spec.option.timestep = self.timestep
+        spec.option.iterations = self.iterations
+        spec.option.ls_iterations = self.ls_iterations
+
+
+GYM_PHYSICS = PhysicsSettings()
 
 
 def asset_dir() -> str:
@@ -26,8 +68,9 @@ def asset_dir() -> str:
     return os.path.join(os.path.dirname(spec.origin), "envs", "assets", "hand")
 
 
-def load_scene(scene: str = "reach.xml", edit: Callable[[mujoco.MjSpec], None] | None = None) -> mujoco.MjModel:
-    """Compile a Gym hand scene (`reach.xml`, `manipulate_block.xml`, ...) with our MJX preparations.
+def load_scene(scene: str = "reach.xml", edit: Callable[[mujoco.MjSpec], None] | None = None,
+               physics: PhysicsSettings = GYM_PHYSICS) -> mujoco.MjModel:
+    """Compile a Gym hand scene (`reach.xml`, `manipulate_block.xml`, ...) with our MJX preparations and `physics`.
 
     `edit`, when given, changes the prepared `MjSpec` in place before compiling (a task's own scene changes)."""
     path = os.path.join(asset_dir(), scene)
@@ -42,6 +85,7 @@ def load_scene(scene: str = "reach.xml", edit: Callable[[mujoco.MjSpec], None] |
     if floor is not None:
         # The hand hangs in the air: the floor can never be touched, yet a plane makes MJX test every hand geom.
         spec.delete(floor)
+    physics.apply(spec)
     if edit is not None:
         edit(spec)
     return spec.compile()
