@@ -8,6 +8,7 @@ import signal
 import jax
 import numpy as np
 import pytest
+from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.experiment import Checkpoints, RunDirError, TrainingInterrupted, read_metrics, resume
@@ -16,11 +17,7 @@ from angora_jax.experiment.run_dir import CHECKPOINTS
 
 # A recurrent network, so that resuming must restore carries and env states mid-episode, not just parameters.
 TINY = [
-    "ppo.num_envs=4",
-    "ppo.rollout_length=16",
-    "ppo.chunk_length=8",
-    "ppo.minibatch_size=32",
-    "ppo.num_epochs=1",
+    *TINY_PPO,
     "ppo.num_cycles=4",
     "ppo.network.name=gru",
     "ppo.network.width=16",

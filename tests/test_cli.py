@@ -7,6 +7,7 @@ import sys
 import time
 
 import pytest
+from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.cli import main
@@ -14,11 +15,7 @@ from angora_jax.experiment.monitor import read_metrics
 from angora_jax.experiment.progress import Progress, progress_line
 
 TINY = [
-    "ppo.num_envs=4",
-    "ppo.rollout_length=16",
-    "ppo.chunk_length=8",
-    "ppo.minibatch_size=32",
-    "ppo.num_epochs=1",
+    *TINY_PPO,
     "logging.progress=lines",
     "logging.report=false",
 ]

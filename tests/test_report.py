@@ -7,16 +7,13 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.cli import main
 
 TINY = [
-    "ppo.num_envs=4",
-    "ppo.rollout_length=16",
-    "ppo.chunk_length=8",
-    "ppo.minibatch_size=32",
-    "ppo.num_epochs=1",
+    *TINY_PPO,
     "ppo.num_cycles=3",
     "logging.progress=none",
 ]
