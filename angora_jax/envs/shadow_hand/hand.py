@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 
 from angora_jax.envs.mujoco_task import MujocoTask, Snapshot
-from angora_jax.envs.shadow_hand.model import FINGERTIP_SITES, PALM_BODY
+from angora_jax.envs.shadow_hand.model import FINGERTIP_SITES, HAND_JOINT_PREFIX, PALM_BODY
 
 # OpenAI Gym HandReach's initial pose (joint name -> rad): a relaxed, slightly flexed hand.
 REACH_INITIAL_QPOS = {
@@ -43,6 +43,9 @@ class HandTask(MujocoTask):
         self.relative_control = relative_control
         self.fingertip_ids = np.array([model.site(n).id for n in FINGERTIP_SITES])
         self.palm_id = model.body(PALM_BODY).id
+        hand_joints = [j for j in range(model.njnt) if model.joint(j).name.startswith(HAND_JOINT_PREFIX)]
+        self.hand_qpos = np.array([model.jnt_qposadr[j] for j in hand_joints])
+        self.hand_dofs = np.array([model.jnt_dofadr[j] for j in hand_joints])
         qpos = model.qpos0.astype(np.float32).copy()
         for name, value in (initial_qpos or REACH_INITIAL_QPOS).items():
             qpos[model.joint(name).qposadr[0]] = value
@@ -63,5 +66,5 @@ class HandTask(MujocoTask):
         return snap.site_xpos[self.fingertip_ids]
 
     def proprioception(self, snap: Snapshot) -> jax.Array:
-        """Joint positions (rad) and velocities (rad/s), shape `(2 * nq,)`."""
-        return jnp.concatenate([snap.qpos, snap.qvel])
+        """Hand joint positions (rad) and velocities (rad/s), shape `(48,)`; objects' joints are not the hand's."""
+        return jnp.concatenate([snap.qpos[self.hand_qpos], snap.qvel[self.hand_dofs]])

@@ -29,21 +29,21 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from angora_jax.envs.coefficients import Coefficients
 from angora_jax.envs.core import Sensation
 from angora_jax.envs.mujoco_task import Snapshot
 from angora_jax.envs.shadow_hand.cube import CUBE_JOINT
 from angora_jax.envs.shadow_hand.hand import HandTask
-from angora_jax.envs.shadow_hand.reach import ReachReward
+from angora_jax.envs.shadow_hand.model import HAND_JOINT_PREFIX
 
 # Gym HandManipulateBlock starts from the flat, open hand (all joints 0): the cube then rests on the palm 2.7 cm
 # above the palm's centre. (AngoraPy's flexed reach pose tilts this palm so far that the cube rests below it.)
-HAND_JOINT_PREFIX = "robot0:"
 # Std (m) of the cube's initial position noise, as in AngoraPy/Gym.
 INITIAL_POSITION_NOISE = 0.005
 
 
 @dataclasses.dataclass(frozen=True)
-class IhomReward:
+class IhomReward(Coefficients):
     """Reward coefficients (AngoraPy's MANIPULATE_BASE plus the issue's per-step cost). Angles in rad.
 
     progress: weight of the decrease of the angular distance to the goal over one step.
@@ -58,9 +58,6 @@ class IhomReward:
     drop_penalty: float = 20.0
     step_penalty: float = 0.1
     force_multiplier: float = 0.0
-
-    # The same dict parsing as ReachReward: unknown keys raise a ValueError listing the known ones.
-    from_dict = classmethod(ReachReward.from_dict.__func__)
 
 
 def quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -129,8 +126,6 @@ class Ihom(HandTask):
         self.success_angle = success_angle
         self.steps_per_goal = steps_per_goal
         self.max_goals = max_goals
-        self.hand_qpos = np.array([model.jnt_qposadr[j] for j in hand_joints])
-        self.hand_dofs = np.array([model.jnt_dofadr[j] for j in hand_joints])
         cube = model.joint(CUBE_JOINT)
         self.cube_qpos = int(cube.qposadr[0])
         self.cube_dof = int(cube.dofadr[0])
@@ -160,10 +155,6 @@ class Ihom(HandTask):
     def initial_info(self, key: jax.Array, snap: Snapshot) -> dict[str, jax.Array]:
         return {"goal": random_rotation(key), "goal_steps": jnp.zeros((), jnp.int32),
                 "goals_reached": jnp.zeros((), jnp.int32), "time_out": jnp.zeros((), bool)}
-
-    def proprioception(self, snap: Snapshot) -> jax.Array:
-        """Hand joint positions (rad) and velocities (rad/s), shape `(48,)`; the cube's joint is not the hand's."""
-        return jnp.concatenate([snap.qpos[self.hand_qpos], snap.qvel[self.hand_dofs]])
 
     def observe(self, snap: Snapshot, info: dict[str, jax.Array]) -> Sensation:
         cube_velocity = snap.qvel[self.cube_dof:self.cube_dof + 6]

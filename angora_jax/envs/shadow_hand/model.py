@@ -15,6 +15,7 @@ import mujoco
 
 FINGERTIP_SITES = ("robot0:S_fftip", "robot0:S_mftip", "robot0:S_rftip", "robot0:S_lftip", "robot0:S_thtip")
 PALM_BODY = "robot0:palm"
+HAND_JOINT_PREFIX = "robot0:"  # every joint of the hand; objects in a scene have their own names
 
 
 @dataclasses.dataclass(frozen=True)

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 
+from angora_jax.envs.coefficients import Coefficients
 from angora_jax.envs.core import Sensation
 from angora_jax.envs.mujoco_task import Snapshot
 from angora_jax.envs.shadow_hand.hand import HandTask
@@ -26,7 +27,7 @@ MEETING_OFFSET = (0.0, -0.09, 0.05)
 
 
 @dataclasses.dataclass(frozen=True)
-class ReachReward:
+class ReachReward(Coefficients):
     """Reward coefficients (AngoraPy's REACH_BASE). Distances in m.
 
     success_distance: a reach succeeds when the goal distance is below this.
@@ -43,16 +44,6 @@ class ReachReward:
     auxiliary_zone_radius: float = 0.06015
     auxiliary_penalty_multiplier: float = 0.01
     stay_probability: float = 0.1
-
-    @classmethod
-    def from_dict(cls, values: dict[str, float] | None) -> ReachReward:
-        """Coefficients from a dict; unknown keys raise a ValueError that lists the known ones."""
-        values = dict(values or {})
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ValueError(f"Unknown reward coefficients {unknown}; known: {sorted(known)}.")
-        return cls(**{k: float(v) for k, v in values.items()})
 
 
 class Reach(HandTask):
