@@ -7,12 +7,15 @@ in `Env.reset`/`Env.advance`, so the same key gives the same goals on both paths
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 
 from angora_jax.envs.core import ActionSpec, Env, Sensation, State
+from angora_jax.envs.mjx_env import MjxEnv
 from angora_jax.envs.mujoco_task import MujocoTask, Snapshot, start_physics
 
 
@@ -65,3 +68,17 @@ class CpuEnv(Env):
             raise RuntimeError("The episode has ended (state.done == 1): call env.reset(key) first.")
         self._last, _ = self.advance(state, action)
         return self._last
+
+
+def eager(env: Env) -> Env:
+    """The environment to run one episode at a time on the CPU: the C MuJoCo twin of an `MjxEnv` (same task logic and
+    keys), any other (pure-JAX) environment as it is."""
+    return CpuEnv(env.task, env.frame_skip, env.max_episode_steps) if isinstance(env, MjxEnv) else env
+
+
+def single_env_functions(env: Env) -> tuple[Callable[[jax.Array], State], Callable[..., tuple[State, jax.Array]]]:
+    """`(reset, advance)` of one environment without auto-reset, ready to call eagerly: a `CpuEnv`'s own (its physics
+    are C MuJoCo), a pure-JAX environment's jitted."""
+    if isinstance(env, CpuEnv):
+        return env.reset, env.advance
+    return jax.jit(env.reset), jax.jit(env.advance)

@@ -12,13 +12,12 @@ from typing import Any
 import gymnasium
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 
 from angora_jax.envs.core import Env, State
-from angora_jax.envs.cpu_env import CpuEnv
-from angora_jax.envs.mjx_env import MjxEnv
+from angora_jax.envs.cpu_env import CpuEnv, eager, single_env_functions
 from angora_jax.envs.registry import list_tasks, make
+from angora_jax.envs.rendering import Camera, SceneRenderer
 
 NAMESPACE = "AngoraJax"
 MODALITIES = ("proprioception", "touch", "vision", "goal", "asymmetric")
@@ -38,20 +37,18 @@ class GymEnv(gymnasium.Env):
 
     def __init__(self, task: str, render_mode: str | None = None, width: int = 320, height: int = 240,
                  distance: float = 0.4, azimuth: float = 90.0, elevation: float = -40.0, **options: Any):
-        env = make(task, **options)
-        self._env: Env = CpuEnv(env.task, env.frame_skip, env.max_episode_steps) if isinstance(env, MjxEnv) else env
+        self._env: Env = eager(make(task, **options))
         self._eager = isinstance(self._env, CpuEnv)
-        self._reset = self._env.reset if self._eager else jax.jit(self._env.reset)
-        self._advance = self._env.advance if self._eager else jax.jit(self._env.advance)
+        self._reset, self._advance = single_env_functions(self._env)
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}.")
         if render_mode and not self._eager:
             raise ValueError(f"Task {task!r} has no MuJoCo scene to render; use render_mode=None.")
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self._env.dt)}
-        self._camera = (distance, azimuth, elevation)
-        self._size = (height, width)
-        self._renderer: mujoco.Renderer | None = None
+        self._camera = Camera(distance, azimuth, elevation)
+        self._size = (width, height)
+        self._renderer: SceneRenderer | None = None
         self._state: State = self._reset(jax.random.key(0))
         self._modalities = [m for m in MODALITIES if getattr(self._state.obs, m).shape[-1] > 0]
         self.observation_space = gymnasium.spaces.Dict({
@@ -83,14 +80,8 @@ class GymEnv(gymnasium.Env):
         if self.render_mode is None:
             return None
         if self._renderer is None:
-            self._renderer = mujoco.Renderer(self._env.model, *self._size)
-        camera = mujoco.MjvCamera()
-        mujoco.mjv_defaultFreeCamera(self._env.model, camera)
-        camera.distance, camera.azimuth, camera.elevation = self._camera
-        if self._env.task.camera_body is not None:
-            camera.lookat[:] = self._env.data.body(self._env.task.camera_body).xpos
-        self._renderer.update_scene(self._env.data, camera)
-        return self._renderer.render()
+            self._renderer = SceneRenderer(self._env.model, self._env.task.camera_body, self._camera, *self._size)
+        return self._renderer.render(self._env.data)
 
     def close(self) -> None:
         if self._renderer is not None:
