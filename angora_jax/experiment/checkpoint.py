@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import orbax.checkpoint as ocp
 
 from angora_jax.experiment.config import CheckpointConfig
+from angora_jax.experiment.run_dir import RunDirError
 from angora_jax.ppo.cycle import TrainState
 
 KINDS = ("latest", "best", "snapshots")
@@ -50,6 +51,10 @@ def _is_key(x: Any) -> bool:
     return jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
 
 
+class CheckpointError(RunDirError):
+    """A checkpoint that exists but cannot be read (corrupt, incomplete or from an incompatible version)."""
+
+
 @dataclass(frozen=True)
 class Restored:
     """A state read back from a checkpoint and its metadata (cycle, env_steps, metrics, config)."""
@@ -68,10 +73,11 @@ class Checkpoints:
     def __init__(self, directory: Path, config: CheckpointConfig, create: bool = True):
         """directory: the run's checkpoints folder; create=False to only read an existing run's checkpoints."""
         self.config = config
+        self._directory = Path(directory).resolve()
         keep = {"latest": 1, "best": 1, "snapshots": None}
         self._managers = {
             kind: ocp.CheckpointManager(
-                Path(directory).resolve() / kind,
+                self._directory / kind,
                 options=ocp.CheckpointManagerOptions(
                     max_to_keep=keep[kind], create=create, enable_async_checkpointing=False
                 ),
@@ -119,9 +125,17 @@ class Checkpoints:
         """
         kind, cycle = self._locate(which)
         abstract = jax.eval_shape(to_storable, template)
-        restored = self._managers[kind].restore(
-            cycle, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore())
-        )
+        try:
+            restored = self._managers[kind].restore(
+                cycle, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore())
+            )
+        except Exception as error:  # Orbax and TensorStore raise many types for unreadable files; all mean the same
+            existing = {k: self.steps(k) for k in KINDS}
+            raise CheckpointError(
+                f"Checkpoint {self._directory / kind / str(cycle)} cannot be read ({type(error).__name__}: {error}). "
+                f"It is corrupt, incomplete or from an incompatible version of angora_jax. Use another one "
+                f"(saved cycles: {existing}; pass its cycle to --checkpoint), or delete this one."
+            ) from error
         return Restored(from_storable(template, restored["state"]), dict(restored["meta"]))
 
     def close(self) -> None:
@@ -138,6 +152,11 @@ class Checkpoints:
                 if which in self._managers[kind].all_steps():
                     return kind, which
         existing = {kind: self.steps(kind) for kind in KINDS}
+        if not any(existing.values()):
+            raise FileNotFoundError(
+                f"No checkpoints in {self._directory}: the run has saved none yet (it saves one every "
+                f"checkpoint.every cycles and at its end). Continue it with `angora-jax resume` or train it again."
+            )
         raise FileNotFoundError(
             f"No checkpoint {which!r}. Saved cycles: {existing}; ask for 'latest', 'best' or one of them."
         )
