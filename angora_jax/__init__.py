@@ -1,14 +1,19 @@
 """angora_jax: goal-driven sensorimotor modeling in JAX (MJX Shadow-hand tasks, recurrent PPO).
 
 The notebook API: `make_env(task, **options)`, `load_config(path_or_name, overrides)`, `train(config)` (what
-`angora-jax train` does: run directory, checkpoints, metrics, report) and `load_agent(run_dir)`.
+`angora-jax train` does: run directory, checkpoints, metrics, report), `load_agent(run_dir)`, `evaluate(run_dir)`
+(episode statistics on the eager CPU path) and `render_frames(run_dir)` (video frames).
 """
 
 from angora_jax.envs import list_tasks, make
 from angora_jax.envs.gym_view import register_gymnasium_envs
 from angora_jax.experiment import load_agent, load_config, resume, train
+from angora_jax.experiment.evaluation import evaluate
+from angora_jax.experiment.video import render_frames
 
 make_env = make
 register_gymnasium_envs()
 
-__all__ = ["list_tasks", "load_agent", "load_config", "make", "make_env", "resume", "train"]
+__all__ = [
+    "evaluate", "list_tasks", "load_agent", "load_config", "make", "make_env", "render_frames", "resume", "train",
+]

@@ -3,7 +3,8 @@
 angora-jax train cartpole                       train configs/cartpole.yaml into runs/<name>/
 angora-jax train cartpole ppo.network.name=lstm logging.run_name=lstm
 angora-jax resume runs/lstm                     continue from the latest checkpoint, exactly
-angora-jax evaluate runs/lstm                   deterministic episodes with the best checkpoint
+angora-jax evaluate runs/lstm                   episode statistics of the best checkpoint (CPU path), JSON + PNG
+angora-jax render runs/lstm --out lstm.mp4      a video of an episode (MuJoCo tasks)
 angora-jax report runs/lstm runs/other          PNG curves + index.html comparing runs
 """
 
@@ -20,12 +21,12 @@ import numpy as np
 
 from angora_jax.envs import list_tasks, make
 from angora_jax.envs.random_rollout import batched_reset, episode_mean, make_random_rollout
+from angora_jax.envs.rendering import CAMERAS, RenderError
 from angora_jax.experiment import (
     ConfigError,
     RunDirError,
     TrainingInterrupted,
     TrainingRun,
-    load_agent,
     read_metrics,
     resume,
     train,
@@ -98,13 +99,30 @@ def parser() -> argparse.ArgumentParser:
     resume.add_argument("run_dir")
     resume.set_defaults(handler=command_resume)
 
-    evaluate = commands.add_parser("evaluate", help="run a trained policy for one episode per environment")
+    evaluate = commands.add_parser(
+        "evaluate", help="episode statistics of a trained policy on the eager CPU path; JSON + box plot in the run"
+    )
     evaluate.add_argument("run_dir")
     evaluate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
-    evaluate.add_argument("--num-envs", type=int, default=16, help="episodes, one per environment")
+    evaluate.add_argument("--episodes", "--num-envs", type=int, default=480, help="episodes to run (default: 480)")
     evaluate.add_argument("--seed", type=int, default=0)
-    evaluate.add_argument("--sample", action="store_true", help="sample actions instead of taking the mode")
+    evaluate.add_argument(
+        "--stochastic", "--sample", action="store_true", help="sample actions instead of taking the mode"
+    )
     evaluate.set_defaults(handler=command_evaluate)
+
+    render = commands.add_parser("render", help="a video of a trained policy (or random actions) on a MuJoCo task")
+    render.add_argument("run_dir", nargs="?", help="the run whose policy acts; leave out with --task")
+    render.add_argument("--out", required=True, help="video path: .mp4 (imageio-ffmpeg) or .gif; never overwritten")
+    render.add_argument("--task", help="render this task with random actions instead of a run's policy")
+    render.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
+    render.add_argument("--episodes", type=int, default=1)
+    render.add_argument("--camera", default="front", choices=sorted(CAMERAS), help="view of the hand (default: front)")
+    render.add_argument("--width", type=int, default=320)
+    render.add_argument("--height", type=int, default=240)
+    render.add_argument("--seed", type=int, default=0)
+    render.add_argument("--stochastic", action="store_true", help="sample actions instead of taking the mode")
+    render.set_defaults(handler=command_render)
 
     report = commands.add_parser("report", help="PNG learning curves and an HTML page comparing runs")
     report.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
@@ -154,13 +172,33 @@ def print_finished(run: TrainingRun) -> None:
 
 
 def command_evaluate(args: argparse.Namespace) -> int:
+    from angora_jax.experiment.evaluation import evaluate  # matplotlib only when evaluating
+
     checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
-    agent = load_agent(args.run_dir, checkpoint)
-    metrics = agent.evaluate(args.num_envs, args.seed, deterministic=not args.sample)
-    mode = "sampled" if args.sample else "deterministic (mode)"
-    print(f"{args.run_dir}, checkpoint of cycle {agent.cycle}, {args.num_envs} episodes, {mode} actions:")
-    for name, value in metrics.items():
-        print(f"  {name:>20}: {value:.4g}")
+    result = evaluate(args.run_dir, checkpoint, args.episodes, args.stochastic, args.seed)
+    meta = result.meta
+    actions = "sampled" if args.stochastic else "deterministic (mode)"
+    print(f"{args.run_dir}, checkpoint of cycle {meta['cycle']}, {args.episodes} episodes on {meta['physics']}, "
+          f"{actions} actions, {meta['wall_seconds']:.1f} s:")
+    print(f"  {'':>22} {'mean':>9} {'median':>9} {'mode':>9} {'stderr':>9}")
+    for name, stats in result.summary.items():
+        print(f"  {name:>22} " + " ".join(f"{stats[k]:9.4g}" for k in ("mean", "median", "mode", "stderr")))
+    print(f"Written: {result.json_path} and {result.plot_path}")
+    return EXIT_OK
+
+
+def command_render(args: argparse.Namespace) -> int:
+    from angora_jax.experiment.video import render_video
+
+    checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
+    options = dict(checkpoint=checkpoint, episodes=args.episodes, camera=args.camera, width=args.width,
+                   height=args.height, seed=args.seed, stochastic=args.stochastic)
+    try:
+        out = render_video(args.out, args.run_dir, task=args.task, **options)
+    except (RenderError, FileExistsError, ValueError) as error:
+        print(f"angora-jax render: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    print(f"Video: {out}")
     return EXIT_OK
 
 

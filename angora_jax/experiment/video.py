@@ -1,0 +1,100 @@
+"""Videos of episodes: a trained policy (or random actions) on the eager C MuJoCo path, rendered off screen.
+
+    frames = render_frames("runs/reach", camera="side")      # list of (height, width, 3) uint8 arrays, in a notebook
+    write_video(frames, "reach.mp4", fps=50)                  # MP4 through imageio-ffmpeg; a .gif needs only Pillow
+
+Rendering needs an OpenGL backend (see `angora_jax.envs.rendering`: MUJOCO_GL=egl or osmesa); without one,
+`RenderError` says which system package to install.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from angora_jax.envs.core import State
+from angora_jax.envs.cpu_env import CpuEnv, eager, single_env_functions
+from angora_jax.envs.registry import make
+from angora_jax.envs.rendering import RenderError, SceneRenderer, camera_named
+from angora_jax.experiment.agent import load_agent
+from angora_jax.experiment.evaluation import agent_policy, episode_keys, random_policy, run_episode
+
+
+def render_frames(run_dir: str | Path | None = None, *, task: str | None = None, checkpoint: str | int = "best",
+                  episodes: int = 1, camera: str = "front", width: int = 320, height: int = 240, seed: int = 0,
+                  stochastic: bool = False, task_options: dict[str, Any] | None = None) -> list[np.ndarray]:
+    """Frames of `episodes` consecutive episodes: the reset frame and one per policy step, each `(height, width, 3)`
+    uint8 (one policy step is `env.dt` seconds of simulated time).
+
+    Give either `run_dir` (the policy of its `checkpoint`, mode actions unless `stochastic`; the episodes are those
+    of `evaluate(run_dir, seed=seed)`) or `task` (uniformly random actions; `task_options` go to the task).
+    camera: a name in `angora_jax.envs.rendering.CAMERAS`. Raises RenderError without a GL backend or a MuJoCo task.
+    """
+    return _render(run_dir, task, checkpoint, episodes, camera, width, height, seed, stochastic, task_options)[0]
+
+
+def _render(run_dir: str | Path | None, task: str | None, checkpoint: str | int = "best", episodes: int = 1,
+            camera: str = "front", width: int = 320, height: int = 240, seed: int = 0, stochastic: bool = False,
+            task_options: dict[str, Any] | None = None) -> tuple[list[np.ndarray], float]:
+    """`render_frames` and the seconds of simulated time per frame."""
+    if (run_dir is None) == (task is None):
+        raise ValueError("Give either run_dir (a trained policy) or task (random actions), not both or neither.")
+    if run_dir is not None:
+        agent = load_agent(run_dir, checkpoint)
+        env, policy, initial_carry = eager(agent.env), agent_policy(agent, stochastic), agent.initial_carry
+    else:
+        env = eager(make(task, **(task_options or {})))
+        policy, initial_carry = random_policy(env), lambda batch_size: None
+    if not isinstance(env, CpuEnv):
+        raise RenderError(f"Task {type(env).__name__} has no MuJoCo scene to render; only MuJoCo tasks have videos.")
+    renderer = SceneRenderer(env.model, env.task.camera_body, camera_named(camera), width, height)
+    frames: list[np.ndarray] = []
+
+    def record(state: State) -> None:
+        frames.append(renderer.render(env.data))
+
+    functions = single_env_functions(env)
+    try:
+        for reset_key, act_key in zip(*episode_keys(seed, episodes), strict=True):
+            run_episode(env, policy, initial_carry(1), reset_key, act_key, on_step=record, functions=functions)
+    finally:
+        renderer.close()
+    return frames, env.dt
+
+
+def render_video(out: str | Path, run_dir: str | Path | None = None, *, task: str | None = None,
+                 **options: Any) -> Path:
+    """Render as `render_frames(run_dir, task=task, **options)` and write the frames to `out` at real-time speed
+    (`1 / env.dt` frames per second). Refuses an existing `out` before rendering anything."""
+    if Path(out).exists():
+        raise FileExistsError(f"{out} exists already and is left untouched; choose another --out path.")
+    frames, dt = _render(run_dir, task, **options)
+    return write_video(frames, out, 1.0 / dt)
+
+
+def write_video(frames: list[np.ndarray], out: str | Path, fps: float) -> Path:
+    """Write `frames` to `out` (`.mp4` through imageio-ffmpeg, `.gif` through Pillow) at `fps` frames per second.
+    Refuses to overwrite an existing file (FileExistsError)."""
+    import imageio.v3 as iio
+
+    out = Path(out)
+    if out.exists():
+        raise FileExistsError(f"{out} exists already and is left untouched; choose another --out path.")
+    if not frames:
+        raise ValueError("No frames to write.")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if out.suffix.lower() == ".gif":
+        iio.imwrite(out, np.stack(frames), duration=1000.0 / fps, loop=0)
+        return out
+    try:
+        iio.imwrite(out, np.stack(frames), fps=fps, macro_block_size=1)
+    except (ImportError, RuntimeError, OSError) as error:
+        out.unlink(missing_ok=True)
+        raise RenderError(
+            f"Cannot encode {out} ({error}). MP4 needs the imageio-ffmpeg package (`pip install -c constraints.txt "
+            f"-e .` installs it); or write a .gif, which needs only Pillow."
+        ) from error
+    return out
+
