@@ -1,6 +1,7 @@
 """One PPO training cycle as one compiled program: rollout, GAE, then epochs of truncated-BPTT minibatch updates.
 
 `init, cycle = make_cycle(env, network, config)`; `state = init(key)`; `state, metrics = cycle(state)`.
+With `num_devices=D > 1` the same cycle runs data-parallel on D devices (see `angora_jax.ppo.parallel`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from angora_jax.ppo.distributions import PolicyHead, make_head
 from angora_jax.ppo.gae import gae, next_values
 from angora_jax.ppo.losses import LossInputs, ppo_loss
 from angora_jax.ppo.normalization import RunningMeanStd, discounted_returns, observation_stats
+from angora_jax.ppo.parallel import axis_name, data_parallel, device_key, per_device, pmean, psum
 from angora_jax.ppo.rollout import ActorState, make_rollout
 from angora_jax.ppo.tbptt import gather_carries, gather_sequences, minibatch_indices, unroll
 
@@ -54,12 +56,11 @@ class Batch:
     loss: LossInputs
 
 
-def average_gradients(grads: Any) -> Any:
-    """The one place where gradients are combined across devices; a single device needs no averaging.
-
-    Multi-device training replaces this with `jax.lax.pmean(grads, axis_name)`.
-    """
-    return grads
+def average_gradients(grads: Any, axis: str | None = None) -> Any:
+    """The one place where gradients are combined across devices: their mean over the mapped `axis`; a single
+    device (`axis` None) needs no averaging. Each device's gradient is of the mean loss over its equal share of the
+    minibatch, so the mean over devices is the gradient of the whole minibatch's mean loss."""
+    return pmean(grads, axis)
 
 
 def build_head(env: Env, config: PPOConfig) -> PolicyHead:
@@ -70,7 +71,7 @@ def build_head(env: Env, config: PPOConfig) -> PolicyHead:
 
 
 def make_cycle(
-    env: Env, network: nn.Module | None, config: PPOConfig
+    env: Env, network: nn.Module | None, config: PPOConfig, num_devices: int = 1
 ) -> tuple[Callable[[jax.Array], TrainState], Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]]:
     """Build the jitted `init(key) -> TrainState` and `cycle(state) -> (state, metrics)`.
 
@@ -79,14 +80,21 @@ def make_cycle(
     Metrics are float32 scalars: episodes (finished in this cycle), episode_return and episode_length (means over
     them, NaN if none finished), `metric/<name>` task metrics at episode ends, the loss parts averaged over all
     minibatches, explained_variance, learning_rate and finite (1 if the losses and parameters are finite).
+
+    num_devices: D devices to run data-parallel on; `config.num_envs` and `config.minibatch_size` are totals that
+    must divide by D (ValueError otherwise). For D > 1, `init` returns the state already laid out over the devices
+    and `cycle` accepts any state of the run's shapes (e.g. one restored from a checkpoint) and lays it out first.
+    Metrics are over all devices. D = 1 compiles the plain cycle, with no collectives.
     """
     config.validate_for(env)
+    local = per_device(config, num_devices)
+    axis = axis_name(num_devices)
     network = make_network(config.network) if network is None else network
     head = build_head(env, config)
     model = ActorCritic(network, head)
-    num_envs, chunk_length = config.num_envs, config.chunk_length
+    num_envs, chunk_length = local.num_envs, config.chunk_length
     num_chunks = config.rollout_length // chunk_length
-    tile = tile_shape(config)
+    tile = tile_shape(local)
     minibatch_rows = tile[0] * tile[1]
     updates_per_cycle = config.num_epochs * (config.num_envs * config.rollout_length // config.minibatch_size)
     if config.lr_decay:
@@ -108,14 +116,16 @@ def make_cycle(
         chunk_length,
         norm.observations,
         norm.clip,
+        axis,
     )
 
     def init(key: jax.Array) -> TrainState:
+        # The global state of all config.num_envs environments, whatever the device count.
         env_key, param_key, key = jax.random.split(key, 3)
-        env_state = jax.vmap(env.reset)(jax.random.split(env_key, num_envs))
-        carry = network.initial_carry(num_envs)
+        env_state = jax.vmap(env.reset)(jax.random.split(env_key, config.num_envs))
+        carry = network.initial_carry(config.num_envs)
         params = model.init(param_key, carry, env_state.obs)["params"]
-        zeros = jnp.zeros((num_envs,), jnp.float32)
+        zeros = jnp.zeros((config.num_envs,), jnp.float32)
         return TrainState(
             params=params,
             opt_state=optimizer.init(params),
@@ -145,6 +155,7 @@ def make_cycle(
             config.entropy_coef,
             config.value_clip,
             config.normalize_advantages,
+            axis,
         )
 
     def update_minibatch(batch: Batch, start_carries, train, index):
@@ -153,7 +164,7 @@ def make_cycle(
         sequences = gather_sequences(batch, chunk_index, env_index)
         start_carry = gather_carries(start_carries, chunk_index, env_index)
         grads, parts = jax.grad(loss_fn, has_aux=True)(params, sequences, start_carry)
-        grads = average_gradients(grads)
+        grads = average_gradients(grads, axis)
         parts["grad_norm"] = optax.tree.norm(grads)
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), parts
@@ -165,7 +176,7 @@ def make_cycle(
     def cycle(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
         key, rollout_key, update_key = jax.random.split(state.key, 3)
         actor, obs_stats, traj, start_carries, last_value = rollout(
-            state.params, state.obs_stats, state.actor, rollout_key
+            state.params, state.obs_stats, state.actor, device_key(rollout_key, axis)
         )
 
         def flat(x):  # (C, s, N, ...) -> (T, N, ...)
@@ -178,7 +189,7 @@ def make_cycle(
         reward_stats, discounted = state.reward_stats, state.discounted_return
         if norm.rewards:
             seen, discounted = discounted_returns(discounted, rewards, dones, config.gamma)
-            reward_stats = reward_stats.update(seen)
+            reward_stats = reward_stats.update(seen, axis)
             rewards = reward_stats.scale(rewards, norm.clip)
         following = next_values(values, last_value, flat(traj.final_values), dones, flat(traj.truncated))
         advantages, targets = gae(rewards, values, following, dones, config.gamma, config.gae_lambda)
@@ -190,14 +201,15 @@ def make_cycle(
         (params, opt_state), parts = jax.lax.scan(
             lambda t, k: update_epoch(batch, start_carries, t, k),
             (state.params, state.opt_state),
-            jax.random.split(update_key, config.num_epochs),
+            jax.random.split(device_key(update_key, axis), config.num_epochs),
         )
-        metrics = {name: value.mean() for name, value in parts.items()}
-        metrics |= episode_metrics(traj.dones, traj.episode_return, traj.episode_length, traj.metrics)
-        metrics["explained_variance"] = 1.0 - jnp.var(targets - values) / (jnp.var(targets) + 1e-8)
+        metrics = {name: pmean(value.mean(), axis) for name, value in parts.items()}
+        metrics |= episode_metrics(traj.dones, traj.episode_return, traj.episode_length, traj.metrics, axis)
+        metrics["explained_variance"] = 1.0 - variance(targets - values, axis) / (variance(targets, axis) + 1e-8)
         metrics["learning_rate"] = jnp.asarray(schedule(state.cycle * updates_per_cycle), jnp.float32)
         params_finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(p)) for p in jax.tree.leaves(params)]))
-        metrics["finite"] = (jnp.all(jnp.isfinite(parts["loss"])) & params_finite).astype(jnp.float32)
+        finite = (jnp.all(jnp.isfinite(parts["loss"])) & params_finite).astype(jnp.float32)
+        metrics["finite"] = jnp.floor(pmean(finite, axis))  # 1 only where every device is finite
         new_state = TrainState(
             params=params,
             opt_state=opt_state,
@@ -210,21 +222,38 @@ def make_cycle(
         )
         return new_state, metrics
 
-    return jax.jit(init), jax.jit(cycle)
+    if num_devices == 1:
+        return jax.jit(init), jax.jit(cycle)
+    place, parallel_cycle = data_parallel(cycle, jax.eval_shape(init, jax.random.key(0)), num_devices)
+    global_init = jax.jit(init)
+    return lambda key: place(global_init(key)), lambda state: parallel_cycle(place(state))
+
+
+def variance(x: jax.Array, axis: str | None = None) -> jax.Array:
+    """Variance of all elements of `x`, pooled over the devices on `axis` (equal shares) when given."""
+    if axis is None:
+        return jnp.var(x)
+    mean = pmean(x.mean(), axis)
+    return pmean(((x - mean) ** 2).mean(), axis)
 
 
 def episode_metrics(
-    dones: jax.Array, returns: jax.Array, lengths: jax.Array, task_metrics: dict[str, jax.Array]
+    dones: jax.Array,
+    returns: jax.Array,
+    lengths: jax.Array,
+    task_metrics: dict[str, jax.Array],
+    axis: str | None = None,
 ) -> dict[str, jax.Array]:
     """Means over the episodes that ended in a rollout (NaN when none did); inputs are per-step arrays that are 0
-    except where an episode ended, `task_metrics` holds the task's metrics at every step."""
-    episodes = dones.sum()
+    except where an episode ended, `task_metrics` holds the task's metrics at every step. With `axis`, the
+    episodes of all devices count."""
+    episodes = psum(dones.sum(), axis)
     denominator = jnp.where(episodes > 0, episodes, jnp.nan)
     metrics = {
         "episodes": episodes,
-        "episode_return": returns.sum() / denominator,
-        "episode_length": lengths.sum() / denominator,
+        "episode_return": psum(returns.sum(), axis) / denominator,
+        "episode_length": psum(lengths.sum(), axis) / denominator,
     }
     for name, value in task_metrics.items():
-        metrics[f"metric/{name}"] = (value * dones).sum() / denominator
+        metrics[f"metric/{name}"] = psum((value * dones).sum(), axis) / denominator
     return metrics

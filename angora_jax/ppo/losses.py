@@ -31,16 +31,19 @@ def ppo_loss(
     entropy_coef: float,
     value_clip: bool,
     normalize_advantages: bool,
+    axis_name: str | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Total loss (to minimise) and its parts.
 
     policy_params `(..., P)` and values `(...)` come from the current network on the minibatch's observations.
     Returns `loss = policy_loss + value_coef * value_loss - entropy_coef * entropy` and a dict with the parts,
-    the approximate KL divergence to the rollout policy and the fraction of clipped ratios.
+    the approximate KL divergence to the rollout policy and the fraction of clipped ratios. With `axis_name`, this
+    device holds an equal share of a minibatch split over devices, and advantages are normalised by the whole
+    minibatch's mean and std.
     """
     advantages = batch.advantages
     if normalize_advantages:
-        advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+        advantages = (advantages - _mean(advantages, axis_name)) / (_std(advantages, axis_name) + 1e-8)
     log_ratio = head.log_prob(policy_params, batch.actions) - batch.log_probs
     ratio = jnp.exp(log_ratio)
     clipped_ratio = jnp.clip(ratio, 1.0 - clip_epsilon, 1.0 + clip_epsilon)
@@ -64,3 +67,13 @@ def ppo_loss(
         "clip_fraction": jax.lax.stop_gradient((jnp.abs(ratio - 1.0) > clip_epsilon).mean()),
     }
     return loss, parts
+
+
+def _mean(x: jax.Array, axis_name: str | None) -> jax.Array:
+    return x.mean() if axis_name is None else jax.lax.pmean(x.mean(), axis_name)
+
+
+def _std(x: jax.Array, axis_name: str | None) -> jax.Array:
+    if axis_name is None:
+        return x.std()
+    return jnp.sqrt(jax.lax.pmean(((x - _mean(x, axis_name)) ** 2).mean(), axis_name))

@@ -1,7 +1,8 @@
 """Running normalisation as pure functional state: observations per modality, rewards by the return's scale.
 
 `RunningMeanStd` merges batches with the parallel (Chan et al.) form of Welford's algorithm, so one update per
-batch gives the same result as feeding the samples one at a time.
+batch gives the same result as feeding the samples one at a time. Under data parallelism (`axis_name` set) the
+devices' equal-sized batches are pooled exactly before the merge, so every device holds the stats of the whole batch.
 """
 
 from __future__ import annotations
@@ -30,12 +31,20 @@ class RunningMeanStd:
         """Start with mean 0, variance 1 and a tiny count, so the first batch dominates at once."""
         return cls(jnp.zeros(shape, jnp.float32), jnp.ones(shape, jnp.float32), jnp.asarray(1e-4, jnp.float32))
 
-    def update(self, batch: jax.Array) -> RunningMeanStd:
-        """Merge `batch` of shape `(..., *mean.shape)`; all leading axes are samples."""
+    def update(self, batch: jax.Array, axis_name: str | None = None) -> RunningMeanStd:
+        """Merge `batch` of shape `(..., *mean.shape)`; all leading axes are samples. With `axis_name`, the batches
+        of all devices on that mapped axis are merged as one (each device passes its own, all of equal size)."""
         samples = math.prod(batch.shape[: batch.ndim - self.mean.ndim])
         x = batch.reshape((samples,) + self.mean.shape).astype(jnp.float32)
         n = jnp.asarray(samples, jnp.float32)
         batch_mean, batch_var = x.mean(0), x.var(0)
+        if axis_name is not None:
+            # Equal counts per device: the pooled mean is the mean of the means and the pooled variance the mean of
+            # (variance + squared offset from the pooled mean), i.e. Chan's merge of D batches in closed form.
+            pooled_mean = jax.lax.pmean(batch_mean, axis_name)
+            batch_var = jax.lax.pmean(batch_var + (batch_mean - pooled_mean) ** 2, axis_name)
+            batch_mean = pooled_mean
+            n = n * jax.lax.psum(1, axis_name)
         total = self.count + n
         delta = batch_mean - self.mean
         mean = self.mean + delta * n / total
@@ -59,9 +68,10 @@ def observation_stats(obs: Sensation) -> Sensation:
     return jax.tree.map(lambda leaf: RunningMeanStd.create(leaf.shape[-1:]), obs)
 
 
-def update_observation_stats(stats: Sensation, obs: Sensation) -> Sensation:
-    """Merge a batch of observations (leaves `(..., size)`) into the per-modality stats."""
-    return jax.tree.map(lambda s, x: s.update(x), stats, obs, is_leaf=_is_stats)
+def update_observation_stats(stats: Sensation, obs: Sensation, axis_name: str | None = None) -> Sensation:
+    """Merge a batch of observations (leaves `(..., size)`) into the per-modality stats (pooled over the devices
+    on `axis_name` when given, see `RunningMeanStd.update`)."""
+    return jax.tree.map(lambda s, x: s.update(x, axis_name), stats, obs, is_leaf=_is_stats)
 
 
 def normalize_observation(stats: Sensation, obs: Sensation, clip: float) -> Sensation:

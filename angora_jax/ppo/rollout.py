@@ -69,12 +69,14 @@ def make_rollout(
     chunk_length: int,
     normalize_obs: bool,
     clip: float,
+    axis_name: str | None = None,
 ) -> Callable[..., tuple[ActorState, Sensation, Trajectory, Any, jax.Array]]:
     """Build `rollout(params, obs_stats, actor, key) -> (actor, obs_stats, trajectory, start_carries, last_value)`.
 
     `initial_carry` is the network's carry for N environments. Observation stats are updated after every step
     (when `normalize_obs`), and each observation is normalised with the stats from before its own update.
-    `start_carries` has leaves `(C, N, ...)`, `last_value` `(N,)` is the value after the last step.
+    `start_carries` has leaves `(C, N, ...)`, `last_value` `(N,)` is the value after the last step. Under data
+    parallelism N is this device's share and `axis_name` pools the observation stats over the devices.
     """
     step_env = jax.vmap(env.step)
 
@@ -86,7 +88,7 @@ def make_rollout(
         state = actor.env_state
         obs = observe(obs_stats, state.obs)
         if normalize_obs:
-            obs_stats = update_observation_stats(obs_stats, state.obs)
+            obs_stats = update_observation_stats(obs_stats, state.obs, axis_name)
         net_carry = reset_carry(actor.carry, initial_carry, actor.reset)
         net_carry, policy_params, value = apply_fn(params, net_carry, obs)
         action = head.sample(policy_params, key)

@@ -25,16 +25,18 @@ def train(
     network: nn.Module | None = None,
     log: Callable[[str], None] | None = print,
     state: TrainState | None = None,
+    num_devices: int = 1,
 ) -> tuple[TrainState, list[dict[str, float]]]:
     """Run PPO cycles up to `config.num_cycles` and return the final state and one metrics dict per cycle run.
 
     env: the task (e.g. `angora_jax.make("CartPole")`); network: defaults to `config.network` from the registry.
     state: continue from this state (e.g. restored from a checkpoint) instead of a fresh one from `config.seed`.
     `log` receives one line per cycle (None for silence). Metrics are described in `training_cycles`. A state that
-    has already run all cycles comes back unchanged with an empty history.
+    has already run all cycles comes back unchanged with an empty history. num_devices: train data-parallel on
+    this many devices (see `make_cycle`).
     """
     history: list[dict[str, float]] = []
-    for latest, metrics in training_cycles(config, env, network, state):
+    for latest, metrics in training_cycles(config, env, network, state, num_devices):
         state = latest
         history.append(metrics)
         if log is not None:
@@ -43,7 +45,11 @@ def train(
 
 
 def training_cycles(
-    config: PPOConfig, env: Env, network: nn.Module | None = None, state: TrainState | None = None
+    config: PPOConfig,
+    env: Env,
+    network: nn.Module | None = None,
+    state: TrainState | None = None,
+    num_devices: int = 1,
 ) -> Iterator[tuple[TrainState, dict[str, float]]]:
     """Yield `(state, metrics)` after each cycle, from `state.cycle` (0 for a fresh state) to `config.num_cycles`.
 
@@ -52,7 +58,7 @@ def training_cycles(
     cycle run by this call includes compilation, reported as compile_seconds. Raises TrainingDivergedError when
     training produces non-finite values.
     """
-    init, cycle = make_cycle(env, network, config)
+    init, cycle = make_cycle(env, network, config, num_devices)
     state = init(jax.random.key(config.seed)) if state is None else state
     steps_per_cycle = config.num_envs * config.rollout_length
     first = int(state.cycle)
