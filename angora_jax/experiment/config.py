@@ -8,6 +8,7 @@ the model in `ppo.network` and the normalisation in `ppo.normalization`), `loggi
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import difflib
 import importlib.util
@@ -23,6 +24,7 @@ from angora_jax.envs.core import Env
 from angora_jax.envs.registry import list_tasks, make
 from angora_jax.nets.registry import list_networks
 from angora_jax.ppo.config import PPOConfig
+from angora_jax.ppo.parallel import per_device, resolve_num_devices
 
 # Named configs (`load_config("cartpole")`) live in the repository's configs/ folder.
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
@@ -79,10 +81,11 @@ class CheckpointConfig:
 
 @dataclass(frozen=True)
 class DistributionConfig:
-    """num_devices: devices to train on; only 1 is implemented (the gradients are combined in
-    `angora_jax.ppo.average_gradients`, the hook for multi-device training)."""
+    """num_devices: devices to train on data-parallel, an integer or "all" (every device JAX sees); 1 is the plain
+    single-device cycle. `ppo.num_envs` and `ppo.minibatch_size` are run totals, divided over the devices, so they
+    must be multiples of the device count (see `angora_jax.ppo.parallel`)."""
 
-    num_devices: int = 1
+    num_devices: int | str = 1
 
 
 @dataclass(frozen=True)
@@ -165,12 +168,19 @@ def validate(config: Config) -> Env:
     choices = best_metric_choices(env)
     if checkpoint.best_metric is not None and checkpoint.best_metric not in choices:
         raise ConfigError(_unknown("checkpoint.best_metric", checkpoint.best_metric, [*choices, "null"], "metrics"))
-    if config.distribution.num_devices != 1:
-        raise ConfigError(
-            f"distribution.num_devices={config.distribution.num_devices} is not supported yet; allowed: 1. "
-            "Multi-device training is future work (see angora_jax.ppo.average_gradients)."
-        )
+    try:
+        per_device(config.ppo, num_devices(config))
+    except ValueError as error:
+        raise ConfigError(str(error)) from None
     return env
+
+
+def num_devices(config: Config) -> int:
+    """The number of devices the run trains on (`distribution.num_devices` resolved); ConfigError if unavailable."""
+    try:
+        return resolve_num_devices(config.distribution.num_devices)
+    except ValueError as error:
+        raise ConfigError(str(error)) from None
 
 
 def _read(source: str | Path | dict | None) -> dict[str, Any]:
@@ -240,9 +250,12 @@ def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
         return _build(kind, {} if value is None else value, key)
     if isinstance(kind, types.UnionType) or typing.get_origin(kind) is typing.Union:
         options = [arg for arg in typing.get_args(kind) if arg is not type(None)]
-        if value is None:
+        if value is None and type(None) in typing.get_args(kind):
             return None
-        return _convert(options[0], value, key, nullable=True)
+        for option in options[:-1]:
+            with contextlib.suppress(ConfigError):
+                return _convert(option, value, key)
+        return _convert(options[-1], value, key, nullable=type(None) in typing.get_args(kind))
     if kind is Any:
         return value
     if typing.get_origin(kind) is dict:

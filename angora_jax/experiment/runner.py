@@ -17,7 +17,7 @@ import jax
 
 from angora_jax.envs.core import Env
 from angora_jax.experiment.checkpoint import Checkpoints
-from angora_jax.experiment.config import Config, load_config, to_dict, validate
+from angora_jax.experiment.config import Config, load_config, num_devices, to_dict, validate
 from angora_jax.experiment.monitor import Monitor, set_aside_after
 from angora_jax.experiment.progress import Progress
 from angora_jax.experiment.run_dir import CHECKPOINTS, create_run_dir, read_run_config
@@ -108,7 +108,7 @@ def _run(
     progress = Progress(config.ppo.num_cycles, config.logging.progress)
     try:
         with _stop_requests() as stop:
-            for latest, metrics in training_cycles(config.ppo, env, None, state):
+            for latest, metrics in training_cycles(config.ppo, env, None, state, num_devices(config)):
                 state = latest
                 record = monitor.record(metrics, state)
                 history.append(record)
