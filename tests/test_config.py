@@ -51,7 +51,9 @@ BAD = {
         ["checkpoint.best_metric=metric/success"],
         r"checkpoint.best_metric.*episode_return",
     ),
-    "multi-device": (["distribution.num_devices=2"], r"distribution.num_devices=2 is not supported.*allowed: 1"),
+    "more devices than present": (["distribution.num_devices=64"], r"distribution.num_devices=64 but JAX sees only"),
+    "device count not positive": (["distribution.num_devices=0"], r"distribution.num_devices must be a positive"),
+    "device count a word": (["distribution.num_devices=some"], r"distribution.num_devices must be a positive"),
     "progress mode": (["logging.progress=fancy"], r"logging.progress.*auto, bar, lines, none"),
     "override without =": (["ppo.num_cycles"], r"must look like key.sub=value"),
 }

@@ -1,0 +1,102 @@
+"""Run by test_parallel.py in a subprocess with XLA_FLAGS=--xla_force_host_platform_device_count=4 (the device count
+is fixed when JAX starts). argv[1]: a scratch folder. Prints one JSON object with what the tests assert on."""
+
+import json
+import os
+import signal
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
+from tiny import TINY_PPO
+
+import angora_jax as aj
+from angora_jax.envs.registry import make
+from angora_jax.experiment import TrainingInterrupted, resume
+from angora_jax.ppo import PPOConfig, make_cycle
+from angora_jax.ppo.normalization import RunningMeanStd
+from angora_jax.ppo.parallel import AXIS
+
+CURVE = PPOConfig(num_envs=16, rollout_length=32, chunk_length=8, minibatch_size=128, num_epochs=2, num_cycles=8)
+REPLICATED = ("params", "opt_state", "obs_stats", "reward_stats", "key", "cycle")
+
+
+def host(leaf):
+    return np.asarray(jax.random.key_data(leaf) if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key) else leaf)
+
+
+def replicas_identical(state) -> bool:
+    """Every device's copy of every replicated leaf equals device 0's, bit for bit."""
+    for name in REPLICATED:
+        for leaf in jax.tree.leaves(getattr(state, name)):
+            shards = [host(shard.data) for shard in leaf.addressable_shards]
+            if len(shards) != 4 or any(not np.array_equal(shards[0], other) for other in shards[1:]):
+                return False
+    return True
+
+
+def curve(num_devices):
+    init, cycle = make_cycle(make("CartPole"), None, CURVE, num_devices)
+    state, history, in_sync = init(jax.random.key(0)), [], []
+    for _ in range(CURVE.num_cycles):
+        state, metrics = cycle(state)
+        history.append({name: float(value) for name, value in metrics.items()})
+        in_sync.append(num_devices == 1 or replicas_identical(state))
+    return history, in_sync
+
+
+def pooled_stats():
+    """Max abs difference between stats merged from 4 devices' batches and from the whole batch on one device."""
+    batch = jax.random.normal(jax.random.key(1), (64, 3)) * jnp.array([1.0, 5.0, 0.1]) + jnp.array([2.0, -1.0, 0.0])
+    start = RunningMeanStd.create((3,)).update(batch[:8] * 3.0)
+    mesh = Mesh(np.array(jax.devices()), (AXIS,))
+    merged = jax.jit(
+        jax.shard_map(lambda b: start.update(b, AXIS), mesh=mesh, in_specs=P(AXIS), out_specs=P(), check_vma=False)
+    )(batch)
+    whole = start.update(batch)
+    return max(
+        float(jnp.abs(a - b).max()) for a, b in zip(jax.tree.leaves(merged), jax.tree.leaves(whole), strict=True)
+    )
+
+
+def resumed_equals_whole(root: Path) -> bool:
+    """A 4-device run stopped by SIGTERM after cycle 2 and resumed ends bit for bit like an uninterrupted one."""
+    overrides = [
+        *TINY_PPO,
+        "ppo.num_cycles=4",
+        "distribution.num_devices=4",
+        "logging.progress=none",
+        "logging.report=false",
+        f"logging.run_root={root}",
+    ]
+    whole = aj.train("cartpole", [*overrides, "logging.run_name=whole"])
+
+    def terminate_after_cycle_2(record):
+        if record["cycle"] == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    try:
+        aj.train("cartpole", [*overrides, "logging.run_name=split"], on_cycle=terminate_after_cycle_2)
+    except TrainingInterrupted:
+        pass
+    resumed = resume(root / "split")
+    leaves = zip(jax.tree.leaves(whole.state), jax.tree.leaves(resumed.state), strict=True)
+    return replicas_identical(resumed.state) and all(np.array_equal(host(a), host(b)) for a, b in leaves)
+
+
+if __name__ == "__main__":
+    single, _ = curve(1)
+    parallel, in_sync = curve(4)
+    result = {
+        "device_count": jax.device_count(),
+        "single": single,
+        "parallel": parallel,
+        "in_sync": in_sync,
+        "pooled_stats_error": pooled_stats(),
+        "resumed_equals_whole": resumed_equals_whole(Path(sys.argv[1])),
+    }
+    print(json.dumps(result))

@@ -1,0 +1,77 @@
+"""Data-parallel training (angora_jax.ppo.parallel): on 4 CPU devices the replicated state stays identical on every
+device, normaliser statistics pool exactly, a 4-device run learns like the single-device run with the same totals,
+and resuming a 4-device run is bit for bit; indivisible totals fail naming the keys."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from angora_jax.ppo import PPOConfig
+from angora_jax.ppo.parallel import per_device
+
+TESTS = Path(__file__).resolve().parent
+
+
+@pytest.fixture(scope="module")
+def four_devices(tmp_path_factory):
+    """tests/multidevice.py's results; a subprocess because the CPU device count is fixed when JAX starts."""
+    env = os.environ | {"XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
+    done = subprocess.run(
+        [sys.executable, str(TESTS / "multidevice.py"), str(tmp_path_factory.mktemp("runs"))],
+        cwd=TESTS,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_replicated_state_is_identical_on_every_device(four_devices):
+    assert four_devices["device_count"] == 4
+    assert all(four_devices["in_sync"]) and len(four_devices["in_sync"]) == 8
+
+
+def test_normaliser_merge_over_devices_equals_one_merge_of_the_whole_batch(four_devices):
+    assert four_devices["pooled_stats_error"] < 1e-5
+
+
+def test_four_devices_learn_like_one_with_the_same_totals(four_devices):
+    # The devices draw their own random streams, so the runs agree statistically, not bit for bit. Observed on
+    # CartPole, 8 cycles of 16 envs x 32 steps: first-cycle returns 16.1 (D=1) vs 16.8 (D=4), per-cycle entropy
+    # within 0.04, both runs' returns up 3.5-9x by the last two cycles.
+    single, parallel = four_devices["single"], four_devices["parallel"]
+    assert abs(single[0]["episode_return"] - parallel[0]["episode_return"]) < 0.25 * single[0]["episode_return"]
+    entropy = np.array([[s["entropy"], p["entropy"]] for s, p in zip(single, parallel, strict=True)])
+    assert np.abs(entropy[:, 0] - entropy[:, 1]).max() < 0.06
+    for run in (single, parallel):
+        assert np.nanmean([m["episode_return"] for m in run[-2:]]) > 3 * run[0]["episode_return"]
+        assert all(m["finite"] == 1.0 and np.isclose(m["learning_rate"], 1e-3) for m in run)
+
+
+def test_resumed_four_device_run_equals_uninterrupted(four_devices):
+    assert four_devices["resumed_equals_whole"]
+
+
+def test_single_device_config_is_unchanged():
+    config = PPOConfig()
+    assert per_device(config, 1) is config
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"num_envs": 6}, r"ppo.num_envs=6 is a run total .*num_devices=4 .*multiple of 4; use e.g. ppo.num_envs=8"),
+        ({"minibatch_size": 18}, r"ppo.minibatch_size=18 is a run total"),
+        ({"num_envs": 4, "minibatch_size": 32, "chunk_length": 16}, r"per device .*num_envs=1, .*minibatch_size=8"),
+    ],
+)
+def test_indivisible_totals_fail_naming_the_keys(changes, message):
+    with pytest.raises(ValueError, match=message):
+        per_device(PPOConfig().replace(**changes), 4)
