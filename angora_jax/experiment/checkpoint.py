@@ -124,7 +124,12 @@ class Checkpoints:
         FileNotFoundError listing what exists when there is no such checkpoint.
         """
         kind, cycle = self._locate(which)
-        abstract = jax.eval_shape(to_storable, template)
+        # Whole arrays onto this process's first device, whatever devices saved them (several devices or hosts):
+        # training lays the state out again for the devices it runs on.
+        device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+        abstract = jax.tree.map(
+            lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=device), jax.eval_shape(to_storable, template)
+        )
         try:
             restored = self._managers[kind].restore(
                 cycle, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore())

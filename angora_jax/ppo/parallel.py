@@ -121,6 +121,24 @@ def data_parallel(
     mapped = jax.jit(jax.shard_map(cycle, mesh=mesh, in_specs=(specs,), out_specs=(specs, P()), check_vma=False))
 
     def place(state: Any) -> Any:
-        return jax.device_put(state, shardings)
+        return jax.tree.map(
+            lambda sharding, part: jax.tree.map(lambda leaf: _put(leaf, sharding), part),
+            shardings,
+            state,
+            is_leaf=lambda x: isinstance(x, NamedSharding),
+        )
 
     return place, mapped
+
+
+def _put(leaf: Any, sharding: NamedSharding) -> jax.Array:
+    """`leaf` laid out by `sharding`; across hosts every process holds the same global value (same seed, same
+    checkpoint) and contributes the slices of its own devices, since `device_put` reaches only local devices."""
+    if isinstance(leaf, jax.Array) and leaf.sharding == sharding:
+        return leaf
+    if jax.process_count() == 1:
+        return jax.device_put(leaf, sharding)
+    if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
+        return jax.random.wrap_key_data(_put(jax.random.key_data(leaf), sharding), impl=jax.random.key_impl(leaf))
+    value = np.asarray(leaf)
+    return jax.make_array_from_callback(value.shape, sharding, lambda index: value[index])
