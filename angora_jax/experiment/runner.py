@@ -18,6 +18,7 @@ import jax
 from angora_jax.envs.core import Env
 from angora_jax.experiment.checkpoint import Checkpoints
 from angora_jax.experiment.config import Config, load_config, num_devices, to_dict, validate
+from angora_jax.experiment.distributed import is_main_process, shared_run_dir
 from angora_jax.experiment.monitor import Monitor, set_aside_after
 from angora_jax.experiment.progress import Progress
 from angora_jax.experiment.run_dir import CHECKPOINTS, create_run_dir, read_run_config
@@ -66,7 +67,7 @@ def train(
     elif overrides:
         raise ValueError("Overrides apply to a config loaded from a file or dict; change a Config with replace().")
     env = validate(config)
-    run_dir = create_run_dir(config)
+    run_dir = shared_run_dir(config, create_run_dir)
     return _run(config, env, run_dir, state=None, on_cycle=on_cycle)
 
 
@@ -84,7 +85,8 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
             state = checkpoints.restore(initial_state_shape(config, env), "latest").state
     finally:
         checkpoints.close()
-    set_aside_after(run_dir, 0 if state is None else int(state.cycle))
+    if is_main_process():
+        set_aside_after(run_dir, 0 if state is None else int(state.cycle))
     return _run(config, env, run_dir, state=state, on_cycle=on_cycle)
 
 
@@ -104,13 +106,16 @@ def _run(
     history: list[dict[str, Any]] = []
     resolved = to_dict(config)
     checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint)
-    monitor = Monitor(run_dir, config.logging.tensorboard)
-    progress = Progress(config.ppo.num_cycles, config.logging.progress)
+    # Under jax.distributed only process 0 logs; all processes take part in saving checkpoints (Orbax coordinates
+    # them: each writes the shards of its own devices, process 0 the replicated arrays and metadata).
+    main = is_main_process()
+    monitor = Monitor(run_dir, config.logging.tensorboard) if main else None
+    progress = Progress(config.ppo.num_cycles, config.logging.progress if main else "none")
     try:
         with _stop_requests() as stop:
             for latest, metrics in training_cycles(config.ppo, env, None, state, num_devices(config)):
                 state = latest
-                record = monitor.record(metrics, state)
+                record = monitor.record(metrics, state) if monitor is not None else metrics
                 history.append(record)
                 progress.update(record)
                 if on_cycle is not None:
@@ -123,9 +128,10 @@ def _run(
                     raise TrainingInterrupted(signum, run_dir, int(record["cycle"]))
     finally:
         progress.close()
-        monitor.close()
+        if monitor is not None:
+            monitor.close()
         checkpoints.close()
-    if config.logging.report:
+    if config.logging.report and main:
         from angora_jax.experiment.report import write_report  # matplotlib is loaded only when a report is made
 
         write_report([run_dir], run_dir / "report")

@@ -1,0 +1,50 @@
+"""Several hosts: join a `jax.distributed` job before anything touches a device.
+
+After `initialize`, `jax.devices()` lists the devices of every process, so `distribution.num_devices: all` trains one
+data-parallel cycle over all hosts (see `angora_jax.ppo.parallel`): every process runs the same program on its own
+devices and holds identical replicated parameters.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import jax
+from jax.experimental import multihost_utils
+
+from angora_jax.experiment.config import Config, ConfigError
+
+
+def initialize(
+    coordinator_address: str | None = None, num_processes: int | None = None, process_id: int | None = None
+) -> None:
+    """Start this process's part of a multi-process job; call it first, before any JAX computation.
+
+    coordinator_address: "host:port" of process 0. Arguments left None come from the cluster environment that JAX
+    detects (SLURM: SLURM_PROCID, SLURM_NTASKS, SLURM_STEP_NODELIST; also Open MPI and Kubernetes). On CPU the
+    cross-process collectives go through gloo (JAX has none by default there); GPUs use NCCL regardless.
+    """
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    jax.distributed.initialize(coordinator_address, num_processes, process_id)
+
+
+def is_main_process() -> bool:
+    """Whether this process is process 0, the one that should write logs and checkpoints."""
+    return jax.process_index() == 0
+
+
+def shared_run_dir(config: Config, create: Callable[[Config], Path]) -> Path:
+    """The run directory of a new run, the same on every process: `create(config)` on a single process; with several,
+    process 0 creates `logging.run_root/logging.run_name` and the others wait for it (a dated name could differ
+    between hosts, so a multi-process run needs `logging.run_name`, e.g. the SLURM job id)."""
+    if jax.process_count() == 1:
+        return create(config)
+    if config.logging.run_name is None:
+        raise ConfigError(
+            f"A run over {jax.process_count()} processes needs logging.run_name (all processes write one run "
+            "directory), e.g. logging.run_name=$SLURM_JOB_ID."
+        )
+    path = create(config) if is_main_process() else Path(config.logging.run_root) / config.logging.run_name
+    multihost_utils.sync_global_devices("angora_jax run directory")
+    return path
