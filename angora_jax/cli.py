@@ -31,6 +31,7 @@ from angora_jax.experiment import (
     resume,
     train,
 )
+from angora_jax.experiment.distributed import initialize, is_main_process
 from angora_jax.nets import list_networks
 from angora_jax.ppo import TrainingDivergedError, list_heads
 
@@ -93,10 +94,12 @@ def parser() -> argparse.ArgumentParser:
     train = commands.add_parser("train", help="train a new run from a YAML config (see configs/)")
     train.add_argument("config", help="YAML path or a name in configs/ (e.g. cartpole)")
     train.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. ppo.num_cycles=20 ppo.network.name=lstm")
+    add_distributed_flags(train)
     train.set_defaults(handler=command_train)
 
     resume = commands.add_parser("resume", help="continue a run from its latest checkpoint, exactly")
     resume.add_argument("run_dir")
+    add_distributed_flags(resume)
     resume.set_defaults(handler=command_resume)
 
     evaluate = commands.add_parser(
@@ -145,15 +148,34 @@ def parser() -> argparse.ArgumentParser:
     return top
 
 
+def add_distributed_flags(command: argparse.ArgumentParser) -> None:
+    """--distributed and its optional settings (left out, they come from the cluster, e.g. SLURM)."""
+    command.add_argument(
+        "--distributed", action="store_true", help="join a jax.distributed job (one process per host; see examples/)"
+    )
+    command.add_argument("--coordinator", help="host:port of process 0 (default: from the cluster environment)")
+    command.add_argument("--num-processes", type=int, help="processes in the job (default: from the cluster)")
+    command.add_argument("--process-id", type=int, help="this process's index (default: from the cluster)")
+
+
+def start_distributed(args: argparse.Namespace) -> None:
+    if args.distributed:
+        initialize(args.coordinator, args.num_processes, args.process_id)
+
+
 def command_train(args: argparse.Namespace) -> int:
+    start_distributed(args)
     run = train(args.config, args.overrides)
-    print_finished(run)
+    if is_main_process():
+        print_finished(run)
     return EXIT_OK
 
 
 def command_resume(args: argparse.Namespace) -> int:
+    start_distributed(args)
     run = resume(args.run_dir)
-    print_finished(run)
+    if is_main_process():
+        print_finished(run)
     return EXIT_OK
 
 
