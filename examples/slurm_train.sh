@@ -1,0 +1,23 @@
+#!/bin/bash
+# Data-parallel training over several hosts with SLURM: one angora-jax process per node, each using all of its
+# GPUs; `--distributed` calls jax.distributed.initialize, which reads the coordinator, the process count and this
+# process's id from SLURM's environment (SLURM_STEP_NODELIST, SLURM_NTASKS, SLURM_PROCID). Only process 0 logs;
+# every process takes part in writing checkpoints, so logging.run_root must be on a filesystem all nodes share.
+# ppo.num_envs and ppo.minibatch_size are run totals: multiples of the total GPU count.
+#
+#   sbatch examples/slurm_train.sh shadow_reach ppo.num_cycles=500
+#SBATCH --job-name=angora-jax
+#SBATCH --nodes=2
+#SBATCH --ntasks-per-node=1
+#SBATCH --gpus-per-node=4
+#SBATCH --cpus-per-task=16
+#SBATCH --time=04:00:00
+set -euo pipefail
+
+CONFIG=${1:?usage: sbatch examples/slurm_train.sh CONFIG [KEY=VALUE ...]}
+shift
+
+# All processes must name the same run directory; the job id makes it unique.
+srun angora-jax train "$CONFIG" --distributed distribution.num_devices=all \
+    logging.run_name="${CONFIG##*/}-$SLURM_JOB_ID" "$@"
+# Continue an interrupted job with:  srun angora-jax resume runs/<run_name> --distributed
