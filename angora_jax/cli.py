@@ -69,6 +69,13 @@ def run_random(task: str, num_envs: int, num_steps: int, seed: int) -> dict[str,
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
 
+def positive_int(text: str) -> int:
+    """An argparse type: a whole number >= 1 (argparse then exits with code 2 and names the option)."""
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
+    return int(text)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command; exit codes: 0 done, 1 training diverged, 2 bad usage or config (nothing was run or
     changed), 128 + signal number (130 Ctrl-C, 143 SIGTERM) when training was interrupted after saving a
@@ -107,7 +114,8 @@ def parser() -> argparse.ArgumentParser:
     )
     evaluate.add_argument("run_dir")
     evaluate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
-    evaluate.add_argument("--episodes", "--num-envs", type=int, default=480, help="episodes to run (default: 480)")
+    evaluate.add_argument("--episodes", "--num-envs", type=positive_int, default=480,
+                          help="episodes to run (default: 480)")
     evaluate.add_argument("--seed", type=int, default=0)
     evaluate.add_argument(
         "--stochastic", "--sample", action="store_true", help="sample actions instead of taking the mode"
@@ -119,7 +127,7 @@ def parser() -> argparse.ArgumentParser:
     render.add_argument("--out", required=True, help="video path: .mp4 (imageio-ffmpeg) or .gif; never overwritten")
     render.add_argument("--task", help="render this task with random actions instead of a run's policy")
     render.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
-    render.add_argument("--episodes", type=int, default=1)
+    render.add_argument("--episodes", type=positive_int, default=1)
     render.add_argument("--camera", default="front", choices=sorted(CAMERAS), help="view of the hand (default: front)")
     render.add_argument("--width", type=int, default=320)
     render.add_argument("--height", type=int, default=240)

@@ -47,6 +47,14 @@ def test_bad_input_exits_2_with_the_cause(argv, message, capsys, tmp_path, monke
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
 
 
+@pytest.mark.parametrize("command", ["evaluate", "render"])
+def test_episode_count_below_one_is_a_usage_error(command, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main([command, "no/such/run", "--episodes", "0"])
+    assert stop.value.code == 2
+    assert "--episodes" in capsys.readouterr().err
+
+
 def test_train_then_evaluate_exit_0(capsys, tmp_path):
     argv = ["train", "cartpole", *TINY, "ppo.num_cycles=3", f"logging.run_root={tmp_path}", "logging.run_name=r"]
     assert main(argv) == 0
