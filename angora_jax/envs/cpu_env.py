@@ -10,27 +10,20 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import jax
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from angora_jax.envs.core import ActionSpec, Env, Sensation, State
+from angora_jax.envs.core import Env, Sensation, State
 from angora_jax.envs.mjx_env import MjxEnv
-from angora_jax.envs.mujoco_task import MujocoTask, Snapshot, start_physics
+from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, Snapshot, start_physics
 
 
-class CpuEnv(Env):
+class CpuEnv(MujocoEnv):
     """One environment of `task` on C MuJoCo. Stateful: `reset(key)` starts an episode and `step(state, action)`
     must be passed the state it returned last. It never auto-resets: call `reset` when `state.done` is 1."""
 
     def __init__(self, task: MujocoTask, frame_skip: int, max_episode_steps: int):
-        self.task = task
-        self.frame_skip = frame_skip
-        self.max_episode_steps = max_episode_steps
-        self.dt = float(task.model.opt.timestep) * frame_skip
-        self.metric_names = task.metric_names
-        nu = task.model.nu
-        self.action_spec = ActionSpec(low=-jnp.ones(nu, jnp.float32), high=jnp.ones(nu, jnp.float32))
+        super().__init__(task, frame_skip, max_episode_steps)
         self.model = task.model
         self.data = mujoco.MjData(self.model)
         self._initial_qpos = jax.jit(task.initial_qpos)

@@ -3,28 +3,19 @@
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from angora_jax.envs.core import ActionSpec, Env, Sensation
-from angora_jax.envs.mujoco_task import MujocoTask, Snapshot, start_physics
+from angora_jax.envs.core import Sensation
+from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, Snapshot, start_physics
 
 
-class MjxEnv(Env):
+class MjxEnv(MujocoEnv):
     """Run `task` in MJX: each policy step applies `task.control(action)` and advances `frame_skip` physics
     steps of `task.model.opt.timestep` seconds. Actions are float32 in [-1, 1] (shape `(nu,)`)."""
 
     def __init__(self, task: MujocoTask, frame_skip: int, max_episode_steps: int):
-        if frame_skip < 1 or max_episode_steps < 1:
-            raise ValueError(f"frame_skip and max_episode_steps must be >= 1, got {frame_skip}, {max_episode_steps}.")
-        self.task = task
-        self.frame_skip = frame_skip
-        self.max_episode_steps = max_episode_steps
-        self.dt = float(task.model.opt.timestep) * frame_skip
-        self.metric_names = task.metric_names
-        nu = task.model.nu
-        self.action_spec = ActionSpec(low=-jnp.ones(nu, jnp.float32), high=jnp.ones(nu, jnp.float32))
+        super().__init__(task, frame_skip, max_episode_steps)
         self.mjx_model = mjx.put_model(task.model)
         # A fixed start is computed once on the CPU: it spares the compiled step (with its auto-reset) a forward pass.
         fixed_qpos = None if task.random_initial_qpos else np.asarray(task.initial_qpos(jax.random.key(0)))

@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from angora_jax.envs.core import Sensation
+from angora_jax.envs.core import ActionSpec, Env, Sensation
 
 SNAPSHOT_FIELDS = ("time", "qpos", "qvel", "ctrl", "actuator_length", "actuator_force", "site_xpos", "xpos",
                    "xquat", "sensordata")
@@ -99,6 +99,22 @@ class MujocoTask(abc.ABC):
         """Everything after the physics of one step: return (observation, reward, terminated, info, metrics)."""
         reward, terminated, info, metrics = self.evaluate(key, prev, snap, info)
         return self.observe(snap, info), reward, terminated, info, metrics
+
+
+class MujocoEnv(Env):
+    """What the MJX environment and its C MuJoCo twin share: `task` run with `frame_skip` physics steps of
+    `task.model.opt.timestep` s per policy step; actions are float32 in [-1, 1], shape `(nu,)`."""
+
+    def __init__(self, task: MujocoTask, frame_skip: int, max_episode_steps: int):
+        if frame_skip < 1 or max_episode_steps < 1:
+            raise ValueError(f"frame_skip and max_episode_steps must be >= 1, got {frame_skip}, {max_episode_steps}.")
+        self.task = task
+        self.frame_skip = frame_skip
+        self.max_episode_steps = max_episode_steps
+        self.dt = float(task.model.opt.timestep) * frame_skip
+        self.metric_names = task.metric_names
+        nu = task.model.nu
+        self.action_spec = ActionSpec(low=-jnp.ones(nu, jnp.float32), high=jnp.ones(nu, jnp.float32))
 
 
 def start_physics(task: MujocoTask, qpos: np.ndarray, data: mujoco.MjData | None = None) -> mujoco.MjData:
