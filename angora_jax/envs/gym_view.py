@@ -17,7 +17,7 @@ import numpy as np
 from angora_jax.envs.core import Env, State
 from angora_jax.envs.cpu_env import CpuEnv, eager, single_env_functions
 from angora_jax.envs.registry import list_tasks, make
-from angora_jax.envs.rendering import Camera, SceneRenderer
+from angora_jax.envs.rendering import SceneRenderer, camera_named
 
 NAMESPACE = "AngoraJax"
 MODALITIES = ("proprioception", "touch", "vision", "goal", "asymmetric")
@@ -28,15 +28,14 @@ class GymEnv(gymnasium.Env):
 
     Observations are a dict with one float32 array per non-empty Sensation modality (`asymmetric` holds the
     privileged value inputs; an agent may ignore it). `info` holds the task metrics of the step. With
-    `render_mode="rgb_array"`, `render()` returns a `(height, width, 3)` uint8 frame from a free camera that looks at
-    the task's `camera_body` (the palm for hand tasks) from `distance` m, `azimuth` and `elevation` degrees (MuJoCo
-    tasks only).
+    `render_mode="rgb_array"`, `render()` returns a `(height, width, 3)` uint8 frame from the named `camera` of
+    `rendering.CAMERAS`, which looks at the task's `camera_body` (the palm for hand tasks; MuJoCo tasks only).
     """
 
     metadata = {"render_modes": ["rgb_array"]}
 
     def __init__(self, task: str, render_mode: str | None = None, width: int = 320, height: int = 240,
-                 distance: float = 0.4, azimuth: float = 90.0, elevation: float = -40.0, **options: Any):
+                 camera: str = "front", **options: Any):
         self._env: Env = eager(make(task, **options))
         self._eager = isinstance(self._env, CpuEnv)
         self._reset, self._advance = single_env_functions(self._env)
@@ -46,7 +45,7 @@ class GymEnv(gymnasium.Env):
             raise ValueError(f"Task {task!r} has no MuJoCo scene to render; use render_mode=None.")
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self._env.dt)}
-        self._camera = Camera(distance, azimuth, elevation)
+        self._camera = camera_named(camera)
         self._size = (width, height)
         self._renderer: SceneRenderer | None = None
         self._state: State = self._reset(jax.random.key(0))

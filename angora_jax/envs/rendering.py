@@ -31,7 +31,7 @@ class Camera:
     elevation: float
 
 
-# Views of the hand (the palm is the look-at point): the default matches the gymnasium view's.
+# Views of the hand (the palm is the look-at point); "front" is the default of the gymnasium view and of render.
 CAMERAS = {
     "front": Camera(0.4, 90.0, -40.0),
     "side": Camera(0.4, 180.0, -25.0),
