@@ -1,7 +1,9 @@
 """A training run's learning curve: PPO on a task, one JSON row per cycle and a PNG of return and task metrics.
 
-The JSON and PNG are rewritten after every cycle, and `--minutes` stops the run after that much wall time, so a
-run cut short by a time limit still leaves its curve.
+The JSON is rewritten after every cycle and the PNG every 30 s (plotting costs more than a GPU cycle), and
+`--minutes` stops the run after that much wall time, so a run cut short by a time limit still leaves its curve.
+`--target metric/success=0.8` records the first cycle whose value reaches the bar (env steps and wall seconds,
+compile included: time to solve) and `--stop-at-target` ends the run there.
 
     python benchmarks/learning_curve.py --task ShadowHandReach --num-envs 2048 --cycles 200 --minutes 6  # GPU
     python benchmarks/learning_curve.py --task CartPole --num-envs 16 --cycles 30                          # CPU
@@ -42,6 +44,17 @@ def plot(history: list[dict], title: str, path: str) -> None:
     plt.close(fig)
 
 
+def parse_target(text: str | None) -> tuple[str | None, float]:
+    """`NAME=VALUE` -> (NAME, VALUE); None -> (None, nan). Exits with a usage message when malformed."""
+    if text is None:
+        return None, float("nan")
+    name, _, value = text.partition("=")
+    try:
+        return name, float(value)
+    except ValueError:
+        raise SystemExit(f"--target must be NAME=VALUE, e.g. metric/success=0.8; got {text!r}") from None
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="CartPole")
@@ -53,12 +66,15 @@ def main() -> None:
     parser.add_argument("--minibatches", type=int, default=4)
     parser.add_argument("--epochs", type=int, default=4)
     parser.add_argument("--learning-rate", type=float, default=3e-4)
+    parser.add_argument("--width", type=int, default=None, help="hidden width of the network (its default if unset)")
     parser.add_argument("--init-log-std", type=float, default=-1.0)
     parser.add_argument("--entropy-coef", type=float, default=0.01)
     parser.add_argument("--gamma", type=float, default=0.99)
     parser.add_argument("--options", default="{}", help="task options as JSON, e.g. '{\"touch\": false}'")
     parser.add_argument("--minutes", type=float, default=None, help="stop after this much wall time")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--target", default=None, help="NAME=VALUE, e.g. metric/success=0.8: record time to reach it")
+    parser.add_argument("--stop-at-target", action="store_true", help="stop once --target is reached")
     parser.add_argument("--out", default=None, help="JSON path; the PNG goes beside it")
     args = parser.parse_args()
 
@@ -67,20 +83,32 @@ def main() -> None:
         rollout_length=args.rollout_length, chunk_length=16, num_epochs=args.epochs,
         minibatch_size=args.num_envs * args.rollout_length // args.minibatches, learning_rate=args.learning_rate,
         head=args.head, init_log_std=args.init_log_std, entropy_coef=args.entropy_coef, gamma=args.gamma,
-        network=NetworkConfig(name=args.model),
+        network=NetworkConfig(name=args.model, width=args.width),
     )
+    target_name, target_value = parse_target(args.target)
     options = json.loads(args.options)
-    settings = {"task": args.task, "options": options, **dataclasses.asdict(config)}
-    start, rows, path, png = time.perf_counter(), [], None, None
+    settings = {"task": args.task, "options": options, "target": args.target, **dataclasses.asdict(config)}
+    start, rows, path, plotted = time.perf_counter(), [], None, 0.0
+    title = f"{args.task}, {args.model}, {args.num_envs} envs, seed {args.seed}"
     for _, metrics in training_cycles(config, make(args.task, **options)):
+        now = time.perf_counter() - start
         rows.append({k: v for k, v in metrics.items() if isinstance(v, int | float)})
-        settings["wall_seconds"] = time.perf_counter() - start
+        settings["wall_seconds"] = now
+        reached = target_name is not None and metrics.get(target_name, float("nan")) >= target_value
+        if reached and "solved" not in settings:
+            settings["solved"] = {"cycle": len(rows), "env_steps": metrics["env_steps"], "wall_seconds": now}
         path = write_results(f"learning_curve_{args.task}", settings, rows, args.out)
-        png = os.path.splitext(path)[0] + ".png"
-        plot(rows, f"{args.task}, {args.model}, {args.num_envs} envs", png)
+        if now - plotted > 30:
+            plot(rows, title, os.path.splitext(path)[0] + ".png")
+            plotted = now
         print(f"cycle {len(rows)}: {metrics['env_steps']:,} steps, return {metrics['episode_return']:.2f}", flush=True)
-        if args.minutes is not None and time.perf_counter() - start > 60 * args.minutes:
+        out_of_time = args.minutes is not None and now > 60 * args.minutes
+        if out_of_time or (reached and args.stop_at_target):
             break
+    png = os.path.splitext(path)[0] + ".png"
+    plot(rows, title, png)
+    if target_name is not None:
+        print(f"target {args.target}: {settings.get('solved', 'not reached')}")
     columns = [("cycle", "cycle", "d"), ("env_steps", "env steps", ",d"), ("seconds", "cycle s", ".1f"),
                ("episode_return", "return", ".2f")]
     columns += [(k, k.removeprefix("metric/"), ".3f") for k in sorted(rows[0]) if k.startswith("metric/")]
