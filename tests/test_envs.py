@@ -5,14 +5,18 @@ the hand take tens of seconds on a CPU. The MJX/CPU parity test replays the reco
 """
 
 import dataclasses
+import importlib.util
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 
 import angora_jax as aj
-from angora_jax.envs.mujoco_task import Snapshot
+from angora_jax.envs.mujoco_task import Snapshot, mjx_impl, start_physics
+from angora_jax.envs.shadow_hand import REACH_PHYSICS
+from angora_jax.envs.shadow_hand.model import UNTOUCHED_GEOMS, load_scene
 from angora_jax.envs.shadow_hand.reach import Reach, ReachReward
 
 BATCH = 3
@@ -165,3 +169,40 @@ def test_cpu_twin_refuses_misuse():
     assert float(last.done) == 1.0 and float(last.truncated) == 1.0
     with pytest.raises(RuntimeError, match="episode has ended"):
         cpu.step(last, jnp.zeros(20))
+
+
+def test_physics_impl_and_contact_caps_are_checked():
+    with pytest.raises(ValueError, match=r"impl='wrap'.*\('jax', 'warp'\)"):
+        aj.make("ShadowHandReach", physics={"impl": "wrap"})
+    with pytest.raises(ValueError, match="contact_caps must be >= 0"):
+        aj.make("ShadowHandReach", physics={"contact_caps": -1})
+
+
+def test_warp_without_warp_lang_names_the_package(monkeypatch):
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "warp" else find_spec(name, *a))
+    with pytest.raises(ModuleNotFoundError, match=r"pip install warp-lang==1\.18\.0"):
+        aj.make("ShadowHandReach", physics={"impl": "warp"})
+
+
+def test_pruned_geoms_never_touch_so_pruning_leaves_the_dynamics_unchanged():
+    """The untouched geoms are out of collision in our scenes, and C MuJoCo follows the Gym scene's contacts exactly."""
+    pruned, gym = load_scene("reach.xml", physics=REACH_PHYSICS), load_scene("reach.xml", prune_contacts=False,
+                                                                           physics=REACH_PHYSICS)
+    assert mjx_impl(pruned) == "jax"
+    assert mjx_impl(load_scene("reach.xml", physics=dataclasses.replace(REACH_PHYSICS, impl="warp"))) == "warp"
+    for name in UNTOUCHED_GEOMS:
+        assert pruned.geom(name).contype == pruned.geom(name).conaffinity == 0
+        assert gym.geom(name).contype == 1
+    task = Reach(pruned)
+    datas = [start_physics(task, np.asarray(task.initial_qpos(None), np.float64), mujoco.MjData(m))
+             for m in (pruned, gym)]
+    low, high = pruned.actuator_ctrlrange.T
+    contacts = 0
+    for target in np.random.default_rng(0).uniform(low, high, (30, pruned.nu)):
+        for model, data in zip((pruned, gym), datas, strict=True):
+            data.ctrl[:] = target
+            mujoco.mj_step(model, data, nstep=4)
+        contacts += datas[0].ncon
+        np.testing.assert_array_equal(datas[0].qpos, datas[1].qpos)
+    assert contacts > 0, "the fingers must touch each other, or the comparison shows nothing"

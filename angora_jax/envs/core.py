@@ -155,11 +155,15 @@ class Env(abc.ABC):
             return jnp.where(done, new, old)
 
         return ended.replace(
-            physics=jax.tree.map(pick, fresh.physics, ended.physics),
+            physics=self._select_physics(done, fresh.physics, ended.physics),
             obs=jax.tree.map(pick, fresh.obs, ended.obs),
             steps=jnp.where(done, 0, ended.steps),
             info=jax.tree.map(pick, fresh.info, ended.info),
         )
+
+    def _select_physics(self, done: jax.Array, fresh: Any, ended: Any) -> Any:
+        """Physics of `fresh` where `done`, else of `ended` (a backend whose physics share buffers overrides it)."""
+        return jax.tree.map(lambda new, old: jnp.where(done, new, old), fresh, ended)
 
     def advance(self, state: State, action: jax.Array) -> tuple[State, jax.Array]:
         """One step without auto-reset: return the state at the step's end and the key to reset with."""

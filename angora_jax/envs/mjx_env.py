@@ -1,26 +1,79 @@
-"""`MjxEnv`: a `MujocoTask` simulated with MuJoCo MJX, pure and batched (the training path)."""
+"""`MjxEnv`: a `MujocoTask` simulated with MuJoCo MJX, pure and batched (the training path).
+
+MJX has two implementations behind one API: "jax" (MJX's own, any JAX device; the default) and "warp" (MuJoCo Warp
+kernels called from JAX, CUDA GPUs or the CPU). A scene picks one with `PhysicsSettings.impl` (`physics.impl` in an
+env's options); it travels in the compiled model (`mujoco_task.mjx_impl`).
+"""
 
 from __future__ import annotations
 
+import importlib.util
+
 import jax
+import mujoco
 import numpy as np
 from mujoco import mjx
 
 from angora_jax.envs.core import Sensation
-from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, Snapshot, start_physics
+from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, Snapshot, mjx_impl, start_physics
+
+# MuJoCo Warp keeps one contact buffer for all environments of a batch, sized when the data is made (before the
+# batch size is known): it holds this many environments' worst case. Larger batches can run out of contact slots
+# (Warp then prints an overflow warning and drops contacts).
+WARP_MAX_ENVS = 32768
+# The warp-lang version that mujoco-mjx 3.17's `warp` extra pins (its MuJoCo Warp is vendored inside mujoco-mjx).
+WARP_REQUIREMENT = "warp-lang==1.18.0"
+
+
+def require_warp() -> None:
+    """Raise a ModuleNotFoundError naming the fix when MJX's Warp implementation cannot be used."""
+    if importlib.util.find_spec("warp") is None:
+        raise ModuleNotFoundError(
+            f"physics impl 'warp' needs NVIDIA Warp: pip install {WARP_REQUIREMENT} (or mujoco-mjx[warp]); "
+            "or use impl 'jax'.")
+
+
+def warp_sizes(model: mujoco.MjModel, max_envs: int) -> dict[str, int]:
+    """Warp's buffer sizes for `model`: contacts for `max_envs` environments (`naconmax`) and constraint rows per
+    environment (`njmax`), each the worst case MJX's JAX implementation allocates (every candidate pair touching)."""
+    data = mjx.make_data(model, impl="jax")
+    return {"naconmax": max(1, data._impl.contact.dist.shape[0]) * max_envs, "njmax": data._impl.efc_J.shape[0]}
+
+
+def quiet_iteration_caps(mjx_model: mjx.Model) -> mjx.Model:
+    """A Warp model that does not print when the solver or line search stops at its iteration cap: our caps are
+    chosen by measurement (`PhysicsSettings`), and Warp would print for every environment at every physics step.
+    Contact and constraint overflow warnings stay on."""
+    from mujoco.mjx.third_party.mujoco_warp import OverflowType  # importable only with warp-lang installed
+
+    quiet = int(mjx_model.opt._impl.warn_overflow) & ~int(OverflowType.ITERATIONS | OverflowType.LS_ITERATIONS)
+    return mjx_model.tree_replace({"opt._impl.warn_overflow": quiet})
 
 
 class MjxEnv(MujocoEnv):
     """Run `task` in MJX: each policy step applies `task.control(action)` and advances `frame_skip` physics
-    steps of `task.model.opt.timestep` seconds. Actions are float32 in [-1, 1] (shape `(nu,)`)."""
+    steps of `task.model.opt.timestep` seconds. Actions are float32 in [-1, 1] (shape `(nu,)`).
 
-    def __init__(self, task: MujocoTask, frame_skip: int, max_episode_steps: int):
+    The MJX implementation is the model's (`mjx_impl`); with "warp", `warp_max_envs` bounds the batch size whose
+    contacts fit Warp's shared contact buffer."""
+
+    def __init__(self, task: MujocoTask, frame_skip: int, max_episode_steps: int,
+                 warp_max_envs: int = WARP_MAX_ENVS):
         super().__init__(task, frame_skip, max_episode_steps)
-        self.mjx_model = mjx.put_model(task.model)
+        self.impl = mjx_impl(task.model)
+        sizes = {}
+        if self.impl == "warp":
+            require_warp()
+            sizes = warp_sizes(task.model, warp_max_envs)
+        self.mjx_model = mjx.put_model(task.model, impl=self.impl)
+        if self.impl == "warp":
+            self.mjx_model = quiet_iteration_caps(self.mjx_model)
         # A fixed start is computed once on the CPU: it spares the compiled step (with its auto-reset) a forward pass.
         fixed_qpos = None if task.random_initial_qpos else np.asarray(task.initial_qpos(jax.random.key(0)))
-        self._start = mjx.put_data(task.model, start_physics(task, fixed_qpos)) if fixed_qpos is not None else None
-        self._data0 = mjx.make_data(self.mjx_model)
+        self._start = None
+        if fixed_qpos is not None:
+            self._start = mjx.put_data(task.model, start_physics(task, fixed_qpos), impl=self.impl, **sizes)
+        self._data0 = mjx.make_data(task.model, impl=self.impl, **sizes)
 
     def _reset(self, key: jax.Array) -> tuple[mjx.Data, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)
@@ -38,3 +91,7 @@ class MjxEnv(MujocoEnv):
         data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(self.mjx_model, d), data)
         obs, reward, terminated, info, metrics = self.task.advance(key, prev, Snapshot.of(data), info)
         return data, obs, reward, terminated, info, metrics
+
+    def _select_physics(self, done: jax.Array, fresh: mjx.Data, ended: mjx.Data) -> mjx.Data:
+        # Warp's contact buffer is shared by the batch: `Data.where` selects per environment only what is its own.
+        return ended.where(done, fresh)

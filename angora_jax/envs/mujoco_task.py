@@ -19,6 +19,10 @@ from flax import struct
 
 from angora_jax.envs.core import ActionSpec, Env, Sensation
 
+MJX_IMPLS = ("jax", "warp")
+# Name of the MJCF custom text that names a model's MJX implementation: the compiled model is what the MJX path and
+# its C MuJoCo twin share, so the choice travels with it (as MJX's own `max_contact_points` numeric does).
+MJX_IMPL_TEXT = "angora_jax:mjx_impl"
 SNAPSHOT_FIELDS = ("time", "qpos", "qvel", "ctrl", "actuator_length", "actuator_force", "site_xpos", "xpos",
                    "xquat", "sensordata")
 
@@ -115,6 +119,23 @@ class MujocoEnv(Env):
         self.metric_names = task.metric_names
         nu = task.model.nu
         self.action_spec = ActionSpec(low=-jnp.ones(nu, jnp.float32), high=jnp.ones(nu, jnp.float32))
+
+
+def set_mjx_impl(spec: mujoco.MjSpec, impl: str) -> None:
+    """Ask for MJX implementation `impl` ("jax" or "warp") in the model compiled from `spec`."""
+    if impl not in MJX_IMPLS:
+        raise ValueError(f"Unknown MJX implementation impl={impl!r}; choose one of {MJX_IMPLS}.")
+    if impl != "jax":
+        spec.add_text(name=MJX_IMPL_TEXT, data=impl)
+
+
+def mjx_impl(model: mujoco.MjModel) -> str:
+    """The MJX implementation `model` asks for (`set_mjx_impl`); "jax" when it names none."""
+    text = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXT, MJX_IMPL_TEXT)
+    if text < 0:
+        return "jax"
+    start = model.text_adr[text]
+    return bytes(model.text_data[start:start + model.text_size[text] - 1]).decode()
 
 
 def start_physics(task: MujocoTask, qpos: np.ndarray, data: mujoco.MjData | None = None) -> mujoco.MjData:

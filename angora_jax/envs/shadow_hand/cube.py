@@ -6,12 +6,12 @@ a letter and colour per face, so every face is distinguishable). Our changes, ea
 - The `target` body is deleted: it is a free body without collisions that only shows the goal in Gym's renderer;
   in MJX it would add 6 DoFs that fall forever.
 - Contacts: the hand's collision geoms are capsules and boxes (contype 1, conaffinity 0) and the cube collides with
-  all of them (conaffinity 1), plus the Gym model's 19 explicit finger-finger pairs. We remove the geoms that can
-  never touch a cube that is still in the hand: the forearm's convex mesh (below the wrist: a cube there has
-  already dropped below the palm, which ends the episode) and the thumb base boxes `V_thbase`/`V_thhub` (they
-  collide with everything, but lie under the palm and the thumb's proximal capsule; box-box pairs are the most
-  expensive in MJX). Under random actions from the episode start, C MuJoCo saw cube contacts only with palm,
-  little-finger metacarpal and finger/thumb phalanges (see `benchmarks/results/ihom_solver_settings.md`).
+  all of them (conaffinity 1), plus the Gym model's 19 explicit finger-finger pairs. `load_scene` removes the geoms
+  that never touch anything (`model.UNTOUCHED_GEOMS`: the forearm's convex mesh, below the wrist, where a cube has
+  already dropped below the palm, which ends the episode; the thumb-base boxes `V_thbase`/`V_thhub` under the palm
+  and the thumb's proximal capsule; box-box and box-mesh pairs are the most expensive in MJX). Under random actions
+  from the episode start, C MuJoCo saw cube contacts only with palm, little-finger metacarpal and finger/thumb
+  phalanges (see `benchmarks/results/ihom_solver_settings.md`).
 - Sensors: only the 97 touch sensors (from Gym's `*_touch_sensors_92` files) are kept, and only with `touch=True`;
   the Gym scene's joint-position sensors duplicate `qpos`, and MJX evaluates every sensor at every physics step.
 - Solver and timestep (`PhysicsSettings`): the defaults were chosen from measured dynamics error against the Gym
@@ -28,25 +28,19 @@ SCENE = "manipulate_block_touch_sensors.xml"
 CUBE_BODY = "object"
 CUBE_JOINT = "object:joint"
 CUBE_HALF_SIZE = 0.025  # m
-# Hand geoms that can never touch a cube that is still above the palm (see the module docstring).
-UNREACHABLE_GEOMS = ("robot0:C_forearm", "robot0:V_thbase", "robot0:V_thhub")
-
-
 # Chosen from the dynamics error against the Gym settings and the speed (benchmarks/results/ihom_solver_settings.md).
 CUBE_PHYSICS = PhysicsSettings(timestep=0.008, iterations=4, ls_iterations=8)
 
 
-def load_cube_scene(touch: bool = True, physics: PhysicsSettings = CUBE_PHYSICS) -> mujoco.MjModel:
-    """Compile the cube scene; `touch=False` drops the touch sensors (and their per-step cost)."""
+def load_cube_scene(touch: bool = True, physics: PhysicsSettings = CUBE_PHYSICS,
+                    prune_contacts: bool = True) -> mujoco.MjModel:
+    """Compile the cube scene; `touch=False` drops the touch sensors (and their per-step cost), `prune_contacts=False`
+    keeps the Gym scene's contacts (for comparisons)."""
 
     def edit(spec: mujoco.MjSpec) -> None:
         spec.delete(spec.body("target"))
-        for name in UNREACHABLE_GEOMS:
-            geom = spec.geom(name)
-            geom.contype = 0
-            geom.conaffinity = 0
         for sensor in list(spec.sensors):
             if not (touch and sensor.type == mujoco.mjtSensor.mjSENS_TOUCH):
                 spec.delete(sensor)
 
-    return load_scene(SCENE, edit, physics)
+    return load_scene(SCENE, edit, physics, prune_contacts)

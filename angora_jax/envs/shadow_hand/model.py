@@ -13,28 +13,50 @@ from collections.abc import Callable
 
 import mujoco
 
+from angora_jax.envs.mujoco_task import MJX_IMPLS, set_mjx_impl
+
 FINGERTIP_SITES = ("robot0:S_fftip", "robot0:S_mftip", "robot0:S_rftip", "robot0:S_lftip", "robot0:S_thtip")
 PALM_BODY = "robot0:palm"
 HAND_JOINT_PREFIX = "robot0:"  # every joint of the hand; objects in a scene have their own names
+# Hand geoms that collide in the Gym scenes but never touch anything a task needs. The thumb-base boxes collide with
+# every hand geom (contype and conaffinity 1) yet lie under the palm and the thumb's proximal capsule; the forearm's
+# 455-vertex convex mesh collides only with them (and with a cube that has already dropped below the palm, which
+# ends a cube episode). Under random actions (C MuJoCo: 20,000 physics steps of reach, 20 cube episodes) none of them
+# touched anything, yet they are 86 of reach's 106 MJX contacts, and their two box-mesh pairs take 94% of the
+# temporary memory of a reach step (`benchmarks/physics_throughput.py --xla-memory`).
+UNTOUCHED_GEOMS = ("robot0:C_forearm", "robot0:V_thbase", "robot0:V_thhub")
 
 
 @dataclasses.dataclass(frozen=True)
 class PhysicsSettings:
     """Simulation settings of a scene. Defaults are the Gym hand's own (`GYM_PHYSICS`); tasks choose faster ones
-    from measurements (`benchmarks/physics_throughput.py`, `benchmarks/ihom_solver_settings.py`).
+    from measurements (`benchmarks/physics_throughput.py`).
 
     timestep: physics step in s. iterations / ls_iterations: Newton solver and line-search iteration caps.
+    impl: the MJX implementation of the batched path, "jax" (MJX's own, any device) or "warp" (MuJoCo Warp through
+    MJX; needs `pip install warp-lang==1.18.0`, the version mujoco-mjx 3.17's `warp` extra pins). The C MuJoCo twin
+    ignores it.
+    contact_caps: when > 0, MJX's JAX implementation tests at most this many nearest geom pairs per collision
+    function and keeps at most this many deepest contacts per contact dimension (the custom numerics
+    `max_geom_pairs` and `max_contact_points`, as in the Menagerie hand tuned for MJX); 0 keeps every candidate.
+    C MuJoCo and Warp ignore it.
     """
 
     timestep: float = 0.002
     iterations: int = 20
     ls_iterations: int = 50
+    impl: str = "jax"
+    contact_caps: int = 0
 
     def __post_init__(self):
         if self.timestep <= 0 or self.iterations < 1 or self.ls_iterations < 1:
             raise ValueError(f"PhysicsSettings need timestep > 0 and iterations, ls_iterations >= 1, got {self}.")
+        if self.contact_caps < 0:
+            raise ValueError(f"contact_caps must be >= 0 (0: no cap), got {self.contact_caps}.")
+        if self.impl not in MJX_IMPLS:
+            raise ValueError(f"Unknown MJX implementation impl={self.impl!r}; choose one of {MJX_IMPLS}.")
 
-    def with_options(self, options: dict[str, float] | None) -> PhysicsSettings:
+    def with_options(self, options: dict[str, float | str] | None) -> PhysicsSettings:
         """These settings with `options` (field name -> value) changed; unknown names raise a ValueError."""
         options = dict(options or {})
         known = {f.name for f in dataclasses.fields(self)}
@@ -54,6 +76,10 @@ class PhysicsSettings:
         spec.option.timestep = self.timestep
         spec.option.iterations = self.iterations
         spec.option.ls_iterations = self.ls_iterations
+        set_mjx_impl(spec, self.impl)
+        if self.contact_caps:
+            for name in ("max_geom_pairs", "max_contact_points"):
+                spec.add_numeric(name=name, data=[self.contact_caps])
 
 
 GYM_PHYSICS = PhysicsSettings()
@@ -69,10 +95,21 @@ def asset_dir() -> str:
     return os.path.join(os.path.dirname(spec.origin), "envs", "assets", "hand")
 
 
+def remove_from_collision(spec: mujoco.MjSpec, names: tuple[str, ...]) -> None:
+    """Take the named geoms out of collision detection (they stay visible)."""
+    for name in names:
+        geom = spec.geom(name)
+        if geom is None:
+            raise ValueError(f"No geom {name!r} in the scene.")
+        geom.contype = 0
+        geom.conaffinity = 0
+
+
 def load_scene(scene: str = "reach.xml", edit: Callable[[mujoco.MjSpec], None] | None = None,
-               physics: PhysicsSettings = GYM_PHYSICS) -> mujoco.MjModel:
+               physics: PhysicsSettings = GYM_PHYSICS, prune_contacts: bool = True) -> mujoco.MjModel:
     """Compile a Gym hand scene (`reach.xml`, `manipulate_block.xml`, ...) with our MJX preparations and `physics`.
 
+    prune_contacts: take `UNTOUCHED_GEOMS` out of collision (False keeps the Gym scene's contacts, for comparisons).
     `edit`, when given, changes the prepared `MjSpec` in place before compiling (a task's own scene changes)."""
     path = os.path.join(asset_dir(), scene)
     if not os.path.exists(path):
@@ -86,6 +123,8 @@ def load_scene(scene: str = "reach.xml", edit: Callable[[mujoco.MjSpec], None] |
     if floor is not None:
         # The hand hangs in the air: the floor can never be touched, yet a plane makes MJX test every hand geom.
         spec.delete(floor)
+    if prune_contacts:
+        remove_from_collision(spec, UNTOUCHED_GEOMS)
     physics.apply(spec)
     if edit is not None:
         edit(spec)
