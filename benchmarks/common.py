@@ -1,7 +1,10 @@
-"""Shared by the benchmark scripts: timing of compiled functions, environment facts, JSON results."""
+"""Shared by the benchmark scripts: timing of compiled functions, the throughput measurements (raw MJX, our env
+step, our training cycle), environment facts, JSON results and Markdown tables."""
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import datetime
 import importlib.metadata
 import json
@@ -9,15 +12,22 @@ import os
 import platform
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 
 import jax
+import jax.numpy as jnp
+from mujoco import mjx
+
+from angora_jax.envs.core import Env
+from angora_jax.envs.random_rollout import batched_reset, make_random_rollout
+from angora_jax.ppo import PPOConfig, make_cycle
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
 
 def versions() -> dict[str, str]:
     """Versions of the packages that decide the numbers."""
-    names = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "angora-jax")
+    names = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "brax", "angora-jax")
     found = {}
     for name in names:
         try:
@@ -36,31 +46,116 @@ def device() -> dict[str, str | int]:
 
 
 def peak_memory_bytes() -> int | None:
-    """Peak bytes in use on the default device since start, where the backend reports it (GPUs do)."""
+    """Peak bytes in use on the default device since the process started, where the backend reports it (GPUs
+    do, CPUs do not)."""
     stats = jax.devices()[0].memory_stats() or {}
     return stats.get("peak_bytes_in_use")
 
 
-def time_compiled(fn: Callable, *args, repeats: int = 3, chain: Callable | None = None) -> tuple[float, float, object]:
-    """Compile `jit(fn)` for `args`, run it once to warm up, then time `repeats` runs; return (compile s, seconds
-    per run, last output). With `chain`, each run takes `chain(previous output)` as its arguments (a training
-    cycle continues from the state it returned); otherwise every run takes `args` and the best run counts."""
+@dataclasses.dataclass
+class Measurement:
+    """One compiled program, timed.
+
+    compile_s: ahead-of-time lowering and compilation. seconds: wall seconds per run (the best run, or the mean
+    of chained runs). out: the last run's output. memory_bytes: XLA's own account of the device memory the program
+    needs (arguments + outputs + temporaries - aliased buffers), or None where the backend gives none; unlike
+    `peak_memory_bytes` it belongs to this program alone.
+    """
+
+    compile_s: float
+    seconds: float
+    out: object
+    memory_bytes: int | None
+
+
+def compiled_memory_bytes(compiled: jax.stages.Compiled) -> int | None:
+    """Device bytes a compiled program needs by XLA's memory analysis, or None where it is not available."""
+    stats = compiled.memory_analysis()
+    if stats is None:
+        return None
+    return (stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes
+            - stats.alias_size_in_bytes)
+
+
+def measure_compiled(fn: Callable, *args, repeats: int = 3, chain: Callable | None = None,
+                     exclusive: AbstractContextManager | None = None) -> Measurement:
+    """Compile `jit(fn)` for `args`, run it once to warm up, then time `repeats` runs.
+
+    With `chain`, each run takes `chain(previous output)` as its arguments (a training cycle continues from the
+    state it returned) and the mean counts; otherwise every run takes `args` and the best run counts.
+    `exclusive` is held around the warm-up and the timed runs but not the compilation, so that processes sharing
+    one device can compile at the same time and still time alone (see `throughput_ladder.py`).
+    """
     start = time.perf_counter()
     compiled = jax.jit(fn).lower(*args).compile()
     compile_s = time.perf_counter() - start
-    out = jax.block_until_ready(compiled(*args))
-    if chain is not None:
-        start = time.perf_counter()
-        for _ in range(repeats):
-            out = compiled(*chain(out))
-        jax.block_until_ready(out)
-        return compile_s, (time.perf_counter() - start) / repeats, out
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
+    memory = compiled_memory_bytes(compiled)
+    with exclusive or contextlib.nullcontext():
         out = jax.block_until_ready(compiled(*args))
-        best = min(best, time.perf_counter() - start)
-    return compile_s, best, out
+        if chain is not None:
+            start = time.perf_counter()
+            for _ in range(repeats):
+                out = compiled(*chain(out))
+            jax.block_until_ready(out)
+            return Measurement(compile_s, (time.perf_counter() - start) / repeats, out, memory)
+        best = float("inf")
+        for _ in range(repeats):
+            start = time.perf_counter()
+            out = jax.block_until_ready(compiled(*args))
+            best = min(best, time.perf_counter() - start)
+    return Measurement(compile_s, best, out, memory)
+
+
+def time_compiled(fn: Callable, *args, repeats: int = 3, chain: Callable | None = None) -> tuple[float, float, object]:
+    """`measure_compiled` as (compile s, seconds per run, last output)."""
+    m = measure_compiled(fn, *args, repeats=repeats, chain=chain)
+    return m.compile_s, m.seconds, m.out
+
+
+def _rate(m: Measurement, env_steps: int) -> dict[str, float | int | None]:
+    return {"compile_s": m.compile_s, "env_steps_per_s": env_steps / m.seconds, "memory_bytes": m.memory_bytes}
+
+
+def env_step_rate(env: Env, num_envs: int, steps: int, repeats: int = 3, seed: int = 0,
+                  exclusive: AbstractContextManager | None = None) -> dict[str, float | int | None]:
+    """Our batched `env.step` (task logic, auto-reset) with uniform random actions: a jitted `lax.scan` of `steps`
+    policy steps of `num_envs` environments. Returns compile_s, env_steps_per_s (policy steps) and memory_bytes."""
+    state = jax.jit(batched_reset, static_argnums=(0, 2))(env, jax.random.key(seed), num_envs)
+    rollout = make_random_rollout(env, num_envs, steps)
+    m = measure_compiled(rollout, state, jax.random.key(seed + 1), repeats=repeats, exclusive=exclusive)
+    return _rate(m, num_envs * steps)
+
+
+def raw_mjx_rate(env: Env, num_envs: int, steps: int, repeats: int = 3, seed: int = 0,
+                 exclusive: AbstractContextManager | None = None) -> dict[str, float | int | None]:
+    """Bare `vmap(mjx.step)` on the task's model, nothing else: fresh uniform controls every `frame_skip` physics
+    steps, from episode starts as our reset makes them. Same keys as `env_step_rate`, rates in policy steps
+    (`frame_skip` physics steps each), so the two divide."""
+    model, task = env.mjx_model, env.task
+    low, high = (jnp.asarray(x, jnp.float32) for x in task.model.actuator_ctrlrange.T)
+    data = jax.jit(batched_reset, static_argnums=(0, 2))(env, jax.random.key(seed), num_envs).physics
+
+    def policy_step(data, key):
+        ctrl = jax.random.uniform(key, (num_envs, task.model.nu), minval=low, maxval=high)
+        data = data.replace(ctrl=ctrl)
+        data = jax.lax.fori_loop(0, env.frame_skip, lambda _, d: jax.vmap(mjx.step, (None, 0))(model, d), data)
+        return data, None
+
+    def rollout(data, key):
+        return jax.lax.scan(policy_step, data, jax.random.split(key, steps))[0]
+
+    m = measure_compiled(rollout, data, jax.random.key(seed + 1), repeats=repeats, exclusive=exclusive)
+    return _rate(m, num_envs * steps)
+
+
+def train_rate(env: Env, config: PPOConfig, repeats: int = 3,
+               exclusive: AbstractContextManager | None = None) -> dict[str, float | int | None]:
+    """Env steps consumed per second by our whole compiled PPO cycle (rollout, GAE, all minibatch updates),
+    chained from cycle to cycle. Returns compile_s, env_steps_per_s and memory_bytes."""
+    init, cycle = make_cycle(env, None, config)
+    state = init(jax.random.key(config.seed))
+    m = measure_compiled(cycle, state, repeats=repeats, chain=lambda out: (out[0],), exclusive=exclusive)
+    return _rate(m, config.num_envs * config.rollout_length)
 
 
 def write_results(name: str, config: dict, rows: list[dict], out: str | None = None) -> str:

@@ -20,38 +20,9 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from common import markdown_table, peak_memory_bytes, time_compiled, write_results
-from mujoco import mjx
+from common import env_step_rate, markdown_table, peak_memory_bytes, raw_mjx_rate, write_results
 
 import angora_jax as aj
-from angora_jax.envs.random_rollout import batched_reset, make_random_rollout
-
-
-def ours(env, batch: int, steps: int, seed: int, repeats: int) -> dict:
-    state = jax.jit(batched_reset, static_argnums=(0, 2))(env, jax.random.key(seed), batch)
-    rollout = make_random_rollout(env, batch, steps)
-    compile_s, wall, _ = time_compiled(rollout, state, jax.random.key(seed + 1), repeats=repeats)
-    return {"compile_s": compile_s, "physics_steps_per_s": batch * steps * env.frame_skip / wall}
-
-
-def raw_mjx(env, batch: int, steps: int, seed: int, repeats: int) -> dict:
-    """`vmap(mjx.step)` with fresh uniform controls every `frame_skip` physics steps, nothing else."""
-    model, task = env.mjx_model, env.task
-    low, high = (jnp.asarray(x, jnp.float32) for x in task.model.actuator_ctrlrange.T)
-    # Episode starts as our reset makes them (tasks with random initial poses have no single start).
-    data = jax.jit(batched_reset, static_argnums=(0, 2))(env, jax.random.key(seed), batch).physics
-
-    def policy_step(data, key):
-        ctrl = jax.random.uniform(key, (batch, task.model.nu), minval=low, maxval=high)
-        data = data.replace(ctrl=ctrl)
-        data = jax.lax.fori_loop(0, env.frame_skip, lambda _, d: jax.vmap(mjx.step, (None, 0))(model, d), data)
-        return data, None
-
-    def rollout(data, key):
-        return jax.lax.scan(policy_step, data, jax.random.split(key, steps))[0]
-
-    compile_s, wall, _ = time_compiled(rollout, data, jax.random.key(seed), repeats=repeats)
-    return {"compile_s": compile_s, "physics_steps_per_s": batch * steps * env.frame_skip / wall}
 
 
 def c_mujoco(env, task: str, options: dict, seconds: float = 2.0) -> dict:
@@ -96,16 +67,17 @@ def main() -> None:
     single = c_mujoco(env, args.task, options)
     rows = []
     for batch in (int(b) for b in args.batch_sizes.split(",")):
-        mine = ours(env, batch, args.steps, args.seed, args.repeats)
-        raw = raw_mjx(env, batch, args.steps, args.seed, args.repeats)
+        mine = env_step_rate(env, batch, args.steps, args.repeats, args.seed)
+        raw = raw_mjx_rate(env, batch, args.steps, args.repeats, args.seed)
+        physics = mine["env_steps_per_s"] * env.frame_skip
         row = {
             "task": args.task, "batch": batch,
-            "physics_steps_per_s": mine["physics_steps_per_s"],
-            "env_steps_per_s": mine["physics_steps_per_s"] / env.frame_skip,
-            "sim_s_per_s": mine["physics_steps_per_s"] * timestep,
-            "raw_mjx_physics_steps_per_s": raw["physics_steps_per_s"],
-            "ours_over_raw_mjx": mine["physics_steps_per_s"] / raw["physics_steps_per_s"],
-            "ours_over_c_mujoco_1_thread": mine["physics_steps_per_s"] / single["c_mujoco_physics_steps_per_s"],
+            "physics_steps_per_s": physics,
+            "env_steps_per_s": mine["env_steps_per_s"],
+            "sim_s_per_s": physics * timestep,
+            "raw_mjx_physics_steps_per_s": raw["env_steps_per_s"] * env.frame_skip,
+            "ours_over_raw_mjx": mine["env_steps_per_s"] / raw["env_steps_per_s"],
+            "ours_over_c_mujoco_1_thread": physics / single["c_mujoco_physics_steps_per_s"],
             "compile_s": mine["compile_s"], "raw_mjx_compile_s": raw["compile_s"],
             "peak_memory_gib": (peak_memory_bytes() or 0) / 2**30 or None,
         }

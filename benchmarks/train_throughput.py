@@ -13,29 +13,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-import jax
-from common import markdown_table, peak_memory_bytes, time_compiled, write_results
+from common import env_step_rate, markdown_table, peak_memory_bytes, train_rate, write_results
 
-from angora_jax.envs.core import Env
-from angora_jax.envs.random_rollout import batched_reset, make_random_rollout
 from angora_jax.envs.registry import make
-from angora_jax.ppo import NetworkConfig, PPOConfig, make_cycle
-
-
-def raw_env_rate(env: Env, num_envs: int, steps: int, repeats: int) -> dict[str, float]:
-    """Env steps per second of a jitted scan of `steps` batched random-action steps."""
-    rollout = make_random_rollout(env, num_envs, steps)
-    state = jax.jit(batched_reset, static_argnums=(0, 2))(env, jax.random.key(0), num_envs)
-    compile_s, seconds, _ = time_compiled(rollout, state, jax.random.key(1), repeats=repeats)
-    return {"compile_s": compile_s, "steps_per_s": num_envs * steps / seconds}
-
-
-def train_rate(env: Env, config: PPOConfig, repeats: int) -> dict[str, float]:
-    """Env steps consumed per second by the full cycle (rollout + GAE + all minibatch updates)."""
-    init, cycle = make_cycle(env, None, config)
-    state = init(jax.random.key(config.seed))
-    compile_s, seconds, _ = time_compiled(cycle, state, repeats=repeats, chain=lambda out: (out[0],))
-    return {"compile_s": compile_s, "steps_per_s": config.num_envs * config.rollout_length / seconds}
+from angora_jax.ppo import NetworkConfig, PPOConfig
 
 
 def main() -> None:
@@ -54,7 +35,7 @@ def main() -> None:
     env = make(args.task)
     rows = []
     for num_envs in args.num_envs:
-        raw = raw_env_rate(env, num_envs, args.rollout_length, args.repeats)
+        raw = env_step_rate(env, num_envs, args.rollout_length, args.repeats)
         for model in args.model:
             config = PPOConfig(
                 num_envs=num_envs,
@@ -67,15 +48,15 @@ def main() -> None:
             trained = train_rate(env, config, args.repeats)
             rows.append({
                 "task": args.task, "model": model, "num_envs": num_envs,
-                "raw_env_steps_per_s": raw["steps_per_s"],
-                "train_env_steps_per_s": trained["steps_per_s"],
-                "train_sim_s_per_s": trained["steps_per_s"] * env.dt,
-                "train_over_raw": trained["steps_per_s"] / raw["steps_per_s"],
+                "raw_env_steps_per_s": raw["env_steps_per_s"],
+                "train_env_steps_per_s": trained["env_steps_per_s"],
+                "train_sim_s_per_s": trained["env_steps_per_s"] * env.dt,
+                "train_over_raw": trained["env_steps_per_s"] / raw["env_steps_per_s"],
                 "raw_compile_s": raw["compile_s"], "train_compile_s": trained["compile_s"],
                 "peak_memory_gib": (peak_memory_bytes() or 0) / 2**30 or None,
                 "config": dataclasses.asdict(config),
             })
-            print(f"{model} @ {num_envs} envs: {trained['steps_per_s']:,.0f} train steps/s", flush=True)
+            print(f"{model} @ {num_envs} envs: {trained['env_steps_per_s']:,.0f} train steps/s", flush=True)
 
     print(markdown_table(rows, [
         ("task", "task", "s"), ("model", "model", "s"), ("num_envs", "envs", "d"),
