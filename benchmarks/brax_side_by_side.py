@@ -1,0 +1,375 @@
+"""Brax's PPO and ours, side by side, training the same task of ours with matched settings.
+
+Brax (`brax.training.agents.ppo.train`, from PyPI: `pip install -e ".[bench]"`) trains our environment through
+`BraxAdapter`, a `brax.envs.base.Env` over our `reset` and `advance` (a step without our auto-reset): Brax's own
+training wrappers add the episode limit and auto-reset, as for any Brax environment. Our trainer runs the same
+task with the same number of environments, unroll (rollout) length, minibatch size, epochs, learning rate,
+discount, GAE lambda, clipping, entropy and value coefficients, gradient clipping, observation normalisation, the
+same feed-forward network (policy and value MLPs of the same widths, tanh, the value MLP also reading the
+privileged `asymmetric` modality) and the same kind of policy (a Gaussian with state-independent learned log std,
+actions clipped to the bounds), for the same number of env steps.
+
+Reported per side: env steps/s with compilation excluded (all training segments after the first), the first
+call's extra time (the first segment's time less what it takes at the steady rate: compilation, mostly), and the
+return at equal env steps and at equal wall time. Each side's policy is saved at `--snapshots` evenly spaced
+points, and every snapshot is scored the same way afterwards: mean episode return (and the task's metrics at the
+episode's end) of the deterministic policy (the Gaussian's mean) over `--eval-envs` episodes of our environment,
+same keys for both. Wall time is training time: the sum of the training segments, the first (compiling) one
+included, evaluation excluded.
+
+Differences that remain, by design of the two libraries: Brax auto-resets an environment to the first state it
+was reset to (same goal each episode of one environment; ours draws a fresh one), masks truncated steps out of
+the loss instead of bootstrapping them, scales rewards by a constant instead of normalising them, and does not
+clip normalised observations; initialisations differ (orthogonal here, LeCun uniform there).
+
+    python benchmarks/brax_side_by_side.py --task Pendulum --num-envs 16 --timesteps 20000   # CPU, seconds
+    python benchmarks/brax_side_by_side.py --num-envs 4096 --rollout-length 32 --timesteps 5000000 --eval-envs 512
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from brax.envs.base import Env as BraxEnv
+from brax.envs.base import State as BraxState
+from brax.training.agents.ppo import networks as brax_networks
+from brax.training.agents.ppo import train as brax_ppo
+from common import RESULTS, markdown_table, write_results
+from flax import linen
+
+from angora_jax.envs.core import Env, Sensation
+from angora_jax.envs.registry import make
+from angora_jax.nets import ActorCritic, make_network, policy_inputs, value_inputs
+from angora_jax.ppo import NetworkConfig, PPOConfig, build_head, training_cycles
+from angora_jax.ppo.normalization import normalize_observation
+
+
+def device_put_replicated(tree: Any, devices: list) -> Any:
+    """`jax.device_put_replicated`, which JAX 0.10 removed and Brax 0.14.2 (the newest on PyPI) still calls
+    (google/brax issue 671): each leaf stacked once per device and laid out by an identity `pmap` over Brax's axis
+    name, so that the training state has the layout of Brax's own `pmap` outputs; any other layout makes the
+    training epoch compile a second time on its second call (measured: 10 s of the first 30 s on this CPU)."""
+    stacked = jax.tree.map(lambda x: jnp.stack([x] * len(devices)), tree)
+    return jax.pmap(lambda t: t, axis_name=brax_ppo._PMAP_AXIS_NAME, devices=devices)(stacked)
+
+
+if "device_put_replicated" not in vars(jax):
+    jax.device_put_replicated = device_put_replicated
+
+# Brax's observation keys: the policy reads "state", the value function "privileged_state".
+POLICY_KEY, VALUE_KEY = "state", "privileged_state"
+
+
+def brax_observation(obs: Sensation) -> dict[str, jax.Array]:
+    """Our Sensation as Brax's observation dict: the policy modalities concatenated under "state", and those plus
+    `asymmetric` under "privileged_state" (what our value network reads)."""
+    return {POLICY_KEY: policy_inputs(obs), VALUE_KEY: value_inputs(obs)}
+
+
+class BraxAdapter(BraxEnv):
+    """One environment of ours as a Brax environment (wrap it with Brax's training wrappers, as `ppo.train` does).
+
+    `pipeline_state` holds our whole `State`; `step` is our `advance` (no auto-reset) with the action clipped to
+    the action bounds. `done` is set only on termination: Brax's EpisodeWrapper ends episodes after
+    `max_episode_steps` and marks them as truncations, as our `State.truncated` would. A task's own clock (the
+    cube's goal timer) is not passed on, so use tasks whose only truncation is the episode limit (reach, Pendulum).
+    """
+
+    def __init__(self, env: Env):
+        if env.action_spec.discrete:
+            raise ValueError(f"{type(env).__name__} has discrete actions; Brax's PPO needs continuous ones.")
+        self.env = env
+
+    def reset(self, rng: jax.Array) -> BraxState:
+        state = self.env.reset(rng)
+        return BraxState(pipeline_state=state, obs=brax_observation(state.obs), reward=state.reward,
+                         done=state.done, metrics=dict(state.metrics))
+
+    def step(self, state: BraxState, action: jax.Array) -> BraxState:
+        action = jnp.clip(action, self.env.action_spec.low, self.env.action_spec.high)
+        ended, _ = self.env.advance(state.pipeline_state, action)
+        terminated = ended.done * (1.0 - ended.truncated)
+        return state.replace(pipeline_state=ended, obs=brax_observation(ended.obs), reward=ended.reward,
+                             done=terminated, metrics=dict(ended.metrics))
+
+    @property
+    def observation_size(self) -> dict[str, tuple[int, ...]]:
+        shapes = brax_observation(self.env.observation_shapes())
+        return {k: tuple(v.shape) for k, v in shapes.items()}
+
+    @property
+    def action_size(self) -> int:
+        return self.env.action_spec.size
+
+    @property
+    def backend(self) -> str:
+        return "mjx" if hasattr(self.env, "mjx_model") else "jax"
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """The matched settings of both trainers; Brax's names are derived in `brax_kwargs`."""
+
+    num_envs: int
+    rollout_length: int
+    minibatches: int
+    epochs: int
+    width: int
+    learning_rate: float
+    entropy_coef: float
+    init_log_std: float
+    gamma: float
+    cycles_per_snapshot: int
+    snapshots: int
+    seed: int
+
+    @property
+    def steps_per_cycle(self) -> int:
+        return self.num_envs * self.rollout_length
+
+    @property
+    def env_steps(self) -> int:
+        return self.steps_per_cycle * self.cycles_per_snapshot * self.snapshots
+
+    def ppo_config(self) -> PPOConfig:
+        """Ours: a two-layer `simple` MLP, one chunk per rollout (feed-forward: no truncated BPTT)."""
+        return PPOConfig(
+            seed=self.seed, num_cycles=self.cycles_per_snapshot * self.snapshots, num_envs=self.num_envs,
+            rollout_length=self.rollout_length, chunk_length=self.rollout_length, num_epochs=self.epochs,
+            minibatch_size=self.steps_per_cycle // self.minibatches, learning_rate=self.learning_rate,
+            entropy_coef=self.entropy_coef, init_log_std=self.init_log_std, gamma=self.gamma, head="gaussian",
+            network=NetworkConfig(name="simple", width=self.width),
+        )
+
+    def brax_kwargs(self, env: Env) -> dict[str, Any]:
+        """Brax's `ppo.train` arguments for the same run. One Brax training step is one of our cycles: it collects
+        `batch_size * num_minibatches = num_envs` trajectories of `unroll_length` steps, one per environment."""
+        ours = self.ppo_config()
+        sizes = (self.width, self.width)
+        network_factory = lambda obs_size, action_size, preprocess_observations_fn: (  # noqa: E731
+            brax_networks.make_ppo_networks(
+                obs_size, action_size, preprocess_observations_fn=preprocess_observations_fn,
+                policy_hidden_layer_sizes=sizes, value_hidden_layer_sizes=sizes, activation=linen.tanh,
+                policy_obs_key=POLICY_KEY, value_obs_key=VALUE_KEY, distribution_type="normal",
+                noise_std_type="log", init_noise_std=math.exp(self.init_log_std)))
+        return dict(
+            num_timesteps=self.env_steps, num_envs=self.num_envs, episode_length=env.max_episode_steps,
+            unroll_length=self.rollout_length, batch_size=self.num_envs // self.minibatches,
+            num_minibatches=self.minibatches, num_updates_per_batch=self.epochs, learning_rate=self.learning_rate,
+            entropy_cost=self.entropy_coef, discounting=self.gamma, gae_lambda=ours.gae_lambda,
+            clipping_epsilon=ours.clip_epsilon,
+            clipping_epsilon_value=ours.clip_epsilon if ours.value_clip else None,
+            vf_loss_coefficient=ours.value_coef, max_grad_norm=ours.max_grad_norm,
+            normalize_observations=ours.normalization.observations, normalize_advantage=ours.normalize_advantages,
+            network_factory=network_factory, seed=self.seed, num_evals=self.snapshots + 1, run_evals=False,
+        )
+
+
+@dataclasses.dataclass
+class Run:
+    """One side's training: `segments` are (env steps, wall s) of each timed piece of training (a cycle of ours,
+    a Brax training epoch); `snapshots` are (env steps, training wall s so far, policy parameters)."""
+
+    segments: list[tuple[int, float]] = dataclasses.field(default_factory=list)
+    snapshots: list[tuple[int, float, Any]] = dataclasses.field(default_factory=list)
+    total_wall_s: float = 0.0
+
+    def wall_s(self) -> float:
+        return sum(s for _, s in self.segments)
+
+    def summary(self) -> dict[str, float]:
+        """Steady env steps/s (all segments after the first) and the first segment's extra time over that rate."""
+        if len(self.segments) < 2:
+            raise ValueError("A steady rate needs at least 2 training segments: use --snapshots 2 or more.")
+        steps = sum(n for n, _ in self.segments[1:])
+        rate = steps / sum(s for _, s in self.segments[1:])
+        first_steps, first_s = self.segments[0]
+        return {"env_steps_per_s": rate, "first_call_extra_s": first_s - first_steps / rate,
+                "train_wall_s": self.wall_s(), "total_wall_s": self.total_wall_s}
+
+
+def train_ours(env: Env, settings: Settings) -> Run:
+    """Our trainer (`training_cycles`, the loop under `angora_jax.ppo.train`); one segment per cycle, the policy
+    kept every `cycles_per_snapshot` cycles."""
+    run, start = Run(), time.perf_counter()
+    for state, metrics in training_cycles(settings.ppo_config(), env):
+        run.segments.append((settings.steps_per_cycle, metrics["seconds"]))
+        if metrics["cycle"] % settings.cycles_per_snapshot == 0:
+            run.snapshots.append((metrics["env_steps"], run.wall_s(), (state.params, state.obs_stats)))
+    run.total_wall_s = time.perf_counter() - start
+    return run
+
+
+def train_brax(env: Env, settings: Settings) -> tuple[Run, Callable]:
+    """Brax's `ppo.train` on `BraxAdapter(env)`; one segment per training epoch (`cycles_per_snapshot` training
+    steps in one compiled call), the policy kept after each. Returns the run and Brax's `make_policy`."""
+    run, epochs = Run(), []
+
+    def progress(step: int, metrics: dict) -> None:
+        epochs.append((step, float(metrics["training/walltime"])))
+
+    def keep(step: int, make_policy: Callable, params: Any) -> None:
+        if step > 0:
+            run.snapshots.append((step, None, params))
+
+    start = time.perf_counter()
+    make_policy, _, _ = brax_ppo.train(BraxAdapter(env), progress_fn=progress, policy_params_fn=keep,
+                                       **settings.brax_kwargs(env))
+    run.total_wall_s = time.perf_counter() - start
+    walls = [wall for _, wall in epochs]
+    run.segments = [(settings.steps_per_cycle * settings.cycles_per_snapshot, b - a)
+                    for a, b in zip([0.0, *walls[:-1]], walls, strict=True)]
+    run.snapshots = [(step, wall, params) for (step, _, params), wall in zip(run.snapshots, walls, strict=True)]
+    return run, make_policy
+
+
+def make_policy_evaluator(env: Env, act: Callable[[Any, Sensation], jax.Array], num_envs: int) -> Callable:
+    """Jitted `evaluate(policy, key) -> metrics`: `num_envs` fresh environments of ours run one episode each with
+    `act(policy, obs) -> actions` (a batch); metrics are the mean episode return and the mean of each task metric
+    at the episode's end. The same keys give both trainers the same episodes."""
+
+    def evaluate(policy: Any, key: jax.Array) -> dict[str, jax.Array]:
+        state = jax.vmap(env.reset)(jax.random.split(key, num_envs))
+
+        def step(carry, _):
+            state, running, ret, ends = carry
+            state = jax.vmap(env.step)(state, act(policy, state.obs))
+            ended = running * state.done
+            ends = {k: ends[k] + ended * v for k, v in state.metrics.items()}
+            return (state, running * (1.0 - state.done), ret + running * state.reward, ends), None
+
+        zeros = jnp.zeros((num_envs,), jnp.float32)
+        carry = (state, jnp.ones_like(zeros), zeros, {k: zeros for k in env.metric_names})
+        (_, _, ret, ends), _ = jax.lax.scan(step, carry, None, length=env.max_episode_steps)
+        return {"episode_return": ret.mean(), **{f"metric/{k}": v.mean() for k, v in ends.items()}}
+
+    return jax.jit(evaluate)
+
+
+def ours_act(env: Env, config: PPOConfig) -> Callable[[Any, Sensation], jax.Array]:
+    """Our deterministic policy: normalise with the saved statistics, take the head's mode, clip to the bounds."""
+    network = make_network(config.network)
+    head = build_head(env, config)
+    model = ActorCritic(network, head)
+
+    def act(policy, obs: Sensation) -> jax.Array:
+        params, obs_stats = policy
+        obs = normalize_observation(obs_stats, obs, config.normalization.clip)
+        carry = network.initial_carry(obs.proprioception.shape[0])
+        _, policy_params, _ = model.apply({"params": params}, carry, obs)
+        return head.env_action(head.mode(policy_params))
+
+    return act
+
+
+def brax_act(env: Env, make_policy: Callable) -> Callable[[Any, Sensation], jax.Array]:
+    """Brax's deterministic policy (its Gaussian's mean), clipped to the bounds as `BraxAdapter` does."""
+
+    def act(params, obs: Sensation) -> jax.Array:
+        action, _ = make_policy(params, deterministic=True)(brax_observation(obs), jax.random.key(0))
+        return jnp.clip(action, env.action_spec.low, env.action_spec.high)
+
+    return act
+
+
+def score(env: Env, run: Run, act: Callable, num_envs: int, seed: int) -> list[dict[str, float]]:
+    """Each snapshot's evaluation (see `make_policy_evaluator`) with its env steps and training wall time."""
+    evaluate = make_policy_evaluator(env, act, num_envs)
+    key = jax.random.key(seed + 1_000_003)  # one key, apart from training's, for every snapshot of both sides
+    return [{"env_steps": steps, "train_wall_s": wall,
+             **{k: float(v) for k, v in jax.device_get(evaluate(policy, key)).items()}}
+            for steps, wall, policy in run.snapshots]
+
+
+def at_wall_time(curve: list[dict[str, float]], wall_s: float) -> dict[str, float] | None:
+    """The last evaluated snapshot reached within `wall_s` of training, or None."""
+    reached = [point for point in curve if point["train_wall_s"] <= wall_s + 1e-9]
+    return reached[-1] if reached else None
+
+
+def compare(env: Env, settings: Settings, eval_envs: int) -> dict[str, Any]:
+    """Train both sides, score their snapshots; rows for the table and both learning curves."""
+    ours = train_ours(env, settings)
+    brax, make_brax_policy = train_brax(env, settings)
+    curves = {"angora_jax": score(env, ours, ours_act(env, settings.ppo_config()), eval_envs, settings.seed),
+              "brax": score(env, brax, brax_act(env, make_brax_policy), eval_envs, settings.seed)}
+    summaries = {"angora_jax": ours.summary(), "brax": brax.summary()}
+    equal_wall = min(s["train_wall_s"] for s in summaries.values())
+    rows = []
+    for side, curve in curves.items():
+        at_wall = at_wall_time(curve, equal_wall)
+        rows.append({
+            "trainer": side, **summaries[side], "env_steps": curve[-1]["env_steps"],
+            "final_return": curve[-1]["episode_return"],
+            **{f"final_{k}": v for k, v in curve[-1].items() if k.startswith("metric/")},
+            "equal_wall_s": equal_wall,
+            "return_at_equal_wall": at_wall["episode_return"] if at_wall else None,
+            "env_steps_at_equal_wall": at_wall["env_steps"] if at_wall else None,
+        })
+    rows[0]["speed_over_brax"] = rows[0]["env_steps_per_s"] / rows[1]["env_steps_per_s"]
+    return {"rows": rows, "curves": curves}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--task", default="ShadowHandReach")
+    parser.add_argument("--options", default="{}", help="task options as JSON")
+    parser.add_argument("--num-envs", type=int, default=16)
+    parser.add_argument("--rollout-length", type=int, default=16, help="Brax's unroll_length")
+    parser.add_argument("--minibatches", type=int, default=4, help="minibatches per epoch (Brax's num_minibatches)")
+    parser.add_argument("--epochs", type=int, default=4, help="Brax's num_updates_per_batch")
+    parser.add_argument("--width", type=int, default=64, help="units of both layers of both MLPs")
+    parser.add_argument("--learning-rate", type=float, default=3e-4)
+    parser.add_argument("--entropy-coef", type=float, default=0.01)
+    parser.add_argument("--init-log-std", type=float, default=-1.0)
+    parser.add_argument("--gamma", type=float, default=0.99)
+    parser.add_argument("--timesteps", type=int, default=2048, help="env steps per side (rounded to whole cycles)")
+    parser.add_argument("--snapshots", type=int, default=4, help="evaluation points per side (>= 2)")
+    parser.add_argument("--eval-envs", type=int, default=16, help="episodes per evaluation")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default=None, help="JSON path (default: results/brax_side_by_side_<task>_<platform>)")
+    args = parser.parse_args()
+
+    if args.snapshots < 2:
+        parser.error("--snapshots must be >= 2: the first training segment includes compilation.")
+    if args.num_envs % args.minibatches:
+        parser.error(f"--minibatches ({args.minibatches}) must divide --num-envs ({args.num_envs}): a Brax "
+                     "minibatch is num_envs / minibatches whole trajectories.")
+    env = make(args.task, **json.loads(args.options))
+    per_snapshot = max(1, round(args.timesteps / (args.num_envs * args.rollout_length * args.snapshots)))
+    settings = Settings(args.num_envs, args.rollout_length, args.minibatches, args.epochs, args.width,
+                        args.learning_rate, args.entropy_coef, args.init_log_std, args.gamma, per_snapshot,
+                        args.snapshots, args.seed)
+    settings.ppo_config().validate_for(env)
+    result = compare(env, settings, args.eval_envs)
+    rows = result["rows"]
+    config = {"task": args.task, "options": json.loads(args.options), "eval_envs": args.eval_envs,
+              "settings": dataclasses.asdict(settings), "env_steps": settings.env_steps,
+              "ours": dataclasses.asdict(settings.ppo_config()),
+              "brax": {k: v for k, v in settings.brax_kwargs(env).items() if k != "network_factory"},
+              "curves": result["curves"]}
+    out = args.out or os.path.join(RESULTS, f"brax_side_by_side_{args.task}_{jax.devices()[0].platform}.json")
+    path = write_results("brax_side_by_side", config, rows, out)
+    metric_columns = [(k, k.removeprefix("final_metric/"), ".3f") for k in rows[0] if k.startswith("final_metric/")]
+    print(markdown_table(rows, [
+        ("trainer", "trainer", "s"), ("env_steps_per_s", "env steps/s (no compile)", ",.0f"),
+        ("first_call_extra_s", "first call extra s", ".1f"), ("train_wall_s", "train wall s", ".1f"),
+        ("env_steps", "env steps", ",d"), ("final_return", "return (final)", ".2f"), *metric_columns,
+        ("return_at_equal_wall", "return at equal wall", ".2f"),
+        ("env_steps_at_equal_wall", "its env steps", ",d"),
+    ]))
+    print(f"ours / Brax env steps/s: {rows[0]['speed_over_brax']:.2f}; equal wall time {rows[0]['equal_wall_s']:.1f} s")
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
