@@ -1,0 +1,95 @@
+"""Smoke tests of the benchmark scripts at tiny sizes on pure-JAX tasks (no MJX compiles): the Brax adapter, Brax's
+PPO and ours side by side, and rungs of the throughput ladder, each in its own process."""
+
+import math
+import os
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from brax.envs.wrappers import training as brax_training
+
+from angora_jax.envs.registry import make
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
+import angorapy_ratio  # noqa: E402
+import brax_side_by_side as side  # noqa: E402
+import throughput_ladder  # noqa: E402
+
+EPISODE = 4
+# Pendulum's worst step costs pi^2 + 0.1 * 8^2 + 0.001 * 2^2.
+WORST_STEP = math.pi**2 + 6.4 + 0.004
+
+
+@pytest.fixture(scope="module")
+def pendulum():
+    return make("Pendulum", max_episode_steps=EPISODE)
+
+
+def test_adapter_steps_like_the_env_and_leaves_time_limits_to_brax(pendulum):
+    wrapped = brax_training.wrap(side.BraxAdapter(pendulum), episode_length=EPISODE)
+    keys = jax.random.split(jax.random.PRNGKey(0), 3)
+    state = jax.jit(wrapped.reset)(keys)
+    ours = jax.vmap(pendulum.reset)(keys)
+    first = state.obs["state"]
+    np.testing.assert_allclose(first, ours.obs.proprioception)
+    assert state.obs["privileged_state"].shape == (3, 3)  # Pendulum has no asymmetric inputs
+    step = jax.jit(wrapped.step)
+    action = jnp.full((3, 1), 5.0)  # beyond the torque bound: clipped to 2 as our Gaussian head would
+    for t in range(1, EPISODE + 1):
+        state = step(state, action)
+        ours, _ = jax.vmap(pendulum.advance)(ours, jnp.full((3, 1), 2.0))
+        np.testing.assert_allclose(state.reward, ours.reward, rtol=1e-5)
+        # Episodes end at Brax's episode limit as truncations, not terminations (which would stop bootstrapping).
+        assert state.done.tolist() == [float(t == EPISODE)] * 3
+        assert state.info["truncation"].tolist() == [float(t == EPISODE)] * 3
+    np.testing.assert_allclose(state.obs["state"], first)  # Brax's auto-reset returns to the first state
+
+
+def test_discrete_tasks_are_refused_by_name():
+    with pytest.raises(ValueError, match="CartPole has discrete actions"):
+        side.BraxAdapter(make("CartPole"))
+
+
+def test_side_by_side_trains_both_for_the_same_env_steps(pendulum):
+    settings = side.Settings(num_envs=8, rollout_length=4, minibatches=2, epochs=1, width=16, learning_rate=3e-4,
+                             entropy_coef=0.01, init_log_std=-1.0, gamma=0.99, cycles_per_snapshot=1, snapshots=2,
+                             seed=0)
+    result = side.compare(pendulum, settings, eval_envs=4)
+    assert [row["trainer"] for row in result["rows"]] == ["angora_jax", "brax"]
+    for row in result["rows"]:
+        assert row["env_steps"] == settings.env_steps == 64
+        assert row["env_steps_per_s"] > 0 and row["train_wall_s"] > 0
+        assert -WORST_STEP * EPISODE <= row["final_return"] <= 0
+    for curve in result["curves"].values():
+        assert [point["env_steps"] for point in curve] == [32, 64]
+        assert curve[0]["train_wall_s"] < curve[1]["train_wall_s"]
+    ours, brax = result["rows"]
+    assert ours["speed_over_brax"] == pytest.approx(ours["env_steps_per_s"] / brax["env_steps_per_s"])
+
+
+def test_ladder_measures_each_rung_in_its_own_process_and_reports_failures():
+    settings = {"options": {}, "steps": 2, "rollout_length": 4, "chunk_length": 4, "minibatches": 2, "epochs": 1,
+                "model": "simple", "repeats": 1}
+    good, bad = throughput_ladder.ladder(["Pendulum", "NoSuchTask"], [4], settings, jobs=2)
+    assert good["task"] == "Pendulum" and good["num_envs"] == 4 and "error" not in good
+    assert good["raw_env_steps_per_s"] is None  # no MJX physics
+    assert good["env_env_steps_per_s"] > 0 and good["train_env_steps_per_s"] > 0
+    assert good["train_over_env"] == pytest.approx(good["train_env_steps_per_s"] / good["env_env_steps_per_s"])
+    assert good["train_sim_s_per_s"] == pytest.approx(good["train_env_steps_per_s"] * 0.05)
+    assert "NoSuchTask" in bad["error"]
+
+
+def test_angorapy_ratio_divides_our_measured_rate_by_the_papers():
+    record = {"benchmark": "train_throughput", "device": {"count": 1, "kind": "GPU"},
+              "config": {"args": {"task": "ShadowHandCube"}, "control_dt_s": 0.08},
+              "results": [{"model": "simple", "num_envs": 8, "train_env_steps_per_s": 6886.6}]}
+    (row,) = angorapy_ratio.ratios(record)
+    assert angorapy_ratio.angorapy_samples_per_s() == pytest.approx(1.19e9 / (96 * 3600))
+    assert row["ratio"] == pytest.approx(2.0, rel=1e-4)
+    assert row["sim_s_per_s"] == pytest.approx(6886.6 * 0.08)
+    record["config"]["args"]["task"] = "ShadowHandReach"
+    with pytest.raises(ValueError, match="ShadowHandCube"):
+        angorapy_ratio.ratios(record)
