@@ -40,13 +40,20 @@ def replicas_identical(state) -> bool:
 
 
 def curve(num_devices):
+    """Metrics of every cycle, whether the replicas were in sync after it, and the parameters after it (host)."""
     init, cycle = make_cycle(make("CartPole"), None, CURVE, num_devices)
-    state, history, in_sync = init(jax.random.key(0)), [], []
+    state, history, in_sync, params = init(jax.random.key(0)), [], [], []
     for _ in range(CURVE.num_cycles):
         state, metrics = cycle(state)
         history.append({name: float(value) for name, value in metrics.items()})
         in_sync.append(num_devices == 1 or replicas_identical(state))
-    return history, in_sync
+        params.append([host(leaf) for leaf in jax.tree.leaves(state.params)])
+    return history, in_sync, params
+
+
+def largest_difference(single, parallel) -> float:
+    """Max abs difference between corresponding leaves of two lists of arrays."""
+    return max(float(np.abs(a - b).max()) for a, b in zip(single, parallel, strict=True))
 
 
 def pooled_stats():
@@ -89,13 +96,15 @@ def resumed_equals_whole(root: Path) -> bool:
 
 
 if __name__ == "__main__":
-    single, _ = curve(1)
-    parallel, in_sync = curve(4)
+    single, _, single_params = curve(1)
+    parallel, in_sync, parallel_params = curve(4)
     result = {
         "device_count": jax.device_count(),
         "single": single,
         "parallel": parallel,
         "in_sync": in_sync,
+        "param_differences": [largest_difference(a, b) for a, b in zip(single_params, parallel_params, strict=True)],
+        "param_scale": max(float(np.abs(leaf).max()) for leaf in single_params[-1]),
         "pooled_stats_error": pooled_stats(),
         "resumed_equals_whole": resumed_equals_whole(Path(sys.argv[1])),
     }

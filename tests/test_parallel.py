@@ -1,6 +1,6 @@
 """Data-parallel training (angora_jax.ppo.parallel): on 4 CPU devices the replicated state stays identical on every
-device, normaliser statistics pool exactly, a 4-device run learns like the single-device run with the same totals,
-and resuming a 4-device run is bit for bit; indivisible totals fail naming the keys."""
+device, normaliser statistics pool exactly, a 4-device run computes the single-device run with the same totals up
+to float rounding, and resuming a 4-device run is bit for bit; indivisible totals fail naming the keys."""
 
 import hashlib
 import json
@@ -46,17 +46,19 @@ def test_normaliser_merge_over_devices_equals_one_merge_of_the_whole_batch(four_
     assert four_devices["pooled_stats_error"] < 1e-5
 
 
-def test_four_devices_learn_like_one_with_the_same_totals(four_devices):
-    # The devices draw their own random streams, so the runs agree statistically, not bit for bit. Observed on
-    # CartPole, 8 cycles of 16 envs x 32 steps: first-cycle returns 16.1 (D=1) vs 16.8 (D=4), per-cycle entropy
-    # within 0.04, both runs' returns up 3.5-9x by the last two cycles.
+def test_four_devices_compute_the_single_device_run_up_to_float_rounding(four_devices):
+    # Same random numbers per environment and the same global minibatches on any device count, so the runs differ
+    # only in summation order. Observed on CartPole, 8 cycles of 16 envs x 32 steps: parameters (largest |p| 0.59)
+    # within 1.8e-7, identical episode returns, every other metric within 1.1e-6.
     single, parallel = four_devices["single"], four_devices["parallel"]
-    assert abs(single[0]["episode_return"] - parallel[0]["episode_return"]) < 0.25 * single[0]["episode_return"]
-    entropy = np.array([[s["entropy"], p["entropy"]] for s, p in zip(single, parallel, strict=True)])
-    assert np.abs(entropy[:, 0] - entropy[:, 1]).max() < 0.06
-    for run in (single, parallel):
-        assert np.nanmean([m["episode_return"] for m in run[-2:]]) > 3 * run[0]["episode_return"]
-        assert all(m["finite"] == 1.0 and np.isclose(m["learning_rate"], 1e-3) for m in run)
+    assert max(four_devices["param_differences"]) < 1e-5 < four_devices["param_scale"]
+    assert [m.keys() for m in single] == [m.keys() for m in parallel] and len(single) == 8
+    for one, four in zip(single, parallel, strict=True):
+        names = sorted(one)
+        np.testing.assert_allclose([four[k] for k in names], [one[k] for k in names], rtol=1e-5, atol=1e-5)
+    # The runs learn (so agreeing is not agreeing on nothing): returns up about 5x by the last two cycles.
+    assert np.nanmean([m["episode_return"] for m in single[-2:]]) > 3 * single[0]["episode_return"]
+    assert all(m["finite"] == 1.0 for m in single)
 
 
 def test_resumed_four_device_run_equals_uninterrupted(four_devices):
@@ -73,7 +75,10 @@ def test_single_device_config_is_unchanged():
     [
         ({"num_envs": 6}, r"ppo.num_envs=6 is a run total .*num_devices=4 .*multiple of 4; use e.g. ppo.num_envs=8"),
         ({"minibatch_size": 18}, r"ppo.minibatch_size=18 is a run total"),
-        ({"num_envs": 4, "minibatch_size": 32, "chunk_length": 16}, r"per device .*num_envs=1, .*minibatch_size=8"),
+        (
+            {"num_envs": 8, "minibatch_size": 32, "chunk_length": 16},
+            r"tiles of n=2 trajectories x m=1 chunks .*multiple of 4; use e.g. ppo.minibatch_size=64",
+        ),
     ],
 )
 def test_indivisible_totals_fail_naming_the_keys(changes, message):

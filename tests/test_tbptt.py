@@ -139,7 +139,7 @@ def test_rollout_stored_carries_and_resets_replay_the_acting_log_probs():
     zeros = jnp.zeros(num_envs)
     actor = ActorState(env_state, initial, zeros, zeros)
     _, _, traj, start_carries, _ = rollout(
-        params, observation_stats(env.observation_shapes()), actor, jax.random.key(2)
+        params, observation_stats(env.observation_shapes()), actor, jax.random.split(jax.random.key(2), num_envs)
     )
     assert float(traj.resets.sum()) > 0  # random CartPole episodes are short, so episodes end inside chunks
 
@@ -163,6 +163,24 @@ def test_minibatch_indices_partition_the_grid_every_epoch():
     assert env_index.shape == (4, 3) and chunk_index.shape == (4, 2)
     pairs = {(int(e), int(c)) for es, cs in zip(env_index, chunk_index, strict=True) for e in es for c in cs}
     assert pairs == {(e, c) for e in range(6) for c in range(4)}
+    # Stratified: column b of every tile is a trajectory of block b (trajectories 2b and 2b + 1).
+    np.testing.assert_array_equal(env_index // 2, np.broadcast_to(np.arange(3), (4, 3)))
+    # ... and the blocks are shuffled: across epochs both orders of some block occur.
+    orders = {tuple(minibatch_indices(jax.random.key(k), 6, 4, (3, 2))[0][::2, 0].tolist()) for k in range(8)}
+    assert orders == {(0, 1), (1, 0)}
+
+
+def test_device_shares_of_a_tile_make_up_the_single_device_tile():
+    # vmap with an axis name stands in for 4 devices: collectives and axis_index work the same way.
+    key, num_envs, num_chunks, tile, devices = jax.random.key(3), 16, 4, (8, 2), 4
+    env_index, chunk_index = minibatch_indices(key, num_envs, num_chunks, tile)
+    shares, share_chunks = jax.vmap(
+        lambda _: minibatch_indices(key, num_envs, num_chunks, tile, "devices"), axis_name="devices"
+    )(jnp.arange(devices))
+    assert shares.shape == (devices, 4, 2) and int(shares.max()) < num_envs // devices  # local indices
+    local_to_global = shares + (np.arange(devices) * num_envs // devices)[:, None, None]
+    np.testing.assert_array_equal(np.concatenate(list(local_to_global), axis=1), env_index)
+    np.testing.assert_array_equal(share_chunks, np.broadcast_to(chunk_index, share_chunks.shape))
 
 
 def test_tile_shape_prefers_the_most_trajectories():

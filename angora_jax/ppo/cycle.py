@@ -22,7 +22,7 @@ from angora_jax.ppo.distributions import PolicyHead, make_head
 from angora_jax.ppo.gae import gae, next_values
 from angora_jax.ppo.losses import LossInputs, ppo_loss
 from angora_jax.ppo.normalization import RunningMeanStd, discounted_returns, observation_stats
-from angora_jax.ppo.parallel import axis_name, data_parallel, device_key, per_device, pmean, psum
+from angora_jax.ppo.parallel import axis_name, data_parallel, environment_keys, per_device, pmean, psum
 from angora_jax.ppo.rollout import ActorState, make_rollout
 from angora_jax.ppo.tbptt import gather_carries, gather_sequences, minibatch_indices, unroll
 
@@ -84,7 +84,8 @@ def make_cycle(
     num_devices: D devices to run data-parallel on; `config.num_envs` and `config.minibatch_size` are totals that
     must divide by D (ValueError otherwise). For D > 1, `init` returns the state already laid out over the devices
     and `cycle` accepts any state of the run's shapes (e.g. one restored from a checkpoint) and lays it out first.
-    Metrics are over all devices. D = 1 compiles the plain cycle, with no collectives.
+    Metrics are over all devices. D = 1 compiles the plain cycle, with no collectives; D > 1 computes the same
+    cycle up to floating-point summation order (same random numbers, same minibatches).
     """
     config.validate_for(env)
     local = per_device(config, num_devices)
@@ -94,8 +95,8 @@ def make_cycle(
     model = ActorCritic(network, head)
     num_envs, chunk_length = local.num_envs, config.chunk_length
     num_chunks = config.rollout_length // chunk_length
-    tile = tile_shape(local)
-    minibatch_rows = tile[0] * tile[1]
+    tile = tile_shape(config)  # the run's minibatch tile; each device takes 1/D of its trajectories
+    minibatch_rows = tile[0] // num_devices * tile[1]
     updates_per_cycle = config.num_epochs * (config.num_envs * config.rollout_length // config.minibatch_size)
     if config.lr_decay:
         schedule = optax.linear_schedule(config.learning_rate, 0.0, config.num_cycles * updates_per_cycle)
@@ -170,13 +171,13 @@ def make_cycle(
         return (optax.apply_updates(params, updates), opt_state), parts
 
     def update_epoch(batch: Batch, start_carries, train, key):
-        indices = minibatch_indices(key, num_envs, num_chunks, tile)
+        indices = minibatch_indices(key, config.num_envs, num_chunks, tile, axis)
         return jax.lax.scan(lambda t, i: update_minibatch(batch, start_carries, t, i), train, indices)
 
     def cycle(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
         key, rollout_key, update_key = jax.random.split(state.key, 3)
         actor, obs_stats, traj, start_carries, last_value = rollout(
-            state.params, state.obs_stats, state.actor, device_key(rollout_key, axis)
+            state.params, state.obs_stats, state.actor, environment_keys(rollout_key, config.num_envs, axis)
         )
 
         def flat(x):  # (C, s, N, ...) -> (T, N, ...)
@@ -201,7 +202,7 @@ def make_cycle(
         (params, opt_state), parts = jax.lax.scan(
             lambda t, k: update_epoch(batch, start_carries, t, k),
             (state.params, state.opt_state),
-            jax.random.split(device_key(update_key, axis), config.num_epochs),
+            jax.random.split(update_key, config.num_epochs),
         )
         metrics = {name: pmean(value.mean(), axis) for name, value in parts.items()}
         metrics |= episode_metrics(traj.dones, traj.episode_return, traj.episode_length, traj.metrics, axis)

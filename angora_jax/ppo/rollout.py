@@ -71,10 +71,12 @@ def make_rollout(
     clip: float,
     axis_name: str | None = None,
 ) -> Callable[..., tuple[ActorState, Sensation, Trajectory, Any, jax.Array]]:
-    """Build `rollout(params, obs_stats, actor, key) -> (actor, obs_stats, trajectory, start_carries, last_value)`.
+    """Build `rollout(params, obs_stats, actor, keys) -> (actor, obs_stats, trajectory, start_carries, last_value)`.
 
-    `initial_carry` is the network's carry for N environments. Observation stats are updated after every step
-    (when `normalize_obs`), and each observation is normalised with the stats from before its own update.
+    `initial_carry` is the network's carry for N environments; `keys` `(N,)` holds one PRNG key per environment,
+    from which that environment's actions are drawn (so they do not depend on how environments are batched).
+    Observation stats are updated after every step (when `normalize_obs`), and each observation is normalised with
+    the stats from before its own update.
     `start_carries` has leaves `(C, N, ...)`, `last_value` `(N,)` is the value after the last step. Under data
     parallelism N is this device's share and `axis_name` pools the observation stats over the devices.
     """
@@ -83,15 +85,16 @@ def make_rollout(
     def observe(obs_stats: Sensation, obs: Sensation) -> Sensation:
         return normalize_observation(obs_stats, obs, clip) if normalize_obs else obs
 
-    def step(params, carry, key):
-        obs_stats, actor = carry
+    def step(params, carry):
+        obs_stats, actor, keys = carry
+        keys, action_keys = jnp.moveaxis(jax.vmap(jax.random.split)(keys), 1, 0)
         state = actor.env_state
         obs = observe(obs_stats, state.obs)
         if normalize_obs:
             obs_stats = update_observation_stats(obs_stats, state.obs, axis_name)
         net_carry = reset_carry(actor.carry, initial_carry, actor.reset)
         net_carry, policy_params, value = apply_fn(params, net_carry, obs)
-        action = head.sample(policy_params, key)
+        action = jax.vmap(head.sample)(policy_params, action_keys)
         log_prob = head.log_prob(policy_params, action)
         next_state = step_env(state, head.env_action(action))
 
@@ -120,16 +123,16 @@ def make_rollout(
             metrics=next_state.metrics,
         )
         actor = ActorState(next_state, net_carry, done, episode_return * (1.0 - done))
-        return (obs_stats, actor), out
+        return (obs_stats, actor, keys), out
 
-    def rollout(params, obs_stats: Sensation, actor: ActorState, key: jax.Array):
-        def chunk(carry, chunk_key):
+    def rollout(params, obs_stats: Sensation, actor: ActorState, keys: jax.Array):
+        def chunk(carry, _):
             start_carry = carry[1].carry
-            carry, out = jax.lax.scan(lambda c, k: step(params, c, k), carry, jax.random.split(chunk_key, chunk_length))
+            carry, out = jax.lax.scan(lambda c, _: step(params, c), carry, length=chunk_length)
             return carry, (out, start_carry)
 
-        (obs_stats, actor), (trajectory, start_carries) = jax.lax.scan(
-            chunk, (obs_stats, actor), jax.random.split(key, num_chunks)
+        (obs_stats, actor, _), (trajectory, start_carries) = jax.lax.scan(
+            chunk, (obs_stats, actor, keys), length=num_chunks
         )
         obs = observe(obs_stats, actor.env_state.obs)
         _, _, last_value = apply_fn(params, reset_carry(actor.carry, initial_carry, actor.reset), obs)

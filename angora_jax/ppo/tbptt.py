@@ -13,6 +13,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from angora_jax.ppo.parallel import local_share
+
 
 def reset_carry(carry: Any, initial: Any, reset: jax.Array) -> Any:
     """Replace the carry by `initial` in the rows where `reset` `(B,)` is nonzero (an episode starts there)."""
@@ -47,15 +49,27 @@ def unroll(
     return carry, params, values
 
 
-def minibatch_indices(key: jax.Array, num_envs: int, num_chunks: int, tile: tuple[int, int]) -> tuple[jax.Array, ...]:
-    """A random partition of the (trajectory, chunk) grid into tiles for one epoch.
+def minibatch_indices(
+    key: jax.Array, num_envs: int, num_chunks: int, tile: tuple[int, int], axis: str | None = None
+) -> tuple[jax.Array, ...]:
+    """A random partition of the (trajectory, chunk) grid into tiles of n trajectories x m chunks for one epoch.
 
-    Trajectories and chunk positions are shuffled separately, then cut into groups of n and m. Returns
-    `env_index (K, n)` and `chunk_index (K, m)` int32 arrays, one row per minibatch, K = (N / n) * (C / m).
+    Stratified over trajectories: the N trajectories form n contiguous blocks of N / n, each block is shuffled on
+    its own, and tile row k takes the k-th trajectory of every block, so every tile holds one trajectory of each
+    block (trajectories are exchangeable, so this is as good a partition as an unstratified one). Chunk positions
+    are shuffled and cut into groups of m. Returns `env_index (K, n)` and `chunk_index (K, m)` int32 arrays, one
+    row per minibatch, K = (N / n) * (C / m).
+
+    With `axis` (data parallelism over D devices holding N / D trajectories each, see `angora_jax.ppo.parallel`),
+    `num_envs` and `tile` are still the run's totals and the partition is the same as on one device; each device
+    gets `env_index (K, n / D)`: its share of every tile, as indices into its own N / D trajectories.
     """
     n, m = tile
+    block = num_envs // n
     env_key, chunk_key = jax.random.split(key)
-    envs = jax.random.permutation(env_key, num_envs).reshape(-1, n)
+    block_keys = local_share(jax.random.split(env_key, n), axis)
+    shuffled = jax.vmap(lambda k: jax.random.permutation(k, block))(block_keys)  # (blocks here, N / n)
+    envs = (jnp.arange(shuffled.shape[0])[:, None] * block + shuffled).T
     chunks = jax.random.permutation(chunk_key, num_chunks).reshape(-1, m)
     env_rows, chunk_rows = jnp.meshgrid(jnp.arange(envs.shape[0]), jnp.arange(chunks.shape[0]), indexing="ij")
     return envs[env_rows.ravel()], chunks[chunk_rows.ravel()]
