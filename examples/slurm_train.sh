@@ -4,6 +4,8 @@
 # process's id from SLURM's environment (SLURM_STEP_NODELIST, SLURM_NTASKS, SLURM_PROCID). Only process 0 logs;
 # every process takes part in writing checkpoints, so logging.run_root must be on a filesystem all nodes share.
 # ppo.num_envs and ppo.minibatch_size are run totals: multiples of the total GPU count.
+# A SIGTERM to any process (here from --signal, 10 minutes before the time limit: time for the current cycle and a
+# checkpoint) stops every process after the same cycle, each saving its part of the checkpoint; exit code 143.
 #
 #   sbatch examples/slurm_train.sh shadow_reach ppo.num_cycles=500
 #SBATCH --job-name=angora-jax
@@ -12,6 +14,7 @@
 #SBATCH --gpus-per-node=4
 #SBATCH --cpus-per-task=16
 #SBATCH --time=04:00:00
+#SBATCH --signal=TERM@600
 set -euo pipefail
 
 CONFIG=${1:?usage: sbatch examples/slurm_train.sh CONFIG [KEY=VALUE ...]}

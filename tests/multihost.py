@@ -1,22 +1,30 @@
 """One process of the two-process localhost job that test_parallel.py starts: argv is coordinator address, process
 id and run root; each process has 2 CPU devices (XLA_FLAGS), 4 in all. `aj.train` runs 3 cycles over all 4 devices
-into one run directory (process 0 logs, both save the checkpoint); prints one JSON object: a digest of this
-process's copy of the parameters, whether its two devices hold the same copy, and the cycles' metrics."""
+into one run directory (process 0 logs, both save the checkpoint), but process 1 alone gets a SIGTERM after cycle 2,
+so both should stop there; both then resume the run to cycle 3. Prints one JSON object: how training stopped, a
+digest of this process's copy of the final parameters, whether its two devices hold the same copy, and the
+metrics of every cycle."""
 
 import hashlib
 import json
+import os
+import signal
 import sys
 
 from angora_jax.experiment.distributed import initialize
 
 initialize(sys.argv[1], 2, int(sys.argv[2]))
 
+from pathlib import Path  # noqa: E402
+
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 from tiny import TINY_PPO  # noqa: E402
 
 import angora_jax as aj  # noqa: E402
+from angora_jax.experiment import TrainingInterrupted, resume  # noqa: E402
 
+run_root, process = Path(sys.argv[3]), int(sys.argv[2])
 overrides = [
     *TINY_PPO,
     "ppo.num_envs=8",
@@ -24,16 +32,31 @@ overrides = [
     "distribution.num_devices=all",
     "logging.progress=none",
     "logging.report=false",
-    f"logging.run_root={sys.argv[3]}",
+    f"logging.run_root={run_root}",
     "logging.run_name=two-hosts",
 ]
-run = aj.train("cartpole", overrides)
+records = []
+
+
+def terminate_process_1_after_cycle_2(record):
+    records.append(record)
+    if process == 1 and record["cycle"] == 2:
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+try:
+    aj.train("cartpole", overrides, on_cycle=terminate_process_1_after_cycle_2)
+    stopped = None
+except TrainingInterrupted as stop:
+    stopped = {"cycle": stop.cycle, "signal": stop.signum}
+run = resume(run_root / "two-hosts", on_cycle=records.append)
 digest, local_copies_agree = hashlib.sha256(), True
 for leaf in jax.tree.leaves(run.state.params):
     copies = [np.asarray(shard.data) for shard in leaf.addressable_shards]
     local_copies_agree &= all(np.array_equal(copies[0], other) for other in copies[1:])
     digest.update(copies[0].tobytes())
 untimed = [
-    {k: v for k, v in m.items() if k not in ("seconds", "steps_per_second", "compile_seconds")} for m in run.history
+    {k: v for k, v in m.items() if k not in ("seconds", "steps_per_second", "compile_seconds")} for m in records
 ]
-print(json.dumps({"params": digest.hexdigest(), "local_copies_agree": bool(local_copies_agree), "metrics": untimed}))
+summary = {"stopped": stopped, "params": digest.hexdigest(), "local_copies_agree": bool(local_copies_agree)}
+print(json.dumps(summary | {"metrics": untimed}))

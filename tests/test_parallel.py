@@ -5,6 +5,7 @@ to float rounding, and resuming a 4-device run is bit for bit; indivisible total
 import hashlib
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -13,8 +14,12 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from tiny import TINY_PPO
 
-from angora_jax.experiment import read_metrics, resume
+import angora_jax as aj
+from angora_jax.experiment import Checkpoints, read_metrics, resume, runner
+from angora_jax.experiment.distributed import ProcessFailed, StopDecision
+from angora_jax.experiment.run_dir import CHECKPOINTS
 from angora_jax.ppo import PPOConfig
 from angora_jax.ppo.parallel import per_device
 
@@ -86,7 +91,7 @@ def test_indivisible_totals_fail_naming_the_keys(changes, message):
         per_device(PPOConfig().replace(**changes), 4)
 
 
-def test_two_processes_with_jax_distributed_train_in_sync_and_resume_in_one(tmp_path):
+def test_two_processes_with_jax_distributed_stop_together_train_in_sync_and_resume_in_one(tmp_path):
     with socket.socket() as probe:  # a free port for the coordinator
         probe.bind(("localhost", 0))
         address = f"localhost:{probe.getsockname()[1]}"
@@ -105,6 +110,8 @@ def test_two_processes_with_jax_distributed_train_in_sync_and_resume_in_one(tmp_
     outputs = [process.communicate(timeout=300) for process in processes]
     assert all(process.returncode == 0 for process in processes), [err[-3000:] for _, err in outputs]
     first, second = (json.loads(out.strip().splitlines()[-1]) for out, _ in outputs)
+    # Process 1 alone got SIGTERM after cycle 2; both stopped there (agree_to_stop), saved, and resumed together.
+    assert first["stopped"] == second["stopped"] == {"cycle": 2, "signal": signal.SIGTERM}
     assert first["local_copies_agree"] and second["local_copies_agree"]
     assert first["params"] == second["params"]
     # Process 0's records add the monitor's normaliser, memory and time fields to the cycle metrics both have.
@@ -118,3 +125,16 @@ def test_two_processes_with_jax_distributed_train_in_sync_and_resume_in_one(tmp_
     for leaf in jax.tree.leaves(restored.state.params):
         digest.update(np.asarray(leaf).tobytes())
     assert int(restored.state.cycle) == 3 and digest.hexdigest() == first["params"]
+
+
+def test_a_failure_in_another_process_stops_this_one_after_the_same_cycle(tmp_path, monkeypatch):
+    # What agree_to_stop reports when process 1 of two failed after this cycle (the real all-gather is exercised by
+    # the two-process test above): this process stops too, naming it, and saves no checkpoint of that cycle.
+    monkeypatch.setattr(runner, "agree_to_stop", lambda signum, failed: StopDecision(signum, (1,)))
+    overrides = [*TINY_PPO, "logging.progress=none", "logging.report=false", f"logging.run_root={tmp_path}"]
+    with pytest.raises(ProcessFailed, match=r"Process\(es\) 1 of this run failed after cycle 1 .*angora-jax resume"):
+        aj.train("cartpole", [*overrides, "logging.run_name=peer"])
+    assert [record["cycle"] for record in read_metrics(tmp_path / "peer")] == [1]
+    checkpoints = Checkpoints(tmp_path / "peer" / CHECKPOINTS, aj.load_config("cartpole").checkpoint, create=False)
+    assert checkpoints.steps("latest") == []
+    checkpoints.close()

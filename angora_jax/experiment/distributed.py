@@ -2,15 +2,19 @@
 
 After `initialize`, `jax.devices()` lists the devices of every process, so `distribution.num_devices: all` trains one
 data-parallel cycle over all hosts (see `angora_jax.ppo.parallel`): every process runs the same program on its own
-devices and holds identical replicated parameters.
+devices and holds identical replicated parameters. Every process must also stop at the same cycle, or the others
+wait forever in the next cycle's collectives: `agree_to_stop` turns each process's own reasons (a signal, an error)
+into one decision.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import jax
+import numpy as np
 from jax.experimental import multihost_utils
 
 from angora_jax.experiment.config import Config, ConfigError
@@ -48,3 +52,35 @@ def shared_run_dir(config: Config, create: Callable[[Config], Path]) -> Path:
     path = create(config) if is_main_process() else Path(config.logging.run_root) / config.logging.run_name
     multihost_utils.sync_global_devices("angora_jax run directory")
     return path
+
+
+@dataclass(frozen=True)
+class StopDecision:
+    """What all processes do after a cycle: stop for `signum` (a signal some process received, else None), and
+    whether processes `failed` (their indices) with an error of their own."""
+
+    signum: int | None
+    failed: tuple[int, ...]
+
+
+def agree_to_stop(signum: int | None, failed: bool) -> StopDecision:
+    """The stop decision of all processes from this process's reasons: a signal it received (or None) and whether
+    it failed. Any process's signal stops all (the highest signal number wins if several differ); any failure is
+    reported to all. Every process must call it once per cycle, at the same point. On a single process it returns
+    the reasons as they are, without communication; with several it is one tiny all-gather of two int32 each."""
+    if jax.process_count() == 1:
+        return StopDecision(signum, (jax.process_index(),) if failed else ())
+    flags = multihost_utils.process_allgather(np.array([signum or 0, int(failed)], np.int32))
+    return StopDecision(int(flags[:, 0].max()) or None, tuple(int(i) for i in np.flatnonzero(flags[:, 1])))
+
+
+class ProcessFailed(RuntimeError):
+    """Another process of a multi-process run stopped with an error; this one stops after the same cycle."""
+
+    def __init__(self, processes: tuple[int, ...], cycle: int, run_dir: Path):
+        self.processes, self.cycle = processes, cycle
+        super().__init__(
+            f"Process(es) {', '.join(map(str, processes))} of this run failed after cycle {cycle} (their output has "
+            "the error), so this process stops too, without a checkpoint of that cycle; after fixing the cause, "
+            f"continue with: angora-jax resume {run_dir} --distributed"
+        )

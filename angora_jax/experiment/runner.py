@@ -18,7 +18,7 @@ import jax
 from angora_jax.envs.core import Env
 from angora_jax.experiment.checkpoint import Checkpoints
 from angora_jax.experiment.config import Config, load_config, num_devices, to_dict, validate
-from angora_jax.experiment.distributed import is_main_process, shared_run_dir
+from angora_jax.experiment.distributed import ProcessFailed, agree_to_stop, is_main_process, shared_run_dir
 from angora_jax.experiment.monitor import Monitor, set_aside_after
 from angora_jax.experiment.progress import Progress
 from angora_jax.experiment.run_dir import CHECKPOINTS, create_run_dir, read_run_config
@@ -60,7 +60,9 @@ def train(
     config: a Config, or anything `load_config` reads (YAML path, configs/ name, dict, None for defaults), with
     `overrides` (`key.sub=value` strings) applied. on_cycle: called with each cycle's monitor record.
     Raises ConfigError (before compiling) for a bad config, RunDirError when the named run directory exists,
-    TrainingInterrupted after Ctrl-C or SIGTERM (with a checkpoint saved), TrainingDivergedError on NaN.
+    TrainingInterrupted after Ctrl-C or SIGTERM (with a checkpoint saved), TrainingDivergedError on NaN. In a
+    multi-process run (`angora_jax.experiment.distributed`) all processes stop after the same cycle: a signal to any
+    one interrupts all, and an error in one (e.g. in `on_cycle`) raises ProcessFailed in the others.
     """
     if not isinstance(config, Config):
         config = load_config(config, overrides)
@@ -113,19 +115,29 @@ def _run(
     progress = Progress(config.ppo.num_cycles, config.logging.progress if main else "none")
     try:
         with _stop_requests() as stop:
+            # Divergence (TrainingDivergedError) is decided inside training_cycles from a metric that the compiled
+            # cycle reduces over all devices, so every process raises it after the same cycle; every other reason to
+            # stop is this process's own and goes through agree_to_stop, so that all processes stop together.
             for latest, metrics in training_cycles(config.ppo, env, None, state, num_devices(config)):
-                state = latest
-                record = monitor.record(metrics, state) if monitor is not None else metrics
-                history.append(record)
-                progress.update(record)
-                if on_cycle is not None:
-                    on_cycle(record)
+                state, failure = latest, None
+                try:
+                    record = monitor.record(metrics, state) if monitor is not None else metrics
+                    history.append(record)
+                    progress.update(record)
+                    if on_cycle is not None:
+                        on_cycle(record)
+                except Exception as error:  # re-raised below, once the other processes know to stop too
+                    failure = error
                 # Read the request once: a signal arriving during the save is acted on after the next cycle.
-                signum = stop.signum
+                decision = agree_to_stop(stop.signum, failure is not None)
+                if failure is not None:
+                    raise failure
+                if decision.failed:
+                    raise ProcessFailed(decision.failed, int(metrics["cycle"]), run_dir)
                 last = record["cycle"] == config.ppo.num_cycles
-                checkpoints.save(state, record, resolved, final=signum is not None or last)
-                if signum is not None:
-                    raise TrainingInterrupted(signum, run_dir, int(record["cycle"]))
+                checkpoints.save(state, record, resolved, final=decision.signum is not None or last)
+                if decision.signum is not None:
+                    raise TrainingInterrupted(decision.signum, run_dir, int(record["cycle"]))
     finally:
         progress.close()
         if monitor is not None:
