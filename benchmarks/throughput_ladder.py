@@ -27,6 +27,8 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import IO, Any
 
@@ -104,12 +106,25 @@ def run_rung(spec: dict[str, Any], folder: str) -> dict[str, Any]:
     return row
 
 
-def ladder(tasks: list[str], sizes: list[int], settings: dict[str, Any], jobs: int) -> list[dict[str, Any]]:
-    """All rungs, `jobs` processes at a time sharing one device lock; rows in (task, size) order."""
+def ladder(tasks: list[str], sizes: list[int], settings: dict[str, Any], jobs: int,
+           on_row: Callable[[list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
+    """All rungs, `jobs` processes at a time sharing one device lock; rows in (task, size) order. `on_row` gets
+    the rows finished so far after each rung (e.g. to save them before a time limit cuts the run short)."""
+    finished: list[dict[str, Any]] = []
+    guard = threading.Lock()
+
+    def rung(spec: dict[str, Any]) -> dict[str, Any]:
+        row = run_rung(spec, folder)
+        with guard:
+            finished.append(row)
+            if on_row is not None:
+                on_row(list(finished))
+        return row
+
     with tempfile.TemporaryDirectory() as folder, ThreadPoolExecutor(jobs) as pool:
         lock = os.path.join(folder, "device.lock")
         specs = [dict(settings, task=task, num_envs=n, lock=lock) for task in tasks for n in sizes]
-        return list(pool.map(lambda spec: run_rung(spec, folder), specs))
+        return list(pool.map(rung, specs))
 
 
 COLUMNS = [
@@ -154,9 +169,13 @@ def main() -> None:
                 "model": args.model, "repeats": args.repeats}
     tasks = args.tasks.split(",")
     sizes = [int(n) for n in args.num_envs.split(",")]
-    rows = ladder(tasks, sizes, settings, args.jobs)
-    path = write_results("throughput_ladder", {**settings, "tasks": tasks, "num_envs": sizes, "jobs": args.jobs},
-                         rows, args.out)
+    config = {**settings, "tasks": tasks, "num_envs": sizes, "jobs": args.jobs}
+    # This process touches the device only to name it in the results: without preallocation, it leaves the
+    # device's memory to the measuring processes.
+    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+    rows = ladder(tasks, sizes, settings, args.jobs, on_row=lambda done: write_results(
+        "throughput_ladder", config, done, args.out))
+    path = write_results("throughput_ladder", config, rows, args.out)
     print(markdown_table(rows, COLUMNS))
     print(f"wrote {path}")
 
