@@ -186,9 +186,11 @@ def test_warp_without_warp_lang_names_the_package(monkeypatch):
 
 
 def test_pruned_geoms_never_touch_so_pruning_leaves_the_dynamics_unchanged():
-    """The untouched geoms are out of collision in our scenes, and C MuJoCo follows the Gym scene's contacts exactly."""
-    pruned, gym = load_scene("reach.xml", physics=REACH_PHYSICS), load_scene("reach.xml", prune_contacts=False,
-                                                                           physics=REACH_PHYSICS)
+    """The untouched geoms are out of collision in our scenes (and unread sensors gone), and C MuJoCo follows the Gym
+    scene exactly."""
+    pruned = load_scene("reach.xml", physics=REACH_PHYSICS)
+    gym = load_scene("reach.xml", physics=REACH_PHYSICS, prune_contacts=False, sensors=None)
+    assert pruned.nsensor == 0 and gym.nsensor == 29, "reach reads no sensor; the Gym scene has 29"
     assert mjx_impl(pruned) == "jax"
     assert mjx_impl(load_scene("reach.xml", physics=dataclasses.replace(REACH_PHYSICS, impl="warp"))) == "warp"
     for name in UNTOUCHED_GEOMS:

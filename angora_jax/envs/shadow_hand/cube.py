@@ -39,8 +39,6 @@ def load_cube_scene(touch: bool = True, physics: PhysicsSettings = CUBE_PHYSICS,
 
     def edit(spec: mujoco.MjSpec) -> None:
         spec.delete(spec.body("target"))
-        for sensor in list(spec.sensors):
-            if not (touch and sensor.type == mujoco.mjtSensor.mjSENS_TOUCH):
-                spec.delete(sensor)
 
-    return load_scene(SCENE, edit, physics, prune_contacts)
+    sensors = (mujoco.mjtSensor.mjSENS_TOUCH,) if touch else ()
+    return load_scene(SCENE, edit, physics, prune_contacts, sensors)

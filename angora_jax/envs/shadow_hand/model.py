@@ -106,10 +106,13 @@ def remove_from_collision(spec: mujoco.MjSpec, names: tuple[str, ...]) -> None:
 
 
 def load_scene(scene: str = "reach.xml", edit: Callable[[mujoco.MjSpec], None] | None = None,
-               physics: PhysicsSettings = GYM_PHYSICS, prune_contacts: bool = True) -> mujoco.MjModel:
+               physics: PhysicsSettings = GYM_PHYSICS, prune_contacts: bool = True,
+               sensors: tuple[mujoco.mjtSensor, ...] | None = ()) -> mujoco.MjModel:
     """Compile a Gym hand scene (`reach.xml`, `manipulate_block.xml`, ...) with our MJX preparations and `physics`.
 
     prune_contacts: take `UNTOUCHED_GEOMS` out of collision (False keeps the Gym scene's contacts, for comparisons).
+    sensors: the sensor types to keep (None: all of the Gym scene's). MJX evaluates every sensor at every physics
+    step, and the Gym scenes' joint-position sensors only repeat `qpos`: a task keeps only what it reads.
     `edit`, when given, changes the prepared `MjSpec` in place before compiling (a task's own scene changes)."""
     path = os.path.join(asset_dir(), scene)
     if not os.path.exists(path):
@@ -125,6 +128,9 @@ def load_scene(scene: str = "reach.xml", edit: Callable[[mujoco.MjSpec], None] |
         spec.delete(floor)
     if prune_contacts:
         remove_from_collision(spec, UNTOUCHED_GEOMS)
+    for sensor in [] if sensors is None else list(spec.sensors):
+        if sensor.type not in sensors:
+            spec.delete(sensor)
     physics.apply(spec)
     if edit is not None:
         edit(spec)
