@@ -103,7 +103,7 @@ class BraxAdapter(BraxEnv):
 
     @property
     def observation_size(self) -> dict[str, tuple[int, ...]]:
-        shapes = brax_observation(self.env.observation_shapes())
+        shapes = jax.eval_shape(lambda: brax_observation(self.env.reset(jax.random.key(0)).obs))
         return {k: tuple(v.shape) for k, v in shapes.items()}
 
     @property

@@ -36,6 +36,7 @@ def test_adapter_steps_like_the_env_and_leaves_time_limits_to_brax(pendulum):
     first = state.obs["state"]
     np.testing.assert_allclose(first, ours.obs.proprioception)
     assert state.obs["privileged_state"].shape == (3, 3)  # Pendulum has no asymmetric inputs
+    assert side.BraxAdapter(pendulum).observation_size == {"state": (3,), "privileged_state": (3,)}
     step = jax.jit(wrapped.step)
     action = jnp.full((3, 1), 5.0)  # beyond the torque bound: clipped to 2 as our Gaussian head would
     for t in range(1, EPISODE + 1):
