@@ -41,12 +41,14 @@ import jax
 import jax.numpy as jnp
 from brax.envs.base import Env as BraxEnv
 from brax.envs.base import State as BraxState
+from brax.envs.wrappers import training as brax_training
 from brax.training.agents.ppo import networks as brax_networks
 from brax.training.agents.ppo import train as brax_ppo
-from common import RESULTS, markdown_table, write_results
+from common import RESULTS, env_step_rate, markdown_table, measure_compiled, write_results
 from flax import linen
 
 from angora_jax.envs.core import Env, Sensation
+from angora_jax.envs.random_rollout import random_action
 from angora_jax.envs.registry import make
 from angora_jax.nets import ActorCritic, make_network, policy_inputs, value_inputs
 from angora_jax.ppo import NetworkConfig, PPOConfig, build_head, training_cycles
@@ -296,8 +298,29 @@ def at_wall_time(curve: list[dict[str, float]], wall_s: float) -> dict[str, floa
     return reached[-1] if reached else None
 
 
-def compare(env: Env, settings: Settings, eval_envs: int) -> dict[str, Any]:
-    """Train both sides, score their snapshots; rows for the table and both learning curves."""
+def env_alone_rates(env: Env, settings: Settings) -> dict[str, float]:
+    """Env steps/s of each side's environment stepping alone, random actions, `rollout_length` steps of `num_envs`
+    environments per timed run: ours (`env.step`, which computes a fresh reset for every environment at every step
+    and keeps it where an episode ended) and Brax's (`BraxAdapter` under Brax's training wrappers, which copy the
+    stored first state instead). Tells apart the environment's share of a speed difference from the learner's."""
+    n, steps = settings.num_envs, settings.rollout_length
+    ours = env_step_rate(env, n, steps, seed=settings.seed)
+    wrapped = brax_training.wrap(BraxAdapter(env), episode_length=env.max_episode_steps)
+    state = jax.jit(wrapped.reset)(jax.random.split(jax.random.PRNGKey(settings.seed), n))
+
+    def rollout(state, key):
+        def one(state, key):
+            return wrapped.step(state, random_action(env, key, n)), None
+
+        return jax.lax.scan(one, state, jax.random.split(key, steps))[0]
+
+    brax = measure_compiled(rollout, state, jax.random.key(settings.seed + 1))
+    return {"angora_jax": ours["env_steps_per_s"], "brax": n * steps / brax.seconds}
+
+
+def compare(env: Env, settings: Settings, eval_envs: int, env_alone: bool = False) -> dict[str, Any]:
+    """Train both sides, score their snapshots; rows for the table and both learning curves. With `env_alone`,
+    each row also has its environment's rate alone (`env_alone_rates`)."""
     ours = train_ours(env, settings)
     brax, make_brax_policy = train_brax(env, settings)
     curves = {"angora_jax": score(env, ours, ours_act(env, settings.ppo_config()), eval_envs, settings.seed),
@@ -315,6 +338,9 @@ def compare(env: Env, settings: Settings, eval_envs: int) -> dict[str, Any]:
             "return_at_equal_wall": at_wall["episode_return"] if at_wall else None,
             "env_steps_at_equal_wall": at_wall["env_steps"] if at_wall else None,
         })
+    if env_alone:
+        for row, rate in zip(rows, env_alone_rates(env, settings).values(), strict=True):
+            row["env_alone_steps_per_s"] = rate
     rows[0]["speed_over_brax"] = rows[0]["env_steps_per_s"] / rows[1]["env_steps_per_s"]
     return {"rows": rows, "curves": curves}
 
@@ -336,6 +362,8 @@ def main() -> None:
     parser.add_argument("--snapshots", type=int, default=4, help="evaluation points per side (>= 2)")
     parser.add_argument("--eval-envs", type=int, default=16, help="episodes per evaluation")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--env-alone", action="store_true",
+                        help="also time each side's env stepping alone (two more compiles)")
     parser.add_argument("--out", default=None, help="JSON path (default: results/brax_side_by_side_<task>_<platform>)")
     args = parser.parse_args()
 
@@ -350,7 +378,7 @@ def main() -> None:
                         args.learning_rate, args.entropy_coef, args.init_log_std, args.gamma, per_snapshot,
                         args.snapshots, args.seed)
     settings.ppo_config().validate_for(env)
-    result = compare(env, settings, args.eval_envs)
+    result = compare(env, settings, args.eval_envs, args.env_alone)
     rows = result["rows"]
     config = {"task": args.task, "options": json.loads(args.options), "eval_envs": args.eval_envs,
               "settings": dataclasses.asdict(settings), "env_steps": settings.env_steps,
@@ -362,6 +390,7 @@ def main() -> None:
     metric_columns = [(k, k.removeprefix("final_metric/"), ".3f") for k in rows[0] if k.startswith("final_metric/")]
     print(markdown_table(rows, [
         ("trainer", "trainer", "s"), ("env_steps_per_s", "env steps/s (no compile)", ",.0f"),
+        ("env_alone_steps_per_s", "env alone steps/s", ",.0f"),
         ("first_call_extra_s", "first call extra s", ".1f"), ("train_wall_s", "train wall s", ".1f"),
         ("env_steps", "env steps", ",d"), ("final_return", "return (final)", ".2f"), *metric_columns,
         ("return_at_equal_wall", "return at equal wall", ".2f"),

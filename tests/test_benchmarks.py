@@ -58,11 +58,11 @@ def test_side_by_side_trains_both_for_the_same_env_steps(pendulum):
     settings = side.Settings(num_envs=8, rollout_length=4, minibatches=2, epochs=1, width=16, learning_rate=3e-4,
                              entropy_coef=0.01, init_log_std=-1.0, gamma=0.99, cycles_per_snapshot=1, snapshots=2,
                              seed=0)
-    result = side.compare(pendulum, settings, eval_envs=4)
+    result = side.compare(pendulum, settings, eval_envs=4, env_alone=True)
     assert [row["trainer"] for row in result["rows"]] == ["angora_jax", "brax"]
     for row in result["rows"]:
         assert row["env_steps"] == settings.env_steps == 64
-        assert row["env_steps_per_s"] > 0 and row["train_wall_s"] > 0
+        assert row["env_steps_per_s"] > 0 and row["train_wall_s"] > 0 and row["env_alone_steps_per_s"] > 0
         assert -WORST_STEP * EPISODE <= row["final_return"] <= 0
     for curve in result["curves"].values():
         assert [point["env_steps"] for point in curve] == [32, 64]
