@@ -124,6 +124,11 @@ def make_cycle(
         # The global state of all config.num_envs environments, whatever the device count.
         env_key, param_key, key = jax.random.split(key, 3)
         env_state = jax.vmap(env.reset)(jax.random.split(env_key, config.num_envs))
+        # Episode clocks start spread over [0, max_episode_steps): otherwise tasks without early termination (reach)
+        # end every episode on the same step forever, so each cycle's batch holds one phase of the episode only and
+        # consecutive updates chase different phases. The first episodes are shorter.
+        first_steps = jax.random.randint(jax.random.fold_in(env_key, 1), (config.num_envs,), 0, env.max_episode_steps)
+        env_state = env_state.replace(steps=first_steps)
         carry = network.initial_carry(config.num_envs)
         params = model.init(param_key, carry, env_state.obs)["params"]
         zeros = jnp.zeros((config.num_envs,), jnp.float32)
