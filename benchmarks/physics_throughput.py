@@ -26,12 +26,12 @@ s / Newton iterations / line-search iterations): the sweep behind REACH_PHYSICS 
 Throughput: for each configuration and MJX backend (`impl="jax"`; `impl="warp"` for `--warp-configs`, by default
 the tuned scenes, when warp-lang is installed, otherwise a "skipped" row), in a subprocess of its own so that device
 memory peaks do not accumulate, at each batch size in increasing order (so the running peak is the current batch's):
-raw batched physics (`vmap(mjx.step)` in `lax.scan`, fresh uniform random joint targets every policy step) as
-physics steps/s, policy steps/s and sim-s/s (physics steps/s x timestep), compile seconds (and the first call's,
-where Warp builds its kernels), peak device memory (`peak_bytes_in_use`, where the backend reports it: GPUs; Warp's
-own scratch allocations are not in it), and the scene's MJX sizes (contacts, constraint rows, bytes of one
-environment's `mjx.Data`). `--xla-memory` adds XLA's temporary bytes per environment of one batched `mjx.step`
-(`compiled.memory_analysis()`, JAX backend, any device): what a scene's peak memory is made of.
+raw batched physics (`common.raw_mjx_rate`: `vmap(mjx.step)` in `lax.scan` from our tasks' episode starts, fresh
+uniform random joint targets every policy step) as physics steps/s, policy steps/s and sim-s/s (physics steps/s x
+timestep), compile seconds, setup seconds (the reset's compile and the first run, where Warp builds its kernels),
+peak device memory (`peak_bytes_in_use`, where the backend reports it: GPUs; Warp's own scratch allocations are not
+in it), XLA's memory for the program per environment (`compiled.memory_analysis()`, any device: arguments, outputs
+and temporaries), and the scene's MJX sizes (contacts, constraint rows, KiB of one environment's `mjx.Data`).
 
 Fidelity, on C MuJoCo (float64, one thread: it isolates the scene and its settings from float32 effects), against
 the stock scene of the same task:
@@ -69,11 +69,12 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from common import markdown_table, peak_memory_bytes, time_compiled, write_results
+from common import markdown_table, peak_memory_bytes, raw_mjx_rate, write_results
 from mujoco import mjx
 
-from angora_jax.envs.mjx_env import WARP_REQUIREMENT, quiet_iteration_caps, warp_sizes
-from angora_jax.envs.mujoco_task import set_mjx_impl, start_physics
+from angora_jax.envs.core import Sensation
+from angora_jax.envs.mjx_env import WARP_REQUIREMENT, MjxEnv
+from angora_jax.envs.mujoco_task import MujocoTask, set_mjx_impl, start_physics
 from angora_jax.envs.shadow_hand import REACH_PHYSICS
 from angora_jax.envs.shadow_hand.cube import CUBE_PHYSICS, load_cube_scene
 from angora_jax.envs.shadow_hand.ihom import Ihom, angular_distance
@@ -158,80 +159,68 @@ def extra_configs(text: str | None) -> list[Config]:
     return configs
 
 
-def initial_physics(config: Config, model: mujoco.MjModel) -> mujoco.MjData:
-    """C MuJoCo data at the task's start (the cube: its first episode's), the Menagerie hand at its default pose."""
-    if config.task == "reach":
-        task = Reach(model)
-        return start_physics(task, np.asarray(task.initial_qpos(None), np.float64))
-    if config.task == "cube":
-        task = Ihom(model)
-        return start_physics(task, np.asarray(task.initial_qpos(jax.random.key(0)), np.float64))
-    data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
-    return data
+class Idle(MujocoTask):
+    """No task: a model's default pose and raw physics, for scenes without one of our tasks (the Menagerie hand)."""
+
+    def __init__(self, model: mujoco.MjModel):
+        self.model = model
+
+    def initial_qpos(self, key: jax.Array) -> jax.Array:
+        return jnp.asarray(self.model.qpos0, jnp.float32)
+
+    def initial_info(self, key, snap):
+        return {}
+
+    def observe(self, snap, info):
+        return Sensation.make(proprioception=snap.qpos)
+
+    def evaluate(self, key, prev, snap, info):
+        return jnp.zeros(()), jnp.zeros((), bool), info, {}
+
+    def control(self, action, snap):
+        return action
+
+
+TASKS = {"reach": Reach, "cube": Ihom, None: Idle}
 
 
 # ---------------------------------------------------------------- throughput (run in a worker subprocess)
 
 def scene_sizes(model: mujoco.MjModel) -> dict:
-    """MJX (JAX implementation) sizes of one environment: contacts, constraint rows, bytes of `mjx.Data`."""
+    """MJX (JAX implementation) sizes of one environment: contacts, constraint rows, KiB of `mjx.Data`."""
     data = mjx.make_data(model, impl="jax")
     return {"contacts": int(data._impl.contact.dist.shape[0]), "constraint_rows": int(data._impl.efc_J.shape[0]),
             "data_kib_per_env": sum(x.nbytes for x in jax.tree.leaves(data)) / 1024}
 
 
-def xla_temp_per_env(mjx_model: mjx.Model, start: mjx.Data, batch: int) -> float:
-    """XLA's temporary buffer KiB per environment of one `vmap(mjx.step)` over `batch` environments."""
-    data = jax.vmap(lambda _: start)(jnp.arange(batch))
-    compiled = jax.jit(jax.vmap(mjx.step, (None, 0))).lower(mjx_model, data).compile()
-    return compiled.memory_analysis().temp_size_in_bytes / batch / 1024
-
-
 def throughput(config: Config, impl: str, batch: int, policy_steps: int, repeats: int) -> dict:
-    """Raw batched MJX physics of `config` on the default device with fresh uniform random joint targets each
-    policy step: physics and policy steps/s, sim-s/s, compile s."""
+    """Raw batched MJX physics of `config` on the default device (`common.raw_mjx_rate`: fresh uniform random joint
+    targets each policy step, from our tasks' episode starts): physics and policy steps/s, sim-s/s, compile s and
+    XLA's memory for the program."""
     model = config.build(impl)
-    frame_skip = round(config.control_dt / model.opt.timestep)
-    sizes = warp_sizes(model, batch) if impl == "warp" else {}
-    mjx_model = mjx.put_model(model, impl=impl)
-    if impl == "warp":
-        mjx_model = quiet_iteration_caps(mjx_model)
-    start = mjx.put_data(model, initial_physics(config, model), impl=impl, **sizes)
-    low, high = (jnp.asarray(x, jnp.float32) for x in model.actuator_ctrlrange.T)
-    step = jax.vmap(mjx.step, (None, 0))
-
-    def policy_step(data, key):
-        data = data.replace(ctrl=jax.random.uniform(key, (batch, model.nu), minval=low, maxval=high))
-        return jax.lax.fori_loop(0, frame_skip, lambda _, d: step(mjx_model, d), data), None
-
-    def rollout(key):
-        data = jax.vmap(lambda _: start)(jnp.arange(batch))
-        return jax.lax.scan(policy_step, data, jax.random.split(key, policy_steps))[0].qpos
-
+    env = MjxEnv(TASKS[config.task](model), round(config.control_dt / model.opt.timestep), 1000,
+                 warp_max_envs=batch)
     begin = time.perf_counter()
-    compile_s, wall, _ = time_compiled(rollout, jax.random.key(0), repeats=repeats)
-    # Warp builds its kernels in the first call, after XLA's compile: count that call too (at most `repeats` timed
-    # runs follow it, each at least `wall`).
-    first_call_s = time.perf_counter() - begin - compile_s - repeats * wall
-    physics = batch * policy_steps * frame_skip / wall
-    return {"timestep_ms": 1e3 * model.opt.timestep, "frame_skip": frame_skip, "compile_s": compile_s,
-            "first_call_s": first_call_s,
-            "physics_steps_per_s": physics, "policy_steps_per_s": physics / frame_skip,
-            "sim_s_per_s": physics * model.opt.timestep}
+    rate = raw_mjx_rate(env, batch, policy_steps, repeats)
+    # What else the call took: the reset's compile and the first run, where Warp builds its kernels (at most
+    # `repeats` timed runs follow, each at least as long as the rate says).
+    setup_s = time.perf_counter() - begin - rate["compile_s"] - repeats * batch * policy_steps / rate["env_steps_per_s"]
+    physics = rate["env_steps_per_s"] * env.frame_skip
+    memory = rate["memory_bytes"]
+    return {"timestep_ms": 1e3 * model.opt.timestep, "frame_skip": env.frame_skip, "compile_s": rate["compile_s"],
+            "setup_s": setup_s, "physics_steps_per_s": physics, "policy_steps_per_s": rate["env_steps_per_s"],
+            "sim_s_per_s": physics * model.opt.timestep,
+            "xla_kib_per_env": memory / batch / 1024 if memory is not None else None}
 
 
 def worker(args: argparse.Namespace) -> None:
     """Measure one configuration on one backend at each batch size; print one JSON line per batch size."""
     config = next(c for c in all_configs(args) if c.name == args.worker)
-    model = config.build("jax")
-    sizes = scene_sizes(model)
+    sizes = scene_sizes(config.build("jax"))
     for batch in sorted(int(b) for b in args.batch_sizes.split(",")):
         row = {**throughput(config, args.impl, batch, args.policy_steps, args.repeats), **sizes}
         peak = peak_memory_bytes()
         row["peak_memory_gib"] = peak / 2**30 if peak else None
-        if args.xla_memory and args.impl == "jax":
-            start = mjx.put_data(model, initial_physics(config, model))
-            row["xla_temp_kib_per_env"] = xla_temp_per_env(mjx.put_model(model), start, batch)
         print(RESULT_PREFIX + json.dumps({"batch": batch, **row}), flush=True)
 
 
@@ -240,7 +229,6 @@ def run_worker(config: Config, impl: str, batches: str, args: argparse.Namespace
     command = [sys.executable, os.path.abspath(__file__), "--worker", config.name, "--impl", impl,
                "--batch-sizes", batches, "--policy-steps", str(args.policy_steps), "--repeats", str(args.repeats)]
     command += ["--physics", args.physics] if args.physics else []
-    command += ["--xla-memory"] if args.xla_memory else []
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired as error:
@@ -267,7 +255,8 @@ def fingertip_trajectory(config: Config, steps: int) -> np.ndarray:
     """Fingertip positions (m) after each of `steps` policy steps of uniform random relative actions (seed 0),
     shape `(steps, 5, 3)`."""
     model = config.build("jax")
-    task, data = Reach(model), initial_physics(config, model)
+    task = Reach(model)
+    data = start_physics(task, np.asarray(task.initial_qpos(None), np.float64))
     frame_skip = round(config.control_dt / model.opt.timestep)
     tips = []
     for action in np.random.default_rng(0).uniform(-1, 1, (steps, model.nu)):
@@ -417,7 +406,6 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--policy-steps", type=int, default=None, help="policy steps per timed run (CPU: 2)")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--max-minutes", type=float, default=None, help="start no configuration after this")
-    parser.add_argument("--xla-memory", action="store_true", help="XLA temporary bytes per env of one mjx.step")
     parser.add_argument("--no-throughput", action="store_true", help="fidelity only (C MuJoCo)")
     parser.add_argument("--mjx-fidelity", action="store_true",
                         help="check MJX-only changes (contact caps) on MJX against the scene without them")
@@ -485,9 +473,9 @@ def main() -> None:
         ("config", "configuration", "s"), ("impl", "MJX", "s"), ("batch", "envs", "d"),
         ("timestep_ms", "dt ms", "g"), ("physics_steps_per_s", "physics steps/s", ",.0f"),
         ("policy_steps_per_s", "policy steps/s", ",.0f"), ("sim_s_per_s", "sim-s/s", ",.0f"),
-        ("compile_s", "compile s", ".0f"), ("first_call_s", "first call s", ".0f"),
+        ("compile_s", "compile s", ".0f"), ("setup_s", "setup s", ".0f"),
         ("peak_memory_gib", "peak GiB", ".2f"), ("contacts", "contacts", "d"), ("constraint_rows", "rows", "d"),
-        ("xla_temp_kib_per_env", "XLA temp KiB/env", ",.0f"),
+        ("xla_kib_per_env", "XLA KiB/env", ",.0f"),
         ("tip_error_mean_mm", "tip err mean mm", ".2f"), ("tip_error_max_mm", "tip err max mm", ".2f"),
         ("cube_pos_err_mm", "cube pos err mm", ".2f"), ("cube_rot_err_rad", "cube rot err rad", ".3f"),
         ("drop_disagree", "drop disagree", ".2f"), ("random_drop_rate", "random drops", ".2f"),
