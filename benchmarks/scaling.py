@@ -1,8 +1,8 @@
 """Data-parallel scaling: a task config trained for a few cycles on 1 and on D devices with the same totals
 (`ppo.num_envs`, `ppo.minibatch_size` are run totals, see angora_jax/ppo/parallel.py), in one process.
 
-    # 2 GPUs (about 2 minutes for reach, 3 for the cube: one compile per run, ~45 s reach, ~75 s cube):
-    python benchmarks/scaling.py shadow_reach --cycles 12
+    # 2 GPUs (about 1.5 minutes for reach, 3 for the cube: one compile per run, ~30 s reach, ~75 s cube):
+    python benchmarks/scaling.py shadow_reach --cycles 40
     python benchmarks/scaling.py shadow_ihom --cycles 4 ppo.rollout_length=32 ppo.minibatch_size=32768
     # CPU smoke size, 2 forced host devices:
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/scaling.py shadow_reach --cycles 2 \

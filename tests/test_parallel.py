@@ -24,6 +24,7 @@ from angora_jax.ppo import PPOConfig
 from angora_jax.ppo.parallel import per_device
 
 TESTS = Path(__file__).resolve().parent
+BENCHMARKS = TESTS.parent / "benchmarks"
 
 
 @pytest.fixture(scope="module")
@@ -138,3 +139,26 @@ def test_a_failure_in_another_process_stops_this_one_after_the_same_cycle(tmp_pa
     checkpoints = Checkpoints(tmp_path / "peer" / CHECKPOINTS, aj.load_config("cartpole").checkpoint, create=False)
     assert checkpoints.steps("latest") == []
     checkpoints.close()
+
+
+def test_scaling_benchmark_runs_one_and_two_devices_at_smoke_size(tmp_path):
+    out = tmp_path / "scaling.json"
+    tiny = [*TINY_PPO, "ppo.num_envs=8", "ppo.minibatch_size=64"]
+    done = subprocess.run(
+        [sys.executable, str(BENCHMARKS / "scaling.py"), "cartpole", *tiny, "--cycles", "2", "--out", str(out)],
+        cwd=BENCHMARKS,
+        env=os.environ | {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "| CartPole | 2 | 4 |" in done.stdout  # the Markdown table: task, devices, envs per device
+    single, double = json.loads(out.read_text())["results"]
+    assert (single["devices"], double["devices"], double["envs_per_device"]) == (1, 2, 4)
+    assert single["steps_per_s"] > 0 and single["scaling"] == 1.0
+    assert double["scaling"] == pytest.approx(double["steps_per_s"] / single["steps_per_s"])
+    assert all(len(row["cycle_seconds"]) == 2 for row in (single, double))
+    # The same training on 1 and 2 devices, up to float rounding.
+    assert double["max_param_difference"] < 1e-5
+    np.testing.assert_allclose(list(double["final"].values()), list(single["final"].values()), rtol=1e-5, atol=1e-5)
