@@ -16,13 +16,15 @@ from angora_jax.ppo.normalization import normalize_observation
 
 
 def make_evaluate(
-    env: Env, network: nn.Module | None, config: PPOConfig, num_envs: int, deterministic: bool = True
+    env: Env, network: nn.Module | None, config: PPOConfig, num_envs: int, deterministic: bool = True,
+    per_episode: bool = False,
 ) -> Callable[[TrainState, jax.Array], dict[str, jax.Array]]:
     """Build the jitted `evaluate(state, key) -> metrics` for the same env, network and config as training.
 
     Each of `num_envs` fresh environments runs exactly one episode (up to `env.max_episode_steps` steps), acting with
     the head's mode (or sampling, when not `deterministic`); observation stats are read, never updated. Metrics:
-    episode_return and episode_length (means over environments), `metric/<name>` at each episode's end.
+    episode_return and episode_length (means over environments), `metric/<name>` at each episode's end; with
+    `per_episode`, each environment's values (arrays `(num_envs,)`) instead of the means.
     """
     network = make_network(config.network) if network is None else network
     head = build_head(env, config)
@@ -52,6 +54,6 @@ def make_evaluate(
         totals = {"episode_return": zeros, "episode_length": zeros, **{f"metric/{k}": zeros for k in env.metric_names}}
         carry = (env_state, network.initial_carry(num_envs), jnp.ones_like(zeros), totals)
         (_, _, _, totals), _ = jax.lax.scan(step, carry, jax.random.split(act_key, env.max_episode_steps))
-        return {name: value.mean() for name, value in totals.items()}
+        return totals if per_episode else {name: value.mean() for name, value in totals.items()}
 
     return jax.jit(evaluate)
