@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +11,7 @@ import jax
 
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.experiment.checkpoint import Checkpoints
-from angora_jax.experiment.config import Config, validate
+from angora_jax.experiment.config import Config, DistributionConfig, validate
 from angora_jax.experiment.run_dir import CHECKPOINTS, read_run_config
 from angora_jax.experiment.runner import initial_state_shape
 from angora_jax.nets import ActorCritic, make_network
@@ -78,7 +78,10 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best") -> Agent:
     """The policy saved in `run_dir`. checkpoint: "best" (falls back to "latest" when the run keeps no best),
     "latest", or a cycle number with a checkpoint (see `RUN_DIR/checkpoints`)."""
     config = read_run_config(run_dir)
-    env = validate(config)
+    # Acting needs the task and the model, not the training machine: a run trained on more devices or with TensorBoard
+    # (and copied here) loads too.
+    here = replace(config, distribution=DistributionConfig(), logging=replace(config.logging, tensorboard=False))
+    env = validate(here)
     checkpoints = Checkpoints(Path(run_dir) / CHECKPOINTS, config.checkpoint, create=False)
     try:
         which = "latest" if checkpoint == "best" and not checkpoints.steps("best") else checkpoint
