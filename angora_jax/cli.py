@@ -27,6 +27,7 @@ from angora_jax.experiment import (
     RunDirError,
     TrainingInterrupted,
     TrainingRun,
+    evaluation,
     read_metrics,
     resume,
     train,
@@ -120,6 +121,10 @@ def parser() -> argparse.ArgumentParser:
     evaluate.add_argument(
         "--stochastic", "--sample", action="store_true", help="sample actions instead of taking the mode"
     )
+    evaluate.add_argument("--batch", type=positive_int, default=evaluation.DEFAULT_BATCH,
+                          help="episodes run at once (default: %(default)s); results do not depend on it")
+    evaluate.add_argument("--workers", type=positive_int, default=1,
+                          help="threads stepping C MuJoCo physics (default: 1); results do not depend on it")
     evaluate.set_defaults(handler=command_evaluate)
 
     render = commands.add_parser("render", help="a video of a trained policy (or random actions) on a MuJoCo task")
@@ -202,14 +207,14 @@ def print_finished(run: TrainingRun) -> None:
 
 
 def command_evaluate(args: argparse.Namespace) -> int:
-    from angora_jax.experiment.evaluation import evaluate  # matplotlib only when evaluating
-
     checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
-    result = evaluate(args.run_dir, checkpoint, args.episodes, args.stochastic, args.seed)
+    result = evaluation.evaluate(args.run_dir, checkpoint, args.episodes, args.stochastic, args.seed,
+                                 batch=args.batch, workers=args.workers)
     meta = result.meta
     actions = "sampled" if args.stochastic else "deterministic (mode)"
-    print(f"{args.run_dir}, checkpoint of cycle {meta['cycle']}, {args.episodes} episodes on {meta['physics']}, "
-          f"{actions} actions, {meta['wall_seconds']:.1f} s:")
+    threads = f", {meta['workers']} threads stepping physics" if meta["workers"] > 1 else ""
+    print(f"{args.run_dir}, checkpoint of cycle {meta['cycle']}, {args.episodes} episodes on {meta['physics']} "
+          f"({meta['batch']} at a time{threads}), {actions} actions, {meta['wall_seconds']:.1f} s:")
     print(f"  {'':>22} {'mean':>9} {'median':>9} {'mode':>9} {'stderr':>9}")
     for name, stats in result.summary.items():
         print(f"  {name:>22} " + " ".join(f"{stats[k]:9.4g}" for k in ("mean", "median", "mode", "stderr")))

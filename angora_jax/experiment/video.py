@@ -14,12 +14,12 @@ from typing import Any
 
 import numpy as np
 
-from angora_jax.envs.core import State
-from angora_jax.envs.cpu_env import CpuEnv, eager, single_env_functions
+from angora_jax.envs.cpu_env import CpuEnv
+from angora_jax.envs.eager_batch import EagerBatch
 from angora_jax.envs.registry import make
 from angora_jax.envs.rendering import RenderError, SceneRenderer, camera_named
 from angora_jax.experiment.agent import load_agent
-from angora_jax.experiment.evaluation import agent_policy, episode_keys, random_policy, run_episode
+from angora_jax.experiment.evaluation import agent_policy, episode_keys, on_host, random_policy, run_episodes
 
 
 def render_frames(run_dir: str | Path | None = None, *, task: str | None = None, checkpoint: str | int = "best",
@@ -41,27 +41,25 @@ def _render(run_dir: str | Path | None, task: str | None, checkpoint: str | int 
     """`render_frames` and the seconds of simulated time per frame."""
     if (run_dir is None) == (task is None):
         raise ValueError("Give either run_dir (a trained policy) or task (random actions), not both or neither.")
-    if run_dir is not None:
-        agent = load_agent(run_dir, checkpoint)
-        env, policy, initial_carry = eager(agent.env), agent_policy(agent, stochastic), agent.initial_carry
-    else:
-        env = eager(make(task, **(task_options or {})))
-        policy, initial_carry = random_policy(env), lambda batch_size: None
-    if not isinstance(env, CpuEnv):
-        raise RenderError(f"Task {type(env).__name__} has no MuJoCo scene to render; only MuJoCo tasks have videos.")
-    renderer = SceneRenderer(env.model, env.task.camera_body, camera_named(camera), width, height)
-    frames: list[np.ndarray] = []
-
-    def record(state: State) -> None:
-        frames.append(renderer.render(env.data))
-
-    functions = single_env_functions(env)
-    try:
-        for reset_key, act_key in zip(*episode_keys(seed, episodes), strict=True):
-            run_episode(env, policy, initial_carry(1), reset_key, act_key, on_step=record, functions=functions)
-    finally:
-        renderer.close()
-    return frames, env.dt
+    with on_host():
+        if run_dir is not None:
+            agent = load_agent(run_dir, checkpoint)
+            env, policy, carry = agent.env, agent_policy(agent, stochastic), agent.initial_carry(1)
+        else:
+            env = make(task, **(task_options or {}))
+            policy, carry = random_policy(env), None
+        with EagerBatch(env, 1) as batch:
+            if not isinstance(batch.env, CpuEnv):
+                raise RenderError(f"Task {type(batch.env).__name__} has no MuJoCo scene to render; only MuJoCo tasks "
+                                  "have videos.")
+            renderer = SceneRenderer(batch.env.model, batch.env.task.camera_body, camera_named(camera), width, height)
+            frames: list[np.ndarray] = []
+            try:
+                run_episodes(batch, policy, carry, *episode_keys(seed, episodes),
+                             on_step=lambda episode, slot: frames.append(renderer.render(batch.physics(slot))))
+            finally:
+                renderer.close()
+    return frames, batch.env.dt
 
 
 def render_video(out: str | Path, run_dir: str | Path | None = None, *, task: str | None = None,
