@@ -1,26 +1,43 @@
-"""Evaluation on the eager CPU path (statistics, JSON, box plot, clear errors) and videos of MuJoCo tasks."""
+"""Evaluation on the eager CPU path (statistics, JSON, box plot, clear errors, many episodes at a time, runs copied
+from another machine), the MJX/CPU agreement tool, and videos of MuJoCo tasks."""
 
 import json
+import os
 import shutil
+import sys
+from pathlib import Path
 
+import jax
 import mujoco
 import numpy as np
 import pytest
+import yaml
 from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.cli import main
+from angora_jax.envs.cpu_env import CpuEnv
+from angora_jax.envs.eager_batch import EagerBatch
 from angora_jax.envs.rendering import RenderError
+from angora_jax.experiment.evaluation import agreement, episode_keys, on_host, random_policy, run_episodes
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
+import path_agreement  # noqa: E402
 
 PNG_MAGIC = b"\x89PNG"
 
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
+    """A short recurrent CartPole run, trained under one folder and then moved to another (the folder it was trained
+    in is gone), as a run copied from another machine is."""
     root = tmp_path_factory.mktemp("runs")
-    overrides = [*TINY_PPO, "ppo.num_cycles=20", f"logging.run_root={root}", "logging.run_name=cartpole",
-                 "logging.report=false", "logging.progress=none"]
-    return aj.train(aj.load_config("cartpole", overrides)).run_dir
+    overrides = [*TINY_PPO, "ppo.num_cycles=20", "ppo.network.name=lstm", f"logging.run_root={root / 'trained'}",
+                 "logging.run_name=cartpole", "logging.report=false", "logging.progress=none"]
+    trained = aj.train(aj.load_config("cartpole", overrides)).run_dir
+    moved = Path(shutil.move(trained, root / "cartpole"))
+    shutil.rmtree(root / "trained")
+    return moved
 
 
 def gl_problem() -> str | None:
@@ -44,20 +61,74 @@ def test_evaluate_writes_statistics_json_and_box_plot_without_overwriting(run_di
     assert record["cycle"] == 20 and record["stochastic"] is False
     assert result.plot_path.read_bytes().startswith(PNG_MAGIC) and result.plot_path.stat().st_size > 5000
     first = result.json_path.read_text()
-    again = aj.evaluate(run_dir, "latest", episodes=6)
+    again = aj.evaluate(run_dir, "latest", episodes=6, batch=1)
     assert again.json_path != result.json_path and result.json_path.read_text() == first
-    # Mode actions from the same keys: the same episodes again.
+    # Mode actions from the same keys: the same episodes again, one at a time as all six at once.
+    assert record["batch"] == 6 and again.meta["batch"] == 1
     assert again.episodes["episode_return"].tolist() == returns.tolist()
 
 
-def test_cpu_and_batched_paths_agree_within_three_standard_errors(run_dir):
-    episodes = 16
-    cpu = aj.evaluate(run_dir, "latest", episodes=episodes, save=False)
-    batched = aj.load_agent(run_dir, "latest").evaluate(num_envs=episodes, seed=0)
-    stats = cpu.summary["episode_return"]
-    # Both paths start episode i from the same key and act with the mode, so the means agree far more closely than
-    # the statistical error; the bound is 3 standard errors of the CPU mean (+1 for one rounding-flipped step).
-    assert abs(batched["episode_return"] - stats["mean"]) <= 3 * stats["stderr"] + 1
+def test_agreement_compares_means_in_standard_errors_of_the_difference():
+    rng = np.random.default_rng(0)
+    a = rng.normal(0.0, 1.0, 400)
+    same = agreement(a, rng.normal(0.0, 1.0, 400))
+    assert same["agree"] and same["stderr_diff"] == pytest.approx(np.hypot(same["stderr_a"], same["stderr_b"]))
+    shifted = agreement(a, a + 0.5)  # 0.5 apart with a standard error of the difference of about 0.07
+    assert not shifted["agree"] and shifted["diff_in_stderr"] < -3 and shifted["stderr_paired"] == pytest.approx(0)
+    assert agreement(np.full(8, 100.0), np.full(8, 100.0))["agree"]
+    constant = agreement(np.full(8, 100.0), np.full(8, 99.0))
+    assert not constant["agree"] and constant["diff_in_stderr"] is None
+
+
+def test_cpu_and_batched_paths_agree_by_the_path_agreement_tool(run_dir, tmp_path, capsys):
+    out = tmp_path / "agreement.json"
+    assert path_agreement.main([str(run_dir), "--episodes", "16", "--batch", "5", "--out", str(out)]) == 0
+    assert "PASS" in capsys.readouterr().out
+    record = json.loads(out.read_text())
+    assert record["config"]["verdict"] == "PASS" and record["config"]["cpu_batch"] == 5
+    rows = {row["quantity"]: row for row in record["results"]}
+    assert list(rows) == ["episode_return", "episode_length"] and all(row["agree"] for row in rows.values())
+    # Both paths start episode i from the same key and act with the mode: the means differ by far less than the bound.
+    assert abs(rows["episode_return"]["diff"]) < 3 * rows["episode_return"]["stderr_diff"]
+    assert rows["episode_return"]["cpu_stderr"] > 0 and rows["episode_return"]["mjx_stderr"] > 0
+
+
+def test_c_mujoco_batch_matches_its_twin_whatever_the_batch_and_threads():
+    env = aj.make("ShadowHandReach", max_episode_steps=4)
+    twin = CpuEnv(env.task, env.frame_skip, env.max_episode_steps)  # shared, so its functions compile once
+    reset_keys, act_keys = episode_keys(0, 3)
+    with on_host():
+        policy = random_policy(env)
+        runs = []
+        for size, workers in ((1, 1), (2, 2)):
+            with EagerBatch(twin, size, workers) as batch:
+                assert batch.workers == workers
+                runs.append(run_episodes(batch, policy, None, reset_keys, act_keys))
+        for name, values in runs[0].items():
+            np.testing.assert_array_equal(runs[1][name], values, err_msg=name)
+        # Episode 0 step by step on the C MuJoCo twin alone, with the same actions, gives the same episode.
+        state, total = twin.reset(reset_keys[0]), 0.0
+        while not state.done:
+            _, action = policy(None, None, act_keys[:1], np.array([state.steps]), np.array([False]))
+            state = twin.step(state, action[0])
+            total += float(state.reward)
+    assert runs[0]["episode_length"][0] == 4
+    assert runs[0]["episode_return"][0] == pytest.approx(total, rel=1e-5)
+    assert runs[0]["metric/goal_distance"][0] == pytest.approx(float(state.metrics["goal_distance"]), rel=1e-5)
+
+
+def test_a_run_from_a_bigger_machine_evaluates_here(run_dir, tmp_path, capsys):
+    copy = tmp_path / "from-gpu-machine"
+    shutil.copytree(run_dir, copy, ignore=shutil.ignore_patterns("evaluation"))
+    config = yaml.safe_load((copy / "config.yaml").read_text())
+    config["distribution"]["num_devices"] = jax.device_count() + 3  # trained on more devices than this machine has
+    config["logging"] |= {"run_root": "/home/someone/runs", "tensorboard": True}
+    (copy / "config.yaml").write_text(yaml.safe_dump(config))
+    assert main(["evaluate", str(copy), "--checkpoint", "latest", "--episodes", "2"]) == 0
+    assert len(list((copy / "evaluation").glob("latest-cycle20-*.json"))) == 1
+    # Render loads the same way; CartPole then has no scene to draw.
+    assert main(["render", str(copy), "--checkpoint", "latest", "--out", str(tmp_path / "cartpole.gif")]) == 2
+    assert "no MuJoCo scene" in capsys.readouterr().err
 
 
 def test_missing_and_corrupt_checkpoints_exit_2_naming_cause_and_fix(run_dir, tmp_path, capsys):
@@ -77,10 +148,19 @@ def test_missing_and_corrupt_checkpoints_exit_2_naming_cause_and_fix(run_dir, tm
     assert "saved none yet" in capsys.readouterr().err
 
 
-def test_cli_evaluate_prints_statistics_and_the_files(run_dir, capsys):
-    assert main(["evaluate", str(run_dir), "--checkpoint", "latest", "--episodes", "2", "--stochastic"]) == 0
+def test_cli_evaluate_prints_statistics_and_sampled_episodes_do_not_depend_on_the_batch(run_dir, capsys):
+    args = ["evaluate", str(run_dir), "--checkpoint", "latest", "--episodes", "7", "--stochastic"]
+    assert main([*args, "--batch", "3", "--workers", "2"]) == 0
     out = capsys.readouterr().out
-    assert "episode_return" in out and "median" in out and "Written:" in out and "stochastic" in out
+    assert "episode_return" in out and "median" in out and "Written:" in out and "3 at a time" in out
+    written = json.loads(Path(out.split("Written: ")[1].split(" and ")[0]).read_text())
+    assert written["stochastic"] is True and written["batch"] == 3
+    # Each episode samples from its own keys, and the recurrent carry restarts with every episode a slot takes on
+    # (CartPole episodes end at different steps, so slots take new ones at different times): one at a time, the same.
+    one = aj.evaluate(run_dir, "latest", episodes=7, stochastic=True, save=False, batch=1)
+    assert len(set(one.episodes["episode_length"])) > 1
+    for name, values in one.episodes.items():
+        assert written["per_episode"][name] == values.tolist(), name
 
 
 def test_render_frames_of_random_actions_differ():
