@@ -150,11 +150,15 @@ def extra_configs(text: str | None) -> list[Config]:
         if not item:
             continue
         task, _, numbers = item.partition(":")
-        timestep, iterations, ls = numbers.split("/")
-        physics = PhysicsSettings(float(timestep), int(iterations), int(ls))
         make = {"reach": reach_config, "cube": cube_config}.get(task)
+        usage = f"--physics {item!r}: expected reach|cube:timestep/iterations/ls_iterations, e.g. cube:0.004/4/8"
+        try:
+            timestep, iterations, ls = numbers.split("/")
+            physics = PhysicsSettings(float(timestep), int(iterations), int(ls))
+        except ValueError as error:
+            raise SystemExit(f"{usage} ({error}).") from None
         if make is None:
-            raise SystemExit(f"--physics {item!r}: the task must be reach or cube (e.g. cube:0.004/4/8).")
+            raise SystemExit(f"{usage} (unknown task {task!r}).")
         configs.append(make(f"{task} {float(timestep) * 1e3:g} ms {iterations}/{ls}", physics))
     return configs
 
