@@ -164,7 +164,20 @@ def data_parallel(
     shardings = jax.tree.map(lambda spec: NamedSharding(mesh, spec), specs, is_leaf=lambda x: isinstance(x, P))
     # Environments build some state from constants (e.g. empty modalities), which the varying-manual-axes check
     # would reject as a scan carry changing type; replication of the P() outputs is ensured by the collectives.
-    mapped = jax.jit(jax.shard_map(cycle, mesh=mesh, in_specs=(specs,), out_specs=(specs, P()), check_vma=False))
+    compiled = jax.jit(jax.shard_map(cycle, mesh=mesh, in_specs=(specs,), out_specs=(specs, P()), check_vma=False))
+
+    def mapped(state: Any) -> tuple[Any, dict[str, jax.Array]]:
+        if mesh.devices.flat[0].platform != "gpu":
+            return compiled(state)
+        # XLA's GPU compiler segfaults on this program under the Shardy partitioner (jax 0.11.2, two H200s: a
+        # plain shard_map psum compiles, the cycle crashes in backend_compile_and_load, CartPole as well as reach);
+        # GSPMD compiles and runs it. The flag is part of jit's cache key, so setting it around the call suffices.
+        previous = jax.config.jax_use_shardy_partitioner
+        jax.config.update("jax_use_shardy_partitioner", False)
+        try:
+            return compiled(state)
+        finally:
+            jax.config.update("jax_use_shardy_partitioner", previous)
 
     def place(state: Any) -> Any:
         return jax.tree.map(
