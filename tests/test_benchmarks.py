@@ -1,8 +1,10 @@
 """Smoke tests of the benchmark scripts at tiny sizes on pure-JAX tasks (no MJX compiles): the Brax adapter, Brax's
 PPO and ours side by side, and rungs of the throughput ladder, each in its own process."""
 
+import json
 import math
 import os
+import subprocess
 import sys
 
 import jax
@@ -94,3 +96,19 @@ def test_angorapy_ratio_divides_our_measured_rate_by_the_papers():
     record["config"]["args"]["task"] = "ShadowHandReach"
     with pytest.raises(ValueError, match="ShadowHandCube"):
         angorapy_ratio.ratios(record)
+
+
+def test_time_to_solve_reports_each_seed_and_their_spread(tmp_path):
+    out = tmp_path / "tts.json"
+    script = os.path.join(os.path.dirname(side.__file__), "time_to_solve.py")
+    # CartPole's return passes 20 within a few cycles of 16 envs.
+    subprocess.run([sys.executable, script, "--seeds", "0", "1", "--target", "episode_return=20", "--minutes", "1",
+                    "--out", str(out), "--", "--task", "CartPole", "--cycles", "4", "--width", "16"], check=True)
+    record = json.loads(out.read_text())
+    rows, summary = record["results"], record["config"]["summary"]
+    assert [r["seed"] for r in rows] == [0, 1]
+    assert summary["seeds"] == 2 and summary["solved"] == sum(r["solved"] for r in rows)
+    solved = [r for r in rows if r["solved"]]
+    assert solved, "CartPole should pass a return of 20 within 4 cycles"
+    assert summary["env_steps"]["min"] == min(r["env_steps"] for r in solved)
+    assert all(r["wall_seconds"] > 0 and r["env_steps"] <= r["steps_run"] for r in solved)
