@@ -3,15 +3,19 @@ an uninterrupted run; best and snapshot checkpoints are kept; run directories ar
 
 import json
 import os
+import shutil
 import signal
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
+import yaml
 from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.experiment import Checkpoints, RunDirError, TrainingInterrupted, read_metrics, resume
+from angora_jax.experiment.checkpoint import CheckpointError
 from angora_jax.experiment.monitor import set_aside_after
 from angora_jax.experiment.run_dir import CHECKPOINTS
 
@@ -74,6 +78,40 @@ def test_resume_equals_uninterrupted(runs):
         np.testing.assert_array_equal(a, b)
     # The split run's log holds each cycle once, like the whole run's.
     assert [r["cycle"] for r in read_metrics(resumed.run_dir)] == [1, 2, 3, 4]
+
+
+def test_acting_reads_only_parameters_and_statistics(runs, tmp_path):
+    """A checkpoint whose stored environment states no longer fit the task (as reach's did after its scene dropped
+    contacts) still loads for acting, with the same parameters and actions; resuming it, or loading it under a
+    config whose network differs, stops with the cause and the fix."""
+    whole = runs[0]
+    changed_dir = tmp_path / "changed"
+    shutil.copytree(whole.run_dir, changed_dir, ignore=shutil.ignore_patterns(CHECKPOINTS))
+    actor = whole.state.actor
+    physics = jax.tree.map(lambda x: jnp.concatenate([x, x], axis=-1), actor.env_state.physics)
+    changed = whole.state.replace(actor=actor.replace(env_state=actor.env_state.replace(physics=physics)))
+    saver = Checkpoints(changed_dir / CHECKPOINTS, config(tmp_path, "changed").checkpoint)
+    assert saver.save(changed, {}, {}, final=True)[0] == "latest"
+    saver.close()
+
+    agent = aj.load_agent(changed_dir, "latest")
+    assert agent.cycle == 4
+    for a, b in zip(jax.tree.leaves((agent.params, agent.state.obs_stats)),
+                    jax.tree.leaves((whole.state.params, whole.state.obs_stats)), strict=True):
+        np.testing.assert_array_equal(a, b)
+    obs = actor.env_state.obs
+    carry = actor.carry
+    np.testing.assert_array_equal(agent.act(carry, obs)[1], aj.load_agent(whole.run_dir, "latest").act(carry, obs)[1])
+
+    with pytest.raises(CheckpointError, match=r"actor\.env_state\.physics.*stored \(4, 8\).*expected \(4, 4\).*"
+                                              r"Evaluating and rendering still work"):
+        resume(changed_dir)
+    saved = yaml.safe_load((changed_dir / "config.yaml").read_text())
+    saved["ppo"]["network"]["width"] = 32
+    (changed_dir / "config.yaml").write_text(yaml.safe_dump(saved))
+    with pytest.raises(CheckpointError, match=r"params\..*stored \(.*16\).*expected \(.*32\).*do not fit the "
+                                              r"network.*Restore the config the run was trained with"):
+        aj.load_agent(changed_dir, "latest")
 
 
 def test_checkpoint_kinds_and_monitor_records(runs, tmp_path):

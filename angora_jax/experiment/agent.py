@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import importlib.util
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import flax.linen as nn
 import jax
+from flax import struct
 
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.experiment.checkpoint import Checkpoints
@@ -15,10 +17,22 @@ from angora_jax.experiment.config import Config, DistributionConfig, validate
 from angora_jax.experiment.run_dir import CHECKPOINTS, read_run_config
 from angora_jax.experiment.runner import initial_state_shape
 from angora_jax.nets import ActorCritic, make_network
-from angora_jax.ppo.cycle import TrainState, build_head
+from angora_jax.ppo.cycle import build_head
 from angora_jax.ppo.distributions import PolicyHead
 from angora_jax.ppo.evaluate import make_evaluate
 from angora_jax.ppo.normalization import normalize_observation
+
+
+@struct.dataclass
+class PolicyState:
+    """What acting needs from a checkpoint: `params` (network parameters), `obs_stats` (a Sensation of
+    `RunningMeanStd`, the observation normaliser) and `cycle` (int32, the training cycle it was saved at). Named as in
+    `TrainState`, so it is read from a checkpoint under the same paths, and it serves where `make_evaluate` takes a
+    TrainState."""
+
+    params: Any
+    obs_stats: Sensation
+    cycle: jax.Array
 
 
 @dataclass(frozen=True)
@@ -26,15 +40,17 @@ class Agent:
     """A trained policy with everything needed to run it.
 
     config: the run's config. env: its task. network: the policy/value network module. head: the policy head.
-    state: the restored TrainState (params, normaliser statistics, ...). cycle: the training cycle it was saved at.
+    state: the restored `PolicyState` (params, normaliser statistics). cycle: the training cycle it was saved at.
     """
 
     config: Config
     env: Env
     network: nn.Module
     head: PolicyHead
-    state: TrainState
+    state: PolicyState
     cycle: int
+    # Jitted evaluations by (num_envs, deterministic): the state is their argument, so later calls do not recompile.
+    _evaluations: dict[tuple[int, bool], Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def model(self) -> ActorCritic:
@@ -70,23 +86,49 @@ class Agent:
     def evaluate(self, num_envs: int = 16, seed: int = 0, deterministic: bool = True) -> dict[str, float]:
         """One episode in each of `num_envs` fresh environments; means of episode_return, episode_length and the
         task metrics at episode ends (see `angora_jax.ppo.make_evaluate`)."""
-        evaluate = make_evaluate(self.env, self.network, self.config.ppo, num_envs, deterministic)
+        if (num_envs, deterministic) not in self._evaluations:
+            self._evaluations[num_envs, deterministic] = make_evaluate(
+                self.env, self.network, self.config.ppo, num_envs, deterministic
+            )
+        evaluate = self._evaluations[num_envs, deterministic]
         return {k: float(v) for k, v in evaluate(self.state, jax.random.key(seed)).items()}
 
 
 def load_agent(run_dir: str | Path, checkpoint: str | int = "best") -> Agent:
     """The policy saved in `run_dir`. checkpoint: "best" (falls back to "latest" when the run keeps no best),
-    "latest", or a cycle number with a checkpoint (see `RUN_DIR/checkpoints`)."""
+    "latest", or a cycle number with a checkpoint (see `RUN_DIR/checkpoints`).
+
+    Only the parameters and observation statistics are read: the training environments' states in the checkpoint
+    may have another layout than the current task's (e.g. the scene changed since training). Raises CheckpointError
+    when the parameters do not fit the config's network.
+    """
     config = read_run_config(run_dir)
-    # Acting needs the task and the model, not the training machine: a run trained on more devices or with TensorBoard
-    # (and copied here) loads too.
-    here = replace(config, distribution=DistributionConfig(), logging=replace(config.logging, tensorboard=False))
+    # Acting needs the task and the model, not the training machine: a run trained on more devices, with TensorBoard
+    # or with MuJoCo Warp (and copied here) loads too.
+    here = replace(
+        config,
+        env=replace(config.env, options=_without_missing_warp(config.env.options)),
+        distribution=DistributionConfig(),
+        logging=replace(config.logging, tensorboard=False),
+    )
     env = validate(here)
+    shape = initial_state_shape(here, env)
+    template = PolicyState(params=shape.params, obs_stats=shape.obs_stats, cycle=shape.cycle)
     checkpoints = Checkpoints(Path(run_dir) / CHECKPOINTS, config.checkpoint, create=False)
     try:
         which = "latest" if checkpoint == "best" and not checkpoints.steps("best") else checkpoint
-        restored = checkpoints.restore(initial_state_shape(config, env), which)
+        state = checkpoints.restore(template, which, partial=True).state
     finally:
         checkpoints.close()
     network = make_network(config.ppo.network)
-    return Agent(config, env, network, build_head(env, config.ppo), restored.state, int(restored.state.cycle))
+    return Agent(config, env, network, build_head(env, config.ppo), state, int(state.cycle))
+
+
+def _without_missing_warp(options: dict[str, Any]) -> dict[str, Any]:
+    """Env options with MJX's own implementation ("jax") in place of MuJoCo Warp when warp-lang is not installed: the
+    same model and policy, only the batched physics of `Agent.evaluate` computed another way (the eager evaluation
+    path steps C MuJoCo either way)."""
+    physics = options.get("physics") or {}
+    if physics.get("impl") != "warp" or importlib.util.find_spec("warp") is not None:
+        return options
+    return {**options, "physics": {**physics, "impl": "jax"}}

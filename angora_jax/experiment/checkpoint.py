@@ -3,6 +3,9 @@
 Each checkpoint holds the whole `TrainState` (params, optimizer state, normaliser statistics, environment states,
 recurrent carries, PRNG keys, cycle counter) plus JSON metadata (cycle, env steps, the cycle's metrics and the
 resolved config), so that a resumed run continues bit-for-bit. Layout: `checkpoints/{latest,best,snapshots}/<cycle>/`.
+Each leaf is stored under its own path (`to_storable`), so a sub-tree (e.g. only params and normaliser statistics for
+acting) can be read without the rest (`Checkpoints.restore(..., partial=True)`): the environment states' layout may
+have changed since saving.
 """
 
 from __future__ import annotations
@@ -18,7 +21,6 @@ import orbax.checkpoint as ocp
 
 from angora_jax.experiment.config import CheckpointConfig
 from angora_jax.experiment.run_dir import RunDirError
-from angora_jax.ppo.cycle import TrainState
 
 KINDS = ("latest", "best", "snapshots")
 
@@ -57,9 +59,10 @@ class CheckpointError(RunDirError):
 
 @dataclass(frozen=True)
 class Restored:
-    """A state read back from a checkpoint and its metadata (cycle, env_steps, metrics, config)."""
+    """A state read back from a checkpoint (shaped like the template it was restored into) and its metadata (cycle,
+    env_steps, metrics, config)."""
 
-    state: TrainState
+    state: Any
     meta: dict[str, Any]
 
 
@@ -81,7 +84,8 @@ class Checkpoints:
                 options=ocp.CheckpointManagerOptions(
                     max_to_keep=keep[kind], create=create, enable_async_checkpointing=False
                 ),
-                item_names=("state", "meta"),
+                # Handlers named up front: the stored shapes can be read (item_metadata) before anything is restored.
+                item_handlers={"state": ocp.PyTreeCheckpointHandler(), "meta": ocp.JsonCheckpointHandler()},
             )
             for kind in KINDS
         }
@@ -93,7 +97,7 @@ class Checkpoints:
         return sorted(self._managers[kind].all_steps())
 
     def save(
-        self, state: TrainState, metrics: dict[str, float], config: dict[str, Any], final: bool = False
+        self, state: Any, metrics: dict[str, float], config: dict[str, Any], final: bool = False
     ) -> list[str]:
         """Save what is due after this cycle (latest every `every` cycles or when `final`; best when the metric
         improved; a snapshot every `snapshot_every` cycles) and return the kinds saved."""
@@ -110,18 +114,21 @@ class Checkpoints:
             if is_due and cycle not in self._managers[kind].all_steps():
                 storable = to_storable(state)
                 self._managers[kind].save(
-                    cycle, args=ocp.args.Composite(state=ocp.args.StandardSave(storable), meta=ocp.args.JsonSave(meta))
+                    cycle, args=ocp.args.Composite(state=ocp.args.PyTreeSave(storable), meta=ocp.args.JsonSave(meta))
                 )
                 saved.append(kind)
         if "best" in saved:
             self.best_value = metrics[self.config.best_metric]
         return saved
 
-    def restore(self, template: TrainState, which: str | int = "latest") -> Restored:
-        """Read a state shaped like `template` (a TrainState or its `jax.eval_shape`).
+    def restore(self, template: Any, which: str | int = "latest", partial: bool = False) -> Restored:
+        """Read a state shaped like `template` (a TrainState, any tree of arrays, or its `jax.eval_shape`).
 
-        which: "latest", "best", or a cycle number (found among latest, best and snapshots). Raises
-        FileNotFoundError listing what exists when there is no such checkpoint.
+        which: "latest", "best", or a cycle number (found among latest, best and snapshots). partial: read only the
+        leaves `template` has (e.g. params and normaliser statistics, stored under the same paths as in the
+        TrainState) and ignore the others, whatever their shapes; otherwise the checkpoint must hold exactly
+        `template`'s leaves. Raises FileNotFoundError listing what exists when there is no such checkpoint, and
+        CheckpointError when it cannot be read or a leaf read differs in shape or dtype from `template`'s.
         """
         kind, cycle = self._locate(which)
         # Whole arrays onto this process's first device, whatever devices saved them (several devices or hosts):
@@ -130,10 +137,21 @@ class Checkpoints:
         abstract = jax.tree.map(
             lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=device), jax.eval_shape(to_storable, template)
         )
+        manager = self._managers[kind]
         try:
-            restored = self._managers[kind].restore(
-                cycle, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore())
+            stored = manager.item_metadata(cycle)["state"].tree
+            _check_fits(self._directory / kind / str(cycle), stored, abstract, partial)
+            restored = manager.restore(
+                cycle,
+                args=ocp.args.Composite(
+                    state=ocp.args.PyTreeRestore(
+                        abstract, ocp.checkpoint_utils.construct_restore_args(abstract), partial_restore=partial
+                    ),
+                    meta=ocp.args.JsonRestore(),
+                ),
             )
+        except CheckpointError:
+            raise
         except Exception as error:  # Orbax and TensorStore raise many types for unreadable files; all mean the same
             existing = {k: self.steps(k) for k in KINDS}
             raise CheckpointError(
@@ -177,6 +195,36 @@ class Checkpoints:
         if self.best_value is None:
             return True
         return value > self.best_value if self.config.best_mode == "max" else value < self.best_value
+
+
+def _check_fits(where: Path, stored: dict[str, Any], abstract: dict[str, jax.ShapeDtypeStruct], partial: bool) -> None:
+    """Raise CheckpointError naming the leaves of `abstract` that the checkpoint lacks or stores with another shape or
+    dtype (and, unless `partial`, the stored leaves `abstract` lacks), with the likely cause and its fix."""
+    missing = sorted(set(abstract) - set(stored))
+    extra = [] if partial else sorted(set(stored) - set(abstract))
+    differ = {
+        name: f"stored {tuple(stored[name].shape)} {stored[name].dtype}, expected {x.shape} {x.dtype}"
+        for name, x in abstract.items()
+        if name in stored and (tuple(stored[name].shape) != x.shape or stored[name].dtype != x.dtype)
+    }
+    if not (missing or extra or differ):
+        return
+    problems = [*(f"{n}: {d}" for n, d in differ.items()), *(f"{n}: not stored" for n in missing),
+                *(f"{n}: stored, not expected" for n in extra)]
+    listed = "; ".join(problems[:5]) + (f"; and {len(problems) - 5} more" if len(problems) > 5 else "")
+    if any(name.startswith(("params.", "obs_stats.")) for name in [*missing, *extra, *differ]):
+        cause = (
+            "Its parameters or observation statistics do not fit the network and task of the config: the run's "
+            "config.yaml (ppo.network, env) was changed after training. Restore the config the run was trained with"
+        )
+    else:
+        cause = (
+            "Its training state (environment states, optimizer, carries) does not fit the current task: the task's "
+            "physics state layout or the config changed since it was saved. Evaluating and rendering still work "
+            "(`load_agent` reads only parameters and statistics); to resume, use the angora_jax version and config "
+            "it was saved with, or train again"
+        )
+    raise CheckpointError(f"Checkpoint {where} does not fit this run ({listed}). {cause}.")
 
 
 def _finite(metrics: dict[str, float]) -> dict[str, float | None]:
