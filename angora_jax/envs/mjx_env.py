@@ -43,9 +43,11 @@ def warp_sizes(model: mujoco.MjModel, max_envs: int) -> dict[str, int]:
 def quiet_iteration_caps(mjx_model: mjx.Model) -> mjx.Model:
     """A Warp model that does not print when the solver or line search stops at its iteration cap: our caps are
     chosen by measurement (`PhysicsSettings`), and Warp would print for every environment at every physics step.
-    Contact and constraint overflow warnings stay on."""
-    from mujoco.mjx.third_party.mujoco_warp import OverflowType  # importable only with warp-lang installed
+    Contact and constraint overflow warnings stay on, and so do Warp's warnings; its per-module load times go."""
+    import warp  # importable only with warp-lang installed
+    from mujoco.mjx.third_party.mujoco_warp import OverflowType
 
+    warp.config.log_level = max(warp.config.log_level, warp.LOG_WARNING)
     quiet = int(mjx_model.opt._impl.warn_overflow) & ~int(OverflowType.ITERATIONS | OverflowType.LS_ITERATIONS)
     return mjx_model.tree_replace({"opt._impl.warn_overflow": quiet})
 
