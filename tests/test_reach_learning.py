@@ -1,15 +1,17 @@
 """PPO learns the Shadow-hand reach task (MJX, AngoraPy's relative joint-target control) in a short CPU run.
 
 The task is the registered `ShadowHandReach` with its default physics and control; only episodes are shorter (30
-policy steps, 0.6 s: a reach settles within about 20 steps), so that 51,200 env steps hold some 1,700 goals. The
-run is sample-efficient rather than large: 64 environments x 16 steps per cycle, 16 minibatch updates of 256
-transitions per cycle, gamma 0.95 and no entropy bonus (the bonus only widens the 20-dimensional Gaussian).
+policy steps, 0.6 s, instead of 100), so that 102,400 env steps hold some 3,400 goals. The run is sample-efficient
+rather than large: 64 environments x 16 steps per cycle, 16 minibatch updates of 256 transitions per cycle, gamma
+0.95 and no entropy bonus (the bonus only widens the 20-dimensional Gaussian).
 
-The score is the mean goal distance (m, all 15 fingertip coordinates) at the end of 64 evaluation episodes, the same
-goals for every policy: the trained policy acting deterministically (the Gaussian's mean) against a uniformly
-random policy and the zero action. Zero is "hold the joint targets where the joints are", so a policy that merely
-learned to keep still scores like the zero action, and passing the bar needs both thumb and finger to move.
-Measured on 2 CPU cores (seeds 0 and 1 alike): random 0.137, zero 0.182, trained about 0.075 after 51,200 steps.
+The score is the mean goal distance (m, all 15 fingertip coordinates) at the end of 32 evaluation episodes with the
+same goals for every policy: the trained policy acting deterministically (the Gaussian's mean) against three
+references that need no learning: a uniformly random policy, the zero action (the joint targets follow the joints,
+so the hand sags under gravity), and the distance at the start, which is what a policy that perfectly holds the
+initial pose would score. Beating the start needs thumb and finger to move towards each other.
+Measured on 2 CPU cores: random 0.137, zero 0.182, start 0.080, trained 0.042 (seeds 0, 1 and 2 alike), so the bar
+(0.7 x 0.080 = 0.056) has a margin; the whole test takes about 100 s there, half of it compiling.
 """
 
 import jax
@@ -17,16 +19,18 @@ import numpy as np
 
 import angora_jax as aj
 from angora_jax.envs.core import Env
+from angora_jax.envs.mujoco_task import Snapshot
 from angora_jax.envs.random_rollout import random_action
 from angora_jax.ppo import NetworkConfig, PPOConfig, make_evaluate, train
 
 EPISODE = 30
-EVAL_EPISODES = 64
-# The trained policy's final goal distance must be below this share of the better of the two baselines.
+# 64 evaluation environments hang XLA's CPU runtime in this scan (jaxlib 0.10.2: every thread idle, never returns).
+EVAL_EPISODES = 32
+# The trained policy's final goal distance must be below this share of the best of the three references.
 BAR = 0.7
 REACH = PPOConfig(
     seed=0,
-    num_cycles=50,
+    num_cycles=100,
     num_envs=64,
     rollout_length=16,
     chunk_length=16,
@@ -43,9 +47,11 @@ REACH = PPOConfig(
 
 def baseline(env: Env, key: jax.Array, action_scale: jax.Array) -> dict[str, jax.Array]:
     """Mean return and final goal distance of one episode per environment under `action_scale` times uniform
-    random actions (1: the random policy, 0: the zero action), from the same resets as `make_evaluate(key)`."""
+    random actions (1: the random policy, 0: the zero action), and the mean goal distance at the start, from the
+    same resets as `make_evaluate(key)`."""
     reset_key, act_key = jax.random.split(key)
     state = jax.vmap(env.reset)(jax.random.split(reset_key, EVAL_EPISODES))
+    start = jax.vmap(env.task.goal_distance)(Snapshot.of(state.physics), state.info)
 
     def step(state, key):
         state = jax.vmap(env.step)(state, action_scale * random_action(env, key, EVAL_EPISODES))
@@ -55,7 +61,7 @@ def baseline(env: Env, key: jax.Array, action_scale: jax.Array) -> dict[str, jax
     _, (rewards, dones, distances) = jax.lax.scan(step, state, keys)
     # Reach never terminates early: every episode ends at the last step, where the metrics are the final state's.
     return {"all_ended": dones[-1].min(), "episode_return": rewards.sum(0).mean(),
-            "goal_distance": distances[-1].mean()}
+            "goal_distance": distances[-1].mean(), "start_distance": start.mean()}
 
 
 def test_ppo_reach_beats_random_and_zero_policies():
@@ -68,9 +74,9 @@ def test_ppo_reach_beats_random_and_zero_policies():
     state, history = train(REACH, env, log=None)
     trained = make_evaluate(env, None, REACH, num_envs=EVAL_EPISODES)(state, key)
     distances = {"random": float(random["goal_distance"]), "zero": float(zero["goal_distance"]),
-                 "trained": float(trained["metric/goal_distance"])}
+                 "start": float(random["start_distance"]), "trained": float(trained["metric/goal_distance"])}
     print("final goal distance (m):", {name: round(d, 4) for name, d in distances.items()})
-    bar = BAR * min(distances["random"], distances["zero"])
+    bar = BAR * min(distances["random"], distances["zero"], distances["start"])
     assert distances["trained"] < bar, f"final goal distances {distances}: trained did not get below {bar:.4f}"
     assert float(trained["episode_return"]) > max(float(random["episode_return"]), float(zero["episode_return"]))
     assert float(trained["episode_length"]) == EPISODE
