@@ -236,7 +236,9 @@ def run_worker(config: Config, impl: str, batches: str, args: argparse.Namespace
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired as error:
-        done = subprocess.CompletedProcess(command, -1, error.stdout or "", f"timed out after {timeout:.0f} s")
+        # TimeoutExpired holds the output read so far as bytes, even with text=True.
+        stdout = error.stdout.decode(errors="replace") if isinstance(error.stdout, bytes) else error.stdout or ""
+        done = subprocess.CompletedProcess(command, -1, stdout, f"timed out after {timeout:.0f} s")
     rows = [json.loads(line[len(RESULT_PREFIX):]) for line in done.stdout.splitlines()
             if line.startswith(RESULT_PREFIX)]
     measured = {r["batch"] for r in rows}
