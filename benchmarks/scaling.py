@@ -1,8 +1,13 @@
-"""Data-parallel scaling: a task config trained for a few cycles on 1 and on D devices with the same totals
-(`ppo.num_envs`, `ppo.minibatch_size` are run totals, see angora_jax/ppo/parallel.py), in one process.
+"""Data-parallel scaling: a task config trained for a few cycles on 1 and on D devices, in one process.
+
+Strong scaling (default): the same totals on D devices (`ppo.num_envs`, `ppo.minibatch_size` are run totals, see
+angora_jax/ppo/parallel.py), so each device gets 1/D of the work. Weak scaling (`--weak`): the D-device run has D
+times the environments and the minibatch size, so each device does the 1-device run's work and the number of updates
+per cycle stays the same (the usual way to use more GPUs: a larger batch in the same time).
 
     # 2 GPUs (about 1.5 minutes for reach, 3 for the cube: one compile per run, ~30 s reach, ~75 s cube):
     python benchmarks/scaling.py shadow_reach --cycles 40
+    python benchmarks/scaling.py shadow_reach --cycles 40 --weak
     python benchmarks/scaling.py shadow_ihom --cycles 4 ppo.rollout_length=32 ppo.minibatch_size=32768
     # CPU smoke size, 2 forced host devices:
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/scaling.py shadow_reach --cycles 2 \
@@ -10,10 +15,12 @@
 
 Training steps/s exclude compilation: they count the cycles after the first (the first compiles the cycle); compile
 seconds are the first cycle's wall time less the median of the others. "scaling" is a run's steps/s over the
-1-device run's (the issue's target: at least 1.8 on 2 GPUs). Both runs compute the same training up to float
-rounding, so their final metrics and parameters are printed side by side: on CPU they agree to about 1e-6; on GPUs
-contact-rich physics can amplify rounding over many steps. Prints a Markdown table and writes JSON (device,
-versions, config, rows) to benchmarks/results/scaling_<task>_<platform>.json or --out.
+1-device run's (the issue's target: at least 1.8 on 2 GPUs), "efficiency" that over D. Under strong scaling both
+runs compute the same training up to float rounding, so their final metrics and parameters are printed side by side:
+on CPU they agree to about 1e-6; on GPUs contact-rich physics can amplify rounding over many steps. Prints a
+Markdown table and writes JSON (device, versions, config, rows) to
+benchmarks/results/scaling_<task>[_weak]_<platform>.json
+or --out.
 """
 
 from __future__ import annotations
@@ -31,10 +38,13 @@ from angora_jax.ppo.train import training_cycles
 FINAL = ("episode_return", "episode_length", "entropy", "loss", "approx_kl", "explained_variance")
 
 
-def run(resolved: dict, cycles: int, num_devices: int) -> tuple[dict, list[np.ndarray]]:
-    """Train the config `resolved` (a dict, every key) for `cycles` cycles on `num_devices` devices; return a
-    result row and the final parameters (on the host)."""
-    config = load_config(resolved, [f"ppo.num_cycles={cycles}", f"distribution.num_devices={num_devices}"])
+def run(resolved: dict, cycles: int, num_devices: int, scale: int = 1) -> tuple[dict, list[np.ndarray]]:
+    """Train the config `resolved` (a dict, every key) for `cycles` cycles on `num_devices` devices, with `scale`
+    times its environments and minibatch size; return a result row and the final parameters (on the host)."""
+    ppo = resolved["ppo"]
+    config = load_config(resolved, [f"ppo.num_cycles={cycles}", f"distribution.num_devices={num_devices}",
+                                    f"ppo.num_envs={ppo['num_envs'] * scale}",
+                                    f"ppo.minibatch_size={ppo['minibatch_size'] * scale}"])
     env = validate(config)
     seconds, metrics, params = [], {}, None
     for state, metrics in training_cycles(config.ppo, env, None, None, num_devices):
@@ -65,7 +75,9 @@ def main() -> None:
     parser.add_argument("overrides", nargs="*", help="key.sub=value overrides, as for angora-jax train")
     parser.add_argument("--cycles", type=int, default=10, help="cycles per run, at least 2 (the first compiles)")
     parser.add_argument("--devices", type=int, default=2, help="the device count compared with 1")
-    parser.add_argument("--out", default=None, help="JSON path (default: results/scaling_<task>_<platform>.json)")
+    parser.add_argument("--weak", action="store_true", help="weak scaling: D times the envs and minibatch on D devices")
+    parser.add_argument("--out", default=None,
+                        help="JSON path (default: results/scaling_<task>[_weak]_<platform>.json)")
     args = parser.parse_intermixed_args()
     if args.cycles < 2:
         parser.error(f"--cycles must be at least 2 (the first cycle compiles and is not timed), got {args.cycles}")
@@ -78,10 +90,9 @@ def main() -> None:
     # Read the config once, so that both runs train the same one even if the file changes meanwhile.
     resolved = to_dict(load_config(args.config, args.overrides))
     single, single_params = run(resolved, args.cycles, 1)
-    parallel, parallel_params = run(resolved, args.cycles, args.devices)
+    parallel, parallel_params = run(resolved, args.cycles, args.devices, args.devices if args.weak else 1)
     single["scaling"], parallel["scaling"] = 1.0, parallel["steps_per_s"] / single["steps_per_s"]
-    difference = max(float(np.abs(a - b).max()) for a, b in zip(single_params, parallel_params, strict=True))
-    parallel["max_param_difference"] = difference
+    single["efficiency"], parallel["efficiency"] = 1.0, parallel["scaling"] / args.devices
     rows = [single, parallel]
     metric_columns = [(f"final_{name}", name, ".4g") for name in single["final"]]
     for row in rows:
@@ -90,10 +101,15 @@ def main() -> None:
     print(markdown_table(rows, [
         ("task", "task", "s"), ("devices", "devices", "d"), ("envs_per_device", "envs/device", "d"),
         ("steps_per_s", "train env steps/s", ",.0f"), ("sim_s_per_s", "sim-s/s", ",.1f"),
-        ("scaling", "scaling vs 1 device", ".2f"), ("compile_s", "compile s", ".1f"), *metric_columns,
+        ("num_envs", "envs", "d"), ("scaling", "scaling vs 1 device", ".2f"), ("efficiency", "efficiency", ".2f"),
+        ("compile_s", "compile s", ".1f"), *metric_columns,
     ]))
-    print(f"largest parameter difference after {args.cycles} cycles, {args.devices} devices vs 1: {difference:.3g}")
-    path = write_results(f"scaling_{single['task']}", {"args": vars(args), "config": resolved}, rows, args.out)
+    if not args.weak:
+        difference = max(float(np.abs(a - b).max()) for a, b in zip(single_params, parallel_params, strict=True))
+        parallel["max_param_difference"] = difference
+        print(f"largest parameter difference after {args.cycles} cycles, {args.devices} devices vs 1: {difference:.3g}")
+    name = f"scaling_{single['task']}{'_weak' if args.weak else ''}"
+    path = write_results(name, {"args": vars(args), "config": resolved}, rows, args.out)
     print(f"wrote {path}")
 
 
