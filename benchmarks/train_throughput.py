@@ -3,6 +3,10 @@ batched env-step rate at the same batch size (random actions, the same `lax.scan
 
     python benchmarks/train_throughput.py --task CartPole --num-envs 64 256 --model simple lstm
     python benchmarks/train_throughput.py --task ShadowHandReach --num-envs 4096 --rollout-length 32   # GPU
+    python benchmarks/train_throughput.py --task ShadowHandCube --num-envs 4096 --model simple --impls jax,warp  # GPU
+
+`--impls` compares MJX implementations of the Shadow-hand tasks in one run ("warp" needs warp-lang, see
+angora_jax/envs/mjx_env.py).
 
 Prints a Markdown table and writes JSON (device, versions, config, numbers) under benchmarks/results/. Compile time
 is measured separately (ahead-of-time lowering and compilation) and excluded from the rates.
@@ -12,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 
 from common import env_step_rate, markdown_table, peak_memory_bytes, train_rate, write_results
 
@@ -29,12 +34,14 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=3)
     parser.add_argument("--minibatches", type=int, default=4, help="minibatches per epoch")
     parser.add_argument("--repeats", type=int, default=5, help="timed cycles per configuration")
+    parser.add_argument("--impls", default=None, help="comma-separated MJX implementations (jax, warp) of an MJX task")
     parser.add_argument("--out", default=None, help="JSON path (default: results/train_throughput_<platform>.json)")
     args = parser.parse_args()
 
-    env = make(args.task)
+    impls = args.impls.split(",") if args.impls else [None]
     rows = []
-    for num_envs in args.num_envs:
+    for impl, num_envs in itertools.product(impls, args.num_envs):
+        env = make(args.task, **({"physics": {"impl": impl}} if impl else {}))
         raw = env_step_rate(env, num_envs, args.rollout_length, args.repeats)
         for model in args.model:
             config = PPOConfig(
@@ -47,7 +54,7 @@ def main() -> None:
             ).validate_for(env)
             trained = train_rate(env, config, args.repeats)
             rows.append({
-                "task": args.task, "model": model, "num_envs": num_envs,
+                "task": args.task, "impl": impl or "-", "model": model, "num_envs": num_envs,
                 "raw_env_steps_per_s": raw["env_steps_per_s"],
                 "train_env_steps_per_s": trained["env_steps_per_s"],
                 "train_sim_s_per_s": trained["env_steps_per_s"] * env.dt,
@@ -56,10 +63,10 @@ def main() -> None:
                 "peak_memory_gib": (peak_memory_bytes() or 0) / 2**30 or None,
                 "config": dataclasses.asdict(config),
             })
-            print(f"{model} @ {num_envs} envs: {trained['env_steps_per_s']:,.0f} train steps/s", flush=True)
+            print(f"{impl or ''} {model} @ {num_envs} envs: {trained['env_steps_per_s']:,.0f} train steps/s")
 
     print(markdown_table(rows, [
-        ("task", "task", "s"), ("model", "model", "s"), ("num_envs", "envs", "d"),
+        ("task", "task", "s"), ("impl", "MJX", "s"), ("model", "model", "s"), ("num_envs", "envs", "d"),
         ("raw_env_steps_per_s", "raw env steps/s", ",.0f"), ("train_env_steps_per_s", "train env steps/s", ",.0f"),
         ("train_sim_s_per_s", "train sim-s/s", ",.1f"), ("train_over_raw", "train / raw", ".1%"),
         ("train_compile_s", "compile train s", ".1f"), ("raw_compile_s", "compile raw s", ".1f"),
