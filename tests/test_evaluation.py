@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
@@ -16,10 +17,18 @@ from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.cli import main
+from angora_jax.envs.core import Sensation
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch
 from angora_jax.envs.rendering import RenderError
-from angora_jax.experiment.evaluation import agreement, episode_keys, on_host, random_policy, run_episodes
+from angora_jax.experiment.evaluation import (
+    agent_policy,
+    agreement,
+    episode_keys,
+    on_host,
+    random_policy,
+    run_episodes,
+)
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
 import path_agreement  # noqa: E402
@@ -66,6 +75,68 @@ def test_evaluate_writes_statistics_json_and_box_plot_without_overwriting(run_di
     # Mode actions from the same keys: the same episodes again, one at a time as all six at once.
     assert record["batch"] == 6 and again.meta["batch"] == 1
     assert again.episodes["episode_return"].tolist() == returns.tolist()
+
+
+def test_the_evaluation_loop_leaves_the_arrays_it_hands_the_policy_unchanged(run_dir):
+    # JAX on CPU uses a NumPy argument's memory in place when it is 64-byte aligned, and computes after the call has
+    # returned: changing the array then changes the call's input. Clearing `starting` thus cancelled the reset of a
+    # new episode's recurrent carry when the policy computed late (a loaded machine) and the array happened to be
+    # aligned, so episodes one at a time differed from all at once now and then. Compared here whatever the timing.
+    agent = aj.load_agent(run_dir, "latest")
+    handed = []
+    with on_host():
+        policy = agent_policy(agent)
+
+        def recording(carry, obs, keys, steps, starting):
+            handed.append([(given, given.copy()) for given in (steps, starting)])
+            return policy(carry, obs, keys, steps, starting)
+
+        with EagerBatch(agent.env, 1) as batch:
+            run_episodes(batch, recording, agent.initial_carry(1), *episode_keys(0, 3))
+    assert sum(bool(call[1][1].any()) for call in handed) == 3  # each episode's first step was handed over
+    for call in handed:
+        for now, then in call:
+            np.testing.assert_array_equal(now, then)
+
+
+def in_batches(fn, size, *rows):
+    """`fn` applied to `rows` (leaves `(N, ...)`, N a multiple of `size`) `size` rows at a time, outputs joined."""
+    count = jax.tree.leaves(rows)[0].shape[0]
+    parts = [fn(*jax.tree.map(lambda x, i=i: x[i:i + size], rows)) for i in range(0, count, size)]
+    return jax.tree.map(lambda *part: np.concatenate(part), *parts)
+
+
+def test_policy_and_env_rows_are_bit_identical_for_any_batch_size(run_dir):
+    # Random carries, observations and states rather than whole episodes: a difference in the last bit shows at once,
+    # where an episode changes only once it flips an action.
+    agent, rows = aj.load_agent(run_dir, "latest"), 48
+    rng = np.random.default_rng(0)
+    carry = jax.tree.map(lambda x: rng.normal(size=x.shape).astype(np.float32), agent.initial_carry(rows))
+    obs = Sensation.make(proprioception=rng.normal(scale=0.5, size=(rows, 4)).astype(np.float32))
+    keys, steps = jax.random.split(jax.random.key(0), rows), rng.integers(0, 100, rows).astype(np.int32)
+    starting, actions = rng.random(rows) < 0.3, rng.integers(0, 2, rows).astype(np.int32)
+    physics = rng.uniform(-0.2, 0.2, (rows, 4)).astype(np.float32)
+
+    def env_rows(size):
+        with EagerBatch(agent.env, size) as batch:  # one batch, so that its step compiles once
+            for slot in range(size):
+                batch.reset(slot, jax.random.key(slot))
+            started = batch.states
+
+            def step(physics, actions):
+                batch.states = started.replace(physics=jnp.asarray(physics))
+                state = batch.step(jnp.asarray(actions), np.ones(size, bool))
+                return state.physics, state.obs, state.reward, state.done
+
+            return in_batches(step, size, physics, actions)
+
+    with on_host():
+        policy = agent_policy(agent)
+        outputs = {size: (in_batches(policy, size, carry, obs, keys, steps, starting), env_rows(size))
+                   for size in (1, 3, 48)}
+    for size in (3, 48):
+        for one, other in zip(jax.tree.leaves(outputs[1]), jax.tree.leaves(outputs[size]), strict=True):
+            np.testing.assert_array_equal(other, one, err_msg=f"batch of {size}")
 
 
 def test_agreement_compares_means_in_standard_errors_of_the_difference():

@@ -42,7 +42,8 @@ DEFAULT_BATCH = 32
 
 # (carry, observations (leaves `(B, size)`), keys `(B,)`, steps `(B,)`, starting `(B,)` bool) -> (carry, actions
 # `(B, *action_shape)`). Row r acts with key `fold_in(keys[r], steps[r])` (steps: policy steps taken in its episode);
-# rows with `starting` set begin an episode, so their recurrent carry is reset first.
+# rows with `starting` set begin an episode, so their recurrent carry is reset first. A policy may read its NumPy
+# arguments after it has returned (JAX computes asynchronously and shares host memory): callers must not change them.
 Policy = Callable[[Any, Sensation, jax.Array, np.ndarray, np.ndarray], tuple[Any, jax.Array]]
 
 
@@ -151,7 +152,9 @@ def run_episodes(batch: EagerBatch, policy: Policy, carry: Any, reset_keys: jax.
     while (active := slot_episode >= 0).any():
         if starting.any():  # a new episode's acting keys, gathered only when the slots' episodes change
             slot_keys = act_keys[np.maximum(slot_episode, 0)]
-        carry, actions = policy(carry, batch.states.obs, slot_keys, np.asarray(batch.states.steps), starting)
+        # A copy, since `starting` is cleared below: JAX on CPU uses a (64-byte aligned) NumPy argument's memory in
+        # place and may compute after the call has returned, and would then miss a new episode's carry reset.
+        carry, actions = policy(carry, batch.states.obs, slot_keys, np.asarray(batch.states.steps), starting.copy())
         starting[:] = False
         state = batch.step(actions, active)
         reward, done, steps, metrics = jax.device_get((state.reward, state.done, state.steps, state.metrics))
