@@ -191,3 +191,35 @@ def test_tile_shape_prefers_the_most_trajectories():
     assert tile(6, 4, 8) == (2, 4)
     assert tile(16, 8, 4) == (4, 1)
     assert tile(5, 4, 8) is None
+
+
+def test_feed_forward_unroll_runs_the_chunk_as_one_batch_with_the_same_outputs_and_gradients():
+    """A network without recurrent state skips the scan; its outputs and gradients are those of a step-by-step
+    loop."""
+    network = make_network(NetworkConfig(name="simple", width=8))
+    model = ActorCritic(network, make_head("gaussian", ActionSpec(low=-jnp.ones(2), high=jnp.ones(2))))
+    k1, k2, k3, k4 = jax.random.split(jax.random.key(1), 4)
+    obs = Sensation.make(proprioception=jax.random.normal(k1, (T, B, 5)), asymmetric=jax.random.normal(k2, (T, B, 2)))
+    params = model.init(k3, network.initial_carry(B), jax.tree.map(lambda x: x[0], obs))["params"]
+    weights = jax.random.normal(k4, (T, B, model.head.num_params + 1))
+    resets = jnp.zeros((T, B), bool).at[3].set(True)
+
+    def batched(params):
+        step = lambda c, o: model.apply({"params": params}, c, o)  # noqa: E731
+        carry = network.initial_carry(B)
+        _, policy, values = unroll(step, carry, carry, obs, resets)
+        return (jnp.concatenate([policy, values[..., None]], -1) * weights).sum()
+
+    def looped(params):
+        outputs = []
+        for t in range(T):
+            _, policy, value = model.apply({"params": params}, network.initial_carry(B),
+                                           jax.tree.map(lambda x, t=t: x[t], obs))
+            outputs.append(jnp.concatenate([policy, value[:, None]], -1))
+        return (jnp.stack(outputs) * weights).sum()
+
+    jaxpr = str(jax.make_jaxpr(batched)(params))
+    assert "scan" not in jaxpr and "while" not in jaxpr
+    np.testing.assert_allclose(batched(params), looped(params), rtol=1e-5)
+    for a, b in zip(jax.tree.leaves(jax.grad(batched)(params)), jax.tree.leaves(jax.grad(looped)(params)), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)

@@ -40,6 +40,13 @@ def unroll(
     Returns the final carry, policy parameters `(s, B, P)` and values `(s, B)`.
     """
 
+    if all(leaf.size == 0 for leaf in jax.tree.leaves(carry)):
+        # No recurrent state (feed-forward networks): the steps are independent, so they run as one batch of s x B
+        # rows instead of a scan of s small ones (one large matrix product per layer; the scan's sequential small
+        # kernels made the update phase latency-bound on a GPU).
+        params, values = jax.vmap(lambda obs_t: step(carry, obs_t)[1:])(obs)
+        return carry, params, values
+
     def body(carry, x):
         obs_t, reset_t = x
         carry, params, value = step(reset_carry(carry, initial, reset_t), obs_t)
