@@ -6,6 +6,8 @@ the hand take tens of seconds on a CPU. The MJX/CPU parity test replays the reco
 
 import dataclasses
 import importlib.util
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -183,6 +185,15 @@ def test_warp_without_warp_lang_names_the_package(monkeypatch):
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "warp" else find_spec(name, *a))
     with pytest.raises(ModuleNotFoundError, match=r"pip install warp-lang==1\.18\.0"):
         aj.make("ShadowHandReach", physics={"impl": "warp"})
+
+
+@pytest.mark.skipif(importlib.util.find_spec("warp") is not None, reason="warp-lang is installed here")
+def test_importing_mjx_envs_without_warp_prints_nothing():
+    """mujoco-mjx prints "Failed to import warp" on import when the optional warp-lang is absent; ours swallows it."""
+    done = subprocess.run([sys.executable, "-c", "import angora_jax.envs.mjx_env"], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "Failed to import" not in done.stdout + done.stderr
 
 
 def test_pruned_geoms_never_touch_so_pruning_leaves_the_dynamics_unchanged():

@@ -7,15 +7,22 @@ env's options); it travels in the compiled model (`mujoco_task.mjx_impl`).
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
+import io
 
 import jax
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 from angora_jax.envs.core import Sensation
 from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, Snapshot, mjx_impl, start_physics
+
+# Without the optional warp-lang, importing mujoco-mjx prints "Failed to import warp" (twice): nothing failed for the
+# default JAX implementation, so that output is dropped then (impl="warp" still raises `require_warp`'s error).
+_WARP_ABSENT = importlib.util.find_spec("warp") is None
+with contextlib.redirect_stdout(io.StringIO()) if _WARP_ABSENT else contextlib.nullcontext():
+    from mujoco import mjx
 
 # MuJoCo Warp keeps one contact buffer for all environments of a batch, sized when the data is made (before the
 # batch size is known): it holds this many environments' worst case. Larger batches can run out of contact slots
