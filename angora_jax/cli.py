@@ -32,7 +32,7 @@ from angora_jax.experiment import (
     resume,
     train,
 )
-from angora_jax.experiment.distributed import initialize, is_main_process
+from angora_jax.experiment.distributed import ProcessFailed, initialize, is_main_process
 from angora_jax.nets import list_networks
 from angora_jax.ppo import TrainingDivergedError, list_heads
 
@@ -78,9 +78,9 @@ def positive_int(text: str) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command; exit codes: 0 done, 1 training diverged, 2 bad usage or config (nothing was run or
-    changed), 128 + signal number (130 Ctrl-C, 143 SIGTERM) when training was interrupted after saving a
-    checkpoint."""
+    """Run the command; exit codes: 0 done, 1 training diverged or another process of the run failed, 2 bad usage
+    or config (nothing was run or changed), 128 + signal number (130 Ctrl-C, 143 SIGTERM) when training was
+    interrupted after saving a checkpoint."""
     args = parser().parse_args(argv)
     try:
         return args.handler(args)
@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     except TrainingInterrupted as stop:
         print(f"angora-jax {args.command}: {stop}", file=sys.stderr)
         return 128 + stop.signum
-    except TrainingDivergedError as error:
+    except (TrainingDivergedError, ProcessFailed) as error:
         print(f"angora-jax {args.command}: {error}", file=sys.stderr)
         return EXIT_FAILED
 

@@ -10,7 +10,9 @@ import pytest
 from tiny import TINY_PPO
 
 import angora_jax as aj
+from angora_jax import cli
 from angora_jax.cli import main
+from angora_jax.experiment.distributed import ProcessFailed
 from angora_jax.experiment.monitor import read_metrics
 from angora_jax.experiment.progress import Progress, progress_line
 
@@ -45,6 +47,17 @@ def test_bad_input_exits_2_with_the_cause(argv, message, capsys, tmp_path, monke
     assert main(argv) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
+
+
+def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys, tmp_path, monkeypatch):
+    def fail(config, overrides):
+        raise ProcessFailed((1,), 3, tmp_path / "run")
+
+    monkeypatch.setattr(cli, "train", fail)
+    assert main(["train", "cartpole"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("angora-jax train: Process(es) 1 of this run failed after cycle 3")
+    assert "Traceback" not in err and f"angora-jax resume {tmp_path / 'run'} --distributed" in err
 
 
 @pytest.mark.parametrize("command", ["evaluate", "render"])
