@@ -42,8 +42,8 @@ def unroll(
 
     if all(leaf.size == 0 for leaf in jax.tree.leaves(carry)):
         # No recurrent state (feed-forward networks): the steps are independent, so they run as one batch of s x B
-        # rows instead of a scan of s small ones (one large matrix product per layer; the scan's sequential small
-        # kernels made the update phase latency-bound on a GPU).
+        # rows (one large matrix product per layer) instead of a scan of s small sequential ones, which on a GPU
+        # costs a kernel launch per step and layer.
         params, values = jax.vmap(lambda obs_t: step(carry, obs_t)[1:])(obs)
         return carry, params, values
 
