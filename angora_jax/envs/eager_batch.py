@@ -35,13 +35,7 @@ def rowwise(fn: Callable[..., Any]) -> Callable[..., Any]:
     batch of 1 and of 64), which would make an episode depend on how many ran beside it.
     """
     def mapped(*batched: Any) -> Any:
-        rows = jax.tree.leaves(batched)[0].shape[0]
-        if rows > 1:
-            return jax.lax.map(lambda row: fn(*row), batched)
-        # XLA inlines a loop of one iteration and may then fuse and round differently from the loop body, so a
-        # batch of one runs as two copies of its row and keeps the first.
-        doubled = jax.tree.map(lambda x: jnp.concatenate([x, x]), batched)
-        return jax.tree.map(lambda y: y[:1], jax.lax.map(lambda row: fn(*row), doubled))
+        return jax.lax.map(lambda row: fn(*row), batched)
 
     return mapped
 
