@@ -112,3 +112,22 @@ def test_time_to_solve_reports_each_seed_and_their_spread(tmp_path):
     assert solved, "CartPole should pass a return of 20 within 4 cycles"
     assert summary["env_steps"]["min"] == min(r["env_steps"] for r in solved)
     assert all(r["wall_seconds"] > 0 and r["env_steps"] <= r["steps_run"] for r in solved)
+
+
+def test_profile_splits_a_cycles_device_time_by_phase(tmp_path):
+    out = tmp_path / "profile.json"
+    script = os.path.join(os.path.dirname(side.__file__), "profile_cycle.py")
+    settings = ["ppo.num_envs=4", "ppo.rollout_length=8", "ppo.chunk_length=8", "ppo.minibatch_size=16",
+                "ppo.num_epochs=1"]
+    subprocess.run([sys.executable, script, "pendulum", *settings, "--cycles", "1", "--trace-dir",
+                    str(tmp_path / "trace"), "--out", str(out)], check=True)
+    record = json.loads(out.read_text())
+    phases = {row["phase"]: row for row in record["results"]}
+    # Every phase of the cycle ran kernels, and the ops XLA adds without a scope inherit their loop's phase.
+    assert {"env step", "acting", "updates"} <= set(phases)
+    assert all(phases[p]["device_s"] > 0 for p in ("env step", "acting", "updates"))
+    assert "unattributed" not in phases
+    assert sum(row["share"] for row in record["results"]) == pytest.approx(1.0)
+    summary = record["config"]["summary"]
+    assert summary["device_busy_s_per_cycle"] == pytest.approx(sum(row["device_s"] for row in record["results"]))
+    assert os.path.exists(summary["trace"]) and summary["top_kernels"]

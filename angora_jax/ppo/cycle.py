@@ -181,9 +181,12 @@ def make_cycle(
 
     def cycle(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
         key, rollout_key, update_key = jax.random.split(state.key, 3)
-        actor, obs_stats, traj, start_carries, last_value = rollout(
-            state.params, state.obs_stats, state.actor, environment_keys(rollout_key, config.num_envs, axis)
-        )
+        # The named scopes label the compiled ops by phase, which is how benchmarks/profile_cycle.py splits a
+        # profile's device time.
+        with jax.named_scope("rollout"):
+            actor, obs_stats, traj, start_carries, last_value = rollout(
+                state.params, state.obs_stats, state.actor, environment_keys(rollout_key, config.num_envs, axis)
+            )
 
         def flat(x):  # (C, s, N, ...) -> (T, N, ...)
             return x.reshape((config.rollout_length,) + x.shape[2:])
@@ -193,22 +196,24 @@ def make_cycle(
 
         rewards, dones, values = flat(traj.rewards), flat(traj.dones), flat(traj.values)
         reward_stats, discounted = state.reward_stats, state.discounted_return
-        if norm.rewards:
-            seen, discounted = discounted_returns(discounted, rewards, dones, config.gamma)
-            reward_stats = reward_stats.update(seen, axis)
-            rewards = reward_stats.scale(rewards, norm.clip)
-        following = next_values(values, last_value, flat(traj.final_values), dones, flat(traj.truncated))
-        advantages, targets = gae(rewards, values, following, dones, config.gamma, config.gae_lambda)
+        with jax.named_scope("advantages"):
+            if norm.rewards:
+                seen, discounted = discounted_returns(discounted, rewards, dones, config.gamma)
+                reward_stats = reward_stats.update(seen, axis)
+                rewards = reward_stats.scale(rewards, norm.clip)
+            following = next_values(values, last_value, flat(traj.final_values), dones, flat(traj.truncated))
+            advantages, targets = gae(rewards, values, following, dones, config.gamma, config.gae_lambda)
         batch = Batch(
             obs=traj.obs,
             resets=traj.resets,
             loss=LossInputs(traj.actions, traj.log_probs, traj.values, chunked(advantages), chunked(targets)),
         )
-        (params, opt_state), parts = jax.lax.scan(
-            lambda t, k: update_epoch(batch, start_carries, t, k),
-            (state.params, state.opt_state),
-            jax.random.split(update_key, config.num_epochs),
-        )
+        with jax.named_scope("update"):
+            (params, opt_state), parts = jax.lax.scan(
+                lambda t, k: update_epoch(batch, start_carries, t, k),
+                (state.params, state.opt_state),
+                jax.random.split(update_key, config.num_epochs),
+            )
         metrics = {name: pmean(value.mean(), axis) for name, value in parts.items()}
         metrics |= episode_metrics(traj.dones, traj.episode_return, traj.episode_length, traj.metrics, axis)
         metrics["explained_variance"] = 1.0 - variance(targets - values, axis) / (variance(targets, axis) + 1e-8)

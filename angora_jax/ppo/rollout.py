@@ -96,7 +96,8 @@ def make_rollout(
         net_carry, policy_params, value = apply_fn(params, net_carry, obs)
         action = jax.vmap(head.sample)(policy_params, action_keys)
         log_prob = head.log_prob(policy_params, action)
-        next_state = step_env(state, head.env_action(action))
+        with jax.named_scope("env_step"):
+            next_state = step_env(state, head.env_action(action))
 
         # Truncations are rare, so the extra forward pass for their bootstrap value runs only when one happens.
         def final_value():
