@@ -8,14 +8,15 @@ phase and by kernel.
 The cycle's ops carry named scopes (angora_jax/ppo/cycle.py, rollout.py), so every kernel of the trace is mapped,
 through its HLO instruction's `op_name`, to a phase: the environment step (physics and task logic), acting (the
 policy's forward pass, sampling, observation normalisation), advantages (GAE, reward scaling), the minibatch
-updates, or other (metrics, RNG, copies). Kernels the trace does not name (e.g. inside a CUDA graph) count as
-"unattributed". Reported per cycle: wall seconds without the profiler, device-busy seconds (kernel time summed over
-streams) by phase, their share, the kernel count and the top kernels. The device-busy / wall ratio shows how much
-of the cycle the device spends idle between kernels (launch and loop overheads).
+updates, or other (metrics, RNG, copies). Inside a CUDA graph the trace names kernels for their fusions; those it
+does not name (copies) count in the phase of the kernel before them on their stream. Reported per cycle: wall
+seconds without the profiler, device-busy seconds (kernel time summed over streams) by phase, their share, the
+kernel count and the top kernels. The device-busy / wall ratio shows how much of the cycle the device spends idle
+between kernels (launch and loop overheads).
 
-The raw trace (open `perfetto_trace.json.gz` in https://ui.perfetto.dev) stays under --trace-dir. Prints Markdown
-tables and writes JSON (device, versions, config, numbers) to benchmarks/results/profile_cycle_<task>_<platform>.json
-or --out.
+The raw trace (open `perfetto_trace.json.gz` in https://ui.perfetto.dev) and the compiled HLO (`cycle.hlo.txt`) stay
+under --trace-dir. Prints Markdown tables and writes JSON (device, versions, config, numbers) to
+benchmarks/results/profile_cycle_<task>_<platform>.json or --out.
 """
 
 from __future__ import annotations
@@ -118,9 +119,16 @@ def summarize(events: list[dict], names: dict[str, str], cycles: int, top: int) 
     by_phase: dict[str, float] = collections.defaultdict(float)
     count: dict[str, int] = collections.defaultdict(int)
     by_kernel: dict[str, dict] = {}
+    previous: dict[tuple, str] = {}  # stream -> the phase of its last attributed kernel
     for e in events:
         hlo_op = e.get("args", {}).get("hlo_op")
-        phase = phase_of(names.get(hlo_op)) if hlo_op in names else "unattributed"
+        stream = (e["pid"], e.get("tid"))
+        if hlo_op not in names and e["name"] in names:
+            hlo_op = e["name"]  # inside a CUDA graph the trace names the graph; the kernel is named for its fusion
+        if hlo_op in names:
+            phase = previous[stream] = phase_of(names[hlo_op])
+        else:  # e.g. a copy inside a CUDA graph: it runs in the phase of the kernels around it
+            phase = previous.get(stream, "unattributed")
         seconds = e["dur"] * 1e-6 / cycles
         by_phase[phase] += seconds
         count[phase] += 1
@@ -152,7 +160,8 @@ def main() -> None:
     init, cycle = make_cycle(env, None, config.ppo)
     state = init(jax.random.key(config.ppo.seed))
     compiled = cycle.lower(state).compile()
-    names = op_names(compiled.as_text())
+    hlo_text = compiled.as_text()
+    names = op_names(hlo_text)
     for _ in range(2):
         state, _ = compiled(state)
     jax.block_until_ready(state)
@@ -163,6 +172,9 @@ def main() -> None:
     wall = (time.perf_counter() - start) / args.cycles
 
     trace_dir = args.trace_dir or tempfile.mkdtemp(prefix="profile_cycle_")
+    os.makedirs(trace_dir, exist_ok=True)
+    with open(os.path.join(trace_dir, "cycle.hlo.txt"), "w") as f:
+        f.write(hlo_text)  # kernels name their HLO instructions: this resolves them to code
     with jax.profiler.trace(trace_dir, create_perfetto_trace=True):
         start = time.perf_counter()
         for _ in range(args.cycles):
