@@ -20,7 +20,7 @@ from angora_jax.nets import ActorCritic, make_network
 from angora_jax.ppo.config import PPOConfig, tile_shape
 from angora_jax.ppo.distributions import PolicyHead, make_head
 from angora_jax.ppo.gae import gae, next_values
-from angora_jax.ppo.losses import LossInputs, ppo_loss
+from angora_jax.ppo.losses import LossInputs, advantage_moments, normalized_advantages, ppo_loss
 from angora_jax.ppo.normalization import RunningMeanStd, discounted_returns, observation_stats
 from angora_jax.ppo.parallel import axis_name, data_parallel, environment_keys, per_device, pmean, psum
 from angora_jax.ppo.rollout import ActorState, make_rollout
@@ -160,14 +160,16 @@ def make_cycle(
             config.value_coef,
             config.entropy_coef,
             config.value_clip,
-            config.normalize_advantages,
-            axis,
         )
 
-    def update_minibatch(batch: Batch, start_carries, train, index):
+    def update_minibatch(batch: Batch, start_carries, train, minibatch):
         params, opt_state = train
-        env_index, chunk_index = index
+        (env_index, chunk_index), moments = minibatch
         sequences = gather_sequences(batch, chunk_index, env_index)
+        if config.normalize_advantages:
+            loss_inputs = sequences.loss
+            advantages = normalized_advantages(loss_inputs.advantages, *moments)
+            sequences = sequences.replace(loss=loss_inputs.replace(advantages=advantages))
         start_carry = gather_carries(start_carries, chunk_index, env_index)
         grads, parts = jax.grad(loss_fn, has_aux=True)(params, sequences, start_carry)
         grads = average_gradients(grads, axis)
@@ -177,7 +179,11 @@ def make_cycle(
 
     def update_epoch(batch: Batch, start_carries, train, key):
         indices = minibatch_indices(key, config.num_envs, num_chunks, tile, axis)
-        return jax.lax.scan(lambda t, i: update_minibatch(batch, start_carries, t, i), train, indices)
+        moments = None
+        if config.normalize_advantages:
+            per_minibatch = jax.vmap(lambda e, c: gather_sequences(batch.loss.advantages, c, e))(*indices)
+            moments = advantage_moments(per_minibatch, axis)
+        return jax.lax.scan(lambda t, x: update_minibatch(batch, start_carries, t, x), train, (indices, moments))
 
     def cycle(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
         key, rollout_key, update_key = jax.random.split(state.key, 3)

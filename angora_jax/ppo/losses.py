@@ -1,5 +1,6 @@
-"""The PPO objective (Schulman et al. 2017) with the "Implementation matters" details: per-minibatch advantage
-normalisation and an optionally clipped value loss."""
+"""The PPO objective (Schulman et al. 2017) with an optionally clipped value loss. The other "Implementation matters"
+detail, per-minibatch advantage normalisation, happens before the loss (`normalized_advantages`), where a data-parallel
+cycle can pool the statistics of all its minibatches at once."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from angora_jax.ppo.distributions import PolicyHead
+from angora_jax.ppo.normalization import pooled_moments
 
 
 @struct.dataclass
@@ -30,20 +32,15 @@ def ppo_loss(
     value_coef: float,
     entropy_coef: float,
     value_clip: bool,
-    normalize_advantages: bool,
-    axis_name: str | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Total loss (to minimise) and its parts.
 
     policy_params `(..., P)` and values `(...)` come from the current network on the minibatch's observations.
     Returns `loss = policy_loss + value_coef * value_loss - entropy_coef * entropy` and a dict with the parts,
-    the approximate KL divergence to the rollout policy and the fraction of clipped ratios. With `axis_name`, this
-    device holds an equal share of a minibatch split over devices, and advantages are normalised by the whole
-    minibatch's mean and std.
+    the approximate KL divergence to the rollout policy and the fraction of clipped ratios. `batch.advantages` are
+    used as given (normalised or not).
     """
     advantages = batch.advantages
-    if normalize_advantages:
-        advantages = (advantages - _mean(advantages, axis_name)) / (_std(advantages, axis_name) + 1e-8)
     log_ratio = head.log_prob(policy_params, batch.actions) - batch.log_probs
     ratio = jnp.exp(log_ratio)
     clipped_ratio = jnp.clip(ratio, 1.0 - clip_epsilon, 1.0 + clip_epsilon)
@@ -69,11 +66,19 @@ def ppo_loss(
     return loss, parts
 
 
-def _mean(x: jax.Array, axis_name: str | None) -> jax.Array:
-    return x.mean() if axis_name is None else jax.lax.pmean(x.mean(), axis_name)
+def advantage_moments(advantages: jax.Array, axis_name: str | None = None) -> tuple[jax.Array, jax.Array]:
+    """Mean and std of each minibatch's advantages, leaves `(K, ...)` for K minibatches; `(K,)` each.
+
+    With `axis_name`, each device holds an equal share of every minibatch and the statistics are those of the whole
+    minibatches, pooled for all K in one all-reduce (a collective per minibatch would cost its latency K times).
+    """
+    axes = tuple(range(1, advantages.ndim))
+    mean, var = advantages.mean(axes), advantages.var(axes)
+    if axis_name is not None:
+        mean, var = pooled_moments(mean, var, axis_name)
+    return mean, jnp.sqrt(var)
 
 
-def _std(x: jax.Array, axis_name: str | None) -> jax.Array:
-    if axis_name is None:
-        return x.std()
-    return jnp.sqrt(jax.lax.pmean(((x - _mean(x, axis_name)) ** 2).mean(), axis_name))
+def normalized_advantages(advantages: jax.Array, mean: jax.Array, std: jax.Array) -> jax.Array:
+    """`(advantages - mean) / std` of one minibatch, guarded against a zero std."""
+    return (advantages - mean) / (std + 1e-8)

@@ -39,11 +39,7 @@ class RunningMeanStd:
         n = jnp.asarray(samples, jnp.float32)
         batch_mean, batch_var = x.mean(0), x.var(0)
         if axis_name is not None:
-            # Equal counts per device: the pooled mean is the mean of the means and the pooled variance the mean of
-            # (variance + squared offset from the pooled mean), i.e. Chan's merge of D batches in closed form.
-            pooled_mean = jax.lax.pmean(batch_mean, axis_name)
-            batch_var = jax.lax.pmean(batch_var + (batch_mean - pooled_mean) ** 2, axis_name)
-            batch_mean = pooled_mean
+            batch_mean, batch_var = pooled_moments(batch_mean, batch_var, axis_name, shift=self.mean)
             n = n * jax.lax.psum(1, axis_name)
         total = self.count + n
         delta = batch_mean - self.mean
@@ -58,6 +54,21 @@ class RunningMeanStd:
     def scale(self, x: jax.Array, clip: float) -> jax.Array:
         """`x / std` (no centring, as for rewards), clipped to +-clip."""
         return jnp.clip(x / jnp.sqrt(self.var + _EPS), -clip, clip)
+
+
+def pooled_moments(
+    mean: jax.Array, var: jax.Array, axis_name: str, shift: jax.Array | float = 0.0
+) -> tuple[jax.Array, jax.Array]:
+    """Mean and (population) variance of the union of the devices' equal-sized batches on `axis_name`, from each
+    batch's own `mean` and `var`: Chan's merge of D batches in closed form, E[var_d + (mean_d - m)^2], in a single
+    all-reduce (its latency, not its bytes, is what a rollout step or minibatch pays for it).
+
+    `shift`, the same on every device (e.g. the running mean), conditions the one-pass form: the offsets from it
+    are small, so E[(mean_d - shift)^2] - (m - shift)^2 loses no precision to cancellation.
+    """
+    offset = mean - shift
+    pooled_offset, second_moment = jax.lax.pmean((offset, var + offset**2), axis_name)
+    return shift + pooled_offset, jnp.maximum(second_moment - pooled_offset**2, 0.0)
 
 
 def observation_stats(obs: Sensation) -> Sensation:
