@@ -81,7 +81,13 @@ def main(argv: list[str] | None = None) -> int:
     """Run the command; exit codes: 0 done, 1 training diverged or another process of the run failed, 2 bad usage
     or config (nothing was run or changed), 128 + signal number (130 Ctrl-C, 143 SIGTERM) when training was
     interrupted after saving a checkpoint."""
-    args = parser().parse_args(argv)
+    cli = parser()
+    args, extra = cli.parse_known_args(argv)
+    if extra:
+        if hasattr(args, "overrides") and all("=" in item and not item.startswith("-") for item in extra):
+            args.overrides = [*args.overrides, *extra]  # overrides after the options: `train CFG --distributed a=1`
+        else:
+            cli.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         return args.handler(args)
     except (ConfigError, RunDirError, FileNotFoundError) as error:

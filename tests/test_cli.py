@@ -60,6 +60,17 @@ def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys
     assert "Traceback" not in err and f"angora-jax resume {tmp_path / 'run'} --distributed" in err
 
 
+def test_overrides_may_follow_the_options_and_other_strays_are_usage_errors(capsys, monkeypatch):
+    seen = []
+    monkeypatch.setattr(cli, "train", lambda config, overrides: seen.append((config, overrides)) or "run")
+    monkeypatch.setattr(cli, "print_finished", lambda run: None)
+    assert main(["train", "cartpole", "ppo.seed=1", "--coordinator", "localhost:1", "ppo.num_envs=8"]) == 0
+    assert seen == [("cartpole", ["ppo.seed=1", "ppo.num_envs=8"])]
+    with pytest.raises(SystemExit) as stop:
+        main(["train", "cartpole", "--coordinator", "localhost:1", "stray"])
+    assert stop.value.code == 2 and "unrecognized arguments: stray" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("command", ["evaluate", "render"])
 def test_episode_count_below_one_is_a_usage_error(command, capsys):
     with pytest.raises(SystemExit) as stop:

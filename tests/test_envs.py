@@ -6,6 +6,7 @@ the hand take tens of seconds on a CPU. The MJX/CPU parity test replays the reco
 
 import dataclasses
 import importlib.util
+import os
 import subprocess
 import sys
 
@@ -194,6 +195,28 @@ def test_importing_mjx_envs_without_warp_prints_nothing():
                           timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "Failed to import" not in done.stdout + done.stderr
+
+
+LOCAL_DEVICE_CHECK = """
+import jax
+everywhere = jax.devices()
+jax.devices = lambda *backend: everywhere[::-1]  # as under jax.distributed: the first device is another process's
+import angora_jax as aj
+env = aj.make("ShadowHandReach")
+arrays = [leaf for leaf in jax.tree.leaves((env.mjx_model, env._data0)) if isinstance(leaf, jax.Array)]
+placed = {device for leaf in arrays for device in leaf.devices()}
+print(sorted(str(d) for d in placed), jax.local_devices()[0])
+assert placed == {jax.local_devices()[0]}, placed
+"""
+
+
+def test_mjx_model_and_data_live_on_this_processs_device():
+    """MJX places models on `jax.devices()[0]` by default, which under jax.distributed belongs to process 0; on any
+    other process jit then refuses the model ("Closing over jax.Array that spans non-addressable devices")."""
+    env = {"XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
+    done = subprocess.run([sys.executable, "-c", LOCAL_DEVICE_CHECK], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, **env})
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
 
 
 def test_pruned_geoms_never_touch_so_pruning_leaves_the_dynamics_unchanged():

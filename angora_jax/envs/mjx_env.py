@@ -40,10 +40,19 @@ def require_warp() -> None:
             "or use impl 'jax'.")
 
 
+def local_device(impl: str) -> jax.Device:
+    """This process's device for an MJX implementation. MJX's own default is `jax.devices()[0]`, which under
+    `jax.distributed` is process 0's: every other process would put its model where it cannot address it."""
+    if impl == "warp":
+        gpus = [device for device in jax.local_devices() if device.platform == "gpu"]
+        return gpus[0] if gpus else jax.local_devices(backend="cpu")[0]
+    return jax.local_devices()[0]
+
+
 def warp_sizes(model: mujoco.MjModel, max_envs: int) -> dict[str, int]:
     """Warp's buffer sizes for `model`: contacts for `max_envs` environments (`naconmax`) and constraint rows per
     environment (`njmax`), each the worst case MJX's JAX implementation allocates (every candidate pair touching)."""
-    data = mjx.make_data(model, impl="jax")
+    data = mjx.make_data(model, device=local_device("jax"), impl="jax")
     return {"naconmax": max(1, data._impl.contact.dist.shape[0]) * max_envs, "njmax": data._impl.efc_J.shape[0]}
 
 
@@ -74,15 +83,17 @@ class MjxEnv(MujocoEnv):
         if self.impl == "warp":
             require_warp()
             sizes = warp_sizes(task.model, warp_max_envs)
-        self.mjx_model = mjx.put_model(task.model, impl=self.impl)
+        device = local_device(self.impl)
+        self.mjx_model = mjx.put_model(task.model, device=device, impl=self.impl)
         if self.impl == "warp":
             self.mjx_model = quiet_iteration_caps(self.mjx_model)
         # A fixed start is computed once on the CPU: it spares the compiled step (with its auto-reset) a forward pass.
         fixed_qpos = None if task.random_initial_qpos else np.asarray(task.initial_qpos(jax.random.key(0)))
         self._start = None
         if fixed_qpos is not None:
-            self._start = mjx.put_data(task.model, start_physics(task, fixed_qpos), impl=self.impl, **sizes)
-        self._data0 = mjx.make_data(task.model, impl=self.impl, **sizes)
+            self._start = mjx.put_data(task.model, start_physics(task, fixed_qpos), device=device, impl=self.impl,
+                                       **sizes)
+        self._data0 = mjx.make_data(task.model, device=device, impl=self.impl, **sizes)
 
     def _reset(self, key: jax.Array) -> tuple[mjx.Data, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)
