@@ -13,26 +13,38 @@ per cycle stays the same (the usual way to use more GPUs: a larger batch in the 
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/scaling.py shadow_reach --cycles 2 \
         ppo.num_envs=4 ppo.rollout_length=16 ppo.minibatch_size=32 ppo.num_epochs=1
 
+`--processes` runs each side as processes with one device each, joined by `jax.distributed` on this host (the 1-device
+run as one such process): the layout of a cluster job, one process per GPU, against the default of one process
+driving all D devices.
+
+    python benchmarks/scaling.py shadow_reach --cycles 30 --weak --processes   # 2 GPUs, one process each
+
 Training steps/s exclude compilation: they count the cycles after the first (the first compiles the cycle); compile
 seconds are the first cycle's wall time less the median of the others. "scaling" is a run's steps/s over the
 1-device run's (the issue's target: at least 1.8 on 2 GPUs), "efficiency" that over D. Under strong scaling both
 runs compute the same training up to float rounding, so their final metrics and parameters are printed side by side:
 on CPU they agree to about 1e-6; on GPUs contact-rich physics can amplify rounding over many steps. Prints a
 Markdown table and writes JSON (device, versions, config, rows) to
-benchmarks/results/scaling_<task>[_weak]_<platform>.json
-or --out.
+benchmarks/results/scaling_<task>[_weak][_processes]_<platform>.json or --out.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import socket
 import statistics
+import subprocess
+import sys
+import tempfile
 
 import jax
 import numpy as np
 from common import markdown_table, write_results
 
 from angora_jax.experiment.config import load_config, to_dict, validate
+from angora_jax.experiment.distributed import initialize
 from angora_jax.ppo.train import training_cycles
 
 FINAL = ("episode_return", "episode_length", "entropy", "loss", "approx_kl", "explained_variance")
@@ -66,7 +78,50 @@ def run(resolved: dict, cycles: int, num_devices: int, scale: int = 1) -> tuple[
         "final": {name: value for name, value in metrics.items() if name in FINAL or name.startswith("metric/")},
     }
     row["sim_s_per_s"] = row["steps_per_s"] * env.dt
-    return row, [np.asarray(leaf) for leaf in jax.tree.leaves(params)]
+    # Parameters are replicated: this process's copy is all of them (also when other processes hold the rest).
+    return row, [np.asarray(leaf.addressable_data(0)) for leaf in jax.tree.leaves(params)]
+
+
+def run_in_processes(resolved: dict, cycles: int, processes: int, scale: int = 1) -> tuple[dict, list[np.ndarray]]:
+    """`run` as `processes` processes of one device each (device i for process i), joined by `jax.distributed` on
+    localhost; returns process 0's row and final parameters. Raises RuntimeError with a process's error output."""
+    with socket.socket() as probe:  # a free port for the coordinator
+        probe.bind(("localhost", 0))
+        address = f"localhost:{probe.getsockname()[1]}"
+    with tempfile.TemporaryDirectory() as folder:
+        config_path, params_path = os.path.join(folder, "config.json"), os.path.join(folder, "params.npz")
+        with open(config_path, "w") as f:
+            json.dump(resolved, f)
+        children = [
+            subprocess.Popen(
+                [sys.executable, __file__, config_path, "--cycles", str(cycles), "--scale", str(scale),
+                 "--child", f"{rank},{processes},{address},{params_path}"],
+                env=os.environ | {"JAX_LOCAL_DEVICE_IDS": str(rank)},  # read by jax.distributed.initialize
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            for rank in range(processes)
+        ]
+        outputs = [child.communicate() for child in children]
+        for rank, (child, (_, err)) in enumerate(zip(children, outputs, strict=True)):
+            if child.returncode != 0:
+                raise RuntimeError(f"process {rank} of {processes} failed (exit {child.returncode}):\n{err[-3000:]}")
+        print(outputs[0][0].rsplit("\n", 2)[0], flush=True)  # process 0's progress lines
+        with np.load(params_path) as saved:
+            params = [saved[f"arr_{i}"] for i in range(len(saved.files))]
+        return json.loads(outputs[0][0].strip().splitlines()[-1]), params
+
+
+def child(args: argparse.Namespace) -> None:
+    """One process of `run_in_processes`: join the job, train, and (process 0) print the row and save parameters."""
+    rank, processes, address, params_path = args.child.split(",")
+    initialize(address, int(processes), int(rank))
+    row, params = run(to_dict(load_config(args.config)), args.cycles, jax.device_count(), args.scale)
+    row["processes"] = int(processes)
+    if jax.process_index() == 0:
+        np.savez(params_path, *params)
+        print(json.dumps(row))
 
 
 def main() -> None:
@@ -76,12 +131,19 @@ def main() -> None:
     parser.add_argument("--cycles", type=int, default=10, help="cycles per run, at least 2 (the first compiles)")
     parser.add_argument("--devices", type=int, default=2, help="the device count compared with 1")
     parser.add_argument("--weak", action="store_true", help="weak scaling: D times the envs and minibatch on D devices")
+    parser.add_argument("--processes", action="store_true",
+                        help="one process per device (jax.distributed on localhost) instead of one for all devices")
+    parser.add_argument("--child", help=argparse.SUPPRESS)  # rank,processes,coordinator,params path
+    parser.add_argument("--scale", type=int, default=1, help=argparse.SUPPRESS)
     parser.add_argument("--out", default=None,
-                        help="JSON path (default: results/scaling_<task>[_weak]_<platform>.json)")
+                        help="JSON path (default: results/scaling_<task>[_weak][_processes]_<platform>.json)")
     args = parser.parse_intermixed_args()
+    if args.child:
+        return child(args)
     if args.cycles < 2:
         parser.error(f"--cycles must be at least 2 (the first cycle compiles and is not timed), got {args.cycles}")
-    if args.devices > jax.device_count():
+    # With --processes this process must not take the devices: its children use them.
+    if not args.processes and args.devices > jax.device_count():
         parser.error(
             f"--devices {args.devices} but JAX sees {jax.device_count()} device(s); on CPU set "
             f"XLA_FLAGS=--xla_force_host_platform_device_count={args.devices}"
@@ -89,8 +151,9 @@ def main() -> None:
 
     # Read the config once, so that both runs train the same one even if the file changes meanwhile.
     resolved = to_dict(load_config(args.config, args.overrides))
-    single, single_params = run(resolved, args.cycles, 1)
-    parallel, parallel_params = run(resolved, args.cycles, args.devices, args.devices if args.weak else 1)
+    measure = run_in_processes if args.processes else run
+    single, single_params = measure(resolved, args.cycles, 1)
+    parallel, parallel_params = measure(resolved, args.cycles, args.devices, args.devices if args.weak else 1)
     single["scaling"], parallel["scaling"] = 1.0, parallel["steps_per_s"] / single["steps_per_s"]
     single["efficiency"], parallel["efficiency"] = 1.0, parallel["scaling"] / args.devices
     rows = [single, parallel]
@@ -108,7 +171,7 @@ def main() -> None:
         difference = max(float(np.abs(a - b).max()) for a, b in zip(single_params, parallel_params, strict=True))
         parallel["max_param_difference"] = difference
         print(f"largest parameter difference after {args.cycles} cycles, {args.devices} devices vs 1: {difference:.3g}")
-    name = f"scaling_{single['task']}{'_weak' if args.weak else ''}"
+    name = f"scaling_{single['task']}{'_weak' if args.weak else ''}{'_processes' if args.processes else ''}"
     path = write_results(name, {"args": vars(args), "config": resolved}, rows, args.out)
     print(f"wrote {path}")
 

@@ -141,15 +141,17 @@ def test_a_failure_in_another_process_stops_this_one_after_the_same_cycle(tmp_pa
     checkpoints.close()
 
 
-@pytest.mark.parametrize("weak", [False, True], ids=["strong", "weak"])
-def test_scaling_benchmark_runs_one_and_two_devices_at_smoke_size(tmp_path, weak):
+@pytest.mark.parametrize("weak, processes", [(False, False), (True, False), (False, True)],
+                         ids=["strong", "weak", "strong-processes"])
+def test_scaling_benchmark_runs_one_and_two_devices_at_smoke_size(tmp_path, weak, processes):
+    """Two devices of one process, or (processes) two processes of one CPU device each joined by jax.distributed."""
     out = tmp_path / "scaling.json"
     tiny = [*TINY_PPO, "ppo.num_envs=8", "ppo.minibatch_size=64"]
     done = subprocess.run(
         [sys.executable, str(BENCHMARKS / "scaling.py"), "cartpole", *tiny, "--cycles", "2", "--out", str(out),
-         *(["--weak"] if weak else [])],
+         *(["--weak"] if weak else []), *(["--processes"] if processes else [])],
         cwd=BENCHMARKS,
-        env=os.environ | {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"},
+        env=os.environ | ({} if processes else {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}),
         capture_output=True,
         text=True,
         timeout=300,
@@ -164,6 +166,7 @@ def test_scaling_benchmark_runs_one_and_two_devices_at_smoke_size(tmp_path, weak
     assert double["scaling"] == pytest.approx(double["steps_per_s"] / single["steps_per_s"])
     assert double["efficiency"] == pytest.approx(double["scaling"] / 2)
     assert all(len(row["cycle_seconds"]) == 2 for row in (single, double))
+    assert double.get("processes") == (2 if processes else None)
     if not weak:
         # The same training on 1 and 2 devices, up to float rounding.
         assert double["max_param_difference"] < 1e-5
