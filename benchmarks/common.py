@@ -16,9 +16,9 @@ from contextlib import AbstractContextManager
 
 import jax
 import jax.numpy as jnp
-from mujoco import mjx
 
 from angora_jax.envs.core import Env
+from angora_jax.envs.mjx_env import mjx  # through ours, which drops mujoco-mjx's notice that optional Warp is absent
 from angora_jax.envs.random_rollout import batched_reset, make_random_rollout
 from angora_jax.ppo import PPOConfig, make_cycle
 

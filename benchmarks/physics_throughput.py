@@ -70,10 +70,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from common import markdown_table, peak_memory_bytes, raw_mjx_rate, write_results
-from mujoco import mjx
 
 from angora_jax.envs.core import Sensation
-from angora_jax.envs.mjx_env import WARP_REQUIREMENT, MjxEnv
+from angora_jax.envs.mjx_env import WARP_REQUIREMENT, MjxEnv, mjx
 from angora_jax.envs.mujoco_task import MujocoTask, set_mjx_impl, start_physics
 from angora_jax.envs.shadow_hand import REACH_PHYSICS
 from angora_jax.envs.shadow_hand.cube import CUBE_PHYSICS, load_cube_scene
