@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 
 import angora_jax as aj
+from angora_jax.envs import shadow_hand
+from angora_jax.envs.mjx_env import WARP_MAX_ENVS
 from angora_jax.envs.mujoco_task import Snapshot, mjx_impl, start_physics
 from angora_jax.envs.shadow_hand import REACH_PHYSICS
 from angora_jax.envs.shadow_hand.model import UNTOUCHED_GEOMS, load_scene
@@ -179,6 +181,16 @@ def test_physics_impl_and_contact_caps_are_checked():
         aj.make("ShadowHandReach", physics={"impl": "wrap"})
     with pytest.raises(ValueError, match="contact_caps must be >= 0"):
         aj.make("ShadowHandReach", physics={"contact_caps": -1})
+    with pytest.raises(ValueError, match="warp_max_envs must be >= 1"):
+        aj.make("ShadowHandReach", physics={"warp_max_envs": 0})
+
+
+def test_warp_buffer_size_is_a_physics_setting(monkeypatch):
+    built = []
+    monkeypatch.setattr(shadow_hand, "MjxEnv", lambda task, skip, steps, warp_max_envs: built.append(warp_max_envs))
+    aj.make("ShadowHandCube", physics={"warp_max_envs": 4096})
+    aj.make("ShadowHandReach")
+    assert built == [4096, WARP_MAX_ENVS]
 
 
 def test_warp_without_warp_lang_names_the_package(monkeypatch):

@@ -13,6 +13,7 @@ from collections.abc import Callable
 
 import mujoco
 
+from angora_jax.envs.mjx_env import WARP_MAX_ENVS
 from angora_jax.envs.mujoco_task import MJX_IMPLS, set_mjx_impl
 
 FINGERTIP_SITES = ("robot0:S_fftip", "robot0:S_mftip", "robot0:S_rftip", "robot0:S_lftip", "robot0:S_thtip")
@@ -40,6 +41,9 @@ class PhysicsSettings:
     function and keeps at most this many deepest contacts per contact dimension (the custom numerics
     `max_geom_pairs` and `max_contact_points`, as in the Menagerie hand tuned for MJX); 0 keeps every candidate.
     C MuJoCo and Warp ignore it.
+    warp_max_envs: with impl "warp", the batch size Warp's shared contact buffer is sized for (every candidate pair
+    touching in every environment). A larger batch can run out of contact slots; a smaller setting saves GPU memory
+    (Warp's collision step also allocates about 1 KB per slot on every call: 2 GiB for the cube at the default).
     """
 
     timestep: float = 0.002
@@ -47,10 +51,13 @@ class PhysicsSettings:
     ls_iterations: int = 50
     impl: str = "jax"
     contact_caps: int = 0
+    warp_max_envs: int = WARP_MAX_ENVS
 
     def __post_init__(self):
         if self.timestep <= 0 or self.iterations < 1 or self.ls_iterations < 1:
             raise ValueError(f"PhysicsSettings need timestep > 0 and iterations, ls_iterations >= 1, got {self}.")
+        if self.warp_max_envs < 1:
+            raise ValueError(f"warp_max_envs must be >= 1 (the batch Warp's buffers hold), got {self.warp_max_envs}.")
         if self.contact_caps < 0:
             raise ValueError(f"contact_caps must be >= 0 (0: no cap), got {self.contact_caps}.")
         if self.impl not in MJX_IMPLS:
