@@ -4,6 +4,8 @@ batched env-step rate at the same batch size (random actions, the same `lax.scan
     python benchmarks/train_throughput.py --task CartPole --num-envs 64 256 --model simple lstm
     python benchmarks/train_throughput.py --task ShadowHandReach --num-envs 4096 --rollout-length 32   # GPU
     python benchmarks/train_throughput.py --task ShadowHandCube --num-envs 4096 --model simple --impls jax,warp  # GPU
+    python benchmarks/train_throughput.py --task ShadowHandCube --num-envs 8192 --model simple --impls warp \
+        --warp-sized-to-batch --rollout-length 32   # GPU: Warp's buffers for 8,192 envs, not 32,768
 
 `--impls` compares MJX implementations of the Shadow-hand tasks in one run ("warp" needs warp-lang, see
 angora_jax/envs/mjx_env.py).
@@ -35,13 +37,18 @@ def main() -> None:
     parser.add_argument("--minibatches", type=int, default=4, help="minibatches per epoch")
     parser.add_argument("--repeats", type=int, default=5, help="timed cycles per configuration")
     parser.add_argument("--impls", default=None, help="comma-separated MJX implementations (jax, warp) of an MJX task")
+    parser.add_argument("--warp-sized-to-batch", action="store_true",
+                        help="size Warp's contact buffer for each row's envs (physics.warp_max_envs) instead of 32,768")
     parser.add_argument("--out", default=None, help="JSON path (default: results/train_throughput_<platform>.json)")
     args = parser.parse_args()
 
     impls = args.impls.split(",") if args.impls else [None]
     rows = []
     for impl, num_envs in itertools.product(impls, args.num_envs):
-        env = make(args.task, **({"physics": {"impl": impl}} if impl else {}))
+        physics = {"impl": impl} if impl else {}
+        if impl == "warp" and args.warp_sized_to_batch:
+            physics["warp_max_envs"] = num_envs
+        env = make(args.task, **({"physics": physics} if physics else {}))
         raw = env_step_rate(env, num_envs, args.rollout_length, args.repeats)
         for model in args.model:
             config = PPOConfig(
