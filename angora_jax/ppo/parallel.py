@@ -30,9 +30,10 @@ Equivalence: D devices compute what one device computes, up to floating-point su
 Traffic that stays: one gradient all-reduce per minibatch (reach: 0.70 MB x 64 updates = 45 MB per cycle; IHOM:
 52 MB x 192 = 10 GB per cycle), one per rollout step for the normaliser (every modality's moments together), one
 per epoch for the advantage statistics of all its minibatches, and the metrics once per cycle. Small all-reduces
-cost their latency, not their bytes, so each pools everything it can in one (`normalization.pooled_moments`): on
-two H200s (reach, 4,096 envs per GPU) the 2-device cycle was 25 ms slower than the 1-device one with two
-all-reduces per rollout step and three per minibatch.
+cost their latency, not their bytes, so each pools everything it can in one (`normalization.pooled_moments`).
+Measured on two H200s (reach, weak scaling): that pooling left the 2-device overhead as it was (1.76x either way,
+from two all-reduces per rollout step and three per minibatch to one and one); the overhead grows with the envs per
+GPU (24 ms per cycle at 4,096, 34 ms at 8,192), so collective latency is not what it is.
 Observed on CPU (tests/test_parallel.py, CartPole, 4 forced devices against 1, 8 cycles): parameters within 2e-7
 (largest parameter 0.59), identical episode returns, all other metrics within 1.1e-6; the test allows 1e-5.
 """
