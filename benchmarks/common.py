@@ -3,6 +3,7 @@ step, our training cycle), environment facts, JSON results and Markdown tables."
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import dataclasses
 import datetime
@@ -176,3 +177,12 @@ def markdown_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> str
         cells = [format(row[k], f) if row.get(k) is not None else "-" for k, _, f in columns]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def config_parser(doc: str) -> argparse.ArgumentParser:
+    """A benchmark's command line that starts like `angora-jax train`: a config (a configs/ name or YAML path) and
+    key.sub=value overrides."""
+    parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("config", help="a configs/ name or YAML path, e.g. shadow_reach, shadow_ihom")
+    parser.add_argument("overrides", nargs="*", help="key.sub=value overrides, as for angora-jax train")
+    return parser

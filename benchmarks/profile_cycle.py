@@ -21,7 +21,6 @@ benchmarks/results/profile_cycle_<task>_<platform>.json or --out.
 
 from __future__ import annotations
 
-import argparse
 import collections
 import glob
 import gzip
@@ -32,7 +31,7 @@ import tempfile
 import time
 
 import jax
-from common import markdown_table, write_results
+from common import config_parser, markdown_table, write_results
 
 from angora_jax.experiment.config import load_config, to_dict, validate
 from angora_jax.ppo import make_cycle
@@ -144,9 +143,7 @@ def summarize(events: list[dict], names: dict[str, str], cycles: int, top: int) 
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("config", help="a configs/ name or YAML path, e.g. shadow_reach")
-    parser.add_argument("overrides", nargs="*", help="key.sub=value overrides, as for angora-jax train")
+    parser = config_parser(__doc__)
     parser.add_argument("--cycles", type=int, default=3, help="cycles timed and then traced, after two warm-ups")
     parser.add_argument("--top", type=int, default=15, help="kernels listed")
     parser.add_argument("--trace-dir", default=None, help="where the raw trace goes (default: a temporary folder)")

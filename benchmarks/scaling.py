@@ -41,7 +41,7 @@ import tempfile
 
 import jax
 import numpy as np
-from common import markdown_table, write_results
+from common import config_parser, markdown_table, write_results
 
 from angora_jax.experiment.config import load_config, to_dict, validate
 from angora_jax.experiment.distributed import initialize
@@ -125,9 +125,7 @@ def child(args: argparse.Namespace) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("config", help="a configs/ name or YAML path, e.g. shadow_reach, shadow_ihom")
-    parser.add_argument("overrides", nargs="*", help="key.sub=value overrides, as for angora-jax train")
+    parser = config_parser(__doc__)
     parser.add_argument("--cycles", type=int, default=10, help="cycles per run, at least 2 (the first compiles)")
     parser.add_argument("--devices", type=int, default=2, help="the device count compared with 1")
     parser.add_argument("--weak", action="store_true", help="weak scaling: D times the envs and minibatch on D devices")
