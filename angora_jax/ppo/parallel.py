@@ -33,7 +33,7 @@ per epoch for the advantage statistics of all its minibatches, and the metrics o
 cost their latency, not their bytes, so each pools everything it can in one (`normalization.pooled_moments`).
 Measured on two H200s (reach, weak scaling): that pooling left the 2-device overhead as it was (1.76x either way,
 from two all-reduces per rollout step and three per minibatch to one and one); the overhead grows with the envs per
-GPU (24 ms per cycle at 4,096, 34 ms at 8,192), so collective latency is not what it is.
+GPU (24 ms per cycle at 4,096, 34 ms at 8,192), so it is not collective latency.
 Observed on CPU (tests/test_parallel.py, CartPole, 4 forced devices against 1, 8 cycles): parameters within 2e-7
 (largest parameter 0.59), identical episode returns, all other metrics within 1.1e-6; the test allows 1e-5.
 """
