@@ -4,15 +4,18 @@ phase and by kernel.
     python benchmarks/profile_cycle.py shadow_reach ppo.num_envs=4096 ppo.rollout_length=32 ppo.chunk_length=32 \
         ppo.minibatch_size=32768 ppo.network.width=64 --cycles 3                               # GPU, about 1 minute
     python benchmarks/profile_cycle.py pendulum ppo.num_envs=8 --cycles 2                       # CPU smoke size
+    python benchmarks/profile_cycle.py shadow_reach ppo.num_envs=8192 ppo.minibatch_size=8192 \
+        distribution.num_devices=2                                                  # the data-parallel cycle, 2 GPUs
 
 The cycle's ops carry named scopes (angora_jax/ppo/cycle.py, rollout.py), so every kernel of the trace is mapped,
-through its HLO instruction's `op_name`, to a phase: the environment step (physics and task logic), acting (the
-policy's forward pass, sampling, observation normalisation), advantages (GAE, reward scaling), the minibatch
-updates, or other (metrics, RNG, copies). Inside a CUDA graph the trace names kernels for their fusions; those it
-does not name (copies) count in the phase of the kernel before them on their stream. Reported per cycle: wall
-seconds without the profiler, device-busy seconds (kernel time summed over streams) by phase, their share, the
-kernel count and the top kernels. The device-busy / wall ratio shows how much of the cycle the device spends idle
-between kernels (launch and loop overheads).
+through its HLO instruction's `op_name`, to a phase: the environment step (physics and task logic), acting (the policy's
+forward pass, sampling, observation normalisation), advantages (GAE, reward scaling), the minibatch updates, or other
+(metrics, RNG, copies); collectives (NCCL kernels, CPU all-reduces) count apart, whatever their scope (their time
+includes waiting for the other devices). Inside a CUDA graph the trace names kernels for their fusions; those it does
+not name (copies) count in the phase of the kernel before them on their stream. Reported per cycle: wall seconds without
+the profiler, device-busy seconds (kernel time summed over streams) by phase, their share, the kernel count and the top
+kernels, per device (averaged over the devices of `distribution.num_devices`). The device-busy / wall ratio shows how
+much of the cycle the device spends idle between kernels (launch and loop overheads).
 
 The raw trace (open `perfetto_trace.json.gz` in https://ui.perfetto.dev) and the compiled HLO (`cycle.hlo.txt`) stay
 under --trace-dir. Prints Markdown tables and writes JSON (device, versions, config, numbers) to
@@ -35,6 +38,7 @@ from common import config_parser, markdown_table, write_results
 
 from angora_jax.experiment.config import load_config, to_dict, validate
 from angora_jax.ppo import make_cycle
+from angora_jax.ppo.parallel import resolve_num_devices
 
 # (scope in an op_name, phase), the first match wins: env_step lies inside rollout.
 PHASES = (("/env_step/", "env step"), ("/rollout/", "acting"), ("/advantages/", "advantages"),
@@ -42,6 +46,7 @@ PHASES = (("/env_step/", "env step"), ("/rollout/", "acting"), ("/advantages/", 
 COMPUTATION = re.compile(r"^(?:ENTRY\s+)?%?([\w.\-]+)\s.*\{\s*$")
 INSTRUCTION = re.compile(r"^\s*(?:ROOT\s+)?%?([\w.\-]+)\s*=")
 OP_NAME = re.compile(r"op_name=\"([^\"]*)\"")
+COLLECTIVE = re.compile(r"(all-reduce|all-gather|reduce-scatter|all-to-all|collective-permute)")
 CALLED = re.compile(r"(?:body|condition|calls|to_apply)=%?([\w.\-]+)|branch_computations=\{([^}]*)\}")
 
 
@@ -114,7 +119,8 @@ def self_time(events: list[dict]) -> list[dict]:
 
 
 def summarize(events: list[dict], names: dict[str, str], cycles: int, top: int) -> tuple[dict, list[dict]]:
-    """Device seconds per cycle by phase (and kernel counts), and the `top` kernels by time."""
+    """Device seconds per cycle by phase (and kernel counts), and the `top` kernels by time; `cycles` is the number
+    of cycles traced times the devices, so that the numbers are per device."""
     by_phase: dict[str, float] = collections.defaultdict(float)
     count: dict[str, int] = collections.defaultdict(int)
     by_kernel: dict[str, dict] = {}
@@ -124,7 +130,9 @@ def summarize(events: list[dict], names: dict[str, str], cycles: int, top: int) 
         stream = (e["pid"], e.get("tid"))
         if hlo_op not in names and e["name"] in names:
             hlo_op = e["name"]  # inside a CUDA graph the trace names the graph; the kernel is named for its fusion
-        if hlo_op in names:
+        if "nccl" in e["name"].lower() or COLLECTIVE.match(hlo_op or e["name"]):
+            phase = "collectives"
+        elif hlo_op in names:
             phase = previous[stream] = phase_of(names[hlo_op])
         else:  # e.g. a copy inside a CUDA graph: it runs in the phase of the kernels around it
             phase = previous.get(stream, "unattributed")
@@ -154,10 +162,18 @@ def main() -> None:
 
     config = load_config(args.config, args.overrides)
     env = validate(config)
-    init, cycle = make_cycle(env, None, config.ppo)
+    num_devices = resolve_num_devices(config.distribution.num_devices)
+    init, cycle = make_cycle(env, None, config.ppo, num_devices)
     state = init(jax.random.key(config.ppo.seed))
-    compiled = cycle.lower(state).compile()
-    hlo_text = compiled.as_text()
+    executable = cycle.lower(state).compile()
+    # The executable takes its inputs' exact layout; the data-parallel cycle restores it for every call (XLA returns
+    # empty arrays, e.g. absent modalities, replicated rather than split over the devices).
+    place = cycle.place if num_devices > 1 else (lambda state: state)
+
+    def compiled(state):
+        return executable(place(state))
+
+    hlo_text = executable.as_text()
     names = op_names(hlo_text)
     for _ in range(2):
         state, _ = compiled(state)
@@ -182,20 +198,26 @@ def main() -> None:
                      key=os.path.getmtime)
     with gzip.open(trace_path) as f:
         events = kernel_events(json.load(f))
-    phases, kernels = summarize(events, names, args.cycles, args.top)
+    phases, kernels = summarize(events, names, args.cycles * num_devices, args.top)
 
     busy = sum(p["device_s"] for p in phases.values())
+    busy_by_device = collections.defaultdict(float)
+    for e in events:
+        busy_by_device[e["pid"]] += e["dur"] * 1e-6 / args.cycles
     steps = config.ppo.num_envs * config.ppo.rollout_length
     rows = [{"phase": phase, **values, "share": values["device_s"] / busy if busy else None}
             for phase, values in sorted(phases.items(), key=lambda item: -item[1]["device_s"])]
     print(f"{config.env.task}: {steps:,} env steps per cycle, {wall:.4f} s per cycle without the profiler "
           f"({steps / wall:,.0f} env steps/s), {traced_wall:.4f} s with it; device busy {busy:.4f} s per cycle "
-          f"({busy / traced_wall:.0%} of the traced wall time)")
+          f"({busy / traced_wall:.0%} of the traced wall time)"
+          + (f"; {num_devices} devices, busy s each: {', '.join(f'{b:.4f}' for b in busy_by_device.values())}"
+             if num_devices > 1 else ""))
     print(markdown_table(rows, [("phase", "phase", "s"), ("device_s", "device s / cycle", ".4f"),
                                 ("share", "share of busy", ".1%"), ("kernels", "kernels / cycle", ",.0f")]))
     print(markdown_table(kernels, [("kernel", "kernel", "s"), ("phase", "phase", "s"),
                                    ("seconds", "s / cycle", ".4f"), ("calls", "calls / cycle", ",.0f")]))
-    summary = {"wall_s_per_cycle": wall, "traced_wall_s_per_cycle": traced_wall, "device_busy_s_per_cycle": busy,
+    summary = {"devices": num_devices, "wall_s_per_cycle": wall, "traced_wall_s_per_cycle": traced_wall,
+               "device_busy_s_per_cycle": busy, "device_busy_s_per_cycle_each": list(busy_by_device.values()),
                "env_steps_per_cycle": steps, "env_steps_per_s": steps / wall, "top_kernels": kernels,
                "trace": trace_path}
     path = write_results(f"profile_cycle_{config.env.task}", {"args": vars(args), "config": to_dict(config),

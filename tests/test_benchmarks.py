@@ -118,11 +118,14 @@ def test_profile_splits_a_cycles_device_time_by_phase(tmp_path):
     out = tmp_path / "profile.json"
     script = os.path.join(os.path.dirname(side.__file__), "profile_cycle.py")
     settings = ["ppo.num_envs=4", "ppo.rollout_length=8", "ppo.chunk_length=8", "ppo.minibatch_size=16",
-                "ppo.num_epochs=1"]
+                "ppo.num_epochs=1", "distribution.num_devices=2"]  # the data-parallel cycle, which covers D = 1's code
     subprocess.run([sys.executable, script, "pendulum", *settings, "--cycles", "1", "--trace-dir",
-                    str(tmp_path / "trace"), "--out", str(out)], check=True)
+                    str(tmp_path / "trace"), "--out", str(out)], check=True,
+                   env=os.environ | {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"})
     record = json.loads(out.read_text())
+    assert record["config"]["summary"]["devices"] == 2
     phases = {row["phase"]: row for row in record["results"]}
+    assert phases["collectives"]["kernels"] > 0  # the all-reduces, apart from the phase they serve
     # Every phase of the cycle ran kernels, and the ops XLA adds without a scope inherit their loop's phase.
     assert {"env step", "acting", "updates"} <= set(phases)
     assert all(phases[p]["device_s"] > 0 for p in ("env step", "acting", "updates"))

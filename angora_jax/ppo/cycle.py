@@ -85,7 +85,8 @@ def make_cycle(
     must divide by D (ValueError otherwise). For D > 1, `init` returns the state already laid out over the devices
     and `cycle` accepts any state of the run's shapes (e.g. one restored from a checkpoint) and lays it out first.
     Metrics are over all devices. D = 1 compiles the plain cycle, with no collectives; D > 1 computes the same
-    cycle up to floating-point summation order (same random numbers, same minibatches).
+    cycle up to floating-point summation order (same random numbers, same minibatches). Either way `cycle.lower(state)`
+    gives the compiled program, as for a `jax.jit` function.
     """
     config.validate_for(env)
     local = per_device(config, num_devices)
@@ -241,9 +242,9 @@ def make_cycle(
 
     if num_devices == 1:
         return jax.jit(init), jax.jit(cycle)
-    place, parallel_cycle = data_parallel(cycle, jax.eval_shape(init, jax.random.key(0)), num_devices)
+    parallel_cycle = data_parallel(cycle, jax.eval_shape(init, jax.random.key(0)), num_devices)
     global_init = jax.jit(init)
-    return lambda key: place(global_init(key)), lambda state: parallel_cycle(place(state))
+    return lambda key: parallel_cycle.place(global_init(key)), parallel_cycle
 
 
 def variance(x: jax.Array, axis: str | None = None) -> jax.Array:

@@ -31,16 +31,22 @@ Traffic that stays: one gradient all-reduce per minibatch (reach: 0.70 MB x 64 u
 52 MB x 192 = 10 GB per cycle), one per rollout step for the normaliser (every modality's moments together), one
 per epoch for the advantage statistics of all its minibatches, and the metrics once per cycle. Small all-reduces
 cost their latency, not their bytes, so each pools everything it can in one (`normalization.pooled_moments`).
-Measured on two H200s (reach, weak scaling): that pooling left the 2-device overhead as it was (1.76x either way,
-from two all-reduces per rollout step and three per minibatch to one and one); the overhead grows with the envs per
-GPU (24 ms per cycle at 4,096, 34 ms at 8,192), so it is not collective latency.
+Measured on two H200s (reach, weak scaling, 4,096 envs per GPU; benchmarks/results/scaling_*): 1.76x one GPU's rate
+with one process driving both, 1.81x with one process per GPU. Communication is not what is lost: the same program
+on one GPU (this `shard_map` over a one-device mesh) runs at 0.91 of the plain `jax.jit` cycle, and two GPUs run it
+at 1.97x that. Under the Shardy partitioner it runs at 0.96 on one GPU, but Shardy cannot compile it for two (see
+`DataParallel`). Two independent single-GPU runs side by side keep 0.98-1.0 each, and removing the per-step
+all-reduce (the normaliser updated once per rollout) did not change the ratio, so neither the host nor the lockstep
+costs more.
 Observed on CPU (tests/test_parallel.py, CartPole, 4 forced devices against 1, 8 cycles): parameters within 2e-7
 (largest parameter 0.59), identical episode returns, all other metrics within 1.1e-6; the test allows 1e-5.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import jax
@@ -154,14 +160,57 @@ def state_specs(state: Any) -> Any:
     )
 
 
+@dataclass(frozen=True)
+class DataParallel:
+    """A per-device function compiled over a device mesh (built by `data_parallel`); called and lowered like a
+    `jax.jit` function, on states in any layout (each call first lays its argument out, see `place`)."""
+
+    compiled: Any  # jit of the shard_map
+    shardings: Any  # NamedSharding per state leaf
+    platform: str
+
+    def __call__(self, state: Any) -> Any:
+        with self._partitioner():
+            return self.compiled(self.place(state))
+
+    def lower(self, state: Any) -> jax.stages.Lowered:
+        """The lowered program (for `.compile()`, its HLO text, or an ahead-of-time compiled executable)."""
+        with self._partitioner():
+            return self.compiled.lower(self.place(state))
+
+    def place(self, state: Any) -> Any:
+        """A global state (fresh, or restored from a checkpoint onto one device) in the data-parallel layout."""
+        return jax.tree.map(
+            lambda sharding, part: jax.tree.map(lambda leaf: _put(leaf, sharding), part),
+            self.shardings,
+            state,
+            is_leaf=lambda x: isinstance(x, NamedSharding),
+        )
+
+    @contextlib.contextmanager
+    def _partitioner(self) -> Iterator[None]:
+        if self.platform != "gpu":
+            yield
+            return
+        # XLA's GPU compiler segfaults on this program under the Shardy partitioner (jax 0.11.2, two H200s: a
+        # plain shard_map psum compiles, the cycle crashes in backend_compile_and_load, CartPole as well as reach);
+        # GSPMD compiles and runs it. The flag is part of jit's cache key, so setting it around the call suffices.
+        previous = jax.config.jax_use_shardy_partitioner
+        jax.config.update("jax_use_shardy_partitioner", False)
+        try:
+            yield
+        finally:
+            jax.config.update("jax_use_shardy_partitioner", previous)
+
+
 def data_parallel(
     cycle: Callable[[Any], tuple[Any, dict[str, jax.Array]]], state_shape: Any, num_devices: int
-) -> tuple[Callable[[Any], Any], Callable[[Any], tuple[Any, dict[str, jax.Array]]]]:
+) -> DataParallel:
     """Compile the per-device `cycle(state) -> (state, metrics)` over the first `num_devices` devices.
 
-    state_shape: the global TrainState (or its `jax.eval_shape`), to lay out the state. Returns `place(state)`,
-    which puts a global state (fresh, or restored from a checkpoint onto one device) into the data-parallel layout,
-    and the compiled `cycle` on placed states; metrics come back replicated (already reduced over devices).
+    state_shape: the global TrainState (or its `jax.eval_shape`), to lay out the state. The result's `place(state)`
+    puts a global state into the data-parallel layout; calling it runs the cycle on a state in any layout; metrics
+    come back replicated (already reduced over devices).
     """
     mesh = Mesh(np.array(jax.devices()[:num_devices]), (AXIS,))
     specs = state_specs(state_shape)
@@ -169,29 +218,7 @@ def data_parallel(
     # Environments build some state from constants (e.g. empty modalities), which the varying-manual-axes check
     # would reject as a scan carry changing type; replication of the P() outputs is ensured by the collectives.
     compiled = jax.jit(jax.shard_map(cycle, mesh=mesh, in_specs=(specs,), out_specs=(specs, P()), check_vma=False))
-
-    def mapped(state: Any) -> tuple[Any, dict[str, jax.Array]]:
-        if mesh.devices.flat[0].platform != "gpu":
-            return compiled(state)
-        # XLA's GPU compiler segfaults on this program under the Shardy partitioner (jax 0.11.2, two H200s: a
-        # plain shard_map psum compiles, the cycle crashes in backend_compile_and_load, CartPole as well as reach);
-        # GSPMD compiles and runs it. The flag is part of jit's cache key, so setting it around the call suffices.
-        previous = jax.config.jax_use_shardy_partitioner
-        jax.config.update("jax_use_shardy_partitioner", False)
-        try:
-            return compiled(state)
-        finally:
-            jax.config.update("jax_use_shardy_partitioner", previous)
-
-    def place(state: Any) -> Any:
-        return jax.tree.map(
-            lambda sharding, part: jax.tree.map(lambda leaf: _put(leaf, sharding), part),
-            shardings,
-            state,
-            is_leaf=lambda x: isinstance(x, NamedSharding),
-        )
-
-    return place, mapped
+    return DataParallel(compiled, shardings, mesh.devices.flat[0].platform)
 
 
 def _put(leaf: Any, sharding: NamedSharding) -> jax.Array:
