@@ -26,8 +26,10 @@ def initialize(
     """Start this process's part of a multi-process job; call it first, before any JAX computation.
 
     coordinator_address: "host:port" of process 0. Arguments left None come from the cluster environment that JAX
-    detects (SLURM: SLURM_PROCID, SLURM_NTASKS, SLURM_STEP_NODELIST; also Open MPI and Kubernetes). On CPU the
-    cross-process collectives go through gloo (JAX has none by default there); GPUs use NCCL regardless.
+    detects (SLURM: SLURM_PROCID, SLURM_NTASKS, SLURM_STEP_NODELIST; also Open MPI and Kubernetes). Under such a
+    cluster JAX gives each process one GPU, the one whose index on its node is the process's local rank (SLURM:
+    SLURM_LOCALID), so launch one process per GPU (examples/slurm_train.sh); JAX_LOCAL_DEVICE_IDS overrides it. On
+    CPU the cross-process collectives go through gloo (JAX has none by default there); GPUs use NCCL regardless.
     """
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(coordinator_address, num_processes, process_id)
