@@ -70,6 +70,16 @@ def pooled_stats():
     )
 
 
+def body_operands() -> tuple[int, int]:
+    """The operand count of the data-parallel cycle's shard_map and the TrainState's leaf count: equal when the
+    constants the cycle closes over stay inside the per-device body (see `parallel.data_parallel`)."""
+    init, cycle = make_cycle(make("CartPole"), None, CURVE, 4)
+    state = init(jax.random.key(0))
+    (outer,) = jax.make_jaxpr(cycle.compiled)(state).jaxpr.eqns
+    (shard_map,) = [eqn for eqn in outer.params["jaxpr"].jaxpr.eqns if eqn.primitive.name == "shard_map"]
+    return len(shard_map.invars), len(jax.tree.leaves(state))
+
+
 def resumed_equals_whole(root: Path) -> bool:
     """A 4-device run stopped by SIGTERM after cycle 2 and resumed ends bit for bit like an uninterrupted one."""
     overrides = [
@@ -106,6 +116,7 @@ if __name__ == "__main__":
         "param_differences": [largest_difference(a, b) for a, b in zip(single_params, parallel_params, strict=True)],
         "param_scale": max(float(np.abs(leaf).max()) for leaf in single_params[-1]),
         "pooled_stats_error": pooled_stats(),
+        "body_operands": body_operands(),
         "resumed_equals_whole": resumed_equals_whole(Path(sys.argv[1])),
     }
     print(json.dumps(result))

@@ -48,6 +48,13 @@ def test_replicated_state_is_identical_on_every_device(four_devices):
     assert all(four_devices["in_sync"]) and len(four_devices["in_sync"]) == 8
 
 
+def test_the_per_device_body_takes_only_the_state_its_constants_stay_inside(four_devices):
+    # CartPole's cycle closes over one array; passed in as a shard_map operand instead, constants reach the GPU
+    # compiler as loop-carried values it does not fold (angora_jax/ppo/parallel.py, data_parallel).
+    operands, state_leaves = four_devices["body_operands"]
+    assert operands == state_leaves
+
+
 def test_normaliser_merge_over_devices_equals_one_merge_of_the_whole_batch(four_devices):
     assert four_devices["pooled_stats_error"] < 1e-5
 
