@@ -27,20 +27,34 @@ REACH_INITIAL_QPOS = {
 }
 
 
+# How an action becomes joint targets (`HandTask.control`).
+CONTROL_MODES = ("position", "target", "absolute")
+
+
 class HandTask(MujocoTask):
     """Base of Shadow-hand tasks on one compiled model.
 
-    Actions are 20 values in [-1, 1], one per actuator. With `relative_control` (AngoraPy's default) an action
-    moves each joint target from the joint's current position by up to half its control range; otherwise it
-    maps [-1, 1] onto the control range (absolute joint targets).
+    Actions are 20 values in [-1, 1], one per actuator; `control` says what they move, by up to `action_scale` x half
+    the actuator's control range per policy step:
+    - "position" (AngoraPy's and Gym's relative control): targets are set from the joints' current positions. A zero
+      action then sets each target where the joint already is, so nothing resists gravity: the palm-up hand sags.
+    - "target": targets move from the previous step's targets (MuJoCo Playground's LEAP hand). A zero action holds
+      the hand still, so a policy that does nothing keeps an object it holds.
+    - "absolute": [-1, 1] maps onto the control range (`action_scale` unused).
     """
 
     camera_body = PALM_BODY
 
-    def __init__(self, model: mujoco.MjModel, relative_control: bool = True,
+    def __init__(self, model: mujoco.MjModel, control: str = "position", action_scale: float = 1.0,
                  initial_qpos: dict[str, float] | None = None):
+        if control not in CONTROL_MODES:
+            raise ValueError(f"Unknown control {control!r}; choose one of {CONTROL_MODES}.")
+        if action_scale <= 0:
+            raise ValueError(f"action_scale must be > 0 (share of half the control range per step), got "
+                             f"{action_scale}.")
         self.model = model
-        self.relative_control = relative_control
+        self.control_mode = control
+        self.action_scale = action_scale
         self.fingertip_ids = np.array([model.site(n).id for n in FINGERTIP_SITES])
         self.palm_id = model.body(PALM_BODY).id
         hand_joints = [j for j in range(model.njnt) if model.joint(j).name.startswith(HAND_JOINT_PREFIX)]
@@ -58,8 +72,12 @@ class HandTask(MujocoTask):
         return jnp.asarray(self._qpos0)
 
     def control(self, action: jax.Array, snap: Snapshot) -> jax.Array:
-        center = snap.actuator_length if self.relative_control else (self._ctrl_low + self._ctrl_high) / 2
-        return jnp.clip(center + action * self._ctrl_half_range, self._ctrl_low, self._ctrl_high)
+        if self.control_mode == "absolute":
+            center, scale = (self._ctrl_low + self._ctrl_high) / 2, 1.0
+        else:
+            center = snap.actuator_length if self.control_mode == "position" else snap.ctrl
+            scale = self.action_scale
+        return jnp.clip(center + action * scale * self._ctrl_half_range, self._ctrl_low, self._ctrl_high)
 
     def fingertips(self, snap: Snapshot) -> jax.Array:
         """Fingertip positions (m, world frame), shape `(5, 3)` in the order FF, MF, RF, LF, thumb."""

@@ -56,8 +56,8 @@ class Reach(HandTask):
     metric_names = ("success", "goal_distance")
 
     def __init__(self, model: mujoco.MjModel, reward: ReachReward = ReachReward(), free: bool = False,
-                 relative_control: bool = True):
-        super().__init__(model, relative_control=relative_control)
+                 control: str = "position"):
+        super().__init__(model, control=control)
         self.reward_config = reward
         self.free = free
 
