@@ -17,12 +17,14 @@ import numpy as np
 import pytest
 
 import angora_jax as aj
-from angora_jax.envs import shadow_hand
-from angora_jax.envs.mjx_env import WARP_MAX_ENVS
+from angora_jax.envs import mjx_env, shadow_hand
+from angora_jax.envs.classic.cartpole import CartPole
+from angora_jax.envs.mjx_env import resolve_impl
 from angora_jax.envs.mujoco_task import Snapshot, mjx_impl, start_physics
 from angora_jax.envs.shadow_hand import REACH_PHYSICS
 from angora_jax.envs.shadow_hand.model import UNTOUCHED_GEOMS, load_scene
 from angora_jax.envs.shadow_hand.reach import Reach, ReachReward
+from angora_jax.ppo import PPOConfig, make_cycle, make_evaluate
 
 BATCH = 3
 EPISODE = 50
@@ -190,7 +192,53 @@ def test_warp_buffer_size_is_a_physics_setting(monkeypatch):
     monkeypatch.setattr(shadow_hand, "MjxEnv", lambda task, skip, steps, warp_max_envs: built.append(warp_max_envs))
     aj.make("ShadowHandCube", physics={"warp_max_envs": 4096})
     aj.make("ShadowHandReach")
-    assert built == [4096, WARP_MAX_ENVS]
+    assert built == [4096, None]  # None: sized for the batch that runs it (Env.sized_for)
+
+
+def test_warp_buffers_are_sized_for_the_batch_that_runs(monkeypatch):
+    env = aj.make("ShadowHandReach", physics={"impl": "jax"})
+    assert env.sized_for(64) is env, "MJX's JAX implementation has no shared buffers"
+    env.impl = "warp"  # what sized_for decides on; building a Warp env needs warp-lang, absent here
+    made = []
+    monkeypatch.setattr(mjx_env.MjxEnv, "__init__", lambda self, task, skip, steps, warp_max_envs=None:
+                        made.append((task, skip, steps, warp_max_envs)))
+    env.sized_for(64)
+    assert made == [(env.task, env.frame_skip, env.max_episode_steps, 64)]
+    env.warp_max_envs = 128
+    assert env.sized_for(64) is env, "a size the user set is kept"
+
+
+def test_training_and_evaluation_size_the_env_for_their_batch():
+    sizes = []
+
+    class Recording(CartPole):
+        def sized_for(self, num_envs):
+            sizes.append(num_envs)
+            return self
+
+    config = PPOConfig(num_envs=8, rollout_length=16, minibatch_size=32)
+    make_cycle(Recording(), None, config)
+    make_evaluate(Recording(), None, config, 5)
+    assert sizes == [8, 5]
+
+
+def test_auto_physics_is_warp_on_a_gpu_with_warp_lang_else_jax(monkeypatch):
+    assert resolve_impl("auto") == "jax" and resolve_impl("warp") == "warp"  # this CPU machine
+    gpu = type("Device", (), {"platform": "gpu"})()
+    monkeypatch.setattr(mjx_env.jax, "local_devices", lambda: [gpu])
+    find_spec = importlib.util.find_spec
+
+    def warp_installed(installed):
+        def find(name, *args):
+            return (object() if installed else None) if name == "warp" else find_spec(name, *args)
+
+        monkeypatch.setattr(importlib.util, "find_spec", find)
+
+    warp_installed(True)
+    assert resolve_impl("auto") == "warp"
+    warp_installed(False)
+    assert resolve_impl("auto") == "jax", "the fallback without warp-lang"
+    assert mjx_impl(aj.make("ShadowHandReach").task.model) == "jax"
 
 
 def test_warp_without_warp_lang_names_the_package(monkeypatch):

@@ -161,6 +161,11 @@ class Env(abc.ABC):
             info=jax.tree.map(pick, fresh.info, ended.info),
         )
 
+    def sized_for(self, num_envs: int) -> Env:
+        """This environment prepared to run batches of `num_envs` (vmapped). Trainers and evaluators call it once
+        with their batch; most environments need nothing and return themselves (MJX on Warp sizes its buffers)."""
+        return self
+
     def _select_physics(self, done: jax.Array, fresh: Any, ended: Any) -> Any:
         """Physics of `fresh` where `done`, else of `ended` (a backend whose physics share buffers overrides it)."""
         return jax.tree.map(lambda new, old: jnp.where(done, new, old), fresh, ended)

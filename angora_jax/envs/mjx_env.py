@@ -1,8 +1,9 @@
 """`MjxEnv`: a `MujocoTask` simulated with MuJoCo MJX, pure and batched (the training path).
 
-MJX has two implementations behind one API: "jax" (MJX's own, any JAX device; the default) and "warp" (MuJoCo Warp
-kernels called from JAX, CUDA GPUs or the CPU). A scene picks one with `PhysicsSettings.impl` (`physics.impl` in an
-env's options); it travels in the compiled model (`mujoco_task.mjx_impl`).
+MJX has two implementations behind one API: "jax" (MJX's own, any JAX device) and "warp" (MuJoCo Warp kernels called
+from JAX, CUDA GPUs or the CPU). A scene picks one with `PhysicsSettings.impl` (`physics.impl` in an env's options;
+the default "auto" is Warp on a GPU when warp-lang is installed, else JAX); it travels in the compiled model
+(`mujoco_task.mjx_impl`).
 """
 
 from __future__ import annotations
@@ -30,6 +31,15 @@ with contextlib.redirect_stdout(io.StringIO()) if _WARP_ABSENT else contextlib.n
 WARP_MAX_ENVS = 32768
 # The warp-lang version that mujoco-mjx 3.17's `warp` extra pins (its MuJoCo Warp is vendored inside mujoco-mjx).
 WARP_REQUIREMENT = "warp-lang==1.18.0"
+
+
+def resolve_impl(impl: str) -> str:
+    """`impl` with "auto" decided: "warp" when JAX runs on a GPU and warp-lang is importable (measured on one H100:
+    the cube trains 4.6x faster on Warp at 4,096 envs), otherwise "jax" (the CPU default and the fallback)."""
+    if impl != "auto":
+        return impl
+    on_gpu = any(device.platform == "gpu" for device in jax.local_devices())
+    return "warp" if on_gpu and importlib.util.find_spec("warp") is not None else "jax"
 
 
 def require_warp() -> None:
@@ -73,16 +83,17 @@ class MjxEnv(MujocoEnv):
     steps of `task.model.opt.timestep` seconds. Actions are float32 in [-1, 1] (shape `(nu,)`).
 
     The MJX implementation is the model's (`mjx_impl`); with "warp", `warp_max_envs` bounds the batch size whose
-    contacts fit Warp's shared contact buffer."""
+    contacts fit Warp's shared contact buffer. None sizes it for `WARP_MAX_ENVS` until a trainer or evaluator calls
+    `sized_for(batch)`, which sizes it for the batch it runs."""
 
-    def __init__(self, task: MujocoTask, frame_skip: int, max_episode_steps: int,
-                 warp_max_envs: int = WARP_MAX_ENVS):
+    def __init__(self, task: MujocoTask, frame_skip: int, max_episode_steps: int, warp_max_envs: int | None = None):
         super().__init__(task, frame_skip, max_episode_steps)
         self.impl = mjx_impl(task.model)
+        self.warp_max_envs = warp_max_envs
         sizes = {}
         if self.impl == "warp":
             require_warp()
-            sizes = warp_sizes(task.model, warp_max_envs)
+            sizes = warp_sizes(task.model, warp_max_envs or WARP_MAX_ENVS)
         device = local_device(self.impl)
         self.mjx_model = mjx.put_model(task.model, device=device, impl=self.impl)
         if self.impl == "warp":
@@ -94,6 +105,14 @@ class MjxEnv(MujocoEnv):
             self._start = mjx.put_data(task.model, start_physics(task, fixed_qpos), device=device, impl=self.impl,
                                        **sizes)
         self._data0 = mjx.make_data(task.model, device=device, impl=self.impl, **sizes)
+
+    def sized_for(self, num_envs: int) -> MjxEnv:
+        """This environment with Warp's buffers sized for batches of `num_envs` (itself unless it runs on Warp with
+        no `warp_max_envs` of its own): an unsized buffer costs GPU memory for 32,768 environments (the cube ran out
+        of memory at 8,192 envs on one H100 unsized, and trained at 16,384 sized to its batch)."""
+        if self.impl != "warp" or self.warp_max_envs is not None:
+            return self
+        return MjxEnv(self.task, self.frame_skip, self.max_episode_steps, warp_max_envs=num_envs)
 
     def _reset(self, key: jax.Array) -> tuple[mjx.Data, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)

@@ -90,6 +90,7 @@ def make_cycle(
     """
     config.validate_for(env)
     local = per_device(config, num_devices)
+    env = env.sized_for(local.num_envs)
     axis = axis_name(num_devices)
     network = make_network(config.network) if network is None else network
     head = build_head(env, config)

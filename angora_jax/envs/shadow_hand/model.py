@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import mujoco
 
-from angora_jax.envs.mjx_env import WARP_MAX_ENVS
+from angora_jax.envs.mjx_env import resolve_impl
 from angora_jax.envs.mujoco_task import MJX_IMPLS, set_mjx_impl
 
 FINGERTIP_SITES = ("robot0:S_fftip", "robot0:S_mftip", "robot0:S_rftip", "robot0:S_lftip", "robot0:S_thtip")
@@ -34,34 +34,35 @@ class PhysicsSettings:
     from measurements (`benchmarks/physics_throughput.py`).
 
     timestep: physics step in s. iterations / ls_iterations: Newton solver and line-search iteration caps.
-    impl: the MJX implementation of the batched path, "jax" (MJX's own, any device) or "warp" (MuJoCo Warp through
-    MJX; needs `pip install warp-lang==1.18.0`, the version mujoco-mjx 3.17's `warp` extra pins). The C MuJoCo twin
-    ignores it.
+    impl: the MJX implementation of the batched path, "jax" (MJX's own, any device), "warp" (MuJoCo Warp through
+    MJX; needs `pip install warp-lang==1.18.0`, the version mujoco-mjx 3.17's `warp` extra pins) or "auto" (Warp on
+    a GPU when warp-lang is installed, else JAX; `mjx_env.resolve_impl`). The C MuJoCo twin ignores it.
     contact_caps: when > 0, MJX's JAX implementation tests at most this many nearest geom pairs per collision
     function and keeps at most this many deepest contacts per contact dimension (the custom numerics
     `max_geom_pairs` and `max_contact_points`, as in the Menagerie hand tuned for MJX); 0 keeps every candidate.
     C MuJoCo and Warp ignore it.
     warp_max_envs: with impl "warp", the batch size Warp's shared contact buffer is sized for (every candidate pair
-    touching in every environment). A larger batch can run out of contact slots; a smaller setting saves GPU memory
-    (Warp's collision step also allocates about 1 KB per slot on every call: 2 GiB for the cube at the default).
+    touching in every environment); None (the default) sizes it for the batch that a trainer or evaluator runs
+    (`Env.sized_for`). A larger batch can run out of contact slots; a smaller setting saves GPU memory (Warp's
+    collision step also allocates about 1 KB per slot on every call: 2 GiB for the cube at 32,768 envs).
     """
 
     timestep: float = 0.002
     iterations: int = 20
     ls_iterations: int = 50
-    impl: str = "jax"
+    impl: str = "auto"
     contact_caps: int = 0
-    warp_max_envs: int = WARP_MAX_ENVS
+    warp_max_envs: int | None = None
 
     def __post_init__(self):
         if self.timestep <= 0 or self.iterations < 1 or self.ls_iterations < 1:
             raise ValueError(f"PhysicsSettings need timestep > 0 and iterations, ls_iterations >= 1, got {self}.")
-        if self.warp_max_envs < 1:
+        if self.warp_max_envs is not None and self.warp_max_envs < 1:
             raise ValueError(f"warp_max_envs must be >= 1 (the batch Warp's buffers hold), got {self.warp_max_envs}.")
         if self.contact_caps < 0:
             raise ValueError(f"contact_caps must be >= 0 (0: no cap), got {self.contact_caps}.")
-        if self.impl not in MJX_IMPLS:
-            raise ValueError(f"Unknown MJX implementation impl={self.impl!r}; choose one of {MJX_IMPLS}.")
+        if self.impl not in (*MJX_IMPLS, "auto"):
+            raise ValueError(f"Unknown MJX implementation impl={self.impl!r}; choose one of {(*MJX_IMPLS, 'auto')}.")
 
     def with_options(self, options: dict[str, float | str] | None) -> PhysicsSettings:
         """These settings with `options` (field name -> value) changed; unknown names raise a ValueError."""
@@ -83,7 +84,7 @@ class PhysicsSettings:
         spec.option.timestep = self.timestep
         spec.option.iterations = self.iterations
         spec.option.ls_iterations = self.ls_iterations
-        set_mjx_impl(spec, self.impl)
+        set_mjx_impl(spec, resolve_impl(self.impl))
         if self.contact_caps:
             for name in ("max_geom_pairs", "max_contact_points"):
                 spec.add_numeric(name=name, data=[self.contact_caps])
