@@ -1,5 +1,6 @@
-"""In-hand cube reorientation (`ShadowHandCube`): episode rules and reward on the task's pure functions, one compiled
-batched MJX rollout for shapes and MJX/CPU parity, and one tiny training run.
+"""In-hand cube reorientation (`ShadowHandCube`): episode rules and reward on the task's pure functions, the returns
+that the episode semantics give simple behaviours, settled starts, one compiled batched MJX rollout for shapes and
+MJX/CPU parity, and two cycles of the paper preset.
 
 The rule tests call `evaluate`/`observe` eagerly on snapshots taken from one CPU-twin reset and edited (no MJX
 compile). MJX compiles of the cube scene take about a minute on a CPU, so the module compiles reset plus rollout
@@ -12,13 +13,24 @@ import numpy as np
 import pytest
 
 import angora_jax as aj
-from angora_jax.envs.shadow_hand.ihom import Ihom, IhomReward, angular_distance, quat_mul, random_rotation
-from angora_jax.ppo import NetworkConfig, PPOConfig, train
+from angora_jax.envs.shadow_hand.ihom import (
+    RESTING_HEIGHT,
+    REWARD_PRESETS,
+    Ihom,
+    IhomReward,
+    angular_distance,
+    quat_mul,
+    random_rotation,
+    rotation_between,
+    rotation_matrix,
+)
+from angora_jax.experiment import train as train_run
+from angora_jax.ppo.gae import next_values
 
 BATCH = 2
 STEPS = 25  # 2 s of simulated time
-NOISE = 0.2  # share of each actuator's half range
-SIZES = {"proprioception": 48, "touch": 97, "vision": 7, "goal": 4, "asymmetric": 25}
+NOISE = 0.5  # actions; under "target" control a step moves each target by up to 0.5 x 0.2 of half its range
+SIZES = {"proprioception": 48, "touch": 97, "vision": 7, "goal": 13, "asymmetric": 27}
 
 
 def about_x(angle: float) -> jax.Array:
@@ -55,6 +67,9 @@ def test_quaternion_helpers():
     keys = jax.random.split(jax.random.key(1), 64)
     angles = [float(angular_distance(about_x(0.0), random_rotation(k))) for k in keys]
     assert 0.0 <= min(angles) and max(angles) <= np.pi + 1e-6 and np.std(angles) > 0.3
+    np.testing.assert_allclose(rotation_matrix(about_x(np.pi / 2)).reshape(3, 3), [[1, 0, 0], [0, 0, -1], [0, 1, 0]],
+                               atol=1e-6)
+    np.testing.assert_allclose(rotation_matrix(q), rotation_matrix(-q), atol=1e-6)  # one matrix for q and -q
 
 
 def test_registry_options_and_errors(cpu):
@@ -69,38 +84,79 @@ def test_registry_options_and_errors(cpu):
         aj.make("ShadowHandCube", backend="cpu", physics={"iterations": 0})
     with pytest.raises(ValueError, match="success_angle > 0"):
         Ihom(cpu.task.model, success_angle=0.0)
+    with pytest.raises(ValueError, match="Unknown reward preset 'dactyl'.*dense.*paper"):
+        aj.make("ShadowHandCube", backend="cpu", reward_preset="dactyl")
+    with pytest.raises(ValueError, match="Unknown goal timer semantics.*terminal"):
+        aj.make("ShadowHandCube", backend="cpu", timer="soft")
+    with pytest.raises(ValueError, match="Unknown control 'relative'.*position"):
+        aj.make("ShadowHandCube", backend="cpu", control="relative")
+    assert cpu.task.reward_config == REWARD_PRESETS["dense"] and cpu.task.timer == "terminal"
+    paper = aj.make("ShadowHandCube", backend="cpu", reward_preset="paper", reward={"success_bonus": 7})
+    assert paper.task.reward_config == IhomReward(success_bonus=7.0)
 
 
-def test_initial_state_holds_the_cube_above_the_palm(cpu, start):
+def test_episodes_start_with_the_cube_resting_on_the_palm(cpu, start):
     snap, info = start
     task = cpu.task
-    assert float(snap.qpos[task.cube_qpos + 2] - snap.xpos[task.palm_id, 2]) > 0.04
-    np.testing.assert_allclose(snap.qpos[task.hand_qpos], 0.0, atol=1e-6)  # Gym's flat, open hand
+    assert float(snap.qpos[task.cube_qpos + 2] - snap.xpos[task.palm_id, 2]) > RESTING_HEIGHT
+    np.testing.assert_allclose(snap.qpos[task.hand_qpos], 0.0, atol=0.15)  # Gym's flat, open hand, settled
+    starts = task.starts
+    assert starts.shape == (512, task.model.nq)
+    np.testing.assert_array_equal(task.settled_starts(512), starts)  # deterministic (and cached)
+    np.testing.assert_array_equal(Ihom(task.model, start_pool=512).starts, starts)
+    cube = starts[:, task.cube_qpos + 3:task.cube_qpos + 7]
+    assert np.abs(cube[1:] - cube[:-1]).max() > 0.5, "each start turns the cube its own way"
     assert float(jnp.linalg.norm(info["goal"])) == pytest.approx(1.0, abs=1e-5)
     assert int(info["goals_reached"]) == 0 and int(info["goal_steps"]) == 0 and not bool(info["time_out"])
     obs = task.observe(snap, info)
     assert obs.sizes() == SIZES
-    np.testing.assert_allclose(obs.goal, info["goal"])
+    np.testing.assert_allclose(obs.goal[:4], info["goal"])
+    np.testing.assert_allclose(obs.goal[4:], rotation_matrix(rotation_between(task.cube_quat(snap), info["goal"])))
     np.testing.assert_allclose(obs.vision, snap.qpos[task.cube_qpos:task.cube_qpos + 7])
+    np.testing.assert_allclose(obs.asymmetric[-2:], [1.0, 0.0])  # the whole goal timer left, no goal reached yet
+
+
+@pytest.mark.parametrize("control", ["absolute", "target", "position"])
+def test_a_zero_action_policy_keeps_the_cube_for_2_seconds(control):
+    """AngoraPy's reset lets the cube settle on the palm. From there, doing nothing keeps it on the palm for 2 s (25
+    policy steps) in at least 15 of 16 starts, except under AngoraPy's "position" control, where a zero action sets
+    each joint's target where it already is and the hand sags: then it drops in most starts (seen: all 16 within 0.65
+    s), which is why the presets do not use it."""
+    env = aj.make("ShadowHandCube", backend="cpu", control=control)
+    kept = 0
+    for seed in range(16):
+        state = env.reset(jax.random.key(seed))
+        for _ in range(STEPS):
+            state = env.step(state, jnp.zeros(20))
+            if float(state.done):
+                break
+        kept += not float(state.done)
+    assert kept <= 4 if control == "position" else kept >= 15
+
+
+def dense_part(task: Ihom, distance: float) -> float:
+    """The orientation term of one step that ends `distance` rad from the goal."""
+    return task.reward_config.orientation * task.dt * (1.0 - distance / np.pi)
 
 
 def test_goal_reached_gives_bonus_and_a_new_goal(cpu, start):
     snap, info = start
     task = cpu.task
+    c = task.reward_config
     goal = info["goal"]
     prev = with_cube(task, snap, quat=quat_mul(goal, about_x(1.0)))
     now = with_cube(task, snap, quat=quat_mul(goal, about_x(0.3)))  # within eta = 0.4 rad
     info = dict(info, goal_steps=jnp.int32(57))
     reward, terminated, after, metrics = task.evaluate(jax.random.key(5), prev, now, info)
-    assert float(reward) == pytest.approx((1.0 - 0.3) + 5.0 - 0.1, abs=1e-4)
+    assert float(reward) == pytest.approx(c.progress * 0.7 + dense_part(task, 0.3) + c.success_bonus, abs=1e-4)
     assert not bool(terminated) and not bool(after["time_out"])
     assert int(after["goals_reached"]) == 1 and int(after["goal_steps"]) == 0, "the goal timer restarts"
     assert float(angular_distance(after["goal"], goal)) > 1e-3, "a new goal is drawn"
     assert float(metrics["goals_reached"]) == 1.0 and float(metrics["goal_distance"]) == pytest.approx(0.3, abs=1e-4)
-    # Not yet reached: progress only, the same goal, the timer runs on.
+    # Not yet reached: progress and orientation only, the same goal, the timer runs on.
     far = with_cube(task, snap, quat=quat_mul(goal, about_x(0.5)))
     reward, _, after, _ = task.evaluate(jax.random.key(5), prev, far, info)
-    assert float(reward) == pytest.approx(0.5 - 0.1, abs=1e-4)
+    assert float(reward) == pytest.approx(c.progress * 0.5 + dense_part(task, 0.5), abs=1e-4)
     np.testing.assert_array_equal(after["goal"], goal)
     assert int(after["goal_steps"]) == 58 and int(after["goals_reached"]) == 0
 
@@ -110,24 +166,26 @@ def test_drop_terminates_with_penalty(cpu, start):
     task = cpu.task
     below = with_cube(task, snap, height=float(snap.xpos[task.palm_id, 2]) - 0.01)
     reward, terminated, after, metrics = task.evaluate(jax.random.key(0), snap, below, info)
-    progress = float(angular_distance(task.cube_quat(snap), info["goal"])
-                     - angular_distance(task.cube_quat(below), info["goal"]))
+    distance = float(angular_distance(task.cube_quat(below), info["goal"]))
+    progress = float(angular_distance(task.cube_quat(snap), info["goal"])) - distance
     assert bool(terminated) and float(metrics["dropped"]) == 1.0 and not bool(after["time_out"])
-    assert float(reward) == pytest.approx(progress - 20.0 - 0.1, abs=1e-4)
+    assert float(reward) == pytest.approx(progress + dense_part(task, distance) - 20.0, abs=1e-4)
 
 
-def test_goal_timer_and_goal_cap_truncate(cpu, start):
+@pytest.mark.parametrize("timer", ["terminal", "truncation"])
+def test_goal_timer_ends_the_episode_as_configured_and_the_cap_truncates(cpu, start, timer):
     snap, info = start
-    task = cpu.task
+    task = Ihom(cpu.task.model, timer=timer)
     far = with_cube(task, snap, quat=quat_mul(info["goal"], about_x(2.0)))
     near = with_cube(task, snap, quat=info["goal"])
     key = jax.random.key(0)
-    _, terminated, after, _ = task.evaluate(key, far, far, dict(info, goal_steps=jnp.int32(98)))
-    assert not bool(after["time_out"]) and int(after["goal_steps"]) == 99
-    _, terminated, after, _ = task.evaluate(key, far, far, dict(info, goal_steps=jnp.int32(99)))
-    assert bool(after["time_out"]) and not bool(terminated), "8 s without success: truncated, not terminal"
-    _, _, after, _ = task.evaluate(key, far, near, dict(info, goal_steps=jnp.int32(99)))
-    assert not bool(after["time_out"]), "a success on the last step restarts the timer"
+    _, terminated, after, metrics = task.evaluate(key, far, far, dict(info, goal_steps=jnp.int32(98)))
+    assert not bool(terminated) and not bool(after["time_out"]) and int(after["goal_steps"]) == 99
+    _, terminated, after, metrics = task.evaluate(key, far, far, dict(info, goal_steps=jnp.int32(99)))
+    assert float(metrics["timed_out"]) == 1.0, "8 s without success"
+    assert bool(terminated) == (timer == "terminal") and bool(after["time_out"]) == (timer == "truncation")
+    _, terminated, after, metrics = task.evaluate(key, far, near, dict(info, goal_steps=jnp.int32(99)))
+    assert not bool(terminated) and not bool(after["time_out"]), "a success on the last step restarts the timer"
     _, terminated, after, metrics = task.evaluate(key, far, near, dict(info, goals_reached=jnp.int32(49)))
     assert bool(after["time_out"]) and not bool(terminated) and float(metrics["goals_reached"]) == 50.0
 
@@ -156,106 +214,157 @@ def test_reward_coefficients_change_the_reward(cpu, start):
         task = Ihom(cpu.task.model, IhomReward.from_dict(coefficients))
         return float(task.evaluate(jax.random.key(0), prev, now, info)[0])
 
-    base = reward()
+    base = reward()  # AngoraPy's coefficients: 0.8 progress + 5 for the goal
+    assert base == pytest.approx(0.8 + 5.0, abs=1e-4)
     assert reward(success_bonus=0.0) == pytest.approx(base - 5.0, abs=1e-4)
-    assert reward(step_penalty=0.0) == pytest.approx(base + 0.1, abs=1e-4)
+    assert reward(step_penalty=0.1) == pytest.approx(base - 0.1, abs=1e-4)
     assert reward(progress=2.0) == pytest.approx(base + 0.8, abs=1e-4)
+    assert reward(orientation=2.0) == pytest.approx(base + 2.0 * 0.08 * (1 - 0.2 / np.pi), abs=1e-4)
 
 
-def test_timer_truncates_an_episode_on_the_cpu_twin():
-    """Env level: info["time_out"] ends the episode as a truncation (goal timer of 2 policy steps)."""
-    env = aj.make("ShadowHandCube", backend="cpu", goal_timeout=0.16)
-    state = env.reset(jax.random.key(0))
-    state = env.step(state, jnp.zeros(20))
+def scripted_return(task: Ihom, snap, info, behaviour: str, gamma: float, horizon: int = 4000) -> float:
+    """The discounted return that the learner's value targets converge to for a scripted behaviour, under the task's
+    own reward and episode rules. The cube starts 2 rad from the goal. "hold": it stays there. "drop": it falls at
+    once. "reach": it turns to 0.3 rad of the goal over 20 steps (a success), then stays wherever it is. The sum
+    stops at a terminal step; past a truncation it goes on, as the learner bootstraps the value of going on."""
+    evaluate = jax.jit(task.evaluate)
+    goal = info["goal"]
+    prev = with_cube(task, snap, quat=quat_mul(goal, about_x(2.0)))
+    keys = jax.random.split(jax.random.key(0), horizon)
+    total, discount = 0.0, 1.0
+    for t in range(horizon):
+        now = prev
+        if behaviour == "drop":
+            now = with_cube(task, prev, height=float(snap.xpos[task.palm_id, 2]) - 0.01)
+        elif behaviour == "reach" and t < 20:
+            now = with_cube(task, prev, quat=quat_mul(goal, about_x(2.0 - 1.7 * (t + 1) / 20)))
+        reward, terminated, info, _ = evaluate(keys[t], prev, now, info)
+        total += discount * float(reward)
+        discount *= gamma
+        if bool(terminated) or discount < 1e-4:
+            break
+        prev = now
+    return total
+
+
+@pytest.mark.parametrize("preset, gamma", [("paper", 0.998), ("dense", 0.99)])
+def test_returns_order_reach_above_hold_above_drop(cpu, start, preset, gamma):
+    """With the goal timer terminal, each preset under its config's gamma values the behaviours as the task intends:
+    reaching a goal beats holding the cube, which beats dropping it."""
+    snap, info = start
+    task = Ihom(cpu.task.model, REWARD_PRESETS[preset], dt=0.08, timer="terminal")
+    returns = {b: scripted_return(task, snap, info, b, gamma) for b in ("reach", "hold", "drop")}
+    assert returns["reach"] > returns["hold"] > returns["drop"], returns
+
+
+def test_a_truncating_timer_with_a_step_penalty_made_dropping_optimal(cpu, start):
+    """The setup that learned to drop the cube (issue 16): truncating timer, -0.1 per step, gamma 0.998. Holding is
+    then worth about -0.1 / (1 - 0.998) = -50, a drop -20; a terminal timer bounds holding at 100 steps (about -9.5)."""
+    snap, info = start
+    cost = IhomReward(step_penalty=0.1)
+    truncating = Ihom(cpu.task.model, cost, timer="truncation")
+    hold, drop = (scripted_return(truncating, snap, info, b, 0.998) for b in ("hold", "drop"))
+    assert hold == pytest.approx(-0.1 / (1 - 0.998), rel=0.01) and drop > hold
+    terminal = Ihom(cpu.task.model, cost, timer="terminal")
+    assert scripted_return(terminal, snap, info, "hold", 0.998) > scripted_return(terminal, snap, info, "drop", 0.998)
+
+
+@pytest.mark.parametrize("timer", ["terminal", "truncation"])
+def test_value_target_after_a_timeout_follows_the_timer(timer):
+    """Env and learner: a goal timer of 2 steps on the CPU twin ends the episode on step 2; as terminal the value after
+    it is 0 in the GAE targets, as a truncation it is the value of the episode's last observation (bootstrapped)."""
+    env = aj.make("ShadowHandCube", backend="cpu", goal_timeout=0.16, timer=timer)
+    state = env.step(env.reset(jax.random.key(0)), jnp.zeros(20))
     assert float(state.done) == 0.0
     state = env.step(state, jnp.zeros(20))
-    assert float(state.done) == 1.0 and float(state.truncated) == 1.0 and float(state.metrics["dropped"]) == 0.0
-
-
-def hold_and_jiggle(ctrl0: jax.Array, length: jax.Array, noise: jax.Array, half_range: jax.Array) -> jax.Array:
-    """A closed-loop test policy: relative actions that pull the joint targets back to the episode's first targets
-    `ctrl0`, plus `noise`; it keeps the cube on the palm (open-loop random actions drop it within ~6 steps)."""
-    return jnp.clip((ctrl0 - length) / half_range + noise, -1.0, 1.0)
+    assert float(state.done) == 1.0 and float(state.metrics["timed_out"]) == 1.0
+    assert float(state.truncated) == (timer == "truncation")
+    values, last, final = jnp.full((1, 1), 3.0), jnp.full((1,), 4.0), jnp.full((1, 1), 7.0)
+    following = next_values(values, last, final, state.done.reshape(1, 1), state.truncated.reshape(1, 1))
+    assert float(following[0, 0]) == (0.0 if timer == "terminal" else 7.0)
 
 
 @pytest.fixture(scope="module")
 def rollout():
-    """Initial states and the states after each of STEPS hold-and-jiggle steps of BATCH MJX environments, reset and
-    rollout compiled as one program; and the noise."""
-    env = aj.make("ShadowHandCube")
-    half_range = jnp.asarray(env.task._ctrl_half_range)
-    noise = NOISE * jnp.asarray(np.random.default_rng(0).uniform(-1, 1, (STEPS, BATCH, 20)), jnp.float32)
+    """Initial states and the states after each of STEPS steps of BATCH MJX environments under small random actions
+    with `control="target"` (the hand holds its pose and jiggles, pushing the cube about: about 1 cm and 0.1 rad in 2
+    s), reset and rollout compiled as one program; and the actions. The "target" mode is the one whose control
+    depends on the state (the previous targets), so it is the one to check across the two paths."""
+    env = aj.make("ShadowHandCube", control="target")
+    actions = NOISE * jnp.asarray(np.random.default_rng(0).uniform(-1, 1, (STEPS, BATCH, 20)), jnp.float32)
 
     @jax.jit
-    def run(keys, noise):
+    def run(keys, actions):
         first = jax.vmap(env.reset)(keys)
 
-        def one(state, noise):
-            action = hold_and_jiggle(first.physics.ctrl, state.physics.actuator_length, noise, half_range)
+        def one(state, action):
             state = jax.vmap(env.step)(state, action)
             return state, state
 
-        return first, jax.lax.scan(one, first, noise)[1]
+        return first, jax.lax.scan(one, first, actions)[1]
 
-    first, states = run(jax.random.split(jax.random.key(0), BATCH), noise)
-    return first, states, noise, half_range
+    first, states = run(jax.random.split(jax.random.key(0), BATCH), actions)
+    return first, states, actions
 
 
 def test_batched_shapes_dtypes_and_finite_values(rollout):
-    first, states, _, _ = rollout
+    first, states, _ = rollout
     for name, size in SIZES.items():
         for value, lead in ((getattr(first.obs, name), (BATCH,)), (getattr(states.obs, name), (STEPS, BATCH))):
             assert value.shape == lead + (size,) and value.dtype == jnp.float32, name
             assert np.isfinite(np.asarray(value)).all(), name
-    assert set(states.metrics) == {"goals_reached", "dropped", "goal_distance"}
+    assert set(states.metrics) == {"goals_reached", "dropped", "timed_out", "goal_distance"}
     assert np.isfinite(np.asarray(states.reward)).all()
     assert np.asarray(first.info["goal"]).std(axis=0).max() > 0, "each environment draws its own goal"
     assert np.abs(np.asarray(states.obs.touch)).max() > 0, "the cube lands on the hand's touch sensors"
 
 
-def test_mjx_and_cpu_paths_agree_for_2_seconds(rollout, cpu):
+def test_mjx_and_cpu_paths_agree_for_2_seconds(rollout):
     """Same key and policy: the MJX rollout (float32) and the C MuJoCo twin (float64) agree over 25 policy steps
     (2 s) with the cube in the hand: hand joints within 5e-3 rad, cube position within 5 mm, cube orientation within
-    0.05 rad, rewards within 0.03, and episode ends on the same step.
+    0.05 rad, rewards within 0.06 (the progress term is the change of the cube's angle to the goal over a step, so two
+    orientations' differences add up in it; seen: 0.041), and episode ends on the same step.
 
-    Looser than reach (2e-3 rad over 50 steps, no contacts) because the cube falls onto the palm and is pushed by
-    the fingers: float32 against float64 contact resolution, 4-iteration Newton solves and the closed loop (actions
-    are computed from each path's own state) let small differences grow at every impact. Measured worst drift over
-    these 25 steps: 1.7e-3 rad, 2.8 mm, 0.022 rad, 9e-3 reward. Touch readings are not compared element-wise: a
-    contact point that moves by a fraction of a millimetre can move its force into the neighbouring sensor zone.
+    Looser than reach (2e-3 rad over 50 steps, no contacts) because the cube is pushed by the closing fingers:
+    float32 against float64 contact resolution and 4-iteration Newton solves let small differences grow at every
+    impact. Touch readings are not compared element-wise: a contact point that moves by a fraction of a millimetre
+    can move its force into the neighbouring sensor zone. Both paths start from the same settled start.
     """
-    first, states, noise, half_range = rollout
+    first, states, actions = rollout
+    cpu = aj.make("ShadowHandCube", backend="cpu", control="target")
     task = cpu.task
     state = cpu.reset(jax.random.split(jax.random.key(0), BATCH)[0])
     np.testing.assert_allclose(first.info["goal"][0], state.info["goal"], atol=1e-5)
     np.testing.assert_allclose(first.obs.vision[0], state.obs.vision, atol=1e-5)
-    ctrl0 = state.physics.ctrl
+    np.testing.assert_allclose(first.physics.qpos[0], state.physics.qpos, atol=1e-5)
     for t in range(STEPS):
-        state = cpu.step(state, hold_and_jiggle(ctrl0, state.physics.actuator_length, noise[t, 0], half_range))
+        state = cpu.step(state, actions[t, 0])
         mjx_obs = jax.tree.map(lambda x, t=t: x[t, 0], states.final_obs)
         np.testing.assert_allclose(mjx_obs.proprioception[:24], state.obs.proprioception[:24], atol=5e-3)
         np.testing.assert_allclose(mjx_obs.vision[:3], state.obs.vision[:3], atol=5e-3)
         assert float(angular_distance(mjx_obs.vision[3:], state.obs.vision[3:])) < 0.05
-        np.testing.assert_allclose(states.reward[t, 0], state.reward, atol=3e-2)
+        np.testing.assert_allclose(states.reward[t, 0], state.reward, atol=6e-2)
         assert float(states.done[t, 0]) == float(state.done)
         if float(state.done):
             break
     assert t == STEPS - 1, "the test policy should keep the cube in the hand for the whole horizon"
     start = first.physics.qpos[0, task.cube_qpos:task.cube_qpos + 3]
-    assert float(jnp.abs(state.physics.qpos[task.cube_qpos:task.cube_qpos + 3] - start).max()) > 0.01, "cube moved"
+    assert float(jnp.abs(state.physics.qpos[task.cube_qpos:task.cube_qpos + 3] - start).max()) > 0.005, "cube moved"
 
 
-def test_short_training_run_gives_finite_metrics():
-    env = aj.make("ShadowHandCube", touch=False)
-    config = PPOConfig(num_cycles=2, num_envs=2, rollout_length=16, chunk_length=16, minibatch_size=32,
-                       num_epochs=1, network=NetworkConfig(name="simple"))
-    _, history = train(config, env, log=None)
-    assert len(history) == 2
-    for metrics in history:
+def test_paper_preset_trains_two_cycles_on_a_small_batch(tmp_path):
+    """configs/shadow_ihom_paper.yaml as it is (wide LSTM 1024, 11 bins, TBPTT 16, AngoraPy's reward), only the batch
+    made small: the config loads, validates and runs two cycles with finite losses and the cube metrics."""
+    overrides = ["ppo.num_envs=2", "ppo.rollout_length=32", "ppo.minibatch_size=32", "ppo.num_epochs=1",
+                 "ppo.num_cycles=2", f"logging.run_root={tmp_path}", "logging.run_name=paper",
+                 "logging.progress=none", "logging.report=false"]
+    run = train_run("shadow_ihom_paper", overrides)
+    assert run.finished and len(run.history) == 2
+    assert run.state.params["network"]["policy_cell"]["hi"]["kernel"].shape[-1] == 1024
+    for metrics in run.history:
         assert metrics["finite"] == 1.0
         for name in ("loss", "entropy", "approx_kl", "explained_variance", "grad_norm"):
             assert np.isfinite(metrics[name]), name
-    assert {"metric/goals_reached", "metric/dropped", "metric/goal_distance"} <= set(history[0])
-    ended = [m for m in history if m["episodes"] > 0]
-    assert ended, "moderate random policies drop the cube within 32 steps"
-    assert all(np.isfinite(m["metric/goals_reached"]) and m["metric/goals_reached"] >= 0 for m in ended)
+    assert {"metric/goals_reached", "metric/dropped", "metric/timed_out", "metric/goal_distance"} <= set(
+        run.history[0])
+    assert run.history[0]["entropy"] == pytest.approx(20 * np.log(11), rel=0.01), "11 bins x 20 dimensions"

@@ -8,7 +8,7 @@ from angora_jax.envs.mjx_env import MjxEnv
 from angora_jax.envs.mujoco_task import MujocoTask
 from angora_jax.envs.registry import register
 from angora_jax.envs.shadow_hand.cube import CUBE_PHYSICS, load_cube_scene
-from angora_jax.envs.shadow_hand.ihom import Ihom, IhomReward
+from angora_jax.envs.shadow_hand.ihom import Ihom, reward_coefficients
 from angora_jax.envs.shadow_hand.model import PhysicsSettings, load_scene
 from angora_jax.envs.shadow_hand.reach import Reach, ReachReward
 
@@ -30,15 +30,16 @@ REACH_PHYSICS = PhysicsSettings(timestep=0.005, iterations=2, ls_iterations=4)
 
 
 def make_reach(free: bool = False, reward: dict[str, float] | None = None, control_dt: float = 0.02,
-               max_episode_steps: int = 100, relative_control: bool = True,
+               max_episode_steps: int = 100, control: str = "position",
                physics: dict[str, float] | None = None, backend: str = "mjx") -> Env:
     """Build a reach task. Defaults follow AngoraPy: 0.02 s per policy step, 100 policy steps per episode,
-    relative joint-target control. physics: `PhysicsSettings` fields overriding `REACH_PHYSICS` (the Gym scene's own
-    settings are timestep 0.002, iterations 20, ls_iterations 50). `backend="cpu"` gives the eager MuJoCo twin."""
+    joint targets set relative to the joints' positions (`control`: see `HandTask`). physics: `PhysicsSettings`
+    fields overriding `REACH_PHYSICS` (the Gym scene's own settings are timestep 0.002, iterations 20,
+    ls_iterations 50). `backend="cpu"` gives the eager MuJoCo twin."""
     settings = REACH_PHYSICS.with_options(physics)
     frame_skip = settings.frame_skip(control_dt)
     task = Reach(load_scene("reach.xml", physics=settings), ReachReward.from_dict(reward), free=free,
-                 relative_control=relative_control)
+                 control=control)
     return build(backend, task, frame_skip, max_episode_steps, settings)
 
 
@@ -47,24 +48,33 @@ def make_free_reach(**options) -> Env:
     return make_reach(free=True, **options)
 
 
-def make_ihom(reward: dict[str, float] | None = None, touch: bool = True, success_angle: float = 0.4,
-              goal_timeout: float = 8.0, max_goals: int = 50, control_dt: float = 0.08,
-              physics: dict[str, float] | None = None, relative_control: bool = True, backend: str = "mjx") -> Env:
+def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = None, touch: bool = True,
+              success_angle: float = 0.4, goal_timeout: float = 8.0, timer: str = "terminal", max_goals: int = 50,
+              control_dt: float = 0.08, relative_goal: bool = True, control: str = "absolute",
+              action_scale: float = 0.2, start_pool: int = 512, physics: dict[str, float] | None = None,
+              backend: str = "mjx") -> Env:
     """Build in-hand cube reorientation (see `ihom.Ihom`). Times in s, angles in rad.
 
+    The defaults are the recipe of `configs/shadow_ihom.yaml`; `configs/shadow_ihom_paper.yaml` sets AngoraPy's.
+    reward_preset: "dense" or "paper" (AngoraPy's eq. 1-2), `reward` overrides single coefficients of it.
+    timer: "terminal" (a goal that times out ends the episode, as in AngoraPy) or "truncation".
+    relative_goal: the goal modality also holds the rotation from the cube to the goal (AngoraPy: False).
+    control, action_scale: how actions move the joint targets (`HandTask`; AngoraPy: "position", 1.0).
     control_dt: simulated time per policy step, 0.08 s as in OpenAI's Dactyl (12.5 Hz) so that the 8 s goal timer
     is 100 policy steps (AngoraPy's code runs 10 x 2 ms = 0.02 s per step with 100 steps per goal, i.e. 2 s).
-    physics: `PhysicsSettings` fields (timestep, iterations, ls_iterations); the frame skip is control_dt / timestep
-    (default 0.08 / 0.008 = 10). max_episode_steps is max_goals * goal steps, never reached before the goal timer or
-    the cap ends an episode.
+    physics: `PhysicsSettings` fields (timestep, iterations, ls_iterations, impl); the frame skip is control_dt /
+    timestep (default 0.08 / 0.008 = 10). max_episode_steps is max_goals * goal steps, never reached before the
+    goal timer or the cap ends an episode.
     """
     settings = CUBE_PHYSICS.with_options(physics)
     frame_skip = settings.frame_skip(control_dt)
     steps_per_goal = round(goal_timeout / control_dt)
     if steps_per_goal < 1:
         raise ValueError(f"goal_timeout ({goal_timeout} s) must last at least one policy step ({control_dt} s).")
-    task = Ihom(load_cube_scene(touch, settings), IhomReward.from_dict(reward), success_angle=success_angle,
-                steps_per_goal=steps_per_goal, max_goals=max_goals, relative_control=relative_control)
+    task = Ihom(load_cube_scene(touch, settings), reward_coefficients(reward_preset, reward),
+                success_angle=success_angle, steps_per_goal=steps_per_goal, max_goals=max_goals, dt=control_dt,
+                timer=timer, relative_goal=relative_goal, control=control, action_scale=action_scale,
+                start_pool=start_pool)
     return build(backend, task, frame_skip, max_goals * steps_per_goal, settings)
 
 

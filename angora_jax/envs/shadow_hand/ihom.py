@@ -4,25 +4,54 @@ After AngoraPy's `ManipulateBlock` and OpenAI's Dactyl task. A goal is a target 
 position ignored). It is reached when the cube's angular distance to it is at most `success_angle` (eta, default
 0.4 rad); then a new goal is drawn and the goal timer restarts. Goals are drawn as in AngoraPy's "xyz" mode: a
 rotation by an angle uniform in [-pi, pi] about an axis uniform in [-1, 1]^3, independent of the cube's pose.
-
-Episode rules, checked after every policy step:
-- drop: the cube's centre is below the palm's centre -> `terminated` (a true terminal state: the cube is gone);
-- goal timer: `steps_per_goal` policy steps without reaching the current goal (8 s at the default 0.08 s per
-  step) -> truncated, via `info["time_out"]`: the MDP itself would go on (the agent could still reach the goal),
-  so the value is bootstrapped, not cut to 0;
-- cap: `max_goals` (50) goals reached -> truncated too, for the same reason.
 Consecutive goals reached (CGR) is the metric `goals_reached` at the episode's end.
 
-Reward (`IhomReward` coefficients on a fixed prototype), with d the angular distance to the goal in rad:
-    r = progress * (d(t-1) - d(t)) + success_bonus * success - drop_penalty * dropped - step_penalty
-        - force_multiplier * sum(actuator_force[2:] ** 2)
-Both distances are to the goal that was active during the step; after a success the next step measures progress
-to the new goal from the pose where the old one was reached.
+Episode rules, checked after every policy step:
+- drop: the cube's centre is below the palm's centre -> terminated (the cube is gone; nothing follows);
+- goal timer: `steps_per_goal` policy steps without reaching the current goal (8 s at the default 0.08 s per step)
+  -> terminated with `timer="terminal"` (the default, as in AngoraPy and Gym's hand tasks), or truncated with
+  `timer="truncation"` (the value is bootstrapped, as if the episode could go on);
+- cap: `max_goals` (50) goals reached -> truncated: the episode is cut only to bound evaluation, the task itself
+  would go on, so the value is bootstrapped.
+
+Why the goal timer is terminal. The timer is part of the task: a goal not reached in time ends the attempt, the
+score (CGR) is final, and no later reward can follow. A truncation tells the learner the opposite, that the MDP would
+go on, so the value after a timeout is bootstrapped from the next state. Under a per-step cost that inverts the
+task: with a -0.1 step penalty and gamma 0.998, holding the cube forever is worth about -0.1 / (1 - 0.998) = -50,
+dropping it a terminal -20, so dropping at once is optimal whenever goals are not yet reached (measured: drop rate
+1.00 after 55 cycles on one H100). Made terminal, holding until the timer is worth at most the reward of those 100
+steps, and the returns are ordered as the task intends: reach a goal > hold > drop (`tests/test_ihom.py` computes
+the returns of these behaviours under each preset's reward and gamma and checks the order). Because the timer now
+decides the value, the value function sees it: `asymmetric` holds the share of the goal's time left and of the goal
+cap reached (the policy does not need them and does not see them).
+
+Start: AngoraPy drops the cube onto the flat hand and lets it settle before the first observation, re-drawing a
+start that does not rest on the palm. Settling on every reset would cost the batched step its physics steps (the
+auto-reset computes a fresh start at every step), so `settled_starts` settles a fixed pool of random starts once, in
+C MuJoCo, at construction; a reset picks one with its key, on both physics paths alike.
+
+Reward (`IhomReward` coefficients), with d the angular distance to the goal in rad and dt the policy step in s:
+    r = progress * (d(t-1) - d(t)) + orientation * dt * (1 - d(t) / pi) + success_bonus * success
+        - drop_penalty * dropped - step_penalty - force_multiplier * sum(actuator_force[2:] ** 2)
+Both distances are to the goal that was active during the step; after a success the next step measures progress to
+the new goal from the pose where the old one was reached. `REWARD_PRESETS`: "paper" is AngoraPy's MANIPULATE_BASE
+(the paper's eq. 1-2: progress, +5 per goal, -20 for a drop); "dense" adds an absolute orientation term (MuJoCo
+Playground's LEAP cube rewards 5 x a linear tolerance of the angle per second) and pays 25 per goal.
+
+The recipe that learns (`configs/shadow_ihom.yaml`; the README's "In-hand cube reorientation" section compares it
+with AngoraPy, Dactyl, IsaacGymEnvs and MuJoCo Playground and gives the measurements). Progress alone telescopes to
+at most pi per goal and averages zero under random turning, so a policy that holds the cube still loses nothing; the
+dense term pays for every step spent nearer the goal, and with the terminal timer a goal not reached ends that pay.
+Reaching the goal is worth more than hovering near it: the bonus (25) exceeds what the lost orientation reward of a
+new, distant goal costs. The policy sees the rotation it must make (`relative_goal`, as IsaacGymEnvs' and
+Playground's policies do) instead of having to compute it from two quaternions; and absolute joint targets learned
+about 5x faster than targets moved step by step (`control="target"`) in a side-by-side run on one H100.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 
 import jax
 import jax.numpy as jnp
@@ -36,28 +65,54 @@ from angora_jax.envs.shadow_hand.cube import CUBE_JOINT
 from angora_jax.envs.shadow_hand.hand import HandTask
 from angora_jax.envs.shadow_hand.model import HAND_JOINT_PREFIX
 
-# Gym HandManipulateBlock starts from the flat, open hand (all joints 0): the cube then rests on the palm 2.7 cm
-# above the palm's centre. (AngoraPy's flexed reach pose tilts this palm so far that the cube rests below it.)
+# Gym HandManipulateBlock starts from the flat, open hand (all joints 0) with the cube a few cm above the palm.
 # Std (m) of the cube's initial position noise, as in AngoraPy/Gym.
 INITIAL_POSITION_NOISE = 0.005
+# Settling a start: physics steps held still (AngoraPy lets 10 x 2 ms pass; the cube dropped from a few cm needs more
+# to come to rest), and what counts as resting on the palm: centre at least this high above the palm's centre (m,
+# the cube's half size is 0.025) and slower than this (m/s).
+SETTLE_SECONDS = 0.4
+RESTING_HEIGHT = 0.015
+RESTING_SPEED = 0.05
+TIMERS = ("terminal", "truncation")
+# Settled starts by (model content, hand pose, count, seed): settling takes seconds and every `make` compiles a new
+# but identical model.
+_STARTS: dict[tuple[str, bytes, int, int], np.ndarray] = {}
 
 
 @dataclasses.dataclass(frozen=True)
 class IhomReward(Coefficients):
-    """Reward coefficients (AngoraPy's MANIPULATE_BASE plus the issue's per-step cost). Angles in rad.
+    """Reward coefficients (defaults: AngoraPy's MANIPULATE_BASE, the "paper" preset). Angles in rad.
 
     progress: weight of the decrease of the angular distance to the goal over one step.
+    orientation: reward per second of simulated time for the cube's orientation, times (1 - d / pi): 1 at the goal,
+        0 facing away (MuJoCo Playground's dense term, linear in the angle); 0 in AngoraPy.
     success_bonus: added on the step a goal is reached.
     drop_penalty: subtracted on the step the cube drops.
-    step_penalty: subtracted on every step (time cost).
+    step_penalty: subtracted on every step (a time cost); 0 in AngoraPy.
     force_multiplier: weight of the squared actuator forces (wrist excluded), a metabolic cost; 0 in AngoraPy.
     """
 
     progress: float = 1.0
+    orientation: float = 0.0
     success_bonus: float = 5.0
     drop_penalty: float = 20.0
-    step_penalty: float = 0.1
+    step_penalty: float = 0.0
     force_multiplier: float = 0.0
+
+
+REWARD_PRESETS = {
+    "paper": IhomReward(),
+    "dense": IhomReward(orientation=5.0, success_bonus=25.0),
+}
+
+
+def reward_coefficients(name: str, overrides: dict[str, float] | None = None) -> IhomReward:
+    """The coefficients of preset `name` ("paper" or "dense") with `overrides` (coefficient name -> value) applied."""
+    if name not in REWARD_PRESETS:
+        raise ValueError(f"Unknown reward preset {name!r}; choose one of {sorted(REWARD_PRESETS)}.")
+    IhomReward.from_dict(overrides)  # a ValueError naming the known coefficients when one is unknown
+    return dataclasses.replace(REWARD_PRESETS[name], **{k: float(v) for k, v in (overrides or {}).items()})
 
 
 def quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -97,40 +152,65 @@ def random_rotation(key: jax.Array) -> jax.Array:
     return jnp.where(q[0] < 0, -q, q)
 
 
+def rotation_matrix(q: jax.Array) -> jax.Array:
+    """The rotation matrix of unit quaternion `q` (w, x, y, z), flattened row by row: shape `(..., 9)`. Unlike the
+    quaternion it is continuous and unique (q and -q give the same matrix), which makes it the better network input."""
+    w, x, y, z = jnp.moveaxis(q, -1, 0)
+    return jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                      2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                      2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)
+
+
 class Ihom(HandTask):
-    """Cube reorientation on the cube scene (`load_cube_scene`).
+    """Cube reorientation on the cube scene (`load_cube_scene`), one policy step lasting `dt` s.
 
     Observation (sizes for the Gym hand; touch only when the model has touch sensors):
       proprioception (48): hand joint positions (rad) and velocities (rad/s), 24 each;
       touch (97 or 0): touch sensor readings (N, contact normal forces summed over each sensor zone);
       vision (7): the cube's pose in place of vision, position (m, world) and orientation quaternion (w, x, y, z);
-      goal (4): the goal quaternion;
-      asymmetric (25, value function only): fingertip positions (15, m), rotation from cube to goal (4,
-        quaternion), cube linear velocity (3, m/s, world frame) and angular velocity (3, rad/s, cube frame).
+      goal (4, or 13 with `relative_goal`): the goal quaternion; with `relative_goal` also the rotation from the
+        cube's orientation to the goal as a 3 x 3 matrix (world frame, flattened), the error the hand must undo;
+      asymmetric (27, value function only): fingertip positions (15, m), rotation from cube to goal (4,
+        quaternion), cube linear velocity (3, m/s, world frame), angular velocity (3, rad/s, cube frame), the share
+        of the goal timer left and the share of `max_goals` reached.
     Info: goal (4,), goal_steps (int32, steps spent on the current goal), goals_reached (int32), time_out (bool).
-    Metrics: goals_reached (CGR so far), dropped (1 on the step the cube dropped), goal_distance (rad).
+    Metrics: goals_reached (CGR so far), dropped (1 on the step the cube dropped), timed_out (1 on the step the goal
+    timer ran out), goal_distance (rad).
+
+    control / action_scale: see `HandTask`. Under "absolute" (the default) and "target" a zero action keeps the cube
+    on the palm; under "position" (AngoraPy's) the hand sags and drops it within about 0.5 s.
+    start_pool: number of settled starts (`settled_starts`), drawn once from a fixed seed.
     """
 
-    metric_names = ("goals_reached", "dropped", "goal_distance")
+    metric_names = ("goals_reached", "dropped", "timed_out", "goal_distance")
     random_initial_qpos = True
 
     def __init__(self, model: mujoco.MjModel, reward: IhomReward = IhomReward(), success_angle: float = 0.4,
-                 steps_per_goal: int = 100, max_goals: int = 50, relative_control: bool = True):
-        if success_angle <= 0 or steps_per_goal < 1 or max_goals < 1:
-            raise ValueError(f"Ihom needs success_angle > 0, steps_per_goal >= 1 and max_goals >= 1, got "
-                             f"{success_angle}, {steps_per_goal}, {max_goals}.")
+                 steps_per_goal: int = 100, max_goals: int = 50, dt: float = 0.08, timer: str = "terminal",
+                 relative_goal: bool = False, control: str = "absolute", action_scale: float = 0.2,
+                 start_pool: int = 512):
+        if success_angle <= 0 or steps_per_goal < 1 or max_goals < 1 or dt <= 0 or start_pool < 1:
+            raise ValueError(f"Ihom needs success_angle > 0, steps_per_goal >= 1, max_goals >= 1, dt > 0 and "
+                             f"start_pool >= 1, got {success_angle}, {steps_per_goal}, {max_goals}, {dt}, "
+                             f"{start_pool}.")
+        if timer not in TIMERS:
+            raise ValueError(f"Unknown goal timer semantics {timer!r}; choose one of {TIMERS}.")
         hand_joints = [j for j in range(model.njnt) if model.joint(j).name.startswith(HAND_JOINT_PREFIX)]
-        super().__init__(model, relative_control=relative_control,
+        super().__init__(model, control=control, action_scale=action_scale,
                          initial_qpos={model.joint(j).name: 0.0 for j in hand_joints})
         self.reward_config = reward
         self.success_angle = success_angle
         self.steps_per_goal = steps_per_goal
         self.max_goals = max_goals
+        self.dt = dt
+        self.timer = timer
+        self.relative_goal = relative_goal
         cube = model.joint(CUBE_JOINT)
         self.cube_qpos = int(cube.qposadr[0])
         self.cube_dof = int(cube.dofadr[0])
         touch = model.sensor_type == mujoco.mjtSensor.mjSENS_TOUCH
         self.touch_adr = np.asarray(model.sensor_adr[touch])
+        self.starts = self.settled_starts(start_pool)
 
     def cube_pose(self, snap: Snapshot) -> jax.Array:
         """Cube position (m) and orientation quaternion, shape `(7,)`."""
@@ -143,8 +223,9 @@ class Ihom(HandTask):
         """True when the cube's centre is below the palm's centre (AngoraPy's drop test)."""
         return snap.qpos[self.cube_qpos + 2] < snap.xpos[self.palm_id, 2]
 
-    def initial_qpos(self, key: jax.Array) -> jax.Array:
-        """Flat hand; the cube above the palm (Gym's start), turned by a random rotation, position noise 5 mm."""
+    def random_start(self, key: jax.Array) -> jax.Array:
+        """An unsettled start, qpos `(nq,)`: the flat hand and the cube above the palm (Gym's start), turned by a
+        random rotation, position noise 5 mm."""
         turn_key, shift_key = jax.random.split(key)
         qpos = jnp.asarray(self._qpos0)
         start = self._qpos0[self.cube_qpos:self.cube_qpos + 7]
@@ -152,16 +233,56 @@ class Ihom(HandTask):
         pos = start[:3] + INITIAL_POSITION_NOISE * jax.random.normal(shift_key, (3,))
         return qpos.at[self.cube_qpos:self.cube_qpos + 7].set(jnp.concatenate([pos, quat / jnp.linalg.norm(quat)]))
 
+    def settled_starts(self, count: int, seed: int = 0, max_draws: int = 8) -> np.ndarray:
+        """`count` starts, qpos `(count, nq)` float32, each a `random_start` let fall onto the hand and settle for
+        `SETTLE_SECONDS` in C MuJoCo with the hand holding its pose, re-drawn (up to `max_draws` times) until the
+        cube rests on the palm (`RESTING_HEIGHT`, `RESTING_SPEED`). Deterministic for a seed (and cached)."""
+        model = self.model
+        content = np.empty(mujoco.mj_sizeModel(model), np.uint8)
+        mujoco.mj_saveModel(model, None, content)
+        cache_key = (hashlib.sha1(content.tobytes()).hexdigest(), self._qpos0.tobytes(), count, seed)
+        if cache_key in _STARTS:
+            return _STARTS[cache_key]
+        data = mujoco.MjData(model)
+        steps = max(1, round(SETTLE_SECONDS / model.opt.timestep))
+        draw = jax.jit(jax.vmap(self.random_start))
+        keys = jax.random.split(jax.random.key(seed), (max_draws, count))
+        candidates = np.asarray(draw(keys.reshape(-1)), np.float64).reshape(max_draws, count, -1)
+        starts = []
+        for i in range(count):
+            for attempt in range(max_draws):
+                mujoco.mj_resetData(model, data)
+                data.qpos[:] = candidates[attempt, i]
+                mujoco.mj_forward(model, data)
+                data.ctrl[:] = np.clip(data.actuator_length, *model.actuator_ctrlrange.T)
+                mujoco.mj_step(model, data, nstep=steps)
+                height = data.qpos[self.cube_qpos + 2] - data.xpos[self.palm_id, 2]
+                speed = np.linalg.norm(data.qvel[self.cube_dof:self.cube_dof + 3])
+                if height > RESTING_HEIGHT and speed < RESTING_SPEED:
+                    break
+            else:
+                raise RuntimeError(f"No start of {max_draws} draws came to rest on the palm (start {i}); the scene's "
+                                   "physics settings may be unstable.")
+            starts.append(data.qpos.copy())
+        _STARTS[cache_key] = np.asarray(starts, np.float32)
+        return _STARTS[cache_key]
+
+    def initial_qpos(self, key: jax.Array) -> jax.Array:
+        """One of the settled starts, picked by `key`."""
+        return jnp.asarray(self.starts)[jax.random.randint(key, (), 0, len(self.starts))]
+
     def initial_info(self, key: jax.Array, snap: Snapshot) -> dict[str, jax.Array]:
         return {"goal": random_rotation(key), "goal_steps": jnp.zeros((), jnp.int32),
                 "goals_reached": jnp.zeros((), jnp.int32), "time_out": jnp.zeros((), bool)}
 
     def observe(self, snap: Snapshot, info: dict[str, jax.Array]) -> Sensation:
         cube_velocity = snap.qvel[self.cube_dof:self.cube_dof + 6]
-        asymmetric = jnp.concatenate([self.fingertips(snap).reshape(-1),
-                                      rotation_between(self.cube_quat(snap), info["goal"]), cube_velocity])
+        to_goal = rotation_between(self.cube_quat(snap), info["goal"])
+        clocks = jnp.stack([1.0 - info["goal_steps"] / self.steps_per_goal, info["goals_reached"] / self.max_goals])
+        asymmetric = jnp.concatenate([self.fingertips(snap).reshape(-1), to_goal, cube_velocity, clocks])
+        goal = jnp.concatenate([info["goal"], rotation_matrix(to_goal)]) if self.relative_goal else info["goal"]
         return Sensation.make(proprioception=self.proprioception(snap), touch=snap.sensordata[self.touch_adr],
-                              vision=self.cube_pose(snap), goal=info["goal"], asymmetric=asymmetric)
+                              vision=self.cube_pose(snap), goal=goal, asymmetric=asymmetric)
 
     def evaluate(self, key, prev, snap, info):
         c = self.reward_config
@@ -171,16 +292,20 @@ class Ihom(HandTask):
         success = distance <= self.success_angle
         dropped = self.dropped(snap)
         force = jnp.sum(snap.actuator_force[2:] ** 2)
-        reward = (c.progress * (before - distance) + c.success_bonus * success - c.drop_penalty * dropped
-                  - c.step_penalty - c.force_multiplier * force)
+        reward = (c.progress * (before - distance) + c.orientation * self.dt * (1.0 - distance / jnp.pi)
+                  + c.success_bonus * success - c.drop_penalty * dropped - c.step_penalty - c.force_multiplier * force)
         goals_reached = info["goals_reached"] + success.astype(jnp.int32)
         goal_steps = jnp.where(success, 0, info["goal_steps"] + 1)
-        out_of_time = jnp.logical_or(goal_steps >= self.steps_per_goal, goals_reached >= self.max_goals)
+        timer_ran_out = jnp.logical_and(goal_steps >= self.steps_per_goal, jnp.logical_not(dropped))
+        terminal_timer = self.timer == "terminal"
+        terminated = jnp.logical_or(dropped, jnp.logical_and(timer_ran_out, terminal_timer))
+        cut = jnp.logical_or(goals_reached >= self.max_goals, jnp.logical_and(timer_ran_out, not terminal_timer))
         next_info = {
             "goal": jnp.where(success, random_rotation(key), goal),
             "goal_steps": goal_steps,
             "goals_reached": goals_reached,
-            "time_out": jnp.logical_and(out_of_time, jnp.logical_not(dropped)),
+            "time_out": jnp.logical_and(cut, jnp.logical_not(terminated)),
         }
-        metrics = {"goals_reached": goals_reached, "dropped": dropped, "goal_distance": distance}
-        return reward, dropped, next_info, metrics
+        metrics = {"goals_reached": goals_reached, "dropped": dropped, "timed_out": timer_ran_out,
+                   "goal_distance": distance}
+        return reward, terminated, next_info, metrics
