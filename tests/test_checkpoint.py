@@ -57,6 +57,24 @@ def runs(tmp_path_factory):
     return whole, stopped.value, at_interrupt, resumed
 
 
+def test_a_time_limit_stops_with_a_checkpoint_and_resume_continues_exactly(runs, tmp_path):
+    """Training in pieces (`--minutes`): a call past its limit stops after the cycle it is in, saves, and reports the
+    run unfinished; resume (with its own limit) goes on, and the pieces end where the uninterrupted run does."""
+    whole = runs[0]
+    first = aj.train(config(tmp_path, "pieces"), minutes=1e-9)
+    assert not first.finished and [r["cycle"] for r in first.history] == [1]
+    second = resume(first.run_dir, minutes=1e-9)
+    assert not second.finished and [r["cycle"] for r in second.history] == [2]
+    last = resume(first.run_dir)
+    assert last.finished and [r["cycle"] for r in last.history] == [3, 4]
+    assert resume(first.run_dir, minutes=1e-9).finished, "a finished run stays finished"
+    for a, b in zip(jax.tree.leaves(whole.state.params), jax.tree.leaves(last.state.params), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert [r["cycle"] for r in read_metrics(first.run_dir)] == [1, 2, 3, 4]
+    with pytest.raises(ValueError, match="minutes"):
+        aj.train(config(tmp_path, "no_time"), minutes=0.0)
+
+
 def test_sigterm_saves_a_loadable_checkpoint_and_restores_the_handler(runs):
     _, stopped, at_interrupt, _ = runs
     assert stopped.signum == signal.SIGTERM and stopped.cycle == 2

@@ -58,22 +58,26 @@ def shared_run_dir(config: Config, create: Callable[[Config], Path]) -> Path:
 
 @dataclass(frozen=True)
 class StopDecision:
-    """What all processes do after a cycle: stop for `signum` (a signal some process received, else None), and
-    whether processes `failed` (their indices) with an error of their own."""
+    """What all processes do after a cycle: stop for `signum` (a signal some process received, else None), whether
+    processes `failed` (their indices) with an error of their own, and whether some process ran `out_of_time` (its
+    wall-clock limit for this session, `angora-jax train --minutes`)."""
 
     signum: int | None
     failed: tuple[int, ...]
+    out_of_time: bool = False
 
 
-def agree_to_stop(signum: int | None, failed: bool) -> StopDecision:
-    """The stop decision of all processes from this process's reasons: a signal it received (or None) and whether
-    it failed. Any process's signal stops all (the highest signal number wins if several differ); any failure is
-    reported to all. Every process must call it once per cycle, at the same point. On a single process it returns
-    the reasons as they are, without communication; with several it is one tiny all-gather of two int32 each."""
+def agree_to_stop(signum: int | None, failed: bool, out_of_time: bool = False) -> StopDecision:
+    """The stop decision of all processes from this process's reasons: a signal it received (or None), whether it
+    failed and whether its time limit has passed. Any process's signal stops all (the highest signal number wins if
+    several differ); any failure is reported to all; one process out of time stops all (their clocks differ).
+    Every process must call it once per cycle, at the same point. On a single process it returns the reasons as they
+    are, without communication; with several it is one tiny all-gather of three int32 each."""
     if jax.process_count() == 1:
-        return StopDecision(signum, (jax.process_index(),) if failed else ())
-    flags = multihost_utils.process_allgather(np.array([signum or 0, int(failed)], np.int32))
-    return StopDecision(int(flags[:, 0].max()) or None, tuple(int(i) for i in np.flatnonzero(flags[:, 1])))
+        return StopDecision(signum, (jax.process_index(),) if failed else (), out_of_time)
+    flags = multihost_utils.process_allgather(np.array([signum or 0, int(failed), int(out_of_time)], np.int32))
+    return StopDecision(int(flags[:, 0].max()) or None, tuple(int(i) for i in np.flatnonzero(flags[:, 1])),
+                        bool(flags[:, 2].max()))
 
 
 class ProcessFailed(RuntimeError):

@@ -7,9 +7,10 @@ import sys
 from typing import TextIO
 
 
-def progress_line(metrics: dict[str, float], total_cycles: int, eta_seconds: float) -> str:
+def progress_line(metrics: dict[str, float], total_cycles: int, eta_seconds: float, shown: str | None = None) -> str:
     """`cycle 12/60  env steps 24,576  2,345 steps/s  return 123.4  success 0.120  ETA 0:01:23` for a cycle's
-    metrics; the first `metric/*` is shown as the task metric, `-` stands for undefined values."""
+    metrics; the task metric shown is `shown` (a `metric/*` name) when the metrics have it, else the first `metric/*`
+    by name; `-` stands for undefined values."""
     parts = [
         f"cycle {int(metrics['cycle'])}/{total_cycles}",
         f"env steps {int(metrics['env_steps']):,}",
@@ -17,6 +18,8 @@ def progress_line(metrics: dict[str, float], total_cycles: int, eta_seconds: flo
         f"return {_show(metrics.get('episode_return', math.nan), '.1f')}",
     ]
     task_metrics = sorted(k for k in metrics if k.startswith("metric/"))
+    if shown in task_metrics:
+        task_metrics.insert(0, shown)
     if task_metrics:
         parts.append(f"{task_metrics[0].removeprefix('metric/')} {_show(metrics[task_metrics[0]], '.3f')}")
     parts.append(f"ETA {_duration(eta_seconds)}")
@@ -25,10 +28,12 @@ def progress_line(metrics: dict[str, float], total_cycles: int, eta_seconds: flo
 
 class Progress:
     """Shows `progress_line` after each cycle. mode: "bar" (rewrite one line: for terminals), "lines" (one line per
-    cycle: for log files), "none", or "auto" ("bar" when `stream` is a terminal, "lines" otherwise)."""
+    cycle: for log files), "none", or "auto" ("bar" when `stream` is a terminal, "lines" otherwise). shown: the task
+    metric to show (e.g. the run's `checkpoint.best_metric`, `metric/goals_reached` for the cube)."""
 
-    def __init__(self, total_cycles: int, mode: str = "auto", stream: TextIO | None = None):
+    def __init__(self, total_cycles: int, mode: str = "auto", stream: TextIO | None = None, shown: str | None = None):
         self.stream = sys.stdout if stream is None else stream
+        self.shown = shown
         if mode == "auto":
             mode = "bar" if self.stream.isatty() else "lines"
         self.mode, self.total = mode, total_cycles
@@ -40,7 +45,7 @@ class Progress:
         if "compile_seconds" not in metrics:
             self._seconds.append(metrics["seconds"])
         per_cycle = sum(self._seconds) / len(self._seconds) if self._seconds else metrics["seconds"]
-        line = progress_line(metrics, self.total, (self.total - metrics["cycle"]) * per_cycle)
+        line = progress_line(metrics, self.total, (self.total - metrics["cycle"]) * per_cycle, self.shown)
         if self.mode == "bar":
             self.stream.write("\r" + line.ljust(self._width))
             self._width = len(line)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
+import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,12 +32,14 @@ class TrainingRun:
     """What a finished (or already complete) run returns.
 
     run_dir: the run directory. state: the final TrainState. history: the monitor records of the cycles run by
-    this call (see `monitor`).
+    this call (see `monitor`). finished: all of the config's cycles are done; False when the call stopped at its
+    time limit (`minutes`), with a checkpoint saved, and `resume(run_dir)` continues.
     """
 
     run_dir: Path
     state: TrainState
     history: list[dict[str, Any]] = field(default_factory=list)
+    finished: bool = True
 
 
 class TrainingInterrupted(Exception):
@@ -54,11 +57,14 @@ def train(
     config: Config | str | Path | dict | None = None,
     overrides: Iterable[str] = (),
     on_cycle: Callable[[dict[str, Any]], None] | None = None,
+    minutes: float | None = None,
 ) -> TrainingRun:
     """Train a new run: validate the config, create its run directory, then run all cycles.
 
     config: a Config, or anything `load_config` reads (YAML path, configs/ name, dict, None for defaults), with
-    `overrides` (`key.sub=value` strings) applied. on_cycle: called with each cycle's monitor record.
+    `overrides` (`key.sub=value` strings) applied. on_cycle: called with each cycle's monitor record. minutes: a
+    wall-clock limit for this call, compile included: after the first cycle that ends past it, a checkpoint is saved
+    and the call returns with `finished=False` (train in pieces: `resume` continues exactly).
     Raises ConfigError (before compiling) for a bad config, RunDirError when the named run directory exists,
     TrainingInterrupted after Ctrl-C or SIGTERM (with a checkpoint saved), TrainingDivergedError on NaN. In a
     multi-process run (`angora_jax.experiment.distributed`) all processes stop after the same cycle: a signal to any
@@ -70,13 +76,15 @@ def train(
         raise ValueError("Overrides apply to a config loaded from a file or dict; change a Config with replace().")
     env = validate(config)
     run_dir = shared_run_dir(config, create_run_dir)
-    return _run(config, env, run_dir, state=None, on_cycle=on_cycle)
+    return _run(config, env, run_dir, state=None, on_cycle=on_cycle, minutes=minutes)
 
 
-def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | None = None) -> TrainingRun:
+def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | None = None,
+           minutes: float | None = None) -> TrainingRun:
     """Continue `run_dir` from its latest checkpoint up to the config's `ppo.num_cycles`, exactly as if it had
     not stopped (same device assumed). Without a checkpoint (killed before the first) the run starts over from
-    cycle 0, which gives the same result. A run that has already finished is returned as it is."""
+    cycle 0, which gives the same result. A run that has already finished is returned as it is. minutes: this
+    call's wall-clock limit, as for `train`."""
     run_dir = Path(run_dir)
     config = read_run_config(run_dir)
     env = validate(config)
@@ -89,7 +97,7 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
         checkpoints.close()
     if is_main_process():
         set_aside_after(run_dir, 0 if state is None else int(state.cycle))
-    return _run(config, env, run_dir, state=state, on_cycle=on_cycle)
+    return _run(config, env, run_dir, state=state, on_cycle=on_cycle, minutes=minutes)
 
 
 def initial_state_shape(config: Config, env: Env) -> TrainState:
@@ -104,7 +112,12 @@ def _run(
     run_dir: Path,
     state: TrainState | None,
     on_cycle: Callable[[dict[str, Any]], None] | None,
+    minutes: float | None = None,
 ) -> TrainingRun:
+    if minutes is not None and minutes <= 0:
+        raise ValueError(f"minutes (the call's time limit) must be > 0, got {minutes}.")
+    deadline = None if minutes is None else time.monotonic() + 60.0 * minutes
+    finished = state is not None and int(state.cycle) >= config.ppo.num_cycles
     history: list[dict[str, Any]] = []
     resolved = to_dict(config)
     checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint)
@@ -112,7 +125,8 @@ def _run(
     # them: each writes the shards of its own devices, process 0 the replicated arrays and metadata).
     main = is_main_process()
     monitor = Monitor(run_dir, config.logging.tensorboard) if main else None
-    progress = Progress(config.ppo.num_cycles, config.logging.progress if main else "none")
+    progress = Progress(config.ppo.num_cycles, config.logging.progress if main else "none",
+                        shown=config.checkpoint.best_metric)
     try:
         with _stop_requests() as stop:
             # Divergence (TrainingDivergedError) is decided inside training_cycles from a metric that the compiled
@@ -129,15 +143,19 @@ def _run(
                 except Exception as error:  # re-raised below, once the other processes know to stop too
                     failure = error
                 # Read the request once: a signal arriving during the save is acted on after the next cycle.
-                decision = agree_to_stop(stop.signum, failure is not None)
+                out_of_time = deadline is not None and time.monotonic() > deadline
+                decision = agree_to_stop(stop.signum, failure is not None, out_of_time)
                 if failure is not None:
                     raise failure
                 if decision.failed:
                     raise ProcessFailed(decision.failed, int(metrics["cycle"]), run_dir)
-                last = record["cycle"] == config.ppo.num_cycles
-                checkpoints.save(state, record, resolved, final=decision.signum is not None or last)
+                finished = record["cycle"] == config.ppo.num_cycles
+                stopping = decision.signum is not None or decision.out_of_time
+                checkpoints.save(state, record, resolved, final=stopping or finished)
                 if decision.signum is not None:
                     raise TrainingInterrupted(decision.signum, run_dir, int(record["cycle"]))
+                if decision.out_of_time and not finished:
+                    break
     finally:
         progress.close()
         if monitor is not None:
@@ -147,7 +165,7 @@ def _run(
         from angora_jax.experiment.report import write_report  # matplotlib is loaded only when a report is made
 
         write_report([run_dir], run_dir / "report")
-    return TrainingRun(run_dir, state, history)
+    return TrainingRun(run_dir, state, history, finished)
 
 
 @dataclass
