@@ -40,7 +40,7 @@ from angora_jax.ppo import TrainingDivergedError, list_heads
 def run_random(task: str, num_envs: int, num_steps: int, seed: int) -> dict[str, float]:
     """Roll out a random policy in `num_envs` batched environments for `num_steps` policy steps under one jit and
     print compile time, throughput and rewards. Returns the printed numbers."""
-    env = make(task)
+    env = make(task).sized_for(num_envs)
     rollout = jax.jit(make_random_rollout(env, num_envs, num_steps))
     reset = jax.jit(batched_reset, static_argnums=(0, 2))
     key = jax.random.key(seed)
@@ -108,16 +108,18 @@ def parser() -> argparse.ArgumentParser:
     train = commands.add_parser("train", help="train a new run from a YAML config (see configs/)")
     train.add_argument("config", help="YAML path or a name in configs/ (e.g. cartpole)")
     train.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. ppo.num_cycles=20 ppo.network.name=lstm")
+    add_time_limit(train)
     add_distributed_flags(train)
     train.set_defaults(handler=command_train)
 
     resume = commands.add_parser("resume", help="continue a run from its latest checkpoint, exactly")
     resume.add_argument("run_dir")
+    add_time_limit(resume)
     add_distributed_flags(resume)
     resume.set_defaults(handler=command_resume)
 
     evaluate = commands.add_parser(
-        "evaluate", help="episode statistics of a trained policy on the eager CPU path; JSON + box plot in the run"
+        "evaluate", help="episode statistics of a trained policy (eager CPU path or batched); JSON + box plot"
     )
     evaluate.add_argument("run_dir")
     evaluate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
@@ -129,6 +131,9 @@ def parser() -> argparse.ArgumentParser:
     )
     evaluate.add_argument("--batch", type=positive_int, default=evaluation.DEFAULT_BATCH,
                           help="episodes run at once (default: %(default)s); results do not depend on it")
+    evaluate.add_argument("--path", choices=evaluation.PATHS, default="cpu",
+                          help="cpu: the eager C MuJoCo path (default); batched: all episodes at once on the "
+                               "training path (MJX, the GPU when there is one)")
     evaluate.add_argument("--workers", type=positive_int, default=1,
                           help="threads stepping C MuJoCo physics (default: 1); results do not depend on it")
     evaluate.set_defaults(handler=command_evaluate)
@@ -167,6 +172,20 @@ def parser() -> argparse.ArgumentParser:
     return top
 
 
+def positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def add_time_limit(command: argparse.ArgumentParser) -> None:
+    command.add_argument(
+        "--minutes", type=positive_float,
+        help="stop after the first cycle that ends past this wall time (compile included), with a checkpoint; "
+             "'angora-jax resume RUN_DIR' continues exactly (train in pieces shorter than a job's time limit)")
+
+
 def add_distributed_flags(command: argparse.ArgumentParser) -> None:
     """--distributed and its optional settings (left out, they come from the cluster, e.g. SLURM)."""
     command.add_argument(
@@ -184,7 +203,7 @@ def start_distributed(args: argparse.Namespace) -> None:
 
 def command_train(args: argparse.Namespace) -> int:
     start_distributed(args)
-    run = train(args.config, args.overrides)
+    run = train(args.config, args.overrides, minutes=args.minutes)
     if is_main_process():
         print_finished(run)
     return EXIT_OK
@@ -192,7 +211,7 @@ def command_train(args: argparse.Namespace) -> int:
 
 def command_resume(args: argparse.Namespace) -> int:
     start_distributed(args)
-    run = resume(args.run_dir)
+    run = resume(args.run_dir, minutes=args.minutes)
     if is_main_process():
         print_finished(run)
     return EXIT_OK
@@ -201,6 +220,9 @@ def command_resume(args: argparse.Namespace) -> int:
 def print_finished(run: TrainingRun) -> None:
     cycle = int(run.state.cycle)
     print(f"Run {run.run_dir}: {cycle} cycles done ({len(run.history)} in this session).")
+    if not run.finished:
+        print(f"Stopped at the time limit (--minutes) with a checkpoint of cycle {cycle}; continue with: "
+              f"angora-jax resume {run.run_dir}")
     returns = [r["episode_return"] for r in read_metrics(run.run_dir) if math.isfinite(r["episode_return"])]
     if len(returns) >= 2:
         tenth = max(1, len(returns) // 10)
@@ -215,7 +237,7 @@ def print_finished(run: TrainingRun) -> None:
 def command_evaluate(args: argparse.Namespace) -> int:
     checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
     result = evaluation.evaluate(args.run_dir, checkpoint, args.episodes, args.stochastic, args.seed,
-                                 batch=args.batch, workers=args.workers)
+                                 batch=args.batch, workers=args.workers, path=args.path)
     meta = result.meta
     actions = "sampled" if args.stochastic else "deterministic (mode)"
     threads = f", {meta['workers']} threads stepping physics" if meta["workers"] > 1 else ""

@@ -129,6 +129,10 @@ def test_progress_is_a_live_line_on_a_terminal_and_log_lines_elsewhere():
         "cycle 2/10  env steps 4,096  4,096 steps/s  return 102.0  success 0.250  ETA 0:01:05"
     )
     assert "return -" in progress_line(metrics(1), 10, 0)
+    cube = metrics(2) | {"metric/dropped": 0.5, "metric/goals_reached": 3.0}
+    assert "dropped 0.500" in progress_line(cube, 10, 0)  # the first by name
+    assert "goals_reached 3.000" in progress_line(cube, 10, 0, shown="metric/goals_reached")
+    assert "dropped 0.500" in progress_line(cube, 10, 0, shown="episode_return")  # not a task metric: ignored
     terminal, log = Terminal(), io.StringIO()
     for stream in (terminal, log):
         progress = Progress(10, "auto", stream)

@@ -22,9 +22,11 @@ from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch
 from angora_jax.envs.rendering import RenderError
 from angora_jax.experiment.evaluation import (
+    EVALUATION_DIR,
     agent_policy,
     agreement,
     episode_keys,
+    evaluate,
     on_host,
     random_policy,
     run_episodes,
@@ -149,6 +151,21 @@ def test_agreement_compares_means_in_standard_errors_of_the_difference():
     assert agreement(np.full(8, 100.0), np.full(8, 100.0))["agree"]
     constant = agreement(np.full(8, 100.0), np.full(8, 99.0))
     assert not constant["agree"] and constant["diff_in_stderr"] is None
+
+
+def test_batched_evaluation_writes_the_same_record_as_the_cpu_path(run_dir, capsys):
+    """`--path batched` runs every episode at once on the training path (the GPU's way to evaluate 480 episodes): a
+    record of its own name, with the same statistics as the CPU path's for the same episodes (mode actions, same
+    reset keys; CartPole's physics are the same JAX functions on both paths)."""
+    assert main(["evaluate", str(run_dir), "--checkpoint", "latest", "--episodes", "12", "--path", "batched"]) == 0
+    out = capsys.readouterr().out
+    assert "12 episodes on batched" in out and "at a time" in out
+    batched = json.loads(next((run_dir / EVALUATION_DIR).glob("latest-cycle20-mode-seed0-batched.json")).read_text())
+    cpu = evaluate(run_dir, "latest", episodes=12, save=False)
+    assert batched["path"] == "batched" and len(batched["per_episode"]["episode_length"]) == 12
+    np.testing.assert_allclose(batched["per_episode"]["episode_length"], cpu.episodes["episode_length"])
+    with pytest.raises(ValueError, match="Unknown evaluation path 'gpu'"):
+        evaluate(run_dir, "latest", episodes=2, save=False, path="gpu")
 
 
 def test_cpu_and_batched_paths_agree_by_the_path_agreement_tool(run_dir, tmp_path, capsys):

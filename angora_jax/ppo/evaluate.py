@@ -22,10 +22,13 @@ def make_evaluate(
     """Build the jitted `evaluate(state, key) -> metrics` for the same env, network and config as training.
 
     Each of `num_envs` fresh environments runs exactly one episode (up to `env.max_episode_steps` steps), acting with
-    the head's mode (or sampling, when not `deterministic`); observation stats are read, never updated. Metrics:
+    the head's mode (or sampling, when not `deterministic`; step t samples with `fold_in(key, t)`); observation stats
+    are read, never updated. The loop stops as soon as every episode has ended, so long limits (a cube episode may
+    last 5,000 steps) cost only the steps the longest episode takes. Metrics:
     episode_return and episode_length (means over environments), `metric/<name>` at each episode's end; with
     `per_episode`, each environment's values (arrays `(num_envs,)`) instead of the means.
     """
+    env = env.sized_for(num_envs)
     network = make_network(config.network) if network is None else network
     head = build_head(env, config)
     model = ActorCritic(network, head)
@@ -34,8 +37,9 @@ def make_evaluate(
         reset_key, act_key = jax.random.split(key)
         env_state = jax.vmap(env.reset)(jax.random.split(reset_key, num_envs))
 
-        def step(carry, key):
-            env_state, net_carry, running, totals = carry
+        def step(carry):
+            t, env_state, net_carry, running, totals = carry
+            key = jax.random.fold_in(act_key, t)
             obs = env_state.obs
             if config.normalization.observations:
                 obs = normalize_observation(state.obs_stats, obs, config.normalization.clip)
@@ -48,12 +52,16 @@ def make_evaluate(
                 "episode_length": totals["episode_length"] + running,
                 **{f"metric/{k}": totals[f"metric/{k}"] + ended * v for k, v in env_state.metrics.items()},
             }
-            return (env_state, net_carry, running * (1.0 - env_state.done), totals), None
+            return t + 1, env_state, net_carry, running * (1.0 - env_state.done), totals
+
+        def unfinished(carry):
+            t, _, _, running, _ = carry
+            return jnp.logical_and(t < env.max_episode_steps, jnp.any(running > 0))
 
         zeros = jnp.zeros((num_envs,), jnp.float32)
         totals = {"episode_return": zeros, "episode_length": zeros, **{f"metric/{k}": zeros for k in env.metric_names}}
-        carry = (env_state, network.initial_carry(num_envs), jnp.ones_like(zeros), totals)
-        (_, _, _, totals), _ = jax.lax.scan(step, carry, jax.random.split(act_key, env.max_episode_steps))
+        carry = (jnp.zeros((), jnp.int32), env_state, network.initial_carry(num_envs), jnp.ones_like(zeros), totals)
+        *_, totals = jax.lax.while_loop(unfinished, step, carry)
         return totals if per_episode else {name: value.mean() for name, value in totals.items()}
 
     return jax.jit(evaluate)
