@@ -50,7 +50,7 @@ def test_bad_input_exits_2_with_the_cause(argv, message, capsys, tmp_path, monke
 
 
 def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys, tmp_path, monkeypatch):
-    def fail(config, overrides):
+    def fail(config, overrides, minutes=None):
         raise ProcessFailed((1,), 3, tmp_path / "run")
 
     monkeypatch.setattr(cli, "train", fail)
@@ -62,7 +62,7 @@ def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys
 
 def test_overrides_may_follow_the_options_and_other_strays_are_usage_errors(capsys, monkeypatch):
     seen = []
-    monkeypatch.setattr(cli, "train", lambda config, overrides: seen.append((config, overrides)) or "run")
+    monkeypatch.setattr(cli, "train", lambda config, overrides, minutes: seen.append((config, overrides)) or "run")
     monkeypatch.setattr(cli, "print_finished", lambda run: None)
     assert main(["train", "cartpole", "ppo.seed=1", "--coordinator", "localhost:1", "ppo.num_envs=8"]) == 0
     assert seen == [("cartpole", ["ppo.seed=1", "ppo.num_envs=8"])]
@@ -88,6 +88,19 @@ def test_train_then_evaluate_exit_0(capsys, tmp_path):
     assert "episode_return" in capsys.readouterr().out
     assert main(argv) == 2  # the run directory exists: refused, untouched
     assert "already exists" in capsys.readouterr().err
+
+
+def test_minutes_stop_training_with_the_command_to_continue(capsys, tmp_path):
+    argv = ["train", "cartpole", *TINY, "ppo.num_cycles=3", f"logging.run_root={tmp_path}", "logging.run_name=p"]
+    assert main([*argv, "--minutes", "1e-9"]) == 0
+    out = capsys.readouterr().out
+    assert "cycle 1/3" in out and "cycle 2/3" not in out
+    assert f"Stopped at the time limit (--minutes) with a checkpoint of cycle 1; continue with: angora-jax resume " \
+           f"{tmp_path / 'p'}" in out
+    assert [r["cycle"] for r in read_metrics(tmp_path / "p")] == [1]  # resuming is tests/test_checkpoint.py's
+    with pytest.raises(SystemExit) as exit_info:
+        main(["resume", str(tmp_path / "p"), "--minutes", "0"])
+    assert exit_info.value.code == 2 and "--minutes: must be > 0" in capsys.readouterr().err
 
 
 def test_sigterm_stops_the_command_with_a_checkpoint(tmp_path):

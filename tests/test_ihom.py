@@ -355,7 +355,7 @@ def test_mjx_and_cpu_paths_agree_for_2_seconds(rollout):
 def test_paper_preset_trains_two_cycles_on_a_small_batch(tmp_path):
     """configs/shadow_ihom_paper.yaml as it is (wide LSTM 1024, 11 bins, TBPTT 16, AngoraPy's reward), only the batch
     made small: the config loads, validates and runs two cycles with finite losses and the cube metrics."""
-    overrides = ["ppo.num_envs=2", "ppo.rollout_length=32", "ppo.minibatch_size=32", "ppo.num_epochs=1",
+    overrides = ["ppo.num_envs=2", "ppo.rollout_length=16", "ppo.minibatch_size=32", "ppo.num_epochs=1",
                  "ppo.num_cycles=2", f"logging.run_root={tmp_path}", "logging.run_name=paper",
                  "logging.progress=none", "logging.report=false"]
     run = train_run("shadow_ihom_paper", overrides)

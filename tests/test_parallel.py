@@ -138,7 +138,7 @@ def test_two_processes_with_jax_distributed_stop_together_train_in_sync_and_resu
 def test_a_failure_in_another_process_stops_this_one_after_the_same_cycle(tmp_path, monkeypatch):
     # What agree_to_stop reports when process 1 of two failed after this cycle (the real all-gather is exercised by
     # the two-process test above): this process stops too, naming it, and saves no checkpoint of that cycle.
-    monkeypatch.setattr(runner, "agree_to_stop", lambda signum, failed: StopDecision(signum, (1,)))
+    monkeypatch.setattr(runner, "agree_to_stop", lambda signum, failed, out_of_time: StopDecision(signum, (1,)))
     overrides = [*TINY_PPO, "logging.progress=none", "logging.report=false", f"logging.run_root={tmp_path}"]
     with pytest.raises(ProcessFailed, match=r"Process\(es\) 1 of this run failed after cycle 1 .*angora-jax resume"):
         aj.train("cartpole", [*overrides, "logging.run_name=peer"])
