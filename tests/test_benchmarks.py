@@ -18,6 +18,7 @@ from angora_jax.envs.registry import make
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
 import angorapy_ratio  # noqa: E402
 import brax_side_by_side as side  # noqa: E402
+import ihom_curve  # noqa: E402
 import throughput_ladder  # noqa: E402
 
 EPISODE = 4
@@ -134,3 +135,30 @@ def test_profile_splits_a_cycles_device_time_by_phase(tmp_path):
     summary = record["config"]["summary"]
     assert summary["device_busy_s_per_cycle"] == pytest.approx(sum(row["device_s"] for row in record["results"]))
     assert os.path.exists(summary["trace"]) and summary["top_kernels"]
+
+
+def test_ihom_curve_joins_pieces_by_cycle_and_finds_the_milestones(tmp_path, monkeypatch):
+    """Two pieces of one run: the second recomputed cycle 3 after resuming from cycle 2's checkpoint and replaces it.
+    Wall time counts the gap between a piece's cycles, training time only the cycles' own seconds."""
+    def row(cycle, cgr, time, compile=None):
+        record = {"cycle": cycle, "env_steps": 100 * cycle, "seconds": 2.0, "time": time, "episode_return": cgr,
+                  "metric/goals_reached": cgr, "metric/dropped": 0.1, "metric/goal_distance": 1.0}
+        return record | ({"compile_seconds": compile} if compile else {})
+
+    first = [row(1, 0.5, 100.0, compile=1.5), row(2, 4.0, 103.0), row(3, 99.0, 106.0)]
+    second = [row(3, 6.0, 500.0, compile=1.5), row(4, 12.0, 504.0)]
+    for name, rows in (("a.jsonl", first), ("b.jsonl", second)):
+        (tmp_path / name).write_text("".join(json.dumps(r) + "\n" for r in rows))
+    rows = ihom_curve.read_pieces([str(tmp_path / "a.jsonl"), str(tmp_path / "b.jsonl")])
+    assert [r["metric/goals_reached"] for r in rows] == [0.5, 4.0, 6.0, 12.0]
+    assert [r["train_seconds"] for r in rows] == [2.0, 4.0, 6.0, 8.0]
+    assert [r["wall_seconds"] for r in rows] == [2.0, 5.0, 7.0, 11.0]
+    found = {m["cgr"]: m for m in ihom_curve.milestones(rows)}
+    assert found[1]["cycle"] == 2 and found[5]["cycle"] == 3 and found[10]["env_steps"] == 400
+    assert found[20]["cycle"] is None and found[30]["cycle"] is None
+    monkeypatch.setattr(ihom_curve, "RESULTS", str(tmp_path))
+    pieces = f"run={tmp_path / 'a.jsonl'},{tmp_path / 'b.jsonl'}"
+    assert ihom_curve.main([pieces, "--device", "cpu", "--name", "t"]) == 0
+    record = json.loads((tmp_path / "ihom_curve_t.json").read_text())
+    assert record["training_device"] == "cpu" and len(record["curves"]["run"]) == 4
+    assert (tmp_path / "ihom_curve_t.png").read_bytes()[:4] == b"\x89PNG"

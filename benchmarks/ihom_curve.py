@@ -1,0 +1,156 @@
+"""In-hand cube reorientation learning curves (paper Fig. 7, left) from the `metrics.jsonl` of runs trained in pieces.
+
+A long run is trained in pieces shorter than a job's time limit (`angora-jax train ... --minutes 9`, then
+`angora-jax resume RUN_DIR --minutes 9` in each later job on the same machine). The run directory's metrics.jsonl
+then already holds every cycle; pieces saved from different places (e.g. copied back after each job) are joined here:
+give a run's files in the order they were written, and a later file's rows replace an earlier one's for the same
+cycles (a resumed piece recomputes the cycles after its checkpoint). Two clocks: `train_seconds` sums the cycles' own
+wall seconds (the compiled cycle, the first of each piece with its compilation); `wall_seconds` is what the clock on
+the wall showed, the time between consecutive cycles' log lines (the cycle plus its metrics, progress line and
+checkpoint saves), the first cycle of each piece counted by its own seconds: starting a process, building Warp's
+kernels and restoring the checkpoint between pieces are not counted.
+
+For each run it reports the env steps and wall time at which the training-mean CGR (`metric/goals_reached` over
+the episodes that ended in a cycle) first reached 1, 5, 10, 20 and 30, and the ratio of those to AngoraPy's (paper:
+1,187,512,320 samples, 96 h on 384 CPU cores and 32 GPUs, for a training mean of about 30). The plot overlays the
+runs against env steps (with the paper's endpoint) and against wall minutes.
+
+    python benchmarks/ihom_curve.py fast=runs/fast/metrics.jsonl paper=runs/paper/metrics.jsonl \\
+        --device "NVIDIA H100 80GB HBM3" --name ShadowHandCube_h100
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import os
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from common import RESULTS, markdown_table  # noqa: E402
+
+CGR = "metric/goals_reached"
+MILESTONES = (1, 5, 10, 20, 30)
+# AngoraPy's IHOM run (Weidler et al. 2023): samples, wall hours and hardware, for a training-mean CGR of about 30.
+PAPER = {"samples": 1_187_512_320, "hours": 96.0, "hardware": "384 CPU cores + 32 GPUs (P100)", "cgr": 30.0}
+
+
+def read_pieces(paths: list[str]) -> list[dict]:
+    """The rows of one run's metrics files (run directories or metrics.jsonl paths), joined by cycle: a later file's
+    row replaces an earlier one's; rows come back sorted by cycle with `wall_seconds` (cumulative) added."""
+    by_cycle: dict[int, dict] = {}
+    for path in paths:
+        file = Path(path) / "metrics.jsonl" if Path(path).is_dir() else Path(path)
+        if not file.exists():
+            raise SystemExit(f"No metrics file {file}: give a run directory or its metrics.jsonl.")
+        for line in file.read_text().splitlines():
+            if line.strip():
+                row = json.loads(line)
+                by_cycle[int(row["cycle"])] = row
+    rows, train, wall, previous = [], 0.0, 0.0, None
+    for cycle in sorted(by_cycle):
+        row = by_cycle[cycle]
+        train += row["seconds"]
+        same_piece = previous is not None and previous["cycle"] == cycle - 1 and "compile_seconds" not in row
+        wall += row["time"] - previous["time"] if same_piece else row["seconds"]
+        rows.append({**row, "train_seconds": train, "wall_seconds": wall})
+        previous = row
+    return rows
+
+
+def milestones(rows: list[dict]) -> list[dict]:
+    """For each CGR bar: the first cycle whose training-mean CGR reaches it, its env steps, training and wall minutes
+    (None when never reached), and the ratios of AngoraPy's samples and wall time to ours."""
+    found = []
+    for bar in MILESTONES:
+        row = next((r for r in rows if (r.get(CGR) is not None and r[CGR] >= bar)), None)
+        entry = {"cgr": bar, "cycle": None, "env_steps": None, "train_minutes": None, "wall_minutes": None}
+        if row is not None:
+            entry.update(cycle=row["cycle"], env_steps=row["env_steps"], train_minutes=row["train_seconds"] / 60,
+                         wall_minutes=row["wall_seconds"] / 60)
+            if bar >= PAPER["cgr"]:
+                entry["paper_samples_ratio"] = PAPER["samples"] / row["env_steps"]
+                entry["paper_wall_ratio"] = PAPER["hours"] * 3600 / row["wall_seconds"]
+        found.append(entry)
+    return found
+
+
+def plot(runs: dict[str, list[dict]], title: str, path: str) -> None:
+    """CGR against env steps (log scale, the paper's endpoint marked) and against wall minutes; drop share of
+    episode ends and goal distance against env steps."""
+    figure, axes = plt.subplots(1, 4, figsize=(18, 4))
+    for label, rows in runs.items():
+        steps = [r["env_steps"] for r in rows]
+        minutes = [r["wall_seconds"] / 60 for r in rows]
+
+        def values(key, rows=rows):
+            return [math.nan if r.get(key) is None else r[key] for r in rows]
+
+        axes[0].plot(steps, values(CGR), label=label)
+        axes[1].plot(minutes, values(CGR), label=label)
+        axes[2].plot(steps, values("metric/dropped"), label=label)
+        axes[3].plot(steps, values("metric/goal_distance"), label=label)
+    axes[0].scatter([PAPER["samples"]], [PAPER["cgr"]], marker="*", s=150, color="k", zorder=3,
+                    label=f"AngoraPy (paper): {PAPER['cgr']:g} at {PAPER['samples']:.3g}")
+    axes[0].set_xscale("log")
+    for ax, (xlabel, ylabel) in zip(axes, [("env steps", "training-mean CGR"), ("wall minutes (one GPU)", "CGR"),
+                                           ("env steps", "share of episode ends that are drops"),
+                                           ("env steps", "goal distance at episode end (rad)")], strict=True):
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    figure.suptitle(title)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("runs", nargs="+", metavar="LABEL=PATH[,PATH...]",
+                        help="a run's label and its metrics files or run directories, in the order written")
+    parser.add_argument("--device", required=True, help="the device the runs trained on, e.g. 'NVIDIA H100 80GB HBM3'")
+    parser.add_argument("--name", default="ShadowHandCube", help="results/ihom_curve_<name>.json and .png")
+    parser.add_argument("--note", default="", help="free text stored with the results (e.g. what else shared the GPU)")
+    args = parser.parse_args(argv)
+    runs = {}
+    for spec in args.runs:
+        label, sep, paths = spec.partition("=")
+        if not sep or not label or not paths:
+            raise SystemExit(f"Run {spec!r} must look like LABEL=PATH[,PATH...].")
+        runs[label] = read_pieces(paths.split(","))
+    summary = {label: milestones(rows) for label, rows in runs.items()}
+    os.makedirs(RESULTS, exist_ok=True)
+    stem = os.path.join(RESULTS, f"ihom_curve_{args.name}")
+    record = {"benchmark": "ihom_curve", "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+              "training_device": args.device, "note": args.note, "paper": PAPER, "milestones": summary,
+              "curves": {label: [{k: r.get(k) for k in ("cycle", "env_steps", "train_seconds", "wall_seconds",
+                                                         "steps_per_second",
+                                                         "episode_return", "episode_length", CGR, "metric/dropped",
+                                                         "metric/timed_out", "metric/goal_distance", "entropy")}
+                                 for r in rows] for label, rows in runs.items()}}
+    with open(stem + ".json", "w") as file:
+        json.dump(record, file, indent=1)
+    plot(runs, f"ShadowHandCube (IHOM) on {args.device}", stem + ".png")
+    for label, rows in runs.items():
+        last = rows[-1]
+        print(f"{label}: {last['cycle']} cycles, {last['env_steps']:,} env steps, {last['train_seconds'] / 60:.1f} min "
+              f"training, {last['wall_seconds'] / 60:.1f} min wall, last training-mean CGR {last.get(CGR):.2f}")
+        print(markdown_table(summary[label], [("cgr", "CGR", "d"), ("cycle", "cycle", "d"),
+                                              ("env_steps", "env steps", ",d"),
+                                              ("train_minutes", "training min", ".1f"),
+                                              ("wall_minutes", "wall min", ".1f"),
+                                              ("paper_samples_ratio", "paper samples / ours", ".1f"),
+                                              ("paper_wall_ratio", "paper wall / ours", ".0f")]))
+    print(f"wrote {stem}.json and {stem}.png")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
