@@ -13,6 +13,7 @@ import mujoco
 import numpy as np
 import pytest
 import yaml
+from jax._src import monitoring  # the public module registers listeners but cannot remove them
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -21,6 +22,7 @@ from angora_jax.envs.core import Sensation
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch
 from angora_jax.envs.rendering import RenderError
+from angora_jax.experiment import evaluation
 from angora_jax.experiment.evaluation import (
     EVALUATION_DIR,
     agent_policy,
@@ -77,6 +79,25 @@ def test_evaluate_writes_statistics_json_and_box_plot_without_overwriting(run_di
     # Mode actions from the same keys: the same episodes again, one at a time as all six at once.
     assert record["batch"] == 6 and again.meta["batch"] == 1
     assert again.episodes["episode_return"].tolist() == returns.tolist()
+
+
+def test_evaluating_again_compiles_nothing(run_dir):
+    """Another call (another checkpoint, seed or path) reuses the compiled policy, task logic and batched program."""
+    for path in evaluation.PATHS:
+        evaluate(run_dir, "latest", episodes=4, save=False, path=path)
+    compiles = []
+
+    def count(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiles.append(duration)
+
+    jax.monitoring.register_event_duration_secs_listener(count)
+    try:
+        for path in evaluation.PATHS:
+            assert evaluate(run_dir, "best", episodes=4, seed=3, save=False, path=path).meta["episodes"] == 4
+    finally:
+        monitoring.unregister_event_duration_listener(count)
+    assert compiles == []
 
 
 def test_the_evaluation_loop_leaves_the_arrays_it_hands_the_policy_unchanged(run_dir):

@@ -57,47 +57,55 @@ def _insert(batch: State, one: State, slot: jax.Array) -> State:
     return jax.tree.map(lambda b, o: b.at[slot].set(o), batch, one)
 
 
+def batch_functions(env: Env) -> tuple[Env, dict[str, Callable[..., Any]]]:
+    """The environment an `EagerBatch` of `env` steps (`eager(env)`) and its jitted calls: pass them to several
+    batches (`EagerBatch(..., compiled=)`) and they compile once."""
+    env = eager(env)
+    functions = {"insert": jax.jit(_insert)}
+    if isinstance(env, CpuEnv):
+        after_physics = _AfterPhysics(env.task, env.frame_skip, env.max_episode_steps)
+
+        def control(action: jax.Array, snap: Snapshot) -> jax.Array:
+            return env.task.control(env.check_action(action), snap)
+
+        def finish(state: State, action: jax.Array, after: Snapshot) -> State:
+            return after_physics.advance(state.replace(physics=(state.physics, after)), action)[0]
+
+        functions |= {"reset": env.reset, "control": jax.jit(rowwise(control)), "finish": jax.jit(rowwise(finish))}
+    else:
+        functions |= {"reset": jax.jit(env.reset), "advance": jax.jit(rowwise(lambda s, a: env.advance(s, a)[0]))}
+    return env, functions
+
+
+
 class EagerBatch:
     """`size` slots of `env` (an `MjxEnv`, run on its C MuJoCo twin, or a pure-JAX env) stepped together.
 
     states: the slots' current `State`s, leaves with a leading axis `(size, ...)` (None before the first reset).
     workers: threads that step the C MuJoCo physics of the slots (1: in this thread; at most `size`); pure-JAX tasks
         use none.
+    compiled: `batch_functions(env)` made earlier, to share its compiled calls between batches (None: made here).
     Use it as a context manager, or call `close()`, to stop the threads.
     """
 
-    def __init__(self, env: Env, size: int, workers: int = 1):
+    def __init__(self, env: Env, size: int, workers: int = 1,
+                 compiled: tuple[Env, dict[str, Callable[..., Any]]] | None = None):
         if size < 1 or workers < 1:
             raise ValueError(f"size and workers must be >= 1, got size={size}, workers={workers}.")
-        self.env = eager(env)
+        self.env, functions = batch_functions(env) if compiled is None else compiled
         self.size = size
         self.states: State | None = None
         # The slots' states live on the host CPU, committed there, so the jitted calls run on it on a GPU machine too
         # (and compile once rather than again when uncommitted arrays turn committed).
         self.device = jax.devices("cpu")[0]
-        self._insert = jax.jit(_insert)
+        self._insert, self._reset_one = functions["insert"], functions["reset"]
         if isinstance(self.env, CpuEnv):
-            cpu = self.env
-            after_physics = _AfterPhysics(cpu.task, cpu.frame_skip, cpu.max_episode_steps)
-
-            def control(action: jax.Array, snap: Snapshot) -> jax.Array:
-                return cpu.task.control(cpu.check_action(action), snap)
-
-            def finish(state: State, action: jax.Array, after: Snapshot) -> State:
-                return after_physics.advance(state.replace(physics=(state.physics, after)), action)[0]
-
-            self.datas = [mujoco.MjData(cpu.model) for _ in range(size)]
-            self._reset_one = cpu.reset
-            self._control, self._finish = jax.jit(rowwise(control)), jax.jit(rowwise(finish))
+            self._control, self._finish = functions["control"], functions["finish"]
+            self.datas = [mujoco.MjData(self.env.model) for _ in range(size)]
             self.workers = min(workers, size)
         else:
-
-            def advance(state: State, action: jax.Array) -> State:
-                return self.env.advance(state, action)[0]
-
+            self._advance = functions["advance"]
             self.datas = []
-            self._reset_one = jax.jit(self.env.reset)
-            self._advance = jax.jit(rowwise(advance))
             self.workers = 1
         self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="mj_step") if self.workers > 1 else None
 

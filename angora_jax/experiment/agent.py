@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import functools
 import importlib.util
+import json
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -13,7 +16,7 @@ from flax import struct
 
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.experiment.checkpoint import Checkpoints
-from angora_jax.experiment.config import Config, DistributionConfig, validate
+from angora_jax.experiment.config import Config, DistributionConfig, load_config, to_dict, validate
 from angora_jax.experiment.run_dir import CHECKPOINTS, read_run_config
 from angora_jax.experiment.runner import initial_state_shape
 from angora_jax.nets import ActorCritic, make_network
@@ -41,6 +44,9 @@ class Agent:
 
     config: the run's config. env: its task. network: the policy/value network module. head: the policy head.
     state: the restored `PolicyState` (params, normaliser statistics). cycle: the training cycle it was saved at.
+    compiled: jitted functions of this agent's kind (see `compiled_once`), shared by every agent that `load_agent`
+    makes from runs with the same task, network and head: parameters are their arguments, so evaluating another
+    checkpoint, or the same one again, does not compile again.
     """
 
     config: Config
@@ -49,8 +55,13 @@ class Agent:
     head: PolicyHead
     state: PolicyState
     cycle: int
-    # Jitted evaluations by (num_envs, deterministic): the state is their argument, so later calls do not recompile.
-    _evaluations: dict[tuple[int, bool], Any] = field(default_factory=dict, init=False, repr=False, compare=False)
+    compiled: dict[Any, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def compiled_once(self, key: Any, build: Callable[[], Any]) -> Any:
+        """`compiled[key]`, made by `build()` the first time (a jitted or compiled function of the agent's kind)."""
+        if key not in self.compiled:
+            self.compiled[key] = build()
+        return self.compiled[key]
 
     @property
     def model(self) -> ActorCritic:
@@ -86,11 +97,8 @@ class Agent:
     def evaluate(self, num_envs: int = 16, seed: int = 0, deterministic: bool = True) -> dict[str, float]:
         """One episode in each of `num_envs` fresh environments; means of episode_return, episode_length and the
         task metrics at episode ends (see `angora_jax.ppo.make_evaluate`)."""
-        if (num_envs, deterministic) not in self._evaluations:
-            self._evaluations[num_envs, deterministic] = make_evaluate(
-                self.env, self.network, self.config.ppo, num_envs, deterministic
-            )
-        evaluate = self._evaluations[num_envs, deterministic]
+        evaluate = self.compiled_once(("evaluate", num_envs, deterministic), lambda: make_evaluate(
+            self.env, self.network, self.config.ppo, num_envs, deterministic))
         return {k: float(v) for k, v in evaluate(self.state, jax.random.key(seed)).items()}
 
 
@@ -111,17 +119,33 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best") -> Agent:
         distribution=DistributionConfig(),
         logging=replace(config.logging, tensorboard=False),
     )
-    env = validate(here)
-    shape = initial_state_shape(here, env)
-    template = PolicyState(params=shape.params, obs_stats=shape.obs_stats, cycle=shape.cycle)
+    env, network, head, template, compiled = _acting_parts(json.dumps(to_dict(_acting_config(here)), sort_keys=True))
     checkpoints = Checkpoints(Path(run_dir) / CHECKPOINTS, config.checkpoint, create=False)
     try:
         which = "latest" if checkpoint == "best" and not checkpoints.steps("best") else checkpoint
         state = checkpoints.restore(template, which, partial=True).state
     finally:
         checkpoints.close()
-    network = make_network(config.ppo.network)
-    return Agent(config, env, network, build_head(env, config.ppo), state, int(state.cycle))
+    return Agent(config, env, network, head, state, int(state.cycle), compiled)
+
+
+def _acting_config(config: Config) -> Config:
+    """What acting depends on: the task and the model; not the run's name, length, seed, logging or checkpoints."""
+    ppo = replace(config.ppo, seed=0, num_cycles=1, lr_decay=False)
+    return replace(config, ppo=ppo, logging=replace(config.logging, run_name=None), checkpoint=replace(
+        config.checkpoint, best_metric=None))
+
+
+@functools.lru_cache(maxsize=8)
+def _acting_parts(config_json: str) -> tuple[Env, nn.Module, PolicyHead, PolicyState, dict[Any, Any]]:
+    """Environment, network, head, checkpoint template and the shared `Agent.compiled` of one acting config (a
+    JSON text, hashable): made once per process, so that loading agents of one kind again builds and compiles
+    nothing again."""
+    config = load_config(json.loads(config_json))
+    env = validate(config)
+    shape = initial_state_shape(config, env)
+    template = PolicyState(params=shape.params, obs_stats=shape.obs_stats, cycle=shape.cycle)
+    return env, make_network(config.ppo.network), build_head(env, config.ppo), template, {}
 
 
 def _without_missing_warp(options: dict[str, Any]) -> dict[str, Any]:

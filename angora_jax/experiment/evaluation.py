@@ -37,7 +37,7 @@ import numpy as np
 
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.envs.cpu_env import CpuEnv
-from angora_jax.envs.eager_batch import EagerBatch, rowwise
+from angora_jax.envs.eager_batch import EagerBatch, batch_functions, rowwise
 from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.ppo.evaluate import make_evaluate
 
@@ -85,7 +85,7 @@ def agent_policy(agent: Agent, stochastic: bool = False) -> Policy:
     """The agent's step for a batch of environments (see `Policy`), jitted once per batch size, on the host CPU: the
     head's mode, or with `stochastic` a sample from the row's key. Each row is computed as a batch of one (`rowwise`),
     so its actions do not depend on the batch. Parameters and normaliser statistics are arguments of the compiled
-    function, not constants."""
+    function, not constants: agents of the same kind share it (`Agent.compiled`)."""
     fresh = jax.tree.map(lambda x: x[0], agent.initial_carry(1))  # one row's carry at an episode's start
 
     def act(params, obs_stats, carry, obs, keys, steps, starting):
@@ -99,7 +99,7 @@ def agent_policy(agent: Agent, stochastic: bool = False) -> Policy:
 
         return rowwise(row)(carry, obs, keys, steps, starting)
 
-    compiled = jax.jit(act)
+    compiled = agent.compiled_once(("policy", stochastic), lambda: jax.jit(act))
     cpu = jax.devices("cpu")[0]
     params, obs_stats = jax.device_put((agent.params, agent.state.obs_stats), cpu)
     # The carry is committed to the host like everything else, so that the first call compiles for the later ones.
@@ -245,7 +245,8 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
         return _evaluate_batched(agent, run_dir, checkpoint, episodes, stochastic, seed, save)
     with on_host():
         policy = agent_policy(agent, stochastic)
-        with EagerBatch(agent.env, min(batch, episodes), workers) as envs:
+        compiled = agent.compiled_once("eager batch", lambda: batch_functions(agent.env))
+        with EagerBatch(agent.env, min(batch, episodes), workers, compiled) as envs:
             start = time.perf_counter()
             per_episode = run_episodes(envs, policy, agent.initial_carry(envs.size), *episode_keys(seed, episodes))
             wall = time.perf_counter() - start
@@ -269,8 +270,9 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
 def _evaluate_batched(agent: Agent, run_dir: str | Path, checkpoint: str | int, episodes: int, stochastic: bool,
                       seed: int, save: bool) -> Evaluation:
     """`evaluate` on the batched training path: one compiled program runs all `episodes` at once."""
-    run = make_evaluate(agent.env, agent.network, agent.config.ppo, episodes, not stochastic, per_episode=True)
-    compiled = run.lower(agent.state, jax.random.key(seed)).compile()
+    compiled = agent.compiled_once(("batched", episodes, stochastic), lambda: make_evaluate(
+        agent.env, agent.network, agent.config.ppo, episodes, not stochastic, per_episode=True
+    ).lower(agent.state, jax.random.key(seed)).compile())
     start = time.perf_counter()
     per_episode = {name: np.asarray(v) for name, v in jax.block_until_ready(
         compiled(agent.state, jax.random.key(seed))).items()}

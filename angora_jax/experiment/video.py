@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from angora_jax.envs.cpu_env import CpuEnv
-from angora_jax.envs.eager_batch import EagerBatch
+from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.envs.registry import make
 from angora_jax.envs.rendering import RenderError, SceneRenderer, camera_named
 from angora_jax.experiment.agent import load_agent
@@ -45,10 +45,11 @@ def _render(run_dir: str | Path | None, task: str | None, checkpoint: str | int 
         if run_dir is not None:
             agent = load_agent(run_dir, checkpoint)
             env, policy, carry = agent.env, agent_policy(agent, stochastic), agent.initial_carry(1)
+            compiled = agent.compiled_once("eager batch", lambda: batch_functions(agent.env))
         else:
             env = make(task, **(task_options or {}))
-            policy, carry = random_policy(env), None
-        with EagerBatch(env, 1) as batch:
+            policy, carry, compiled = random_policy(env), None, None
+        with EagerBatch(env, 1, compiled=compiled) as batch:
             if not isinstance(batch.env, CpuEnv):
                 raise RenderError(f"Task {type(batch.env).__name__} has no MuJoCo scene to render; only MuJoCo tasks "
                                   "have videos.")
