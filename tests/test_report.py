@@ -4,6 +4,8 @@ headless Chromium when installed)."""
 import re
 import shutil
 import subprocess
+import time
+import urllib.request
 from pathlib import Path
 
 import pytest
@@ -11,6 +13,8 @@ from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.cli import main
+from angora_jax.experiment.live_report import LiveReport
+from angora_jax.experiment.report import load_run
 
 TINY = [
     *TINY_PPO,
@@ -56,8 +60,12 @@ def test_report_compares_runs_in_pngs_and_html(runs, comparison):
 
 
 def rendered(page: Path, fragment: str) -> str:
+    return rendered_url(page.as_uri() + fragment)
+
+
+def rendered_url(url: str) -> str:
     result = subprocess.run(
-        [BROWSER, "--headless", "--no-sandbox", "--disable-gpu", "--dump-dom", page.as_uri() + fragment],
+        [BROWSER, "--headless", "--no-sandbox", "--disable-gpu", "--dump-dom", url],
         capture_output=True,
         text=True,
         timeout=120,
@@ -78,3 +86,41 @@ def test_html_report_filters_runs_in_a_browser(comparison):
     images = len(re.findall(r"<img ", dom))
     assert f'data-images-loaded="{images}"' in dom  # every learning curve PNG loaded and decoded
     assert '<span id="shown">2</span>' in rendered(page, "")
+
+
+def test_a_finished_run_is_finished_and_an_idle_unfinished_one_stopped(runs):
+    run = load_run(runs[0].run_dir)
+    assert run.status() == "finished"
+    unfinished = run.__class__(run.name, run.path, {**run.config, "ppo": {**run.config["ppo"], "num_cycles": 9}},
+                               run.rows)
+    assert unfinished.status(now=run.rows[-1]["time"] + 10) == "training"
+    assert unfinished.status(now=run.rows[-1]["time"] + 3600) == "stopped"
+
+
+def fetch(url: str) -> bytes:
+    with urllib.request.urlopen(url, timeout=30) as response:
+        return response.read()
+
+
+def test_monitor_serves_the_report_as_a_run_trains(runs, tmp_path):
+    """A copy of a run that has done 1 of its 3 cycles, then the other two arrive while the page is served."""
+    live_run = tmp_path / "live"
+    shutil.copytree(runs[0].run_dir, live_run, ignore=shutil.ignore_patterns("report", "checkpoints"))
+    lines = (live_run / "metrics.jsonl").read_text().splitlines(keepends=True)
+    (live_run / "metrics.jsonl").write_text(lines[0])
+    with LiveReport([live_run], tmp_path / "page", every=0.2, port=0) as live:
+        page = fetch(live.url).decode()
+        assert '<meta http-equiv="refresh" content="1">' in page and "<td>training</td>" in page and "1/3" in page
+        (live_run / "metrics.jsonl").write_text("".join(lines))
+        seen = live.updates
+        deadline = time.monotonic() + 30
+        while live.updates < seen + 2 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        page = fetch(live.url).decode()
+        assert "<td>finished</td>" in page and "3/3" in page
+        assert fetch(live.url.replace("index.html", "episode_return.png")).startswith(b"\x89PNG")  # curves beside it
+        if BROWSER is not None:
+            dom = rendered_url(live.url)
+            assert '<span id="shown">1</span>' in dom and "<td>finished</td>" in dom
+    with pytest.raises(OSError):  # stopped: the server no longer answers
+        fetch(live.url)

@@ -82,7 +82,11 @@ def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
     path = Path(run_dir) / METRICS_FILE
     if not path.exists():
         return []
-    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    text = path.read_text()
+    lines = text.splitlines()
+    if lines and not text.endswith("\n"):
+        lines.pop()  # a line being written right now (a live report reads while the run trains)
+    rows = [json.loads(line) for line in lines if line.strip()]
     return [{k: math.nan if v is None else v for k, v in row.items()} for row in rows]
 
 

@@ -1,7 +1,8 @@
 """Reports: PNG learning curves comparing runs and one static HTML page that lists the runs with their configs.
 
 The page needs no server: open `index.html` from disk. It filters runs by any text of their name or config
-(the filter box, or `index.html#filter=lstm` in the address).
+(the filter box, or `index.html#filter=lstm` in the address). Each run's status (training, finished, stopped) is
+read from its files; `angora-jax monitor` regenerates the page on a timer while runs train (`live_report`).
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 import html
 import json
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,7 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import yaml  # noqa: E402
 
 from angora_jax.experiment.monitor import read_metrics  # noqa: E402
-from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError  # noqa: E402
+from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError, read_sessions  # noqa: E402
 
 # Curves drawn when at least one run has them, in this order; task metrics (metric/*) follow the return.
 CURVES = (
@@ -45,6 +47,19 @@ class RunRecord:
     path: Path
     config: dict[str, Any]
     rows: list[dict[str, Any]]
+
+    def status(self, now: float | None = None) -> str:
+        """"finished", "training" (a cycle or a session started recently: within three cycles' time, at least two
+        minutes, so that a compile counts), or "stopped" (resume it to go on)."""
+        total = self.config.get("ppo", {}).get("num_cycles")
+        if self.rows and self.rows[-1]["cycle"] == total:
+            return "finished"
+        now = time.time() if now is None else now
+        sessions = read_sessions(self.path)
+        last = max([self.rows[-1].get("time", 0.0) if self.rows else 0.0, *(s["time"] for s in sessions)])
+        seconds = [r["seconds"] for r in self.rows[-5:] if not math.isnan(r.get("seconds", math.nan))]
+        patience = max(120.0, 3 * max(seconds, default=0.0))
+        return "training" if now - last < patience else "stopped"
 
 
 def load_run(run_dir: str | Path) -> RunRecord:
@@ -79,10 +94,11 @@ def plot_curve(runs: list[RunRecord], name: str, path: Path) -> None:
     plt.close(fig)
 
 
-def write_report(run_dirs: list[str | Path], out_dir: str | Path) -> Path:
+def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_seconds: int | None = None) -> Path:
     """Write one PNG per metric (runs compared) and index.html into `out_dir`; return the HTML path.
 
-    The report's own files in `out_dir` are regenerated; nothing else there is touched.
+    The report's own files in `out_dir` are regenerated; nothing else there is touched. refresh_seconds: the page
+    reloads itself this often (for a live view), None for a static page.
     """
     runs = [load_run(d) for d in run_dirs]
     out = Path(out_dir)
@@ -93,7 +109,9 @@ def write_report(run_dirs: list[str | Path], out_dir: str | Path) -> Path:
         plot_curve(runs, name, image)
         images.append((name, image.name))
     page = out / "index.html"
-    page.write_text(render_html(runs, images))
+    partial = out / "index.html.partial"  # a browser reloading while this writes sees the old page or the new one
+    partial.write_text(render_html(runs, images, refresh_seconds))
+    partial.replace(page)
     return page
 
 
@@ -103,6 +121,7 @@ def summary(run: RunRecord) -> dict[str, Any]:
     tail = returns[-max(1, len(returns) // 10) :]
     ppo = run.config.get("ppo", {})
     return {
+        "status": run.status(),
         "task": run.config.get("env", {}).get("task", "?"),
         "network": ppo.get("network", {}).get("name", "?"),
         "head": ppo.get("head", "?"),
@@ -113,8 +132,9 @@ def summary(run: RunRecord) -> dict[str, Any]:
     }
 
 
-def render_html(runs: list[RunRecord], images: list[tuple[str, str]]) -> str:
-    """The report page: a filterable table of runs (config in a fold-out) and the learning-curve images."""
+def render_html(runs: list[RunRecord], images: list[tuple[str, str]], refresh_seconds: int | None = None) -> str:
+    """The report page: a filterable table of runs (config in a fold-out) and the learning-curve images; with
+    `refresh_seconds`, a page that reloads itself (keeping the filter, which lives in the address)."""
     columns = ["run", *summary(runs[0])] if runs else ["run"]
     head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
     rows = []
@@ -130,11 +150,15 @@ def render_html(runs: list[RunRecord], images: list[tuple[str, str]]) -> str:
         f'<figure><img src="{html.escape(file)}" alt="{html.escape(name)}"></figure>'
         for name, file in images
     )
-    return _PAGE.format(head=head, rows="\n".join(rows), figures=figures, count=len(runs))
+    refresh = "" if refresh_seconds is None else f'<meta http-equiv="refresh" content="{int(refresh_seconds)}">'
+    updated = time.strftime("%Y-%m-%d %H:%M:%S")
+    live = "" if refresh_seconds is None else f", reloads every {int(refresh_seconds)} s"
+    return _PAGE.format(head=head, rows="\n".join(rows), figures=figures, count=len(runs), refresh=refresh,
+                        updated=f"{updated}{live}")
 
 
 _PAGE = """<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>angora_jax runs</title>
+<html lang="en"><head><meta charset="utf-8">{refresh}<title>angora_jax runs</title>
 <style>
 body {{ font-family: sans-serif; margin: 1.5em; }}
 table {{ border-collapse: collapse; }}
@@ -145,6 +169,7 @@ figure {{ display: inline-block; margin: 0.5em; }}
 </style></head>
 <body>
 <h1>angora_jax runs</h1>
+<p id="updated">Updated {updated}</p>
 <input id="filter" placeholder="filter runs by name or any config value (e.g. lstm, CartPole)">
 <p><span id="shown">{count}</span> of {count} runs shown</p>
 <table><thead><tr>{head}</tr></thead><tbody>
@@ -164,7 +189,10 @@ function applyFilter() {{
   }}
   document.getElementById("shown").textContent = shown;
 }}
-box.addEventListener("input", applyFilter);
+box.addEventListener("input", () => {{
+  applyFilter();  // the filter goes into the address, so that a reloading live page keeps it
+  history.replaceState(null, "", box.value ? "#filter=" + encodeURIComponent(box.value) : location.pathname);
+}});
 const fromAddress = new URLSearchParams(location.hash.slice(1)).get("filter");
 if (fromAddress) {{ box.value = fromAddress; }}
 applyFilter();
