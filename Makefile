@@ -9,7 +9,14 @@ $(BIN)/.installed: pyproject.toml constraints.txt
 	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]"
 	touch $@
 
-.PHONY: run test lint
+# On an NVIDIA GPU machine: the same .venv plus a CUDA 13 build of JAX and MuJoCo Warp (README "On a GPU").
+$(BIN)/.installed-cuda: $(BIN)/.installed
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test,cuda]"
+	touch $@
+
+.PHONY: run test lint gpu
+gpu: $(BIN)/.installed-cuda
+	$(BIN)/angora-jax doctor
 run: $(BIN)/.installed
 	$(BIN)/angora-jax train cartpole
 

@@ -7,7 +7,7 @@ The notebook API: `make_env(task, **options)`, `load_config(path_or_name, overri
 
 from angora_jax.envs import list_tasks, make
 from angora_jax.envs.gym_view import register_gymnasium_envs
-from angora_jax.experiment import load_agent, load_config, resume, train
+from angora_jax.experiment import list_configs, load_agent, load_config, resume, train
 from angora_jax.experiment.evaluation import evaluate
 from angora_jax.experiment.video import render_frames
 
@@ -15,5 +15,6 @@ make_env = make
 register_gymnasium_envs()
 
 __all__ = [
-    "evaluate", "list_tasks", "load_agent", "load_config", "make", "make_env", "render_frames", "resume", "train",
+    "evaluate", "list_configs", "list_tasks", "load_agent", "load_config", "make", "make_env", "render_frames",
+    "resume", "train",
 ]

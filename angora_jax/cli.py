@@ -6,6 +6,9 @@ angora-jax resume runs/lstm                     continue from the latest checkpo
 angora-jax evaluate runs/lstm                   episode statistics of the best checkpoint (CPU path), JSON + PNG
 angora-jax render runs/lstm --out lstm.mp4      a video of an episode (MuJoCo tasks)
 angora-jax report runs/lstm runs/other          PNG curves + index.html comparing runs
+angora-jax monitor runs/lstm runs/other         the same page while runs train, served on http://127.0.0.1:8000
+angora-jax list-configs                         the shipped configs (train one by name from any directory)
+angora-jax doctor                               versions, devices, physics choice, rendering: what to install
 """
 
 from __future__ import annotations
@@ -28,11 +31,13 @@ from angora_jax.experiment import (
     TrainingInterrupted,
     TrainingRun,
     evaluation,
+    list_configs,
     read_metrics,
     resume,
     train,
 )
 from angora_jax.experiment.distributed import ProcessFailed, initialize, is_main_process
+from angora_jax.experiment.runner import signals_exit_while_preparing
 from angora_jax.nets import list_networks
 from angora_jax.ppo import TrainingDivergedError, list_heads
 
@@ -105,8 +110,8 @@ def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="angora-jax", description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     commands = top.add_subparsers(dest="command", required=True)
 
-    train = commands.add_parser("train", help="train a new run from a YAML config (see configs/)")
-    train.add_argument("config", help="YAML path or a name in configs/ (e.g. cartpole)")
+    train = commands.add_parser("train", help="train a new run from a YAML config (see list-configs)")
+    train.add_argument("config", help="YAML path or the name of a shipped config (e.g. cartpole; see list-configs)")
     train.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. ppo.num_cycles=20 ppo.network.name=lstm")
     add_time_limit(train)
     add_distributed_flags(train)
@@ -158,6 +163,21 @@ def parser() -> argparse.ArgumentParser:
     )
     report.set_defaults(handler=command_report)
 
+    monitor = commands.add_parser("monitor", help="the HTML report of runs while they train, regenerated and served")
+    monitor.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
+    monitor.add_argument("--out", default=None, help="where the page is written (default: as for report)")
+    monitor.add_argument("--every", type=positive_float, default=30.0, help="seconds between updates (default: 30)")
+    monitor.add_argument("--port", type=int, default=8000, help="HTTP port (default: 8000; 0: any free port)")
+    monitor.add_argument("--host", default="127.0.0.1",
+                         help="address to serve on (default: this machine only; 0.0.0.0 for the network)")
+    monitor.add_argument("--no-serve", action="store_true", help="only rewrite the page on disk (open it yourself)")
+    monitor.set_defaults(handler=command_monitor)
+
+    configs = commands.add_parser("list-configs", help="print the shipped configs and what each trains")
+    configs.set_defaults(handler=command_list_configs)
+    doctor = commands.add_parser("doctor", help="what this machine gives angora_jax and what to install")
+    doctor.set_defaults(handler=command_doctor)
+
     tasks = commands.add_parser("list-tasks", help="print the registered task names")
     tasks.set_defaults(handler=lambda args: print("\n".join(list_tasks())) or EXIT_OK)
     models = commands.add_parser("list-models", help="print the registered networks and policy heads")
@@ -203,7 +223,8 @@ def start_distributed(args: argparse.Namespace) -> None:
 
 def command_train(args: argparse.Namespace) -> int:
     start_distributed(args)
-    run = train(args.config, args.overrides, minutes=args.minutes)
+    with signals_exit_while_preparing():
+        run = train(args.config, args.overrides, minutes=args.minutes)
     if is_main_process():
         print_finished(run)
     return EXIT_OK
@@ -211,7 +232,8 @@ def command_train(args: argparse.Namespace) -> int:
 
 def command_resume(args: argparse.Namespace) -> int:
     start_distributed(args)
-    run = resume(args.run_dir, minutes=args.minutes)
+    with signals_exit_while_preparing():
+        run = resume(args.run_dir, minutes=args.minutes)
     if is_main_process():
         print_finished(run)
     return EXIT_OK
@@ -265,13 +287,55 @@ def command_render(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def report_dir(run_dirs: list[str], out: str | None) -> Path:
+    """Where a report of `run_dirs` goes: `out`, else RUN_DIR/report for one run, else report/ beside the first."""
+    first = Path(run_dirs[0])
+    return Path(out) if out else (first / "report" if len(run_dirs) == 1 else first.parent / "report")
+
+
 def command_report(args: argparse.Namespace) -> int:
     from angora_jax.experiment.report import write_report  # matplotlib only when a report is made
 
-    first = Path(args.run_dirs[0])
-    out = args.out or (first / "report" if len(args.run_dirs) == 1 else first.parent / "report")
-    print(f"Report: {write_report(args.run_dirs, out)}")
+    print(f"Report: {write_report(args.run_dirs, report_dir(args.run_dirs, args.out))}")
     return EXIT_OK
+
+
+def command_monitor(args: argparse.Namespace) -> int:
+    from angora_jax.experiment.live_report import LiveReport
+
+    out = report_dir(args.run_dirs, args.out)
+    try:
+        live = LiveReport(args.run_dirs, out, args.every, None if args.no_serve else args.port, args.host)
+    except OSError as error:
+        print(f"angora-jax monitor: cannot serve on {args.host}:{args.port} ({error}); pick another --port "
+              "(0: any free one) or use --no-serve.", file=sys.stderr)
+        return EXIT_USAGE
+    with live:
+        where = live.url or (out / "index.html").resolve().as_uri()
+        print(f"Monitoring {len(args.run_dirs)} run(s): {where} (updated every {args.every:g} s; Ctrl-C stops the "
+              "monitor, never the runs)", flush=True)
+        try:
+            live.wait()
+        except KeyboardInterrupt:
+            print("Monitor stopped.")
+    return EXIT_OK
+
+
+def command_list_configs(args: argparse.Namespace) -> int:
+    shipped = list_configs()
+    width = max(map(len, shipped))
+    for name, description in shipped.items():
+        print(f"{name:<{width}}  {description}")
+    print("Train one with: angora-jax train NAME [key.sub=value ...]")
+    return EXIT_OK
+
+
+def command_doctor(args: argparse.Namespace) -> int:
+    from angora_jax.experiment.doctor import diagnose
+
+    found = diagnose()
+    print(found.format())
+    return EXIT_FAILED if found.problems else EXIT_OK
 
 
 def command_list_models(args: argparse.Namespace) -> int:

@@ -12,9 +12,11 @@ from tiny import TINY_PPO
 import angora_jax as aj
 from angora_jax import cli
 from angora_jax.cli import main
-from angora_jax.experiment.distributed import ProcessFailed
+from angora_jax.experiment import runner
+from angora_jax.experiment.distributed import ProcessFailed, StopDecision
 from angora_jax.experiment.monitor import read_metrics
 from angora_jax.experiment.progress import Progress, progress_line
+from angora_jax.experiment.run_dir import read_sessions
 
 TINY = [
     *TINY_PPO,
@@ -29,6 +31,17 @@ def test_list_commands(capsys):
     assert main(["list-models"]) == 0
     out = capsys.readouterr().out
     assert "lstm" in out and "beta" in out
+    assert main(["list-configs"]) == 0
+    out = capsys.readouterr().out
+    assert "shadow_ihom_paper  In-hand cube reorientation (IHOM) as in the paper (Weidler et al. 2023, Fig. 7)" in out
+
+
+def test_doctor_reports_the_physics_choice_and_exits_0_on_the_cpu(capsys):
+    assert main(["doctor"]) == 0
+    out = capsys.readouterr().out
+    assert "mujoco-mjx" in out and "cpu:0" in out and "OK: angora_jax can train here." in out
+    assert "MJX jax implementation (physics.impl auto: JAX runs on the CPU" in out
+    assert "off screen" in out  # rendering: either it works or the advice says what to install
 
 
 @pytest.mark.parametrize(
@@ -40,6 +53,9 @@ def test_list_commands(capsys):
         (["resume", "no/such/run"], "not a run directory"),
         (["evaluate", "no/such/run"], "not a run directory"),
         (["report", "no/such/run"], "not a run directory"),
+        (["monitor", "no/such/run"], "not a run directory"),
+        (["train", "cartpole", "ppo.learning_rate=nan"], "ppo.learning_rate must be a finite number"),
+        (["train", "cartpole", "ppo.num_envs=10000000000"], "cannot fit: it needs at least"),
     ],
 )
 def test_bad_input_exits_2_with_the_cause(argv, message, capsys, tmp_path, monkeypatch):
@@ -84,6 +100,8 @@ def test_train_then_evaluate_exit_0(capsys, tmp_path):
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert "cycle 3/3" in out and "Run " in out and "angora-jax evaluate" in out
+    session = read_sessions(tmp_path / "r")[0]  # what the run ran on, for later readers of the run directory
+    assert session["start_cycle"] == 0 and session["physics"]["engine"] == "pure JAX" and session["versions"]["jax"]
     assert main(["evaluate", str(tmp_path / "r"), "--checkpoint", "latest", "--num-envs", "2"]) == 0
     assert "episode_return" in capsys.readouterr().out
     assert main(argv) == 2  # the run directory exists: refused, untouched
@@ -101,6 +119,58 @@ def test_minutes_stop_training_with_the_command_to_continue(capsys, tmp_path):
     with pytest.raises(SystemExit) as exit_info:
         main(["resume", str(tmp_path / "p"), "--minutes", "0"])
     assert exit_info.value.code == 2 and "--minutes: must be > 0" in capsys.readouterr().err
+
+
+def test_another_process_failing_to_save_stops_this_one_after_its_own_save(tmp_path, monkeypatch):
+    """A save that fails on one process of several must stop all: the others would wait in the next cycle."""
+    calls = []
+
+    def agree(signum, failed, out_of_time=False):  # two agreements per cycle; the second is about the save
+        calls.append(failed)
+        save_failed_elsewhere = len(calls) == 4  # cycle 2's save
+        return StopDecision(signum, (1,) if save_failed_elsewhere else (), out_of_time)
+
+    monkeypatch.setattr(runner, "agree_to_stop", agree)
+    with pytest.raises(ProcessFailed, match=r"Process\(es\) 1 of this run failed after cycle 2"):
+        aj.train("cartpole", [*TINY, "ppo.num_cycles=5", "checkpoint.every=1", f"logging.run_root={tmp_path}",
+                              "logging.run_name=r"])
+    assert [r["cycle"] for r in read_metrics(tmp_path / "r")] == [1, 2] and len(calls) == 4
+    assert aj.load_agent(tmp_path / "r", "latest").cycle == 2  # this process's own save went through
+
+
+def test_a_failure_before_the_first_cycle_leaves_no_run_dir(tmp_path, monkeypatch):
+    def out_of_memory(*args):
+        raise RuntimeError("RESOURCE_EXHAUSTED: out of memory while compiling")
+        yield
+
+    monkeypatch.setattr(runner, "training_cycles", out_of_memory)
+    with pytest.raises(RuntimeError, match="RESOURCE_EXHAUSTED"):
+        aj.train("cartpole", [*TINY, f"logging.run_root={tmp_path}", "logging.run_name=failed"])
+    assert not (tmp_path / "failed").exists()
+
+
+def start_training(argv: list[str]) -> tuple[subprocess.Popen, str]:
+    """`angora-jax` ARGV in a process of its own; returns it once it announces that it compiles, with that line."""
+    process = subprocess.Popen([sys.executable, "-m", "angora_jax.cli", *argv], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    line = process.stdout.readline()
+    assert "compiling the first cycle" in line, (line, process.communicate())
+    return process, line
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_while_compiling_stops_at_once_and_removes_the_new_run_dir(signum, tmp_path):
+    """Reach compiles for a minute on 2 CPU cores: the command must not wait for it, nor leave a run directory."""
+    argv = ["train", "shadow_reach", *TINY, f"logging.run_root={tmp_path}", "logging.run_name=new"]
+    process, line = start_training(argv)
+    assert "MuJoCo MJX (JAX implementation) on cpu:0 (physics.impl auto: JAX runs on the CPU" in line
+    started = time.monotonic()
+    process.send_signal(signum)
+    _, err = process.communicate(timeout=30)
+    assert process.returncode == 128 + signum and time.monotonic() - started < 10, err
+    assert f"Interrupted by {signal.Signals(signum).name} before the first cycle ended" in err
+    assert f"the new run directory {tmp_path / 'new'} was removed" in err
+    assert not (tmp_path / "new").exists()
 
 
 def test_sigterm_stops_the_command_with_a_checkpoint(tmp_path):

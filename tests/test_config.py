@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from angora_jax.experiment.config import CONFIGS, Config, ConfigError, flatten, load_config, to_dict, validate
+from angora_jax.experiment.config import Config, ConfigError, flatten, list_configs, load_config, to_dict, validate
 from angora_jax.ppo import PPOConfig
 
 
@@ -31,7 +31,7 @@ def test_resolved_config_round_trips_through_a_dict():
     assert load_config(to_dict(config)) == config
 
 
-@pytest.mark.parametrize("name", sorted(p.stem for p in CONFIGS.glob("*.yaml")))
+@pytest.mark.parametrize("name", list_configs())
 def test_shipped_configs_are_valid(name):
     validate(load_config(name))
 
@@ -54,6 +54,12 @@ BAD = {
     "more devices than present": (["distribution.num_devices=64"], r"distribution.num_devices=64 but JAX sees only"),
     "device count not positive": (["distribution.num_devices=0"], r"distribution.num_devices must be a positive"),
     "device count a word": (["distribution.num_devices=some"], r"distribution.num_devices must be a positive"),
+    "not a finite number": (["ppo.learning_rate=nan"], r"ppo.learning_rate must be a finite number, got 'nan'"),
+    "infinite": (["ppo.gamma=.inf"], r"ppo.gamma must be a finite number"),
+    "too many environments": (
+        ["ppo.num_envs=10000000000"],
+        r"ppo.num_envs=10,000,000,000 .*cannot fit: it needs at least .* GiB per device .* Use ppo.num_envs <= ",
+    ),
     "progress mode": (["logging.progress=fancy"], r"logging.progress.*auto, bar, lines, none"),
     "override without =": (["ppo.num_cycles"], r"must look like key.sub=value"),
 }
@@ -67,7 +73,7 @@ def test_bad_config_fails_naming_the_key(case):
 
 
 def test_bad_files_fail_clearly(tmp_path: Path):
-    with pytest.raises(ConfigError, match="not found. Give a YAML path or one of: .*cartpole"):
+    with pytest.raises(ConfigError, match="not found. Give a YAML path or the name of a shipped config: .*cartpole"):
         load_config("cartpol")
     broken = tmp_path / "broken.yaml"
     broken.write_text("ppo: {num_cycles: 3\n")
@@ -77,3 +83,11 @@ def test_bad_files_fail_clearly(tmp_path: Path):
     listed.write_text("- ppo\n")
     with pytest.raises(ConfigError, match="must hold a mapping of sections"):
         load_config(listed)
+
+
+def test_shipped_configs_are_found_by_name_from_any_directory(tmp_path: Path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    shipped = list_configs()
+    assert {"cartpole", "shadow_reach", "shadow_ihom", "shadow_ihom_paper"} <= set(shipped)
+    assert all(shipped.values()), "every shipped config starts with a comment that says what it trains"
+    assert load_config("shadow_reach").env.task == "ShadowHandReach"

@@ -166,6 +166,12 @@ class Env(abc.ABC):
         with their batch; most environments need nothing and return themselves (MJX on Warp sizes its buffers)."""
         return self
 
+    def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
+        """What simulates this environment in batches of `num_envs` (as `sized_for(num_envs)` prepares it), for logs
+        and the run directory: `engine` and `device`, and for MuJoCo tasks the MJX implementation (`impl`), `why` it
+        was chosen, timestep, frame skip and Warp's buffer size."""
+        return {"engine": "pure JAX", "device": str(jax.local_devices()[0])}
+
     def _select_physics(self, done: jax.Array, fresh: Any, ended: Any) -> Any:
         """Physics of `fresh` where `done`, else of `ended` (a backend whose physics share buffers overrides it)."""
         return jax.tree.map(lambda new, old: jnp.where(done, new, old), fresh, ended)

@@ -11,13 +11,14 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import io
+from typing import Any
 
 import jax
 import mujoco
 import numpy as np
 
 from angora_jax.envs.core import Sensation
-from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, Snapshot, mjx_impl, start_physics
+from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, Snapshot, mjx_impl, mjx_impl_why, start_physics
 
 # Without the optional warp-lang, importing mujoco-mjx prints "Failed to import warp" (twice): nothing failed for the
 # default JAX implementation, so that output is dropped then (impl="warp" still raises `require_warp`'s error).
@@ -36,10 +37,20 @@ WARP_REQUIREMENT = "warp-lang==1.18.0"
 def resolve_impl(impl: str) -> str:
     """`impl` with "auto" decided: "warp" when JAX runs on a GPU and warp-lang is importable (measured on one H100:
     the cube trains 4.6x faster on Warp at 4,096 envs), otherwise "jax" (the CPU default and the fallback)."""
+    return choose_impl(impl)[0]
+
+
+def choose_impl(impl: str) -> tuple[str, str]:
+    """`resolve_impl(impl)` and why, as a phrase for logs and `angora-jax doctor` (with what to install when
+    a faster choice is missing)."""
     if impl != "auto":
-        return impl
-    on_gpu = any(device.platform == "gpu" for device in jax.local_devices())
-    return "warp" if on_gpu and importlib.util.find_spec("warp") is not None else "jax"
+        return impl, f"physics.impl is set to {impl!r}"
+    if not any(device.platform == "gpu" for device in jax.local_devices()):
+        return "jax", "physics.impl auto: JAX runs on the CPU (MuJoCo Warp needs an NVIDIA GPU)"
+    if importlib.util.find_spec("warp") is None:
+        return "jax", (f"physics.impl auto: JAX runs on a GPU but warp-lang is not installed; pip install "
+                       f"{WARP_REQUIREMENT} (or angora-jax[cuda]) for MuJoCo Warp, 4.6x faster on the cube")
+    return "warp", "physics.impl auto: JAX runs on a GPU and warp-lang is importable"
 
 
 def require_warp() -> None:
@@ -106,6 +117,15 @@ class MjxEnv(MujocoEnv):
                                        **sizes)
         self._data0 = mjx.make_data(task.model, device=device, impl=self.impl, **sizes)
 
+    def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
+        info = super().physics_info() | {
+            "engine": f"MuJoCo MJX ({'MuJoCo Warp' if self.impl == 'warp' else 'JAX'} implementation)",
+            "impl": self.impl, "why": mjx_impl_why(self.task.model) or "set in the model",
+            "device": str(local_device(self.impl))}
+        if self.impl == "warp":
+            info["warp_max_envs"] = self.warp_max_envs or num_envs or WARP_MAX_ENVS
+        return info
+
     def sized_for(self, num_envs: int) -> MjxEnv:
         """This environment with Warp's buffers sized for batches of `num_envs` (itself unless it runs on Warp with
         no `warp_max_envs` of its own): an unsized buffer costs GPU memory for 32,768 environments (the cube ran out
@@ -117,7 +137,8 @@ class MjxEnv(MujocoEnv):
     def _reset(self, key: jax.Array) -> tuple[mjx.Data, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)
         if self._start is None:
-            data = mjx.forward(self.mjx_model, self._data0.replace(qpos=self.task.initial_qpos(pose_key)))
+            qpos, qvel = self.task.initial_qpos(pose_key), self.task.initial_qvel(jax.random.fold_in(pose_key, 1))
+            data = mjx.forward(self.mjx_model, self._data0.replace(qpos=qpos, qvel=qvel))
             data = data.replace(ctrl=self.task.initial_control(Snapshot.of(data)))
         else:
             data = self._start

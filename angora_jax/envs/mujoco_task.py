@@ -23,8 +23,9 @@ MJX_IMPLS = ("jax", "warp")
 # Name of the MJCF custom text that names a model's MJX implementation: the compiled model is what the MJX path and
 # its C MuJoCo twin share, so the choice travels with it (as MJX's own `max_contact_points` numeric does).
 MJX_IMPL_TEXT = "angora_jax:mjx_impl"
+MJX_IMPL_WHY_TEXT = "angora_jax:mjx_impl_why"
 SNAPSHOT_FIELDS = ("time", "qpos", "qvel", "ctrl", "actuator_length", "actuator_force", "site_xpos", "xpos",
-                   "xquat", "sensordata")
+                   "xquat", "sensordata", "qfrc_constraint")
 
 
 @struct.dataclass
@@ -42,6 +43,7 @@ class Snapshot:
     xpos: jax.Array
     xquat: jax.Array
     sensordata: jax.Array
+    qfrc_constraint: jax.Array
 
     @classmethod
     def of(cls, data: Any) -> Snapshot:
@@ -68,6 +70,15 @@ class MujocoTask(abc.ABC):
     @abc.abstractmethod
     def initial_qpos(self, key: jax.Array) -> jax.Array:
         """Joint positions at the start of an episode, shape `(nq,)`."""
+
+    def initial_qvel(self, key: jax.Array) -> jax.Array:
+        """Joint velocities at the start of an episode, shape `(nv,)` (at rest unless a task says otherwise; used
+        with `random_initial_qpos`). `key` is derived from `initial_qpos`'s key."""
+        return jnp.zeros(self.model.nv, jnp.float32)
+
+    def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of a policy action, each `(nu,)`: [-1, 1] unless the task acts in its own units."""
+        return -np.ones(self.model.nu, np.float32), np.ones(self.model.nu, np.float32)
 
     @abc.abstractmethod
     def initial_info(self, key: jax.Array, snap: Snapshot) -> dict[str, jax.Array]:
@@ -107,7 +118,7 @@ class MujocoTask(abc.ABC):
 
 class MujocoEnv(Env):
     """What the MJX environment and its C MuJoCo twin share: `task` run with `frame_skip` physics steps of
-    `task.model.opt.timestep` s per policy step; actions are float32 in [-1, 1], shape `(nu,)`."""
+    `task.model.opt.timestep` s per policy step; actions are float32, shape `(nu,)`, within `task.action_bounds()`."""
 
     def __init__(self, task: MujocoTask, frame_skip: int, max_episode_steps: int):
         if frame_skip < 1 or max_episode_steps < 1:
@@ -117,34 +128,53 @@ class MujocoEnv(Env):
         self.max_episode_steps = max_episode_steps
         self.dt = float(task.model.opt.timestep) * frame_skip
         self.metric_names = task.metric_names
-        nu = task.model.nu
-        self.action_spec = ActionSpec(low=-jnp.ones(nu, jnp.float32), high=jnp.ones(nu, jnp.float32))
+        low, high = task.action_bounds()
+        self.action_spec = ActionSpec(low=jnp.asarray(low, jnp.float32), high=jnp.asarray(high, jnp.float32))
+
+    def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
+        return {"engine": "C MuJoCo (eager)", "device": "host CPU", "timestep_s": float(self.task.model.opt.timestep),
+                "frame_skip": self.frame_skip}
 
 
-def set_mjx_impl(spec: mujoco.MjSpec, impl: str) -> None:
-    """Ask for MJX implementation `impl` ("jax" or "warp") in the model compiled from `spec`."""
+def set_mjx_impl(spec: mujoco.MjSpec, impl: str, why: str = "") -> None:
+    """Ask for MJX implementation `impl` ("jax" or "warp") in the model compiled from `spec`; `why` says how it was
+    chosen (shown when a run starts and by `angora-jax doctor`)."""
     if impl not in MJX_IMPLS:
         raise ValueError(f"Unknown MJX implementation impl={impl!r}; choose one of {MJX_IMPLS}.")
     if impl != "jax":
         spec.add_text(name=MJX_IMPL_TEXT, data=impl)
+    if why:
+        spec.add_text(name=MJX_IMPL_WHY_TEXT, data=why)
 
 
 def mjx_impl(model: mujoco.MjModel) -> str:
     """The MJX implementation `model` asks for (`set_mjx_impl`); "jax" when it names none."""
-    text = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXT, MJX_IMPL_TEXT)
+    return _model_text(model, MJX_IMPL_TEXT) or "jax"
+
+
+def mjx_impl_why(model: mujoco.MjModel) -> str:
+    """How the model's MJX implementation was chosen, as `set_mjx_impl` recorded it ("" when it did not)."""
+    return _model_text(model, MJX_IMPL_WHY_TEXT)
+
+
+def _model_text(model: mujoco.MjModel, name: str) -> str:
+    text = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXT, name)
     if text < 0:
-        return "jax"
+        return ""
     start = model.text_adr[text]
     return bytes(model.text_data[start:start + model.text_size[text] - 1]).decode()
 
 
-def start_physics(task: MujocoTask, qpos: np.ndarray, data: mujoco.MjData | None = None) -> mujoco.MjData:
-    """C MuJoCo data at an episode's start: `qpos` set, kinematics computed, `ctrl` holding the pose.
-    Resets and reuses `data` when given."""
+def start_physics(task: MujocoTask, qpos: np.ndarray, data: mujoco.MjData | None = None,
+                  qvel: np.ndarray | None = None) -> mujoco.MjData:
+    """C MuJoCo data at an episode's start: `qpos` (and `qvel`, else at rest) set, kinematics computed, `ctrl` as
+    `task.initial_control` says. Resets and reuses `data` when given."""
     if data is None:
         data = mujoco.MjData(task.model)
     mujoco.mj_resetData(task.model, data)
     data.qpos[:] = qpos
+    if qvel is not None:
+        data.qvel[:] = qvel
     mujoco.mj_forward(task.model, data)
     data.ctrl[:] = np.asarray(task.initial_control(Snapshot.of(data)), np.float64)
     return data

@@ -1,7 +1,7 @@
 """Experiments: configs from YAML, run directories, Orbax checkpoints with exact resume, the metrics monitor and
 reports. The `angora-jax` command is a thin layer over these functions.
 
-    config = load_config("cartpole", ["ppo.num_cycles=30"])   # configs/cartpole.yaml with an override
+    config = load_config("cartpole", ["ppo.num_cycles=30"])   # a shipped config (list_configs()) with an override
     run = train(config)                                        # writes runs/<name>/ and returns TrainingRun
     agent = load_agent(run.run_dir)                            # best checkpoint: act, evaluate, probe
 """
@@ -15,6 +15,7 @@ from angora_jax.experiment.config import (
     DistributionConfig,
     EnvConfig,
     LoggingConfig,
+    list_configs,
     load_config,
     to_dict,
     validate,
@@ -35,6 +36,7 @@ __all__ = [
     "RunDirError",
     "TrainingInterrupted",
     "TrainingRun",
+    "list_configs",
     "load_agent",
     "load_config",
     "read_metrics",

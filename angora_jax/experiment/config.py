@@ -12,6 +12,9 @@ import contextlib
 import dataclasses
 import difflib
 import importlib.util
+import itertools
+import math
+import re
 import types
 import typing
 from dataclasses import dataclass, field
@@ -24,10 +27,12 @@ from angora_jax.envs.core import Env
 from angora_jax.envs.registry import list_tasks, make
 from angora_jax.nets.registry import list_networks
 from angora_jax.ppo.config import PPOConfig
+from angora_jax.ppo.memory import estimate_memory
 from angora_jax.ppo.parallel import per_device, resolve_num_devices
 
-# Named configs (`load_config("cartpole")`) live in the repository's configs/ folder.
-CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+# Named configs (`load_config("cartpole")`) ship inside the package (the repository's configs/ links here), so a
+# name is found from any working directory and in an installed wheel.
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 class ConfigError(ValueError):
@@ -103,7 +108,7 @@ def load_config(source: str | Path | dict | None = None, overrides: typing.Itera
     """Read a config and apply `overrides` (strings `key.sub=value`, value in YAML syntax); no validation
     against the task yet (see `validate`).
 
-    source: a YAML file path, the name of a file in configs/ ("cartpole" for configs/cartpole.yaml), a dict with
+    source: a YAML file path, the name of a shipped config (`list_configs()`, e.g. "cartpole"), a dict with
     the same structure, or None for the defaults. Raises ConfigError for a missing file, bad YAML, an unknown key
     or a value of the wrong type.
     """
@@ -111,6 +116,16 @@ def load_config(source: str | Path | dict | None = None, overrides: typing.Itera
     for override in overrides:
         _apply_override(data, override)
     return _build(Config, data, "")
+
+
+def list_configs() -> dict[str, str]:
+    """The shipped configs, name -> the first sentence of the file's leading comment (what it trains)."""
+    described = {}
+    for path in sorted(CONFIGS.glob("*.yaml")):
+        comment = itertools.takewhile(lambda line: line.startswith("#"), path.read_text().splitlines())
+        text = " ".join(line.lstrip("# ").strip() for line in comment)
+        described[path.stem] = re.split(r"(?<!\bal)(?<!Fig)[.:;]\s", text, maxsplit=1)[0].rstrip(".:;")
+    return described
 
 
 def to_dict(config: Config) -> dict[str, Any]:
@@ -172,6 +187,13 @@ def validate(config: Config) -> Env:
         per_device(config.ppo, num_devices(config))
     except ValueError as error:
         raise ConfigError(str(error)) from None
+    memory = estimate_memory(config.ppo, env, num_devices(config))
+    if not memory.fits():
+        raise ConfigError(
+            f"ppo.num_envs={config.ppo.num_envs:,} with ppo.rollout_length={config.ppo.rollout_length} cannot fit: "
+            f"it needs {memory.describe()}. Use ppo.num_envs <= {memory.max_envs * num_devices(config):,} (or a "
+            "shorter rollout, or more devices with distribution.num_devices)."
+        )
     return env
 
 
@@ -192,8 +214,10 @@ def _read(source: str | Path | dict | None) -> dict[str, Any]:
     if not path.exists() and path.suffix == "" and (CONFIGS / f"{source}.yaml").exists():
         path = CONFIGS / f"{source}.yaml"
     if not path.exists():
-        names = sorted(p.stem for p in CONFIGS.glob("*.yaml"))
-        raise ConfigError(f"Config file {str(source)!r} not found. Give a YAML path or one of: {', '.join(names)}.")
+        raise ConfigError(
+            f"Config file {str(source)!r} not found. Give a YAML path or the name of a shipped config: "
+            f"{', '.join(list_configs())} (angora-jax list-configs)."
+        )
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as error:
@@ -266,13 +290,15 @@ def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
         return value
     if kind is int and isinstance(value, int) and not isinstance(value, bool):
         return value
-    if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
-        return float(value)
-    if kind is float and isinstance(value, str):
+    if kind is float and not isinstance(value, bool) and isinstance(value, int | float | str):
         try:  # YAML 1.1 reads `1e-3` (no dot) as a string
-            return float(value)
+            number = float(value)
         except ValueError:
-            pass
+            number = None
+        if number is not None and not math.isfinite(number):
+            raise ConfigError(f"{key} must be a finite number, got {value!r}.")
+        if number is not None:
+            return number
     if kind is str and isinstance(value, str):
         return value
     allowed = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(kind, str(kind))

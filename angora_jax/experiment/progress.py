@@ -53,6 +53,12 @@ class Progress:
             self.stream.write(line + "\n")
         self.stream.flush()
 
+    def announce(self, text: str) -> None:
+        """Print `text` on a line of its own (nothing in mode "none"): what the run is doing before its first cycle."""
+        if self.mode != "none":
+            self.stream.write(text + "\n")
+            self.stream.flush()
+
     def close(self) -> None:
         """End the live line, so that later output starts on a fresh line."""
         if self.mode == "bar" and self._width:

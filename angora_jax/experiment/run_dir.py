@@ -3,6 +3,8 @@
     RUN_DIR/config.yaml           the resolved config (every key, defaults included); `resume` reads it back
     RUN_DIR/hyperparameters.json  the same config flattened to dotted keys, for tables and filters
     RUN_DIR/metrics.jsonl         one JSON object per cycle (see `monitor`)
+    RUN_DIR/sessions.jsonl        one JSON object per train/resume call: start time and cycle, host, package
+                                  versions, devices, and the physics it ran on (engine, MJX implementation and why)
     RUN_DIR/checkpoints/          Orbax checkpoints (see `checkpoint`)
     RUN_DIR/tensorboard/          TensorBoard event files, when logging.tensorboard is on
     RUN_DIR/report/               PNG learning curves and index.html (see `report`)
@@ -24,6 +26,7 @@ CONFIG_FILE = "config.yaml"
 HYPERPARAMETERS_FILE = "hyperparameters.json"
 METRICS_FILE = "metrics.jsonl"
 CHECKPOINTS = "checkpoints"
+SESSIONS_FILE = "sessions.jsonl"
 
 
 class RunDirError(ValueError):
@@ -74,3 +77,15 @@ def read_run_config(run_dir: str | Path) -> Config:
         return load_config(path)
     except ConfigError as error:
         raise RunDirError(f"{path} does not load with this version of angora_jax: {error}") from None
+
+
+def record_session(run_dir: str | Path, entry: dict) -> None:
+    """Append one session's record (see the module docstring) to `RUN_DIR/sessions.jsonl`."""
+    with (Path(run_dir) / SESSIONS_FILE).open("a") as file:
+        file.write(json.dumps(entry) + "\n")
+
+
+def read_sessions(run_dir: str | Path) -> list[dict]:
+    """The session records of `run_dir`, oldest first ([] for a run made before they were written)."""
+    path = Path(run_dir) / SESSIONS_FILE
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []

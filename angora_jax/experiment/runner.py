@@ -6,7 +6,12 @@ The `angora-jax train` and `resume` commands call these functions; notebooks cal
 from __future__ import annotations
 
 import contextlib
+import contextvars
+import os
+import shutil
 import signal
+import socket
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -20,10 +25,12 @@ from angora_jax.envs.core import Env
 from angora_jax.experiment.checkpoint import Checkpoints
 from angora_jax.experiment.config import Config, load_config, num_devices, to_dict, validate
 from angora_jax.experiment.distributed import ProcessFailed, agree_to_stop, is_main_process, shared_run_dir
-from angora_jax.experiment.monitor import Monitor, set_aside_after
+from angora_jax.experiment.doctor import devices, versions
+from angora_jax.experiment.monitor import Monitor, read_metrics, set_aside_after
 from angora_jax.experiment.progress import Progress
-from angora_jax.experiment.run_dir import CHECKPOINTS, create_run_dir, read_run_config
+from angora_jax.experiment.run_dir import CHECKPOINTS, create_run_dir, read_run_config, record_session
 from angora_jax.ppo.cycle import TrainState, make_cycle
+from angora_jax.ppo.parallel import per_device
 from angora_jax.ppo.train import training_cycles
 
 
@@ -76,7 +83,13 @@ def train(
         raise ValueError("Overrides apply to a config loaded from a file or dict; change a Config with replace().")
     env = validate(config)
     run_dir = shared_run_dir(config, create_run_dir)
-    return _run(config, env, run_dir, state=None, on_cycle=on_cycle, minutes=minutes)
+    try:
+        return _run(config, env, run_dir, state=None, on_cycle=on_cycle, minutes=minutes, new=True)
+    except BaseException:
+        # A run that failed before its first cycle was recorded holds only its config: leave no half-made directory.
+        if is_main_process() and not read_metrics(run_dir):
+            shutil.rmtree(run_dir, ignore_errors=True)
+        raise
 
 
 def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | None = None,
@@ -113,6 +126,7 @@ def _run(
     state: TrainState | None,
     on_cycle: Callable[[dict[str, Any]], None] | None,
     minutes: float | None = None,
+    new: bool = False,
 ) -> TrainingRun:
     if minutes is not None and minutes <= 0:
         raise ValueError(f"minutes (the call's time limit) must be > 0, got {minutes}.")
@@ -127,12 +141,24 @@ def _run(
     monitor = Monitor(run_dir, config.logging.tensorboard) if main else None
     progress = Progress(config.ppo.num_cycles, config.logging.progress if main else "none",
                         shown=config.checkpoint.best_metric)
+    if main:
+        physics = env.physics_info(per_device(config.ppo, num_devices(config)).num_envs)
+        start = 0 if state is None else int(state.cycle)
+        record_session(run_dir, {"time": time.time(), "start_cycle": start, "host": socket.gethostname(),
+                                 "processes": jax.process_count(), "devices": devices(), "versions": versions(),
+                                 "physics": physics})
+        announcement = (f"{run_dir}: {config.env.task} on {describe_physics(physics)}; compiling the first cycle "
+                        f"(from cycle {start} of {config.ppo.num_cycles}) ...")
     try:
-        with _stop_requests() as stop:
+        # The wake-up fd first: a signal that finds the stop handlers installed then also reaches the watcher.
+        with _preparation(run_dir, new) as prepared, _stop_requests() as stop:
+            if main:
+                progress.announce(announcement)
             # Divergence (TrainingDivergedError) is decided inside training_cycles from a metric that the compiled
             # cycle reduces over all devices, so every process raises it after the same cycle; every other reason to
             # stop is this process's own and goes through agree_to_stop, so that all processes stop together.
             for latest, metrics in training_cycles(config.ppo, env, None, state, num_devices(config)):
+                prepared()
                 state, failure = latest, None
                 try:
                     record = monitor.record(metrics, state) if monitor is not None else metrics
@@ -151,7 +177,7 @@ def _run(
                     raise ProcessFailed(decision.failed, int(metrics["cycle"]), run_dir)
                 finished = record["cycle"] == config.ppo.num_cycles
                 stopping = decision.signum is not None or decision.out_of_time
-                checkpoints.save(state, record, resolved, final=stopping or finished)
+                _save_together(checkpoints, state, record, resolved, stopping or finished, run_dir)
                 if decision.signum is not None:
                     raise TrainingInterrupted(decision.signum, run_dir, int(record["cycle"]))
                 if decision.out_of_time and not finished:
@@ -166,6 +192,88 @@ def _run(
 
         write_report([run_dir], run_dir / "report")
     return TrainingRun(run_dir, state, history, finished)
+
+
+_EXIT_WHILE_PREPARING = contextvars.ContextVar("exit_while_preparing", default=False)
+
+
+@contextlib.contextmanager
+def signals_exit_while_preparing() -> Iterator[None]:
+    """Inside this context (the `angora-jax` command), SIGINT or SIGTERM before a run's first cycle has ended ends
+    the process at once with exit code 128 + signal number, instead of after the first cycle: compiling and the first
+    cycle can take minutes and nothing is saved yet. A new run's directory is removed; a resumed run's is left as it
+    is. Outside it (notebooks: an interrupt must not kill the kernel) the first signal stops after the current cycle,
+    as it does later in every run."""
+    token = _EXIT_WHILE_PREPARING.set(True)
+    try:
+        yield
+    finally:
+        _EXIT_WHILE_PREPARING.reset(token)
+
+
+@contextlib.contextmanager
+def _preparation(run_dir: Path, new: bool) -> Iterator[Callable[[], None]]:
+    """Yield a function to call when the first cycle has ended. Before that, under `signals_exit_while_preparing`,
+    a thread woken by Python's signal wake-up fd (the main thread may be inside a compile for minutes and runs no
+    Python until it returns) exits the process on SIGINT or SIGTERM."""
+    preparing = threading.Event()
+    if not _EXIT_WHILE_PREPARING.get() or threading.current_thread() is not threading.main_thread():
+        yield preparing.set
+        return
+    receive, send = socket.socketpair()
+    send.setblocking(False)
+    previous = signal.set_wakeup_fd(send.fileno(), warn_on_full_buffer=False)
+
+    def watch():
+        with contextlib.suppress(OSError):
+            while (data := receive.recv(1)) and not preparing.is_set():
+                if data[0] in (signal.SIGINT, signal.SIGTERM):
+                    _exit_while_preparing(signal.Signals(data[0]), run_dir, new)
+
+    threading.Thread(target=watch, name="angora_jax signal watch", daemon=True).start()
+    try:
+        yield preparing.set
+    finally:
+        preparing.set()
+        signal.set_wakeup_fd(previous)
+        send.close()
+        receive.close()
+
+
+def _exit_while_preparing(signum: signal.Signals, run_dir: Path, new: bool) -> None:
+    if new and is_main_process():
+        shutil.rmtree(run_dir, ignore_errors=True)
+        outcome = f"nothing was trained yet, so the new run directory {run_dir} was removed"
+    else:
+        outcome = f"the run directory {run_dir} is unchanged; continue with: angora-jax resume {run_dir}"
+    print(f"\nInterrupted by {signum.name} before the first cycle ended (while compiling or running it): {outcome}.",
+          file=sys.stderr, flush=True)
+    os._exit(128 + signum)
+
+
+def _save_together(checkpoints: Checkpoints, state: TrainState, record: dict[str, Any], config: dict[str, Any],
+                   final: bool, run_dir: Path) -> None:
+    """Save what is due after this cycle; with several processes, all learn whether every save succeeded. Without
+    that, a process whose save failed (a full disk, a lost mount) would stop while the others went on into the next
+    cycle's collectives and waited for it forever."""
+    try:
+        checkpoints.save(state, record, config, final=final)
+        error = None
+    except Exception as failure:  # re-raised below, once the other processes know
+        error = failure
+    saved = agree_to_stop(None, error is not None)  # on one process: no communication
+    if error is None and saved.failed:
+        raise ProcessFailed(saved.failed, int(record["cycle"]), run_dir)
+    if error is not None:
+        raise error
+
+
+def describe_physics(physics: dict[str, Any]) -> str:
+    """`Env.physics_info()` as one phrase: engine, device, Warp's buffer size and why this implementation."""
+    text = f"{physics['engine']} on {physics['device']}"
+    if "warp_max_envs" in physics:
+        text += f", Warp buffers for {physics['warp_max_envs']:,} envs"
+    return text + (f" ({physics['why']})" if "why" in physics else "")
 
 
 @dataclass

@@ -8,6 +8,7 @@ task (head vs action space, batch shapes).
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 from angora_jax.envs.core import Env
@@ -84,6 +85,10 @@ class PPOConfig:
 
     def validate(self) -> PPOConfig:
         """Raise a ValueError naming the field when a setting is out of range or inconsistent; return self."""
+        settings = [*vars(self).items(), *((f"normalization.{k}", v) for k, v in vars(self.normalization).items())]
+        for name, value in settings:
+            if isinstance(value, float) and not math.isfinite(value):  # NaN passes every comparison below
+                raise ValueError(f"PPOConfig.{name} must be a finite number, got {value}.")
         positive = ("num_cycles", "num_envs", "rollout_length", "chunk_length", "num_epochs", "minibatch_size")
         for name in positive:
             if getattr(self, name) < 1:

@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import mujoco
 
-from angora_jax.envs.mjx_env import resolve_impl
+from angora_jax.envs.mjx_env import choose_impl
 from angora_jax.envs.mujoco_task import MJX_IMPLS, set_mjx_impl
 
 FINGERTIP_SITES = ("robot0:S_fftip", "robot0:S_mftip", "robot0:S_rftip", "robot0:S_lftip", "robot0:S_thtip")
@@ -84,7 +84,7 @@ class PhysicsSettings:
         spec.option.timestep = self.timestep
         spec.option.iterations = self.iterations
         spec.option.ls_iterations = self.ls_iterations
-        set_mjx_impl(spec, resolve_impl(self.impl))
+        set_mjx_impl(spec, *choose_impl(self.impl))
         if self.contact_caps:
             for name in ("max_geom_pairs", "max_contact_points"):
                 spec.add_numeric(name=name, data=[self.contact_caps])
