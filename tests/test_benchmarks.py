@@ -162,3 +162,18 @@ def test_ihom_curve_joins_pieces_by_cycle_and_finds_the_milestones(tmp_path, mon
     record = json.loads((tmp_path / "ihom_curve_t.json").read_text())
     assert record["training_device"] == "cpu" and len(record["curves"]["run"]) == 4
     assert (tmp_path / "ihom_curve_t.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(tmp_path):
+    script = os.path.join(os.path.dirname(side.__file__), "paper_figures.py")
+    subprocess.run([sys.executable, script, "--figure", "8", "--tasks", "Pendulum", "LunarLander", "--seeds", "3",
+                    "--smoke", "--out", str(tmp_path), "--name", "fig8"], check=True)
+    record = json.loads((tmp_path / "fig8.json").read_text())
+    runs = record["runs"]
+    assert sorted((r["head"], r["seed"]) for r in runs) == [("beta", 3), ("gaussian", 3)]
+    assert all(r["cycles"] == 2 and len(r["curve"]["episode_return"]) == 2 and r["wall_seconds"] > 0 for r in runs)
+    comparison = record["comparison"]["Pendulum"]
+    means = {head: stats["mean"] for head, stats in comparison["heads"].items()}
+    assert comparison["better"] == max(means, key=means.get) and comparison["heads"]["beta"]["seeds"] == 1
+    assert "host-side gymnasium path" in record["missing"]["LunarLander"]
+    assert (tmp_path / "fig8.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -10,7 +10,8 @@ from angora_jax.envs.classic import CartPole
 from angora_jax.envs.registry import make
 from angora_jax.ppo import NetworkConfig, PPOConfig, TrainingDivergedError, make_evaluate, train
 
-# Random policies score about 22 on CartPole (max 500) and about -1200 on Pendulum (best about -150).
+# Random policies score about 22 on CartPole (max 500), about -1200 on Pendulum (best about -150) and -500 on Acrobot
+# (the episode's limit; gymnasium's reward threshold is -100).
 CARTPOLE = PPOConfig(
     num_envs=16, rollout_length=128, chunk_length=16, minibatch_size=512, num_epochs=4, gamma=0.99
 )
@@ -23,6 +24,7 @@ CASES = {
         CARTPOLE.replace(num_cycles=40, network=NetworkConfig(name="lstm")),
         400.0,
     ),
+    "acrobot-simple-categorical": ("Acrobot", CARTPOLE.replace(num_cycles=40), -120.0),
     "pendulum-simple-gaussian": ("Pendulum", PENDULUM, -400.0),
     "pendulum-gru-beta": ("Pendulum", PENDULUM.replace(head="beta", network=NetworkConfig(name="gru")), -400.0),
     "pendulum-shared-multicategorical-lrdecay": (

@@ -27,6 +27,7 @@ class CpuEnv(MujocoEnv):
         self.model = task.model
         self.data = mujoco.MjData(self.model)
         self._initial_qpos = jax.jit(task.initial_qpos)
+        self._initial_qvel = jax.jit(task.initial_qvel)
         self._begin = jax.jit(task.begin)
         self._advance = jax.jit(task.advance)
         self._control = jax.jit(task.control)
@@ -34,7 +35,10 @@ class CpuEnv(MujocoEnv):
 
     def _reset(self, key: jax.Array) -> tuple[Snapshot, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)
-        start_physics(self.task, np.asarray(self._initial_qpos(pose_key), np.float64), self.data)
+        qvel = None  # a fixed start is at rest (`MujocoTask.initial_qvel`)
+        if self.task.random_initial_qpos:
+            qvel = np.asarray(self._initial_qvel(jax.random.fold_in(pose_key, 1)), np.float64)
+        start_physics(self.task, np.asarray(self._initial_qpos(pose_key), np.float64), self.data, qvel)
         snap = Snapshot.of(self.data)
         info, obs = self._begin(task_key, snap)
         return snap, obs, info

@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
+from angora_jax.envs.backends import on_backend
 from angora_jax.envs.core import Env
-from angora_jax.envs.cpu_env import CpuEnv
-from angora_jax.envs.mjx_env import MjxEnv
 from angora_jax.envs.mujoco_task import MujocoTask
 from angora_jax.envs.registry import register
 from angora_jax.envs.shadow_hand.cube import CUBE_PHYSICS, load_cube_scene
@@ -12,16 +11,10 @@ from angora_jax.envs.shadow_hand.ihom import Ihom, reward_coefficients
 from angora_jax.envs.shadow_hand.model import PhysicsSettings, load_scene
 from angora_jax.envs.shadow_hand.reach import Reach, ReachReward
 
-BACKENDS = ("mjx", "cpu")
-
 
 def build(backend: str, task: MujocoTask, frame_skip: int, max_episode_steps: int, settings: PhysicsSettings) -> Env:
-    """The task on a backend: "mjx" (batched, jit-able) or "cpu" (the eager C MuJoCo twin)."""
-    if backend not in BACKENDS:
-        raise ValueError(f"Unknown backend {backend!r}; choose one of {BACKENDS}.")
-    if backend == "cpu":
-        return CpuEnv(task, frame_skip=frame_skip, max_episode_steps=max_episode_steps)
-    return MjxEnv(task, frame_skip, max_episode_steps, warp_max_envs=settings.warp_max_envs)
+    """The task on a backend (`angora_jax.envs.backends.on_backend`), Warp sized by `settings`."""
+    return on_backend(backend, task, frame_skip, max_episode_steps, settings.warp_max_envs)
 
 
 # Newton 2 / line search 4 at 5 ms: 7.2x the Gym settings' sim-s/s on an H100 with fingertips within 2.5 mm of them

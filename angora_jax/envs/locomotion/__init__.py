@@ -1,0 +1,37 @@
+"""Gymnasium's MuJoCo tasks (v5) on MJX: `Hopper`, `Walker2d`, `HalfCheetah`, `Swimmer`, `InvertedPendulum`,
+`InvertedDoublePendulum`, `Reacher` (see `tasks`). Each runs batched on MJX (MuJoCo Warp on a GPU with warp-lang) or,
+with `backend="cpu"`, as its eager C MuJoCo twin."""
+
+from __future__ import annotations
+
+import functools
+
+from angora_jax.envs.backends import on_backend
+from angora_jax.envs.core import Env
+from angora_jax.envs.locomotion.tasks import (
+    GAITS,
+    GymnasiumTask,
+    InvertedDoublePendulum,
+    InvertedPendulum,
+    Locomotion,
+    Reacher,
+)
+from angora_jax.envs.registry import register
+
+# Policy steps per episode, as Gymnasium's registrations (`gymnasium.make(...).spec.max_episode_steps`).
+EPISODE_STEPS = {"Reacher": 50}
+OTHERS = {"InvertedPendulum": InvertedPendulum, "InvertedDoublePendulum": InvertedDoublePendulum, "Reacher": Reacher}
+
+
+def make_locomotion(name: str, max_episode_steps: int | None = None, impl: str = "auto",
+                    backend: str = "mjx") -> Env:
+    """Gymnasium's task `name` (v5). max_episode_steps: None for Gymnasium's (1000; Reacher 50). impl: the MJX
+    implementation ("auto": Warp on a GPU when warp-lang imports, else JAX). backend: "mjx" or "cpu"."""
+    task: GymnasiumTask = Locomotion(GAITS[name], impl) if name in GAITS else OTHERS[name](impl)
+    return on_backend(backend, task, task.frame_skip, max_episode_steps or EPISODE_STEPS.get(name, 1000))
+
+
+for _name in [*GAITS, *OTHERS]:
+    register(_name, functools.partial(make_locomotion, _name))
+
+__all__ = ["make_locomotion"]

@@ -1,0 +1,176 @@
+"""The paper's benchmark figures as one command: Fig. 8 (classic control) and Fig. 9 (MuJoCo locomotion and the
+hand's reach), each task x policy head x seed trained with its family's config (`classic`, `locomotion`,
+`shadow_reach`; no per-task tuning, as in the paper), mean return against env steps and against cycles.
+
+Per run: `angora_jax.train` in this process with `--minutes` as its wall-clock cap (the run stops after the first
+cycle past it, compile included). Per figure: one PNG, a panel per task (top row: against env steps, bottom row:
+against cycles; per head the mean over seeds with the min-max band), and in the JSON every curve, each run's wall
+time, final return (mean over the last tenth of its cycles) and, per task, which head ended higher over the seeds
+(mean and sample std). Tasks not available here are listed as missing with the reason.
+
+    python benchmarks/paper_figures.py --figure 9 --seeds 0 1 2 --minutes 4          # one GPU
+    python benchmarks/paper_figures.py --figure 8 --tasks CartPole --seeds 0 --smoke  # CPU smoke: tiny sizes
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import tempfile
+import time
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from common import RESULTS, device, markdown_table, versions  # noqa: E402
+
+import angora_jax as aj  # noqa: E402
+from angora_jax.envs.registry import list_tasks  # noqa: E402
+from angora_jax.experiment import load_config, read_metrics, to_dict  # noqa: E402
+
+# Figure -> (task, family config, heads). Discrete tasks have one head; continuous ones are compared.
+CONTINUOUS = ("gaussian", "beta")
+FIGURES = {
+    "8": [("CartPole", "classic", ("categorical",)), ("Acrobot", "classic", ("categorical",)),
+          ("MountainCar", "classic", ("categorical",)), ("Pendulum", "classic", CONTINUOUS),
+          ("MountainCarContinuous", "classic", CONTINUOUS),
+          ("LunarLander", None, ())],
+    "9": [("InvertedPendulum", "locomotion", CONTINUOUS), ("InvertedDoublePendulum", "locomotion", CONTINUOUS),
+          ("Reacher", "locomotion", CONTINUOUS), ("Swimmer", "locomotion", CONTINUOUS),
+          ("Hopper", "locomotion", CONTINUOUS), ("Walker2d", "locomotion", CONTINUOUS),
+          ("HalfCheetah", "locomotion", CONTINUOUS), ("Ant", None, ()), ("Humanoid", None, ()),
+          ("ShadowHandReach", "shadow_reach", (*CONTINUOUS, "multicategorical")),
+          ("ShadowHandFreeReach", "shadow_reach", (*CONTINUOUS, "multicategorical"))],
+}
+MISSING = {"LunarLander": "needs the host-side gymnasium path (issue 18, not built yet)",
+           "Ant": "not ported yet (v5 observes contact forces, cfrc_ext)",
+           "Humanoid": "not ported yet (v5 observes cinert, cvel, qfrc_actuator, cfrc_ext; PGS solver)"}
+# CPU smoke sizes: a few seconds per run.
+SMOKE = ["ppo.num_envs=4", "ppo.rollout_length=16", "ppo.chunk_length=8", "ppo.minibatch_size=32",
+         "ppo.num_epochs=1", "ppo.num_cycles=2"]
+
+
+def train_one(task: str, config: str, head: str, seed: int, minutes: float, extra: list[str], root: str) -> dict:
+    """One run; its curve and timing."""
+    overrides = [f"env.task={task}", f"ppo.head={head}", f"ppo.seed={seed}", f"logging.run_root={root}",
+                 f"logging.run_name={task}-{head}-{seed}", "logging.progress=none", "logging.report=false",
+                 "checkpoint.best_metric=null", *extra]
+    start = time.perf_counter()
+    run = aj.train(config, overrides, minutes=minutes)
+    wall = time.perf_counter() - start
+    rows = read_metrics(run.run_dir)
+    returns = [r["episode_return"] for r in rows]
+    tail = [x for x in returns[-max(1, len(returns) // 10):] if math.isfinite(x)]
+    rates = [r["steps_per_second"] for r in rows[1:]]  # the first cycle includes compilation
+    return {"task": task, "config": config, "head": head, "seed": seed, "wall_seconds": wall,
+            "compile_seconds": rows[0].get("compile_seconds"), "cycles": len(rows), "env_steps": rows[-1]["env_steps"],
+            "env_steps_per_second": statistics.median(rates) if rates else None,
+            "final_return": statistics.fmean(tail) if tail else None,
+            "curve": {"env_steps": [r["env_steps"] for r in rows], "cycle": [r["cycle"] for r in rows],
+                      "episode_return": [None if not math.isfinite(x) else x for x in returns]}}
+
+
+def compare_heads(runs: list[dict]) -> dict:
+    """Per head: mean and sample std of the final returns over seeds; `better`: the head with the higher mean."""
+    heads = {}
+    for run in runs:
+        heads.setdefault(run["head"], []).append(run["final_return"])
+    stats = {h: {"mean": statistics.fmean(v), "std": statistics.stdev(v) if len(v) > 1 else 0.0, "seeds": len(v)}
+             for h, v in heads.items() if None not in v}
+    better = max(stats, key=lambda h: stats[h]["mean"]) if len(stats) > 1 else None
+    return {"heads": stats, "better": better}
+
+
+def plot_figure(figure: str, runs: list[dict], path: str) -> None:
+    tasks = list(dict.fromkeys(r["task"] for r in runs))
+    fig, axes = plt.subplots(2, len(tasks), figsize=(3.4 * len(tasks), 5.6), squeeze=False)
+    for col, task in enumerate(tasks):
+        for row, x in enumerate(("env_steps", "cycle")):
+            ax = axes[row][col]
+            for head in dict.fromkeys(r["head"] for r in runs if r["task"] == task):
+                curves = [r["curve"] for r in runs if r["task"] == task and r["head"] == head]
+                length = min(len(c[x]) for c in curves)
+                xs = curves[0][x][:length]
+                ys = [[c["episode_return"][i] for c in curves if c["episode_return"][i] is not None]
+                      for i in range(length)]
+                keep = [i for i, y in enumerate(ys) if y]
+                ax.plot([xs[i] for i in keep], [statistics.fmean(ys[i]) for i in keep], label=head)
+                ax.fill_between([xs[i] for i in keep], [min(ys[i]) for i in keep], [max(ys[i]) for i in keep],
+                                alpha=0.2)
+            ax.set_xlabel("env steps" if x == "env_steps" else "cycles")
+            ax.grid(alpha=0.3)
+            if row == 0:
+                ax.set_title(task)
+            if col == 0:
+                ax.set_ylabel("mean episode return")
+        axes[0][col].legend(fontsize="small")
+    fig.suptitle(f"Fig. {figure}: {device()['kind']}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--figure", choices=[*FIGURES, "all"], default="all")
+    parser.add_argument("--tasks", nargs="*", help="only these tasks (default: all of the figure's)")
+    parser.add_argument("--heads", nargs="*", help="only these heads (default: each task's)")
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--minutes", type=float, default=4.0, help="wall-clock cap per run (default: 4)")
+    parser.add_argument("--smoke", action="store_true", help="tiny sizes, for a CPU check of the script")
+    parser.add_argument("--name", default=None, help="results name (default: paper_fig<N>_<platform>)")
+    parser.add_argument("--out", default=RESULTS, help="folder for the PNG and JSON (default: benchmarks/results)")
+    parser.add_argument("overrides", nargs="*", help="key.sub=value overrides for every run")
+    args = parser.parse_args()
+    extra = [*(SMOKE if args.smoke else []), *args.overrides]
+    platform = device()["platform"]
+    for figure in FIGURES if args.figure == "all" else [args.figure]:
+        runs, missing = [], {}
+        with tempfile.TemporaryDirectory() as root:
+            for task, config, heads in FIGURES[figure]:
+                if args.tasks and task not in args.tasks:
+                    continue
+                if config is None or task not in list_tasks():
+                    missing[task] = MISSING.get(task, "not registered")
+                    continue
+                for head in heads:
+                    if args.heads and head not in args.heads:
+                        continue
+                    for seed in args.seeds:
+                        runs.append(train_one(task, config, head, seed, args.minutes, extra, root))
+                        r = runs[-1]
+                        print(f"{task} {head} seed {seed}: return {r['final_return']} after {r['env_steps']:,} "
+                              f"steps, {r['wall_seconds']:.0f} s", flush=True)
+        if not runs:
+            continue
+        comparison = {task: compare_heads([r for r in runs if r["task"] == task])
+                      for task in dict.fromkeys(r["task"] for r in runs)}
+        name = args.name or f"paper_fig{figure}_{platform}"
+        os.makedirs(args.out, exist_ok=True)
+        png = os.path.join(args.out, f"{name}.png")
+        plot_figure(figure, runs, png)
+        families = {r["config"]: to_dict(load_config(r["config"], extra)) for r in runs}
+        record = {"benchmark": "paper_figures", "figure": figure, "device": device(), "versions": versions(),
+                  "config": {"seeds": args.seeds, "minutes": args.minutes, "overrides": extra, "families": families},
+                  "comparison": comparison, "missing": missing, "runs": runs}
+        with open(f"{png[:-4]}.json", "w") as file:
+            json.dump(record, file, indent=1)
+        table = [{"task": r["task"], "head": r["head"], "seed": r["seed"], "final": r["final_return"],
+                  "steps": r["env_steps"], "wall": r["wall_seconds"]} for r in runs]
+        print(markdown_table(table, [("task", "task", ""), ("head", "head", ""), ("seed", "seed", "d"),
+                                     ("final", "final return", ".1f"), ("steps", "env steps", ",d"),
+                                     ("wall", "wall s", ".0f")]))
+        for task, result in comparison.items():
+            print(f"{task}: better head {result['better']}: " + ", ".join(
+                f"{h} {s['mean']:.1f} +- {s['std']:.1f} ({s['seeds']} seeds)" for h, s in result["heads"].items()))
+        if missing:
+            print("missing: " + "; ".join(f"{t} ({why})" for t, why in missing.items()))
+        print(f"wrote {png} and {png[:-4]}.json")
+
+
+if __name__ == "__main__":
+    main()
