@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import angora_jax as aj
-from angora_jax.envs import mjx_env, shadow_hand
+from angora_jax.envs import backends, mjx_env
 from angora_jax.envs.classic.cartpole import CartPole
 from angora_jax.envs.mjx_env import resolve_impl
 from angora_jax.envs.mujoco_task import Snapshot, mjx_impl, start_physics
@@ -189,7 +189,7 @@ def test_physics_impl_and_contact_caps_are_checked():
 
 def test_warp_buffer_size_is_a_physics_setting(monkeypatch):
     built = []
-    monkeypatch.setattr(shadow_hand, "MjxEnv", lambda task, skip, steps, warp_max_envs: built.append(warp_max_envs))
+    monkeypatch.setattr(backends, "MjxEnv", lambda task, skip, steps, warp_max_envs: built.append(warp_max_envs))
     aj.make("ShadowHandCube", physics={"warp_max_envs": 4096})
     aj.make("ShadowHandReach")
     assert built == [4096, None]  # None: sized for the batch that runs it (Env.sized_for)
