@@ -9,6 +9,8 @@ angora-jax report runs/lstm runs/other          PNG curves + index.html comparin
 angora-jax monitor runs/lstm runs/other         the same page while runs train, served on http://127.0.0.1:8000
 angora-jax list-configs                         the shipped configs (train one by name from any directory)
 angora-jax doctor                               versions, devices, physics choice, rendering: what to install
+angora-jax record runs/lstm --out act.nc        every layer's activity with the task variables (xarray, NetCDF)
+angora-jax analyze decode act.nc                ridge R^2 of each variable from each layer, against noise
 """
 
 from __future__ import annotations
@@ -162,6 +164,26 @@ def parser() -> argparse.ArgumentParser:
         "--out", default=None, help="default: RUN_DIR/report for one run, else report/ beside the first run"
     )
     report.set_defaults(handler=command_report)
+
+    record = commands.add_parser("record", help="every layer's activity with inputs, actions and task variables, "
+                                                "as NetCDF (angora_jax.analysis)")
+    record.add_argument("run_dir")
+    record.add_argument("--out", required=True, help="NetCDF file to write (never overwritten)")
+    record.add_argument("--episodes", type=positive_int, default=64)
+    record.add_argument("--steps", type=positive_int, default=None, help="policy steps (default: episode length)")
+    record.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
+    record.add_argument("--seed", type=int, default=0)
+    record.set_defaults(handler=command_record)
+
+    analyze = commands.add_parser("analyze", help="analyses of a recording (see angora-jax record)")
+    analyses = analyze.add_subparsers(dest="analysis", required=True)
+    decoding = analyses.add_parser("decode", help="ridge R^2 of each variable from each layer vs a noise baseline")
+    decoding.add_argument("recording", help="a NetCDF file from angora-jax record")
+    decoding.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    decoding.add_argument("--variables", nargs="*", help="variables (default: every input_* and metric_*)")
+    decoding.add_argument("--folds", type=positive_int, default=5)
+    decoding.add_argument("--out", default=None, help="heat map PNG (default: beside the recording)")
+    decoding.set_defaults(handler=command_decode)
 
     monitor = commands.add_parser("monitor", help="the HTML report of runs while they train, regenerated and served")
     monitor.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
@@ -318,6 +340,48 @@ def command_monitor(args: argparse.Namespace) -> int:
             live.wait()
         except KeyboardInterrupt:
             print("Monitor stopped.")
+    return EXIT_OK
+
+
+def command_record(args: argparse.Namespace) -> int:
+    from angora_jax.analysis import record_activity, save_activity
+
+    out = Path(args.out)
+    if out.exists():
+        print(f"angora-jax record: {out} exists; recordings are never overwritten: give another --out.",
+              file=sys.stderr)
+        return EXIT_USAGE
+    checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
+    dataset = record_activity(args.run_dir, args.episodes, args.steps, args.seed, checkpoint)
+    save_activity(dataset, out)
+    layers = [n.removeprefix("activity_") for n in dataset.data_vars if n.startswith("activity_")]
+    print(f"Recorded {dataset.sizes['episode']} episodes x {dataset.sizes['time']} steps of {len(layers)} layers "
+          f"({', '.join(layers)}): {out}")
+    return EXIT_OK
+
+
+def command_decode(args: argparse.Namespace) -> int:
+    import xarray as xr
+
+    from angora_jax.analysis import decode, plot_decoding
+
+    recording = Path(args.recording)
+    if not recording.is_file():
+        raise FileNotFoundError(f"No recording {recording}; make one with angora-jax record RUN_DIR --out FILE.")
+    try:
+        result = decode(xr.load_dataset(recording), args.layers, args.variables, args.folds)
+    except ValueError as error:
+        print(f"angora-jax analyze decode: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    out = Path(args.out) if args.out else recording.with_suffix(".decoding.png")
+    plot_decoding(result, str(out))
+    result.to_netcdf(out.with_suffix(".nc"), engine="scipy")
+    for layer in result["layer"].values:
+        cells = ", ".join(f"{v} {result['r2'].sel(layer=layer, variable=v).item():.2f} "
+                          f"(noise {result['baseline'].sel(layer=layer, variable=v).item():.2f})"
+                          for v in result["variable"].values)
+        print(f"{layer}: {cells}")
+    print(f"Heat map: {out}; numbers: {out.with_suffix('.nc')}")
     return EXIT_OK
 
 

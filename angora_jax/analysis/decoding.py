@@ -1,0 +1,97 @@
+"""Decoding (AngoraPy's "predictability"): how well a linear readout of a layer's activity predicts a task variable.
+
+For each layer and variable: ridge regression (scikit-learn's `RidgeCV`, the penalty chosen by inner leave-one-out)
+from the layer's units to the variable's features, scored by R^2 on held-out episodes (`GroupKFold` over episodes,
+so steps of one episode never sit on both sides), only at steps where the episode is alive. The baseline decodes
+the same variable from Gaussian noise of the layer's shape: what a readout finds by chance. The interval is the
+mean over folds +- 1.96 standard errors.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import xarray as xr
+from sklearn.linear_model import RidgeCV
+from sklearn.metrics import r2_score
+from sklearn.model_selection import GroupKFold
+from sklearn.pipeline import make_pipeline
+from sklearn.preprocessing import StandardScaler
+
+ALPHAS = np.logspace(-3, 3, 13)
+
+
+def cross_validated_r2(features: np.ndarray, targets: np.ndarray, groups: np.ndarray, folds: int = 5) -> np.ndarray:
+    """Held-out R^2 of a ridge readout per fold, `(folds,)`. features `(samples, units)`, targets `(samples,
+    outputs)` (R^2 weighted by each output's variance), groups `(samples,)`: samples of a group stay together."""
+    scores = []
+    for train, test in GroupKFold(n_splits=folds).split(features, targets, groups):
+        model = make_pipeline(StandardScaler(), RidgeCV(alphas=ALPHAS)).fit(features[train], targets[train])
+        scores.append(r2_score(targets[test], model.predict(features[test]), multioutput="variance_weighted"))
+    return np.asarray(scores)
+
+
+def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: Sequence[str] | None = None,
+           folds: int = 5, seed: int = 0) -> xr.Dataset:
+    """R^2 of every layer x variable, with the noise baseline and 95% intervals, as a Dataset with variables `r2`,
+    `r2_low`, `r2_high`, `baseline` (dims layer x variable).
+
+    layers: names as in `activity_<name>` (default: all). variables: dataset variables to decode, e.g.
+    `input_goal`, `metric_goal_distance` (default: every `input_*` and `metric_*`).
+    """
+    layers = list(layers or [n.removeprefix("activity_") for n in dataset.data_vars if n.startswith("activity_")])
+    variables = list(variables or [n for n in dataset.data_vars if n.startswith(("input_", "metric_"))])
+    missing = [v for v in [*(f"activity_{n}" for n in layers), *variables] if v not in dataset.data_vars]
+    if missing:
+        raise ValueError(f"Not in the recording: {missing}; it has {sorted(dataset.data_vars)}.")
+    alive = dataset["alive"].values.reshape(-1) > 0
+    groups = np.repeat(np.arange(dataset.sizes["episode"]), dataset.sizes["time"])[alive]
+    if len(np.unique(groups)) < folds:
+        raise ValueError(f"Decoding with {folds} folds needs at least {folds} episodes; the recording has "
+                         f"{len(np.unique(groups))}.")
+    rng = np.random.default_rng(seed)
+    shape = (len(layers), len(variables))
+    result = {name: np.full(shape, np.nan) for name in ("r2", "r2_low", "r2_high", "baseline")}
+    for i, layer in enumerate(layers):
+        features = _samples(dataset[f"activity_{layer}"])[alive]
+        noise = rng.standard_normal(features.shape)
+        for j, variable in enumerate(variables):
+            targets = _samples(dataset[variable])[alive]
+            if np.all(targets.std(axis=0) == 0):
+                continue  # a constant has nothing to decode
+            scores = cross_validated_r2(features, targets, groups, folds)
+            half = 1.96 * scores.std(ddof=1) / np.sqrt(folds)
+            result["r2"][i, j], result["r2_low"][i, j], result["r2_high"][i, j] = (
+                scores.mean(), scores.mean() - half, scores.mean() + half)
+            result["baseline"][i, j] = cross_validated_r2(noise, targets, groups, folds).mean()
+    return xr.Dataset({name: (("layer", "variable"), values) for name, values in result.items()},
+                      coords={"layer": layers, "variable": variables},
+                      attrs={"folds": folds, "description": "held-out ridge R^2 (GroupKFold over episodes)"})
+
+
+def _samples(array: xr.DataArray) -> np.ndarray:
+    """(episode, time[, features]) -> (episode * time, features)."""
+    values = np.asarray(array.values, np.float64)
+    return values.reshape(values.shape[0] * values.shape[1], -1)
+
+
+def plot_decoding(result: xr.Dataset, path: str) -> None:
+    """A heat map layer x variable of R^2 (the baseline in each cell's label)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    r2 = result["r2"].values
+    fig, ax = plt.subplots(figsize=(1.2 + 1.1 * r2.shape[1], 1.0 + 0.45 * r2.shape[0]))
+    image = ax.imshow(r2, vmin=0, vmax=1, cmap="viridis", aspect="auto")
+    ax.set_xticks(range(r2.shape[1]), result["variable"].values, rotation=45, ha="right")
+    ax.set_yticks(range(r2.shape[0]), result["layer"].values)
+    for (i, j), value in np.ndenumerate(r2):
+        ax.text(j, i, f"{value:.2f}\n({result['baseline'].values[i, j]:.2f})", ha="center", va="center",
+                fontsize=7, color="white" if value < 0.5 else "black")
+    fig.colorbar(image, ax=ax, label="held-out R^2 (noise baseline)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

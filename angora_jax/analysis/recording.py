@@ -1,0 +1,110 @@
+"""Record a trained agent: every layer's activity per time step with the inputs, actions, rewards and task
+variables, as one labelled `xarray.Dataset` (dims episode x time x unit) for the analyses in this package.
+
+Episodes run batched on the training path (MJX for MuJoCo tasks, one compiled program), one per environment, for
+`steps` policy steps from fresh starts, acting with the policy's mode. Variables:
+
+    activity_<layer>   (episode, time, <layer>_unit)  a layer's output (flax `capture_intermediates`; layers named by
+                                                       their module path, e.g. network.policy_trunk.Dense_0)
+    input_<modality>   (episode, time, <modality>_feature)  raw observation (before normalisation)
+    action             (episode, time, action_dim)     the action sent to the environment
+    reward, value      (episode, time)                 reward of the step, value estimate of the observation
+    metric_<name>      (episode, time)                 the task's metrics at the step (e.g. goals_reached)
+    alive              (episode, time)                 1 until the step that ends the episode (inclusive)
+    time_in_episode    (episode, time)                 policy steps since the episode started, in s (coord `time`)
+
+Only the first episode of each environment is kept: steps after it ended have `alive` 0 (their values belong to the
+next episode and are kept for completeness, masked by the analyses).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import xarray as xr
+
+from angora_jax.experiment.agent import Agent, load_agent
+
+
+def layer_activity(agent: Agent, carry: Any, obs: Any) -> tuple[Any, jax.Array, jax.Array, dict[str, jax.Array]]:
+    """One step of `agent` on raw observations with every layer's output: (carry, env action (mode), value,
+    {layer name: (B, units)})."""
+    (carry, policy_params, value), state = agent.apply(carry, obs, capture_intermediates=True,
+                                                       mutable=["intermediates"])
+    layers = {}
+    for path, leaf in jax.tree_util.tree_flatten_with_path(state["intermediates"])[0]:
+        names = [str(getattr(p, "key", getattr(p, "idx", p))) for p in path]
+        modules = [n for n in names if not n.isdigit() and n != "__call__"]
+        if not modules or leaf.ndim != 2 or leaf.shape[-1] == 0:
+            continue  # the whole model's outputs, scalars per env, empty carries
+        outputs = names[names.index("__call__") + 2:]  # index within a tuple output (e.g. a cell's carry and output)
+        layers[".".join([*modules, *outputs])] = leaf
+    return carry, agent.head.env_action(agent.head.mode(policy_params)), value, layers
+
+
+def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | None = None, seed: int = 0,
+                    checkpoint: str | int = "best") -> xr.Dataset:
+    """Run `episodes` episodes of `agent` (an Agent, or a run directory loaded with `checkpoint`) for `steps` policy
+    steps each (default: the task's episode length) and return the dataset described in the module docstring."""
+    agent = load_agent(agent, checkpoint) if not isinstance(agent, Agent) else agent
+    env = agent.env.sized_for(episodes)
+    steps = steps or env.max_episode_steps
+
+    def run(key):
+        state = jax.vmap(env.reset)(jax.random.split(key, episodes))
+
+        def step(carry, _):
+            state, net_carry, alive = carry
+            net_carry, action, value, layers = layer_activity(agent, net_carry, state.obs)
+            next_state = jax.vmap(env.step)(state, action)
+            record = {"layers": layers, "inputs": state.obs, "action": action, "value": value,
+                      "reward": next_state.reward, "metrics": next_state.metrics, "alive": alive,
+                      "steps": state.steps}
+            return (next_state, net_carry, alive * (1.0 - next_state.done)), record
+
+        carry = (state, agent.initial_carry(episodes), jnp.ones((episodes,), jnp.float32))
+        return jax.lax.scan(step, carry, None, length=steps)[1]
+
+    record = jax.device_get(jax.jit(run)(jax.random.key(seed)))
+    return _dataset(agent, record, env.dt)
+
+
+def _dataset(agent: Agent, record: dict[str, Any], dt: float) -> xr.Dataset:
+    def episode_major(x):  # (time, episode, ...) -> (episode, time, ...)
+        return np.swapaxes(np.asarray(x), 0, 1)
+
+    data = {}
+    for name, values in record["layers"].items():
+        data[f"activity_{name}"] = (("episode", "time", f"{name}_unit"), episode_major(values),
+                                    {"description": f"output of layer {name}"})
+    for modality, values in vars(record["inputs"]).items():
+        if values.shape[-1]:
+            data[f"input_{modality}"] = (("episode", "time", f"{modality}_feature"), episode_major(values),
+                                         {"description": f"raw observation, modality {modality}"})
+    action = episode_major(record["action"])
+    data["action"] = (("episode", "time", "action_dim")[: action.ndim], action, {"description": "action sent"})
+    data["value"] = (("episode", "time"), episode_major(record["value"]), {"description": "value estimate"})
+    data["reward"] = (("episode", "time"), episode_major(record["reward"]), {"description": "reward of the step"})
+    for name, values in record["metrics"].items():
+        data[f"metric_{name}"] = (("episode", "time"), episode_major(values), {"description": f"task metric {name}"})
+    data["alive"] = (("episode", "time"), episode_major(record["alive"]),
+                     {"description": "1 while the episode's first run lasts, through its last step"})
+    data["time_in_episode"] = (("episode", "time"), episode_major(record["steps"]) * dt,
+                               {"units": "s", "description": "time since the episode started"})
+    return xr.Dataset(data, coords={"time": ("time", np.arange(action.shape[1]) * dt, {"units": "s"})},
+                      attrs={"task": agent.config.env.task, "network": agent.config.ppo.network.name,
+                             "cycle": agent.cycle, "policy_step_s": dt})
+
+
+def save_activity(dataset: xr.Dataset, path: str | Path) -> Path:
+    """Write `dataset` as NetCDF (`xarray.open_dataset(path)` reads it back); refuses to overwrite."""
+    path = Path(path)
+    if path.exists():
+        raise FileExistsError(f"{path} exists; recordings are never overwritten: give another --out.")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    dataset.to_netcdf(path, engine="scipy")
+    return path
