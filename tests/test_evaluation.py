@@ -92,11 +92,14 @@ def test_evaluating_again_compiles_nothing(run_dir):
             compiles.append(duration)
 
     jax.monitoring.register_event_duration_secs_listener(count)
+    # Off: the suite's persistent compilation cache would turn a repeated compile into a read that this misses.
+    jax.config.update("jax_enable_compilation_cache", False)
     try:
         for path in evaluation.PATHS:
             assert evaluate(run_dir, "best", episodes=4, seed=3, save=False, path=path).meta["episodes"] == 4
     finally:
         monitoring.unregister_event_duration_listener(count)
+        jax.config.update("jax_enable_compilation_cache", True)
     assert compiles == []
 
 
