@@ -201,9 +201,9 @@ _EXIT_WHILE_PREPARING = contextvars.ContextVar("exit_while_preparing", default=F
 def signals_exit_while_preparing() -> Iterator[None]:
     """Inside this context (the `angora-jax` command), SIGINT or SIGTERM before a run's first cycle has ended ends
     the process at once with exit code 128 + signal number, instead of after the first cycle: compiling and the first
-    cycle can take minutes and nothing is saved yet. A new run's directory is removed; a resumed run's is left as it
-    is. Outside it (notebooks: an interrupt must not kill the kernel) the first signal stops after the current cycle,
-    as it does later in every run."""
+    cycle can take minutes and nothing is saved yet. A new run's directory is removed; a resumed run keeps its
+    checkpoints. Outside it (notebooks: an interrupt must not kill the kernel) the first signal stops after the
+    current cycle, as it does later in every run."""
     token = _EXIT_WHILE_PREPARING.set(True)
     try:
         yield
@@ -245,7 +245,7 @@ def _exit_while_preparing(signum: signal.Signals, run_dir: Path, new: bool) -> N
         shutil.rmtree(run_dir, ignore_errors=True)
         outcome = f"nothing was trained yet, so the new run directory {run_dir} was removed"
     else:
-        outcome = f"the run directory {run_dir} is unchanged; continue with: angora-jax resume {run_dir}"
+        outcome = f"the run directory {run_dir} keeps its checkpoints; continue with: angora-jax resume {run_dir}"
     print(f"\nInterrupted by {signum.name} before the first cycle ended (while compiling or running it): {outcome}.",
           file=sys.stderr, flush=True)
     os._exit(128 + signum)
