@@ -40,12 +40,17 @@ def resolve_impl(impl: str) -> str:
     return choose_impl(impl)[0]
 
 
+def on_gpu() -> bool:
+    """Whether JAX runs on a GPU in this process."""
+    return any(device.platform == "gpu" for device in jax.local_devices())
+
+
 def choose_impl(impl: str) -> tuple[str, str]:
     """`resolve_impl(impl)` and why, as a phrase for logs and `angora-jax doctor` (with what to install when
     a faster choice is missing)."""
     if impl != "auto":
         return impl, f"physics.impl is set to {impl!r}"
-    if not any(device.platform == "gpu" for device in jax.local_devices()):
+    if not on_gpu():
         return "jax", "physics.impl auto: JAX runs on the CPU (MuJoCo Warp needs an NVIDIA GPU)"
     if importlib.util.find_spec("warp") is None:
         return "jax", (f"physics.impl auto: JAX runs on a GPU but warp-lang is not installed; pip install "

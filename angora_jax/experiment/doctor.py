@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import jax
 
-from angora_jax.envs.mjx_env import WARP_REQUIREMENT, choose_impl
+from angora_jax.envs.mjx_env import WARP_REQUIREMENT, choose_impl, on_gpu
 from angora_jax.ppo.memory import GIB, device_memory
 
 PACKAGES = ("jax", "jaxlib", "jax-cuda13-plugin", "jax-cuda12-plugin", "mujoco", "mujoco-mjx", "warp-lang", "flax",
@@ -97,10 +97,9 @@ def _devices(report: Diagnosis) -> None:
         report.rows.append(("devices", entry["device"], f"{entry['kind']}, {memory}"))
     driver = _nvidia_driver()
     report.rows.append(("devices", "NVIDIA driver", driver or "none (no nvidia-smi)"))
-    on_gpu = any(d.platform == "gpu" for d in jax.local_devices())
-    if driver and not on_gpu:
+    if driver and not on_gpu():
         report.problems.append(f"An NVIDIA GPU is present but JAX sees only {jax.default_backend()}: {CUDA_INSTALL}.")
-    if on_gpu and driver and int(driver.split(".")[0]) < 580:
+    if on_gpu() and driver and int(driver.split(".")[0]) < 580:
         report.advice.append(f"NVIDIA driver {driver} is older than 580, which CUDA 13 builds of JAX and Warp need.")
 
 
@@ -108,9 +107,8 @@ def _physics(report: Diagnosis, installed: dict[str, str | None]) -> None:
     impl, why = choose_impl("auto")
     report.rows.append(("physics", "MuJoCo tasks", f"MJX {impl} implementation ({why})"))
     report.rows.append(("physics", "classic tasks", "pure JAX"))
-    on_gpu = any(d.platform == "gpu" for d in jax.local_devices())
     wanted = WARP_REQUIREMENT.split("==")[1]
-    if on_gpu and installed["warp-lang"] is None:
+    if on_gpu() and installed["warp-lang"] is None:
         report.advice.append(f"pip install {WARP_REQUIREMENT} for MuJoCo Warp physics (4.6x faster cube training).")
     if installed["warp-lang"] not in (None, wanted):
         report.advice.append(f"warp-lang {installed['warp-lang']} is installed; mujoco-mjx {installed['mujoco-mjx']} "
