@@ -11,6 +11,12 @@ angora-jax list-configs                         the shipped configs (train one b
 angora-jax doctor                               versions, devices, physics choice, rendering: what to install
 angora-jax record runs/lstm --out act.nc        every layer's activity with the task variables (xarray, NetCDF)
 angora-jax analyze decode act.nc                ridge R^2 of each variable from each layer, against noise
+angora-jax analyze similarity act.nc --condition metric_goal_distance    RDMs per layer (RSA), compared
+angora-jax analyze dynamics act.nc --run runs/lstm --recurrent network.PMC --inputs network.PMC_in
+                                                PCA per layer; fixed points of a recurrent layer
+angora-jax analyze timescales act.nc             activity autocorrelation and timescale per layer
+angora-jax analyze tuning act.nc --layer network.SSC_2 --variable metric_goal_distance
+angora-jax analyze ablate runs/lstm --lesion network.SSC_2 --silence goal    task outcomes under lesions
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from angora_jax.experiment import (
     TrainingRun,
     evaluation,
     list_configs,
+    load_agent,
     read_metrics,
     resume,
     train,
@@ -184,6 +191,45 @@ def parser() -> argparse.ArgumentParser:
     decoding.add_argument("--folds", type=positive_int, default=5)
     decoding.add_argument("--out", default=None, help="heat map PNG (default: beside the recording)")
     decoding.set_defaults(handler=command_decode)
+
+    def analysis(name: str, help: str) -> argparse.ArgumentParser:
+        parser = analyses.add_parser(name, help=help)
+        parser.add_argument("recording", help="a NetCDF file from angora-jax record")
+        parser.add_argument("--out", default=None, help=f"PNG (default: beside the recording, *.{name}.png)")
+        parser.set_defaults(handler=command_analysis)
+        return parser
+
+    similar = analysis("similarity", "representational similarity (RSA): RDMs per layer over bins of a variable")
+    similar.add_argument("--condition", required=True, help="variable whose quantile bins are the conditions")
+    similar.add_argument("--feature", type=int, default=None, help="component of a vector condition variable")
+    similar.add_argument("--bins", type=positive_int, default=8)
+    similar.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    similar.add_argument("--variables", nargs="*", default=[], help="variables to compare with as model RDMs")
+    dynamics = analysis("dynamics", "PCA per layer; with --run, fixed points of a recurrent layer")
+    dynamics.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    dynamics.add_argument("--components", type=positive_int, default=10)
+    dynamics.add_argument("--run", default=None, help="the recorded run (for fixed points)")
+    dynamics.add_argument("--checkpoint", default="best", help="the recorded checkpoint (default: best)")
+    dynamics.add_argument("--recurrent", default=None, help="recurrent layer, e.g. network.PMC")
+    dynamics.add_argument("--inputs", default=None, help="the layer feeding it, e.g. network.PMC_in")
+    scales = analysis("timescales", "activity autocorrelation and intrinsic timescale per layer")
+    scales.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    scales.add_argument("--max-lag", type=positive_int, default=20, help="policy steps (default: 20)")
+    tuning = analysis("tuning", "unit responses as functions of a task variable")
+    tuning.add_argument("--layer", required=True)
+    tuning.add_argument("--variable", required=True)
+    tuning.add_argument("--feature", type=int, default=None, help="component of a vector variable")
+    tuning.add_argument("--bins", type=positive_int, default=10)
+    ablate = analyses.add_parser("ablate", help="task outcomes of a run with areas, modalities or units silenced")
+    ablate.add_argument("run_dir")
+    ablate.add_argument("--lesion", nargs="*", default=[], metavar="AREA", help="dense layers or areas to silence")
+    ablate.add_argument("--silence", nargs="*", default=[], metavar="MODALITY", help="input modalities to silence")
+    ablate.add_argument("--fraction", nargs="*", default=[], metavar="AREA:F",
+                        help="silence a random fraction F of an area's units, e.g. network.M1:0.5")
+    ablate.add_argument("--episodes", type=positive_int, default=256)
+    ablate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
+    ablate.add_argument("--out", default=None, help="PNG and NetCDF (default: RUN_DIR/ablation.png)")
+    ablate.set_defaults(handler=command_ablate)
 
     monitor = commands.add_parser("monitor", help="the HTML report of runs while they train, regenerated and served")
     monitor.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
@@ -361,27 +407,118 @@ def command_record(args: argparse.Namespace) -> int:
 
 
 def command_decode(args: argparse.Namespace) -> int:
-    import xarray as xr
-
     from angora_jax.analysis import decode, plot_decoding
+
+    def summary(result):
+        for layer in result["layer"].values:
+            yield f"{layer}: " + ", ".join(
+                f"{v} {result['r2'].sel(layer=layer, variable=v).item():.2f} "
+                f"(noise {result['baseline'].sel(layer=layer, variable=v).item():.2f})"
+                for v in result["variable"].values)
+
+    args.analysis = "decoding"
+    return _analyze(args, lambda data: decode(data, args.layers, args.variables, args.folds), plot_decoding, summary)
+
+
+def command_analysis(args: argparse.Namespace) -> int:
+    """similarity, dynamics, timescales and tuning of a recording."""
+    from angora_jax import analysis
+
+    fixed = {}
+
+    def compute(data):
+        if args.analysis == "similarity":
+            return analysis.similarity(data, args.condition, args.layers, args.variables, args.bins, args.feature)
+        if args.analysis == "timescales":
+            return analysis.timescales(data, args.layers, args.max_lag)
+        if args.analysis == "tuning":
+            return analysis.tuning_curves(data, args.layer, args.variable, args.bins, args.feature)
+        if (args.run is None) != (args.recurrent is None) or (args.recurrent is None) != (args.inputs is None):
+            raise ValueError("Fixed points need --run, --recurrent and --inputs together.")
+        if args.run:
+            checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
+            fixed.update(analysis.agent_fixed_points(load_agent(args.run, checkpoint), data, args.recurrent,
+                                                     args.inputs))
+        return analysis.principal_components(data, args.layers, args.components)
+
+    def plot(result, path):
+        if args.analysis == "dynamics":
+            analysis.plot_dynamics(result, path, fixed or None)
+        else:
+            {"similarity": analysis.plot_similarity, "timescales": analysis.plot_timescales,
+             "tuning": analysis.plot_tuning}[args.analysis](result, path)
+
+    def summary(result):
+        if args.analysis == "similarity":
+            yield f"Layer x layer RDM similarity (Spearman):\n{result['layer_similarity'].to_pandas().round(2)}"
+            if "model_similarity" in result:
+                yield f"Layer x variable (Spearman):\n{result['model_similarity'].to_pandas().round(2)}"
+        elif args.analysis == "timescales":
+            yield from (f"{layer}: timescale median {result['timescale_median'].sel(layer=layer).item():.3g} s"
+                        for layer in result["layer"].values)
+        elif args.analysis == "tuning":
+            strength = result["strength"].values
+            yield f"eta^2 of {args.variable} per unit: median {np.median(strength):.2f}, max {strength.max():.2f}"
+        else:
+            yield from (f"{layer}: {result['dimensionality'].sel(layer=layer).item()} components for 90% of the "
+                        f"variance, participation ratio {result['participation_ratio'].sel(layer=layer).item():.1f}"
+                        for layer in result["layer"].values)
+            if fixed:
+                yield (f"{args.recurrent}: {int(fixed['fixed'].sum())} of {len(fixed['fixed'])} starts reached a "
+                       f"fixed point; largest |eigenvalue| median {np.median(np.abs(fixed['eigenvalues'][:, 0])):.3f}")
+
+    return _analyze(args, compute, plot, summary)
+
+
+def _analyze(args: argparse.Namespace, compute, plot, summary) -> int:
+    """Read the recording, compute, write `<out>.png` and `<out>.nc`, print the summary; usage errors exit 2."""
+    import xarray as xr
 
     recording = Path(args.recording)
     if not recording.is_file():
         raise FileNotFoundError(f"No recording {recording}; make one with angora-jax record RUN_DIR --out FILE.")
+    out = Path(args.out) if args.out else recording.with_suffix(f".{args.analysis}.png")
     try:
-        result = decode(xr.load_dataset(recording), args.layers, args.variables, args.folds)
+        result = compute(xr.load_dataset(recording))
     except ValueError as error:
-        print(f"angora-jax analyze decode: {error}", file=sys.stderr)
+        print(f"angora-jax analyze {args.analysis}: {error}", file=sys.stderr)
         return EXIT_USAGE
-    out = Path(args.out) if args.out else recording.with_suffix(".decoding.png")
-    plot_decoding(result, str(out))
+    plot(result, str(out))
     result.to_netcdf(out.with_suffix(".nc"), engine="scipy")
-    for layer in result["layer"].values:
-        cells = ", ".join(f"{v} {result['r2'].sel(layer=layer, variable=v).item():.2f} "
-                          f"(noise {result['baseline'].sel(layer=layer, variable=v).item():.2f})"
-                          for v in result["variable"].values)
-        print(f"{layer}: {cells}")
-    print(f"Heat map: {out}; numbers: {out.with_suffix('.nc')}")
+    for line in summary(result):
+        print(line)
+    print(f"Plot: {out}; numbers: {out.with_suffix('.nc')}")
+    return EXIT_OK
+
+
+def command_ablate(args: argparse.Namespace) -> int:
+    from angora_jax.analysis import ablation, lesion_area, lesion_fraction, plot_ablation, silence_modality
+
+    checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
+    agent = load_agent(args.run_dir, checkpoint)
+    try:
+        lesions = {f"-{area}": lesion_area(agent, area) for area in args.lesion}
+        lesions |= {f"-{modality} input": silence_modality(agent, modality) for modality in args.silence}
+        for spec in args.fraction:
+            area, _, text = spec.rpartition(":")
+            fraction = float(text) if text.replace(".", "", 1).isdigit() else -1.0
+            if not area or not 0.0 <= fraction <= 1.0:
+                raise ValueError(f"--fraction takes AREA:F with F in [0, 1], e.g. network.M1:0.5, got {spec!r}.")
+            lesions[f"-{fraction:.0%} {area}"] = lesion_fraction(agent, area, fraction)
+    except ValueError as error:
+        print(f"angora-jax analyze ablate: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    result = ablation(agent, lesions, args.episodes)
+    out = Path(args.out) if args.out else Path(args.run_dir) / "ablation.png"
+    best = (agent.config.checkpoint.best_metric or "").removeprefix("metric/")
+    outcome = best if best in result["outcome"] else "episode_return"  # the run's own measure of success
+    plot_ablation(result, outcome, str(out))
+    result.to_netcdf(out.with_suffix(".nc"), engine="scipy")
+    for name in result["lesion"].values:
+        print(f"{name:>24}: " + ", ".join(f"{o} {result['mean'].sel(lesion=name, outcome=o).item():.3g} +- "
+                                          f"{result['sem'].sel(lesion=name, outcome=o).item():.2g}"
+                                          for o in result["outcome"].values))
+    print(f"Plot ({outcome}): {out}; numbers: {out.with_suffix('.nc')}")
     return EXIT_OK
 
 

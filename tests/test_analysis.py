@@ -1,5 +1,7 @@
 """Probing a trained agent: the recorded dataset's shapes and labels, decoding against known readouts and noise,
-and lesions (an empty lesion changes nothing, bit for bit)."""
+and lesions (an empty lesion changes nothing, bit for bit); then the brain-area model trained on reach (the
+session's `cortical_reach` run): decoding, the untrained control, lesions of areas and inputs, premotor fixed
+points, RDMs, a pretrained component read from the run, and every `angora-jax analyze` verb."""
 
 import jax
 import numpy as np
@@ -8,10 +10,25 @@ import xarray as xr
 from tiny import TINY_PPO
 
 import angora_jax as aj
-from angora_jax.analysis import decode, dense_layers, lesion, lesion_fraction, record_activity, save_activity
+from angora_jax.analysis import (
+    ablation,
+    agent_fixed_points,
+    decode,
+    dense_layers,
+    lesion,
+    lesion_area,
+    lesion_fraction,
+    record_activity,
+    replay_activity,
+    save_activity,
+    silence_modality,
+    similarity,
+    with_random_weights,
+)
 from angora_jax.analysis.decoding import cross_validated_r2
 from angora_jax.cli import main
 from angora_jax.envs.core import Sensation
+from angora_jax.nets.components import load_component
 
 LAYER = "network.policy_trunk.Dense_1"
 
@@ -91,3 +108,81 @@ def record_layers(agent, obs):
     from angora_jax.analysis.recording import layer_activity
 
     return layer_activity(agent, agent.initial_carry(obs.proprioception.shape[0]), obs)
+
+
+@pytest.fixture(scope="module")
+def reach(cortical_reach):
+    """The brain-area model trained on reach (tests/conftest.py) and 32 recorded episodes of it (at most 32 hand
+    environments per program on the CPU: see test_reach_learning)."""
+    agent = aj.load_agent(cortical_reach.run_dir, "latest")
+    return agent, record_activity(agent, episodes=32, steps=30)
+
+
+def test_reach_areas_carry_their_inputs_and_the_untrained_control_replays_the_same_inputs(reach):
+    agent, recording = reach
+    result = decode(recording, ["network.SSC_2", "network.MCC", "network.LPFC"], ["input_goal", "input_asymmetric"])
+    r2 = result["r2"].to_pandas()
+    assert r2.loc["network.MCC", "input_goal"] > 0.8 and r2.loc["network.LPFC", "input_goal"] > 0.8, r2
+    assert r2.loc["network.SSC_2", "input_asymmetric"] > 0.7, "fingertips from the proprioceptive area"
+    assert np.all(result["baseline"].values < 0.1)
+    control = replay_activity(with_random_weights(agent), recording)
+    np.testing.assert_array_equal(control["input_goal"].values, recording["input_goal"].values)
+    assert control["activity_network.MCC"].shape == recording["activity_network.MCC"].shape
+    assert not np.allclose(control["activity_network.MCC"].values, recording["activity_network.MCC"].values)
+    # What the trained network saw: replaying the recorded inputs through it gives the recorded activity.
+    replayed = replay_activity(agent, recording)
+    np.testing.assert_allclose(replayed["activity_network.M1"].values, recording["activity_network.M1"].values,
+                               rtol=1e-4, atol=1e-5)
+
+
+def test_reach_lesions_of_the_somatosensory_area_and_the_goal_hurt_and_an_empty_lesion_is_exact(reach, tmp_path):
+    agent, _ = reach
+    result = ablation(agent, {"SSC": lesion_area(agent, "network.SSC_2"), "none": lesion(agent, "network.SSC_2", []),
+                              "goal": silence_modality(agent, "goal")}, episodes=32, steps=30)
+    distance, sem = result["mean"].sel(outcome="goal_distance"), result["sem"].sel(outcome="goal_distance")
+    intact = float(distance.sel(lesion="intact"))
+    for name in ("SSC", "goal"):
+        gap = float(distance.sel(lesion=name)) - intact
+        assert gap > 5 * float(np.hypot(sem.sel(lesion=name), sem.sel(lesion="intact"))), (name, result["mean"])
+    values = result["outcome_values"]
+    np.testing.assert_array_equal(values.sel(lesion="none").values, values.sel(lesion="intact").values)
+    with pytest.raises(ValueError, match="No input modality 'vision'.*goal"):
+        silence_modality(agent, "vision")
+
+
+def test_reach_premotor_fixed_points_rdms_and_components(reach, cortical_reach):
+    agent, recording = reach
+    points = agent_fixed_points(agent, recording, "network.PMC", "network.PMC_in", starts=8, iterations=200)
+    assert points["points"].shape == (8, 64) and points["fixed"].all()
+    assert np.all(np.abs(points["eigenvalues"][:, 0]) < 1.0), "the premotor GRU settles under a constant input"
+    rsa = similarity(recording, "metric_goal_distance", ["network.SSC_2", "network.M1"], ["metric_goal_distance"])
+    rdm = rsa["rdm"].values
+    np.testing.assert_allclose(rdm, np.swapaxes(rdm, 1, 2), atol=1e-12)
+    np.testing.assert_allclose(np.diagonal(rdm, axis1=1, axis2=2), 0.0, atol=1e-12)
+    # A trained area as a pretrained component of a new run: read back from the run directory as trained.
+    np.testing.assert_array_equal(load_component(f"{cortical_reach.run_dir}:latest", "network.SSC_1")["kernel"],
+                                  agent.params["network"]["SSC_1"]["kernel"])
+
+
+def test_every_analysis_verb_writes_its_plot_and_numbers(reach, cortical_reach, tmp_path, capsys):
+    _, recording = reach
+    path = save_activity(recording, tmp_path / "reach.nc")
+    verbs = [["similarity", "--condition", "input_goal", "--feature", "0", "--layers", "network.MCC", "network.M1",
+              "--variables", "input_goal"],
+             ["dynamics", "--layers", "network.M1", "--run", str(cortical_reach.run_dir), "--checkpoint", "latest",
+              "--recurrent", "network.PMC", "--inputs", "network.PMC_in"],
+             ["timescales", "--layers", "network.PMC.1"],
+             ["tuning", "--layer", "network.SSC_2", "--variable", "metric_goal_distance"]]
+    for verb in verbs:
+        assert main(["analyze", verb[0], str(path), *verb[1:]]) == 0, verb
+        assert (tmp_path / f"reach.{verb[0]}.png").read_bytes()[:4] == b"\x89PNG"
+        assert xr.open_dataset(tmp_path / f"reach.{verb[0]}.nc").sizes
+    assert "fixed point" in capsys.readouterr().out
+    assert main(["analyze", "dynamics", str(path), "--recurrent", "network.PMC"]) == 2
+    assert "need --run, --recurrent and --inputs together" in capsys.readouterr().err
+    out = tmp_path / "ablation.png"
+    assert main(["analyze", "ablate", str(cortical_reach.run_dir), "--checkpoint", "latest", "--lesion",
+                 "network.SSC_2", "--silence", "goal", "--fraction", "network.M1:0.5", "--episodes", "32",
+                 "--out", str(out)]) == 0
+    assert out.read_bytes()[:4] == b"\x89PNG" and "-50% network.M1" in capsys.readouterr().out
+    assert main(["analyze", "ablate", str(cortical_reach.run_dir), "--fraction", "network.M1:2"]) == 2

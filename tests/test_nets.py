@@ -1,6 +1,8 @@
 """Networks: every registered model on hand-like and minimal inputs, the asymmetric-input rule, options, a custom
 module through the compiled cycle."""
 
+from dataclasses import replace
+
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
@@ -10,6 +12,8 @@ import pytest
 from angora_jax.envs.classic import CartPole
 from angora_jax.envs.core import ActionSpec, Sensation
 from angora_jax.nets import ActorCritic, list_networks, make_network, register_network
+from angora_jax.nets.components import save_component
+from angora_jax.nets.cortical import AREA_SIZES
 from angora_jax.ppo import NetworkConfig, NormalizationConfig, PPOConfig, make_cycle, make_head
 
 BATCH = 3
@@ -31,13 +35,13 @@ def small(name: str, shared: bool = False) -> NetworkConfig:
 
 
 def test_registry_has_the_required_models():
-    assert {"simple", "deeper", "lstm", "gru", "wide"} <= set(list_networks())
+    assert {"simple", "deeper", "lstm", "gru", "wide", "cortical"} <= set(list_networks())
     with pytest.raises(ValueError, match="Unknown network 'nope'"):
         make_network(NetworkConfig(name="nope"))
 
 
 @pytest.mark.parametrize("shared", [False, True], ids=["separate", "shared"])
-@pytest.mark.parametrize("name", ["simple", "deeper", "lstm", "gru", "wide"])
+@pytest.mark.parametrize("name", ["simple", "deeper", "lstm", "gru", "wide", "cortical"])
 def test_network_contract_shapes_and_asymmetric_reaches_only_the_value(name, shared):
     model = ActorCritic(make_network(small(name, shared)), HEAD)
     obs = hand_like_obs(jax.random.key(0))
@@ -85,6 +89,45 @@ def test_modalities_enter_separately():
     )
     encoder = params["params"]["network"]["policy_encoder"]
     assert set(encoder) == {"embed_proprioception", "embed_goal"}  # empty touch and vision get no layer
+
+
+def test_cortical_areas_are_named_sized_and_recurrent():
+    obs = hand_like_obs(jax.random.key(0))
+    for cell, carry_shapes in [("rnn", (BATCH, 16)), ("lstm", ((BATCH, 16), (BATCH, 16))), ("gru", (BATCH, 16))]:
+        network = make_network(NetworkConfig(name="cortical", cell=cell, cell_size=16, width=8, areas={"M1": 24}))
+        params = network.init(jax.random.key(0), network.initial_carry(BATCH), obs)["params"]
+        assert set(AREA_SIZES) <= set(params) and params["M1"]["kernel"].shape[-1] == 24
+        assert params["SSC_1"]["kernel"].shape == (48, 128), "SSC reads proprioception (and touch, empty here)"
+        assert params["MCC"]["kernel"].shape == (15 + 64, 64), "MCC reads the goal and SSC"
+        carry, features, _ = network.apply({"params": params}, network.initial_carry(BATCH), obs)
+        assert jax.tree.map(jnp.shape, carry) == carry_shapes and features.shape == (BATCH, 24)
+    for bad, match in [({"areas": {"V9": 3}}, "Unknown areas \\['V9'\\]"), ({"cell": "lstm2"}, "network.cell must be"),
+                       ({"name": "simple", "cell": "gru"}, "cortical network only")]:
+        with pytest.raises(ValueError, match=match):
+            PPOConfig(network=NetworkConfig(**{"name": "cortical"} | bad)).validate()
+
+
+def test_frozen_component_keeps_its_pretrained_values_through_updates(tmp_path):
+    areas = {name: 8 for name in AREA_SIZES}
+    network = NetworkConfig(name="cortical", cell="gru", width=8, areas=areas)
+    config = PPOConfig(num_envs=4, rollout_length=16, chunk_length=8, minibatch_size=32, num_epochs=2,
+                       network=network)
+    env = CartPole()
+    donor = make_cycle(env, None, config)[0](jax.random.key(7)).params
+    file = save_component(donor, "network.SSC_1", tmp_path / "ssc.msgpack")
+    with pytest.raises(FileExistsError, match="never overwritten"):
+        save_component(donor, "network.SSC_1", file)
+    frozen = config.replace(network=replace(network, pretrained={"network.SSC_1": str(file)},
+                                            frozen=("network.SSC_1",)))
+    init, cycle = make_cycle(env, None, frozen)
+    state = init(jax.random.key(0))
+    np.testing.assert_array_equal(state.params["network"]["SSC_1"]["kernel"], donor["network"]["SSC_1"]["kernel"])
+    after, _ = cycle(state)
+    for name in ("kernel", "bias"):
+        np.testing.assert_array_equal(after.params["network"]["SSC_1"][name], donor["network"]["SSC_1"][name])
+    assert not np.array_equal(after.params["network"]["M1"]["kernel"], state.params["network"]["M1"]["kernel"])
+    with pytest.raises(ValueError, match="No module 'network.S1'.*network.SSC_1"):
+        make_cycle(env, None, config.replace(network=replace(network, frozen=("network.S1",))))[0](jax.random.key(0))
 
 
 class TinyUserNet(nn.Module):

@@ -1,10 +1,31 @@
-"""Probing trained agents as a neuroscientist would (AngoraPy's `analysis/investigators`): record every layer's
-activity with the task variables (`record_activity`, an xarray Dataset), decode variables from layers
-(`decode`, ridge R^2 against a noise baseline) and lesion units (`lesion`)."""
+"""Probing trained agents as a neuroscientist would (AngoraPy's `analysis/investigators`).
+
+Record every layer's activity with the task variables (`record_activity`, an xarray Dataset), then: decode
+variables from layers (`decode`, ridge R^2 against a noise baseline), compare representations (`similarity`, RSA
+with rsatoolbox), reduce dimensionality and find fixed points (`principal_components`, `agent_fixed_points`),
+measure intrinsic timescales (`timescales`) and tuning (`tuning_curves`), and lesion units, areas or input
+modalities and measure the task outcome (`ablation`). Each analysis has a `plot_*` and an `angora-jax analyze` verb.
+"""
 
 from angora_jax.analysis.decoding import decode, plot_decoding
-from angora_jax.analysis.lesion import dense_layers, lesion, lesion_fraction
-from angora_jax.analysis.recording import record_activity, save_activity
+from angora_jax.analysis.dynamics import agent_fixed_points, find_fixed_points, plot_dynamics, principal_components
+from angora_jax.analysis.lesion import (
+    ablation,
+    dense_layers,
+    lesion,
+    lesion_area,
+    lesion_fraction,
+    plot_ablation,
+    silence_modality,
+    with_random_weights,
+)
+from angora_jax.analysis.recording import episode_outcomes, record_activity, replay_activity, save_activity
+from angora_jax.analysis.similarity import plot_similarity, similarity
+from angora_jax.analysis.timescales import plot_timescales, timescales
+from angora_jax.analysis.tuning import plot_tuning, tuning_curves
 
-__all__ = ["decode", "dense_layers", "lesion", "lesion_fraction", "plot_decoding", "record_activity",
-           "save_activity"]
+__all__ = ["ablation", "agent_fixed_points", "decode", "dense_layers", "episode_outcomes", "find_fixed_points",
+           "lesion", "lesion_area", "lesion_fraction", "plot_ablation", "plot_decoding", "plot_dynamics",
+           "plot_similarity", "plot_timescales", "plot_tuning", "principal_components", "record_activity",
+           "replay_activity", "save_activity", "silence_modality", "similarity", "timescales", "tuning_curves",
+           "with_random_weights"]

@@ -40,7 +40,7 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
     layers: names as in `activity_<name>` (default: all). variables: dataset variables to decode, e.g.
     `input_goal`, `metric_goal_distance` (default: every `input_*` and `metric_*`).
     """
-    layers = list(layers or [n.removeprefix("activity_") for n in dataset.data_vars if n.startswith("activity_")])
+    layers = list(layers or recorded_layers(dataset))
     variables = list(variables or [n for n in dataset.data_vars if n.startswith(("input_", "metric_"))])
     missing = [v for v in [*(f"activity_{n}" for n in layers), *variables] if v not in dataset.data_vars]
     if missing:
@@ -68,6 +68,11 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
     return xr.Dataset({name: (("layer", "variable"), values) for name, values in result.items()},
                       coords={"layer": layers, "variable": variables},
                       attrs={"folds": folds, "description": "held-out ridge R^2 (GroupKFold over episodes)"})
+
+
+def recorded_layers(dataset: xr.Dataset) -> list[str]:
+    """The layer names of a recording (its `activity_<name>` variables)."""
+    return [name.removeprefix("activity_") for name in dataset.data_vars if name.startswith("activity_")]
 
 
 def _samples(array: xr.DataArray) -> np.ndarray:

@@ -1,18 +1,24 @@
-"""In-silico lesions: silence units of a dense layer and see what the task metric loses.
+"""In-silico lesions: silence units of a dense layer, a whole area, or an input modality, and see what the task
+metric loses (`ablation`: many episodes per lesion, means with standard errors).
 
 A unit of a dense layer is silenced by zeroing its kernel column and bias entry: its pre-activation is then 0, and
 so is its output after the networks' tanh (or relu). The rest of the network is untouched, and an empty unit set
-leaves the parameters bit for bit as they were.
+leaves the parameters bit for bit as they were. A modality is silenced at the network's input: its normalised
+value is held at 0, the mean the normaliser saw in training (its variance is set to infinity), so the network
+receives no information from it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 
 import jax
+import jax.numpy as jnp
 import numpy as np
+import xarray as xr
 
+from angora_jax.analysis.recording import episode_outcomes
 from angora_jax.experiment.agent import Agent
 
 
@@ -54,3 +60,66 @@ def lesion_fraction(agent: Agent, layer: str, fraction: float, seed: int = 0) ->
     size = dense_layers(agent).get(layer, 0)
     units = np.random.default_rng(seed).permutation(size)[: round(fraction * size)]
     return lesion(agent, layer, units)
+
+
+def lesion_area(agent: Agent, area: str) -> Agent:
+    """`agent` with every unit of the dense layer or cortical area `area` (e.g. `network.SSC_2`) silenced."""
+    return lesion(agent, area, np.arange(dense_layers(agent).get(area, 1)))  # an unknown area: lesion's error
+
+
+def silence_modality(agent: Agent, modality: str) -> Agent:
+    """`agent` receiving nothing from input `modality` (e.g. "goal"): its normalised input is held at 0."""
+    modalities = [name for name, stats in vars(agent.state.obs_stats).items() if stats.mean.shape[-1] > 0]
+    if modality not in modalities:
+        raise ValueError(f"No input modality {modality!r} to silence; {agent.config.env.task} has {modalities}.")
+    if not agent.config.ppo.normalization.observations:
+        raise ValueError("Silencing a modality holds its normalised input at 0; this run trained without "
+                         "observation normalisation (ppo.normalization.observations=false).")
+    stats = getattr(agent.state.obs_stats, modality)
+    silenced = agent.state.obs_stats.replace(**{modality: stats.replace(var=jnp.full_like(stats.var, jnp.inf))})
+    return replace(agent, state=agent.state.replace(obs_stats=silenced))
+
+
+def ablation(agent: Agent, lesions: Mapping[str, Agent], episodes: int = 256, steps: int | None = None,
+             seed: int = 0) -> xr.Dataset:
+    """The task outcomes of `agent` (as "intact") and of each lesioned variant in `lesions` (name -> Agent, e.g. from
+    `lesion_area`, `silence_modality`, `lesion_fraction`) over the same `episodes` starts: per lesion and outcome
+    (episode_return, episode_length, every task metric at the episode's end) the mean and its standard error,
+    `mean`, `sem` (dims lesion x outcome), and the per-episode values `outcome_values` (lesion x outcome x episode)."""
+    variants = {"intact": agent, **lesions}
+    values = {name: episode_outcomes(variant, episodes, steps, seed) for name, variant in variants.items()}
+    outcomes = list(values["intact"])
+    table = np.array([[np.asarray(values[name][o], np.float64) for o in outcomes] for name in variants])
+    return xr.Dataset(
+        {"mean": (("lesion", "outcome"), table.mean(-1)),
+         "sem": (("lesion", "outcome"), table.std(-1, ddof=1) / np.sqrt(episodes)),
+         "outcome_values": (("lesion", "outcome", "episode"), table)},
+        coords={"lesion": list(variants), "outcome": outcomes},
+        attrs={"episodes": episodes, "task": agent.config.env.task, "cycle": agent.cycle},
+    )
+
+
+def plot_ablation(result: xr.Dataset, outcome: str, path: str) -> None:
+    """Bars of `outcome`'s mean per lesion with +-1 standard error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    mean, sem = result["mean"].sel(outcome=outcome).values, result["sem"].sel(outcome=outcome).values
+    fig, ax = plt.subplots(figsize=(1.5 + 0.8 * len(mean), 3.5))
+    ax.bar(range(len(mean)), mean, yerr=sem, capsize=3, color="tab:blue")
+    ax.set_xticks(range(len(mean)), result["lesion"].values, rotation=30, ha="right")
+    ax.set_ylabel(f"{outcome} (mean +- s.e.m., {result.attrs['episodes']} episodes)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def with_random_weights(agent: Agent, seed: int = 0) -> Agent:
+    """`agent` with freshly initialised parameters (same network, head and normaliser): the untrained control for
+    decoding and similarity (what structure alone gives, before learning)."""
+    shapes = agent.env.observation_shapes()
+    obs = jax.tree.map(lambda s: jnp.zeros((1, *s.shape), s.dtype), shapes)
+    params = agent.model.init(jax.random.key(seed), agent.initial_carry(1), obs)["params"]
+    return replace(agent, state=agent.state.replace(params=params))

@@ -19,6 +19,7 @@ next episode and are kept for completeness, masked by the analyses).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
+from angora_jax.envs.core import Sensation
 from angora_jax.experiment.agent import Agent, load_agent
 
 
@@ -51,26 +53,55 @@ def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | 
     """Run `episodes` episodes of `agent` (an Agent, or a run directory loaded with `checkpoint`) for `steps` policy
     steps each (default: the task's episode length) and return the dataset described in the module docstring."""
     agent = load_agent(agent, checkpoint) if not isinstance(agent, Agent) else agent
+    record = run_episodes(agent, episodes, steps, seed, capture=True)
+    return _dataset(agent, record, agent.env.dt)
+
+
+def run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: int = 0,
+                 capture: bool = False) -> dict[str, Any]:
+    """`episodes` batched episodes of `agent` (the policy's mode) from the resets of `seed`, as host arrays
+    `(time, episode, ...)`: inputs, action, value, reward, metrics, alive, steps, and with `capture` every layer's
+    activity ("layers"). Compiled once per agent kind, episode count and length: parameters and normaliser
+    statistics are arguments, so lesioned variants of an agent reuse the program."""
     env = agent.env.sized_for(episodes)
     steps = steps or env.max_episode_steps
 
-    def run(key):
+    def run(policy_state, key):
+        acting = replace(agent, state=policy_state)
         state = jax.vmap(env.reset)(jax.random.split(key, episodes))
 
         def step(carry, _):
             state, net_carry, alive = carry
-            net_carry, action, value, layers = layer_activity(agent, net_carry, state.obs)
+            if capture:
+                net_carry, action, value, layers = layer_activity(acting, net_carry, state.obs)
+            else:
+                net_carry, action, value = acting.act(net_carry, state.obs)
             next_state = jax.vmap(env.step)(state, action)
-            record = {"layers": layers, "inputs": state.obs, "action": action, "value": value,
-                      "reward": next_state.reward, "metrics": next_state.metrics, "alive": alive,
-                      "steps": state.steps}
+            record = {"inputs": state.obs, "action": action, "value": value, "reward": next_state.reward,
+                      "metrics": next_state.metrics, "alive": alive, "steps": state.steps}
+            if capture:
+                record["layers"] = layers
             return (next_state, net_carry, alive * (1.0 - next_state.done)), record
 
-        carry = (state, agent.initial_carry(episodes), jnp.ones((episodes,), jnp.float32))
+        carry = (state, acting.initial_carry(episodes), jnp.ones((episodes,), jnp.float32))
         return jax.lax.scan(step, carry, None, length=steps)[1]
 
-    record = jax.device_get(jax.jit(run)(jax.random.key(seed)))
-    return _dataset(agent, record, env.dt)
+    program = agent.compiled_once(("episodes", episodes, steps, capture), lambda: jax.jit(run))
+    return jax.device_get(program(agent.state, jax.random.key(seed)))
+
+
+def episode_outcomes(agent: Agent, episodes: int = 256, steps: int | None = None,
+                     seed: int = 0) -> dict[str, np.ndarray]:
+    """Per episode `(episodes,)`: episode_return (rewards through the episode's last step), episode_length (policy
+    steps) and each task metric at the episode's last step (or at step `steps` when it has not ended by then)."""
+    record = run_episodes(agent, episodes, steps, seed)
+    alive = np.asarray(record["alive"])
+    last = np.maximum(alive.sum(0).astype(int) - 1, 0)
+    columns = np.arange(alive.shape[1])
+    outcomes = {"episode_return": (np.asarray(record["reward"]) * alive).sum(0), "episode_length": alive.sum(0)}
+    for name, values in record["metrics"].items():
+        outcomes[name] = np.asarray(values)[last, columns]
+    return outcomes
 
 
 def _dataset(agent: Agent, record: dict[str, Any], dt: float) -> xr.Dataset:
@@ -98,6 +129,31 @@ def _dataset(agent: Agent, record: dict[str, Any], dt: float) -> xr.Dataset:
     return xr.Dataset(data, coords={"time": ("time", np.arange(action.shape[1]) * dt, {"units": "s"})},
                       attrs={"task": agent.config.env.task, "network": agent.config.ppo.network.name,
                              "cycle": agent.cycle, "policy_step_s": dt})
+
+
+def replay_activity(agent: Agent, recording: xr.Dataset) -> xr.Dataset:
+    """`recording` with its `activity_*` replaced by `agent`'s layer activity on the recorded inputs (each episode
+    from the initial carry, step by step): another network's response to the same observations, e.g. the untrained
+    control of `with_random_weights`, whose own behaviour would otherwise present other inputs."""
+    names = [name for name in recording.data_vars if name.startswith("input_")]
+    inputs = {name.removeprefix("input_"): jnp.asarray(np.swapaxes(recording[name].values, 0, 1)) for name in names}
+    episodes = recording.sizes["episode"]
+
+    def run(policy_state, inputs):
+        acting = replace(agent, state=policy_state)
+
+        def step(carry, obs):
+            carry, _, _, layers = layer_activity(acting, carry, obs)
+            return carry, layers
+
+        return jax.lax.scan(step, acting.initial_carry(episodes), Sensation.make(**inputs))[1]
+
+    layers = jax.device_get(jax.jit(run)(agent.state, inputs))
+    replayed = recording.drop_vars([name for name in recording.data_vars if name.startswith("activity_")])
+    for name, values in layers.items():
+        replayed[f"activity_{name}"] = (("episode", "time", f"{name}_unit"), np.swapaxes(np.asarray(values), 0, 1),
+                                        {"description": f"output of layer {name} on the recorded inputs"})
+    return replayed.assign_attrs(replayed_cycle=agent.cycle)
 
 
 def save_activity(dataset: xr.Dataset, path: str | Path) -> Path:

@@ -282,6 +282,11 @@ def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
         return _convert(options[-1], value, key, nullable=type(None) in typing.get_args(kind))
     if kind is Any:
         return value
+    if typing.get_origin(kind) is tuple:
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{key} must be a list, got {value!r}.")
+        item = typing.get_args(kind)[0]
+        return tuple(_convert(item, entry, f"{key}[{i}]") for i, entry in enumerate(value))
     if typing.get_origin(kind) is dict:
         if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
             raise ConfigError(f"{key} must be a mapping with string keys, got {value!r}.")

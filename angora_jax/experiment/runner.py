@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import dataclasses
 import os
 import shutil
 import signal
@@ -114,8 +115,10 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
 
 
 def initial_state_shape(config: Config, env: Env) -> TrainState:
-    """Shapes and dtypes of the run's TrainState (a tree of `jax.ShapeDtypeStruct`), computed without running."""
-    init, _ = make_cycle(env, None, config.ppo)
+    """Shapes and dtypes of the run's TrainState (a tree of `jax.ShapeDtypeStruct`), computed without running (and
+    without reading pretrained components: where initial values come from does not change a shape)."""
+    network = dataclasses.replace(config.ppo.network, pretrained={})
+    init, _ = make_cycle(env, None, config.ppo.replace(network=network))
     return jax.eval_shape(init, jax.random.key(config.ppo.seed))
 
 

@@ -16,7 +16,7 @@ from angora_jax.envs.core import Sensation
 
 POLICY_MODALITIES = ("proprioception", "touch", "vision", "goal")
 
-_HIDDEN_INIT = nn.initializers.orthogonal(np.sqrt(2.0))
+HIDDEN_INIT = nn.initializers.orthogonal(np.sqrt(2.0))
 _VALUE_INIT = nn.initializers.orthogonal(1.0)
 
 
@@ -38,11 +38,12 @@ class MLP(nn.Module):
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         for size in self.sizes:
-            x = jnp.tanh(nn.Dense(size, kernel_init=_HIDDEN_INIT)(x))
+            x = jnp.tanh(nn.Dense(size, kernel_init=HIDDEN_INIT)(x))
         return x
 
 
-def _value_head(features: jax.Array, name: str = "value") -> jax.Array:
+def value_head(features: jax.Array, name: str = "value") -> jax.Array:
+    """The value estimate `(B,)` from features `(B, F)`: one dense unit, orthogonal init with gain 1."""
     return nn.Dense(1, kernel_init=_VALUE_INIT, name=name)(features)[..., 0]
 
 
@@ -63,9 +64,9 @@ class FeedForward(nn.Module):
     def __call__(self, carry: jax.Array, obs: Sensation) -> tuple[jax.Array, jax.Array, jax.Array]:
         features = MLP(self.sizes, name="policy_trunk")(policy_inputs(obs))
         if self.shared:
-            value = _value_head(jnp.concatenate([features, obs.asymmetric], axis=-1))
+            value = value_head(jnp.concatenate([features, obs.asymmetric], axis=-1))
         else:
-            value = _value_head(MLP(self.sizes, name="value_trunk")(value_inputs(obs)))
+            value = value_head(MLP(self.sizes, name="value_trunk")(value_inputs(obs)))
         return carry, features, value
 
 
@@ -79,7 +80,7 @@ class ModalityEncoder(nn.Module):
     @nn.compact
     def __call__(self, obs: Sensation) -> jax.Array:
         parts = [
-            jnp.tanh(nn.Dense(self.width, kernel_init=_HIDDEN_INIT, name=f"embed_{name}")(getattr(obs, name)))
+            jnp.tanh(nn.Dense(self.width, kernel_init=HIDDEN_INIT, name=f"embed_{name}")(getattr(obs, name)))
             for name in self.modalities
             if getattr(obs, name).shape[-1] > 0
         ]
@@ -95,21 +96,28 @@ class ConcatEncoder(nn.Module):
     @nn.compact
     def __call__(self, obs: Sensation) -> jax.Array:
         x = jnp.concatenate([getattr(obs, name) for name in self.modalities], axis=-1)
-        return jnp.tanh(nn.Dense(self.width, kernel_init=_HIDDEN_INIT)(x))
+        return jnp.tanh(nn.Dense(self.width, kernel_init=HIDDEN_INIT)(x))
 
 
-def _cell(kind: str, size: int, name: str) -> nn.RNNCellBase:
+RECURRENT_CELLS = ("rnn", "lstm", "gru")
+
+
+def recurrent_cell(kind: str, size: int, name: str) -> nn.RNNCellBase:
+    """A flax cell of `size` units: "rnn" (Elman, tanh), "lstm" or "gru"; its carry is `(c, h)` for an LSTM and
+    `h` otherwise, each `(B, size)`."""
+    if kind == "rnn":
+        return nn.SimpleCell(size, name=name)
     if kind == "lstm":
         return nn.OptimizedLSTMCell(size, name=name)
     if kind == "gru":
         return nn.GRUCell(size, name=name)
-    raise ValueError(f"Unknown recurrent cell {kind!r}; use 'lstm' or 'gru'.")
+    raise ValueError(f"Unknown recurrent cell {kind!r}; use one of {RECURRENT_CELLS}.")
 
 
 class Recurrent(nn.Module):
     """Encoder, then an LSTM or GRU, then the heads.
 
-    cell: "lstm" or "gru". encoder: "modality" (one embedding per modality) or "concat" (one embedding of all).
+    cell: "rnn", "lstm" or "gru". encoder: "modality" (one embedding per modality) or "concat" (one embedding of all).
     shared: the value head reads the policy's recurrent features and `asymmetric`; otherwise a second encoder +
     cell reads all modalities including `asymmetric` and the carry holds both cells' states.
     """
@@ -135,16 +143,16 @@ class Recurrent(nn.Module):
 
     @nn.compact
     def __call__(self, carry, obs: Sensation):
-        policy_carry, features = _cell(self.cell, self.cell_size, "policy_cell")(
+        policy_carry, features = recurrent_cell(self.cell, self.cell_size, "policy_cell")(
             carry["policy"], self._encode(obs, POLICY_MODALITIES, "policy_encoder")
         )
         new_carry = {"policy": policy_carry}
         if self.shared:
-            value = _value_head(jnp.concatenate([features, obs.asymmetric], axis=-1))
+            value = value_head(jnp.concatenate([features, obs.asymmetric], axis=-1))
         else:
             all_modalities = POLICY_MODALITIES + ("asymmetric",)
-            new_carry["value"], value_features = _cell(self.cell, self.cell_size, "value_cell")(
+            new_carry["value"], value_features = recurrent_cell(self.cell, self.cell_size, "value_cell")(
                 carry["value"], self._encode(obs, all_modalities, "value_encoder")
             )
-            value = _value_head(value_features)
+            value = value_head(value_features)
         return new_carry, features, value

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import flax.linen as nn
 
+from angora_jax.nets.cortical import Cortical, area_sizes
 from angora_jax.nets.models import FeedForward, Recurrent
 from angora_jax.registry import Registry
 
@@ -50,3 +51,12 @@ register_network("lstm", _recurrent("lstm", "modality", width=64, cell_size=64))
 register_network("gru", _recurrent("gru", "modality", width=64, cell_size=64))
 # OpenAI's in-hand manipulation policy: modalities concatenated, a dense embedding, then a wide LSTM.
 register_network("wide", _recurrent("lstm", "concat", width=512, cell_size=1024))
+# AngoraPy's shadow brain: sub-networks named after cortical areas (see `angora_jax.nets.cortical`).
+def _cortical(config: NetworkConfig) -> nn.Module:
+    # cell_size sizes the premotor cell (PMC) unless network.areas does; width sets the value net's two layers.
+    sizes = area_sizes(({"PMC": config.cell_size} if config.cell_size else {}) | config.areas)
+    return Cortical(sizes=tuple(sizes.items()), cell=config.cell or "lstm", shared_trunk=config.shared_trunk,
+                    value_sizes=(config.width or 512,) * 2)
+
+
+register_network("cortical", _cortical)

@@ -12,6 +12,8 @@ import math
 from dataclasses import dataclass, field
 
 from angora_jax.envs.core import Env
+from angora_jax.nets.cortical import area_sizes
+from angora_jax.nets.models import RECURRENT_CELLS
 from angora_jax.ppo.distributions import list_heads
 
 
@@ -19,16 +21,43 @@ from angora_jax.ppo.distributions import list_heads
 class NetworkConfig:
     """Which registered network to build and its sizes; `None` sizes mean the model's own default.
 
-    name: a name from `angora_jax.nets.list_networks()` ("simple", "deeper", "lstm", "gru", "wide").
-    width: units of the dense layers (embedding width for recurrent models).
-    cell_size: units of the recurrent cell (ignored by feed-forward models).
+    name: a name from `angora_jax.nets.list_networks()` ("simple", "deeper", "lstm", "gru", "wide", "cortical").
+    width: units of the dense layers (embedding width for recurrent models; the value net's for cortical).
+    cell_size: units of the recurrent cell (ignored by feed-forward models; the premotor PMC for cortical).
     shared_trunk: one trunk for policy and value (the value head also reads `asymmetric`) instead of two.
+    cell: the cortical model's recurrent premotor cell, "rnn", "lstm" or "gru" (default lstm).
+    areas: the cortical model's area sizes that differ from AngoraPy's, e.g. `{SSC_1: 32, PMC: 64}`.
+    frozen: parameter paths (dotted module paths as in recordings, e.g. `network.SSC_1`) that training leaves
+        unchanged: their updates are masked to zero (`optax.multi_transform`). Each must name a module.
+    pretrained: parameter path -> where its values come from at the start of a run: a run directory (its best
+        checkpoint; `RUN_DIR:latest` or `RUN_DIR:<cycle>` for another), whose parameters at the same path are
+        taken, or a file written by `angora_jax.nets.save_component`. Shapes must match.
     """
 
     name: str = "simple"
     width: int | None = None
     cell_size: int | None = None
     shared_trunk: bool = False
+    cell: str | None = None
+    areas: dict[str, int] = field(default_factory=dict)
+    frozen: tuple[str, ...] = ()
+    pretrained: dict[str, str] = field(default_factory=dict)
+
+    def validate(self) -> NetworkConfig:
+        """Raise a ValueError naming the field when a setting cannot apply; return self."""
+        if self.cell is not None and self.cell not in RECURRENT_CELLS:
+            raise ValueError(f"network.cell must be one of {RECURRENT_CELLS}, got {self.cell!r}.")
+        if (self.cell is not None or self.areas) and self.name != "cortical":
+            raise ValueError(f"network.cell and network.areas apply to the cortical network only, not {self.name!r}.")
+        area_sizes(self.areas)
+        if not all(isinstance(source, str) for source in self.pretrained.values()):
+            raise ValueError(f"network.pretrained maps module paths to sources (a file or RUN_DIR), got "
+                             f"{self.pretrained}.")
+        for path in (*self.frozen, *self.pretrained):
+            if not isinstance(path, str) or not path or path.startswith(".") or ".." in path:
+                raise ValueError(f"network.frozen and network.pretrained name modules like 'network.SSC_1', got "
+                                 f"{path!r}.")
+        return self
 
 
 @dataclass(frozen=True)
@@ -85,6 +114,7 @@ class PPOConfig:
 
     def validate(self) -> PPOConfig:
         """Raise a ValueError naming the field when a setting is out of range or inconsistent; return self."""
+        self.network.validate()
         settings = [*vars(self).items(), *((f"normalization.{k}", v) for k, v in vars(self.normalization).items())]
         for name, value in settings:
             if isinstance(value, float) and not math.isfinite(value):  # NaN passes every comparison below

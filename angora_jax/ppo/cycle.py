@@ -17,6 +17,7 @@ from flax import struct
 
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.nets import ActorCritic, make_network
+from angora_jax.nets.components import frozen_optimizer, load_component, with_component
 from angora_jax.ppo.config import PPOConfig, tile_shape
 from angora_jax.ppo.distributions import PolicyHead, make_head
 from angora_jax.ppo.gae import gae, next_values
@@ -104,7 +105,10 @@ def make_cycle(
         schedule = optax.linear_schedule(config.learning_rate, 0.0, config.num_cycles * updates_per_cycle)
     else:
         schedule = optax.constant_schedule(config.learning_rate)
-    optimizer = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(schedule, eps=1e-5))
+    optimizer = frozen_optimizer(
+        optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(schedule, eps=1e-5)),
+        config.network.frozen,
+    )
     norm = config.normalization
 
     def apply_fn(params, carry, obs):
@@ -241,11 +245,30 @@ def make_cycle(
         )
         return new_state, metrics
 
-    if num_devices == 1:
-        return jax.jit(init), jax.jit(cycle)
-    parallel_cycle = data_parallel(cycle, jax.eval_shape(init, jax.random.key(0)), num_devices)
     global_init = jax.jit(init)
+    if config.network.pretrained:
+        global_init = _with_pretrained(global_init, config.network.pretrained)
+    if num_devices == 1:
+        return global_init, jax.jit(cycle)
+    parallel_cycle = data_parallel(cycle, jax.eval_shape(init, jax.random.key(0)), num_devices)
     return lambda key: parallel_cycle.place(global_init(key)), parallel_cycle
+
+
+def _with_pretrained(init: Callable[[jax.Array], TrainState], pretrained: dict[str, str]):
+    """`init` followed by loading the `pretrained` components (on the host, when first called, so their values
+    are not baked into a compiled program and a run only reads its sources when it starts from scratch)."""
+    loaded = {}
+
+    def init_with_pretrained(key: jax.Array) -> TrainState:
+        state = init(key)
+        if not loaded:
+            loaded.update({path: load_component(source, path) for path, source in pretrained.items()})
+        params = state.params
+        for path, values in loaded.items():
+            params = with_component(params, path, values)
+        return state.replace(params=jax.device_put(params))
+
+    return init_with_pretrained
 
 
 def variance(x: jax.Array, axis: str | None = None) -> jax.Array:

@@ -1,0 +1,166 @@
+"""Dimensionality and dynamics of recorded activity: PCA per layer (scikit-learn), and fixed and slow points of a
+recurrent layer found by optimisation with JAX autodiff (Sussillo and Barak 2013).
+
+Fixed points: for a recurrent update h' = F(h, x) under a constant input x, minimise the speed
+q(h) = 0.5 |F(h, x) - h|^2 from many starting states (states the network visited) with L-BFGS (optax). Points with q
+near 0 are fixed points; small but non-zero q marks slow points. The eigenvalues of the Jacobian dF/dh at a point
+tell its stability (all inside the unit circle: attracting).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import xarray as xr
+from sklearn.decomposition import PCA
+
+from angora_jax.analysis.decoding import recorded_layers
+from angora_jax.experiment.agent import Agent
+from angora_jax.nets.components import component
+from angora_jax.nets.models import recurrent_cell
+
+
+def principal_components(dataset: xr.Dataset, layers: Sequence[str] | None = None,
+                         components: int = 10) -> xr.Dataset:
+    """PCA of each layer's activity over the alive steps: `explained` (layer x component, the variance ratio),
+    `dimensionality` (layer: components needed for 90% of the variance; the participation ratio
+    (sum l)^2 / sum l^2 as `participation_ratio`) and `trajectory_<layer>` (episode x time x component: the
+    activity projected on the leading components, NaN where the episode is not alive)."""
+    layers = list(layers or recorded_layers(dataset))
+    alive = dataset["alive"].values > 0
+    explained = np.full((len(layers), components), np.nan)
+    data: dict[str, Any] = {}
+    dims, ratios = [], []
+    for i, layer in enumerate(layers):
+        values = np.asarray(dataset[f"activity_{layer}"].values, np.float64)
+        k = min(components, values.shape[-1], int(alive.sum()))
+        pca = PCA(k).fit(values[alive])
+        full = PCA().fit(values[alive]).explained_variance_
+        explained[i, :k] = pca.explained_variance_ratio_
+        dims.append(int(np.searchsorted(np.cumsum(full) / full.sum(), 0.9) + 1))
+        ratios.append(float(full.sum() ** 2 / (full**2).sum()))
+        projected = np.full(values.shape[:2] + (components,), np.nan)
+        projected[alive, :k] = pca.transform(values[alive])
+        data[f"trajectory_{layer}"] = (("episode", "time", "component"), projected)
+    data["explained"] = (("layer", "component"), explained)
+    data["dimensionality"] = (("layer",), np.asarray(dims))
+    data["participation_ratio"] = (("layer",), np.asarray(ratios))
+    return xr.Dataset(data, coords={"layer": layers, "component": np.arange(components),
+                                    "time": dataset["time"]})
+
+
+def find_fixed_points(step: Callable[[jax.Array], jax.Array], starts: jax.Array, iterations: int = 500,
+                      tolerance: float = 1e-12) -> dict[str, np.ndarray]:
+    """Minimise q(h) = 0.5 |step(h) - h|^2 from each row of `starts` `(K, n)` with L-BFGS for `iterations` steps.
+
+    Returns host arrays: `points` (K, n), `speed` (K,) the final q, `fixed` (K,) whether q <= tolerance, and
+    `eigenvalues` (K, n) of the Jacobian of `step` at each point (complex), sorted by decreasing modulus.
+    """
+    def speed(h):
+        return 0.5 * jnp.sum((step(h) - h) ** 2)
+
+    optimizer = optax.lbfgs()
+    value_and_grad = optax.value_and_grad_from_state(speed)
+
+    def minimise(h):
+        def body(_, carry):
+            h, state = carry
+            value, grad = value_and_grad(h, state=state)
+            updates, state = optimizer.update(grad, state, h, value=value, grad=grad, value_fn=speed)
+            return optax.apply_updates(h, updates), state
+
+        h, _ = jax.lax.fori_loop(0, iterations, body, (h, optimizer.init(h)))
+        return h, speed(h)
+
+    points, speeds = jax.jit(jax.vmap(minimise))(jnp.asarray(starts, jnp.float32))
+    eigenvalues = np.linalg.eigvals(np.asarray(jax.vmap(jax.jacobian(step))(points), np.float64))
+    order = np.argsort(-np.abs(eigenvalues), axis=-1)
+    return {"points": np.asarray(points), "speed": np.asarray(speeds), "fixed": np.asarray(speeds) <= tolerance,
+            "eigenvalues": np.take_along_axis(eigenvalues, order, axis=-1)}
+
+
+def recurrent_step(agent: Agent, layer: str, inputs: jax.Array) -> tuple[Callable[[jax.Array], jax.Array], int]:
+    """The update of the recurrent layer `layer` of `agent` (e.g. `network.PMC`, `network.policy_cell`) under the
+    constant input `inputs` `(features,)`, as a map of its flattened carry (`(c, h)` for an LSTM) to the next one,
+    and the carry's length."""
+    params = component(agent.params, layer)
+    kind = _cell_kind(params, layer)
+    size = _cell_size(params, kind)
+    cell = recurrent_cell(kind, size, "cell")
+    parts = 2 if kind == "lstm" else 1
+
+    def step(flat: jax.Array) -> jax.Array:
+        carry = tuple(jnp.split(flat[None], parts, axis=-1)) if parts == 2 else flat[None]
+        carry, _ = cell.apply({"params": params}, carry, inputs[None])
+        return jnp.concatenate(jax.tree.leaves(carry), axis=-1)[0]
+
+    return step, parts * size
+
+
+def _cell_kind(params: Any, layer: str) -> str:
+    names = set(params)
+    for kind, keys in (("lstm", {"hi", "hf", "hg", "ho"}), ("gru", {"hr", "hz", "hn"}), ("rnn", {"h", "i"})):
+        if keys <= names:
+            return kind
+    raise ValueError(f"{layer!r} is not a recurrent cell (its parameters: {sorted(names)}).")
+
+
+def _cell_size(params: Any, kind: str) -> int:
+    return int(params[{"lstm": "hi", "gru": "hr", "rnn": "h"}[kind]]["kernel"].shape[-1])
+
+
+def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: str, starts: int = 64,
+                       iterations: int = 500, seed: int = 0) -> dict[str, np.ndarray]:
+    """Fixed and slow points of `agent`'s recurrent `layer` under its mean input over the recording: `inputs` is
+    the recorded layer that feeds it (e.g. `network.PMC_in`). Starts are `starts` carries the network visited
+    (recorded as `<layer>.0...`). Returns `find_fixed_points`'s arrays plus `input` (the constant input)."""
+    alive = dataset["alive"].values > 0
+    drive = np.asarray(dataset[f"activity_{inputs}"].values)[alive].mean(0)
+    carry_names = sorted(n for n in recorded_layers(dataset) if n.startswith(f"{layer}.0"))
+    if not carry_names:
+        raise ValueError(f"The recording has no carry of {layer!r} (looked for activity_{layer}.0...).")
+    visited = np.concatenate([np.asarray(dataset[f"activity_{n}"].values)[alive] for n in carry_names], axis=-1)
+    rows = np.random.default_rng(seed).choice(len(visited), size=min(starts, len(visited)), replace=False)
+    step, size = recurrent_step(agent, layer, jnp.asarray(drive))
+    if visited.shape[-1] != size:
+        raise ValueError(f"Recorded carry of {layer!r} has {visited.shape[-1]} values, the cell {size}.")
+    return find_fixed_points(step, visited[rows], iterations) | {"input": drive}
+
+
+def plot_dynamics(pcs: xr.Dataset, path: str, fixed_points: dict[str, np.ndarray] | None = None) -> None:
+    """Variance explained per layer, and each layer's first two components over time for a few episodes (with the
+    fixed points' eigenvalue moduli when given)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    layers = list(pcs["layer"].values)
+    panels = 1 + len(layers) + (fixed_points is not None)
+    fig, axes = plt.subplots(1, panels, figsize=(3.0 * panels, 3.0), squeeze=False)
+    for layer in layers:
+        axes[0][0].plot(np.nancumsum(pcs["explained"].sel(layer=layer).values), marker=".",
+                        label=layer.removeprefix("network."))
+    axes[0][0].set(xlabel="components", ylabel="cumulative variance explained", ylim=(0, 1.02))
+    axes[0][0].legend(fontsize=6)
+    for ax, layer in zip(axes[0][1:], layers, strict=False):
+        trajectory = pcs[f"trajectory_{layer}"].values
+        for episode in range(min(5, trajectory.shape[0])):
+            ax.plot(trajectory[episode, :, 0], trajectory[episode, :, 1], lw=0.8)
+        ax.set(title=layer.removeprefix("network."), xlabel="PC 1", ylabel="PC 2")
+    if fixed_points is not None:
+        ax = axes[0][-1]
+        moduli = np.abs(fixed_points["eigenvalues"])
+        ax.hist(moduli[:, 0], bins=20)
+        ax.axvline(1.0, color="k", lw=0.8)
+        ax.set(xlabel="largest |eigenvalue| at the point", ylabel="points",
+               title=f"{int(fixed_points['fixed'].sum())} fixed of {len(moduli)}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+

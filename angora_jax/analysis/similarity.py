@@ -1,0 +1,114 @@
+"""Representational similarity analysis (RSA) of recorded activity, with rsatoolbox.
+
+Conditions are bins of a task variable (quantile bins of a scalar such as `metric_goal_distance` or `time_in_episode`
+for phases of the episode, or of one feature of a vector variable such as `input_goal`), over the steps where the
+episode is alive. For every layer, rsatoolbox averages the activity per condition and computes the representational
+dissimilarity matrix (RDM, correlation distance by default). Layers are then compared with each other, and with
+model RDMs: for each task variable, the Euclidean distances between its condition means (what an area that encodes
+exactly that variable would show). Comparisons are Spearman correlations of the RDMs' upper triangles.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import xarray as xr
+from rsatoolbox.data import Dataset
+from rsatoolbox.rdm import RDMs, calc_rdm, compare
+
+from angora_jax.analysis.decoding import recorded_layers
+
+
+def condition_labels(dataset: xr.Dataset, variable: str, bins: int = 8, feature: int | None = None) -> np.ndarray:
+    """Condition of every step `(episode, time)`: the quantile bin of `variable` (its `feature`-th component for a
+    vector variable), numbered 0..k-1 with k <= bins (ties in the quantiles merge bins), -1 where the episode is not
+    alive."""
+    if variable not in dataset.data_vars:
+        raise ValueError(f"No variable {variable!r} in the recording; it has {sorted(dataset.data_vars)}.")
+    values = np.asarray(dataset[variable].values, np.float64)
+    if values.ndim == 3:
+        if feature is None:
+            raise ValueError(f"{variable} has {values.shape[-1]} features; choose one with feature=<index>.")
+        values = values[..., feature]
+    alive = dataset["alive"].values > 0
+    labels = np.digitize(values, np.quantile(values[alive], np.linspace(0, 1, bins + 1)[1:-1]))
+    compact = np.full(labels.shape, -1)
+    compact[alive] = np.unique(labels[alive], return_inverse=True)[1]
+    return compact
+
+
+def layer_rdms(dataset: xr.Dataset, labels: np.ndarray, layers: Sequence[str] | None = None,
+               method: str = "correlation") -> RDMs:
+    """One RDM per layer over the conditions in `labels` (from `condition_labels`), as rsatoolbox RDMs with the
+    descriptor `layer`. method: any of rsatoolbox's `calc_rdm` methods ("correlation", "euclidean", ...)."""
+    layers = list(layers or recorded_layers(dataset))
+    alive = labels.reshape(-1) >= 0
+    rdms = [calc_rdm(_patterns(dataset[f"activity_{layer}"], labels, alive), method=method, descriptor="condition")
+            for layer in layers]
+    result = RDMs(np.concatenate([r.dissimilarities for r in rdms]), dissimilarity_measure=method,
+                  rdm_descriptors={"layer": layers}, pattern_descriptors=rdms[0].pattern_descriptors)
+    return result
+
+
+def variable_rdms(dataset: xr.Dataset, labels: np.ndarray, variables: Sequence[str]) -> RDMs:
+    """Model RDMs: for each task variable, Euclidean distances between its means per condition."""
+    alive = labels.reshape(-1) >= 0
+    rdms = [calc_rdm(_patterns(dataset[v], labels, alive), method="euclidean", descriptor="condition")
+            for v in variables]
+    return RDMs(np.concatenate([r.dissimilarities for r in rdms]), dissimilarity_measure="euclidean",
+                rdm_descriptors={"variable": list(variables)}, pattern_descriptors=rdms[0].pattern_descriptors)
+
+
+def similarity(dataset: xr.Dataset, condition: str, layers: Sequence[str] | None = None,
+               variables: Sequence[str] = (), bins: int = 8, feature: int | None = None,
+               method: str = "correlation") -> xr.Dataset:
+    """RSA of `layers` (default all) over bins of `condition` (see `condition_labels`), as a Dataset with `rdm`
+    (layer x condition x condition_), `layer_similarity` (layer x layer_: Spearman correlation of their RDMs) and,
+    for `variables`, `model_similarity` (layer x variable: each layer's RDM against the variable's model RDM)."""
+    labels = condition_labels(dataset, condition, bins, feature)
+    rdms = layer_rdms(dataset, labels, layers, method)
+    layers = rdms.rdm_descriptors["layer"]
+    data = {"rdm": (("layer", "condition", "condition_"), rdms.get_matrices()),
+            "layer_similarity": (("layer", "layer_"), compare(rdms, rdms, method="spearman"))}
+    coords = {"layer": layers, "layer_": layers, "condition": np.arange(rdms.n_cond),
+              "condition_": np.arange(rdms.n_cond)}
+    if variables:
+        models = variable_rdms(dataset, labels, variables)
+        data["model_similarity"] = (("layer", "variable"), compare(rdms, models, method="spearman"))
+        coords["variable"] = list(variables)
+    return xr.Dataset(data, coords=coords, attrs={"condition": condition, "bins": bins, "method": method,
+                                                  "feature": -1 if feature is None else feature})
+
+
+def _patterns(array: xr.DataArray, labels: np.ndarray, alive: np.ndarray) -> Dataset:
+    values = np.asarray(array.values, np.float64)
+    samples = values.reshape(values.shape[0] * values.shape[1], -1)[alive]
+    return Dataset(samples, obs_descriptors={"condition": labels.reshape(-1)[alive]})
+
+
+def plot_similarity(result: xr.Dataset, path: str) -> None:
+    """One panel per layer's RDM, then the layer x layer similarity (and layer x variable, when computed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    layers = list(result["layer"].values)
+    extra = ["layer_similarity"] + (["model_similarity"] if "model_similarity" in result else [])
+    fig, axes = plt.subplots(1, len(layers) + len(extra), figsize=(2.6 * (len(layers) + len(extra)), 2.9),
+                             squeeze=False)
+    for ax, layer in zip(axes[0], layers, strict=False):
+        ax.imshow(result["rdm"].sel(layer=layer).values, cmap="viridis")
+        ax.set_title(layer.removeprefix("network."), fontsize=8)
+        ax.set_xlabel(f"{result.attrs['condition']} bin", fontsize=7)
+    for ax, name in zip(axes[0][len(layers):], extra, strict=True):
+        values = result[name].values
+        ax.imshow(values, vmin=-1, vmax=1, cmap="RdBu_r")
+        ticks = [str(t).removeprefix("network.") for t in result[name][result[name].dims[1]].values]
+        ax.set_xticks(range(values.shape[1]), ticks, rotation=90, fontsize=6)
+        ax.set_yticks(range(values.shape[0]), [t.removeprefix("network.") for t in layers], fontsize=6)
+        ax.set_title(f"{name.replace('_', ' ')} (Spearman)", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

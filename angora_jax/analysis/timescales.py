@@ -1,0 +1,84 @@
+"""Intrinsic timescales: the autocorrelation of each unit's activity over lags within episodes (Murray et al. 2014
+measured it across cortical areas), and the lag at which it first falls below 1/e as the unit's timescale.
+
+The autocorrelation at lag k pools every pair of alive steps (t, t + k) of all episodes, each unit standardised by
+its mean and standard deviation over the alive steps; a constant unit has none (NaN).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import xarray as xr
+
+from angora_jax.analysis.decoding import recorded_layers
+
+
+def autocorrelation(dataset: xr.Dataset, layer: str, max_lag: int = 20) -> np.ndarray:
+    """`(max_lag + 1, units)`: the autocorrelation of each unit of `layer` at lags 0..max_lag (policy steps)."""
+    values = np.asarray(dataset[f"activity_{layer}"].values, np.float64)
+    alive = dataset["alive"].values > 0
+    mean, std = values[alive].mean(0), values[alive].std(0)
+    z = (values - mean) / np.where(std > 0, std, np.nan)
+    lags = min(max_lag, values.shape[1] - 1)
+    result = np.full((max_lag + 1, values.shape[-1]), np.nan)
+    for lag in range(lags + 1):
+        both = alive[:, : values.shape[1] - lag] & alive[:, lag:]
+        if both.any():
+            result[lag] = (z[:, : values.shape[1] - lag][both] * z[:, lag:][both]).mean(0)
+    return result
+
+
+def timescales(dataset: xr.Dataset, layers: Sequence[str] | None = None, max_lag: int = 20) -> xr.Dataset:
+    """Per layer: `autocorrelation` (layer x lag, the mean over its units), and per unit the timescale in s (the
+    first lag, linearly interpolated, where its autocorrelation drops below 1/e; NaN when it stays above within
+    `max_lag` or the unit is constant) summarised as `timescale_median` and `timescale_iqr_low/high` (layer)."""
+    layers = list(layers or recorded_layers(dataset))
+    dt = float(dataset.attrs.get("policy_step_s", 1.0))
+    curves, medians, low, high = [], [], [], []
+    for layer in layers:
+        acf = autocorrelation(dataset, layer, max_lag)
+        curves.append(np.nanmean(acf, axis=1) if np.isfinite(acf).any() else np.full(max_lag + 1, np.nan))
+        tau = np.array([_crossing(acf[:, unit]) for unit in range(acf.shape[1])]) * dt
+        finite = tau[np.isfinite(tau)]
+        quartiles = np.percentile(finite, [25, 50, 75]) if finite.size else np.full(3, np.nan)
+        low.append(quartiles[0])
+        medians.append(quartiles[1])
+        high.append(quartiles[2])
+    return xr.Dataset(
+        {"autocorrelation": (("layer", "lag"), np.asarray(curves)),
+         "timescale_median": (("layer",), np.asarray(medians), {"units": "s"}),
+         "timescale_iqr_low": (("layer",), np.asarray(low), {"units": "s"}),
+         "timescale_iqr_high": (("layer",), np.asarray(high), {"units": "s"})},
+        coords={"layer": layers, "lag": ("lag", np.arange(max_lag + 1) * dt, {"units": "s"})},
+    )
+
+
+def _crossing(acf: np.ndarray, level: float = 1.0 / np.e) -> float:
+    """First lag (in steps, interpolated) where `acf` falls below `level`; NaN if it never does."""
+    below = np.flatnonzero(acf < level)
+    if not below.size or not np.isfinite(acf[0]):
+        return np.nan
+    k = below[0]
+    return float(k - 1 + (acf[k - 1] - level) / (acf[k - 1] - acf[k])) if k > 0 else 0.0
+
+
+def plot_timescales(result: xr.Dataset, path: str) -> None:
+    """Mean autocorrelation per layer over lags (s), with the 1/e level."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    for layer in result["layer"].values:
+        tau = float(result["timescale_median"].sel(layer=layer))
+        ax.plot(result["lag"].values, result["autocorrelation"].sel(layer=layer).values,
+                label=f"{str(layer).removeprefix('network.')} (tau {tau:.3g} s)")
+    ax.axhline(1 / np.e, color="k", lw=0.6, ls="--")
+    ax.set(xlabel="lag (s)", ylabel="autocorrelation (mean over units)")
+    ax.legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

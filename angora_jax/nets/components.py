@@ -1,0 +1,115 @@
+"""Components: named sub-networks of a parameter tree, to pretrain, transplant and freeze (AngoraPy's pretrainable
+components).
+
+A component is addressed by its module path with dots, as in recordings and lesions: `network.SSC_1` is
+`params["network"]["SSC_1"]`. `save_component` writes one to a file (flax msgpack); a config's
+`network.pretrained` loads components from such files or from other runs into a new run's initial parameters, and
+`network.frozen` keeps components fixed during training (`frozen_optimizer`: their updates are masked to zero).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+import optax
+from flax import serialization
+
+
+def module_paths(params: Any) -> list[str]:
+    """Every module path in `params` (each nested mapping), e.g. `["network", "network.SSC_1", ...]`."""
+    found = []
+
+    def walk(tree: Any, prefix: str) -> None:
+        for key, value in tree.items():
+            if isinstance(value, Mapping):
+                found.append(f"{prefix}{key}")
+                walk(value, f"{prefix}{key}.")
+
+    walk(params, "")
+    return found
+
+
+def component(params: Any, path: str) -> Any:
+    """The subtree of `params` at module path `path`; ValueError listing the modules when there is none."""
+    tree = params
+    for key in path.split("."):
+        if not isinstance(tree, Mapping) or key not in tree:
+            raise ValueError(f"No module {path!r} in the parameters; modules: {', '.join(module_paths(params))}.")
+        tree = tree[key]
+    if not isinstance(tree, Mapping):
+        raise ValueError(f"{path!r} is a parameter, not a module; give its module, e.g. {path.rsplit('.', 1)[0]!r}.")
+    return tree
+
+
+def with_component(params: Any, path: str, values: Any) -> Any:
+    """`params` with the module at `path` replaced by `values` (same structure and shapes; ValueError otherwise)."""
+    current = component(params, path)
+    expected = jax.tree.map(np.shape, current)
+    given = jax.tree.map(np.shape, dict(values))
+    if jax.tree.structure(expected) != jax.tree.structure(given) or expected != given:
+        raise ValueError(f"The values for {path!r} do not fit: the network has {expected}, the source has {given}.")
+    keys = path.split(".")
+
+    def replace(tree: Any, depth: int) -> Any:
+        if depth == len(keys):
+            return jax.tree.map(lambda old, new: np.asarray(new, dtype=old.dtype), current, dict(values))
+        return {**tree, keys[depth]: replace(tree[keys[depth]], depth + 1)}
+
+    return replace(params, 0)
+
+
+def save_component(params: Any, path: str, file: str | Path) -> Path:
+    """Write the module `path` of `params` (e.g. `agent.params`) to `file`; refuses to overwrite."""
+    file = Path(file)
+    if file.exists():
+        raise FileExistsError(f"{file} exists; components are never overwritten: give another file.")
+    file.parent.mkdir(parents=True, exist_ok=True)
+    file.write_bytes(serialization.msgpack_serialize(jax.device_get(component(params, path))))
+    return file
+
+
+def load_component(source: str | Path, path: str) -> Any:
+    """The module `path` from `source`: a file of `save_component`, or a run directory (`RUN_DIR`, its best
+    checkpoint, or `RUN_DIR:latest` / `RUN_DIR:<cycle>`), from whose parameters the same path is taken."""
+    text = str(source)
+    if Path(text).is_file():
+        return serialization.msgpack_restore(Path(text).read_bytes())
+    run_dir, _, which = text.partition(":") if not Path(text).exists() else (text, "", "")
+    if not Path(run_dir).is_dir():
+        raise FileNotFoundError(f"Pretrained source {text!r} for {path!r} is neither a component file nor a run "
+                                "directory; give a file from save_component or RUN_DIR[:best|latest|<cycle>].")
+    # experiment builds on nets, so nets reaches for the run-directory reader only when a run is the source
+    from angora_jax.experiment.agent import load_agent
+
+    checkpoint = int(which) if which.isdigit() else (which or "best")
+    return component(load_agent(run_dir, checkpoint).params, path)
+
+
+def with_pretrained(params: Any, pretrained: Mapping[str, str | Path]) -> Any:
+    """`params` with every `module path -> source` of `pretrained` loaded (see `load_component`)."""
+    for path, source in pretrained.items():
+        params = with_component(params, path, load_component(source, path))
+    return params
+
+
+def frozen_optimizer(optimizer: optax.GradientTransformation, frozen: Sequence[str]) -> optax.GradientTransformation:
+    """`optimizer` for all parameters but those under the module paths `frozen`, whose updates are zero (and which
+    hold no optimizer state). Its `init(params)` raises a ValueError naming the modules when a path names none."""
+    if not frozen:
+        return optimizer
+
+    def labels(tree: Any) -> Any:
+        for path in frozen:
+            component(tree, path)
+
+        def label(key_path, _):
+            dotted = ".".join(str(getattr(k, "key", k)) for k in key_path)
+            return "frozen" if any(dotted.startswith(f"{path}.") for path in frozen) else "trained"
+
+        return jax.tree_util.tree_map_with_path(label, tree)
+
+    return optax.multi_transform({"trained": optimizer, "frozen": optax.set_to_zero()}, labels)
