@@ -5,6 +5,11 @@ from the layer's units to the variable's features, scored by R^2 on held-out epi
 so steps of one episode never sit on both sides), only at steps where the episode is alive. The baseline decodes
 the same variable from Gaussian noise of the layer's shape: what a readout finds by chance. The interval is the
 mean over folds +- 1.96 standard errors.
+
+A linear readout finds an input in any layer that keeps it, and random projections keep it: the same network with
+random weights given the same inputs (`replay_activity(with_random_weights(agent), recording)`) decodes the inputs of
+a trained reach policy about as well (R^2 0.9-1.0 in both, measured). Decodability of an input alone is no evidence
+of learning; compare areas, variables that must be computed, and that control.
 """
 
 from __future__ import annotations

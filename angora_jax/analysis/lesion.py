@@ -85,7 +85,9 @@ def ablation(agent: Agent, lesions: Mapping[str, Agent], episodes: int = 256, st
     """The task outcomes of `agent` (as "intact") and of each lesioned variant in `lesions` (name -> Agent, e.g. from
     `lesion_area`, `silence_modality`, `lesion_fraction`) over the same `episodes` starts: per lesion and outcome
     (episode_return, episode_length, every task metric at the episode's end) the mean and its standard error,
-    `mean`, `sem` (dims lesion x outcome), and the per-episode values `outcome_values` (lesion x outcome x episode)."""
+    `mean`, `sem` (dims lesion x outcome), and the per-episode values `outcome_values` (lesion x outcome x episode).
+    On a CPU an unchanged agent gives bit-identical outcomes; on a GPU, runs of the same program differ slightly
+    (XLA's GPU reductions are not deterministic unless XLA_FLAGS=--xla_gpu_deterministic_ops=true)."""
     variants = {"intact": agent, **lesions}
     values = {name: episode_outcomes(variant, episodes, steps, seed) for name, variant in variants.items()}
     outcomes = list(values["intact"])
