@@ -29,7 +29,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from common import RESULTS, device, markdown_table, versions  # noqa: E402
 
 import angora_jax as aj  # noqa: E402
-from angora_jax.envs.registry import list_tasks  # noqa: E402
+from angora_jax.envs.registry import is_gymnasium, list_tasks  # noqa: E402
 from angora_jax.experiment import load_config, read_metrics, to_dict  # noqa: E402
 
 # Figure -> (task, family config, heads). Discrete tasks have one head; continuous ones are compared.
@@ -38,7 +38,7 @@ FIGURES = {
     "8": [("CartPole", "classic", ("categorical",)), ("Acrobot", "classic", ("categorical",)),
           ("MountainCar", "classic", ("categorical",)), ("Pendulum", "classic", CONTINUOUS),
           ("MountainCarContinuous", "classic", CONTINUOUS),
-          ("LunarLander", None, ())],
+          ("gym:LunarLander-v3", "classic", ("categorical",))],  # on the host path: pip install angora-jax[box2d]
     "9": [("InvertedPendulum", "locomotion", CONTINUOUS), ("InvertedDoublePendulum", "locomotion", CONTINUOUS),
           ("Reacher", "locomotion", CONTINUOUS), ("Swimmer", "locomotion", CONTINUOUS),
           ("Hopper", "locomotion", CONTINUOUS), ("Walker2d", "locomotion", CONTINUOUS),
@@ -46,8 +46,7 @@ FIGURES = {
           ("ShadowHandReach", "shadow_reach", (*CONTINUOUS, "multicategorical")),
           ("ShadowHandFreeReach", "shadow_reach", (*CONTINUOUS, "multicategorical"))],
 }
-MISSING = {"LunarLander": "needs the host-side gymnasium path (issue 18, not built yet)",
-           "Ant": "not ported yet (v5 observes contact forces, cfrc_ext)",
+MISSING = {"Ant": "not ported yet (v5 observes contact forces, cfrc_ext)",
            "Humanoid": "not ported yet (v5 observes cinert, cvel, qfrc_actuator, cfrc_ext; PGS solver)"}
 # CPU smoke sizes: a few seconds per run.
 SMOKE = ["ppo.num_envs=4", "ppo.rollout_length=16", "ppo.chunk_length=8", "ppo.minibatch_size=32",
@@ -134,7 +133,7 @@ def main() -> None:
             for task, config, heads in FIGURES[figure]:
                 if args.tasks and task not in args.tasks:
                     continue
-                if config is None or task not in list_tasks():
+                if config is None or task not in list_tasks() and not is_gymnasium(task):
                     missing[task] = MISSING.get(task, "not registered")
                     continue
                 for head in heads:

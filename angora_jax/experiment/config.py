@@ -24,7 +24,7 @@ from typing import Any
 import yaml
 
 from angora_jax.envs.core import Env
-from angora_jax.envs.registry import list_tasks, make
+from angora_jax.envs.registry import is_gymnasium, list_tasks, make
 from angora_jax.nets.registry import list_networks
 from angora_jax.ppo.config import PPOConfig
 from angora_jax.ppo.memory import estimate_memory
@@ -154,8 +154,9 @@ def validate(config: Config) -> Env:
 
     Raises ConfigError naming the key (e.g. `ppo.minibatch_size`), the allowed values and the fix.
     """
-    if config.env.task not in list_tasks():
-        raise ConfigError(_unknown("env.task", config.env.task, list_tasks(), "tasks"))
+    if config.env.task not in list_tasks() and not is_gymnasium(config.env.task):
+        raise ConfigError(_unknown("env.task", config.env.task, list_tasks(), "tasks") +
+                          " Any Gymnasium environment: gym:<id>, e.g. gym:LunarLander-v3.")
     try:
         env = make(config.env.task, **config.env.options)
     except (TypeError, ValueError) as error:

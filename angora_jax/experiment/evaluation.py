@@ -230,8 +230,9 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
 
     checkpoint: "best", "latest" or a cycle number (as for `load_agent`). stochastic: sample actions instead of
     taking the policy's mode. path: "cpu" (the eager path) or "batched" (all episodes at once on the training path,
-    each one at most the task's `max_episode_steps`). batch: episodes run at once on the CPU path (at most
-    `episodes`). workers: threads stepping the C MuJoCo physics of the batch (at most `batch`; see `EagerBatch`).
+    each one at most the task's `max_episode_steps`; the only path of Gymnasium tasks, `gym:<id>`). batch: episodes
+    run at once on the CPU path (at most `episodes`). workers: threads stepping the C MuJoCo physics of the batch
+    (at most `batch`; see `EagerBatch`).
     Neither changes any episode. save: write `RUN_DIR/evaluation/<checkpoint>-cycle<N>-<mode>-seed<S>.json` (with
     `-batched` before `.json` for that path) and a box plot `.png` of the same name (a `-2`, `-3`, ... suffix when
     taken: nothing is overwritten).
@@ -241,7 +242,7 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     if path not in PATHS:
         raise ValueError(f"Unknown evaluation path {path!r}; choose one of {PATHS}.")
     agent = load_agent(run_dir, checkpoint)
-    if path == "batched":
+    if path == "batched" or getattr(agent.env, "on_host", False):  # a Gymnasium task has its own simulator only
         return _evaluate_batched(agent, run_dir, checkpoint, episodes, stochastic, seed, save)
     with on_host():
         policy = agent_policy(agent, stochastic)
