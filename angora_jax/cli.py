@@ -17,6 +17,7 @@ angora-jax analyze dynamics act.nc --run runs/lstm --recurrent network.PMC --inp
 angora-jax analyze timescales act.nc             activity autocorrelation and timescale per layer
 angora-jax analyze tuning act.nc --layer network.SSC_2 --variable metric_goal_distance
 angora-jax analyze ablate runs/lstm --lesion network.SSC_2 --silence goal    task outcomes under lesions
+angora-jax pretrain-vision --out encoder.msgpack    a visual encoder that sees the cube's pose, from renders
 """
 
 from __future__ import annotations
@@ -240,6 +241,20 @@ def parser() -> argparse.ArgumentParser:
                          help="address to serve on (default: this machine only; 0.0.0.0 for the network)")
     monitor.add_argument("--no-serve", action="store_true", help="only rewrite the page on disk (open it yourself)")
     monitor.set_defaults(handler=command_monitor)
+
+    vision = commands.add_parser("pretrain-vision", help="render random hand and cube poses and train a visual "
+                                                         "encoder to see the cube's pose (angora_jax.vision)")
+    vision.add_argument("--out", required=True, help="file for the trained encoder (a component; never overwritten)")
+    vision.add_argument("--samples", type=positive_int, default=20000, help="renders (default: 20000)")
+    vision.add_argument("--size", type=positive_int, default=64, help="image width and height in pixels")
+    vision.add_argument("--cameras", nargs="+", default=["front", "side", "top"], choices=sorted(CAMERAS))
+    vision.add_argument("--encoder", default="cornet_z", help="cornet_z or impala")
+    vision.add_argument("--widths", type=positive_int, nargs="+", default=None, help="channels per stage")
+    vision.add_argument("--features", type=positive_int, default=256)
+    vision.add_argument("--steps", type=positive_int, default=5000, help="Adam steps (default: 5000)")
+    vision.add_argument("--batch", type=positive_int, default=64)
+    vision.add_argument("--seed", type=int, default=0)
+    vision.set_defaults(handler=command_pretrain_vision)
 
     configs = commands.add_parser("list-configs", help="print the shipped configs and what each trains")
     configs.set_defaults(handler=command_list_configs)
@@ -519,6 +534,42 @@ def command_ablate(args: argparse.Namespace) -> int:
                                           f"{result['sem'].sel(lesion=name, outcome=o).item():.2g}"
                                           for o in result["outcome"].values))
     print(f"Plot ({outcome}): {out}; numbers: {out.with_suffix('.nc')}")
+    return EXIT_OK
+
+
+def command_pretrain_vision(args: argparse.Namespace) -> int:
+    import json
+
+    from angora_jax.nets.components import save_component
+    from angora_jax.nets.visual import VISUAL_ENCODERS
+    from angora_jax.vision import pretrain_pose_encoder, render_pose_dataset
+
+    out = Path(args.out)
+    if out.exists():
+        print(f"angora-jax pretrain-vision: {out} exists; components are never overwritten: give another --out.",
+              file=sys.stderr)
+        return EXIT_USAGE
+    if args.encoder not in VISUAL_ENCODERS:
+        print(f"angora-jax pretrain-vision: unknown encoder {args.encoder!r}; choose one of {sorted(VISUAL_ENCODERS)}.",
+              file=sys.stderr)
+        return EXIT_USAGE
+    start = time.perf_counter()
+    dataset = render_pose_dataset(args.samples, tuple(args.cameras), args.size, args.size, seed=args.seed)
+    rendered = time.perf_counter() - start
+    options = {"features": args.features} | ({"widths": tuple(args.widths)} if args.widths else {})
+    train, test = dataset.split(0.1)
+    result = pretrain_pose_encoder(train, test, args.encoder, options, args.steps, args.batch, seed=args.seed)
+    save_component(result.params, "encoder", out)
+    report = {"encoder": args.encoder, "options": options, "cameras": args.cameras, "size": args.size,
+              "render_seconds": rendered, "train_seconds": result.seconds, "steps": args.steps, **result.errors,
+              "loss": result.history}
+    out.with_suffix(".json").write_text(json.dumps(report, indent=1))
+    errors = result.errors
+    print(f"Rendered {len(dataset)} samples x {len(args.cameras)} cameras in {rendered:.0f} s; trained {args.steps} "
+          f"steps in {result.seconds:.0f} s. Held-out ({errors['test_samples']}): position "
+          f"{errors['position_mm_median']:.1f} mm median ({errors['position_mm_p90']:.1f} p90), orientation "
+          f"{errors['orientation_deg_median']:.1f} deg median ({errors['orientation_deg_p90']:.1f} p90).")
+    print(f"Encoder: {out} (load with network.pretrained); numbers: {out.with_suffix('.json')}")
     return EXIT_OK
 
 

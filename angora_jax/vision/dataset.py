@@ -1,0 +1,100 @@
+"""Rendered datasets of random hand and cube poses for pretraining a visual encoder (OpenAI's Dactyl trained its
+vision model separately, on renders).
+
+Each sample is independent: the hand's joints drawn uniformly within (the middle of) their ranges, the cube placed
+around where it rests on the palm (uniformly within +-`spread` m of `CUBE_REST` along each axis) in a uniformly
+random orientation, positions computed by `mj_forward` (no dynamics: a pose need not be physically reachable to
+teach what a pose looks like), then one frame per camera (`angora_jax.envs.rendering.CAMERAS`, which look at the
+palm). The cube's faces carry distinct letters and colours, so its orientation is fully visible. Needs an OpenGL
+backend (MUJOCO_GL=egl or osmesa).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from angora_jax.envs.rendering import SceneRenderer, camera_named
+from angora_jax.envs.shadow_hand.cube import CUBE_JOINT, load_cube_scene
+from angora_jax.envs.shadow_hand.hand import PALM_BODY
+
+DEFAULT_CAMERAS = ("front", "side", "top")
+CUBE_REST = np.array([1.0, 0.875, 0.165])  # m, world frame: where a settled cube lies on the palm (measured)
+
+
+@dataclass(frozen=True)
+class PoseDataset:
+    """images `(N, cameras, height, width, 3)` uint8; cube_position `(N, 3)` m and cube_quaternion `(N, 4)` (w, x,
+    y, z with w >= 0) in the world frame; hand_qpos `(N, 24)` the hand's joint angles (rad)."""
+
+    images: np.ndarray
+    cube_position: np.ndarray
+    cube_quaternion: np.ndarray
+    hand_qpos: np.ndarray
+    cameras: tuple[str, ...]
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def split(self, held_out: float = 0.1) -> tuple[PoseDataset, PoseDataset]:
+        """(train, test): the last `held_out` share of the (independent) samples is the test set."""
+        cut = len(self) - max(1, int(round(len(self) * held_out)))
+        if cut < 1:
+            raise ValueError(f"{len(self)} samples cannot be split into train and test; render more.")
+        return self._rows(slice(0, cut)), self._rows(slice(cut, None))
+
+    def _rows(self, rows: slice) -> PoseDataset:
+        return PoseDataset(self.images[rows], self.cube_position[rows], self.cube_quaternion[rows],
+                           self.hand_qpos[rows], self.cameras)
+
+
+def random_quaternions(rng: np.random.Generator, count: int) -> np.ndarray:
+    """`count` orientations uniform over SO(3) as unit quaternions (w, x, y, z) with w >= 0 (normalised Gaussians)."""
+    q = rng.standard_normal((count, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    return q * np.where(q[:, :1] < 0, -1.0, 1.0)
+
+
+class PoseRenderer:
+    """Frames of the cube scene in a given hand and cube pose, one per camera: `render(hand_qpos (24,), position (3,),
+    quaternion (4,)) -> (cameras, height, width, 3)` uint8. Use as a context manager (it holds GL contexts)."""
+
+    def __init__(self, cameras: tuple[str, ...] = DEFAULT_CAMERAS, width: int = 64, height: int = 64):
+        self.model = load_cube_scene(touch=False)
+        self.data = mujoco.MjData(self.model)
+        self.cube = int(self.model.joint(CUBE_JOINT).qposadr[0])  # the free joint after the hand's 24 hinges
+        self.joint_range = self.model.jnt_range[: self.model.njnt - 1]  # one hinge per hand joint, in qpos order
+        self._renderers = [SceneRenderer(self.model, PALM_BODY, camera_named(name), width, height)
+                           for name in cameras]
+
+    def render(self, hand_qpos: np.ndarray, position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
+        self.data.qpos[: self.cube] = hand_qpos
+        self.data.qpos[self.cube:self.cube + 3] = position
+        self.data.qpos[self.cube + 3:self.cube + 7] = quaternion
+        mujoco.mj_forward(self.model, self.data)
+        return np.stack([renderer.render(self.data) for renderer in self._renderers])
+
+    def __enter__(self) -> PoseRenderer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for renderer in self._renderers:
+            renderer.close()
+
+
+def render_pose_dataset(samples: int, cameras: tuple[str, ...] = DEFAULT_CAMERAS, width: int = 64, height: int = 64,
+                        spread: float = 0.02, hand_spread: float = 0.5, seed: int = 0) -> PoseDataset:
+    """`samples` independent renders of random hand and cube poses (module docstring); each hand joint is drawn
+    within the middle `hand_spread` share of its range (1: the whole range, where fingers often hide the cube)."""
+    rng = np.random.default_rng(seed)
+    with PoseRenderer(cameras, width, height) as renderer:
+        low, high = renderer.joint_range.T
+        centre, half = (low + high) / 2, hand_spread * (high - low) / 2
+        hand_qpos = rng.uniform(centre - half, centre + half, (samples, renderer.cube))
+        position = CUBE_REST + rng.uniform(-spread, spread, (samples, 3))
+        quaternion = random_quaternions(rng, samples)
+        images = np.stack([renderer.render(hand_qpos[i], position[i], quaternion[i]) for i in range(samples)])
+    return PoseDataset(images, position.astype(np.float32), quaternion.astype(np.float32),
+                       hand_qpos.astype(np.float32), tuple(cameras))
