@@ -68,3 +68,23 @@ def test_pose_pretraining_lowers_its_loss_and_saves_an_encoder_component(tmp_pat
     assert "orientation" in capsys.readouterr().out and out.with_suffix(".json").exists()
     assert set(load_component(out, "network.vision")) == {"V1", "V2", "V4", "IT", "decoder"}
     assert main(argv) == 2 and "never overwritten" in capsys.readouterr().err
+
+
+def test_model_cameras_show_exactly_what_the_free_cameras_show():
+    """The fixed `vision_<name>` cameras (what MuJoCo Warp renders) against the free views of the palm used for
+    videos: measured identical, pixel for pixel."""
+    import mujoco
+
+    from angora_jax.envs.rendering import SceneRenderer, camera_named
+    from angora_jax.envs.shadow_hand.cube import load_cube_scene
+    from angora_jax.envs.shadow_hand.hand import PALM_BODY
+
+    model = load_cube_scene(touch=False, cameras=("front", "top"))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    for name in ("front", "top"):
+        free = SceneRenderer(model, PALM_BODY, camera_named(name), 48, 48)
+        fixed = SceneRenderer(model, None, f"vision_{name}", 48, 48)
+        np.testing.assert_array_equal(free.render(data), fixed.render(data))
+        free.close()
+        fixed.close()

@@ -40,6 +40,32 @@ CAMERAS = {
 }
 
 
+VISION_PREFIX = "vision_"
+
+
+def camera_pose(lookat: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Position and `xyaxes` (right, up) of a fixed MuJoCo camera that sees what the free `camera` sees when it looks
+    at `lookat`: MuJoCo places a free camera at lookat - distance x forward, forward = (cos el cos az, cos el sin az,
+    sin el), and a camera looks along its -z axis with +y up."""
+    azimuth, elevation = np.radians(camera.azimuth), np.radians(camera.elevation)
+    forward = np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    return np.asarray(lookat) - camera.distance * forward, np.concatenate([right, np.cross(right, forward)])
+
+
+def add_cameras(spec: mujoco.MjSpec, lookat: np.ndarray, names: tuple[str, ...], fovy: float = 45.0) -> list[str]:
+    """Add fixed cameras `vision_<name>` to the world of `spec`, one per `CAMERAS` name, placed as that free camera
+    looking at `lookat`, with MuJoCo's default free-camera field of view. Model cameras are what MuJoCo Warp renders
+    in batches, and `mujoco.Renderer` renders them by name: both paths see the same views."""
+    added = []
+    for name in names:
+        position, xyaxes = camera_pose(lookat, camera_named(name))
+        spec.worldbody.add_camera(name=VISION_PREFIX + name, pos=position, xyaxes=xyaxes, fovy=fovy)
+        added.append(VISION_PREFIX + name)
+    return added
+
+
 def camera_named(name: str) -> Camera:
     """The camera called `name` in `CAMERAS`; ValueError listing the names otherwise."""
     if name not in CAMERAS:
@@ -48,9 +74,10 @@ def camera_named(name: str) -> Camera:
 
 
 class SceneRenderer:
-    """Renders `(height, width, 3)` uint8 frames of a `mujoco.MjData` of `model` through `camera`."""
+    """Renders `(height, width, 3)` uint8 frames of a `mujoco.MjData` of `model` through `camera`: a free `Camera`
+    that looks at `camera_body`, or the name of one of the model's own cameras (e.g. `vision_front`)."""
 
-    def __init__(self, model: mujoco.MjModel, camera_body: str | None, camera: Camera, width: int = 320,
+    def __init__(self, model: mujoco.MjModel, camera_body: str | None, camera: Camera | str, width: int = 320,
                  height: int = 240):
         try:
             self._renderer = mujoco.Renderer(model, height, width)
@@ -63,6 +90,9 @@ class SceneRenderer:
 
     def render(self, data: mujoco.MjData) -> np.ndarray:
         """The current frame of `data`, shape `(height, width, 3)`, uint8."""
+        if isinstance(self._camera, str):
+            self._renderer.update_scene(data, self._camera)
+            return self._renderer.render()
         camera = mujoco.MjvCamera()
         mujoco.mjv_defaultFreeCamera(self._model, camera)
         camera.distance, camera.azimuth, camera.elevation = (

@@ -4,9 +4,10 @@ vision model separately, on renders).
 Each sample is independent: the hand's joints drawn uniformly within (the middle of) their ranges, the cube placed
 around where it rests on the palm (uniformly within +-`spread` m of `CUBE_REST` along each axis) in a uniformly
 random orientation, positions computed by `mj_forward` (no dynamics: a pose need not be physically reachable to
-teach what a pose looks like), then one frame per camera (`angora_jax.envs.rendering.CAMERAS`, which look at the
-palm). The cube's faces carry distinct letters and colours, so its orientation is fully visible. Needs an OpenGL
-backend (MUJOCO_GL=egl or osmesa).
+teach what a pose looks like), then one frame per camera: fixed model cameras `vision_<name>` placed as the
+`angora_jax.envs.rendering.CAMERAS` views of the palm (`add_cameras`), which MuJoCo Warp renders too. The cube's
+faces carry distinct letters and colours, so its orientation is fully visible. Needs an OpenGL backend
+(MUJOCO_GL=egl or osmesa).
 """
 
 from __future__ import annotations
@@ -16,9 +17,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from angora_jax.envs.rendering import SceneRenderer, camera_named
+from angora_jax.envs.rendering import VISION_PREFIX, SceneRenderer
 from angora_jax.envs.shadow_hand.cube import CUBE_JOINT, load_cube_scene
-from angora_jax.envs.shadow_hand.hand import PALM_BODY
 
 DEFAULT_CAMERAS = ("front", "side", "top")
 CUBE_REST = np.array([1.0, 0.875, 0.165])  # m, world frame: where a settled cube lies on the palm (measured)
@@ -62,12 +62,11 @@ class PoseRenderer:
     quaternion (4,)) -> (cameras, height, width, 3)` uint8. Use as a context manager (it holds GL contexts)."""
 
     def __init__(self, cameras: tuple[str, ...] = DEFAULT_CAMERAS, width: int = 64, height: int = 64):
-        self.model = load_cube_scene(touch=False)
+        self.model = load_cube_scene(touch=False, cameras=cameras)
         self.data = mujoco.MjData(self.model)
         self.cube = int(self.model.joint(CUBE_JOINT).qposadr[0])  # the free joint after the hand's 24 hinges
         self.joint_range = self.model.jnt_range[: self.model.njnt - 1]  # one hinge per hand joint, in qpos order
-        self._renderers = [SceneRenderer(self.model, PALM_BODY, camera_named(name), width, height)
-                           for name in cameras]
+        self._renderers = [SceneRenderer(self.model, None, VISION_PREFIX + name, width, height) for name in cameras]
 
     def render(self, hand_qpos: np.ndarray, position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
         self.data.qpos[: self.cube] = hand_qpos

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import mujoco
 
+from angora_jax.envs.rendering import add_cameras
+from angora_jax.envs.shadow_hand.hand import PALM_BODY
 from angora_jax.envs.shadow_hand.model import PhysicsSettings, load_scene
 
 SCENE = "manipulate_block_touch_sensors.xml"
@@ -33,12 +35,24 @@ CUBE_PHYSICS = PhysicsSettings(timestep=0.008, iterations=4, ls_iterations=8)
 
 
 def load_cube_scene(touch: bool = True, physics: PhysicsSettings = CUBE_PHYSICS,
-                    prune_contacts: bool = True) -> mujoco.MjModel:
+                    prune_contacts: bool = True, cameras: tuple[str, ...] = ()) -> mujoco.MjModel:
     """Compile the cube scene; `touch=False` drops the touch sensors (and their per-step cost), `prune_contacts=False`
-    keeps the Gym scene's contacts (for comparisons)."""
+    keeps the Gym scene's contacts (for comparisons). cameras: `rendering.CAMERAS` names to add as fixed model
+    cameras `vision_<name>` looking at the palm where it is at the scene's start (`rendering.add_cameras`)."""
 
     def edit(spec: mujoco.MjSpec) -> None:
         spec.delete(spec.body("target"))
 
     sensors = (mujoco.mjtSensor.mjSENS_TOUCH,) if touch else ()
-    return load_scene(SCENE, edit, physics, prune_contacts, sensors)
+    model = load_scene(SCENE, edit, physics, prune_contacts, sensors)
+    if not cameras:
+        return model
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    palm = data.body(PALM_BODY).xpos.copy()
+
+    def edit_with_cameras(spec: mujoco.MjSpec) -> None:
+        edit(spec)
+        add_cameras(spec, palm, cameras)
+
+    return load_scene(SCENE, edit_with_cameras, physics, prune_contacts, sensors)
