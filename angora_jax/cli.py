@@ -340,7 +340,7 @@ def print_finished(run: TrainingRun) -> None:
 
 
 def command_evaluate(args: argparse.Namespace) -> int:
-    checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
+    checkpoint = checkpoint_of(args.checkpoint)
     result = evaluation.evaluate(args.run_dir, checkpoint, args.episodes, args.stochastic, args.seed,
                                  batch=args.batch, workers=args.workers, path=args.path)
     meta = result.meta
@@ -358,7 +358,7 @@ def command_evaluate(args: argparse.Namespace) -> int:
 def command_render(args: argparse.Namespace) -> int:
     from angora_jax.experiment.video import render_video
 
-    checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
+    checkpoint = checkpoint_of(args.checkpoint)
     options = dict(checkpoint=checkpoint, episodes=args.episodes, camera=args.camera, width=args.width,
                    height=args.height, seed=args.seed, stochastic=args.stochastic)
     try:
@@ -404,15 +404,25 @@ def command_monitor(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def checkpoint_of(text: str) -> str | int:
+    """A --checkpoint argument: "best", "latest" or a cycle number."""
+    return int(text) if text.isdigit() else text
+
+
+def refused_existing(command: str, out: Path, what: str) -> bool:
+    """True (after saying so on stderr) when `out` exists: outputs are never overwritten."""
+    if out.exists():
+        print(f"angora-jax {command}: {out} exists; {what} are never overwritten: give another --out.", file=sys.stderr)
+    return out.exists()
+
+
 def command_record(args: argparse.Namespace) -> int:
     from angora_jax.analysis import record_activity, save_activity
 
     out = Path(args.out)
-    if out.exists():
-        print(f"angora-jax record: {out} exists; recordings are never overwritten: give another --out.",
-              file=sys.stderr)
+    if refused_existing("record", out, "recordings"):
         return EXIT_USAGE
-    checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
+    checkpoint = checkpoint_of(args.checkpoint)
     dataset = record_activity(args.run_dir, args.episodes, args.steps, args.seed, checkpoint)
     save_activity(dataset, out)
     layers = [n.removeprefix("activity_") for n in dataset.data_vars if n.startswith("activity_")]
@@ -451,7 +461,7 @@ def command_analysis(args: argparse.Namespace) -> int:
         if (args.run is None) != (args.recurrent is None) or (args.recurrent is None) != (args.inputs is None):
             raise ValueError("Fixed points need --run, --recurrent and --inputs together.")
         if args.run:
-            checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
+            checkpoint = checkpoint_of(args.checkpoint)
             fixed.update(analysis.agent_fixed_points(load_agent(args.run, checkpoint), data, args.recurrent,
                                                      args.inputs))
         return analysis.principal_components(data, args.layers, args.components)
@@ -509,7 +519,7 @@ def _analyze(args: argparse.Namespace, compute, plot, summary) -> int:
 def command_ablate(args: argparse.Namespace) -> int:
     from angora_jax.analysis import ablation, lesion_area, lesion_fraction, plot_ablation, silence_modality
 
-    checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
+    checkpoint = checkpoint_of(args.checkpoint)
     agent = load_agent(args.run_dir, checkpoint)
     try:
         lesions = {f"-{area}": lesion_area(agent, area) for area in args.lesion}
@@ -545,9 +555,7 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
     from angora_jax.vision import pretrain_pose_encoder, render_pose_dataset
 
     out = Path(args.out)
-    if out.exists():
-        print(f"angora-jax pretrain-vision: {out} exists; components are never overwritten: give another --out.",
-              file=sys.stderr)
+    if refused_existing("pretrain-vision", out, "components"):
         return EXIT_USAGE
     if args.encoder not in VISUAL_ENCODERS:
         print(f"angora-jax pretrain-vision: unknown encoder {args.encoder!r}; choose one of {sorted(VISUAL_ENCODERS)}.",
