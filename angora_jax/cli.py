@@ -248,6 +248,8 @@ def parser() -> argparse.ArgumentParser:
     vision.add_argument("--samples", type=positive_int, default=20000, help="renders (default: 20000)")
     vision.add_argument("--size", type=positive_int, default=64, help="image width and height in pixels")
     vision.add_argument("--cameras", nargs="+", default=["front", "side", "top"], choices=sorted(CAMERAS))
+    vision.add_argument("--renderer", default="cpu", choices=["cpu", "warp"],
+                        help="cpu: mujoco.Renderer (OpenGL); warp: MuJoCo Warp's batched ray tracer (GPU)")
     vision.add_argument("--encoder", default="cornet_z", help="cornet_z or impala")
     vision.add_argument("--widths", type=positive_int, nargs="+", default=None, help="channels per stage")
     vision.add_argument("--features", type=positive_int, default=256)
@@ -562,13 +564,15 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return EXIT_USAGE
     start = time.perf_counter()
-    dataset = render_pose_dataset(args.samples, tuple(args.cameras), args.size, args.size, seed=args.seed)
+    dataset = render_pose_dataset(args.samples, tuple(args.cameras), args.size, args.size, seed=args.seed,
+                                  renderer=args.renderer)
     rendered = time.perf_counter() - start
     options = {"features": args.features} | ({"widths": tuple(args.widths)} if args.widths else {})
     train, test = dataset.split(0.1)
     result = pretrain_pose_encoder(train, test, args.encoder, options, args.steps, args.batch, seed=args.seed)
     save_component(result.params, "encoder", out)
     report = {"encoder": args.encoder, "options": options, "cameras": args.cameras, "size": args.size,
+              "renderer": args.renderer, "samples": args.samples, "device": str(jax.devices()[0].device_kind),
               "render_seconds": rendered, "train_seconds": result.seconds, "steps": args.steps, **result.errors,
               "loss": result.history}
     out.with_suffix(".json").write_text(json.dumps(report, indent=1))

@@ -7,7 +7,9 @@ physics steps (`vmap(mjx.step)`), then (when rendering) `refit_bvh` and `render`
 uint8 `(envs, cameras, H, W, 3)` as a policy would receive it. Frames per second count one image per camera per
 environment per policy step. The last rendered batch is compared with C MuJoCo's `mujoco.Renderer` of the same
 states through the same model cameras (needs MUJOCO_GL=egl with a driver's EGL; skipped otherwise): the share of
-pixels that differ by more than 16 of 255 in any channel, and the mean absolute difference.
+pixels that differ by more than 16 of 255 in any channel, and the mean absolute difference; `--save-frames` keeps a
+few worlds' states and frames to make that comparison on another machine (`python benchmarks/render_throughput.py
+--compare FILE`, with MUJOCO_GL=egl).
 
     python benchmarks/render_throughput.py --envs 4096 --sizes 32 64 96 --steps 20
 """
@@ -81,14 +83,20 @@ def measure(model: mujoco.MjModel, num_envs: int, size: int | None, steps: int, 
 def agreement(model: mujoco.MjModel, data: mjx.Data, frames: np.ndarray, cameras: tuple[str, ...],
               envs: int = 8) -> dict[str, float] | None:
     """Warp's frames of the first `envs` worlds against `mujoco.Renderer` of the same states (None without EGL)."""
+    return compare_frames(model, np.asarray(data.qpos[:envs]), frames[:envs], cameras)
+
+
+def compare_frames(model: mujoco.MjModel, qpos: np.ndarray, frames: np.ndarray,
+                   cameras: tuple[str, ...]) -> dict[str, float] | None:
+    """Frames `(worlds, cameras, H, W, 3)` of the states `qpos` against `mujoco.Renderer`'s (None without GL)."""
     try:
         renderer = mujoco.Renderer(model, frames.shape[2], frames.shape[3])
     except Exception:  # no GL context on this machine: the comparison is skipped, the throughput stands
         return None
     cpu = mujoco.MjData(model)
     differ, mean = [], []
-    for world in range(min(envs, frames.shape[0])):
-        cpu.qpos[:] = np.asarray(data.qpos[world])
+    for world in range(frames.shape[0]):
+        cpu.qpos[:] = qpos[world]
         mujoco.mj_forward(model, cpu)
         for index, name in enumerate(cameras):
             renderer.update_scene(cpu, VISION_PREFIX + name)
@@ -103,26 +111,38 @@ def agreement(model: mujoco.MjModel, data: mjx.Data, frames: np.ndarray, cameras
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--envs", type=int, nargs="+", default=[4096])
+    parser.add_argument("--compare", default=None, help="an .npz of --save-frames: compare it with mujoco.Renderer")
     parser.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 96])
     parser.add_argument("--cameras", nargs="+", default=["front", "side", "top"])
     parser.add_argument("--steps", type=int, default=20, help="policy steps per timed rollout")
     parser.add_argument("--name", default="render_throughput")
+    parser.add_argument("--save-frames", default=None,
+                        help="an .npz of the first 8 worlds' qpos and frames at each size, to compare elsewhere")
     args = parser.parse_args()
     cameras = tuple(args.cameras)
     model = load_cube_scene(touch=False, cameras=cameras)
+    if args.compare:
+        saved = np.load(args.compare)
+        for key in sorted(k for k in saved.files if k.startswith("frames_")):
+            frames, qpos = saved[key], saved[key.replace("frames", "qpos")]
+            print(key.removeprefix("frames_"), "px:", compare_frames(model, qpos, frames, cameras))
+        return
     frame_skip = CUBE_PHYSICS.frame_skip(0.08)
-    rows = []
+    rows, saved = [], {}
     for envs in args.envs:
         row, _, _ = measure(model, envs, None, args.steps, frame_skip, len(cameras))
         rows.append(row)
+        print(row, flush=True)
         for size in args.sizes:
             row, frames, data = measure(model, envs, size, args.steps, frame_skip, len(cameras))
-            row |= agreement(model, data, frames, cameras) or {}
             rows.append(row)
+            saved[f"qpos_{size}"], saved[f"frames_{size}"] = np.asarray(data.qpos[:8]), frames[:8]
             print(row, flush=True)
     print(markdown_table(rows, [("envs", "envs", "d"), ("size", "pixels", "d"), ("render", "render", ""),
                                 ("frames_per_s", "frames/s", ",.0f"), ("policy_steps_per_s", "steps/s", ",.0f"),
                                 ("sim_s_per_s", "sim-s/s", ",.0f"), ("pixels_differing_over_16", "px differ", ".3f")]))
+    if args.save_frames:
+        np.savez_compressed(args.save_frames, **saved)
     print(write_results(args.name, {"cameras": cameras, "steps": args.steps, "frame_skip": frame_skip,
                                     "timestep": model.opt.timestep}, rows))
 

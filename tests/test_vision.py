@@ -88,3 +88,13 @@ def test_model_cameras_show_exactly_what_the_free_cameras_show():
         np.testing.assert_array_equal(free.render(data), fixed.render(data))
         free.close()
         fixed.close()
+
+
+def test_the_warp_renderer_is_asked_for_clearly():
+    import importlib.util
+
+    with pytest.raises(ValueError, match="renderer must be 'cpu' or 'warp'"):
+        render_pose_dataset(2, renderer="vulkan")
+    if importlib.util.find_spec("warp") is None:  # the CPU machines: Warp's batched renderer needs warp-lang
+        with pytest.raises(ModuleNotFoundError, match="needs NVIDIA Warp: pip install warp-lang"):
+            render_pose_dataset(2, renderer="warp")

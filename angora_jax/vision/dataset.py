@@ -84,16 +84,61 @@ class PoseRenderer:
 
 
 def render_pose_dataset(samples: int, cameras: tuple[str, ...] = DEFAULT_CAMERAS, width: int = 64, height: int = 64,
-                        spread: float = 0.02, hand_spread: float = 0.5, seed: int = 0) -> PoseDataset:
+                        spread: float = 0.02, hand_spread: float = 0.5, seed: int = 0,
+                        renderer: str = "cpu", batch: int = 1024) -> PoseDataset:
     """`samples` independent renders of random hand and cube poses (module docstring); each hand joint is drawn
-    within the middle `hand_spread` share of its range (1: the whole range, where fingers often hide the cube)."""
+    within the middle `hand_spread` share of its range (1: the whole range, where fingers often hide the cube).
+    renderer: "cpu" (`mujoco.Renderer`, one frame at a time) or "warp" (MuJoCo Warp's batched ray tracer on a GPU,
+    `batch` poses per call; its lighting differs from OpenGL's, see benchmarks/render_throughput.py)."""
+    if renderer not in ("cpu", "warp"):
+        raise ValueError(f"renderer must be 'cpu' or 'warp', got {renderer!r}.")
     rng = np.random.default_rng(seed)
-    with PoseRenderer(cameras, width, height) as renderer:
-        low, high = renderer.joint_range.T
-        centre, half = (low + high) / 2, hand_spread * (high - low) / 2
-        hand_qpos = rng.uniform(centre - half, centre + half, (samples, renderer.cube))
-        position = CUBE_REST + rng.uniform(-spread, spread, (samples, 3))
-        quaternion = random_quaternions(rng, samples)
-        images = np.stack([renderer.render(hand_qpos[i], position[i], quaternion[i]) for i in range(samples)])
+    model = load_cube_scene(touch=False, cameras=cameras)
+    cube = int(model.joint(CUBE_JOINT).qposadr[0])
+    low, high = model.jnt_range[: model.njnt - 1].T
+    centre, half = (low + high) / 2, hand_spread * (high - low) / 2
+    hand_qpos = rng.uniform(centre - half, centre + half, (samples, cube))
+    position = CUBE_REST + rng.uniform(-spread, spread, (samples, 3))
+    quaternion = random_quaternions(rng, samples)
+    if renderer == "warp":
+        qpos = np.concatenate([hand_qpos, position, quaternion], axis=1)
+        images = _render_warp(model, qpos, len(cameras), width, height, batch)
+    else:
+        with PoseRenderer(cameras, width, height) as cpu:
+            images = np.stack([cpu.render(hand_qpos[i], position[i], quaternion[i]) for i in range(samples)])
     return PoseDataset(images, position.astype(np.float32), quaternion.astype(np.float32),
                        hand_qpos.astype(np.float32), tuple(cameras))
+
+
+def _render_warp(model: mujoco.MjModel, qpos: np.ndarray, cameras: int, width: int, height: int,
+                 batch: int) -> np.ndarray:
+    """Frames `(N, cameras, height, width, 3)` uint8 of the poses `qpos` `(N, nq)`, `batch` at a time on Warp."""
+    import jax
+    import jax.numpy as jnp
+    from mujoco import mjx
+
+    from angora_jax.envs.mjx_env import quiet_iteration_caps, require_warp, warp_sizes
+
+    require_warp()
+    mx = quiet_iteration_caps(mjx.put_model(model, impl="warp"))
+    start = mjx.make_data(model, impl="warp", **warp_sizes(model, batch))
+    context = mjx.create_render_context(mjm=model, nworld=batch, cam_res=(width, height), use_textures=True,
+                                        use_shadows=False, render_rgb=[True] * cameras,
+                                        render_depth=[False] * cameras, enabled_geom_groups=[0, 1, 2])
+    handle = context.pytree()
+
+    @jax.jit
+    def frames(qpos):
+        data = jax.vmap(lambda q: start.replace(qpos=q))(qpos)
+        data = jax.vmap(mjx.forward, in_axes=(None, 0))(mx, data)
+        data = jax.vmap(mjx.refit_bvh, in_axes=(None, 0, None))(mx, data, handle)
+        rgb, _, _ = jax.vmap(mjx.render, in_axes=(None, 0, None))(mx, data, handle)
+        images = jnp.stack([mjx.get_rgb(handle, camera, rgb) for camera in range(cameras)], axis=1)
+        return (images * 255.0 + 0.5).astype(jnp.uint8)
+
+    out = []
+    for first in range(0, len(qpos), batch):
+        chunk = qpos[first:first + batch]
+        padded = np.concatenate([chunk, np.repeat(chunk[-1:], batch - len(chunk), axis=0)])  # one compiled size
+        out.append(np.asarray(frames(jnp.asarray(padded, jnp.float32)))[: len(chunk)])
+    return np.concatenate(out)
