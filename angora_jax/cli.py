@@ -264,7 +264,8 @@ def parser() -> argparse.ArgumentParser:
     doctor.set_defaults(handler=command_doctor)
 
     tasks = commands.add_parser("list-tasks", help="print the registered task names")
-    tasks.set_defaults(handler=lambda args: print("\n".join(list_tasks())) or EXIT_OK)
+    tasks.set_defaults(handler=lambda args: print("\n".join(list_tasks()) + "\nAny Gymnasium environment: gym:<id>, "
+                                                  "simulated on the host (e.g. gym:LunarLander-v3)") or EXIT_OK)
     models = commands.add_parser("list-models", help="print the registered networks and policy heads")
     models.set_defaults(handler=command_list_models)
 
