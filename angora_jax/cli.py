@@ -181,6 +181,8 @@ def parser() -> argparse.ArgumentParser:
     record.add_argument("--steps", type=positive_int, default=None, help="policy steps (default: episode length)")
     record.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
     record.add_argument("--seed", type=int, default=0)
+    record.add_argument("--images", action="store_true", help="keep the camera images of a task that sees through "
+                        "cameras (large; needed to replay the recording through another network)")
     record.set_defaults(handler=command_record)
 
     analyze = commands.add_parser("analyze", help="analyses of a recording (see angora-jax record)")
@@ -426,7 +428,7 @@ def command_record(args: argparse.Namespace) -> int:
     if refused_existing("record", out, "recordings"):
         return EXIT_USAGE
     checkpoint = checkpoint_of(args.checkpoint)
-    dataset = record_activity(args.run_dir, args.episodes, args.steps, args.seed, checkpoint)
+    dataset = record_activity(args.run_dir, args.episodes, args.steps, args.seed, checkpoint, args.images)
     save_activity(dataset, out)
     layers = [n.removeprefix("activity_") for n in dataset.data_vars if n.startswith("activity_")]
     print(f"Recorded {dataset.sizes['episode']} episodes x {dataset.sizes['time']} steps of {len(layers)} layers "

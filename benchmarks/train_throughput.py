@@ -10,6 +10,13 @@ batched env-step rate at the same batch size (random actions, the same `lax.scan
 `--impls` compares MJX implementations of the Shadow-hand tasks in one run ("warp" needs warp-lang, see
 angora_jax/envs/mjx_env.py).
 
+`--vision-sizes` trains the cube from camera images (the task's `vision` option, `--cameras`, square frames of each
+size; 0 is the pose input) with a CORnet-Z visual area (`ppo.network.visual`), as configs/shadow_ihom_pixels.yaml
+does; on a GPU, Warp renders inside the compiled step, at every step and every auto-reset:
+
+    python benchmarks/train_throughput.py --task ShadowHandCube --num-envs 4096 --model simple --impls warp \
+        --warp-sized-to-batch --rollout-length 32 --vision-sizes 0 32 64 --cameras front top   # GPU
+
 Prints a Markdown table and writes JSON (device, versions, config, numbers) under benchmarks/results/. Compile time
 is measured separately (ahead-of-time lowering and compilation) and excluded from the rates.
 """
@@ -23,7 +30,7 @@ import itertools
 from common import env_step_rate, markdown_table, peak_memory_bytes, train_rate, write_results
 
 from angora_jax.envs.registry import make
-from angora_jax.ppo import NetworkConfig, PPOConfig
+from angora_jax.ppo import NetworkConfig, PPOConfig, VisualConfig
 
 
 def main() -> None:
@@ -39,16 +46,25 @@ def main() -> None:
     parser.add_argument("--impls", default=None, help="comma-separated MJX implementations (jax, warp) of an MJX task")
     parser.add_argument("--warp-sized-to-batch", action="store_true",
                         help="size Warp's contact buffer for each row's envs (physics.warp_max_envs) instead of 32,768")
+    parser.add_argument("--vision-sizes", type=int, nargs="+", default=[0],
+                        help="ShadowHandCube from camera images of these sizes (pixels; 0: the pose input)")
+    parser.add_argument("--cameras", nargs="+", default=["front"], help="cameras for --vision-sizes")
     parser.add_argument("--out", default=None, help="JSON path (default: results/train_throughput_<platform>.json)")
     args = parser.parse_args()
 
     impls = args.impls.split(",") if args.impls else [None]
     rows = []
-    for impl, num_envs in itertools.product(impls, args.num_envs):
+    for impl, num_envs, size in itertools.product(impls, args.num_envs, args.vision_sizes):
         physics = {"impl": impl} if impl else {}
-        if impl == "warp" and args.warp_sized_to_batch:
+        # Camera vision on Warp renders batches of a fixed size: the environment is always sized for its batch.
+        if impl == "warp" and (args.warp_sized_to_batch or size):
             physics["warp_max_envs"] = num_envs
-        env = make(args.task, **({"physics": physics} if physics else {}))
+        options = {"physics": physics} if physics else {}
+        visual = None
+        if size:
+            options |= {"vision": {"cameras": args.cameras, "width": size, "height": size}, "relative_goal": False}
+            visual = VisualConfig(widths=(32, 64, 64, 128))
+        env = make(args.task, **options)
         raw = env_step_rate(env, num_envs, args.rollout_length, args.repeats)
         for model in args.model:
             config = PPOConfig(
@@ -57,11 +73,14 @@ def main() -> None:
                 chunk_length=args.chunk_length,
                 num_epochs=args.epochs,
                 minibatch_size=num_envs * args.rollout_length // args.minibatches,
-                network=NetworkConfig(name=model),
+                network=NetworkConfig(name=model, visual=visual),
             ).validate_for(env)
             trained = train_rate(env, config, args.repeats)
+            cameras = len(args.cameras) if size else 0
             rows.append({
                 "task": args.task, "impl": impl or "-", "model": model, "num_envs": num_envs,
+                "vision": f"{cameras} x {size}x{size}" if size else "pose",
+                "train_frames_per_s": trained["env_steps_per_s"] * cameras,
                 "raw_env_steps_per_s": raw["env_steps_per_s"],
                 "train_env_steps_per_s": trained["env_steps_per_s"],
                 "train_sim_s_per_s": trained["env_steps_per_s"] * env.dt,
@@ -70,10 +89,12 @@ def main() -> None:
                 "peak_memory_gib": (peak_memory_bytes() or 0) / 2**30 or None,
                 "config": dataclasses.asdict(config),
             })
-            print(f"{impl or ''} {model} @ {num_envs} envs: {trained['env_steps_per_s']:,.0f} train steps/s")
+            print(f"{impl or ''} {model} @ {num_envs} envs, {rows[-1]['vision']}: {trained['env_steps_per_s']:,.0f} "
+                  "train steps/s", flush=True)
 
     print(markdown_table(rows, [
         ("task", "task", "s"), ("impl", "MJX", "s"), ("model", "model", "s"), ("num_envs", "envs", "d"),
+        ("vision", "vision", "s"), ("train_frames_per_s", "frames seen/s", ",.0f"),
         ("raw_env_steps_per_s", "raw env steps/s", ",.0f"), ("train_env_steps_per_s", "train env steps/s", ",.0f"),
         ("train_sim_s_per_s", "train sim-s/s", ",.1f"), ("train_over_raw", "train / raw", ".1%"),
         ("train_compile_s", "compile train s", ".1f"), ("raw_compile_s", "compile raw s", ".1f"),

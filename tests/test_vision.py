@@ -98,3 +98,96 @@ def test_the_warp_renderer_is_asked_for_clearly():
     if importlib.util.find_spec("warp") is None:  # the CPU machines: Warp's batched renderer needs warp-lang
         with pytest.raises(ModuleNotFoundError, match="needs NVIDIA Warp: pip install warp-lang"):
             render_pose_dataset(2, renderer="warp")
+
+
+# Camera vision in the loop (issue 20): the cube task seeing through two 32 x 32 cameras, on MJX (MJX's JAX
+# implementation renders with OpenGL through a host callback here; MuJoCo Warp inside the step on a GPU) and on the
+# eager C MuJoCo path.
+PIXELS = {"cameras": ["front", "top"], "width": 32, "height": 32}
+
+
+@pytest.fixture(scope="module")
+def seeing_cube():
+    import angora_jax as aj
+
+    return aj.make("ShadowHandCube", vision=PIXELS, relative_goal=False, start_pool=8)
+
+
+def test_camera_vision_fills_the_sensation_with_uint8_frames_that_both_paths_agree_on(seeing_cube):
+    import angora_jax as aj
+
+    shapes = seeing_cube.observation_shapes()
+    assert shapes.vision.shape == (2, 32, 32, 3) and shapes.vision.dtype == jnp.uint8
+    assert shapes.asymmetric.shape == (34,), "the cube's pose (7) moves to the value function's inputs"
+    state = jax.jit(seeing_cube.reset)(jax.random.key(3))
+    frames = np.asarray(state.obs.vision)
+    assert frames.shape == (2, 32, 32, 3) and frames.dtype == np.uint8 and frames.std() > 10
+    np.testing.assert_array_equal(np.asarray(jax.jit(seeing_cube.reset)(jax.random.key(3)).obs.vision), frames)
+    np.testing.assert_array_equal(state.final_obs.vision, frames)
+    cpu = aj.make("ShadowHandCube", vision=PIXELS, relative_goal=False, start_pool=8, backend="cpu")
+    twin = cpu.reset(jax.random.key(3))
+    # The same settled start in float32 (MJX) and float64 (C MuJoCo), drawn by the same OpenGL renderer; measured:
+    # identical frames.
+    differing = np.mean(np.abs(np.asarray(twin.obs.vision, int) - frames) > 16)
+    assert differing < 0.01, differing
+    moved = twin
+    for _ in range(5):
+        moved = cpu.step(moved, jnp.ones(cpu.action_spec.shape))  # every joint to the end of its range
+    assert np.mean(np.abs(np.asarray(moved.obs.vision, int) - frames) > 16) > 0.05, "the hand moves pixels"
+
+
+def test_camera_vision_options_and_the_networks_that_see_them_are_checked(seeing_cube):
+    import angora_jax as aj
+    from angora_jax.ppo import NetworkConfig, PPOConfig, VisualConfig
+
+    with pytest.raises(ValueError, match="relative_goal.*reveals the cube's"):
+        aj.make("ShadowHandCube", vision=PIXELS)
+    with pytest.raises(ValueError, match="Unknown vision settings \\['colour'\\]"):
+        aj.make("ShadowHandCube", vision={"colour": True}, relative_goal=False)
+    with pytest.raises(ValueError, match="rgb: true, depth: true or both"):
+        aj.make("ShadowHandCube", vision={"rgb": False}, relative_goal=False)
+    with pytest.raises(ValueError, match="needs a visual area.*ppo.network.visual"):
+        PPOConfig(num_envs=2, rollout_length=16, minibatch_size=32).validate_for(seeing_cube)
+    with pytest.raises(ValueError, match="the task renders none"):
+        PPOConfig(num_envs=2, rollout_length=16, minibatch_size=32,
+                  network=NetworkConfig(visual=VisualConfig())).validate_for(aj.make("CartPole"))
+
+
+def test_ihom_from_pixels_trains_with_a_pretrained_frozen_visual_area_and_evaluates(tmp_path):
+    """configs/shadow_ihom_pixels.yaml made small, its visual area loaded from a component file and frozen: two
+    cycles train, the visual area's parameters stay exactly the file's while the rest learn, the C MuJoCo path
+    evaluates the saved agent from its own OpenGL frames, and a step records the visual area per camera."""
+    from flax import serialization
+
+    import angora_jax as aj
+    from angora_jax.analysis.recording import layer_activity
+    from angora_jax.experiment import train as train_run
+    from angora_jax.nets.components import save_component
+
+    encoder = make_visual_encoder("cornet_z", widths=(8, 8, 8, 8), features=8)
+    pretrained = encoder.init(jax.random.key(7), jnp.zeros((1, 32, 32, 3), jnp.uint8))["params"]
+    component = save_component({"encoder": pretrained}, "encoder", tmp_path / "encoder.msgpack")
+    overrides = ["ppo.num_envs=2", "ppo.rollout_length=16", "ppo.chunk_length=8", "ppo.minibatch_size=32",
+                 "ppo.num_epochs=1", "ppo.num_cycles=2", "ppo.network.width=32", "env.options.start_pool=8",
+                 "env.options.vision.width=32", "env.options.vision.height=32",
+                 "ppo.network.visual.widths=[8,8,8,8]", "ppo.network.visual.features=8",
+                 f"ppo.network.pretrained={{visual: {component}}}", "ppo.network.frozen=[visual]",
+                 f"logging.run_root={tmp_path}", "logging.run_name=pixels", "logging.progress=none",
+                 "logging.report=false", "checkpoint.best_metric=null", "checkpoint.snapshot_every=1"]
+    run = train_run("shadow_ihom_pixels", overrides)
+    assert run.finished and all(metrics["finite"] == 1.0 for metrics in run.history)
+    params = jax.device_get(run.state.params)
+    expected = serialization.msgpack_restore(component.read_bytes())
+    jax.tree.map(np.testing.assert_array_equal, params["visual"], expected)
+    first = jax.device_get(aj.load_agent(run.run_dir, 1).params)
+    assert any(np.abs(a - b).max() > 0 for a, b in zip(jax.tree.leaves(first["network"]),
+                                                       jax.tree.leaves(params["network"]), strict=True))
+
+    evaluation = aj.evaluate(run.run_dir, episodes=2, batch=2, save=False)
+    assert evaluation.episodes["episode_return"].shape == (2,)
+    assert np.isfinite(evaluation.episodes["episode_return"]).all()
+
+    agent = aj.load_agent(run.run_dir)
+    obs = jax.tree.map(lambda s: jnp.zeros((3, *s.shape), s.dtype), agent.env.observation_shapes())
+    _, _, _, layers = layer_activity(agent, agent.initial_carry(3), obs)
+    assert layers["visual.decoder"].shape == (3, 2 * 8), "each environment's two cameras, 8 features each"

@@ -70,6 +70,9 @@ def lesion_area(agent: Agent, area: str) -> Agent:
 def silence_modality(agent: Agent, modality: str) -> Agent:
     """`agent` receiving nothing from input `modality` (e.g. "goal"): its normalised input is held at 0."""
     modalities = [name for name, stats in vars(agent.state.obs_stats).items() if stats.mean.shape[-1] > 0]
+    if modality == "vision" and agent.config.ppo.network.visual is not None:
+        raise ValueError("This agent sees camera images, which are not normalised inputs: silence what it sees with "
+                         "lesion_area(agent, 'visual.decoder') (the visual area's output units).")
     if modality not in modalities:
         raise ValueError(f"No input modality {modality!r} to silence; {agent.config.env.task} has {modalities}.")
     if not agent.config.ppo.normalization.observations:

@@ -7,11 +7,17 @@ Episodes run batched on the training path (MJX for MuJoCo tasks, one compiled pr
     activity_<layer>   (episode, time, <layer>_unit)  a layer's output (flax `capture_intermediates`; layers named by
                                                        their module path, e.g. network.policy_trunk.Dense_0)
     input_<modality>   (episode, time, <modality>_feature)  raw observation (before normalisation)
+    input_vision       (episode, time, camera, y, x, channel)  camera images (uint8), only with `images=True`
     action             (episode, time, action_dim)     the action sent to the environment
     reward, value      (episode, time)                 reward of the step, value estimate of the observation
     metric_<name>      (episode, time)                 the task's metrics at the step (e.g. goals_reached)
     alive              (episode, time)                 1 until the step that ends the episode (inclusive)
     time_in_episode    (episode, time)                 policy steps since the episode started, in s (coord `time`)
+
+The visual area of a network that sees camera images (`visual.*`) encodes each camera's image on its own: its layers'
+units are recorded per camera, camera-major (`cameras x units`). Its convolutional maps are not recorded (only layers
+with one vector per environment are), and camera images only on request: they are large (a cube episode of 100
+steps with two 64 x 64 RGB cameras holds 2.5 MB).
 
 Only the first episode of each environment is kept: steps after it ended have `alive` 0 (their values belong to the
 next episode and are kept for completeness, masked by the analyses).
@@ -28,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
-from angora_jax.envs.core import Sensation
+from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, load_agent
 
 
@@ -38,23 +44,27 @@ def layer_activity(agent: Agent, carry: Any, obs: Any) -> tuple[Any, jax.Array, 
     (carry, policy_params, value), state = agent.apply(carry, obs, capture_intermediates=True,
                                                        mutable=["intermediates"])
     layers = {}
+    batch = value.shape[0]
     for path, leaf in jax.tree_util.tree_flatten_with_path(state["intermediates"])[0]:
         names = [str(getattr(p, "key", getattr(p, "idx", p))) for p in path]
         modules = [n for n in names if not n.isdigit() and n != "__call__"]
         if not modules or leaf.ndim != 2 or leaf.shape[-1] == 0:
-            continue  # the whole model's outputs, scalars per env, empty carries
+            continue  # the whole model's outputs, scalars per env, empty carries, convolutional maps
+        if leaf.shape[0] != batch:  # the visual area's rows are (environment, camera) pairs
+            leaf = leaf.reshape(batch, -1)
         outputs = names[names.index("__call__") + 2:]  # index within a tuple output (e.g. a cell's carry and output)
         layers[".".join([*modules, *outputs])] = leaf
     return carry, agent.head.env_action(agent.head.mode(policy_params)), value, layers
 
 
 def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | None = None, seed: int = 0,
-                    checkpoint: str | int = "best") -> xr.Dataset:
+                    checkpoint: str | int = "best", images: bool = False) -> xr.Dataset:
     """Run `episodes` episodes of `agent` (an Agent, or a run directory loaded with `checkpoint`) for `steps` policy
-    steps each (default: the task's episode length) and return the dataset described in the module docstring."""
+    steps each (default: the task's episode length) and return the dataset described in the module docstring;
+    `images` keeps camera images (`input_vision`) of a task that sees through cameras."""
     agent = load_agent(agent, checkpoint) if not isinstance(agent, Agent) else agent
     record = run_episodes(agent, episodes, steps, seed, capture=True)
-    return _dataset(agent, record, agent.env.dt)
+    return _dataset(agent, record, agent.env.dt, images)
 
 
 def run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: int = 0,
@@ -104,7 +114,7 @@ def episode_outcomes(agent: Agent, episodes: int = 256, steps: int | None = None
     return outcomes
 
 
-def _dataset(agent: Agent, record: dict[str, Any], dt: float) -> xr.Dataset:
+def _dataset(agent: Agent, record: dict[str, Any], dt: float, images: bool) -> xr.Dataset:
     def episode_major(x):  # (time, episode, ...) -> (episode, time, ...)
         return np.swapaxes(np.asarray(x), 0, 1)
 
@@ -113,7 +123,11 @@ def _dataset(agent: Agent, record: dict[str, Any], dt: float) -> xr.Dataset:
         data[f"activity_{name}"] = (("episode", "time", f"{name}_unit"), episode_major(values),
                                     {"description": f"output of layer {name}"})
     for modality, values in vars(record["inputs"]).items():
-        if values.shape[-1]:
+        if is_image(values):
+            if images:
+                data[f"input_{modality}"] = (("episode", "time", "camera", "y", "x", "channel"),
+                                             episode_major(values), {"description": "camera images"})
+        elif values.shape[-1]:
             data[f"input_{modality}"] = (("episode", "time", f"{modality}_feature"), episode_major(values),
                                          {"description": f"raw observation, modality {modality}"})
     action = episode_major(record["action"])
@@ -128,13 +142,17 @@ def _dataset(agent: Agent, record: dict[str, Any], dt: float) -> xr.Dataset:
                                {"units": "s", "description": "time since the episode started"})
     return xr.Dataset(data, coords={"time": ("time", np.arange(action.shape[1]) * dt, {"units": "s"})},
                       attrs={"task": agent.config.env.task, "network": agent.config.ppo.network.name,
-                             "cycle": agent.cycle, "policy_step_s": dt})
+                             "cycle": agent.cycle, "policy_step_s": dt,
+                             "camera_images": int(is_image(record["inputs"].vision))})
 
 
 def replay_activity(agent: Agent, recording: xr.Dataset) -> xr.Dataset:
     """`recording` with its `activity_*` replaced by `agent`'s layer activity on the recorded inputs (each episode
     from the initial carry, step by step): another network's response to the same observations, e.g. the untrained
     control of `with_random_weights`, whose own behaviour would otherwise present other inputs."""
+    if recording.attrs.get("camera_images") and "input_vision" not in recording:
+        raise ValueError("The agent saw camera images, which this recording did not keep: record it with "
+                         "images=True (angora-jax record --images) to replay it.")
     names = [name for name in recording.data_vars if name.startswith("input_")]
     inputs = {name.removeprefix("input_"): jnp.asarray(np.swapaxes(recording[name].values, 0, 1)) for name in names}
     episodes = recording.sizes["episode"]
@@ -162,5 +180,8 @@ def save_activity(dataset: xr.Dataset, path: str | Path) -> Path:
     if path.exists():
         raise FileExistsError(f"{path} exists; recordings are never overwritten: give another --out.")
     path.parent.mkdir(parents=True, exist_ok=True)
-    dataset.to_netcdf(path, engine="scipy")
+    # NetCDF 3 has no unsigned bytes: images are written as int8 marked `_Unsigned`, which xarray reads as uint8.
+    images = {name: dataset[name].copy(data=dataset[name].values.view(np.int8)).assign_attrs(_Unsigned="true")
+              for name in dataset.data_vars if dataset[name].dtype == np.uint8}
+    dataset.assign(images).to_netcdf(path, engine="scipy")
     return path

@@ -18,7 +18,8 @@ from flax import struct
 
 @struct.dataclass
 class Sensation:
-    """Observation as a pytree of modalities; each field is a float32 array of shape `(..., size)`.
+    """Observation as a pytree of modalities; each field is a float32 array of shape `(..., size)`, except camera
+    images in `vision`: uint8 `(..., cameras, height, width, channels)` (`envs.cameras`; networks encode them).
 
     A modality that a task does not provide is an empty array of shape `(..., 0)`, never None, so that all
     tasks share one pytree structure. `asymmetric` holds privileged inputs that only the value function reads.
@@ -39,11 +40,23 @@ class Sensation:
             raise ValueError(f"Unknown modalities {sorted(unknown)}; a Sensation has {fields}.")
         batch = next(iter(modalities.values())).shape[:-1] if modalities else ()
         empty = jnp.zeros(batch + (0,), jnp.float32)
-        return cls(**{f: jnp.asarray(modalities.get(f, empty), jnp.float32) for f in fields})
+        return cls(**{f: as_modality(modalities.get(f, empty)) for f in fields})
 
     def sizes(self) -> dict[str, int]:
-        """Feature size of each modality (the last axis)."""
+        """Feature size of each modality (the last axis; the channels of images)."""
         return {k: int(v.shape[-1]) for k, v in self.__dict__.items()}
+
+
+def is_image(leaf) -> bool:
+    """Whether a modality (an array or `jax.ShapeDtypeStruct`) holds camera images: uint8 pixels are never
+    normalised or concatenated as features, networks encode them (`nets.visual`)."""
+    return leaf.dtype == jnp.uint8
+
+
+def as_modality(value) -> jax.Array:
+    """A modality's array: uint8 images as they are, anything else as float32."""
+    value = jnp.asarray(value)
+    return value if is_image(value) else value.astype(jnp.float32)
 
 
 @struct.dataclass
@@ -124,6 +137,11 @@ class Env(abc.ABC):
 
     def reset(self, key: jax.Array) -> State:
         """Start a new episode. `key` is a PRNG key; vmap over a batch of keys for a batch of environments."""
+        return self._begin_episode(key)
+
+    def _begin_episode(self, key: jax.Array) -> State:
+        # `step`'s auto-reset starts episodes here too, so that a backend can add to `reset` what `step` does its own
+        # way (MjxEnv renders camera frames once per step, after the auto-reset).
         key, reset_key = jax.random.split(key)
         physics, obs, info = self._reset(reset_key)
         zero = jnp.zeros((), jnp.float32)
@@ -148,7 +166,7 @@ class Env(abc.ABC):
         ended step.
         """
         ended, reset_key = self.advance(state, action)
-        fresh = self.reset(reset_key)
+        fresh = self._begin_episode(reset_key)
         done = ended.done > 0
 
         def pick(new, old):

@@ -10,9 +10,11 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import jax
+import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from angora_jax.envs.cameras import HostCameras
 from angora_jax.envs.core import Env, Sensation, State
 from angora_jax.envs.mjx_env import MjxEnv
 from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, Snapshot, start_physics
@@ -32,6 +34,14 @@ class CpuEnv(MujocoEnv):
         self._advance = jax.jit(task.advance)
         self._control = jax.jit(task.control)
         self._last: State | None = None
+        # Camera vision is rendered with OpenGL from the C MuJoCo data (`envs.cameras`).
+        self.cameras = None if task.vision is None else HostCameras(self.model, task.vision)
+
+    def see(self, obs: Sensation, data: mujoco.MjData) -> Sensation:
+        """`obs` with the camera frames of `data` in `vision` when the task sees through cameras."""
+        if self.cameras is None:
+            return obs
+        return obs.replace(vision=jnp.asarray(self.cameras.frames(data)))
 
     def _reset(self, key: jax.Array) -> tuple[Snapshot, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)
@@ -41,14 +51,14 @@ class CpuEnv(MujocoEnv):
         start_physics(self.task, np.asarray(self._initial_qpos(pose_key), np.float64), self.data, qvel)
         snap = Snapshot.of(self.data)
         info, obs = self._begin(task_key, snap)
-        return snap, obs, info
+        return snap, self.see(obs, self.data), info
 
     def _step(self, physics: Snapshot, info: dict[str, jax.Array], action: jax.Array, key: jax.Array):
         self.data.ctrl[:] = np.asarray(self._control(action, physics), np.float64)
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         snap = Snapshot.of(self.data)
         obs, reward, terminated, info, metrics = self._advance(key, physics, snap, info)
-        return snap, obs, reward, terminated, info, metrics
+        return snap, self.see(obs, self.data), reward, terminated, info, metrics
 
     def reset(self, key: jax.Array) -> State:
         """Start an episode; `key` as for the MJX environment gives the same initial state and goal."""

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from angora_jax.envs.core import Env, State
+from angora_jax.envs.core import Env, State, is_image
 from angora_jax.envs.cpu_env import CpuEnv, eager, single_env_functions
 from angora_jax.envs.registry import list_tasks, make
 from angora_jax.envs.rendering import SceneRenderer, camera_named
@@ -27,7 +27,8 @@ class GymEnv(gymnasium.Env):
     """One environment of `task` behind the gymnasium API.
 
     Observations are a dict with one float32 array per non-empty Sensation modality (`asymmetric` holds the
-    privileged value inputs; an agent may ignore it). `info` holds the task metrics of the step. With
+    privileged value inputs; an agent may ignore it), except camera images: `vision` of a task with the `vision`
+    option is uint8 `(cameras, height, width, channels)`. `info` holds the task metrics of the step. With
     `render_mode="rgb_array"`, `render()` returns a `(height, width, 3)` uint8 frame from the named `camera` of
     `rendering.CAMERAS`, which looks at the task's `camera_body` (the palm for hand tasks; MuJoCo tasks only).
     """
@@ -50,16 +51,14 @@ class GymEnv(gymnasium.Env):
         self._renderer: SceneRenderer | None = None
         self._state: State = self._reset(jax.random.key(0))
         self._modalities = [m for m in MODALITIES if getattr(self._state.obs, m).shape[-1] > 0]
-        self.observation_space = gymnasium.spaces.Dict({
-            m: gymnasium.spaces.Box(-np.inf, np.inf, getattr(self._state.obs, m).shape, np.float32)
-            for m in self._modalities
-        })
+        self.observation_space = gymnasium.spaces.Dict(
+            {m: _space(getattr(self._state.obs, m)) for m in self._modalities})
         spec = self._env.action_spec
         self.action_space = (gymnasium.spaces.Discrete(spec.num_actions) if spec.discrete else
                              gymnasium.spaces.Box(np.asarray(spec.low), np.asarray(spec.high), dtype=np.float32))
 
     def _observation(self) -> dict[str, np.ndarray]:
-        return {m: np.asarray(getattr(self._state.obs, m), np.float32) for m in self._modalities}
+        return {m: np.asarray(getattr(self._state.obs, m), self.observation_space[m].dtype) for m in self._modalities}
 
     def _info(self) -> dict[str, float]:
         return {name: float(value) for name, value in self._state.metrics.items()}
@@ -86,6 +85,12 @@ class GymEnv(gymnasium.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+def _space(modality: Any) -> gymnasium.spaces.Box:
+    if is_image(modality):
+        return gymnasium.spaces.Box(0, 255, modality.shape, np.uint8)
+    return gymnasium.spaces.Box(-np.inf, np.inf, modality.shape, np.float32)
 
 
 def register_gymnasium_envs() -> None:

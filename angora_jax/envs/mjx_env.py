@@ -14,10 +14,12 @@ import io
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from angora_jax.envs.core import Sensation
+from angora_jax.envs.cameras import HostCameras, WarpCameras
+from angora_jax.envs.core import Sensation, State
 from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, Snapshot, mjx_impl, mjx_impl_why, start_physics
 
 # Without the optional warp-lang, importing mujoco-mjx prints "Failed to import warp" (twice): nothing failed for the
@@ -121,6 +123,59 @@ class MjxEnv(MujocoEnv):
             self._start = mjx.put_data(task.model, start_physics(task, fixed_qpos), device=device, impl=self.impl,
                                        **sizes)
         self._data0 = mjx.make_data(task.model, device=device, impl=self.impl, **sizes)
+        self._cameras = self._make_cameras()
+
+    def _make_cameras(self) -> tuple[Any, Any] | None:
+        """Renderers of the task's camera vision for (`reset`, `step`): on Warp one render context each, for the
+        sized batch (two, so that a program that resets and steps cannot interleave their renders); on MJX's JAX
+        implementation one OpenGL renderer on the host, called back from the program."""
+        vision = self.task.vision
+        if vision is None:
+            return None
+        if self.impl != "warp":
+            cameras = HostCameras(self.task.model, vision)
+            return cameras, cameras
+        if self.warp_max_envs is None:
+            return None  # sized by `sized_for`; `_frames` names the fix if a program renders before
+        return WarpCameras(self.task.model, vision, self.warp_max_envs), WarpCameras(
+            self.task.model, vision, self.warp_max_envs)
+
+    def _frames(self, data: mjx.Data, which: int) -> jax.Array:
+        """The camera frames of `data`, `(cameras, height, width, channels)` uint8 (renderer 0: resets, 1: steps)."""
+        if self._cameras is None:
+            raise RuntimeError("Camera vision on MuJoCo Warp renders batches of a fixed size: get the environment "
+                               "with env.sized_for(num_envs) and vmap reset and step over exactly num_envs.")
+        cameras = self._cameras[which]
+        if isinstance(cameras, HostCameras):
+            return cameras.traced_frames(data.qpos, data.mocap_pos, data.mocap_quat)
+        return cameras.frames(self.mjx_model, data)
+
+    def _unseen(self, obs: Sensation) -> Sensation:
+        """`obs` with blank frames in `vision` (with camera vision), filled by `reset` and `step` once per call."""
+        if self.task.vision is None:
+            return obs
+        return obs.replace(vision=jnp.zeros(self.task.vision.frame_shape, jnp.uint8))
+
+    def reset(self, key: jax.Array) -> State:
+        state = super().reset(key)
+        if self.task.vision is None:
+            return state
+        frames = self._frames(state.physics, 0)
+        return state.replace(obs=state.obs.replace(vision=frames), final_obs=state.final_obs.replace(vision=frames))
+
+    def step(self, state: State, action: jax.Array) -> State:
+        """As `Env.step`. With camera vision the frames are rendered once per step, of the physics after the
+        auto-reset: `obs` shows exactly what it should. `final_obs` of an episode that ended at this step shows the
+        frames of the step before (0.08 s earlier for the cube), its other modalities are exact: it only feeds the
+        value bootstrap of truncated episodes, and the value function also reads the exact pose (`asymmetric`).
+        Rendering the ended state as well would double the rendering, the largest cost of a pixel step."""
+        stepped = super().step(state, action)
+        if self.task.vision is None:
+            return stepped
+        frames = self._frames(stepped.physics, 1)
+        last = jnp.where(stepped.done > 0, state.obs.vision, frames)
+        return stepped.replace(obs=stepped.obs.replace(vision=frames),
+                               final_obs=stepped.final_obs.replace(vision=last))
 
     def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
         info = super().physics_info() | {
@@ -148,14 +203,14 @@ class MjxEnv(MujocoEnv):
         else:
             data = self._start
         info, obs = self.task.begin(task_key, Snapshot.of(data))
-        return data, obs, info
+        return data, self._unseen(obs), info
 
     def _step(self, physics: mjx.Data, info: dict[str, jax.Array], action: jax.Array, key: jax.Array):
         prev = Snapshot.of(physics)
         data = physics.replace(ctrl=self.task.control(action, prev))
         data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(self.mjx_model, d), data)
         obs, reward, terminated, info, metrics = self.task.advance(key, prev, Snapshot.of(data), info)
-        return data, obs, reward, terminated, info, metrics
+        return data, self._unseen(obs), reward, terminated, info, metrics
 
     def _select_physics(self, done: jax.Array, fresh: mjx.Data, ended: mjx.Data) -> mjx.Data:
         # Warp's contact buffer is shared by the batch: `Data.where` selects per environment only what is its own.

@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 from flax import struct
 
+from angora_jax.envs.cameras import CameraVision
 from angora_jax.envs.core import ActionSpec, Env, Sensation
 
 MJX_IMPLS = ("jax", "warp")
@@ -66,6 +67,9 @@ class MujocoTask(abc.ABC):
     random_initial_qpos: bool = False
     # The body that cameras look at when rendering (None: the model's centre).
     camera_body: str | None = None
+    # Camera images in `Sensation.vision` (`envs.cameras`): the physics backends render them after `observe`, whose
+    # own vision must then be empty; the model must hold the cameras (`rendering.add_cameras`).
+    vision: CameraVision | None = None
 
     @abc.abstractmethod
     def initial_qpos(self, key: jax.Array) -> jax.Array:
@@ -134,6 +138,16 @@ class MujocoEnv(Env):
     def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
         return {"engine": "C MuJoCo (eager)", "device": "host CPU", "timestep_s": float(self.task.model.opt.timestep),
                 "frame_skip": self.frame_skip}
+
+    def observation_shapes(self) -> Sensation:
+        """As `Env.observation_shapes`; with camera vision, without rendering (images are uint8 `frame_shape`)."""
+        if self.task.vision is None:
+            return super().observation_shapes()
+        data = mujoco.MjData(self.task.model)
+        mujoco.mj_forward(self.task.model, data)
+        snap = Snapshot.of(data)
+        obs = jax.eval_shape(lambda key: self.task.begin(key, snap)[1], jax.random.key(0))
+        return obs.replace(vision=jax.ShapeDtypeStruct(self.task.vision.frame_shape, jnp.uint8))
 
 
 def set_mjx_impl(spec: mujoco.MjSpec, impl: str, why: str = "") -> None:

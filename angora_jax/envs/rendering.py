@@ -90,9 +90,22 @@ class SceneRenderer:
 
     def render(self, data: mujoco.MjData) -> np.ndarray:
         """The current frame of `data`, shape `(height, width, 3)`, uint8."""
+        self._update(data)
+        return self._renderer.render()
+
+    def render_depth(self, data: mujoco.MjData) -> np.ndarray:
+        """The current depth image of `data` (m from the camera's plane), shape `(height, width)`, float32."""
+        self._update(data)
+        self._renderer.enable_depth_rendering()
+        try:
+            return self._renderer.render()
+        finally:
+            self._renderer.disable_depth_rendering()
+
+    def _update(self, data: mujoco.MjData) -> None:
         if isinstance(self._camera, str):
             self._renderer.update_scene(data, self._camera)
-            return self._renderer.render()
+            return
         camera = mujoco.MjvCamera()
         mujoco.mjv_defaultFreeCamera(self._model, camera)
         camera.distance, camera.azimuth, camera.elevation = (
@@ -100,7 +113,6 @@ class SceneRenderer:
         if self._body is not None:
             camera.lookat[:] = data.body(self._body).xpos
         self._renderer.update_scene(data, camera)
-        return self._renderer.render()
 
     def close(self) -> None:
         self._renderer.close()

@@ -20,6 +20,7 @@ from angora_jax.experiment.config import Config, DistributionConfig, load_config
 from angora_jax.experiment.run_dir import CHECKPOINTS, read_run_config
 from angora_jax.experiment.runner import initial_state_shape
 from angora_jax.nets import ActorCritic, make_network
+from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.cycle import build_head
 from angora_jax.ppo.distributions import PolicyHead
 from angora_jax.ppo.evaluate import make_evaluate
@@ -66,7 +67,7 @@ class Agent:
     @property
     def model(self) -> ActorCritic:
         """Network and head as one module: `model.apply({"params": agent.params}, carry, obs)`."""
-        return ActorCritic(self.network, self.head)
+        return ActorCritic(self.network, self.head, make_visual_area(self.config.ppo.network.visual))
 
     @property
     def params(self) -> Any:

@@ -7,22 +7,40 @@ from typing import TYPE_CHECKING, Any
 import flax.linen as nn
 import jax
 
-from angora_jax.envs.core import Sensation
+from angora_jax.envs.core import Sensation, is_image
 
 if TYPE_CHECKING:  # nets must not import ppo at runtime: ppo imports nets
     from angora_jax.ppo.distributions import PolicyHead
 
 
 class ActorCritic(nn.Module):
-    """One step for a batch: `(carry, obs) -> (carry, distribution parameters (B, P), value (B,))`."""
+    """One step for a batch: `(carry, obs) -> (carry, distribution parameters (B, P), value (B,))`.
+
+    visual: the visual area (`nets.visual`), for tasks whose `vision` holds camera images: it encodes each camera's
+    image (one encoder for all cameras) and the network reads the features, `(B, cameras * features)`, as `vision`.
+    """
 
     network: nn.Module
     head: PolicyHead
+    visual: nn.Module | None = None
 
     def initial_carry(self, batch_size: int) -> Any:
         return self.network.initial_carry(batch_size)
 
+    def perceive(self, obs: Sensation) -> Sensation:
+        """`obs` (leaves with any leading axes) with camera images replaced by the visual area's features; as it is
+        without images. Training encodes a whole sequence at once with it, as one batch, before the recurrent scan."""
+        images = obs.vision
+        if not is_image(images):
+            return obs
+        if self.visual is None:
+            raise ValueError(f"The observation holds camera images (vision {images.shape} uint8) but the network "
+                             "has no visual area: set ppo.network.visual (e.g. {encoder: cornet_z}).")
+        lead, cameras = images.shape[:-4], images.shape[-4]
+        features = self.visual(images.reshape((-1, *images.shape[-3:])))
+        return obs.replace(vision=features.reshape((*lead, cameras * features.shape[-1])))
+
     @nn.compact
     def __call__(self, carry: Any, obs: Sensation) -> tuple[Any, jax.Array, jax.Array]:
-        carry, features, value = self.network(carry, obs)
+        carry, features, value = self.network(carry, self.perceive(obs))
         return carry, self.head.module()(features), value

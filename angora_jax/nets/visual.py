@@ -57,6 +57,16 @@ class Impala(nn.Module):
 VISUAL_ENCODERS: dict[str, Callable[..., nn.Module]] = {"cornet_z": CorNetZ, "impala": Impala}
 
 
+def make_visual_area(config) -> nn.Module | None:
+    """The visual encoder a `VisualConfig` describes (None for None); ValueError for an unknown encoder or sizes."""
+    if config is None:
+        return None
+    if config.features < 1 or any(width < 1 for width in config.widths):
+        raise ValueError(f"network.visual sizes must be >= 1, got widths {config.widths}, features {config.features}.")
+    return make_visual_encoder(config.encoder, features=config.features,
+                               **({"widths": tuple(config.widths)} if config.widths else {}))
+
+
 def make_visual_encoder(name: str, **options) -> nn.Module:
     """The visual encoder `name` ("cornet_z" or "impala") with its `options` (widths, features)."""
     if name not in VISUAL_ENCODERS:

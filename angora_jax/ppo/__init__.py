@@ -3,7 +3,7 @@
 `train(config)` runs a whole experiment; `make_cycle(env, network, config)` gives the compiled pieces.
 """
 
-from angora_jax.ppo.config import NetworkConfig, NormalizationConfig, PPOConfig, tile_shape
+from angora_jax.ppo.config import NetworkConfig, NormalizationConfig, PPOConfig, VisualConfig, tile_shape
 from angora_jax.ppo.cycle import TrainState, average_gradients, build_head, make_cycle
 from angora_jax.ppo.distributions import (
     Beta,
@@ -24,6 +24,7 @@ __all__ = [
     "Gaussian",
     "MultiCategorical",
     "NetworkConfig",
+    "VisualConfig",
     "NormalizationConfig",
     "PPOConfig",
     "PolicyHead",

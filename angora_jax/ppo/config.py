@@ -11,10 +11,24 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
-from angora_jax.envs.core import Env
+from angora_jax.envs.core import Env, is_image
 from angora_jax.nets.cortical import area_sizes
 from angora_jax.nets.models import RECURRENT_CELLS
+from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.distributions import list_heads
+
+
+@dataclass(frozen=True)
+class VisualConfig:
+    """The visual area: a convolutional encoder of camera images (`angora_jax.nets.visual`), shared by the cameras,
+    whose features (cameras x `features`) take the images' place in `vision` for the network.
+
+    encoder: "cornet_z" or "impala". widths: channels per stage (empty: the encoder's own). features: per camera.
+    """
+
+    encoder: str = "cornet_z"
+    widths: tuple[int, ...] = ()
+    features: int = 64
 
 
 @dataclass(frozen=True)
@@ -32,6 +46,8 @@ class NetworkConfig:
     pretrained: parameter path -> where its values come from at the start of a run: a run directory (its best
         checkpoint; `RUN_DIR:latest` or `RUN_DIR:<cycle>` for another), whose parameters at the same path are
         taken, or a file written by `angora_jax.nets.save_component`. Shapes must match.
+    visual: the visual area that encodes camera images (needed when the task's `vision` option renders them; its
+        parameters are the module `visual`, e.g. `pretrained: {visual: encoder.msgpack}` and `frozen: [visual]`).
     """
 
     name: str = "simple"
@@ -42,9 +58,12 @@ class NetworkConfig:
     areas: dict[str, int] = field(default_factory=dict)
     frozen: tuple[str, ...] = ()
     pretrained: dict[str, str] = field(default_factory=dict)
+    visual: VisualConfig | None = None
 
     def validate(self) -> NetworkConfig:
         """Raise a ValueError naming the field when a setting cannot apply; return self."""
+        if self.visual is not None:
+            make_visual_area(self.visual)
         if self.cell is not None and self.cell not in RECURRENT_CELLS:
             raise ValueError(f"network.cell must be one of {RECURRENT_CELLS}, got {self.cell!r}.")
         if (self.cell is not None or self.areas) and self.name != "cortical":
@@ -166,6 +185,14 @@ class PPOConfig:
                 f"PPOConfig.head={head!r} needs continuous actions, but {type(env).__name__} has "
                 f"{env.action_spec.num_actions} discrete actions; use head='categorical' or 'auto'."
             )
+        images = is_image(env.observation_shapes().vision)
+        if images and self.network.visual is None:
+            raise ValueError(f"The task renders camera images ({type(env).__name__}'s vision is "
+                             f"{env.observation_shapes().vision.shape} uint8), which the network needs a visual area "
+                             "to see: set ppo.network.visual (e.g. {encoder: cornet_z, features: 64}).")
+        if not images and self.network.visual is not None:
+            raise ValueError("ppo.network.visual encodes camera images, but the task renders none: set the task's "
+                             "vision option (env.options.vision) or remove ppo.network.visual.")
         if not env.action_spec.discrete and head == "categorical":
             raise ValueError(
                 f"PPOConfig.head='categorical' needs discrete actions, but {type(env).__name__} has continuous "

@@ -18,6 +18,7 @@ from flax import struct
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.nets import ActorCritic, make_network
 from angora_jax.nets.components import frozen_optimizer, load_component, with_component
+from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.config import PPOConfig, tile_shape
 from angora_jax.ppo.distributions import PolicyHead, make_head
 from angora_jax.ppo.gae import gae, next_values
@@ -98,7 +99,7 @@ def make_cycle(
     axis = axis_name(num_devices)
     network = make_network(config.network) if network is None else network
     head = build_head(env, config)
-    model = ActorCritic(network, head)
+    model = ActorCritic(network, head, make_visual_area(config.network.visual))
     num_envs, chunk_length = local.num_envs, config.chunk_length
     num_chunks = config.rollout_length // chunk_length
     tile = tile_shape(config)  # the run's minibatch tile; each device takes 1/D of its trajectories
@@ -153,11 +154,13 @@ def make_cycle(
         )
 
     def loss_fn(params, sequences: Batch, start_carry):
+        # Camera images of all s steps are encoded as one batch, not step by step inside the recurrent scan.
+        obs = model.apply({"params": params}, sequences.obs, method=ActorCritic.perceive)
         _, policy_params, values = unroll(
             lambda carry, obs: apply_fn(params, carry, obs),
             jax.lax.stop_gradient(start_carry),  # truncated BPTT: no gradient across chunk borders
             network.initial_carry(minibatch_rows),
-            sequences.obs,
+            obs,
             sequences.resets,
         )
         return ppo_loss(

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 
 from angora_jax.envs.core import Env
 from angora_jax.nets import ActorCritic, make_network
+from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.config import PPOConfig
 from angora_jax.ppo.cycle import TrainState, build_head
 from angora_jax.ppo.normalization import normalize_observation
@@ -31,7 +32,7 @@ def make_evaluate(
     env = env.sized_for(num_envs)
     network = make_network(config.network) if network is None else network
     head = build_head(env, config)
-    model = ActorCritic(network, head)
+    model = ActorCritic(network, head, make_visual_area(config.network.visual))
 
     def evaluate(state: TrainState, key: jax.Array) -> dict[str, jax.Array]:
         reset_key, act_key = jax.random.split(key)

@@ -71,9 +71,12 @@ class MemoryEstimate:
 
 def estimate_memory(config: PPOConfig, env: Env, num_devices: int = 1) -> MemoryEstimate:
     """The lower bound for training `env` with `config` on `num_devices` devices (environments split evenly)."""
-    state = jax.eval_shape(env.reset, jax.random.key(0))
     if env.physics_info().get("impl") == "warp":
-        state = state.replace(physics=())
+        # Warp's physics state is not counted (see above), and a batch of one traces the rest: camera vision on
+        # Warp renders only in an environment sized for its batch.
+        state = jax.eval_shape(env.sized_for(1).reset, jax.random.key(0)).replace(physics=())
+    else:
+        state = jax.eval_shape(env.reset, jax.random.key(0))
     obs_bytes = _nbytes(state.obs)
     action_bytes = max(1, env.action_spec.size) * 4
     transition = obs_bytes + action_bytes + 4 * (_SCALARS_PER_TRANSITION + len(env.metric_names))

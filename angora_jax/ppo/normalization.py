@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from angora_jax.envs.core import Sensation
+from angora_jax.envs.core import Sensation, is_image
 
 _EPS = 1e-8
 
@@ -74,20 +74,21 @@ def pooled_moments(
 def observation_stats(obs: Sensation) -> Sensation:
     """One `RunningMeanStd` per modality, shaped like a single observation `obs` (no batch axis).
 
-    `obs` may hold arrays or `jax.ShapeDtypeStruct`s (e.g. `env.observation_shapes()`).
+    `obs` may hold arrays or `jax.ShapeDtypeStruct`s (e.g. `env.observation_shapes()`). Camera images get empty
+    stats (shape `(0,)`): pixels keep their uint8 scale, which the visual encoder maps to [-0.5, 0.5] itself.
     """
-    return jax.tree.map(lambda leaf: RunningMeanStd.create(leaf.shape[-1:]), obs)
+    return jax.tree.map(lambda leaf: RunningMeanStd.create((0,) if is_image(leaf) else leaf.shape[-1:]), obs)
 
 
 def update_observation_stats(stats: Sensation, obs: Sensation, axis_name: str | None = None) -> Sensation:
     """Merge a batch of observations (leaves `(..., size)`) into the per-modality stats (pooled over the devices
-    on `axis_name` when given, see `RunningMeanStd.update`)."""
-    return jax.tree.map(lambda s, x: s.update(x, axis_name), stats, obs, is_leaf=_is_stats)
+    on `axis_name` when given, see `RunningMeanStd.update`); images pass by."""
+    return jax.tree.map(lambda s, x: s if is_image(x) else s.update(x, axis_name), stats, obs, is_leaf=_is_stats)
 
 
 def normalize_observation(stats: Sensation, obs: Sensation, clip: float) -> Sensation:
-    """Normalise every modality of `obs` (leaves `(..., size)`) by its running stats."""
-    return jax.tree.map(lambda s, x: s.normalize(x, clip), stats, obs, is_leaf=_is_stats)
+    """Normalise every modality of `obs` (leaves `(..., size)`) by its running stats; images stay as they are."""
+    return jax.tree.map(lambda s, x: x if is_image(x) else s.normalize(x, clip), stats, obs, is_leaf=_is_stats)
 
 
 def discounted_returns(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from angora_jax.envs.backends import on_backend
+from angora_jax.envs.cameras import CameraVision
 from angora_jax.envs.core import Env
 from angora_jax.envs.mujoco_task import MujocoTask
 from angora_jax.envs.registry import register
@@ -45,7 +46,7 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
               success_angle: float = 0.4, goal_timeout: float = 8.0, timer: str = "terminal", max_goals: int = 50,
               control_dt: float = 0.08, relative_goal: bool = True, control: str = "absolute",
               action_scale: float = 0.2, start_pool: int = 512, physics: dict[str, float] | None = None,
-              backend: str = "mjx") -> Env:
+              vision: dict | None = None, backend: str = "mjx") -> Env:
     """Build in-hand cube reorientation (see `ihom.Ihom`). Times in s, angles in rad.
 
     The defaults are the recipe of `configs/shadow_ihom.yaml`; `configs/shadow_ihom_paper.yaml` sets AngoraPy's.
@@ -58,16 +59,20 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
     physics: `PhysicsSettings` fields (timestep, iterations, ls_iterations, impl); the frame skip is control_dt /
     timestep (default 0.08 / 0.008 = 10). max_episode_steps is max_goals * goal steps, never reached before the
     goal timer or the cap ends an episode.
+    vision: camera images in place of the cube's pose (`envs.cameras.CameraVision` fields, e.g. `{cameras: [front],
+    width: 64, height: 64}`), rendered by MuJoCo Warp inside the step on a GPU and by OpenGL otherwise.
     """
+    cameras = CameraVision.from_options(vision)
     settings = CUBE_PHYSICS.with_options(physics)
     frame_skip = settings.frame_skip(control_dt)
     steps_per_goal = round(goal_timeout / control_dt)
     if steps_per_goal < 1:
         raise ValueError(f"goal_timeout ({goal_timeout} s) must last at least one policy step ({control_dt} s).")
-    task = Ihom(load_cube_scene(touch, settings), reward_coefficients(reward_preset, reward),
+    scene = load_cube_scene(touch, settings, cameras=cameras.cameras if cameras else ())
+    task = Ihom(scene, reward_coefficients(reward_preset, reward),
                 success_angle=success_angle, steps_per_goal=steps_per_goal, max_goals=max_goals, dt=control_dt,
                 timer=timer, relative_goal=relative_goal, control=control, action_scale=action_scale,
-                start_pool=start_pool)
+                start_pool=start_pool, vision=cameras)
     return build(backend, task, frame_skip, max_goals * steps_per_goal, settings)
 
 

@@ -58,6 +58,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from angora_jax.envs.cameras import CameraVision
 from angora_jax.envs.coefficients import Coefficients
 from angora_jax.envs.core import Sensation
 from angora_jax.envs.mujoco_task import Snapshot
@@ -168,11 +169,14 @@ class Ihom(HandTask):
       proprioception (48): hand joint positions (rad) and velocities (rad/s), 24 each;
       touch (97 or 0): touch sensor readings (N, contact normal forces summed over each sensor zone);
       vision (7): the cube's pose in place of vision, position (m, world) and orientation quaternion (w, x, y, z);
+        with `vision` (camera settings, `envs.cameras.CameraVision`) camera images instead, uint8
+        `(cameras, height, width, channels)`, and the pose moves to `asymmetric` (the value function's);
       goal (4, or 13 with `relative_goal`): the goal quaternion; with `relative_goal` also the rotation from the
-        cube's orientation to the goal as a 3 x 3 matrix (world frame, flattened), the error the hand must undo;
-      asymmetric (27, value function only): fingertip positions (15, m), rotation from cube to goal (4,
-        quaternion), cube linear velocity (3, m/s, world frame), angular velocity (3, rad/s, cube frame), the share
-        of the goal timer left and the share of `max_goals` reached.
+        cube's orientation to the goal as a 3 x 3 matrix (world frame, flattened), the error the hand must undo
+        (it reveals the cube's orientation, so it cannot go with camera vision);
+      asymmetric (27, +7 with camera vision; value function only): fingertip positions (15, m), rotation from cube to
+        goal (4, quaternion), cube linear velocity (3, m/s, world frame), angular velocity (3, rad/s, cube frame),
+        the share of the goal timer left and the share of `max_goals` reached (then the cube's pose).
     Info: goal (4,), goal_steps (int32, steps spent on the current goal), goals_reached (int32), time_out (bool).
     Metrics: goals_reached (CGR so far), dropped (1 on the step the cube dropped), timed_out (1 on the step the goal
     timer ran out), goal_distance (rad).
@@ -188,13 +192,19 @@ class Ihom(HandTask):
     def __init__(self, model: mujoco.MjModel, reward: IhomReward = IhomReward(), success_angle: float = 0.4,
                  steps_per_goal: int = 100, max_goals: int = 50, dt: float = 0.08, timer: str = "terminal",
                  relative_goal: bool = False, control: str = "absolute", action_scale: float = 0.2,
-                 start_pool: int = 512):
+                 start_pool: int = 512, vision: CameraVision | None = None):
         if success_angle <= 0 or steps_per_goal < 1 or max_goals < 1 or dt <= 0 or start_pool < 1:
             raise ValueError(f"Ihom needs success_angle > 0, steps_per_goal >= 1, max_goals >= 1, dt > 0 and "
                              f"start_pool >= 1, got {success_angle}, {steps_per_goal}, {max_goals}, {dt}, "
                              f"{start_pool}.")
         if timer not in TIMERS:
             raise ValueError(f"Unknown goal timer semantics {timer!r}; choose one of {TIMERS}.")
+        if vision is not None and relative_goal:
+            raise ValueError("relative_goal shows the rotation from the cube to the goal, which reveals the cube's "
+                             "orientation that camera vision should have to see: set relative_goal: false.")
+        if vision is not None:
+            vision.camera_ids(model)
+        self.vision = vision
         hand_joints = [j for j in range(model.njnt) if model.joint(j).name.startswith(HAND_JOINT_PREFIX)]
         super().__init__(model, control=control, action_scale=action_scale,
                          initial_qpos={model.joint(j).name: 0.0 for j in hand_joints})
@@ -279,10 +289,13 @@ class Ihom(HandTask):
         cube_velocity = snap.qvel[self.cube_dof:self.cube_dof + 6]
         to_goal = rotation_between(self.cube_quat(snap), info["goal"])
         clocks = jnp.stack([1.0 - info["goal_steps"] / self.steps_per_goal, info["goals_reached"] / self.max_goals])
-        asymmetric = jnp.concatenate([self.fingertips(snap).reshape(-1), to_goal, cube_velocity, clocks])
+        privileged = [self.fingertips(snap).reshape(-1), to_goal, cube_velocity, clocks]
+        pose = self.cube_pose(snap)
+        if self.vision is not None:  # the backend renders the frames into vision
+            privileged, pose = privileged + [pose], jnp.zeros((0,), jnp.float32)
         goal = jnp.concatenate([info["goal"], rotation_matrix(to_goal)]) if self.relative_goal else info["goal"]
         return Sensation.make(proprioception=self.proprioception(snap), touch=snap.sensordata[self.touch_adr],
-                              vision=self.cube_pose(snap), goal=goal, asymmetric=asymmetric)
+                              vision=pose, goal=goal, asymmetric=jnp.concatenate(privileged))
 
     def evaluate(self, key, prev, snap, info):
         c = self.reward_config
