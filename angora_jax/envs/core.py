@@ -230,6 +230,11 @@ class Env(abc.ABC):
             return action.astype(jnp.int32)
         return action.astype(jnp.float32)
 
+    @property
+    def sees_images(self) -> bool:
+        """Whether `vision` holds camera images (uint8) rather than features; answered without tracing a reset."""
+        return False
+
     def observation_shapes(self) -> Sensation:
         """Shapes and dtypes of one observation, as a Sensation of `jax.ShapeDtypeStruct`, without simulating."""
         return jax.eval_shape(self.reset, jax.random.key(0)).obs

@@ -139,6 +139,10 @@ class MujocoEnv(Env):
         return {"engine": "C MuJoCo (eager)", "device": "host CPU", "timestep_s": float(self.task.model.opt.timestep),
                 "frame_skip": self.frame_skip}
 
+    @property
+    def sees_images(self) -> bool:
+        return self.task.vision is not None
+
     def observation_shapes(self) -> Sensation:
         """As `Env.observation_shapes`; with camera vision, without rendering (images are uint8 `frame_shape`)."""
         if self.task.vision is None:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import math
 import time
+import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -244,6 +245,11 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     agent = load_agent(run_dir, checkpoint)
     if path == "batched" or getattr(agent.env, "on_host", False):  # a Gymnasium task has its own simulator only
         return _evaluate_batched(agent, run_dir, checkpoint, episodes, stochastic, seed, save)
+    task = getattr(agent.env, "task", None)
+    if getattr(task, "vision", None) is not None and getattr(agent.env, "impl", None) == "warp":
+        warnings.warn("This agent sees camera images, and here they are rendered by MuJoCo Warp on the training path; "
+                      "the CPU path draws them with OpenGL, which shades them differently (envs/cameras.py): use "
+                      "path='batched' (--path batched) to evaluate it on the frames it trained on.", stacklevel=2)
     with on_host():
         policy = agent_policy(agent, stochastic)
         compiled = agent.compiled_once("eager batch", lambda: batch_functions(agent.env))

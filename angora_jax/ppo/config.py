@@ -11,7 +11,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
-from angora_jax.envs.core import Env, is_image
+from angora_jax.envs.core import Env
 from angora_jax.nets.cortical import area_sizes
 from angora_jax.nets.models import RECURRENT_CELLS
 from angora_jax.nets.visual import make_visual_area
@@ -185,7 +185,7 @@ class PPOConfig:
                 f"PPOConfig.head={head!r} needs continuous actions, but {type(env).__name__} has "
                 f"{env.action_spec.num_actions} discrete actions; use head='categorical' or 'auto'."
             )
-        images = is_image(env.observation_shapes().vision)
+        images = env.sees_images
         if images and self.network.visual is None:
             raise ValueError(f"The task renders camera images ({type(env).__name__}'s vision is "
                              f"{env.observation_shapes().vision.shape} uint8), which the network needs a visual area "

@@ -25,15 +25,17 @@ REACH_PHYSICS = PhysicsSettings(timestep=0.005, iterations=2, ls_iterations=4)
 
 def make_reach(free: bool = False, reward: dict[str, float] | None = None, control_dt: float = 0.02,
                max_episode_steps: int = 100, control: str = "position",
-               physics: dict[str, float] | None = None, backend: str = "mjx") -> Env:
+               physics: dict[str, float] | None = None, vision: dict | None = None, backend: str = "mjx") -> Env:
     """Build a reach task. Defaults follow AngoraPy: 0.02 s per policy step, 100 policy steps per episode,
     joint targets set relative to the joints' positions (`control`: see `HandTask`). physics: `PhysicsSettings`
     fields overriding `REACH_PHYSICS` (the Gym scene's own settings are timestep 0.002, iterations 20,
-    ls_iterations 50). `backend="cpu"` gives the eager MuJoCo twin."""
+    ls_iterations 50). `backend="cpu"` gives the eager MuJoCo twin. vision: camera images of the hand in
+    `Sensation.vision` (`envs.cameras.CameraVision` fields, as for the cube), besides the usual inputs."""
+    cameras = CameraVision.from_options(vision)
     settings = REACH_PHYSICS.with_options(physics)
     frame_skip = settings.frame_skip(control_dt)
-    task = Reach(load_scene("reach.xml", physics=settings), ReachReward.from_dict(reward), free=free,
-                 control=control)
+    scene = load_scene("reach.xml", physics=settings, cameras=cameras.cameras if cameras else ())
+    task = Reach(scene, ReachReward.from_dict(reward), free=free, control=control, vision=cameras)
     return build(backend, task, frame_skip, max_episode_steps, settings)
 
 

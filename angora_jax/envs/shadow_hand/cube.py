@@ -22,8 +22,6 @@ from __future__ import annotations
 
 import mujoco
 
-from angora_jax.envs.rendering import add_cameras
-from angora_jax.envs.shadow_hand.hand import PALM_BODY
 from angora_jax.envs.shadow_hand.model import PhysicsSettings, load_scene
 
 SCENE = "manipulate_block_touch_sensors.xml"
@@ -38,21 +36,10 @@ def load_cube_scene(touch: bool = True, physics: PhysicsSettings = CUBE_PHYSICS,
                     prune_contacts: bool = True, cameras: tuple[str, ...] = ()) -> mujoco.MjModel:
     """Compile the cube scene; `touch=False` drops the touch sensors (and their per-step cost), `prune_contacts=False`
     keeps the Gym scene's contacts (for comparisons). cameras: `rendering.CAMERAS` names to add as fixed model
-    cameras `vision_<name>` looking at the palm where it is at the scene's start (`rendering.add_cameras`)."""
+    cameras `vision_<name>` looking at the palm (`model.load_scene`)."""
 
     def edit(spec: mujoco.MjSpec) -> None:
         spec.delete(spec.body("target"))
 
     sensors = (mujoco.mjtSensor.mjSENS_TOUCH,) if touch else ()
-    model = load_scene(SCENE, edit, physics, prune_contacts, sensors)
-    if not cameras:
-        return model
-    data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
-    palm = data.body(PALM_BODY).xpos.copy()
-
-    def edit_with_cameras(spec: mujoco.MjSpec) -> None:
-        edit(spec)
-        add_cameras(spec, palm, cameras)
-
-    return load_scene(SCENE, edit_with_cameras, physics, prune_contacts, sensors)
+    return load_scene(SCENE, edit, physics, prune_contacts, sensors, cameras)

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from angora_jax.envs.cameras import CameraVision
 from angora_jax.envs.mujoco_task import MujocoTask, Snapshot
 from angora_jax.envs.shadow_hand.model import FINGERTIP_SITES, HAND_JOINT_PREFIX, PALM_BODY
 
@@ -46,12 +47,15 @@ class HandTask(MujocoTask):
     camera_body = PALM_BODY
 
     def __init__(self, model: mujoco.MjModel, control: str = "position", action_scale: float = 1.0,
-                 initial_qpos: dict[str, float] | None = None):
+                 initial_qpos: dict[str, float] | None = None, vision: CameraVision | None = None):
         if control not in CONTROL_MODES:
             raise ValueError(f"Unknown control {control!r}; choose one of {CONTROL_MODES}.")
         if action_scale <= 0:
             raise ValueError(f"action_scale must be > 0 (share of half the control range per step), got "
                              f"{action_scale}.")
+        if vision is not None:
+            vision.camera_ids(model)
+        self.vision = vision
         self.model = model
         self.control_mode = control
         self.action_scale = action_scale

@@ -202,12 +202,9 @@ class Ihom(HandTask):
         if vision is not None and relative_goal:
             raise ValueError("relative_goal shows the rotation from the cube to the goal, which reveals the cube's "
                              "orientation that camera vision should have to see: set relative_goal: false.")
-        if vision is not None:
-            vision.camera_ids(model)
-        self.vision = vision
         hand_joints = [j for j in range(model.njnt) if model.joint(j).name.startswith(HAND_JOINT_PREFIX)]
         super().__init__(model, control=control, action_scale=action_scale,
-                         initial_qpos={model.joint(j).name: 0.0 for j in hand_joints})
+                         initial_qpos={model.joint(j).name: 0.0 for j in hand_joints}, vision=vision)
         self.reward_config = reward
         self.success_angle = success_angle
         self.steps_per_goal = steps_per_goal

@@ -15,6 +15,7 @@ import mujoco
 
 from angora_jax.envs.mjx_env import choose_impl
 from angora_jax.envs.mujoco_task import MJX_IMPLS, set_mjx_impl
+from angora_jax.envs.rendering import add_cameras
 
 FINGERTIP_SITES = ("robot0:S_fftip", "robot0:S_mftip", "robot0:S_rftip", "robot0:S_lftip", "robot0:S_thtip")
 PALM_BODY = "robot0:palm"
@@ -115,13 +116,27 @@ def remove_from_collision(spec: mujoco.MjSpec, names: tuple[str, ...]) -> None:
 
 def load_scene(scene: str = "reach.xml", edit: Callable[[mujoco.MjSpec], None] | None = None,
                physics: PhysicsSettings = GYM_PHYSICS, prune_contacts: bool = True,
-               sensors: tuple[mujoco.mjtSensor, ...] | None = ()) -> mujoco.MjModel:
+               sensors: tuple[mujoco.mjtSensor, ...] | None = (), cameras: tuple[str, ...] = ()) -> mujoco.MjModel:
     """Compile a Gym hand scene (`reach.xml`, `manipulate_block.xml`, ...) with our MJX preparations and `physics`.
 
     prune_contacts: take `UNTOUCHED_GEOMS` out of collision (False keeps the Gym scene's contacts, for comparisons).
     sensors: the sensor types to keep (None: all of the Gym scene's). MJX evaluates every sensor at every physics
     step, and the Gym scenes' joint-position sensors only repeat `qpos`: a task keeps only what it reads.
-    `edit`, when given, changes the prepared `MjSpec` in place before compiling (a task's own scene changes)."""
+    `edit`, when given, changes the prepared `MjSpec` in place before compiling (a task's own scene changes).
+    cameras: `rendering.CAMERAS` names to add as fixed model cameras `vision_<name>` looking at the palm where it is
+    at the scene's start (`rendering.add_cameras`; what camera vision renders)."""
+    if cameras:
+        start = load_scene(scene, edit, physics, prune_contacts, sensors)
+        data = mujoco.MjData(start)
+        mujoco.mj_forward(start, data)
+        palm = data.body(PALM_BODY).xpos.copy()
+
+        def edit_with_cameras(spec: mujoco.MjSpec) -> None:
+            if edit is not None:
+                edit(spec)
+            add_cameras(spec, palm, cameras)
+
+        return load_scene(scene, edit_with_cameras, physics, prune_contacts, sensors)
     path = os.path.join(asset_dir(), scene)
     if not os.path.exists(path):
         raise FileNotFoundError(f"No Shadow-hand scene {scene!r} in {asset_dir()}.")

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 
+from angora_jax.envs.cameras import CameraVision
 from angora_jax.envs.coefficients import Coefficients
 from angora_jax.envs.core import Sensation
 from angora_jax.envs.mujoco_task import Snapshot
@@ -56,8 +57,8 @@ class Reach(HandTask):
     metric_names = ("success", "goal_distance")
 
     def __init__(self, model: mujoco.MjModel, reward: ReachReward = ReachReward(), free: bool = False,
-                 control: str = "position"):
-        super().__init__(model, control=control)
+                 control: str = "position", vision: CameraVision | None = None):
+        super().__init__(model, control=control, vision=vision)
         self.reward_config = reward
         self.free = free
 
