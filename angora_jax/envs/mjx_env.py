@@ -167,7 +167,7 @@ class MjxEnv(MujocoEnv):
         """As `Env.step`. With camera vision the frames are rendered once per step, of the physics after the
         auto-reset: `obs` shows exactly what it should. `final_obs` of an episode that ended at this step shows the
         frames of the step before (0.08 s earlier for the cube), its other modalities are exact: it only feeds the
-        value bootstrap of truncated episodes, and the value function also reads the exact pose (`asymmetric`).
+        value bootstrap of truncated episodes (for the cube the value function also reads the exact pose).
         Rendering the ended state as well would double the rendering, the largest cost of a pixel step."""
         stepped = super().step(state, action)
         if self.task.vision is None:
