@@ -3,6 +3,8 @@ and lesions (an empty lesion changes nothing, bit for bit); then the brain-area 
 session's `cortical_reach` run): decoding, the untrained control, lesions of areas and inputs, premotor fixed
 points, RDMs, a pretrained component read from the run, and every `angora-jax analyze` verb."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -28,7 +30,9 @@ from angora_jax.analysis import (
 from angora_jax.analysis.decoding import cross_validated_r2
 from angora_jax.cli import main
 from angora_jax.envs.core import Sensation
+from angora_jax.nets import ActorCritic, make_network
 from angora_jax.nets.components import load_component
+from angora_jax.ppo import NetworkConfig
 
 LAYER = "network.policy_trunk.Dense_1"
 
@@ -102,6 +106,17 @@ def test_an_empty_lesion_changes_nothing_and_a_full_one_silences_the_layer(agent
     assert (np.asarray(layers[LAYER]) == 0).all(axis=0).sum() == dense_layers(agent)[LAYER] // 2
     with pytest.raises(ValueError, match="No dense layer 'cortex'.*policy_trunk"):
         lesion(agent, "cortex", [0])
+
+
+def test_an_lstm_records_its_activity_not_its_gate_kernels(agent):
+    """flax's LSTM cell computes its gates through submodules that return kernels: recording them took a weight
+    matrix per step as a "layer" (tens of GB over a cube episode)."""
+    network = make_network(NetworkConfig(name="lstm", width=8, cell_size=8))
+    obs = jax.vmap(agent.env.reset)(jax.random.split(jax.random.key(1), 2)).obs
+    params = ActorCritic(network, agent.head).init(jax.random.key(0), network.initial_carry(2), obs)["params"]
+    lstm = dataclasses.replace(agent, network=network, state=agent.state.replace(params=params))
+    _, _, _, layers = record_layers(lstm, obs)
+    assert layers and max(layer.shape[-1] for layer in layers.values()) <= 8, {k: v.shape for k, v in layers.items()}
 
 
 def record_layers(agent, obs):

@@ -33,6 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import xarray as xr
+from flax import linen as nn
+from flax.linen.recurrent import DenseParams
 
 from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, load_agent
@@ -41,7 +43,7 @@ from angora_jax.experiment.agent import Agent, load_agent
 def layer_activity(agent: Agent, carry: Any, obs: Any) -> tuple[Any, jax.Array, jax.Array, dict[str, jax.Array]]:
     """One step of `agent` on raw observations with every layer's output: (carry, env action (mode), value,
     {layer name: (B, units)})."""
-    (carry, policy_params, value), state = agent.apply(carry, obs, capture_intermediates=True,
+    (carry, policy_params, value), state = agent.apply(carry, obs, capture_intermediates=_captures_activity,
                                                        mutable=["intermediates"])
     layers = {}
     batch = value.shape[0]
@@ -55,6 +57,12 @@ def layer_activity(agent: Agent, carry: Any, obs: Any) -> tuple[Any, jax.Array, 
         outputs = names[names.index("__call__") + 2:]  # index within a tuple output (e.g. a cell's carry and output)
         layers[".".join([*modules, *outputs])] = leaf
     return carry, agent.head.env_action(agent.head.mode(policy_params)), value, layers
+
+
+def _captures_activity(module: nn.Module, method_name: str) -> bool:
+    """Capture the outputs of modules' `__call__`, except flax's `DenseParams`, which return parameters (the gate
+    kernels of `OptimizedLSTMCell`, the "lstm" cell), not activity."""
+    return method_name == "__call__" and not isinstance(module, DenseParams)
 
 
 def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | None = None, seed: int = 0,
