@@ -25,7 +25,7 @@ Equivalence: D devices compute what one device computes, up to floating-point su
   log-probabilities, values, advantages, targets, chunk-start carries) so that every device can pick any
   trajectory, would send every device the (D - 1) / D of the batch it lacks, every cycle, and hold all of it on
   every device: the batch is 28 MB per cycle at configs/shadow_reach.yaml's size (4,096 envs x 16 steps, `simple`:
-  432 bytes per transition), 1.45 GB at configs/shadow_ihom_paper.yaml's (4,096 x 192, `wide`: 1,848 bytes). The price
+  432 bytes per transition), 1.45 GB at configs/shadow_ihom_paper.yaml's (16,384 x 48, `wide`: 1,848 bytes). The price
   of stratification is a constraint: D must divide the tile's n (`per_device` says so).
 Traffic that stays: one gradient all-reduce per minibatch (reach: 0.70 MB x 64 updates = 45 MB per cycle; IHOM:
 52 MB x 192 = 10 GB per cycle), one per rollout step for the normaliser (every modality's moments together), one
