@@ -49,6 +49,8 @@ def main() -> None:
     parser.add_argument("--vision-sizes", type=int, nargs="+", default=[0],
                         help="ShadowHandCube from camera images of these sizes (pixels; 0: the pose input)")
     parser.add_argument("--cameras", nargs="+", default=["front"], help="cameras for --vision-sizes")
+    parser.add_argument("--visual-area", nargs="+", choices=("trained", "frozen"), default=["trained"],
+                        help="with --vision-sizes: train the visual area, or keep it frozen (no backward pass)")
     parser.add_argument("--out", default=None, help="JSON path (default: results/train_throughput_<platform>.json)")
     args = parser.parse_args()
 
@@ -66,20 +68,21 @@ def main() -> None:
             visual = VisualConfig(widths=(32, 64, 64, 128))
         env = make(args.task, **options)
         raw = env_step_rate(env, num_envs, args.rollout_length, args.repeats)
-        for model in args.model:
+        for model, area in itertools.product(args.model, args.visual_area if size else ["trained"]):
             config = PPOConfig(
                 num_envs=num_envs,
                 rollout_length=args.rollout_length,
                 chunk_length=args.chunk_length,
                 num_epochs=args.epochs,
                 minibatch_size=num_envs * args.rollout_length // args.minibatches,
-                network=NetworkConfig(name=model, visual=visual),
+                network=NetworkConfig(name=model, visual=visual, frozen=("visual",) if area == "frozen" else ()),
             ).validate_for(env)
             trained = train_rate(env, config, args.repeats)
             cameras = len(args.cameras) if size else 0
             rows.append({
                 "task": args.task, "impl": impl or "-", "model": model, "num_envs": num_envs,
                 "vision": f"{cameras} x {size}x{size}" if size else "pose",
+                "visual_area": area if size else "-",
                 "train_frames_per_s": trained["env_steps_per_s"] * cameras,
                 "raw_env_steps_per_s": raw["env_steps_per_s"],
                 "train_env_steps_per_s": trained["env_steps_per_s"],
@@ -89,12 +92,12 @@ def main() -> None:
                 "peak_memory_gib": (peak_memory_bytes() or 0) / 2**30 or None,
                 "config": dataclasses.asdict(config),
             })
-            print(f"{impl or ''} {model} @ {num_envs} envs, {rows[-1]['vision']}: {trained['env_steps_per_s']:,.0f} "
-                  "train steps/s", flush=True)
+            print(f"{impl or ''} {model} @ {num_envs} envs, {rows[-1]['vision']} ({area}): "
+                  f"{trained['env_steps_per_s']:,.0f} train steps/s", flush=True)
 
     print(markdown_table(rows, [
         ("task", "task", "s"), ("impl", "MJX", "s"), ("model", "model", "s"), ("num_envs", "envs", "d"),
-        ("vision", "vision", "s"), ("train_frames_per_s", "frames seen/s", ",.0f"),
+        ("vision", "vision", "s"), ("visual_area", "visual area", "s"), ("train_frames_per_s", "frames seen/s", ",.0f"),
         ("raw_env_steps_per_s", "raw env steps/s", ",.0f"), ("train_env_steps_per_s", "train env steps/s", ",.0f"),
         ("train_sim_s_per_s", "train sim-s/s", ",.1f"), ("train_over_raw", "train / raw", ".1%"),
         ("train_compile_s", "compile train s", ".1f"), ("raw_compile_s", "compile raw s", ".1f"),

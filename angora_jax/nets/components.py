@@ -4,7 +4,8 @@ components).
 A component is addressed by its module path with dots, as in recordings and lesions: `network.SSC_1` is
 `params["network"]["SSC_1"]`. `save_component` writes one to a file (flax msgpack); a config's
 `network.pretrained` loads components from such files or from other runs into a new run's initial parameters, and
-`network.frozen` keeps components fixed during training (`frozen_optimizer`: their updates are masked to zero).
+`network.frozen` keeps components fixed during training (`frozen_optimizer`: their updates are masked to zero;
+`stop_frozen_gradients`: the loss has no backward pass through them).
 """
 
 from __future__ import annotations
@@ -96,20 +97,33 @@ def with_pretrained(params: Any, pretrained: Mapping[str, str | Path]) -> Any:
     return params
 
 
+def _frozen_labels(tree: Any, frozen: Sequence[str]) -> Any:
+    """`tree` with each leaf replaced by "frozen" (under one of the module paths `frozen`) or "trained"; a ValueError
+    naming the modules when a path names none."""
+    for path in frozen:
+        component(tree, path)
+
+    def label(key_path, _):
+        dotted = ".".join(str(getattr(k, "key", k)) for k in key_path)
+        return "frozen" if any(dotted.startswith(f"{path}.") for path in frozen) else "trained"
+
+    return jax.tree_util.tree_map_with_path(label, tree)
+
+
 def frozen_optimizer(optimizer: optax.GradientTransformation, frozen: Sequence[str]) -> optax.GradientTransformation:
     """`optimizer` for all parameters but those under the module paths `frozen`, whose updates are zero (and which
     hold no optimizer state). Its `init(params)` raises a ValueError naming the modules when a path names none."""
     if not frozen:
         return optimizer
+    return optax.multi_transform({"trained": optimizer, "frozen": optax.set_to_zero()},
+                                 lambda tree: _frozen_labels(tree, frozen))
 
-    def labels(tree: Any) -> Any:
-        for path in frozen:
-            component(tree, path)
 
-        def label(key_path, _):
-            dotted = ".".join(str(getattr(k, "key", k)) for k in key_path)
-            return "frozen" if any(dotted.startswith(f"{path}.") for path in frozen) else "trained"
-
-        return jax.tree_util.tree_map_with_path(label, tree)
-
-    return optax.multi_transform({"trained": optimizer, "frozen": optax.set_to_zero()}, labels)
+def stop_frozen_gradients(params: Any, frozen: Sequence[str]) -> Any:
+    """`params` with the modules under `frozen` behind `jax.lax.stop_gradient`: a loss of these params then has no
+    backward pass through a frozen area whose inputs need no gradient (a frozen visual area: its convolutions are
+    run forward only), besides its zero updates from `frozen_optimizer`."""
+    if not frozen:
+        return params
+    return jax.tree.map(lambda label, leaf: jax.lax.stop_gradient(leaf) if label == "frozen" else leaf,
+                        _frozen_labels(params, frozen), params)

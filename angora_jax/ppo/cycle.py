@@ -17,7 +17,7 @@ from flax import struct
 
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.nets import ActorCritic, make_network
-from angora_jax.nets.components import frozen_optimizer, load_component, with_component
+from angora_jax.nets.components import frozen_optimizer, load_component, stop_frozen_gradients, with_component
 from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.config import PPOConfig, tile_shape
 from angora_jax.ppo.distributions import PolicyHead, make_head
@@ -154,6 +154,7 @@ def make_cycle(
         )
 
     def loss_fn(params, sequences: Batch, start_carry):
+        params = stop_frozen_gradients(params, config.network.frozen)
         # Camera images of all s steps are encoded as one batch, not step by step inside the recurrent scan.
         obs = model.apply({"params": params}, sequences.obs, method=ActorCritic.perceive)
         _, policy_params, values = unroll(
