@@ -190,7 +190,7 @@ def parser() -> argparse.ArgumentParser:
     decoding = analyses.add_parser("decode", help="ridge R^2 of each variable from each layer vs a noise baseline")
     decoding.add_argument("recording", help="a NetCDF file from angora-jax record")
     decoding.add_argument("--layers", nargs="*", help="layer names (default: all)")
-    decoding.add_argument("--variables", nargs="*", help="variables (default: every input_* and metric_*)")
+    decoding.add_argument("--variables", nargs="*", help="variables (default: every input_*, task_* and metric_*)")
     decoding.add_argument("--folds", type=positive_int, default=5)
     decoding.add_argument("--out", default=None, help="heat map PNG (default: beside the recording)")
     decoding.set_defaults(handler=command_decode)
@@ -446,8 +446,8 @@ def command_decode(args: argparse.Namespace) -> int:
                 f"(noise {result['baseline'].sel(layer=layer, variable=v).item():.2f})"
                 for v in result["variable"].values)
 
-    args.analysis = "decoding"
-    return _analyze(args, lambda data: decode(data, args.layers, args.variables, args.folds), plot_decoding, summary)
+    return _analyze(args, lambda data: decode(data, args.layers, args.variables, args.folds), plot_decoding, summary,
+                    stem="decoding")
 
 
 def command_analysis(args: argparse.Namespace) -> int:
@@ -500,14 +500,15 @@ def command_analysis(args: argparse.Namespace) -> int:
     return _analyze(args, compute, plot, summary)
 
 
-def _analyze(args: argparse.Namespace, compute, plot, summary) -> int:
-    """Read the recording, compute, write `<out>.png` and `<out>.nc`, print the summary; usage errors exit 2."""
+def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None = None) -> int:
+    """Read the recording, compute, write `<out>.png` and `<out>.nc` (default: `<recording>.<stem or the
+    analysis>.png`), print the summary; usage errors exit 2."""
     import xarray as xr
 
     recording = Path(args.recording)
     if not recording.is_file():
         raise FileNotFoundError(f"No recording {recording}; make one with angora-jax record RUN_DIR --out FILE.")
-    out = Path(args.out) if args.out else recording.with_suffix(f".{args.analysis}.png")
+    out = Path(args.out) if args.out else recording.with_suffix(f".{stem or args.analysis}.png")
     try:
         result = compute(xr.load_dataset(recording))
     except ValueError as error:

@@ -140,6 +140,10 @@ def test_reach_areas_carry_their_inputs_and_the_untrained_control_replays_the_sa
     assert r2.loc["network.MCC", "input_goal"] > 0.8 and r2.loc["network.LPFC", "input_goal"] > 0.8, r2
     assert r2.loc["network.SSC_2", "input_asymmetric"] > 0.7, "fingertips from the proprioceptive area"
     assert np.all(result["baseline"].values < 0.1)
+    np.testing.assert_allclose(recording["task_fingertips"].values, recording["input_asymmetric"].values, atol=1e-6)
+    assert recording["task_joint_angles"].dims == ("episode", "time", "joint_angles_component")
+    with pytest.raises(ValueError, match=r"module network.PMC records network.PMC\.\d"):
+        decode(recording, ["network.PMC"], ["input_goal"])
     control = replay_activity(with_random_weights(agent), recording)
     np.testing.assert_array_equal(control["input_goal"].values, recording["input_goal"].values)
     assert control["activity_network.MCC"].shape == recording["activity_network.MCC"].shape

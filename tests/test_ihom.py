@@ -114,6 +114,15 @@ def test_episodes_start_with_the_cube_resting_on_the_palm(cpu, start):
     np.testing.assert_allclose(obs.goal[4:], rotation_matrix(rotation_between(task.cube_quat(snap), info["goal"])))
     np.testing.assert_allclose(obs.vision, snap.qpos[task.cube_qpos:task.cube_qpos + 7])
     np.testing.assert_allclose(obs.asymmetric[-2:], [1.0, 0.0])  # the whole goal timer left, no goal reached yet
+    # The task variables that recordings decode name the same quantities as the observation's slices.
+    named = task.task_variables(snap, info)
+    np.testing.assert_allclose(np.concatenate([named["cube_position"], named["cube_orientation"]]), obs.vision)
+    np.testing.assert_allclose(named["fingertips"], obs.asymmetric[:15])
+    np.testing.assert_allclose(named["rotation_to_goal"], obs.asymmetric[15:19])
+    np.testing.assert_allclose(np.concatenate([named["cube_velocity"], named["cube_angular_velocity"]]),
+                               obs.asymmetric[19:25])
+    np.testing.assert_allclose(named["goal_orientation"], info["goal"])
+    np.testing.assert_allclose(named["joint_angles"], obs.proprioception[:24])
 
 
 @pytest.mark.parametrize("control", ["absolute", "target", "position"])

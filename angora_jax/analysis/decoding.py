@@ -43,13 +43,20 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
     `r2_low`, `r2_high`, `baseline` (dims layer x variable).
 
     layers: names as in `activity_<name>` (default: all). variables: dataset variables to decode, e.g.
-    `input_goal`, `metric_goal_distance` (default: every `input_*` and `metric_*`).
+    `input_goal`, `task_cube_angular_velocity`, `metric_goal_distance` (default: every `input_*`, `task_*` and
+    `metric_*`).
     """
     layers = list(layers or recorded_layers(dataset))
-    variables = list(variables or [n for n in dataset.data_vars if n.startswith(("input_", "metric_"))])
+    variables = list(variables or [n for n in dataset.data_vars if n.startswith(("input_", "task_", "metric_"))])
     missing = [v for v in [*(f"activity_{n}" for n in layers), *variables] if v not in dataset.data_vars]
     if missing:
-        raise ValueError(f"Not in the recording: {missing}; it has {sorted(dataset.data_vars)}.")
+        # A recurrent module records its outputs by index (e.g. network.PMC.1, the cell's output).
+        outputs = {name: [layer for layer in recorded_layers(dataset) if layer.startswith(f"{name}.")]
+                   for name in layers}
+        hint = "; ".join(f"module {name} records {', '.join(found)}: name one of those"
+                         for name, found in outputs.items() if found and f"activity_{name}" in missing)
+        raise ValueError(f"Not in the recording: {missing}; it has {sorted(dataset.data_vars)}."
+                         + (f" ({hint})" if hint else ""))
     alive = dataset["alive"].values.reshape(-1) > 0
     groups = np.repeat(np.arange(dataset.sizes["episode"]), dataset.sizes["time"])[alive]
     if len(np.unique(groups)) < folds:

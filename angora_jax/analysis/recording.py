@@ -11,6 +11,10 @@ Episodes run batched on the training path (MJX for MuJoCo tasks, one compiled pr
     action             (episode, time, action_dim)     the action sent to the environment
     reward, value      (episode, time)                 reward of the step, value estimate of the observation
     metric_<name>      (episode, time)                 the task's metrics at the step (e.g. goals_reached)
+    task_<name>        (episode, time, <name>_component)  the state's task variables (`Env.task_variables`), seen
+                                                       by the policy or not: hand tasks' fingertips (m) and
+                                                       joint_angles (rad); the cube's position, orientation,
+                                                       velocity, angular velocity, goal_orientation, rotation_to_goal
     alive              (episode, time)                 1 until the step that ends the episode (inclusive)
     time_in_episode    (episode, time)                 policy steps since the episode started, in s (coord `time`)
 
@@ -78,9 +82,9 @@ def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | 
 def run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: int = 0,
                  capture: bool = False) -> dict[str, Any]:
     """`episodes` batched episodes of `agent` (the policy's mode) from the resets of `seed`, as host arrays
-    `(time, episode, ...)`: inputs, action, value, reward, metrics, alive, steps, and with `capture` every layer's
-    activity ("layers"). Compiled once per agent kind, episode count and length: parameters and normaliser
-    statistics are arguments, so lesioned variants of an agent reuse the program."""
+    `(time, episode, ...)`: inputs, action, value, reward, metrics, alive, steps, task (variables), and with
+    `capture` every layer's activity ("layers"). Compiled once per agent kind, episode count and length: parameters
+    and normaliser statistics are arguments, so lesioned variants of an agent reuse the program."""
     env = agent.env.sized_for(episodes)
     steps = steps or env.max_episode_steps
 
@@ -96,7 +100,8 @@ def run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: in
                 net_carry, action, value = acting.act(net_carry, state.obs)
             next_state = jax.vmap(env.step)(state, action)
             record = {"inputs": state.obs, "action": action, "value": value, "reward": next_state.reward,
-                      "metrics": next_state.metrics, "alive": alive, "steps": state.steps}
+                      "metrics": next_state.metrics, "alive": alive, "steps": state.steps,
+                      "task": jax.vmap(env.task_variables)(state)}
             if capture:
                 record["layers"] = layers
             return (next_state, net_carry, alive * (1.0 - next_state.done)), record
@@ -144,6 +149,9 @@ def _dataset(agent: Agent, record: dict[str, Any], dt: float, images: bool) -> x
     data["reward"] = (("episode", "time"), episode_major(record["reward"]), {"description": "reward of the step"})
     for name, values in record["metrics"].items():
         data[f"metric_{name}"] = (("episode", "time"), episode_major(values), {"description": f"task metric {name}"})
+    for name, values in record["task"].items():
+        data[f"task_{name}"] = (("episode", "time", f"{name}_component"), episode_major(values),
+                                {"description": f"task variable {name} (see the task's task_variables)"})
     data["alive"] = (("episode", "time"), episode_major(record["alive"]),
                      {"description": "1 while the episode's first run lasts, through its last step"})
     data["time_in_episode"] = (("episode", "time"), episode_major(record["steps"]) * dt,

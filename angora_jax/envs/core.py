@@ -235,6 +235,12 @@ class Env(abc.ABC):
         """Whether `vision` holds camera images (uint8) rather than features; answered without tracing a reset."""
         return False
 
+    def task_variables(self, state: State) -> dict[str, jax.Array]:
+        """Named quantities of one environment's state for probing a trained network (recordings decode them from
+        its layers), whether or not the policy observes them: e.g. the cube's pose and angular velocity. Each a
+        vector `(size,)`; none by default."""
+        return {}
+
     def observation_shapes(self) -> Sensation:
         """Shapes and dtypes of one observation, as a Sensation of `jax.ShapeDtypeStruct`, without simulating."""
         return jax.eval_shape(self.reset, jax.random.key(0)).obs

@@ -18,7 +18,7 @@ import numpy as np
 from flax import struct
 
 from angora_jax.envs.cameras import CameraVision
-from angora_jax.envs.core import ActionSpec, Env, Sensation
+from angora_jax.envs.core import ActionSpec, Env, Sensation, State
 
 MJX_IMPLS = ("jax", "warp")
 # Name of the MJCF custom text that names a model's MJX implementation: the compiled model is what the MJX path and
@@ -107,6 +107,10 @@ class MujocoTask(abc.ABC):
         low, high = self.model.actuator_ctrlrange.T.astype(np.float32)
         return jnp.clip(snap.actuator_length, low, high)
 
+    def task_variables(self, snap: Snapshot, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
+        """`Env.task_variables` of the snapshot: named vectors in SI units; none unless the task names some."""
+        return {}
+
     def begin(self, key: jax.Array, snap: Snapshot) -> tuple[dict[str, jax.Array], Sensation]:
         """Start an episode from `snap`: return (info, observation)."""
         info = self.initial_info(key, snap)
@@ -142,6 +146,9 @@ class MujocoEnv(Env):
     @property
     def sees_images(self) -> bool:
         return self.task.vision is not None
+
+    def task_variables(self, state: State) -> dict[str, jax.Array]:
+        return self.task.task_variables(Snapshot.of(state.physics), state.info)
 
     def observation_shapes(self) -> Sensation:
         """As `Env.observation_shapes`; with camera vision, without rendering (images are uint8 `frame_shape`)."""

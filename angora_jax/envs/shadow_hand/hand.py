@@ -87,6 +87,10 @@ class HandTask(MujocoTask):
         """Fingertip positions (m, world frame), shape `(5, 3)` in the order FF, MF, RF, LF, thumb."""
         return snap.site_xpos[self.fingertip_ids]
 
+    def task_variables(self, snap: Snapshot, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
+        """fingertips (15, m, world frame: FF, MF, RF, LF, thumb x xyz) and joint_angles (24, rad)."""
+        return {"fingertips": self.fingertips(snap).reshape(-1), "joint_angles": snap.qpos[self.hand_qpos]}
+
     def proprioception(self, snap: Snapshot) -> jax.Array:
         """Hand joint positions (rad) and velocities (rad/s), shape `(48,)`; objects' joints are not the hand's."""
         return jnp.concatenate([snap.qpos[self.hand_qpos], snap.qvel[self.hand_dofs]])

@@ -294,6 +294,17 @@ class Ihom(HandTask):
         return Sensation.make(proprioception=self.proprioception(snap), touch=snap.sensordata[self.touch_adr],
                               vision=pose, goal=goal, asymmetric=jnp.concatenate(privileged))
 
+    def task_variables(self, snap: Snapshot, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
+        """The hand's (`HandTask.task_variables`) and the cube's: cube_position (3, m, world), cube_orientation (4,
+        quaternion w x y z), cube_velocity (3, m/s, world), cube_angular_velocity (3, rad/s, cube frame),
+        goal_orientation (4, quaternion) and rotation_to_goal (4, quaternion from the cube's orientation to the
+        goal), whether the policy sees them or camera images."""
+        pose, velocity = self.cube_pose(snap), snap.qvel[self.cube_dof:self.cube_dof + 6]
+        return super().task_variables(snap, info) | {
+            "cube_position": pose[:3], "cube_orientation": pose[3:], "cube_velocity": velocity[:3],
+            "cube_angular_velocity": velocity[3:], "goal_orientation": info["goal"],
+            "rotation_to_goal": rotation_between(pose[3:], info["goal"])}
+
     def evaluate(self, key, prev, snap, info):
         c = self.reward_config
         goal = info["goal"]
