@@ -93,4 +93,6 @@ def test_shipped_configs_are_found_by_name_from_any_directory(tmp_path: Path, mo
     shipped = list_configs()
     assert {"cartpole", "shadow_reach", "shadow_ihom", "shadow_ihom_paper"} <= set(shipped)
     assert all(shipped.values()), "every shipped config starts with a comment that says what it trains"
+    for name, text in shipped.items():
+        assert text.count("(") == text.count(")") and text.count("`") % 2 == 0, (name, text)
     assert load_config("shadow_reach").env.task == "ShadowHandReach"
