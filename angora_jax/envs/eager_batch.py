@@ -138,10 +138,15 @@ class EagerBatch:
             list(self._pool.map(lambda chunk: self._step_physics(ctrl, chunk), np.array_split(slots, self.workers)))
         # Converted to float32 in numpy (the same rounding as `Snapshot.of`), which costs far less than ten JAX calls.
         after = Snapshot(**{f: np.array([getattr(d, f) for d in self.datas], np.float32) for f in SNAPSHOT_FIELDS})
+        seen = self.states.obs.vision
         self.states = self._finish(self.states, actions, after)
         if self.env.cameras is not None:
-            # Slots never auto-reset, so the observation and the final one show the same physics.
-            frames = jax.device_put(np.stack([self.env.cameras.frames(data) for data in self.datas]), self.device)
+            # Only stepped slots are rendered again (the others keep their frames). Slots never auto-reset, so the
+            # observation and the final one show the same physics.
+            frames = np.array(seen)
+            for slot in slots:
+                frames[slot] = self.env.cameras.frames(self.datas[slot])
+            frames = jax.device_put(frames, self.device)
             self.states = self.states.replace(obs=self.states.obs.replace(vision=frames),
                                               final_obs=self.states.final_obs.replace(vision=frames))
         return self.states
