@@ -1,9 +1,12 @@
 """Test-wide settings."""
 
 import atexit
+import json
 import os
 import shutil
 import tempfile
+import time
+from types import SimpleNamespace
 
 # Headless rendering: MuJoCo's default GLFW backend needs a display; EGL (Mesa's on CPUs) does not.
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -43,9 +46,32 @@ CORTICAL_REACH = [
 
 
 @pytest.fixture(scope="session")
-def cortical_reach(tmp_path_factory):
-    """The trained reach run of the brain-area model (a `TrainingRun`; its run_dir holds the final checkpoint)."""
+def cortical_reach(tmp_path_factory, worker_id):
+    """The trained reach run of the brain-area model: `run_dir` (its final checkpoint) and `history` (its metrics per
+    cycle). Trained once per session, also when pytest-xdist's workers (`make test`) run the files that use it: the
+    first to ask trains it in a folder they share, the others wait for it and read it."""
     import angora_jax as aj
 
-    root = tmp_path_factory.mktemp("reach")
-    return aj.train("shadow_reach", [*CORTICAL_REACH, f"logging.run_root={root}", "logging.run_name=cortical"])
+    if worker_id == "master":
+        root = tmp_path_factory.mktemp("reach")
+        run = aj.train("shadow_reach", [*CORTICAL_REACH, f"logging.run_root={root}", "logging.run_name=cortical"])
+        return SimpleNamespace(run_dir=run.run_dir, history=run.history)
+    root = tmp_path_factory.getbasetemp().parent / "cortical_reach"
+    finished, failed = root / "finished", root / "failed"
+    try:
+        root.mkdir()
+    except FileExistsError:
+        deadline = time.monotonic() + 1800
+        while not (finished.exists() or failed.exists()) and time.monotonic() < deadline:
+            time.sleep(1)
+        if not finished.exists():
+            pytest.fail(f"The worker training the shared cortical reach run failed or timed out (see {root}).")
+        history = [json.loads(line) for line in (root / "cortical" / "metrics.jsonl").read_text().splitlines()]
+        return SimpleNamespace(run_dir=root / "cortical", history=history)
+    try:
+        run = aj.train("shadow_reach", [*CORTICAL_REACH, f"logging.run_root={root}", "logging.run_name=cortical"])
+    except BaseException:
+        failed.touch()
+        raise
+    finished.touch()
+    return SimpleNamespace(run_dir=run.run_dir, history=run.history)
