@@ -52,10 +52,12 @@ def cortical_reach(tmp_path_factory, worker_id):
     first to ask trains it in a folder they share, the others wait for it and read it."""
     import angora_jax as aj
 
-    if worker_id == "master":
-        root = tmp_path_factory.mktemp("reach")
+    def train(root):
         run = aj.train("shadow_reach", [*CORTICAL_REACH, f"logging.run_root={root}", "logging.run_name=cortical"])
         return SimpleNamespace(run_dir=run.run_dir, history=run.history)
+
+    if worker_id == "master":
+        return train(tmp_path_factory.mktemp("reach"))
     root = tmp_path_factory.getbasetemp().parent / "cortical_reach"
     finished, failed = root / "finished", root / "failed"
     try:
@@ -69,9 +71,9 @@ def cortical_reach(tmp_path_factory, worker_id):
         history = [json.loads(line) for line in (root / "cortical" / "metrics.jsonl").read_text().splitlines()]
         return SimpleNamespace(run_dir=root / "cortical", history=history)
     try:
-        run = aj.train("shadow_reach", [*CORTICAL_REACH, f"logging.run_root={root}", "logging.run_name=cortical"])
+        run = train(root)
     except BaseException:
         failed.touch()
         raise
     finished.touch()
-    return SimpleNamespace(run_dir=run.run_dir, history=run.history)
+    return run
