@@ -199,7 +199,9 @@ class MjxEnv(MujocoEnv):
         if self._start is None:
             qpos, qvel = self.task.initial_qpos(pose_key), self.task.initial_qvel(jax.random.fold_in(pose_key, 1))
             data = mjx.forward(self.mjx_model, self._data0.replace(qpos=qpos, qvel=qvel))
-            data = data.replace(ctrl=self.task.initial_control(Snapshot.of(data)))
+            # MJX's forward writes free joints' quaternions back normalised, C MuJoCo's (the twin, Gymnasium) does not:
+            # the start keeps the drawn qpos as C MuJoCo does (Ant's start draws unnormalised ones).
+            data = data.replace(qpos=qpos, ctrl=self.task.initial_control(Snapshot.of(data)))
         else:
             data = self._start
         info, obs = self.task.begin(task_key, Snapshot.of(data))
