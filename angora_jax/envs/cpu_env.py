@@ -17,7 +17,7 @@ import numpy as np
 from angora_jax.envs.cameras import HostCameras
 from angora_jax.envs.core import Env, Sensation, State
 from angora_jax.envs.mjx_env import MjxEnv
-from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, Snapshot, start_physics
+from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, Snapshot, start_physics, step_physics
 
 
 class CpuEnv(MujocoEnv):
@@ -49,14 +49,14 @@ class CpuEnv(MujocoEnv):
         if self.task.random_initial_qpos:
             qvel = np.asarray(self._initial_qvel(jax.random.fold_in(pose_key, 1)), np.float64)
         start_physics(self.task, np.asarray(self._initial_qpos(pose_key), np.float64), self.data, qvel)
-        snap = Snapshot.of(self.data)
+        snap = self.task.snapshot(self.data)
         info, obs = self._begin(task_key, snap)
         return snap, self.see(obs, self.data), info
 
     def _step(self, physics: Snapshot, info: dict[str, jax.Array], action: jax.Array, key: jax.Array):
         self.data.ctrl[:] = np.asarray(self._control(action, physics), np.float64)
-        mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
-        snap = Snapshot.of(self.data)
+        step_physics(self.task, self.data, self.frame_skip)
+        snap = self.task.snapshot(self.data)
         obs, reward, terminated, info, metrics = self._advance(key, physics, snap, info)
         return snap, self.see(obs, self.data), reward, terminated, info, metrics
 

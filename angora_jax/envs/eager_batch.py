@@ -23,7 +23,7 @@ import numpy as np
 
 from angora_jax.envs.core import Env, State
 from angora_jax.envs.cpu_env import CpuEnv, eager
-from angora_jax.envs.mujoco_task import SNAPSHOT_FIELDS, MujocoEnv, Snapshot
+from angora_jax.envs.mujoco_task import MujocoEnv, Snapshot, step_physics
 
 
 def rowwise(fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -137,7 +137,8 @@ class EagerBatch:
         else:
             list(self._pool.map(lambda chunk: self._step_physics(ctrl, chunk), np.array_split(slots, self.workers)))
         # Converted to float32 in numpy (the same rounding as `Snapshot.of`), which costs far less than ten JAX calls.
-        after = Snapshot(**{f: np.array([getattr(d, f) for d in self.datas], np.float32) for f in SNAPSHOT_FIELDS})
+        fields = self.env.task.snapshot_fields
+        after = Snapshot(**{f: np.array([getattr(d, f) for d in self.datas], np.float32) for f in fields})
         seen = self.states.obs.vision
         self.states = self._finish(self.states, actions, after)
         if self.env.cameras is not None:
@@ -155,7 +156,7 @@ class EagerBatch:
         for slot in slots:
             data = self.datas[slot]
             data.ctrl[:] = ctrl[slot]
-            mujoco.mj_step(self.env.model, data, nstep=self.env.frame_skip)
+            step_physics(self.env.task, data, self.env.frame_skip)
 
     def physics(self, slot: int) -> mujoco.MjData:
         """The C MuJoCo data of `slot` (MuJoCo tasks only), e.g. to render it."""

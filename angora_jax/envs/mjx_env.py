@@ -20,7 +20,7 @@ import numpy as np
 
 from angora_jax.envs.cameras import HostCameras, WarpCameras
 from angora_jax.envs.core import Sensation, State
-from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, Snapshot, mjx_impl, mjx_impl_why, start_physics
+from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, mjx_impl, mjx_impl_why, start_physics
 
 # Without the optional warp-lang, importing mujoco-mjx prints "Failed to import warp" (twice): nothing failed for the
 # default JAX implementation, so that output is dropped then (impl="warp" still raises `require_warp`'s error).
@@ -34,6 +34,9 @@ with contextlib.redirect_stdout(io.StringIO()) if _WARP_ABSENT else contextlib.n
 WARP_MAX_ENVS = 32768
 # The warp-lang version that mujoco-mjx 3.17's `warp` extra pins (its MuJoCo Warp is vendored inside mujoco-mjx).
 WARP_REQUIREMENT = "warp-lang==1.18.0"
+# Why tasks that read contact forces (`MujocoTask.body_dynamics`) run MJX's JAX implementation (`choose_impl`).
+CONTACT_FORCES_NEED_JAX = ("the task reads contact forces (cfrc_ext), which MJX computes after a step "
+                           "(rne_postconstraint) in its JAX implementation only")
 
 
 def resolve_impl(impl: str) -> str:
@@ -47,9 +50,15 @@ def on_gpu() -> bool:
     return any(device.platform == "gpu" for device in jax.local_devices())
 
 
-def choose_impl(impl: str) -> tuple[str, str]:
+def choose_impl(impl: str, needs_jax: str = "") -> tuple[str, str]:
     """`resolve_impl(impl)` and why, as a phrase for logs and `angora-jax doctor` (with what to install when
-    a faster choice is missing)."""
+    a faster choice is missing). needs_jax: why a task needs MJX's JAX implementation ("": it does not); "auto" then
+    picks it and says why, "warp" raises a ValueError that says why."""
+    if needs_jax:
+        if impl == "warp":
+            raise ValueError(f"physics.impl 'warp' cannot run this task: {needs_jax}. Use 'jax' or 'auto'.")
+        if impl == "auto":
+            return "jax", f"physics.impl auto: {needs_jax}"
     if impl != "auto":
         return impl, f"physics.impl is set to {impl!r}"
     if not on_gpu():
@@ -201,17 +210,19 @@ class MjxEnv(MujocoEnv):
             data = mjx.forward(self.mjx_model, self._data0.replace(qpos=qpos, qvel=qvel))
             # MJX's forward writes free joints' quaternions back normalised, C MuJoCo's (the twin, Gymnasium) does not:
             # the start keeps the drawn qpos as C MuJoCo does (Ant's start draws unnormalised ones).
-            data = data.replace(qpos=qpos, ctrl=self.task.initial_control(Snapshot.of(data)))
+            data = data.replace(qpos=qpos, ctrl=self.task.initial_control(self.task.snapshot(data)))
         else:
             data = self._start
-        info, obs = self.task.begin(task_key, Snapshot.of(data))
+        info, obs = self.task.begin(task_key, self.task.snapshot(data))
         return data, self._unseen(obs), info
 
     def _step(self, physics: mjx.Data, info: dict[str, jax.Array], action: jax.Array, key: jax.Array):
-        prev = Snapshot.of(physics)
+        prev = self.task.snapshot(physics)
         data = physics.replace(ctrl=self.task.control(action, prev))
         data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(self.mjx_model, d), data)
-        obs, reward, terminated, info, metrics = self.task.advance(key, prev, Snapshot.of(data), info)
+        if self.task.body_dynamics:  # as C MuJoCo's `step_physics`; MJX computes it in its JAX implementation only
+            data = mjx.rne_postconstraint(self.mjx_model, data)
+        obs, reward, terminated, info, metrics = self.task.advance(key, prev, self.task.snapshot(data), info)
         return data, self._unseen(obs), reward, terminated, info, metrics
 
     def _select_physics(self, done: jax.Array, fresh: mjx.Data, ended: mjx.Data) -> mjx.Data:

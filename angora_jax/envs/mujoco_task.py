@@ -27,12 +27,21 @@ MJX_IMPL_TEXT = "angora_jax:mjx_impl"
 MJX_IMPL_WHY_TEXT = "angora_jax:mjx_impl_why"
 SNAPSHOT_FIELDS = ("time", "qpos", "qvel", "ctrl", "actuator_length", "actuator_force", "site_xpos", "xpos",
                    "xquat", "sensordata", "qfrc_constraint")
+# What only tasks with `MujocoTask.body_dynamics` read (Gymnasium's Ant and Humanoid): a snapshot holds them only then,
+# so the eager path of other tasks copies nothing more per step.
+DYNAMICS_FIELDS = ("xipos", "cinert", "cvel", "qfrc_actuator", "cfrc_ext")
+# Fields that `mjx.Data` keeps in its implementation's part (`data._impl`) rather than among its own.
+_MJX_IMPL_FIELDS = ("cinert", "cfrc_ext")
 
 
 @struct.dataclass
 class Snapshot:
     """What task logic may read of the simulation: `mjData` fields of the same name, as float32 arrays
-    (time in s, positions in m, site/body arrays indexed by MuJoCo ids)."""
+    (time in s, positions in m, site/body arrays indexed by MuJoCo ids). The `DYNAMICS_FIELDS` are None unless the
+    snapshot was taken with them: `xipos` (bodies' centres of mass, `(nbody, 3)` m), `cinert` (`(nbody, 10)`
+    inertias and masses), `cvel` (`(nbody, 6)` velocities, rotation then translation) and `cfrc_ext` (`(nbody, 6)`
+    external forces on each body, contacts included, torque then force, as `mj_rnePostConstraint` computes them; zero
+    where it did not run), all three in MuJoCo's centre-of-mass frames, and `qfrc_actuator` (`(nv,)`)."""
 
     time: jax.Array
     qpos: jax.Array
@@ -45,12 +54,23 @@ class Snapshot:
     xquat: jax.Array
     sensordata: jax.Array
     qfrc_constraint: jax.Array
+    xipos: jax.Array | None = None
+    cinert: jax.Array | None = None
+    cvel: jax.Array | None = None
+    qfrc_actuator: jax.Array | None = None
+    cfrc_ext: jax.Array | None = None
 
     @classmethod
-    def of(cls, data: Any) -> Snapshot:
-        """Take a snapshot of an `mjx.Data` or a `mujoco.MjData`."""
+    def of(cls, data: Any, fields: tuple[str, ...] = SNAPSHOT_FIELDS) -> Snapshot:
+        """Take a snapshot of `fields` of an `mjx.Data` or a `mujoco.MjData` (`MujocoTask.snapshot_fields`)."""
         return cls(**{f: jnp.asarray(np.copy(v) if isinstance(v, np.ndarray) else v, jnp.float32)
-                      for f in SNAPSHOT_FIELDS for v in [getattr(data, f)]})
+                      for f in fields for v in [_data_field(data, f)]})
+
+
+def _data_field(data: Any, name: str) -> Any:
+    if name in _MJX_IMPL_FIELDS and hasattr(data, "_impl"):
+        return getattr(data._impl, name)
+    return getattr(data, name)
 
 
 class MujocoTask(abc.ABC):
@@ -70,6 +90,19 @@ class MujocoTask(abc.ABC):
     # Camera images in `Sensation.vision` (`envs.cameras`): the physics backends render them after `observe`, whose
     # own vision must then be empty; the model must hold the cameras (`rendering.add_cameras`).
     vision: CameraVision | None = None
+    # Whether the task reads `DYNAMICS_FIELDS`: its snapshots then hold them, and both physics paths compute
+    # `cfrc_ext` after each policy step's physics as Gymnasium does (`mj_rnePostConstraint`, once after the last physics
+    # step), which MJX does only in its JAX implementation. Off, none of it costs anything.
+    body_dynamics: bool = False
+
+    @property
+    def snapshot_fields(self) -> tuple[str, ...]:
+        """The `Snapshot` fields the task reads."""
+        return SNAPSHOT_FIELDS + DYNAMICS_FIELDS if self.body_dynamics else SNAPSHOT_FIELDS
+
+    def snapshot(self, data: Any) -> Snapshot:
+        """`Snapshot.of(data)` with the fields the task reads."""
+        return Snapshot.of(data, self.snapshot_fields)
 
     @abc.abstractmethod
     def initial_qpos(self, key: jax.Array) -> jax.Array:
@@ -148,7 +181,7 @@ class MujocoEnv(Env):
         return self.task.vision is not None
 
     def task_variables(self, state: State) -> dict[str, jax.Array]:
-        return self.task.task_variables(Snapshot.of(state.physics), state.info)
+        return self.task.task_variables(self.task.snapshot(state.physics), state.info)
 
     def observation_shapes(self) -> Sensation:
         """As `Env.observation_shapes`; with camera vision, without rendering (images are uint8 `frame_shape`)."""
@@ -156,7 +189,7 @@ class MujocoEnv(Env):
             return super().observation_shapes()
         data = mujoco.MjData(self.task.model)
         mujoco.mj_forward(self.task.model, data)
-        snap = Snapshot.of(data)
+        snap = self.task.snapshot(data)
         obs = jax.eval_shape(lambda key: self.task.begin(key, snap)[1], jax.random.key(0))
         return obs.replace(vision=jax.ShapeDtypeStruct(self.task.vision.frame_shape, jnp.uint8))
 
@@ -201,5 +234,13 @@ def start_physics(task: MujocoTask, qpos: np.ndarray, data: mujoco.MjData | None
     if qvel is not None:
         data.qvel[:] = qvel
     mujoco.mj_forward(task.model, data)
-    data.ctrl[:] = np.asarray(task.initial_control(Snapshot.of(data)), np.float64)
+    data.ctrl[:] = np.asarray(task.initial_control(task.snapshot(data)), np.float64)
     return data
+
+
+def step_physics(task: MujocoTask, data: mujoco.MjData, frame_skip: int) -> None:
+    """Advance C MuJoCo `data` by `frame_skip` physics steps of `task`'s model (one policy step), then compute its
+    `cfrc_ext` when the task reads it (`MujocoTask.body_dynamics`), as Gymnasium's MuJoCo environments do."""
+    mujoco.mj_step(task.model, data, nstep=frame_skip)
+    if task.body_dynamics:
+        mujoco.mj_rnePostConstraint(task.model, data)
