@@ -5,11 +5,18 @@ hand's reach), each task x policy head x seed trained with its family's config (
 Per run: `angora_jax.train` in this process with `--minutes` as its wall-clock cap (the run stops after the first
 cycle past it, compile included). Per figure: one PNG, a panel per task (top row: against env steps, bottom row:
 against cycles; per head the mean over seeds with the min-max band), and in the JSON every curve, each run's wall
-time, final return (mean over the last tenth of its cycles) and, per task, which head ended higher over the seeds
-(mean and sample std). Tasks not available here are listed as missing with the reason.
+time, final return (mean over the last tenth of its cycles), the wall seconds and env steps at which its training
+mean first passed the task's target return (`TARGETS`), and, per task, which head ended higher over the seeds (mean
+and sample std of each run's return at the env steps that every run of the task reached, so that heads of unequal
+speed are compared at equal samples). Tasks not available here are listed as missing with the reason.
 
     python benchmarks/paper_figures.py --figure 9 --seeds 0 1 2 --minutes 4          # one GPU
     python benchmarks/paper_figures.py --figure 8 --tasks CartPole --seeds 0 --smoke  # CPU smoke: tiny sizes
+
+Runs made by separate invocations (e.g. one process per task, head and seed sharing a GPU, or one per machine) are
+combined into one figure with `--merge`:
+
+    python benchmarks/paper_figures.py --figure 9 --merge out/Hopper_gaussian_0.json out/Hopper_beta_0.json ...
 """
 
 from __future__ import annotations
@@ -48,6 +55,9 @@ FIGURES = {
 }
 MISSING = {"Ant": "not ported yet (v5 observes contact forces, cfrc_ext)",
            "Humanoid": "not ported yet (v5 observes cinert, cvel, qfrc_actuator, cfrc_ext; PGS solver)"}
+# Returns that PPO reached after 1M env steps in Schulman et al. 2017 (Fig. 3), of the order of the paper's Fig. 9:
+# a run records when its training mean first passed them.
+TARGETS = {"Hopper": 2300.0, "Walker2d": 3400.0, "HalfCheetah": 1700.0, "Humanoid": 5000.0}
 # CPU smoke sizes: a few seconds per run.
 SMOKE = ["ppo.num_envs=4", "ppo.rollout_length=16", "ppo.chunk_length=8", "ppo.minibatch_size=32",
          "ppo.num_epochs=1", "ppo.num_cycles=2"]
@@ -65,26 +75,51 @@ def train_one(task: str, config: str, head: str, seed: int, minutes: float, extr
     returns = [r["episode_return"] for r in rows]
     tail = [x for x in returns[-max(1, len(returns) // 10):] if math.isfinite(x)]
     rates = [r["steps_per_second"] for r in rows[1:]]  # the first cycle includes compilation
+    begin = rows[0]["time"] - rows[0]["seconds"]
+    curve = {"env_steps": [r["env_steps"] for r in rows], "cycle": [r["cycle"] for r in rows],
+             "seconds": [r["time"] - begin for r in rows],
+             "episode_return": [None if not math.isfinite(x) else x for x in returns]}
     return {"task": task, "config": config, "head": head, "seed": seed, "wall_seconds": wall,
             "compile_seconds": rows[0].get("compile_seconds"), "cycles": len(rows), "env_steps": rows[-1]["env_steps"],
             "env_steps_per_second": statistics.median(rates) if rates else None,
             "final_return": statistics.fmean(tail) if tail else None,
-            "curve": {"env_steps": [r["env_steps"] for r in rows], "cycle": [r["cycle"] for r in rows],
-                      "episode_return": [None if not math.isfinite(x) else x for x in returns]}}
+            "target": first_past(curve, TARGETS.get(task)), "curve": curve}
+
+
+def first_past(curve: dict, target: float | None) -> dict | None:
+    """Where a run's training mean return first reached `target`: {"return", "seconds", "env_steps", "cycle"}
+    (`reached` false and the three None when it never did); None for a task without a target."""
+    if target is None:
+        return None
+    for i, value in enumerate(curve["episode_return"]):
+        if value is not None and value >= target:
+            return {"return": target, "reached": True, "seconds": curve["seconds"][i],
+                    "env_steps": curve["env_steps"][i], "cycle": curve["cycle"][i]}
+    return {"return": target, "reached": False, "seconds": None, "env_steps": None, "cycle": None}
+
+
+def return_at(run: dict, env_steps: int) -> float | None:
+    """A run's return at `env_steps`: the mean over the last tenth of its cycles up to that point."""
+    curve = run["curve"]
+    upto = [x for x, n in zip(curve["episode_return"], curve["env_steps"], strict=True) if n <= env_steps]
+    tail = [x for x in upto[-max(1, len(upto) // 10):] if x is not None]
+    return statistics.fmean(tail) if tail else None
 
 
 def compare_heads(runs: list[dict]) -> dict:
-    """Per head: mean and sample std of the final returns over seeds; `better`: the head with the higher mean."""
+    """Per head: mean and sample std over seeds of the return at `env_steps`, the most env steps that every run
+    reached; `better`: the head with the higher mean."""
+    env_steps = min(run["env_steps"] for run in runs)
     heads = {}
     for run in runs:
-        heads.setdefault(run["head"], []).append(run["final_return"])
+        heads.setdefault(run["head"], []).append(return_at(run, env_steps))
     stats = {h: {"mean": statistics.fmean(v), "std": statistics.stdev(v) if len(v) > 1 else 0.0, "seeds": len(v)}
              for h, v in heads.items() if None not in v}
     better = max(stats, key=lambda h: stats[h]["mean"]) if len(stats) > 1 else None
-    return {"heads": stats, "better": better}
+    return {"env_steps": env_steps, "heads": stats, "better": better}
 
 
-def plot_figure(figure: str, runs: list[dict], path: str) -> None:
+def plot_figure(figure: str, runs: list[dict], path: str, where: str) -> None:
     tasks = list(dict.fromkeys(r["task"] for r in runs))
     fig, axes = plt.subplots(2, len(tasks), figsize=(3.4 * len(tasks), 5.6), squeeze=False)
     for col, task in enumerate(tasks):
@@ -107,10 +142,58 @@ def plot_figure(figure: str, runs: list[dict], path: str) -> None:
             if col == 0:
                 ax.set_ylabel("mean episode return")
         axes[0][col].legend(fontsize="small")
-    fig.suptitle(f"Fig. {figure}: {device()['kind']}")
+    fig.suptitle(f"Fig. {figure}: {where}")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, name: str, out: str,
+                 made_on: tuple[dict, dict] | None = None) -> None:
+    """Compare heads, plot, write `<out>/<name>.{png,json}` and print the table. made_on: (device, versions) of
+    the machine that trained the runs (default: this one)."""
+    where, made_with = made_on or (device(), versions())
+    comparison = {task: compare_heads([r for r in runs if r["task"] == task])
+                  for task in dict.fromkeys(r["task"] for r in runs)}
+    os.makedirs(out, exist_ok=True)
+    png = os.path.join(out, f"{name}.png")
+    plot_figure(figure, runs, png, where["kind"])
+    record = {"benchmark": "paper_figures", "figure": figure, "device": where, "versions": made_with,
+              "config": config, "comparison": comparison, "missing": missing, "runs": runs}
+    with open(f"{png[:-4]}.json", "w") as file:
+        json.dump(record, file, indent=1)
+    table = [{"task": r["task"], "head": r["head"], "seed": r["seed"], "final": r["final_return"],
+              "steps": r["env_steps"], "wall": r["wall_seconds"],
+              "target": (r.get("target") or {}).get("seconds") or math.nan} for r in runs]
+    print(markdown_table(table, [("task", "task", ""), ("head", "head", ""), ("seed", "seed", "d"),
+                                 ("final", "final return", ".1f"), ("steps", "env steps", ",d"),
+                                 ("wall", "wall s", ".0f"), ("target", "s to target", ".0f")]))
+    for task, result in comparison.items():
+        print(f"{task}: better head at {result['env_steps']:,} env steps {result['better']}: " + ", ".join(
+            f"{h} {s['mean']:.1f} +- {s['std']:.1f} ({s['seeds']} seeds)" for h, s in result["heads"].items()))
+    if missing:
+        print("missing: " + "; ".join(f"{t} ({why})" for t, why in missing.items()))
+    print(f"wrote {png} and {png[:-4]}.json")
+
+
+def merge(figure: str, paths: list[str], name: str, out: str) -> None:
+    """One figure from the runs recorded in earlier outputs of this script (`paths`, all of `figure`, made on one
+    kind of machine with the same versions)."""
+    records = []
+    for path in paths:
+        with open(path) as file:
+            records.append(json.load(file))
+        if records[-1]["figure"] != figure:
+            raise SystemExit(f"{path} holds Fig. {records[-1]['figure']}, not Fig. {figure}: merge one figure at "
+                             "a time (--figure).")
+        if (records[-1]["device"], records[-1]["versions"]) != (records[0]["device"], records[0]["versions"]):
+            raise SystemExit(f"{path} was made on {records[-1]['device']} with {records[-1]['versions']}, "
+                             f"{paths[0]} on {records[0]['device']} with {records[0]['versions']}: merge runs of "
+                             "one machine kind and one set of versions.")
+    runs = [run for record in records for run in record["runs"]]
+    missing = {task: why for record in records for task, why in record["missing"].items()}
+    config = {"merged": {os.path.basename(p): r["config"] for p, r in zip(paths, records, strict=True)}}
+    write_figure(figure, runs, missing, config, name, out, (records[0]["device"], records[0]["versions"]))
 
 
 def main() -> None:
@@ -123,10 +206,17 @@ def main() -> None:
     parser.add_argument("--smoke", action="store_true", help="tiny sizes, for a CPU check of the script")
     parser.add_argument("--name", default=None, help="results name (default: paper_fig<N>_<platform>)")
     parser.add_argument("--out", default=RESULTS, help="folder for the PNG and JSON (default: benchmarks/results)")
+    parser.add_argument("--merge", nargs="+", metavar="JSON",
+                        help="train nothing: combine the runs of these earlier outputs into one figure")
     parser.add_argument("overrides", nargs="*", help="key.sub=value overrides for every run")
     args = parser.parse_args()
     extra = [*(SMOKE if args.smoke else []), *args.overrides]
     platform = device()["platform"]
+    if args.merge:
+        if args.figure == "all":
+            raise SystemExit("--merge combines one figure: name it with --figure 8 or --figure 9.")
+        merge(args.figure, args.merge, args.name or f"paper_fig{args.figure}_{platform}", args.out)
+        return
     for figure in FIGURES if args.figure == "all" else [args.figure]:
         runs, missing = [], {}
         with tempfile.TemporaryDirectory() as root:
@@ -146,29 +236,9 @@ def main() -> None:
                               f"steps, {r['wall_seconds']:.0f} s", flush=True)
         if not runs:
             continue
-        comparison = {task: compare_heads([r for r in runs if r["task"] == task])
-                      for task in dict.fromkeys(r["task"] for r in runs)}
-        name = args.name or f"paper_fig{figure}_{platform}"
-        os.makedirs(args.out, exist_ok=True)
-        png = os.path.join(args.out, f"{name}.png")
-        plot_figure(figure, runs, png)
         families = {r["config"]: to_dict(load_config(r["config"], extra)) for r in runs}
-        record = {"benchmark": "paper_figures", "figure": figure, "device": device(), "versions": versions(),
-                  "config": {"seeds": args.seeds, "minutes": args.minutes, "overrides": extra, "families": families},
-                  "comparison": comparison, "missing": missing, "runs": runs}
-        with open(f"{png[:-4]}.json", "w") as file:
-            json.dump(record, file, indent=1)
-        table = [{"task": r["task"], "head": r["head"], "seed": r["seed"], "final": r["final_return"],
-                  "steps": r["env_steps"], "wall": r["wall_seconds"]} for r in runs]
-        print(markdown_table(table, [("task", "task", ""), ("head", "head", ""), ("seed", "seed", "d"),
-                                     ("final", "final return", ".1f"), ("steps", "env steps", ",d"),
-                                     ("wall", "wall s", ".0f")]))
-        for task, result in comparison.items():
-            print(f"{task}: better head {result['better']}: " + ", ".join(
-                f"{h} {s['mean']:.1f} +- {s['std']:.1f} ({s['seeds']} seeds)" for h, s in result["heads"].items()))
-        if missing:
-            print("missing: " + "; ".join(f"{t} ({why})" for t, why in missing.items()))
-        print(f"wrote {png} and {png[:-4]}.json")
+        config = {"seeds": args.seeds, "minutes": args.minutes, "overrides": extra, "families": families}
+        write_figure(figure, runs, missing, config, args.name or f"paper_fig{figure}_{platform}", args.out)
 
 
 if __name__ == "__main__":

@@ -19,6 +19,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(
 import angorapy_ratio  # noqa: E402
 import brax_side_by_side as side  # noqa: E402
 import ihom_curve  # noqa: E402
+import paper_figures  # noqa: E402
 import throughput_ladder  # noqa: E402
 
 EPISODE = 4
@@ -177,3 +178,29 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
     assert comparison["better"] == max(means, key=means.get) and comparison["heads"]["beta"]["seeds"] == 1
     assert record["missing"] == {}, "every Fig. 8 task exists (LunarLander on the host path)"
     assert (tmp_path / "fig8.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert all(len(r["curve"]["seconds"]) == 2 and r["target"] is None for r in runs), "Pendulum has no target"
+
+    # runs of separate invocations (here the same runs again, as seed 4) combine into one figure
+    other = {**record, "runs": [{**run, "seed": 4} for run in runs]}
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    subprocess.run([sys.executable, script, "--figure", "8", "--merge", str(tmp_path / "fig8.json"),
+                    str(tmp_path / "other.json"), "--out", str(tmp_path), "--name", "merged"], check=True)
+    merged = json.loads((tmp_path / "merged.json").read_text())
+    assert sorted((r["head"], r["seed"]) for r in merged["runs"]) == [("beta", 3), ("beta", 4), ("gaussian", 3),
+                                                                       ("gaussian", 4)]
+    assert merged["comparison"]["Pendulum"]["heads"]["beta"]["seeds"] == 2
+    assert set(merged["config"]["merged"]) == {"fig8.json", "other.json"}
+
+
+def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
+    curve = {"env_steps": [100, 200, 300, 400], "cycle": [1, 2, 3, 4], "seconds": [30.0, 31.0, 32.0, 33.0],
+             "episode_return": [1.0, 2.0, 3.0, 4.0]}
+    fast = {"head": "gaussian", "env_steps": 400, "curve": curve}
+    slow = {"head": "beta", "env_steps": 200, "curve": {"env_steps": [100, 200], "episode_return": [2.5, 2.5]}}
+    comparison = paper_figures.compare_heads([fast, slow])
+    assert comparison["env_steps"] == 200, "the most env steps that every run reached"
+    assert comparison["heads"]["gaussian"]["mean"] == 2.0 and comparison["better"] == "beta"
+    assert paper_figures.first_past(curve, 2.5) == {"return": 2.5, "reached": True, "seconds": 32.0,
+                                                    "env_steps": 300, "cycle": 3}
+    assert paper_figures.first_past(curve, 9.0)["reached"] is False
+    assert paper_figures.first_past(curve, None) is None
