@@ -29,6 +29,7 @@ import statistics
 import tempfile
 import time
 
+import gymnasium
 import matplotlib
 
 matplotlib.use("Agg")
@@ -58,6 +59,9 @@ MISSING = {"Ant": "not ported yet (v5 observes contact forces, cfrc_ext)",
 # Returns that PPO reached after 1M env steps in Schulman et al. 2017 (Fig. 3), of the order of the paper's Fig. 9:
 # a run records when its training mean first passed them.
 TARGETS = {"Hopper": 2300.0, "Walker2d": 3400.0, "HalfCheetah": 1700.0, "Humanoid": 5000.0}
+# Gymnasium ids of the classic tasks, for their registered reward thresholds; the locomotion tasks are `<task>-v5`.
+GYMNASIUM_IDS = {"CartPole": "CartPole-v1", "Acrobot": "Acrobot-v1", "MountainCar": "MountainCar-v0",
+                 "Pendulum": "Pendulum-v1", "MountainCarContinuous": "MountainCarContinuous-v0"}
 # CPU smoke sizes: a few seconds per run.
 SMOKE = ["ppo.num_envs=4", "ppo.rollout_length=16", "ppo.chunk_length=8", "ppo.minibatch_size=32",
          "ppo.num_epochs=1", "ppo.num_cycles=2"]
@@ -98,6 +102,17 @@ def first_past(curve: dict, target: float | None) -> dict | None:
     return {"return": target, "reached": False, "seconds": None, "env_steps": None, "cycle": None}
 
 
+def gymnasium_threshold(task: str) -> float | None:
+    """The reward threshold that Gymnasium registers for `task` (None where it registers none, or for a task that
+    is not Gymnasium's)."""
+    env_id = task.removeprefix("gym:") if task.startswith("gym:") else GYMNASIUM_IDS.get(task, f"{task}-v5")
+    try:
+        threshold = gymnasium.spec(env_id).reward_threshold
+    except gymnasium.error.Error:
+        return None
+    return None if threshold is None else float(threshold)
+
+
 def return_at(run: dict, env_steps: int) -> float | None:
     """A run's return at `env_steps`: the mean over the last tenth of its cycles up to that point."""
     curve = run["curve"]
@@ -108,15 +123,21 @@ def return_at(run: dict, env_steps: int) -> float | None:
 
 def compare_heads(runs: list[dict]) -> dict:
     """Per head: mean and sample std over seeds of the return at `env_steps`, the most env steps that every run
-    reached; `better`: the head with the higher mean."""
+    reached, and how many of its runs ended at or above Gymnasium's reward threshold (`passed`, when the task has
+    one); `better`: the head with the higher mean."""
     env_steps = min(run["env_steps"] for run in runs)
     heads = {}
     for run in runs:
         heads.setdefault(run["head"], []).append(return_at(run, env_steps))
     stats = {h: {"mean": statistics.fmean(v), "std": statistics.stdev(v) if len(v) > 1 else 0.0, "seeds": len(v)}
              for h, v in heads.items() if None not in v}
+    threshold = gymnasium_threshold(runs[0]["task"])
+    if threshold is not None:
+        for head in stats:
+            stats[head]["passed"] = sum(run["final_return"] is not None and run["final_return"] >= threshold
+                                        for run in runs if run["head"] == head)
     better = max(stats, key=lambda h: stats[h]["mean"]) if len(stats) > 1 else None
-    return {"env_steps": env_steps, "heads": stats, "better": better}
+    return {"env_steps": env_steps, "gymnasium_threshold": threshold, "heads": stats, "better": better}
 
 
 def plot_figure(figure: str, runs: list[dict], path: str, where: str) -> None:
@@ -170,7 +191,9 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
                                  ("wall", "wall s", ".0f"), ("target", "s to target", ".0f")]))
     for task, result in comparison.items():
         print(f"{task}: better head at {result['env_steps']:,} env steps {result['better']}: " + ", ".join(
-            f"{h} {s['mean']:.1f} +- {s['std']:.1f} ({s['seeds']} seeds)" for h, s in result["heads"].items()))
+            f"{h} {s['mean']:.1f} +- {s['std']:.1f} ({s['seeds']} seeds"
+            + (f", {s['passed']} ended past Gymnasium's {result['gymnasium_threshold']:g})" if "passed" in s else ")")
+            for h, s in result["heads"].items()))
     if missing:
         print("missing: " + "; ".join(f"{t} ({why})" for t, why in missing.items()))
     print(f"wrote {png} and {png[:-4]}.json")

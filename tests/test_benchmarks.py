@@ -195,8 +195,9 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
 def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
     curve = {"env_steps": [100, 200, 300, 400], "cycle": [1, 2, 3, 4], "seconds": [30.0, 31.0, 32.0, 33.0],
              "episode_return": [1.0, 2.0, 3.0, 4.0]}
-    fast = {"head": "gaussian", "env_steps": 400, "curve": curve}
-    slow = {"head": "beta", "env_steps": 200, "curve": {"env_steps": [100, 200], "episode_return": [2.5, 2.5]}}
+    fast = {"task": "Walker2d", "head": "gaussian", "env_steps": 400, "curve": curve}
+    slow = {"task": "Walker2d", "head": "beta", "env_steps": 200,
+            "curve": {"env_steps": [100, 200], "episode_return": [2.5, 2.5]}}
     comparison = paper_figures.compare_heads([fast, slow])
     assert comparison["env_steps"] == 200, "the most env steps that every run reached"
     assert comparison["heads"]["gaussian"]["mean"] == 2.0 and comparison["better"] == "beta"
@@ -204,3 +205,12 @@ def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
                                                     "env_steps": 300, "cycle": 3}
     assert paper_figures.first_past(curve, 9.0)["reached"] is False
     assert paper_figures.first_past(curve, None) is None
+    assert comparison["gymnasium_threshold"] is None, "Gymnasium registers no threshold for Walker2d-v5"
+    assert paper_figures.gymnasium_threshold("Hopper") == 3800.0
+    assert paper_figures.gymnasium_threshold("CartPole") == 475.0
+    assert paper_figures.gymnasium_threshold("gym:LunarLander-v3") == 200.0
+    assert paper_figures.gymnasium_threshold("ShadowHandReach") is None
+    passed = paper_figures.compare_heads([{**fast, "task": "Swimmer", "final_return": 400.0},
+                                          {**slow, "task": "Swimmer", "final_return": 300.0}])
+    assert passed["gymnasium_threshold"] == 360.0
+    assert passed["heads"]["gaussian"]["passed"] == 1 and passed["heads"]["beta"]["passed"] == 0
