@@ -8,17 +8,23 @@ import numpy as np
 import pytest
 
 import angora_jax as aj
+from angora_jax.envs import mjx_env
 from angora_jax.envs.locomotion import EPISODE_STEPS
 from angora_jax.envs.locomotion.tasks import GAITS
 
 GYMNASIUM_IDS = {name: f"{name}-v5" for name in [*GAITS, "InvertedPendulum", "InvertedDoublePendulum", "Reacher"]}
+# What makes a task Gymnasium's own: Humanoid runs Newton unless asked for humanoid.xml's PGS (the C twin only).
+GYMNASIUM_OPTIONS = {"Humanoid": {"solver": "pgs"}}
+HUMANOID_BATCH = 2
 
 
 @pytest.mark.parametrize("name", GYMNASIUM_IDS)
 def test_steps_match_gymnasium_v5_from_the_same_state(name):
-    """40 random actions (or until Gymnasium terminates) from our start, copied into Gymnasium's env: observation and
-    reward within 1e-5 at every step (float32 task logic against Gymnasium's float64), the same termination."""
-    env = aj.make(name, backend="cpu")
+    """40 random actions (or until Gymnasium terminates) from our start, copied into Gymnasium's env: observation
+    within 1e-5 + 1e-6 x |value| and reward within 1e-5 at every step (float32 task logic against Gymnasium's
+    float64: Humanoid's contact forces reach 10^3 N, which float32 rounds by up to 3e-5), the same termination. Ant's
+    and Humanoid's contact forces (cfrc_ext) are not all zero on the way."""
+    env = aj.make(name, backend="cpu", **GYMNASIUM_OPTIONS.get(name, {}))
     reference = gym.make(GYMNASIUM_IDS[name])
     assert env.max_episode_steps == reference.spec.max_episode_steps == EPISODE_STEPS.get(name, 1000)
     assert env.dt == pytest.approx(reference.unwrapped.dt)
@@ -30,18 +36,21 @@ def test_steps_match_gymnasium_v5_from_the_same_state(name):
     np.testing.assert_array_equal(env.action_spec.low, reference.action_space.low)
     np.testing.assert_array_equal(env.action_spec.high, reference.action_space.high)
     rng = np.random.default_rng(1)
+    touched = False
     for _ in range(40):
         action = rng.uniform(reference.action_space.low, reference.action_space.high).astype(np.float32)
         obs, reward, terminated, _, _ = reference.step(action)
         state = env.step(state, jnp.asarray(action))
-        np.testing.assert_allclose(state.final_obs.proprioception, obs, atol=1e-5)
+        np.testing.assert_allclose(state.final_obs.proprioception, obs, rtol=1e-6, atol=1e-5)
         assert float(state.reward) == pytest.approx(reward, abs=1e-5)
         assert bool(state.done) == terminated
+        touched |= bool(np.any(reference.data.cfrc_ext))
         if terminated:
             break
+    assert touched or not env.task.body_dynamics
 
 
-@pytest.mark.parametrize("name", ["Hopper", "Reacher"])
+@pytest.mark.parametrize("name", ["Hopper", "Humanoid", "Reacher"])
 def test_starts_follow_gymnasium_distribution(name):
     """Our starts (JAX PRNG) lie where Gymnasium's do: qpos0 plus noise of the task's scale; Reacher's target in
     the 0.2 m disk, at rest."""
@@ -75,3 +84,58 @@ def test_mjx_path_tracks_the_c_mujoco_twin():
         state, twin = step(state, jnp.asarray(action)), cpu_env.step(twin, jnp.asarray(action))
         np.testing.assert_allclose(state.reward, twin.reward, atol=1e-2)
     np.testing.assert_allclose(state.obs.proprioception, twin.obs.proprioception, atol=1e-2)
+
+
+@pytest.fixture(scope="module")
+def humanoid_on_mjx():
+    """Humanoid on MJX's JAX implementation and its C MuJoCo twin (Newton on both), with the MJX path's batched reset
+    and step compiled once (about 60 s on 2 CPU cores)."""
+    env = aj.make("Humanoid", impl="jax")
+    return env, aj.make("Humanoid", backend="cpu"), jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+
+
+def test_mjx_path_computes_humanoids_body_dynamics_as_the_c_mujoco_twin(humanoid_on_mjx):
+    """Humanoid batched on MJX (float32) against C MuJoCo (float64) from the same keys and random actions until each
+    episode ends (29 and 24 steps: it falls): the start within 1e-5 + 1e-5 x |value| (its drawn quaternion is not
+    normalised, as in C MuJoCo), then joints, cinert, cvel and actuator forces within 1e-3 + 1e-4 x |value|,
+    the contact forces that rne_postconstraint computes after the step within 1e-2 + 1e-3 x |value| (float32
+    constraint solves; measured: at most 1.6e-2), rewards within 1e-3 (measured 1.4e-4),
+    the same terminations, and contacts in at least a third of the steps."""
+    env, cpu, reset, step = humanoid_on_mjx
+    keys = jax.random.split(jax.random.key(3), HUMANOID_BATCH)
+    actions = np.random.default_rng(0).uniform(-0.4, 0.4, (40, HUMANOID_BATCH, env.task.model.nu)).astype(np.float32)
+    states = [reset(keys)]
+    for action in actions:
+        states.append(step(states[-1], jnp.asarray(action)))
+    forces = slice(-(env.task.model.nbody - 1) * 6, None)  # cfrc_ext, the observation's last part
+    for b, key in enumerate(keys):
+        twin, touched = cpu.reset(key), []  # the stateful twin runs one episode at a time
+        np.testing.assert_allclose(states[0].obs.proprioception[b], twin.obs.proprioception, rtol=1e-5, atol=1e-5)
+        for t, action in enumerate(actions[:, b]):
+            twin, ours = cpu.step(twin, jnp.asarray(action)), states[t + 1]
+            obs, expected = np.asarray(ours.final_obs.proprioception[b]), np.asarray(twin.final_obs.proprioception)
+            np.testing.assert_allclose(obs[:forces.start], expected[:forces.start], rtol=1e-4, atol=1e-3)
+            np.testing.assert_allclose(obs[forces], expected[forces], rtol=1e-3, atol=1e-2)
+            assert float(ours.reward[b]) == pytest.approx(float(twin.reward), abs=1e-3)
+            assert bool(ours.done[b]) == bool(twin.done)
+            touched.append(bool(np.any(expected[forces])))
+            if twin.done:
+                break
+        assert twin.done and sum(touched) >= len(touched) / 3
+
+
+def test_contact_force_tasks_run_mjxs_jax_implementation(monkeypatch):
+    """MJX computes contact forces after a step (rne_postconstraint) in its JAX implementation only: "auto" picks it
+    for Ant and Humanoid, also where it would pick MuJoCo Warp, and says why; "warp" is refused, and so is PGS, which
+    MJX lacks."""
+    info = aj.make("Ant").physics_info()
+    assert info["impl"] == "jax" and "reads contact forces (cfrc_ext)" in info["why"]
+    with pytest.raises(ValueError, match="cannot run this task: the task reads contact forces"):
+        aj.make("Ant", impl="warp")
+    with pytest.raises(ValueError, match="MJX has no PGS solver"):
+        aj.make("Humanoid", solver="pgs")
+    monkeypatch.setattr(mjx_env, "on_gpu", lambda: True)
+    monkeypatch.setattr(mjx_env.importlib.util, "find_spec", lambda name, *args: object())
+    assert mjx_env.choose_impl("auto")[0] == "warp"
+    needs_jax = mjx_env.CONTACT_FORCES_NEED_JAX
+    assert mjx_env.choose_impl("auto", needs_jax) == ("jax", f"physics.impl auto: {needs_jax}")

@@ -1,6 +1,7 @@
-"""Gymnasium's MuJoCo tasks (v5) on MJX: `Hopper`, `Walker2d`, `HalfCheetah`, `Swimmer`, `InvertedPendulum`,
-`InvertedDoublePendulum`, `Reacher` (see `tasks`). Each runs batched on MJX (MuJoCo Warp on a GPU with warp-lang) or,
-with `backend="cpu"`, as its eager C MuJoCo twin."""
+"""Gymnasium's MuJoCo tasks (v5) on MJX: `Hopper`, `Walker2d`, `HalfCheetah`, `Swimmer`, `Ant`, `Humanoid`,
+`InvertedPendulum`, `InvertedDoublePendulum`, `Reacher` (see `tasks`). Each runs batched on MJX (MuJoCo Warp on a GPU
+with warp-lang; `Ant` and `Humanoid`, which read contact forces, on MJX's JAX implementation always) or, with
+`backend="cpu"`, as its eager C MuJoCo twin."""
 
 from __future__ import annotations
 
@@ -24,10 +25,16 @@ OTHERS = {"InvertedPendulum": InvertedPendulum, "InvertedDoublePendulum": Invert
 
 
 def make_locomotion(name: str, max_episode_steps: int | None = None, impl: str = "auto",
-                    backend: str = "mjx") -> Env:
+                    backend: str = "mjx", solver: str | None = None) -> Env:
     """Gymnasium's task `name` (v5). max_episode_steps: None for Gymnasium's (1000; Reacher 50). impl: the MJX
-    implementation ("auto": Warp on a GPU when warp-lang imports, else JAX). backend: "mjx" or "cpu"."""
-    task: GymnasiumTask = Locomotion(GAITS[name], impl) if name in GAITS else OTHERS[name](impl)
+    implementation ("auto": Warp on a GPU when warp-lang imports, else JAX; JAX for tasks that read contact forces).
+    backend: "mjx" or "cpu". solver: the constraint solver of the forward-moving tasks (`GAITS`), "newton", "cg" or
+    "pgs" (None: the task's, which is Gymnasium's but Newton for Humanoid; MJX has no PGS: "pgs" needs "cpu")."""
+    if solver is not None and name not in GAITS:
+        raise ValueError(f"{name} takes no solver option; only {', '.join(GAITS)} do.")
+    if solver == "pgs" and backend == "mjx":
+        raise ValueError("MJX has no PGS solver (it has Newton and CG): solver='pgs' runs with backend='cpu' only.")
+    task: GymnasiumTask = Locomotion(GAITS[name], impl, solver) if name in GAITS else OTHERS[name](impl)
     return on_backend(backend, task, task.frame_skip, max_episode_steps or EPISODE_STEPS.get(name, 1000))
 
 
