@@ -50,12 +50,11 @@ FIGURES = {
     "9": [("InvertedPendulum", "locomotion", CONTINUOUS), ("InvertedDoublePendulum", "locomotion", CONTINUOUS),
           ("Reacher", "locomotion", CONTINUOUS), ("Swimmer", "locomotion", CONTINUOUS),
           ("Hopper", "locomotion", CONTINUOUS), ("Walker2d", "locomotion", CONTINUOUS),
-          ("HalfCheetah", "locomotion", CONTINUOUS), ("Ant", None, ()), ("Humanoid", None, ()),
+          ("HalfCheetah", "locomotion", CONTINUOUS), ("Ant", "locomotion", CONTINUOUS),
+          ("Humanoid", "locomotion", CONTINUOUS),
           ("ShadowHandReach", "shadow_reach", (*CONTINUOUS, "multicategorical")),
           ("ShadowHandFreeReach", "shadow_reach", (*CONTINUOUS, "multicategorical"))],
 }
-MISSING = {"Ant": "not ported yet (v5 observes contact forces, cfrc_ext)",
-           "Humanoid": "not ported yet (v5 observes cinert, cvel, qfrc_actuator, cfrc_ext; PGS solver)"}
 # Returns that PPO reached after 1M env steps in Schulman et al. 2017 (Fig. 3), of the order of the paper's Fig. 9:
 # a run records when its training mean first passed them.
 TARGETS = {"Hopper": 2300.0, "Walker2d": 3400.0, "HalfCheetah": 1700.0, "Humanoid": 5000.0}
@@ -246,8 +245,8 @@ def main() -> None:
             for task, config, heads in FIGURES[figure]:
                 if args.tasks and task not in args.tasks:
                     continue
-                if config is None or task not in list_tasks() and not is_gymnasium(task):
-                    missing[task] = MISSING.get(task, "not registered")
+                if task not in list_tasks() and not is_gymnasium(task):
+                    missing[task] = "not registered"
                     continue
                 for head in heads:
                     if args.heads and head not in args.heads:
