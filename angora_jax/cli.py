@@ -257,6 +257,8 @@ def parser() -> argparse.ArgumentParser:
     vision.add_argument("--features", type=positive_int, default=256)
     vision.add_argument("--steps", type=positive_int, default=5000, help="Adam steps (default: 5000)")
     vision.add_argument("--batch", type=positive_int, default=64)
+    vision.add_argument("--orientation", default="6d", choices=["6d", "quaternion"],
+                        help="how the pose head outputs the cube's orientation (default: 6d, continuous)")
     vision.add_argument("--seed", type=int, default=0)
     vision.set_defaults(handler=command_pretrain_vision)
 
@@ -573,11 +575,13 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
     rendered = time.perf_counter() - start
     options = {"features": args.features} | ({"widths": tuple(args.widths)} if args.widths else {})
     train, test = dataset.split(0.1)
-    result = pretrain_pose_encoder(train, test, args.encoder, options, args.steps, args.batch, seed=args.seed)
+    result = pretrain_pose_encoder(train, test, args.encoder, options, args.steps, args.batch, seed=args.seed,
+                                   orientation=args.orientation)
     save_component(result.params, "encoder", out)
     report = {"encoder": args.encoder, "options": options, "cameras": args.cameras, "size": args.size,
               "renderer": args.renderer, "samples": args.samples, "device": str(jax.devices()[0].device_kind),
-              "render_seconds": rendered, "train_seconds": result.seconds, "steps": args.steps, **result.errors,
+              "render_seconds": rendered, "train_seconds": result.seconds, "steps": args.steps,
+              "orientation": args.orientation, **result.errors,
               "loss": result.history}
     out.with_suffix(".json").write_text(json.dumps(report, indent=1))
     errors = result.errors

@@ -3,6 +3,7 @@ visual encoder's output, and pose pretraining end to end (its loss falls; the en
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 
@@ -11,6 +12,7 @@ from angora_jax.nets.components import load_component
 from angora_jax.nets.visual import VISUAL_ENCODERS, make_visual_encoder
 from angora_jax.vision import PoseRenderer, pretrain_pose_encoder, render_pose_dataset
 from angora_jax.vision.dataset import CUBE_REST, random_quaternions
+from angora_jax.vision.pretrain import orientation_error_degrees, quaternions, rotation_matrices
 
 FAR = np.array([10.0, 10.0, 0.0])  # m: a cube here is out of every camera's view
 
@@ -44,6 +46,21 @@ def test_every_visual_encoder_maps_uint8_images_to_features():
         make_visual_encoder("vgg")
 
 
+def test_pose_heads_output_rotation_matrices_and_quaternions_round_trip():
+    q = random_quaternions(np.random.default_rng(1), 8).astype(np.float32)
+    rotations = rotation_matrices(jnp.asarray(q), "quaternion")
+    expected = np.zeros((8, 9))
+    for row, quaternion in zip(expected, q.astype(np.float64), strict=True):
+        mujoco.mju_quat2Mat(row, quaternion)  # MuJoCo's own convention (w, x, y, z)
+    np.testing.assert_allclose(rotations, expected.reshape(8, 3, 3), atol=1e-6)
+    back = np.asarray(quaternions(rotations))
+    np.testing.assert_allclose(orientation_error_degrees(back, q), 0.0, atol=0.05)
+    six = rotation_matrices(jax.random.normal(jax.random.key(0), (8, 6)), "6d")
+    np.testing.assert_allclose(jnp.einsum("bij,bik->bjk", six, six), np.broadcast_to(np.eye(3), (8, 3, 3)),
+                               atol=1e-5)
+    np.testing.assert_allclose(np.linalg.det(np.asarray(six)), 1.0, atol=1e-5)
+
+
 def test_random_quaternions_are_unit_with_nonnegative_w():
     q = random_quaternions(np.random.default_rng(0), 1000)
     np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, rtol=1e-6)
@@ -61,6 +78,8 @@ def test_pose_pretraining_lowers_its_loss_and_saves_an_encoder_component(tmp_pat
     losses = [loss for _, loss in result.history]
     assert np.mean(losses[-3:]) < 0.6 * losses[0], losses
     assert {"position_mm_median", "orientation_deg_median"} <= set(result.errors)
+    with pytest.raises(ValueError, match="Unknown orientation 'euler'.*6d"):
+        pretrain_pose_encoder(train, test, orientation="euler")
     out = tmp_path / "encoder.msgpack"
     argv = ["pretrain-vision", "--out", str(out), "--samples", "20", "--size", "32", "--cameras", "top", "--widths",
             "8", "8", "8", "8", "--features", "16", "--steps", "5", "--batch", "8"]
@@ -73,8 +92,6 @@ def test_pose_pretraining_lowers_its_loss_and_saves_an_encoder_component(tmp_pat
 def test_model_cameras_show_exactly_what_the_free_cameras_show():
     """The fixed `vision_<name>` cameras (what MuJoCo Warp renders) against the free views of the palm used for
     videos: measured identical, pixel for pixel."""
-    import mujoco
-
     from angora_jax.envs.rendering import SceneRenderer, camera_named
     from angora_jax.envs.shadow_hand.cube import load_cube_scene
     from angora_jax.envs.shadow_hand.hand import PALM_BODY

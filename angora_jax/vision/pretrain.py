@@ -1,10 +1,14 @@
 """Pretrain a visual encoder to see the cube's pose: position and orientation from the cameras' images.
 
 `PoseNet` runs one encoder (shared weights) over each camera's image, concatenates the features and maps them to the
-cube's position (standardised by the training set's mean and spread) and orientation (a quaternion, normalised).
-Loss: mean squared error of the standardised position plus 1 - <q_pred, q>^2, which ignores the quaternion's sign
-(q and -q are one orientation). Adam (optax). Reported on held-out episodes: median and 90th-percentile errors of the
-position in mm and of the orientation in degrees (the angle of the rotation between prediction and truth).
+cube's position (standardised by the training set's mean and spread) and orientation, as a rotation matrix made from
+the head's outputs in one of `ORIENTATIONS`: "quaternion" (4 numbers, normalised) or "6d" (two 3-vectors made
+orthonormal by Gram-Schmidt, the third their cross product; Zhou et al. 2019, "On the continuity of rotation
+representations": every orientation has its quaternion pair q, -q, so a network that outputs quaternions must jump
+somewhere between them, while the 6D map is continuous). Loss: mean squared error of the standardised position plus
+|R_pred - R|^2 / 8 (Frobenius), which equals 1 - <q_pred, q>^2 for quaternions: it ignores the quaternion's sign.
+Adam (optax). Reported on held-out episodes: median and 90th-percentile errors of the position in mm and of the
+orientation in degrees (the angle of the rotation between prediction and truth).
 
 The trained encoder is a component (`angora_jax.nets.components`): `save_component(result.params, "encoder", file)`
 writes it, and a policy's visual area of the same encoder and sizes loads it with `network.pretrained` and keeps it
@@ -22,25 +26,49 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from jax.scipy.spatial.transform import Rotation
 
 from angora_jax.nets.visual import make_visual_encoder
 from angora_jax.vision.dataset import PoseDataset
 
+ORIENTATIONS = {"quaternion": 4, "6d": 6}  # the head's outputs per orientation representation
+
+
+def _unit(x: jax.Array) -> jax.Array:
+    return x / (jnp.linalg.norm(x, axis=-1, keepdims=True) + 1e-8)
+
+
+def rotation_matrices(out: jax.Array, orientation: str) -> jax.Array:
+    """`(B, ORIENTATIONS[orientation])` head outputs -> `(B, 3, 3)` rotation matrices (module docstring)."""
+    if orientation == "quaternion":
+        w, xyz = out[:, :1], out[:, 1:]  # MuJoCo's order: w first; SciPy's Rotation takes it last
+        return Rotation.from_quat(_unit(jnp.concatenate([xyz, w], axis=-1))).as_matrix()
+    first = _unit(out[:, :3])
+    second = _unit(out[:, 3:] - jnp.sum(first * out[:, 3:], axis=-1, keepdims=True) * first)
+    return jnp.stack([first, second, jnp.cross(first, second)], axis=-1)
+
+
+def quaternions(rotations: jax.Array) -> jax.Array:
+    """`(B, 3, 3)` rotation matrices -> `(B, 4)` unit quaternions in MuJoCo's order (w, x, y, z)."""
+    xyzw = Rotation.from_matrix(rotations).as_quat()
+    return jnp.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=-1)
+
 
 class PoseNet(nn.Module):
-    """`(B, cameras, H, W, 3)` uint8 -> (standardised position `(B, 3)`, unit quaternion `(B, 4)`)."""
+    """`(B, cameras, H, W, 3)` uint8 -> (standardised position `(B, 3)`, rotation matrix `(B, 3, 3)`); the head
+    outputs the orientation as `orientation` (`ORIENTATIONS`)."""
 
     encoder: nn.Module
     hidden: int = 256
+    orientation: str = "6d"
 
     @nn.compact
     def __call__(self, images: jax.Array) -> tuple[jax.Array, jax.Array]:
         batch, cameras = images.shape[:2]
         features = self.encoder(images.reshape((batch * cameras, *images.shape[2:])))
         x = nn.relu(nn.Dense(self.hidden, name="head_hidden")(features.reshape(batch, -1)))
-        out = nn.Dense(7, name="head_out")(x)
-        quaternion = out[:, 3:] / (jnp.linalg.norm(out[:, 3:], axis=-1, keepdims=True) + 1e-8)
-        return out[:, :3], quaternion
+        out = nn.Dense(3 + ORIENTATIONS[self.orientation], name="head_out")(x)
+        return out[:, :3], rotation_matrices(out[:, 3:], self.orientation)
 
 
 @dataclass
@@ -62,10 +90,13 @@ def orientation_error_degrees(predicted: np.ndarray, truth: np.ndarray) -> np.nd
 
 def pretrain_pose_encoder(train: PoseDataset, test: PoseDataset, encoder: str = "cornet_z",
                           encoder_options: dict | None = None, steps: int = 2000, batch_size: int = 64,
-                          learning_rate: float = 1e-3, seed: int = 0, log_every: int = 100) -> PretrainResult:
-    """Train `PoseNet(make_visual_encoder(encoder, **encoder_options))` on `train` for `steps` Adam steps of
-    `batch_size` samples and measure it on `test` (module docstring)."""
-    model = PoseNet(make_visual_encoder(encoder, **(encoder_options or {})))
+                          learning_rate: float = 1e-3, seed: int = 0, log_every: int = 100,
+                          orientation: str = "6d") -> PretrainResult:
+    """Train `PoseNet(make_visual_encoder(encoder, **encoder_options), orientation=orientation)` on `train` for
+    `steps` Adam steps of `batch_size` samples and measure it on `test` (module docstring)."""
+    if orientation not in ORIENTATIONS:
+        raise ValueError(f"Unknown orientation {orientation!r}; choose one of {tuple(ORIENTATIONS)}.")
+    model = PoseNet(make_visual_encoder(encoder, **(encoder_options or {})), orientation=orientation)
     mean, spread = train.cube_position.mean(0), train.cube_position.std(0) + 1e-6
     # The images stay on the host and each step sends its batch: a data set of more than 2^31 pixels (e.g. 54,000
     # samples of three 96 x 96 views) fails as one device array inside a gather (CUDA_ERROR_INVALID_VALUE, measured).
@@ -76,9 +107,10 @@ def pretrain_pose_encoder(train: PoseDataset, test: PoseDataset, encoder: str = 
     opt_state = optimizer.init(params)
 
     def loss_fn(params, images, position, quaternion):
-        predicted_position, predicted_quaternion = model.apply({"params": params}, images)
+        predicted_position, predicted_rotation = model.apply({"params": params}, images)
         position_loss = jnp.mean((predicted_position - position) ** 2)
-        orientation_loss = jnp.mean(1.0 - jnp.sum(predicted_quaternion * quaternion, axis=-1) ** 2)
+        rotation = rotation_matrices(quaternion, "quaternion")
+        orientation_loss = jnp.mean(jnp.sum((predicted_rotation - rotation) ** 2, axis=(-2, -1))) / 8.0
         return position_loss + orientation_loss
 
     @jax.jit
@@ -99,7 +131,7 @@ def pretrain_pose_encoder(train: PoseDataset, test: PoseDataset, encoder: str = 
     predicted = [jax.device_get(predict(params, jnp.asarray(test.images[i:i + 256])))
                  for i in range(0, len(test), 256)]
     predicted_position = np.concatenate([p[0] for p in predicted]) * spread + mean
-    predicted_quaternion = np.concatenate([p[1] for p in predicted])
+    predicted_quaternion = np.asarray(quaternions(jnp.asarray(np.concatenate([p[1] for p in predicted]))))
     position_mm = 1000.0 * np.linalg.norm(predicted_position - test.cube_position, axis=-1)
     orientation_deg = orientation_error_degrees(predicted_quaternion, test.cube_quaternion)
     errors = {"position_mm_median": float(np.median(position_mm)),
