@@ -108,15 +108,22 @@ def test_an_empty_lesion_changes_nothing_and_a_full_one_silences_the_layer(agent
         lesion(agent, "cortex", [0])
 
 
-def test_an_lstm_records_its_activity_not_its_gate_kernels(agent):
-    """flax's LSTM cell computes its gates through submodules that return kernels: recording them took a weight
-    matrix per step as a "layer" (tens of GB over a cube episode)."""
-    network = make_network(NetworkConfig(name="lstm", width=8, cell_size=8))
+@pytest.mark.parametrize("cell", ["lstm", "gru"])
+def test_a_recurrent_cell_records_its_activity_not_its_gates(agent, cell):
+    """flax's cells compute their gates through submodules: the LSTM's return kernels (recording them took a weight
+    matrix per step as a "layer": tens of GB over a cube episode), the GRU's gate pre-activations (six "layers"
+    per cell). The cell's carry and output are its activity; the model's own outputs are not layers."""
+    network = make_network(NetworkConfig(name=cell, width=8, cell_size=8))
     obs = jax.vmap(agent.env.reset)(jax.random.split(jax.random.key(1), 2)).obs
     params = ActorCritic(network, agent.head).init(jax.random.key(0), network.initial_carry(2), obs)["params"]
-    lstm = dataclasses.replace(agent, network=network, state=agent.state.replace(params=params))
-    _, _, _, layers = record_layers(lstm, obs)
+    recurrent = dataclasses.replace(agent, network=network, state=agent.state.replace(params=params))
+    _, _, _, layers = record_layers(recurrent, obs)
     assert layers and max(layer.shape[-1] for layer in layers.values()) <= 8, {k: v.shape for k, v in layers.items()}
+    cell_layers = {name for name in layers if name.startswith("network.policy_cell.")}
+    expected = {"lstm": {"network.policy_cell.0.0", "network.policy_cell.0.1", "network.policy_cell.1"},
+                "gru": {"network.policy_cell.0", "network.policy_cell.1"}}[cell]
+    assert cell_layers == expected, sorted(layers)
+    assert all(name.startswith(("network.", "policy_head")) for name in layers), sorted(layers)
 
 
 def record_layers(agent, obs):

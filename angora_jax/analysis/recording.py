@@ -38,7 +38,6 @@ import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 from flax import linen as nn
-from flax.linen.recurrent import DenseParams
 
 from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, load_agent
@@ -53,20 +52,23 @@ def layer_activity(agent: Agent, carry: Any, obs: Any) -> tuple[Any, jax.Array, 
     batch = value.shape[0]
     for path, leaf in jax.tree_util.tree_flatten_with_path(state["intermediates"])[0]:
         names = [str(getattr(p, "key", getattr(p, "idx", p))) for p in path]
-        modules = [n for n in names if not n.isdigit() and n != "__call__"]
+        call = names.index("__call__")
+        # The path: the module's, "__call__", the call's number, then the place within its output (e.g. a cell's
+        # carry and output, or a carry's entry per pathway).
+        modules, outputs = names[:call], names[call + 2:]
         if not modules or leaf.ndim != 2 or leaf.shape[-1] == 0:
             continue  # the whole model's outputs, scalars per env, empty carries, convolutional maps
         if leaf.shape[0] != batch:  # the visual area's rows are (environment, camera) pairs
             leaf = leaf.reshape(batch, -1)
-        outputs = names[names.index("__call__") + 2:]  # index within a tuple output (e.g. a cell's carry and output)
         layers[".".join([*modules, *outputs])] = leaf
     return carry, agent.head.env_action(agent.head.mode(policy_params)), value, layers
 
 
 def _captures_activity(module: nn.Module, method_name: str) -> bool:
-    """Capture the outputs of modules' `__call__`, except flax's `DenseParams`, which return parameters (the gate
-    kernels of `OptimizedLSTMCell`, the "lstm" cell), not activity."""
-    return method_name == "__call__" and not isinstance(module, DenseParams)
+    """Capture the outputs of modules' `__call__`, except those of a recurrent cell's own submodules: they are parts
+    of one step of the cell, not layers (the GRU's gate pre-activations `ir`, `hz`, ...; the "lstm" cell's
+    `DenseParams`, which even return gate kernels: a weight matrix per step). The cell's output is recorded."""
+    return method_name == "__call__" and not isinstance(module.parent, nn.RNNCellBase)
 
 
 def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | None = None, seed: int = 0,
