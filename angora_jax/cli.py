@@ -50,6 +50,7 @@ from angora_jax.experiment.distributed import ProcessFailed, initialize, is_main
 from angora_jax.experiment.runner import signals_exit_while_preparing
 from angora_jax.nets import list_networks
 from angora_jax.ppo import TrainingDivergedError, list_heads
+from angora_jax.vision.pretrain import ORIENTATIONS
 
 
 def run_random(task: str, num_envs: int, num_steps: int, seed: int) -> dict[str, float]:
@@ -257,7 +258,7 @@ def parser() -> argparse.ArgumentParser:
     vision.add_argument("--features", type=positive_int, default=256)
     vision.add_argument("--steps", type=positive_int, default=5000, help="Adam steps (default: 5000)")
     vision.add_argument("--batch", type=positive_int, default=64)
-    vision.add_argument("--orientation", default="6d", choices=["6d", "quaternion"],
+    vision.add_argument("--orientation", default="6d", choices=list(ORIENTATIONS),
                         help="how the pose head outputs the cube's orientation (default: 6d, continuous)")
     vision.add_argument("--seed", type=int, default=0)
     vision.set_defaults(handler=command_pretrain_vision)
