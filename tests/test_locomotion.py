@@ -1,6 +1,8 @@
 """Gymnasium's MuJoCo tasks (v5) on our stack: step for step the same observations, rewards and terminations as
 Gymnasium's own environments from the same states, and the batched MJX path close to the C MuJoCo twin."""
 
+import importlib.util
+
 import gymnasium as gym
 import jax
 import jax.numpy as jnp
@@ -8,7 +10,6 @@ import numpy as np
 import pytest
 
 import angora_jax as aj
-from angora_jax.envs import mjx_env
 from angora_jax.envs.locomotion import EPISODE_STEPS
 from angora_jax.envs.locomotion.tasks import GAITS
 
@@ -86,11 +87,16 @@ def test_mjx_path_tracks_the_c_mujoco_twin():
     np.testing.assert_allclose(state.obs.proprioception, twin.obs.proprioception, atol=1e-2)
 
 
-@pytest.fixture(scope="module")
-def humanoid_on_mjx():
-    """Humanoid on MJX's JAX implementation and its C MuJoCo twin (Newton on both), with the MJX path's batched reset
-    and step compiled once (about 60 s on 2 CPU cores)."""
-    env = aj.make("Humanoid", impl="jax")
+WARP = pytest.param("warp", marks=pytest.mark.skipif(importlib.util.find_spec("warp") is None,
+                                                    reason="MuJoCo Warp needs warp-lang (pip install warp-lang)"))
+
+
+@pytest.fixture(scope="module", params=["jax", WARP])
+def humanoid_on_mjx(request):
+    """Humanoid on one of MJX's implementations and its C MuJoCo twin (Newton on both), with the MJX path's batched
+    reset and step compiled once (JAX: about 60 s on 2 CPU cores; Warp, which computes the contact forces inside its
+    step, runs where warp-lang is installed, on a GPU or the CPU)."""
+    env = aj.make("Humanoid", impl=request.param).sized_for(HUMANOID_BATCH)
     return env, aj.make("Humanoid", backend="cpu"), jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
 
 
@@ -124,18 +130,7 @@ def test_mjx_path_computes_humanoids_body_dynamics_as_the_c_mujoco_twin(humanoid
         assert twin.done and sum(touched) >= len(touched) / 3
 
 
-def test_contact_force_tasks_run_mjxs_jax_implementation(monkeypatch):
-    """MJX computes contact forces after a step (rne_postconstraint) in its JAX implementation only: "auto" picks it
-    for Ant and Humanoid, also where it would pick MuJoCo Warp, and says why; "warp" is refused, and so is PGS, which
-    MJX lacks."""
-    info = aj.make("Ant").physics_info()
-    assert info["impl"] == "jax" and "reads contact forces (cfrc_ext)" in info["why"]
-    with pytest.raises(ValueError, match="cannot run this task: the task reads contact forces"):
-        aj.make("Ant", impl="warp")
+def test_humanoid_refuses_pgs_on_mjx():
+    """MJX has no PGS solver (Humanoid's model asks for it): the batched path refuses it and says so."""
     with pytest.raises(ValueError, match="MJX has no PGS solver"):
         aj.make("Humanoid", solver="pgs")
-    monkeypatch.setattr(mjx_env, "on_gpu", lambda: True)
-    monkeypatch.setattr(mjx_env.importlib.util, "find_spec", lambda name, *args: object())
-    assert mjx_env.choose_impl("auto")[0] == "warp"
-    needs_jax = mjx_env.CONTACT_FORCES_NEED_JAX
-    assert mjx_env.choose_impl("auto", needs_jax) == ("jax", f"physics.impl auto: {needs_jax}")

@@ -92,7 +92,7 @@ class MujocoTask(abc.ABC):
     vision: CameraVision | None = None
     # Whether the task reads `DYNAMICS_FIELDS`: its snapshots then hold them, and both physics paths compute
     # `cfrc_ext` after each policy step's physics as Gymnasium does (`mj_rnePostConstraint`, once after the last physics
-    # step), which MJX does only in its JAX implementation. Off, none of it costs anything.
+    # step). Off, none of it costs anything.
     body_dynamics: bool = False
 
     @property

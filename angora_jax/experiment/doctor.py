@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import jax
 
-from angora_jax.envs.mjx_env import CONTACT_FORCES_NEED_JAX, WARP_REQUIREMENT, choose_impl, on_gpu
+from angora_jax.envs.mjx_env import WARP_REQUIREMENT, choose_impl, on_gpu
 from angora_jax.ppo.memory import GIB, device_memory
 
 PACKAGES = ("jax", "jaxlib", "jax-cuda13-plugin", "jax-cuda12-plugin", "mujoco", "mujoco-mjx", "warp-lang", "flax",
@@ -106,8 +106,6 @@ def _devices(report: Diagnosis) -> None:
 def _physics(report: Diagnosis, installed: dict[str, str | None]) -> None:
     impl, why = choose_impl("auto")
     report.rows.append(("physics", "MuJoCo tasks", f"MJX {impl} implementation ({why})"))
-    impl, why = choose_impl("auto", CONTACT_FORCES_NEED_JAX)
-    report.rows.append(("physics", "Ant, Humanoid", f"MJX {impl} implementation ({why})"))
     report.rows.append(("physics", "classic tasks", "pure JAX"))
     wanted = WARP_REQUIREMENT.split("==")[1]
     if on_gpu() and installed["warp-lang"] is None:

@@ -6,8 +6,9 @@ exactly as Gymnasium passes them to MuJoCo (which clamps them); the control cost
 Ant and Humanoid also read the external forces on their bodies (`cfrc_ext`, contacts included), which Gymnasium
 computes with `mj_rnePostConstraint` once after a policy step's physics: from the last Runge-Kutta stage, where RK4
 leaves contacts, constraint forces and every derived position and velocity quantity, in C MuJoCo and in MJX alike.
-Both paths do the same (`MujocoTask.body_dynamics`); MJX has that function in its JAX implementation only, so these
-two tasks run on it wherever "auto" would pick MuJoCo Warp, and refuse impl="warp".
+Both paths do the same (`MujocoTask.body_dynamics`): C MuJoCo and MJX's JAX implementation call it after the step,
+MuJoCo Warp at the end of each forward pass inside its step (`run_rne_postconstraint`), which RK4's last stage ends
+with too.
 
 Differences from Gymnasium that remain: task logic runs in float32 (Gymnasium: float64), and the random starts are
 drawn with JAX's PRNG (same distributions, other numbers). Humanoid's model asks for the PGS constraint solver, which
@@ -16,13 +17,14 @@ when asked (`solver="pgs"`). On the twin over 10 episodes of random actions (17-
 joint positions stayed within 5e-6 of PGS's and its rewards within 1e-5; past the fall, open loop for 200 steps, 4 of
 5 sequences stayed within 1e-5 and one parted after 100 steps (0.14). On MJX, Ant parts from its twin at its feet's
 contacts: MuJoCo 4.0's C collision aligns a capsule-plane contact's first tangent with the capsule, MJX 3.17 takes
-fixed axes, and a pyramidal friction cone (Gymnasium's, in every model here) turns with them. Ant's joint positions
+fixed axes (in both implementations), and a pyramidal friction cone (Gymnasium's, in every model here) turns with
+them. Ant's joint positions
 and velocities on MJX stay within 2e-5 of its twin's until the first contact and are up to 2.6 apart 10 steps later
-(with elliptic cones, which the axes do not change: 1e-3). Humanoid is little affected: its random-action episodes
-on MJX stay within 1e-3 + 1e-4 x |value| of the twin. (Hopper's, Walker2d's and HalfCheetah's contact states give
-the same accelerations on both, within 1e-13 in float64.) `tests/test_locomotion.py` steps each task's C MuJoCo twin
-and Gymnasium's own v5 environment from the same `qpos`/`qvel` with the same actions and compares observations and
-rewards step by step, and Humanoid on MJX against its twin.
+(with elliptic cones, which the axes do not change: 1e-3). Humanoid is little affected: its random-action
+episodes on MJX (JAX or Warp) stay within 1e-3 + 1e-4 x |value| of the twin. (Hopper's, Walker2d's and HalfCheetah's
+contact states give the same accelerations on both, within 1e-13 in float64.) `tests/test_locomotion.py` steps each
+task's C MuJoCo twin and Gymnasium's own v5 environment from the same `qpos`/`qvel` with the same actions and compares
+observations and rewards step by step, and Humanoid on MJX against its twin.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ import mujoco
 import numpy as np
 
 from angora_jax.envs.core import Sensation
-from angora_jax.envs.mjx_env import CONTACT_FORCES_NEED_JAX, choose_impl
+from angora_jax.envs.mjx_env import choose_impl
 from angora_jax.envs.mujoco_task import MujocoTask, Snapshot, set_mjx_impl
 
 ASSETS = os.path.join(os.path.dirname(gymnasium.__file__), "envs", "mujoco", "assets")
@@ -48,17 +50,16 @@ ASSETS = os.path.join(os.path.dirname(gymnasium.__file__), "envs", "mujoco", "as
 SOLVERS = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG, "pgs": mujoco.mjtSolver.mjSOL_PGS}
 
 
-def load_model(xml: str, impl: str = "auto", solver: str | None = None, needs_jax: str = "") -> mujoco.MjModel:
+def load_model(xml: str, impl: str = "auto", solver: str | None = None) -> mujoco.MjModel:
     """Compile one of Gymnasium's MuJoCo models (`gymnasium/envs/mujoco/assets/<xml>`) with its own options, asking
     for MJX implementation `impl` ("auto", "jax" or "warp") on the batched path. solver: a constraint solver in
-    `SOLVERS` instead of the model's (None: the model's). needs_jax: why the task needs MJX's JAX implementation
-    ("": it does not; `mjx_env.choose_impl`)."""
+    `SOLVERS` instead of the model's (None: the model's)."""
     spec = mujoco.MjSpec.from_file(os.path.join(ASSETS, xml))
     if solver is not None:
         if solver not in SOLVERS:
             raise ValueError(f"Unknown solver {solver!r}; choose one of {tuple(SOLVERS)}.")
         spec.option.solver = SOLVERS[solver]
-    set_mjx_impl(spec, *choose_impl(impl, needs_jax))
+    set_mjx_impl(spec, *choose_impl(impl))
     with warnings.catch_warnings():  # half_cheetah.xml's `settotalmass`: deprecated, still what Gymnasium compiles
         warnings.filterwarnings("ignore", message=".*settotalmass")
         return spec.compile()
@@ -178,8 +179,7 @@ class Locomotion(GymnasiumTask):
     def __init__(self, gait: Gait, impl: str = "auto", solver: str | None = None):
         if gait.progress not in PROGRESS:
             raise ValueError(f"Unknown progress {gait.progress!r}; choose one of {PROGRESS}.")
-        needs_jax = CONTACT_FORCES_NEED_JAX if gait.contacts is not None else ""
-        super().__init__(load_model(gait.xml, impl, solver or gait.solver, needs_jax), gait.frame_skip)
+        super().__init__(load_model(gait.xml, impl, solver or gait.solver), gait.frame_skip)
         self.gait = gait
         self.body_dynamics = bool(gait.dynamics) or gait.contacts is not None or gait.progress == "mass_center"
 
