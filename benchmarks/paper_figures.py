@@ -77,7 +77,6 @@ def train_one(task: str, config: str, head: str, seed: int, minutes: float, extr
     wall = time.perf_counter() - start
     rows = read_metrics(run.run_dir)
     returns = [r["episode_return"] for r in rows]
-    tail = [x for x in returns[-max(1, len(returns) // 10):] if math.isfinite(x)]
     rates = [r["steps_per_second"] for r in rows[1:]]  # the first cycle includes compilation
     begin = rows[0]["time"] - rows[0]["seconds"]
     curve = {"env_steps": [r["env_steps"] for r in rows], "cycle": [r["cycle"] for r in rows],
@@ -86,7 +85,7 @@ def train_one(task: str, config: str, head: str, seed: int, minutes: float, extr
     return {"task": task, "config": config, "head": head, "seed": seed, "wall_seconds": wall,
             "compile_seconds": rows[0].get("compile_seconds"), "cycles": len(rows), "env_steps": rows[-1]["env_steps"],
             "env_steps_per_second": statistics.median(rates) if rates else None,
-            "final_return": statistics.fmean(tail) if tail else None,
+            "final_return": tail_mean(returns),
             "target": first_past(curve, TARGETS.get(task)), "curve": curve}
 
 
@@ -113,12 +112,17 @@ def gymnasium_threshold(task: str) -> float | None:
     return None if threshold is None else float(threshold)
 
 
+def tail_mean(returns: list[float | None]) -> float | None:
+    """The mean training return over the last tenth of the cycles in which episodes ended (a cycle in which none did
+    has no return: e.g. a solved InvertedPendulum's episodes all last 1,000 steps and end together); None if none."""
+    ended = [x for x in returns if x is not None and math.isfinite(x)]
+    return statistics.fmean(ended[-max(1, len(ended) // 10):]) if ended else None
+
+
 def return_at(run: dict, env_steps: int) -> float | None:
-    """A run's return at `env_steps`: the mean over the last tenth of its cycles up to that point."""
+    """A run's return at `env_steps`: `tail_mean` of its cycles up to that point."""
     curve = run["curve"]
-    upto = [x for x, n in zip(curve["episode_return"], curve["env_steps"], strict=True) if n <= env_steps]
-    tail = [x for x in upto[-max(1, len(upto) // 10):] if x is not None]
-    return statistics.fmean(tail) if tail else None
+    return tail_mean([x for x, n in zip(curve["episode_return"], curve["env_steps"], strict=True) if n <= env_steps])
 
 
 def compare_heads(runs: list[dict]) -> dict:
@@ -142,6 +146,7 @@ def compare_heads(runs: list[dict]) -> dict:
 
 def plot_figure(figure: str, runs: list[dict], path: str, where: str) -> None:
     tasks = list(dict.fromkeys(r["task"] for r in runs))
+    colours = {head: f"C{i}" for i, head in enumerate(dict.fromkeys(r["head"] for r in runs))}  # one per head
     fig, axes = plt.subplots(2, len(tasks), figsize=(3.4 * len(tasks), 5.6), squeeze=False)
     for col, task in enumerate(tasks):
         for row, x in enumerate(("env_steps", "cycle")):
@@ -153,9 +158,10 @@ def plot_figure(figure: str, runs: list[dict], path: str, where: str) -> None:
                 ys = [[c["episode_return"][i] for c in curves if c["episode_return"][i] is not None]
                       for i in range(length)]
                 keep = [i for i, y in enumerate(ys) if y]
-                ax.plot([xs[i] for i in keep], [statistics.fmean(ys[i]) for i in keep], label=head)
+                ax.plot([xs[i] for i in keep], [statistics.fmean(ys[i]) for i in keep], label=head,
+                        color=colours[head])
                 ax.fill_between([xs[i] for i in keep], [min(ys[i]) for i in keep], [max(ys[i]) for i in keep],
-                                alpha=0.2)
+                                alpha=0.2, color=colours[head])
             ax.set_xlabel("env steps" if x == "env_steps" else "cycles")
             ax.grid(alpha=0.3)
             if row == 0:
@@ -201,7 +207,8 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
 
 def merge(figure: str, paths: list[str], name: str, out: str) -> None:
     """One figure from the runs recorded in earlier outputs of this script (`paths`, all of `figure`, made on one
-    kind of machine with the same versions)."""
+    kind of machine with the same versions). Final returns are taken again from the curves (`tail_mean`), so that
+    outputs of earlier versions of this script count alike."""
     records = []
     for path in paths:
         with open(path) as file:
@@ -213,7 +220,8 @@ def merge(figure: str, paths: list[str], name: str, out: str) -> None:
             raise SystemExit(f"{path} was made on {records[-1]['device']} with {records[-1]['versions']}, "
                              f"{paths[0]} on {records[0]['device']} with {records[0]['versions']}: merge runs of "
                              "one machine kind and one set of versions.")
-    runs = [run for record in records for run in record["runs"]]
+    runs = [{**run, "final_return": tail_mean(run["curve"]["episode_return"])} for record in records
+            for run in record["runs"]]
     missing = {task: why for record in records for task, why in record["missing"].items()}
     config = {"merged": {os.path.basename(p): r["config"] for p, r in zip(paths, records, strict=True)}}
     write_figure(figure, runs, missing, config, name, out, (records[0]["device"], records[0]["versions"]))

@@ -214,3 +214,6 @@ def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
                                           {**slow, "task": "Swimmer", "final_return": 300.0}])
     assert passed["gymnasium_threshold"] == 360.0
     assert passed["heads"]["gaussian"]["passed"] == 1 and passed["heads"]["beta"]["passed"] == 0
+    # A solved InvertedPendulum: its episodes all last 1,000 steps and end in the same cycles, none in the others.
+    assert paper_figures.tail_mean([10.0, None, 1000.0, float("nan"), None]) == 1000.0
+    assert paper_figures.tail_mean([None, float("nan")]) is None
