@@ -34,6 +34,8 @@ with contextlib.redirect_stdout(io.StringIO()) if _WARP_ABSENT else contextlib.n
 WARP_MAX_ENVS = 32768
 # The warp-lang version that mujoco-mjx 3.17's `warp` extra pins (its MuJoCo Warp is vendored inside mujoco-mjx).
 WARP_REQUIREMENT = "warp-lang==1.18.0"
+
+
 def resolve_impl(impl: str) -> str:
     """`impl` with "auto" decided: "warp" when JAX runs on a GPU and warp-lang is importable (measured on one H100:
     the cube trains 4.6x faster on Warp at 4,096 envs), otherwise "jax" (the CPU default and the fallback)."""

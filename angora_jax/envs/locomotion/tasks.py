@@ -11,20 +11,20 @@ MuJoCo Warp at the end of each forward pass inside its step (`run_rne_postconstr
 with too.
 
 Differences from Gymnasium that remain: task logic runs in float32 (Gymnasium: float64), and the random starts are
-drawn with JAX's PRNG (same distributions, other numbers). Humanoid's model asks for the PGS constraint solver, which
-MJX lacks (it has Newton and CG): `Humanoid` runs Newton on both paths, and Gymnasium's PGS on the C MuJoCo twin only
-when asked (`solver="pgs"`). On the twin over 10 episodes of random actions (17-38 steps, until it falls), Newton's
-joint positions stayed within 5e-6 of PGS's and its rewards within 1e-5; past the fall, open loop for 200 steps, 4 of
-5 sequences stayed within 1e-5 and one parted after 100 steps (0.14). On MJX, Ant parts from its twin at its feet's
-contacts: MuJoCo 4.0's C collision aligns a capsule-plane contact's first tangent with the capsule, MJX 3.17 takes
-fixed axes (in both implementations), and a pyramidal friction cone (Gymnasium's, in every model here) turns with
-them. Ant's joint positions
-and velocities on MJX stay within 2e-5 of its twin's until the first contact and are up to 2.6 apart 10 steps later
-(with elliptic cones, which the axes do not change: 1e-3). Humanoid is little affected: its random-action
-episodes on MJX (JAX or Warp) stay within 1e-3 + 1e-4 x |value| of the twin. (Hopper's, Walker2d's and HalfCheetah's
-contact states give the same accelerations on both, within 1e-13 in float64.) `tests/test_locomotion.py` steps each
-task's C MuJoCo twin and Gymnasium's own v5 environment from the same `qpos`/`qvel` with the same actions and compares
-observations and rewards step by step, and Humanoid on MJX against its twin.
+drawn with JAX's PRNG (same distributions, other numbers). Humanoid's model asks for the PGS constraint solver,
+which MJX lacks (it has Newton and CG): `Humanoid` runs Newton on both paths, and Gymnasium's PGS on the C MuJoCo
+twin only when asked (`solver="pgs"`). On the twin over 10 episodes of random actions (17-38 steps, until it falls),
+Newton's joint positions stayed within 5e-6 of PGS's and its rewards within 1e-5; past the fall, open loop for 200
+steps, 4 of 5 sequences stayed within 1e-5 and one parted after 100 steps (0.14). On MJX, Ant parts from its twin at
+its feet's contacts: MuJoCo 4.0's C collision aligns a capsule-plane contact's first tangent with the capsule, MJX
+3.17 takes fixed axes (in both implementations), and a pyramidal friction cone (Gymnasium's, in every model here)
+turns with them. Ant's joint positions and velocities on MJX stay within 2e-5 of its twin's until the first contact
+and are up to 2.6 apart 10 steps later (with elliptic cones, which the axes do not change: 1e-3). Humanoid is little
+affected: its random-action episodes on MJX (JAX or Warp) stay within 1e-3 + 1e-4 x |value| of the twin. (Hopper's,
+Walker2d's and HalfCheetah's contact states give the same accelerations on both, within 1e-13 in float64.)
+`tests/test_locomotion.py` steps each task's C MuJoCo twin and Gymnasium's own v5 environment from the same
+`qpos`/`qvel` with the same actions and compares observations and rewards step by step, and Humanoid on MJX against
+its twin.
 """
 
 from __future__ import annotations
