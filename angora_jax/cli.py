@@ -50,7 +50,7 @@ from angora_jax.experiment.distributed import ProcessFailed, initialize, is_main
 from angora_jax.experiment.runner import signals_exit_while_preparing
 from angora_jax.nets import list_networks
 from angora_jax.ppo import TrainingDivergedError, list_heads
-from angora_jax.vision.pretrain import ORIENTATIONS
+from angora_jax.vision.estimator import ORIENTATIONS
 
 
 def run_random(task: str, num_envs: int, num_steps: int, seed: int) -> dict[str, float]:
@@ -247,7 +247,8 @@ def parser() -> argparse.ArgumentParser:
 
     vision = commands.add_parser("pretrain-vision", help="render random hand and cube poses and train a visual "
                                                          "encoder to see the cube's pose (angora_jax.vision)")
-    vision.add_argument("--out", required=True, help="file for the trained encoder (a component; never overwritten)")
+    vision.add_argument("--out", required=True, help="file for the trained encoder (a component; the whole pose "
+                                                     "network goes beside it, suffix .pose.msgpack; never overwritten)")
     vision.add_argument("--samples", type=positive_int, default=20000, help="renders (default: 20000)")
     vision.add_argument("--size", type=positive_int, default=64, help="image width and height in pixels")
     vision.add_argument("--cameras", nargs="+", default=["front", "side", "top"], choices=sorted(CAMERAS))
@@ -564,7 +565,9 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
     from angora_jax.vision import pretrain_pose_encoder, render_pose_dataset
 
     out = Path(args.out)
-    if refused_existing("pretrain-vision", out, "components"):
+    estimator_out = out.with_suffix(".pose.msgpack")
+    if refused_existing("pretrain-vision", out, "components") or refused_existing("pretrain-vision", estimator_out,
+                                                                                     "pose estimators"):
         return EXIT_USAGE
     if args.encoder not in VISUAL_ENCODERS:
         print(f"angora-jax pretrain-vision: unknown encoder {args.encoder!r}; choose one of {sorted(VISUAL_ENCODERS)}.",
@@ -579,6 +582,7 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
     result = pretrain_pose_encoder(train, test, args.encoder, options, args.steps, args.batch, seed=args.seed,
                                    orientation=args.orientation)
     save_component(result.params, "encoder", out)
+    result.estimator.save(estimator_out)
     report = {"encoder": args.encoder, "options": options, "cameras": args.cameras, "size": args.size,
               "renderer": args.renderer, "samples": args.samples, "device": str(jax.devices()[0].device_kind),
               "render_seconds": rendered, "train_seconds": result.seconds, "steps": args.steps,
@@ -591,7 +595,8 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
           f"steps in {result.seconds:.0f} s. Held-out ({errors['test_samples']}): position "
           f"{errors['position_mm_median']:.1f} mm median ({errors['position_mm_p90']:.1f} p90), orientation "
           f"{errors['orientation_deg_median']:.1f} deg median ({errors['orientation_deg_p90']:.1f} p90).")
-    print(f"Encoder: {out} (load with network.pretrained); numbers: {out.with_suffix('.json')}")
+    print(f"Encoder: {out} (load with network.pretrained); the whole pose network: {estimator_out} "
+          f"(angora_jax.vision.PoseEstimator.load); numbers: {out.with_suffix('.json')}")
     return EXIT_OK
 
 

@@ -10,9 +10,9 @@ import pytest
 from angora_jax.cli import main
 from angora_jax.nets.components import load_component
 from angora_jax.nets.visual import VISUAL_ENCODERS, make_visual_encoder
-from angora_jax.vision import PoseRenderer, pretrain_pose_encoder, render_pose_dataset
+from angora_jax.vision import PoseEstimator, PoseRenderer, pretrain_pose_encoder, render_pose_dataset
 from angora_jax.vision.dataset import CUBE_REST, random_quaternions
-from angora_jax.vision.pretrain import orientation_error_degrees, quaternions, rotation_matrices
+from angora_jax.vision.estimator import orientation_error_degrees, quaternions, rotation_matrices
 
 FAR = np.array([10.0, 10.0, 0.0])  # m: a cube here is out of every camera's view
 
@@ -87,6 +87,21 @@ def test_pose_pretraining_lowers_its_loss_and_saves_an_encoder_component(tmp_pat
     assert "orientation" in capsys.readouterr().out and out.with_suffix(".json").exists()
     assert set(load_component(out, "network.vision")) == {"V1", "V2", "V4", "IT", "decoder"}
     assert main(argv) == 2 and "never overwritten" in capsys.readouterr().err
+    # The whole pose network, saved beside the encoder, reads frames as it did when measured.
+    estimator = PoseEstimator.load(out.with_suffix(".pose.msgpack"))
+    assert (estimator.cameras, estimator.size, estimator.encoder_options["widths"]) == (("top",), 32, (8, 8, 8, 8))
+    saved = result.estimator.save(tmp_path / "pose.msgpack")
+    position, quaternion = jax.jit(PoseEstimator.load(saved).__call__)(jnp.asarray(test.images))
+    assert position.shape == (12, 3) and quaternion.shape == (12, 4) and bool(jnp.all(quaternion[:, 0] >= 0))
+    np.testing.assert_allclose(jnp.linalg.norm(quaternion, axis=-1), 1.0, rtol=1e-5)
+    errors = 1000 * np.linalg.norm(np.asarray(position) - test.cube_position, axis=-1)
+    np.testing.assert_allclose(np.median(errors), result.errors["position_mm_median"], rtol=1e-4)
+    with pytest.raises(ValueError, match="expects frames"):
+        estimator(jnp.zeros((1, 2, 32, 32, 3), jnp.uint8))
+    with pytest.raises(FileNotFoundError, match="pose.msgpack"):
+        PoseEstimator.load(tmp_path / "missing.pose.msgpack")
+    with pytest.raises(FileExistsError, match="never overwritten"):
+        result.estimator.save(saved)
 
 
 def test_model_cameras_show_exactly_what_the_free_cameras_show():

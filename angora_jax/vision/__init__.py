@@ -1,8 +1,10 @@
-"""Vision: rendered datasets of the hand and cube (`render_pose_dataset`) and pretraining of visual encoders to see
-the cube's pose (`pretrain_pose_encoder`); the encoders themselves are `angora_jax.nets.visual`."""
+"""Vision: rendered datasets of the hand and cube (`render_pose_dataset`), pretraining of visual encoders to see the
+cube's pose (`pretrain_pose_encoder`) and the trained pose network as a `PoseEstimator` (frames in, pose out); the
+encoders themselves are `angora_jax.nets.visual`."""
 
 from angora_jax.vision.dataset import PoseDataset, PoseRenderer, render_pose_dataset
-from angora_jax.vision.pretrain import PoseNet, PretrainResult, orientation_error_degrees, pretrain_pose_encoder
+from angora_jax.vision.estimator import PoseEstimator, PoseNet, orientation_error_degrees
+from angora_jax.vision.pretrain import PretrainResult, pretrain_pose_encoder
 
-__all__ = ["PoseDataset", "PoseNet", "PoseRenderer", "PretrainResult", "orientation_error_degrees",
+__all__ = ["PoseDataset", "PoseEstimator", "PoseNet", "PoseRenderer", "PretrainResult", "orientation_error_degrees",
            "pretrain_pose_encoder", "render_pose_dataset"]
