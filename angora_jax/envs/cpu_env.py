@@ -33,15 +33,16 @@ class CpuEnv(MujocoEnv):
         self._begin = jax.jit(task.begin)
         self._advance = jax.jit(task.advance)
         self._control = jax.jit(task.control)
+        self._perceive = jax.jit(task.perceive)
         self._last: State | None = None
         # Camera vision is rendered with OpenGL from the C MuJoCo data (`envs.cameras`).
         self.cameras = None if task.vision is None else HostCameras(self.model, task.vision)
 
-    def see(self, obs: Sensation, data: mujoco.MjData) -> Sensation:
-        """`obs` with the camera frames of `data` in `vision` when the task sees through cameras."""
+    def see(self, obs: Sensation, data: mujoco.MjData, info: dict[str, jax.Array]) -> Sensation:
+        """`obs` `perceive`d with the camera frames of `data` when the task sees through cameras."""
         if self.cameras is None:
             return obs
-        return obs.replace(vision=jnp.asarray(self.cameras.frames(data)))
+        return self._perceive(obs, jnp.asarray(self.cameras.frames(data)), info)
 
     def _reset(self, key: jax.Array) -> tuple[Snapshot, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)
@@ -51,14 +52,14 @@ class CpuEnv(MujocoEnv):
         start_physics(self.task, np.asarray(self._initial_qpos(pose_key), np.float64), self.data, qvel)
         snap = self.task.snapshot(self.data)
         info, obs = self._begin(task_key, snap)
-        return snap, self.see(obs, self.data), info
+        return snap, self.see(obs, self.data, info), info
 
     def _step(self, physics: Snapshot, info: dict[str, jax.Array], action: jax.Array, key: jax.Array):
         self.data.ctrl[:] = np.asarray(self._control(action, physics), np.float64)
         step_physics(self.task, self.data, self.frame_skip)
         snap = self.task.snapshot(self.data)
         obs, reward, terminated, info, metrics = self._advance(key, physics, snap, info)
-        return snap, self.see(obs, self.data), reward, terminated, info, metrics
+        return snap, self.see(obs, self.data, info), reward, terminated, info, metrics
 
     def reset(self, key: jax.Array) -> State:
         """Start an episode; `key` as for the MJX environment gives the same initial state and goal."""

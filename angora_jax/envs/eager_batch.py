@@ -71,7 +71,12 @@ def batch_functions(env: Env) -> tuple[Env, dict[str, Callable[..., Any]]]:
         def finish(state: State, action: jax.Array, after: Snapshot) -> State:
             return after_physics.advance(state.replace(physics=(state.physics, after)), action)[0]
 
-        functions |= {"reset": env.reset, "control": jax.jit(rowwise(control)), "finish": jax.jit(rowwise(finish))}
+        def perceive(state: State, frames: jax.Array) -> State:
+            obs = env.task.perceive(state.obs, frames, state.info)
+            return state.replace(obs=obs, final_obs=obs)  # slots never auto-reset: both show the same physics
+
+        functions |= {"reset": env.reset, "control": jax.jit(rowwise(control)), "finish": jax.jit(rowwise(finish)),
+                      "perceive": jax.jit(rowwise(perceive))}
     else:
         functions |= {"reset": jax.jit(env.reset), "advance": jax.jit(rowwise(lambda s, a: env.advance(s, a)[0]))}
     return env, functions
@@ -101,6 +106,7 @@ class EagerBatch:
         self._insert, self._reset_one = functions["insert"], functions["reset"]
         if isinstance(self.env, CpuEnv):
             self._control, self._finish = functions["control"], functions["finish"]
+            self._perceive = functions["perceive"]
             self.datas = [mujoco.MjData(self.env.model) for _ in range(size)]
             self.workers = min(workers, size)
         else:
@@ -139,17 +145,13 @@ class EagerBatch:
         # Converted to float32 in numpy (the same rounding as `Snapshot.of`), which costs far less than ten JAX calls.
         fields = self.env.task.snapshot_fields
         after = Snapshot(**{f: np.array([getattr(d, f) for d in self.datas], np.float32) for f in fields})
-        seen = self.states.obs.vision
         self.states = self._finish(self.states, actions, after)
         if self.env.cameras is not None:
-            # Only stepped slots are rendered again (the others keep their frames). Slots never auto-reset, so the
-            # observation and the final one show the same physics.
-            frames = np.array(seen)
+            # Only stepped slots are rendered (the states of the others are meaningless, see above).
+            frames = np.zeros((self.size, *self.env.task.vision.frame_shape), np.uint8)
             for slot in slots:
                 frames[slot] = self.env.cameras.frames(self.datas[slot])
-            frames = jax.device_put(frames, self.device)
-            self.states = self.states.replace(obs=self.states.obs.replace(vision=frames),
-                                              final_obs=self.states.final_obs.replace(vision=frames))
+            self.states = self._perceive(self.states, jax.device_put(frames, self.device))
         return self.states
 
     def _step_physics(self, ctrl: np.ndarray, slots: np.ndarray) -> None:

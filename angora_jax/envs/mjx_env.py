@@ -9,6 +9,7 @@ the default "auto" is Warp on a GPU when warp-lang is installed, else JAX); it t
 from __future__ import annotations
 
 import contextlib
+import functools
 import importlib.util
 import io
 from typing import Any
@@ -153,17 +154,23 @@ class MjxEnv(MujocoEnv):
         return cameras.frames(self.mjx_model, data)
 
     def _unseen(self, obs: Sensation) -> Sensation:
-        """`obs` with blank frames in `vision` (with camera vision), filled by `reset` and `step` once per call."""
+        """`obs` with a blank `vision` of the perceived shape (with camera vision), so that the auto-reset's branches
+        agree; `reset` and `step` perceive the rendered frames once per call."""
         if self.task.vision is None:
             return obs
-        return obs.replace(vision=jnp.zeros(self.task.vision.frame_shape, jnp.uint8))
+        return obs.replace(vision=jnp.zeros(self._seen.shape, self._seen.dtype))
+
+    @functools.cached_property
+    def _seen(self) -> jax.ShapeDtypeStruct:
+        """Shape and dtype of the perceived vision modality."""
+        return self.observation_shapes().vision
 
     def reset(self, key: jax.Array) -> State:
         state = super().reset(key)
         if self.task.vision is None:
             return state
-        frames = self._frames(state.physics, 0)
-        return state.replace(obs=state.obs.replace(vision=frames), final_obs=state.final_obs.replace(vision=frames))
+        obs = self.task.perceive(state.obs, self._frames(state.physics, 0), state.info)
+        return state.replace(obs=obs, final_obs=obs)
 
     def step(self, state: State, action: jax.Array) -> State:
         """As `Env.step`. With camera vision the frames are rendered once per step, of the physics after the
@@ -174,10 +181,11 @@ class MjxEnv(MujocoEnv):
         stepped = super().step(state, action)
         if self.task.vision is None:
             return stepped
-        frames = self._frames(stepped.physics, 1)
-        last = jnp.where(stepped.done > 0, state.obs.vision, frames)
-        return stepped.replace(obs=stepped.obs.replace(vision=frames),
-                               final_obs=stepped.final_obs.replace(vision=last))
+        obs = self.task.perceive(stepped.obs, self._frames(stepped.physics, 1), stepped.info)
+        # An ended episode's final observation keeps what was seen a step before (`final_obs` = `obs` otherwise).
+        ended = stepped.final_obs.replace(vision=state.obs.vision)
+        final_obs = jax.tree.map(lambda e, o: jnp.where(stepped.done > 0, e, o), ended, obs)
+        return stepped.replace(obs=obs, final_obs=final_obs)
 
     def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
         info = super().physics_info() | {

@@ -94,6 +94,9 @@ class MujocoTask(abc.ABC):
     # `cfrc_ext` after each policy step's physics as Gymnasium does (`mj_rnePostConstraint`, once after the last physics
     # step). Off, none of it costs anything.
     body_dynamics: bool = False
+    # Whether `perceive` passes the camera frames on as the vision modality (the policy sees images), or the task
+    # reads them into other observations.
+    frames_in_vision: bool = True
 
     @property
     def snapshot_fields(self) -> tuple[str, ...]:
@@ -144,6 +147,13 @@ class MujocoTask(abc.ABC):
         """`Env.task_variables` of the snapshot: named vectors in SI units; none unless the task names some."""
         return {}
 
+    def perceive(self, obs: Sensation, frames: jax.Array, info: dict[str, jax.Array]) -> Sensation:
+        """`obs` (from `observe`) completed with the camera `frames` of the same state (`vision`'s uint8
+        `frame_shape`), which the physics backends render after `observe`: by default the frames are the vision
+        modality. A task that reads them itself (e.g. through a pose estimator) overrides this and sets
+        `frames_in_vision` to False."""
+        return obs.replace(vision=frames)
+
     def begin(self, key: jax.Array, snap: Snapshot) -> tuple[dict[str, jax.Array], Sensation]:
         """Start an episode from `snap`: return (info, observation)."""
         info = self.initial_info(key, snap)
@@ -178,20 +188,25 @@ class MujocoEnv(Env):
 
     @property
     def sees_images(self) -> bool:
-        return self.task.vision is not None
+        return self.task.vision is not None and self.task.frames_in_vision
 
     def task_variables(self, state: State) -> dict[str, jax.Array]:
         return self.task.task_variables(self.task.snapshot(state.physics), state.info)
 
     def observation_shapes(self) -> Sensation:
-        """As `Env.observation_shapes`; with camera vision, without rendering (images are uint8 `frame_shape`)."""
+        """As `Env.observation_shapes`; with camera vision, without rendering (blank frames, `perceive`d)."""
         if self.task.vision is None:
             return super().observation_shapes()
         data = mujoco.MjData(self.task.model)
         mujoco.mj_forward(self.task.model, data)
         snap = self.task.snapshot(data)
-        obs = jax.eval_shape(lambda key: self.task.begin(key, snap)[1], jax.random.key(0))
-        return obs.replace(vision=jax.ShapeDtypeStruct(self.task.vision.frame_shape, jnp.uint8))
+        frames = jnp.zeros(self.task.vision.frame_shape, jnp.uint8)
+
+        def first_observation(key):
+            info, obs = self.task.begin(key, snap)
+            return self.task.perceive(obs, frames, info)
+
+        return jax.eval_shape(first_observation, jax.random.key(0))
 
 
 def set_mjx_impl(spec: mujoco.MjSpec, impl: str, why: str = "") -> None:

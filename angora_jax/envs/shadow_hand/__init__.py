@@ -48,7 +48,7 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
               success_angle: float = 0.4, goal_timeout: float = 8.0, timer: str = "terminal", max_goals: int = 50,
               control_dt: float = 0.08, relative_goal: bool = True, control: str = "absolute",
               action_scale: float = 0.2, start_pool: int = 512, physics: dict[str, float] | None = None,
-              vision: dict | None = None, backend: str = "mjx") -> Env:
+              vision: dict | None = None, pose_estimator: str | None = None, backend: str = "mjx") -> Env:
     """Build in-hand cube reorientation (see `ihom.Ihom`). Times in s, angles in rad.
 
     The defaults are the recipe of `configs/shadow_ihom.yaml`; `configs/shadow_ihom_paper.yaml` sets AngoraPy's.
@@ -63,7 +63,19 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
     goal timer or the cap ends an episode.
     vision: camera images in place of the cube's pose (`envs.cameras.CameraVision` fields, e.g. `{cameras: [front],
     width: 64, height: 64}`), rendered by MuJoCo Warp inside the step on a GPU and by OpenGL otherwise.
+    pose_estimator: a `vision.PoseEstimator` file (`angora-jax pretrain-vision` writes `<out>.pose.msgpack`): the
+    policy sees the pose it estimates from its cameras' RGB frames (which set `vision`; give no other), the value
+    function the true pose. Train the estimator on the renderer these frames come from (Warp's on a GPU).
     """
+    estimator = None
+    if pose_estimator is not None:
+        from angora_jax.vision.estimator import PoseEstimator  # vision builds on envs: loaded only when asked for
+
+        if vision is not None:
+            raise ValueError("pose_estimator sees through the cameras it was trained on; give no vision option "
+                             "with it.")
+        estimator = PoseEstimator.load(pose_estimator)
+        vision = {"cameras": list(estimator.cameras), "width": estimator.size, "height": estimator.size}
     cameras = CameraVision.from_options(vision)
     settings = CUBE_PHYSICS.with_options(physics)
     frame_skip = settings.frame_skip(control_dt)
@@ -74,7 +86,7 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
     task = Ihom(scene, reward_coefficients(reward_preset, reward),
                 success_angle=success_angle, steps_per_goal=steps_per_goal, max_goals=max_goals, dt=control_dt,
                 timer=timer, relative_goal=relative_goal, control=control, action_scale=action_scale,
-                start_pool=start_pool, vision=cameras)
+                start_pool=start_pool, vision=cameras, pose_estimator=estimator)
     return build(backend, task, frame_skip, max_goals * steps_per_goal, settings)
 
 

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -65,6 +66,9 @@ from angora_jax.envs.mujoco_task import Snapshot
 from angora_jax.envs.shadow_hand.cube import CUBE_JOINT
 from angora_jax.envs.shadow_hand.hand import HandTask
 from angora_jax.envs.shadow_hand.model import HAND_JOINT_PREFIX
+
+if TYPE_CHECKING:
+    from angora_jax.vision.estimator import PoseEstimator
 
 # Gym HandManipulateBlock starts from the flat, open hand (all joints 0) with the cube a few cm above the palm.
 # Std (m) of the cube's initial position noise, as in AngoraPy/Gym.
@@ -170,10 +174,13 @@ class Ihom(HandTask):
       touch (97 or 0): touch sensor readings (N, contact normal forces summed over each sensor zone);
       vision (7): the cube's pose in place of vision, position (m, world) and orientation quaternion (w, x, y, z);
         with `vision` (camera settings, `envs.cameras.CameraVision`) camera images instead, uint8
-        `(cameras, height, width, channels)`, and the pose moves to `asymmetric` (the value function's);
+        `(cameras, height, width, channels)`, and the pose moves to `asymmetric` (the value function's); with
+        `pose_estimator` (a `vision.PoseEstimator`, which sets `vision` to its cameras) the pose that the estimator
+        reads from those images, as OpenAI's Dactyl fed its policy, the true pose moving to `asymmetric`;
       goal (4, or 13 with `relative_goal`): the goal quaternion; with `relative_goal` also the rotation from the
         cube's orientation to the goal as a 3 x 3 matrix (world frame, flattened), the error the hand must undo
-        (it reveals the cube's orientation, so it cannot go with camera vision);
+        (it reveals the cube's orientation, so it cannot go with camera vision; with a pose estimator it is the
+        rotation from the estimated orientation);
       asymmetric (27, +7 with camera vision; value function only): fingertip positions (15, m), rotation from cube to
         goal (4, quaternion), cube linear velocity (3, m/s, world frame), angular velocity (3, rad/s, cube frame),
         the share of the goal timer left and the share of `max_goals` reached (then the cube's pose).
@@ -192,16 +199,19 @@ class Ihom(HandTask):
     def __init__(self, model: mujoco.MjModel, reward: IhomReward = IhomReward(), success_angle: float = 0.4,
                  steps_per_goal: int = 100, max_goals: int = 50, dt: float = 0.08, timer: str = "terminal",
                  relative_goal: bool = False, control: str = "absolute", action_scale: float = 0.2,
-                 start_pool: int = 512, vision: CameraVision | None = None):
+                 start_pool: int = 512, vision: CameraVision | None = None,
+                 pose_estimator: PoseEstimator | None = None):
         if success_angle <= 0 or steps_per_goal < 1 or max_goals < 1 or dt <= 0 or start_pool < 1:
             raise ValueError(f"Ihom needs success_angle > 0, steps_per_goal >= 1, max_goals >= 1, dt > 0 and "
                              f"start_pool >= 1, got {success_angle}, {steps_per_goal}, {max_goals}, {dt}, "
                              f"{start_pool}.")
         if timer not in TIMERS:
             raise ValueError(f"Unknown goal timer semantics {timer!r}; choose one of {TIMERS}.")
-        if vision is not None and relative_goal:
+        if vision is not None and relative_goal and pose_estimator is None:
             raise ValueError("relative_goal shows the rotation from the cube to the goal, which reveals the cube's "
                              "orientation that camera vision should have to see: set relative_goal: false.")
+        if pose_estimator is not None and vision is None:
+            raise ValueError("A pose estimator reads camera frames: give the cameras it was trained on as `vision`.")
         hand_joints = [j for j in range(model.njnt) if model.joint(j).name.startswith(HAND_JOINT_PREFIX)]
         super().__init__(model, control=control, action_scale=action_scale,
                          initial_qpos={model.joint(j).name: 0.0 for j in hand_joints}, vision=vision)
@@ -212,6 +222,8 @@ class Ihom(HandTask):
         self.dt = dt
         self.timer = timer
         self.relative_goal = relative_goal
+        self.pose_estimator = pose_estimator
+        self.frames_in_vision = pose_estimator is None
         cube = model.joint(CUBE_JOINT)
         self.cube_qpos = int(cube.qposadr[0])
         self.cube_dof = int(cube.dofadr[0])
@@ -293,6 +305,17 @@ class Ihom(HandTask):
         goal = jnp.concatenate([info["goal"], rotation_matrix(to_goal)]) if self.relative_goal else info["goal"]
         return Sensation.make(proprioception=self.proprioception(snap), touch=snap.sensordata[self.touch_adr],
                               vision=pose, goal=goal, asymmetric=jnp.concatenate(privileged))
+
+    def perceive(self, obs: Sensation, frames: jax.Array, info: dict[str, jax.Array]) -> Sensation:
+        """With a pose estimator, the pose it reads from `frames` in `vision` (and the relative goal from its
+        orientation); otherwise the frames themselves."""
+        if self.pose_estimator is None:
+            return super().perceive(obs, frames, info)
+        position, quaternion = self.pose_estimator(frames[None])
+        goal = info["goal"]
+        if self.relative_goal:
+            goal = jnp.concatenate([goal, rotation_matrix(rotation_between(quaternion[0], goal))])
+        return obs.replace(vision=jnp.concatenate([position[0], quaternion[0]]), goal=goal)
 
     def task_variables(self, snap: Snapshot, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
         """The hand's (`HandTask.task_variables`) and the cube's: cube_position (3, m, world), cube_orientation (4,
