@@ -46,6 +46,7 @@ from angora_jax.experiment import (
     resume,
     train,
 )
+from angora_jax.experiment.config import parse_assignments
 from angora_jax.experiment.distributed import ProcessFailed, initialize, is_main_process
 from angora_jax.experiment.runner import signals_exit_while_preparing
 from angora_jax.nets import list_networks
@@ -152,6 +153,9 @@ def parser() -> argparse.ArgumentParser:
                                "training path (MJX, the GPU when there is one)")
     evaluate.add_argument("--workers", type=positive_int, default=1,
                           help="threads stepping C MuJoCo physics (default: 1); results do not depend on it")
+    evaluate.add_argument("--env-option", action="append", default=[], metavar="KEY=VALUE",
+                          help="a task option that differs from the run's (repeatable; the network must still fit "
+                               "the observations), e.g. pose_estimator=encoder.pose.msgpack for the cube")
     evaluate.set_defaults(handler=command_evaluate)
 
     render = commands.add_parser("render", help="a video of a trained policy (or random actions) on a MuJoCo task")
@@ -351,7 +355,8 @@ def print_finished(run: TrainingRun) -> None:
 def command_evaluate(args: argparse.Namespace) -> int:
     checkpoint = checkpoint_of(args.checkpoint)
     result = evaluation.evaluate(args.run_dir, checkpoint, args.episodes, args.stochastic, args.seed,
-                                 batch=args.batch, workers=args.workers, path=args.path)
+                                 batch=args.batch, workers=args.workers, path=args.path,
+                                 env_options=parse_assignments(args.env_option))
     meta = result.meta
     actions = "sampled" if args.stochastic else "deterministic (mode)"
     threads = f", {meta['workers']} threads stepping physics" if meta["workers"] > 1 else ""

@@ -275,6 +275,20 @@ def test_cli_evaluate_prints_statistics_and_sampled_episodes_do_not_depend_on_th
         assert written["per_episode"][name] == values.tolist(), name
 
 
+def test_evaluation_in_a_changed_task_records_the_change(run_dir, capsys):
+    """`--env-option` evaluates the policy in a task with other options (e.g. the cube seen through a pose estimator;
+    here CartPole's episodes cut at 20 steps): recorded in the JSON, named apart from plain evaluations."""
+    args = ["evaluate", str(run_dir), "--checkpoint", "latest", "--episodes", "4",
+            "--env-option", "max_episode_steps=20"]
+    assert main(args) == 0
+    path = Path(capsys.readouterr().out.split("Written: ")[1].split(" and ")[0])
+    written = json.loads(path.read_text())
+    assert path.name.endswith("-changed.json") and written["env_options"] == {"max_episode_steps": 20}
+    assert max(written["per_episode"]["episode_length"]) <= 20
+    assert main([*args[:-1], "max_episode_steps"]) == 2
+    assert "must look like key.sub=value" in capsys.readouterr().err
+
+
 def test_render_frames_of_random_actions_differ():
     if problem := gl_problem():
         pytest.skip(problem)

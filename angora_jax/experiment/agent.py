@@ -103,9 +103,11 @@ class Agent:
         return {k: float(v) for k, v in evaluate(self.state, jax.random.key(seed)).items()}
 
 
-def load_agent(run_dir: str | Path, checkpoint: str | int = "best") -> Agent:
+def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_options: dict[str, Any] | None = None) -> Agent:
     """The policy saved in `run_dir`. checkpoint: "best" (falls back to "latest" when the run keeps no best),
-    "latest", or a cycle number with a checkpoint (see `RUN_DIR/checkpoints`).
+    "latest", or a cycle number with a checkpoint (see `RUN_DIR/checkpoints`). env_options: task options that differ
+    from the run's, for acting in a changed task whose observations the network still fits (e.g. `{"pose_estimator":
+    FILE}`: a cube policy trained on the true pose sees it through a pose estimator).
 
     Only the parameters and observation statistics are read: the training environments' states in the checkpoint
     may have another layout than the current task's (e.g. the scene changed since training). Raises CheckpointError
@@ -116,7 +118,7 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best") -> Agent:
     # or with MuJoCo Warp (and copied here) loads too.
     here = replace(
         config,
-        env=replace(config.env, options=_without_missing_warp(config.env.options)),
+        env=replace(config.env, options=_without_missing_warp(config.env.options) | (env_options or {})),
         distribution=DistributionConfig(),
         logging=replace(config.logging, tensorboard=False),
     )

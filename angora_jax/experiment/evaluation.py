@@ -226,25 +226,26 @@ PATHS = ("cpu", "batched")
 
 def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int = 480, stochastic: bool = False,
              seed: int = 0, save: bool = True, batch: int = DEFAULT_BATCH, workers: int = 1,
-             path: str = "cpu") -> Evaluation:
+             path: str = "cpu", env_options: dict[str, Any] | None = None) -> Evaluation:
     """Evaluate the policy saved in `run_dir` for `episodes` episodes.
 
     checkpoint: "best", "latest" or a cycle number (as for `load_agent`). stochastic: sample actions instead of
     taking the policy's mode. path: "cpu" (the eager path) or "batched" (all episodes at once on the training path,
     each one at most the task's `max_episode_steps`; the only path of Gymnasium tasks, `gym:<id>`). batch: episodes
     run at once on the CPU path (at most `episodes`). workers: threads stepping the C MuJoCo physics of the batch
-    (at most `batch`; see `EagerBatch`).
-    Neither changes any episode. save: write `RUN_DIR/evaluation/<checkpoint>-cycle<N>-<mode>-seed<S>.json` (with
-    `-batched` before `.json` for that path) and a box plot `.png` of the same name (a `-2`, `-3`, ... suffix when
-    taken: nothing is overwritten).
+    (at most `batch`; see `EagerBatch`). env_options: task options that differ from the run's (`load_agent`);
+    recorded, and `-changed` comes before the files' `.json`. Neither batch nor workers changes any episode. save:
+    write `RUN_DIR/evaluation/<checkpoint>-cycle<N>-<mode>-seed<S>.json` (with `-batched` before `.json` for that
+    path) and a box plot `.png` of the same name (a `-2`, `-3`, ... suffix when taken: nothing is overwritten).
     """
     if episodes < 1 or batch < 1 or workers < 1:
         raise ValueError(f"episodes, batch and workers must be >= 1, got {episodes}, {batch}, {workers}.")
     if path not in PATHS:
         raise ValueError(f"Unknown evaluation path {path!r}; choose one of {PATHS}.")
-    agent = load_agent(run_dir, checkpoint)
+    agent = load_agent(run_dir, checkpoint, env_options)
+    changed = {"env_options": env_options} if env_options else {}
     if path == "batched" or getattr(agent.env, "on_host", False):  # a Gymnasium task has its own simulator only
-        return _evaluate_batched(agent, run_dir, checkpoint, episodes, stochastic, seed, save)
+        return _evaluate_batched(agent, run_dir, checkpoint, episodes, stochastic, seed, save, changed)
     task = getattr(agent.env, "task", None)
     if getattr(task, "vision", None) is not None and getattr(agent.env, "impl", None) == "warp":
         warnings.warn("This agent sees camera images, and here they are rendered by MuJoCo Warp on the training path; "
@@ -269,13 +270,14 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
         "stochastic": stochastic,
         "seed": seed,
         "wall_seconds": wall,
+        **changed,
     }
     result = Evaluation(per_episode, {name: summarize(v) for name, v in per_episode.items()}, meta)
     return save_evaluation(result, Path(run_dir) / EVALUATION_DIR) if save else result
 
 
 def _evaluate_batched(agent: Agent, run_dir: str | Path, checkpoint: str | int, episodes: int, stochastic: bool,
-                      seed: int, save: bool) -> Evaluation:
+                      seed: int, save: bool, changed: dict[str, Any]) -> Evaluation:
     """`evaluate` on the batched training path: one compiled program runs all `episodes` at once."""
     compiled = agent.compiled_once(("batched", episodes, stochastic), lambda: make_evaluate(
         agent.env, agent.network, agent.config.ppo, episodes, not stochastic, per_episode=True
@@ -298,6 +300,7 @@ def _evaluate_batched(agent: Agent, run_dir: str | Path, checkpoint: str | int, 
         "stochastic": stochastic,
         "seed": seed,
         "wall_seconds": wall,
+        **changed,
     }
     result = Evaluation(per_episode, {name: summarize(v) for name, v in per_episode.items()}, meta)
     return save_evaluation(result, Path(run_dir) / EVALUATION_DIR) if save else result
@@ -311,6 +314,7 @@ def save_evaluation(result: Evaluation, directory: Path) -> Evaluation:
     actions = "stochastic" if meta["stochastic"] else "mode"
     stem = f"{meta['checkpoint']}-cycle{meta['cycle']}-{actions}-seed{meta['seed']}"
     stem += "-batched" if meta.get("path") == "batched" else ""
+    stem += "-changed" if meta.get("env_options") else ""
     record = {**meta, "summary": result.summary, "per_episode": {k: v.tolist() for k, v in result.episodes.items()}}
     for suffix in ("", *(f"-{i}" for i in range(2, 10_000))):
         json_path = directory / f"{stem}{suffix}.json"

@@ -64,8 +64,9 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
     vision: camera images in place of the cube's pose (`envs.cameras.CameraVision` fields, e.g. `{cameras: [front],
     width: 64, height: 64}`), rendered by MuJoCo Warp inside the step on a GPU and by OpenGL otherwise.
     pose_estimator: a `vision.PoseEstimator` file (`angora-jax pretrain-vision` writes `<out>.pose.msgpack`): the
-    policy sees the pose it estimates from its cameras' RGB frames (which set `vision`; give no other), the value
-    function the true pose. Train the estimator on the renderer these frames come from (Warp's on a GPU).
+    policy sees the pose it estimates from its cameras' RGB frames (which set `vision`; give no other) where it saw
+    the true pose, with inputs of the same shapes. Train the estimator on the renderer these frames come from (Warp's
+    on a GPU).
     """
     estimator = None
     if pose_estimator is not None:

@@ -176,7 +176,8 @@ class Ihom(HandTask):
         with `vision` (camera settings, `envs.cameras.CameraVision`) camera images instead, uint8
         `(cameras, height, width, channels)`, and the pose moves to `asymmetric` (the value function's); with
         `pose_estimator` (a `vision.PoseEstimator`, which sets `vision` to its cameras) the pose that the estimator
-        reads from those images, as OpenAI's Dactyl fed its policy, the true pose moving to `asymmetric`;
+        reads from those images, as OpenAI's Dactyl fed its policy: every input keeps the pose task's shape, so a
+        network trained on the true pose reads the estimate unchanged;
       goal (4, or 13 with `relative_goal`): the goal quaternion; with `relative_goal` also the rotation from the
         cube's orientation to the goal as a 3 x 3 matrix (world frame, flattened), the error the hand must undo
         (it reveals the cube's orientation, so it cannot go with camera vision; with a pose estimator it is the
@@ -299,8 +300,8 @@ class Ihom(HandTask):
         to_goal = rotation_between(self.cube_quat(snap), info["goal"])
         clocks = jnp.stack([1.0 - info["goal_steps"] / self.steps_per_goal, info["goals_reached"] / self.max_goals])
         privileged = [self.fingertips(snap).reshape(-1), to_goal, cube_velocity, clocks]
-        pose = self.cube_pose(snap)
-        if self.vision is not None:  # the backend renders the frames into vision
+        pose = self.cube_pose(snap)  # a pose estimator's reading replaces it (`perceive`)
+        if self.vision is not None and self.frames_in_vision:  # the backend renders the frames into vision
             privileged, pose = privileged + [pose], jnp.zeros((0,), jnp.float32)
         goal = jnp.concatenate([info["goal"], rotation_matrix(to_goal)]) if self.relative_goal else info["goal"]
         return Sensation.make(proprioception=self.proprioception(snap), touch=snap.sensordata[self.touch_adr],
