@@ -46,7 +46,6 @@ from angora_jax.experiment import (
     resume,
     train,
 )
-from angora_jax.experiment.config import parse_assignments
 from angora_jax.experiment.distributed import ProcessFailed, initialize, is_main_process
 from angora_jax.experiment.runner import signals_exit_while_preparing
 from angora_jax.nets import list_networks
@@ -356,7 +355,7 @@ def command_evaluate(args: argparse.Namespace) -> int:
     checkpoint = checkpoint_of(args.checkpoint)
     result = evaluation.evaluate(args.run_dir, checkpoint, args.episodes, args.stochastic, args.seed,
                                  batch=args.batch, workers=args.workers, path=args.path,
-                                 env_options=parse_assignments(args.env_option))
+                                 env_overrides=args.env_option)
     meta = result.meta
     actions = "sampled" if args.stochastic else "deterministic (mode)"
     threads = f", {meta['workers']} threads stepping physics" if meta["workers"] > 1 else ""

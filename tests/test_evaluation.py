@@ -283,7 +283,7 @@ def test_evaluation_in_a_changed_task_records_the_change(run_dir, capsys):
     assert main(args) == 0
     path = Path(capsys.readouterr().out.split("Written: ")[1].split(" and ")[0])
     written = json.loads(path.read_text())
-    assert path.name.endswith("-changed.json") and written["env_options"] == {"max_episode_steps": 20}
+    assert path.name.endswith("-changed.json") and written["env_overrides"] == ["max_episode_steps=20"]
     assert max(written["per_episode"]["episode_length"]) <= 20
     assert main([*args[:-1], "max_episode_steps"]) == 2
     assert "must look like key.sub=value" in capsys.readouterr().err

@@ -5,7 +5,7 @@ from __future__ import annotations
 import functools
 import importlib.util
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -103,22 +103,25 @@ class Agent:
         return {k: float(v) for k, v in evaluate(self.state, jax.random.key(seed)).items()}
 
 
-def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_options: dict[str, Any] | None = None) -> Agent:
+def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_overrides: Sequence[str] = ()) -> Agent:
     """The policy saved in `run_dir`. checkpoint: "best" (falls back to "latest" when the run keeps no best),
-    "latest", or a cycle number with a checkpoint (see `RUN_DIR/checkpoints`). env_options: task options that differ
-    from the run's, for acting in a changed task whose observations the network still fits (e.g. `{"pose_estimator":
-    FILE}`: a cube policy trained on the true pose sees it through a pose estimator).
+    "latest", or a cycle number with a checkpoint (see `RUN_DIR/checkpoints`). env_overrides: task options that
+    differ from the run's, as `key.sub=value` strings applied to `env.options` as training applies overrides, for
+    acting in a changed task whose observations the network still fits (e.g. `pose_estimator=FILE`: a cube policy
+    trained on the true pose sees it through a pose estimator).
 
     Only the parameters and observation statistics are read: the training environments' states in the checkpoint
     may have another layout than the current task's (e.g. the scene changed since training). Raises CheckpointError
     when the parameters do not fit the config's network.
     """
     config = read_run_config(run_dir)
+    if env_overrides:
+        config = load_config(to_dict(config), [f"env.options.{override}" for override in env_overrides])
     # Acting needs the task and the model, not the training machine: a run trained on more devices, with TensorBoard
     # or with MuJoCo Warp (and copied here) loads too.
     here = replace(
         config,
-        env=replace(config.env, options=_without_missing_warp(config.env.options) | (env_options or {})),
+        env=replace(config.env, options=_without_missing_warp(config.env.options)),
         distribution=DistributionConfig(),
         logging=replace(config.logging, tensorboard=False),
     )

@@ -238,15 +238,6 @@ def _deep_copy(data: Any) -> Any:
     return data
 
 
-def parse_assignments(assignments: typing.Iterable[str]) -> dict[str, Any]:
-    """`key.sub=value` texts (values in YAML) as one nested mapping, e.g. task options given on a command line;
-    ConfigError naming a malformed one."""
-    data: dict[str, Any] = {}
-    for assignment in assignments:
-        _apply_override(data, assignment)
-    return data
-
-
 def _apply_override(data: dict[str, Any], override: str) -> None:
     key, sep, text = override.partition("=")
     if not sep or not key or any(not part for part in key.split(".")):

@@ -26,7 +26,7 @@ import json
 import math
 import time
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -226,14 +226,14 @@ PATHS = ("cpu", "batched")
 
 def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int = 480, stochastic: bool = False,
              seed: int = 0, save: bool = True, batch: int = DEFAULT_BATCH, workers: int = 1,
-             path: str = "cpu", env_options: dict[str, Any] | None = None) -> Evaluation:
+             path: str = "cpu", env_overrides: Sequence[str] = ()) -> Evaluation:
     """Evaluate the policy saved in `run_dir` for `episodes` episodes.
 
     checkpoint: "best", "latest" or a cycle number (as for `load_agent`). stochastic: sample actions instead of
     taking the policy's mode. path: "cpu" (the eager path) or "batched" (all episodes at once on the training path,
     each one at most the task's `max_episode_steps`; the only path of Gymnasium tasks, `gym:<id>`). batch: episodes
     run at once on the CPU path (at most `episodes`). workers: threads stepping the C MuJoCo physics of the batch
-    (at most `batch`; see `EagerBatch`). env_options: task options that differ from the run's (`load_agent`);
+    (at most `batch`; see `EagerBatch`). env_overrides: task options that differ from the run's (`load_agent`);
     recorded, and `-changed` comes before the files' `.json`. Neither batch nor workers changes any episode. save:
     write `RUN_DIR/evaluation/<checkpoint>-cycle<N>-<mode>-seed<S>.json` (with `-batched` before `.json` for that
     path) and a box plot `.png` of the same name (a `-2`, `-3`, ... suffix when taken: nothing is overwritten).
@@ -242,8 +242,8 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
         raise ValueError(f"episodes, batch and workers must be >= 1, got {episodes}, {batch}, {workers}.")
     if path not in PATHS:
         raise ValueError(f"Unknown evaluation path {path!r}; choose one of {PATHS}.")
-    agent = load_agent(run_dir, checkpoint, env_options)
-    changed = {"env_options": env_options} if env_options else {}
+    agent = load_agent(run_dir, checkpoint, env_overrides)
+    changed = {"env_overrides": list(env_overrides)} if env_overrides else {}
     if path == "batched" or getattr(agent.env, "on_host", False):  # a Gymnasium task has its own simulator only
         return _evaluate_batched(agent, run_dir, checkpoint, episodes, stochastic, seed, save, changed)
     task = getattr(agent.env, "task", None)
@@ -314,7 +314,7 @@ def save_evaluation(result: Evaluation, directory: Path) -> Evaluation:
     actions = "stochastic" if meta["stochastic"] else "mode"
     stem = f"{meta['checkpoint']}-cycle{meta['cycle']}-{actions}-seed{meta['seed']}"
     stem += "-batched" if meta.get("path") == "batched" else ""
-    stem += "-changed" if meta.get("env_options") else ""
+    stem += "-changed" if meta.get("env_overrides") else ""
     record = {**meta, "summary": result.summary, "per_episode": {k: v.tolist() for k, v in result.episodes.items()}}
     for suffix in ("", *(f"-{i}" for i in range(2, 10_000))):
         json_path = directory / f"{stem}{suffix}.json"

@@ -92,6 +92,7 @@ class PoseEstimator:
     position_spread: np.ndarray
 
     def network(self) -> PoseNet:
+        """The untrained `PoseNet` that `params` belong to."""
         return PoseNet(make_visual_encoder(self.encoder, **self.encoder_options), orientation=self.orientation)
 
     def __call__(self, frames: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -1,7 +1,6 @@
 """Gymnasium's MuJoCo tasks (v5) on MJX: `Hopper`, `Walker2d`, `HalfCheetah`, `Swimmer`, `Ant`, `Humanoid`,
 `InvertedPendulum`, `InvertedDoublePendulum`, `Reacher` (see `tasks`). Each runs batched on MJX (MuJoCo Warp on a GPU
-with warp-lang; `Ant` and `Humanoid`, which read contact forces, on MJX's JAX implementation always) or, with
-`backend="cpu"`, as its eager C MuJoCo twin."""
+with warp-lang) or, with `backend="cpu"`, as its eager C MuJoCo twin."""
 
 from __future__ import annotations
 
@@ -27,7 +26,7 @@ OTHERS = {"InvertedPendulum": InvertedPendulum, "InvertedDoublePendulum": Invert
 def make_locomotion(name: str, max_episode_steps: int | None = None, impl: str = "auto",
                     backend: str = "mjx", solver: str | None = None) -> Env:
     """Gymnasium's task `name` (v5). max_episode_steps: None for Gymnasium's (1000; Reacher 50). impl: the MJX
-    implementation ("auto": Warp on a GPU when warp-lang imports, else JAX; JAX for tasks that read contact forces).
+    implementation ("auto": Warp on a GPU when warp-lang imports, else JAX).
     backend: "mjx" or "cpu". solver: the constraint solver of the forward-moving tasks (`GAITS`), "newton", "cg" or
     "pgs" (None: the task's, which is Gymnasium's but Newton for Humanoid; MJX has no PGS: "pgs" needs "cpu")."""
     if solver is not None and name not in GAITS:
