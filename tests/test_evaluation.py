@@ -5,6 +5,7 @@ import json
 import os
 import shutil
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import jax
@@ -33,6 +34,7 @@ from angora_jax.experiment.evaluation import (
     random_policy,
     run_episodes,
 )
+from angora_jax.ppo.cycle import make_cycle
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
 import path_agreement  # noqa: E402
@@ -287,6 +289,30 @@ def test_evaluation_in_a_changed_task_records_the_change(run_dir, capsys):
     assert max(written["per_episode"]["episode_length"]) <= 20
     assert main([*args[:-1], "max_episode_steps"]) == 2
     assert "must look like key.sub=value" in capsys.readouterr().err
+
+
+def test_a_new_run_fine_tunes_a_saved_policy_in_a_changed_task(run_dir, tmp_path):
+    """`ppo.init_from`: a run that starts from a saved run's network and observation statistics (e.g. the cube's
+    pose-input policy, fine-tuned reading a pose estimator; here CartPole's with shorter episodes) and trains on; a
+    network that does not fit, or no such run, is refused naming the cause."""
+    saved = aj.load_agent(run_dir, "latest").state
+    overrides = [*TINY_PPO, "ppo.network.name=lstm", "ppo.num_cycles=2", f"ppo.init_from={run_dir}:latest",
+                 "env.options.max_episode_steps=50", f"logging.run_root={tmp_path}", "logging.run_name=tuned",
+                 "logging.report=false", "logging.progress=none", "checkpoint.every=1"]
+    config = aj.load_config("cartpole", overrides)
+    env = aj.make("CartPole", max_episode_steps=50)
+    init, _ = make_cycle(env, None, config.ppo)
+    start = init(jax.random.key(0))
+    for ours, theirs in ((start.params, saved.params), (start.obs_stats, saved.obs_stats)):
+        jax.tree.map(np.testing.assert_array_equal, ours, theirs)
+    run = aj.train(config)
+    assert [row["cycle"] for row in run.history] == [1, 2]
+    tuned = aj.load_agent(run.run_dir, "latest").state
+    assert not np.array_equal(tuned.params["policy_head"]["kernel"], saved.params["policy_head"]["kernel"]), "trained"
+    with pytest.raises(ValueError, match="init_from .*network parameters do not fit.*policy_cell"):
+        make_cycle(env, None, config.ppo.replace(network=replace(config.ppo.network, width=8)))[0](jax.random.key(0))
+    with pytest.raises(FileNotFoundError, match="names no saved run"):
+        make_cycle(env, None, config.ppo.replace(init_from=str(tmp_path / "gone")))[0](jax.random.key(0))
 
 
 def test_render_frames_of_random_actions_differ():

@@ -135,6 +135,18 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
     return Agent(config, env, network, head, state, int(state.cycle), compiled)
 
 
+def saved_policy(source: str | Path) -> PolicyState:
+    """The parameters and observation statistics saved in a run, named `RUN_DIR` (its best checkpoint, or its
+    latest when it keeps no best), `RUN_DIR:latest` or `RUN_DIR:<cycle>`; FileNotFoundError when there is no such
+    run directory."""
+    text = str(source)
+    run_dir, _, which = text.partition(":") if not Path(text).exists() else (text, "", "")
+    if not Path(run_dir).is_dir():
+        raise FileNotFoundError(f"{text!r} names no saved run (no directory {run_dir!r}): give "
+                                "RUN_DIR[:best|latest|<cycle>] (network.pretrained also takes a component file).")
+    return load_agent(run_dir, int(which) if which.isdigit() else (which or "best")).state
+
+
 def _acting_config(config: Config) -> Config:
     """What acting depends on: the task and the model; not the run's name, length, seed, logging or checkpoints."""
     ppo = replace(config.ppo, seed=0, num_cycles=1, lr_decay=False)

@@ -116,9 +116,10 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
 
 def initial_state_shape(config: Config, env: Env) -> TrainState:
     """Shapes and dtypes of the run's TrainState (a tree of `jax.ShapeDtypeStruct`), computed without running (and
-    without reading pretrained components: where initial values come from does not change a shape)."""
+    without reading pretrained components or the run it starts from: where initial values come from does not change
+    a shape)."""
     network = dataclasses.replace(config.ppo.network, pretrained={})
-    init, _ = make_cycle(env, None, config.ppo.replace(network=network))
+    init, _ = make_cycle(env, None, config.ppo.replace(network=network, init_from=None))
     return jax.eval_shape(init, jax.random.key(config.ppo.seed))
 
 

@@ -76,18 +76,12 @@ def save_component(params: Any, path: str, file: str | Path) -> Path:
 def load_component(source: str | Path, path: str) -> Any:
     """The module `path` from `source`: a file of `save_component`, or a run directory (`RUN_DIR`, its best
     checkpoint, or `RUN_DIR:latest` / `RUN_DIR:<cycle>`), from whose parameters the same path is taken."""
-    text = str(source)
-    if Path(text).is_file():
-        return serialization.msgpack_restore(Path(text).read_bytes())
-    run_dir, _, which = text.partition(":") if not Path(text).exists() else (text, "", "")
-    if not Path(run_dir).is_dir():
-        raise FileNotFoundError(f"Pretrained source {text!r} for {path!r} is neither a component file nor a run "
-                                "directory; give a file from save_component or RUN_DIR[:best|latest|<cycle>].")
+    if Path(source).is_file():
+        return serialization.msgpack_restore(Path(source).read_bytes())
     # experiment builds on nets, so nets reaches for the run-directory reader only when a run is the source
-    from angora_jax.experiment.agent import load_agent
+    from angora_jax.experiment.agent import saved_policy
 
-    checkpoint = int(which) if which.isdigit() else (which or "best")
-    return component(load_agent(run_dir, checkpoint).params, path)
+    return component(saved_policy(source).params, path)
 
 
 def with_pretrained(params: Any, pretrained: Mapping[str, str | Path]) -> Any:

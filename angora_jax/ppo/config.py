@@ -102,6 +102,10 @@ class PPOConfig:
         "auto" (categorical for discrete tasks, gaussian for continuous ones), or a head added with `register_head`.
     value_clip: clip the value update to +-`clip_epsilon` around the rollout's values.
     lr_decay: decay the learning rate linearly to 0 over `num_cycles`.
+    init_from: a saved run, `RUN_DIR` (its best checkpoint) or `RUN_DIR:latest` / `RUN_DIR:<cycle>`, whose network
+        parameters and observation statistics this run starts from, to fine-tune a trained policy on a changed task
+        (e.g. the cube's pose-input policy reading a pose estimator's estimate). The network must have the same
+        shapes; the optimizer, reward statistics and counters start afresh. `network.pretrained` loads over it.
     """
 
     seed: int = 0
@@ -119,6 +123,7 @@ class PPOConfig:
     entropy_coef: float = 0.01
     learning_rate: float = 1e-3
     lr_decay: bool = False
+    init_from: str | None = None
     max_grad_norm: float = 0.5
     normalize_advantages: bool = True
     head: str = "auto"
@@ -153,6 +158,9 @@ class PPOConfig:
                 raise ValueError(f"PPOConfig.{name} must be >= 0, got {getattr(self, name)}.")
         if self.head != "auto" and self.head not in list_heads():
             raise ValueError(f"PPOConfig.head must be 'auto' or one of {list_heads()}, got {self.head!r}.")
+        if self.init_from is not None and (not isinstance(self.init_from, str) or not self.init_from):
+            raise ValueError(f"PPOConfig.init_from names a saved run, RUN_DIR[:best|latest|<cycle>]; got "
+                             f"{self.init_from!r}.")
         if self.bins < 2:
             raise ValueError(f"PPOConfig.bins must be >= 2, got {self.bins}.")
         if self.rollout_length % self.chunk_length:

@@ -253,29 +253,51 @@ def make_cycle(
         return new_state, metrics
 
     global_init = jax.jit(init)
-    if config.network.pretrained:
-        global_init = _with_pretrained(global_init, config.network.pretrained)
+    if config.network.pretrained or config.init_from:
+        global_init = _with_saved_values(global_init, config.network.pretrained, config.init_from)
     if num_devices == 1:
         return global_init, jax.jit(cycle)
     parallel_cycle = data_parallel(cycle, jax.eval_shape(init, jax.random.key(0)), num_devices)
     return lambda key: parallel_cycle.place(global_init(key)), parallel_cycle
 
 
-def _with_pretrained(init: Callable[[jax.Array], TrainState], pretrained: dict[str, str]):
-    """`init` followed by loading the `pretrained` components (on the host, when first called, so their values
-    are not baked into a compiled program and a run only reads its sources when it starts from scratch)."""
+def _with_saved_values(init: Callable[[jax.Array], TrainState], pretrained: dict[str, str], init_from: str | None):
+    """`init` followed by loading a saved run's parameters and observation statistics (`init_from`), then the
+    `pretrained` components over them; on the host, when first called, so their values are not baked into a
+    compiled program and a run only reads its sources when it starts from scratch."""
     loaded = {}
 
-    def init_with_pretrained(key: jax.Array) -> TrainState:
+    def init_with_saved_values(key: jax.Array) -> TrainState:
         state = init(key)
         if not loaded:
-            loaded.update({path: load_component(source, path) for path, source in pretrained.items()})
-        params = state.params
-        for path, values in loaded.items():
-            params = with_component(params, path, values)
-        return state.replace(params=jax.device_put(params))
+            if init_from:
+                # experiment builds on ppo, so ppo reaches for the run-directory reader only when a run is named
+                from angora_jax.experiment.agent import saved_policy
 
-    return init_with_pretrained
+                saved = saved_policy(init_from)
+                loaded["run"] = (_fitting(state.params, saved.params, "network parameters", init_from),
+                                 _fitting(state.obs_stats, saved.obs_stats, "observation statistics", init_from))
+            loaded["components"] = {path: load_component(source, path) for path, source in pretrained.items()}
+        params, obs_stats = loaded.get("run", (state.params, state.obs_stats))
+        for path, values in loaded["components"].items():
+            params = with_component(params, path, values)
+        return state.replace(params=jax.device_put(params), obs_stats=jax.device_put(obs_stats))
+
+    return init_with_saved_values
+
+
+def _fitting(current: Any, saved: Any, what: str, source: str) -> Any:
+    """`saved` as `current`'s dtypes, when it has `current`'s leaves and shapes; a ValueError naming those that
+    differ otherwise."""
+    def shapes(tree: Any) -> dict[str, tuple[int, ...]]:
+        return {jax.tree_util.keystr(path): jnp.shape(leaf) for path, leaf in jax.tree_util.tree_leaves_with_path(tree)}
+
+    ours, theirs = shapes(current), shapes(saved)
+    if ours != theirs:
+        differing = sorted(name for name in ours.keys() | theirs.keys() if ours.get(name) != theirs.get(name))
+        raise ValueError(f"ppo.init_from {source!r}: its {what} do not fit this run's ({', '.join(differing[:4])} "
+                         "differ); give the saved run's network settings, on a task with its observation shapes.")
+    return jax.tree.map(lambda old, new: jnp.asarray(new, dtype=old.dtype), current, saved)
 
 
 def variance(x: jax.Array, axis: str | None = None) -> jax.Array:
