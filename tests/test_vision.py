@@ -1,6 +1,8 @@
 """Vision: renders of hand and cube poses (shape, dtype, determinism, the cube's pixels follow the cube), every
 visual encoder's output, and pose pretraining end to end (its loss falls; the encoder is saved as a component)."""
 
+import importlib.util
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -225,6 +227,31 @@ def test_a_pose_estimator_gives_the_policy_the_pose_it_reads_from_the_cameras(tm
     twin = env.reset(jax.random.key(3))
     np.testing.assert_allclose(batched.obs.vision, twin.obs.vision, atol=1e-5)
     np.testing.assert_allclose(batched.obs.goal, twin.obs.goal, atol=1e-5)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("warp") is None, reason="MuJoCo Warp needs warp-lang")
+def test_warp_frames_are_each_envs_own_and_outlive_the_sized_env_that_compiled_them():
+    """On MuJoCo Warp (run where warp-lang is installed, a GPU or the CPU): a fixed start (reach's) reaches Warp
+    unbatched, which renders every world; each env still gets one set of frames, those of its own state. A program
+    compiled ahead of time (as evaluate's) names the render context by key only: it still runs after the caller
+    dropped the sized environment, which its unsized parent keeps."""
+    import gc
+
+    import angora_jax as aj
+
+    env = aj.make("ShadowHandReach", vision={"cameras": ["front", "top"], "width": 16, "height": 16},
+                  physics={"impl": "warp"})
+    keys = jax.random.split(jax.random.key(0), 3)
+    reset = jax.jit(jax.vmap(env.sized_for(3).reset)).lower(keys).compile()
+    assert env.sized_for(3) is env.sized_for(3)
+    gc.collect()
+    state = reset(keys)
+    assert state.obs.vision.shape == (3, 2, 16, 16, 3) and state.obs.vision.dtype == jnp.uint8
+    sized = env.sized_for(3)
+    rendered = jax.jit(jax.vmap(lambda data: sized._frames(data, 1)))(state.physics)
+    np.testing.assert_array_equal(state.obs.vision, rendered)
+    stepped = jax.jit(jax.vmap(sized.step))(state, jnp.ones((3, *env.action_spec.shape)))
+    assert stepped.obs.vision.shape == (3, 2, 16, 16, 3) and np.any(stepped.obs.vision != state.obs.vision)
 
 
 def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_visual_area(tmp_path):

@@ -197,6 +197,10 @@ class WarpCameras:
 
         data = mjx.refit_bvh(mjx_model, data, self._handle)
         rgb, depth, _ = mjx.render(mjx_model, data, self._handle)
+        if rgb.ndim > 1:
+            # Data that no vmap batches (a fixed start, the same in every env; a shape evaluation of one env) reaches
+            # Warp unbatched: every world then renders that one state, and the first world's frames are its frames.
+            rgb, depth = rgb[0], depth[0]
         out = []
         for camera in self.ids:
             channels = []

@@ -127,6 +127,7 @@ class MjxEnv(MujocoEnv):
                                        **sizes)
         self._data0 = mjx.make_data(task.model, device=device, impl=self.impl, **sizes)
         self._cameras = self._make_cameras()
+        self._sized: dict[int, MjxEnv] = {}
 
     def _make_cameras(self) -> tuple[Any, Any] | None:
         """Renderers of the task's camera vision for (`reset`, `step`): on Warp one render context each, for the
@@ -202,7 +203,11 @@ class MjxEnv(MujocoEnv):
         of memory at 8,192 envs on one H100 unsized, and trained at 16,384 sized to its batch)."""
         if self.impl != "warp" or self.warp_max_envs is not None:
             return self
-        return MjxEnv(self.task, self.frame_skip, self.max_episode_steps, warp_max_envs=num_envs)
+        # Kept for this environment's life: a compiled program names a Warp render context by its key only, and the
+        # context frees its buffers when collected, so a program compiled ahead of time (evaluate's) would outlive it.
+        if num_envs not in self._sized:
+            self._sized[num_envs] = MjxEnv(self.task, self.frame_skip, self.max_episode_steps, warp_max_envs=num_envs)
+        return self._sized[num_envs]
 
     def _reset(self, key: jax.Array) -> tuple[mjx.Data, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)
