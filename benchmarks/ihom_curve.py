@@ -13,7 +13,9 @@ kernels and restoring the checkpoint between pieces are not counted.
 For each run it reports the env steps and wall time at which the training-mean CGR (`metric/goals_reached` over
 the episodes that ended in a cycle) first reached 1, 5, 10, 20 and 30, and the ratio of those to AngoraPy's (paper:
 1,187,512,320 samples, 96 h on 384 CPU cores and 32 GPUs, for a training mean of about 30). The plot overlays the
-runs against env steps (with the paper's endpoint) and against wall minutes.
+runs against env steps (with the paper's endpoint) and against wall minutes. A run that started from another's
+policy (`ppo.init_from`, e.g. fine-tuned to read a pose estimator) continues that run's curve with `--continues
+LABEL=BASE`: its env steps and times count from where BASE's rows end.
 
     python benchmarks/ihom_curve.py fast=runs/fast/metrics.jsonl paper=runs/paper/metrics.jsonl \\
         --device "NVIDIA H100 80GB HBM3" --name ShadowHandCube_h100
@@ -117,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="a run's label and its metrics files or run directories, in the order written")
     parser.add_argument("--device", required=True, help="the device the runs trained on, e.g. 'NVIDIA H100 80GB HBM3'")
     parser.add_argument("--name", default="ShadowHandCube", help="results/ihom_curve_<name>.json and .png")
+    parser.add_argument("--continues", action="append", default=[], metavar="LABEL=BASE",
+                        help="run LABEL started from run BASE's last policy: its steps and times follow BASE's")
     parser.add_argument("--note", default="", help="free text stored with the results (e.g. what else shared the GPU)")
     args = parser.parse_args(argv)
     runs = {}
@@ -125,11 +129,19 @@ def main(argv: list[str] | None = None) -> int:
         if not sep or not label or not paths:
             raise SystemExit(f"Run {spec!r} must look like LABEL=PATH[,PATH...].")
         runs[label] = read_pieces(paths.split(","))
+    continues = dict(spec.partition("=")[::2] for spec in args.continues)
+    for label, base in continues.items():
+        if label not in runs or base not in runs:
+            raise SystemExit(f"--continues {label}={base}: both must be labels of the runs given ({', '.join(runs)}).")
+        end = runs[base][-1]
+        runs[label] = [{**r, **{k: r[k] + end[k] for k in ("env_steps", "train_seconds", "wall_seconds")}}
+                       for r in runs[label]]
     summary = {label: milestones(rows) for label, rows in runs.items()}
     os.makedirs(RESULTS, exist_ok=True)
     stem = os.path.join(RESULTS, f"ihom_curve_{args.name}")
     record = {"benchmark": "ihom_curve", "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-              "training_device": args.device, "note": args.note, "paper": PAPER, "milestones": summary,
+              "training_device": args.device, "note": args.note, "continues": continues, "paper": PAPER,
+              "milestones": summary,
               "curves": {label: [{k: r.get(k) for k in ("cycle", "env_steps", "train_seconds", "wall_seconds",
                                                          "steps_per_second",
                                                          "episode_return", "episode_length", CGR, "metric/dropped",
