@@ -590,7 +590,7 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
     report = {"encoder": args.encoder, "options": options, "cameras": args.cameras, "size": args.size,
               "renderer": args.renderer, "samples": args.samples, "device": str(jax.devices()[0].device_kind),
               "render_seconds": rendered, "train_seconds": result.seconds, "steps": args.steps,
-              "orientation": args.orientation, "batch": args.batch, "learning_rate": "1e-3, cosine decay to 0",
+              "orientation": args.orientation, "batch": args.batch, "learning_rate": result.learning_rate,
               **result.errors,
               "loss": result.history}
     out.with_suffix(".json").write_text(json.dumps(report, indent=1))

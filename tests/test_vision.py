@@ -2,6 +2,7 @@
 visual encoder's output, and pose pretraining end to end (its loss falls; the encoder is saved as a component)."""
 
 import importlib.util
+import json
 
 import jax
 import jax.numpy as jnp
@@ -86,7 +87,8 @@ def test_pose_pretraining_lowers_its_loss_and_saves_an_encoder_component(tmp_pat
     argv = ["pretrain-vision", "--out", str(out), "--samples", "20", "--size", "32", "--cameras", "top", "--widths",
             "8", "8", "8", "8", "--features", "16", "--steps", "5", "--batch", "8"]
     assert main(argv) == 0
-    assert "orientation" in capsys.readouterr().out and out.with_suffix(".json").exists()
+    assert "orientation" in capsys.readouterr().out
+    assert json.loads(out.with_suffix(".json").read_text())["learning_rate"] == "0.001, cosine decay to 0 over 5 steps"
     assert set(load_component(out, "network.vision")) == {"V1", "V2", "V4", "IT", "decoder"}
     assert main(argv) == 2 and "never overwritten" in capsys.readouterr().err
     # The whole pose network, saved beside the encoder, reads frames as it did when measured.

@@ -38,12 +38,14 @@ from angora_jax.vision.estimator import (
 @dataclass
 class PretrainResult:
     """estimator: the trained network as a `PoseEstimator`; errors: held-out position (mm) and orientation (deg)
-    medians and 90th percentiles; history: (step, training loss) every `log_every` steps."""
+    medians and 90th percentiles; history: (step, training loss) every `log_every` steps; learning_rate: the
+    schedule it trained with, in words."""
 
     estimator: PoseEstimator
     errors: dict[str, float]
     history: list[tuple[int, float]] = field(default_factory=list)
     seconds: float = 0.0
+    learning_rate: str = ""
 
     @property
     def params(self) -> Any:
@@ -105,4 +107,5 @@ def pretrain_pose_encoder(train: PoseDataset, test: PoseDataset, encoder: str = 
               "orientation_deg_median": float(np.median(orientation_deg)),
               "orientation_deg_p90": float(np.percentile(orientation_deg, 90)),
               "test_samples": len(test), "train_samples": len(train)}
-    return PretrainResult(estimator, errors, history, seconds)
+    schedule = f"{learning_rate:g}, cosine decay to 0 over {steps} steps" if decay else f"{learning_rate:g}, constant"
+    return PretrainResult(estimator, errors, history, seconds, schedule)
