@@ -152,9 +152,7 @@ def parser() -> argparse.ArgumentParser:
                                "training path (MJX, the GPU when there is one)")
     evaluate.add_argument("--workers", type=positive_int, default=1,
                           help="threads stepping C MuJoCo physics (default: 1); results do not depend on it")
-    evaluate.add_argument("--env-option", action="append", default=[], metavar="KEY=VALUE",
-                          help="a task option that differs from the run's (repeatable; the network must still fit "
-                               "the observations), e.g. pose_estimator=encoder.pose.msgpack for the cube")
+    add_env_option(evaluate)
     evaluate.set_defaults(handler=command_evaluate)
 
     render = commands.add_parser("render", help="a video of a trained policy (or random actions) on a MuJoCo task")
@@ -185,6 +183,7 @@ def parser() -> argparse.ArgumentParser:
     record.add_argument("--steps", type=positive_int, default=None, help="policy steps (default: episode length)")
     record.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
     record.add_argument("--seed", type=int, default=0)
+    add_env_option(record)
     record.add_argument("--images", action="store_true", help="keep the camera images of a task that sees through "
                         "cameras (large; needed to replay the recording through another network)")
     record.set_defaults(handler=command_record)
@@ -292,6 +291,12 @@ def positive_float(text: str) -> float:
     if not value > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
     return value
+
+
+def add_env_option(command: argparse.ArgumentParser) -> None:
+    command.add_argument("--env-option", action="append", default=[], metavar="KEY=VALUE",
+                         help="a task option that differs from the run's (repeatable; the network must still fit "
+                              "the observations), e.g. pose_estimator=encoder.pose.msgpack for the cube")
 
 
 def add_time_limit(command: argparse.ArgumentParser) -> None:
@@ -436,7 +441,8 @@ def command_record(args: argparse.Namespace) -> int:
     if refused_existing("record", out, "recordings"):
         return EXIT_USAGE
     checkpoint = checkpoint_of(args.checkpoint)
-    dataset = record_activity(args.run_dir, args.episodes, args.steps, args.seed, checkpoint, args.images)
+    dataset = record_activity(args.run_dir, args.episodes, args.steps, args.seed, checkpoint, args.images,
+                              args.env_option)
     save_activity(dataset, out)
     layers = [n.removeprefix("activity_") for n in dataset.data_vars if n.startswith("activity_")]
     print(f"Recorded {dataset.sizes['episode']} episodes x {dataset.sizes['time']} steps of {len(layers)} layers "

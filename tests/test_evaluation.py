@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+import xarray as xr
 import yaml
 from jax._src import monitoring  # the public module registers listeners but cannot remove them
 from tiny import TINY_PPO
@@ -277,7 +278,7 @@ def test_cli_evaluate_prints_statistics_and_sampled_episodes_do_not_depend_on_th
         assert written["per_episode"][name] == values.tolist(), name
 
 
-def test_evaluation_in_a_changed_task_records_the_change(run_dir, capsys):
+def test_evaluation_in_a_changed_task_records_the_change(run_dir, tmp_path, capsys):
     """`--env-option` evaluates the policy in a task with other options (e.g. the cube seen through a pose estimator;
     here CartPole's episodes cut at 20 steps): recorded in the JSON, named apart from plain evaluations."""
     args = ["evaluate", str(run_dir), "--checkpoint", "latest", "--episodes", "4",
@@ -289,6 +290,13 @@ def test_evaluation_in_a_changed_task_records_the_change(run_dir, capsys):
     assert max(written["per_episode"]["episode_length"]) <= 20
     assert main([*args[:-1], "max_episode_steps"]) == 2
     assert "must look like key.sub=value" in capsys.readouterr().err
+    # Recordings take changed options too (e.g. the estimated pose beside the true one).
+    out = tmp_path / "changed.nc"
+    assert main(["record", str(run_dir), "--checkpoint", "latest", "--episodes", "2", "--steps", "30",
+                 "--env-option", "max_episode_steps=20", "--out", str(out)]) == 0
+    recording = xr.open_dataset(out)
+    assert recording.attrs["env_overrides"] == "max_episode_steps=20"
+    assert recording["alive"].values[:, 20:].sum() == 0, "no episode outlives its changed limit"
 
 
 def test_a_new_run_fine_tunes_a_saved_policy_in_a_changed_task(run_dir, tmp_path):

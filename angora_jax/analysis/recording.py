@@ -29,6 +29,7 @@ next episode and are kept for completeness, masked by the analyses).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -72,13 +73,21 @@ def _captures_activity(module: nn.Module, method_name: str) -> bool:
 
 
 def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | None = None, seed: int = 0,
-                    checkpoint: str | int = "best", images: bool = False) -> xr.Dataset:
-    """Run `episodes` episodes of `agent` (an Agent, or a run directory loaded with `checkpoint`) for `steps` policy
-    steps each (default: the task's episode length) and return the dataset described in the module docstring;
-    `images` keeps camera images (`input_vision`) of a task that sees through cameras."""
-    agent = load_agent(agent, checkpoint) if not isinstance(agent, Agent) else agent
+                    checkpoint: str | int = "best", images: bool = False,
+                    env_overrides: Sequence[str] = ()) -> xr.Dataset:
+    """Run `episodes` episodes of `agent` (an Agent, or a run directory loaded with `checkpoint` and the task options
+    `env_overrides`, as `load_agent` takes them) for `steps` policy steps each (default: the task's episode length)
+    and return the dataset described in the module docstring; `images` keeps camera images (`input_vision`) of a
+    task that sees through cameras. With a cube policy reading a pose estimator (`pose_estimator=FILE`), the
+    estimate (`input_vision`) lies beside the true pose (`task_cube_position`, `task_cube_orientation`)."""
+    if isinstance(agent, Agent):
+        if env_overrides:
+            raise ValueError("env_overrides apply when a run is loaded: give the run directory, or load the agent with "
+                             "load_agent(run_dir, env_overrides=...).")
+    else:
+        agent = load_agent(agent, checkpoint, env_overrides)
     record = run_episodes(agent, episodes, steps, seed, capture=True)
-    return _dataset(agent, record, agent.env.dt, images)
+    return _dataset(agent, record, agent.env.dt, images).assign_attrs(env_overrides="; ".join(env_overrides))
 
 
 def run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: int = 0,
