@@ -268,16 +268,16 @@ def _with_saved_values(init: Callable[[jax.Array], TrainState], pretrained: dict
     loaded = {}
 
     def init_with_saved_values(key: jax.Array) -> TrainState:
-        state = init(key)
         if not loaded:
-            if init_from:
+            if init_from:  # checked against the shapes first: a run that does not fit fails before any compile
                 # experiment builds on ppo, so ppo reaches for the run-directory reader only when a run is named
                 from angora_jax.experiment.agent import saved_policy
 
-                saved = saved_policy(init_from)
-                loaded["run"] = (_fitting(state.params, saved.params, "network parameters", init_from),
-                                 _fitting(state.obs_stats, saved.obs_stats, "observation statistics", init_from))
+                saved, shapes = saved_policy(init_from), jax.eval_shape(init, key)
+                loaded["run"] = (_fitting(shapes.params, saved.params, "network parameters", init_from),
+                                 _fitting(shapes.obs_stats, saved.obs_stats, "observation statistics", init_from))
             loaded["components"] = {path: load_component(source, path) for path, source in pretrained.items()}
+        state = init(key)
         params, obs_stats = loaded.get("run", (state.params, state.obs_stats))
         for path, values in loaded["components"].items():
             params = with_component(params, path, values)
