@@ -67,6 +67,16 @@ SMOKE = ["ppo.num_envs=4", "ppo.rollout_length=16", "ppo.chunk_length=8", "ppo.m
          "ppo.num_epochs=1", "ppo.num_cycles=2"]
 
 
+# Per-cycle training signals kept beside the return, to read why a curve rises and falls (e.g. Hopper's drops after
+# its episodes reach the 1,000-step cap) without training again.
+DIAGNOSTICS = ("episode_length", "episodes", "entropy", "approx_kl", "clip_fraction", "grad_norm", "value_loss",
+               "explained_variance", "norm/reward_std", "norm/proprioception_std")
+
+
+def finite_or_none(value: float | None) -> float | None:
+    return value if value is not None and math.isfinite(value) else None
+
+
 def train_one(task: str, config: str, head: str, seed: int, minutes: float, extra: list[str], root: str) -> dict:
     """One run; its curve and timing."""
     overrides = [f"env.task={task}", f"ppo.head={head}", f"ppo.seed={seed}", f"logging.run_root={root}",
@@ -82,6 +92,7 @@ def train_one(task: str, config: str, head: str, seed: int, minutes: float, extr
     curve = {"env_steps": [r["env_steps"] for r in rows], "cycle": [r["cycle"] for r in rows],
              "seconds": [r["time"] - begin for r in rows],
              "episode_return": [None if not math.isfinite(x) else x for x in returns]}
+    curve |= {name: [finite_or_none(r.get(name)) for r in rows] for name in DIAGNOSTICS}
     return {"task": task, "config": config, "head": head, "seed": seed, "wall_seconds": wall,
             "compile_seconds": rows[0].get("compile_seconds"), "cycles": len(rows), "env_steps": rows[-1]["env_steps"],
             "env_steps_per_second": statistics.median(rates) if rates else None,

@@ -179,6 +179,7 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
     assert record["missing"] == {}, "every Fig. 8 task exists (LunarLander on the host path)"
     assert (tmp_path / "fig8.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert all(len(r["curve"]["seconds"]) == 2 and r["target"] is None for r in runs), "Pendulum has no target"
+    assert all(len(r["curve"]["entropy"]) == 2 and r["curve"]["episode_length"][-1] > 0 for r in runs), "diagnostics"
 
     # runs of separate invocations (here the same runs again, as seed 4) combine into one figure
     other = {**record, "runs": [{**run, "seed": 4} for run in runs]}
