@@ -1,6 +1,7 @@
 """Vision: renders of hand and cube poses (shape, dtype, determinism, the cube's pixels follow the cube), every
 visual encoder's output, and pose pretraining end to end (its loss falls; the encoder is saved as a component)."""
 
+import dataclasses
 import importlib.util
 import json
 
@@ -94,6 +95,7 @@ def test_pose_pretraining_lowers_its_loss_and_saves_an_encoder_component(tmp_pat
     # The whole pose network, saved beside the encoder, reads frames as it did when measured.
     estimator = PoseEstimator.load(out.with_suffix(".pose.msgpack"))
     assert (estimator.cameras, estimator.size, estimator.encoder_options["widths"]) == (("top",), 32, (8, 8, 8, 8))
+    assert estimator.renderer == "cpu", "it reads OpenGL's frames, which it was trained on"
     saved = result.estimator.save(tmp_path / "pose.msgpack")
     position, quaternion = jax.jit(PoseEstimator.load(saved).__call__)(jnp.asarray(test.images))
     assert position.shape == (12, 3) and quaternion.shape == (12, 4) and bool(jnp.all(quaternion[:, 0] >= 0))
@@ -185,6 +187,8 @@ def test_camera_vision_options_and_the_networks_that_see_them_are_checked(seeing
         aj.make("ShadowHandCube", vision={"colour": True}, relative_goal=False)
     with pytest.raises(ValueError, match="rgb: true, depth: true or both"):
         aj.make("ShadowHandCube", vision={"rgb": False}, relative_goal=False)
+    with pytest.raises(ValueError, match="vision.renderer must be one of \\['cpu', 'warp'\\] or null"):
+        aj.make("ShadowHandCube", vision={"renderer": "opengl"}, relative_goal=False)
     with pytest.raises(ValueError, match="needs a visual area.*ppo.network.visual"):
         PPOConfig(num_envs=2, rollout_length=16, minibatch_size=32).validate_for(seeing_cube)
     with pytest.raises(ValueError, match="the task renders none"):
@@ -224,6 +228,10 @@ def test_a_pose_estimator_gives_the_policy_the_pose_it_reads_from_the_cameras(tm
     np.testing.assert_allclose(state.obs.goal, jnp.concatenate([goal, rotation_matrix(rotation_between(
         quaternion[0], goal))]), rtol=1e-5, atol=1e-6)
     true_pose = np.asarray(env.task.cube_pose(env.task.snapshot(env.data)))
+    # An estimator trained on Warp's renders is not fed OpenGL's, which look different.
+    warp_file = dataclasses.replace(estimator, renderer="warp").save(tmp_path / "warp.pose.msgpack")
+    with pytest.raises(ValueError, match="trained on MuJoCo Warp's images.*evaluate --path batched"):
+        aj.make("ShadowHandCube", pose_estimator=str(warp_file), start_pool=8, backend="cpu")
     assert np.abs(np.asarray(state.obs.vision) - true_pose).max() > 0.01, "the estimate, not the true pose"
     batched = jax.jit(aj.make("ShadowHandCube", pose_estimator=str(file), start_pool=8).reset)(jax.random.key(3))
     twin = env.reset(jax.random.key(3))

@@ -32,13 +32,19 @@ import numpy as np
 
 from angora_jax.envs.rendering import CAMERAS, VISION_PREFIX, SceneRenderer, camera_named
 
+# The renderers a camera frame can come from, as `vision.render_pose_dataset` names them.
+RENDERERS = {"cpu": "OpenGL (mujoco.Renderer)", "warp": "MuJoCo Warp"}
+
 
 @dataclass(frozen=True)
 class CameraVision:
     """Which cameras a task sees through and how: the task option `vision`.
 
     cameras: names from `rendering.CAMERAS` ("front", "side", "top", "wide"); width, height: pixels; rgb, depth:
-    the channels to render (at least one); depth_range: m, the depth that maps to 255.
+    the channels to render (at least one); depth_range: m, the depth that maps to 255. renderer: the renderer whose
+    images what reads the frames was trained on, "cpu" (OpenGL, `mujoco.Renderer`) or "warp" (MuJoCo Warp), or None
+    (any): the two draw the same views differently (Warp has no skybox and no textures), so a path that renders with
+    the other refuses to run.
     """
 
     cameras: tuple[str, ...] = ("front",)
@@ -47,6 +53,7 @@ class CameraVision:
     rgb: bool = True
     depth: bool = False
     depth_range: float = 1.0
+    renderer: str | None = None
 
     @classmethod
     def from_options(cls, options: dict[str, Any] | None) -> CameraVision | None:
@@ -77,7 +84,18 @@ class CameraVision:
             raise ValueError("vision needs rgb: true, depth: true or both.")
         if vision.depth_range <= 0:
             raise ValueError(f"vision.depth_range must be > 0 m, got {vision.depth_range}.")
+        if vision.renderer not in (None, *RENDERERS):
+            raise ValueError(f"vision.renderer must be one of {list(RENDERERS)} or null, got {vision.renderer!r}.")
         return vision
+
+    def check_renderer(self, renderer: str) -> None:
+        """A ValueError naming the fix when these frames must come from another renderer than `renderer`."""
+        if self.renderer not in (None, renderer):
+            raise ValueError(
+                f"These camera frames are read by something trained on {RENDERERS[self.renderer]}'s images, but this "
+                f"path renders with {RENDERERS[renderer]}, which draws them differently: "
+                + ("run it on a GPU with MuJoCo Warp (evaluate --path batched, physics.impl warp)."
+                   if self.renderer == "warp" else "run it on the CPU paths or MJX's JAX implementation (OpenGL)."))
 
     @property
     def channels(self) -> int:
@@ -108,6 +126,7 @@ class HostCameras:
     MUJOCO_GL=egl or osmesa without a display). `frames(data) -> (cameras, height, width, channels)` uint8."""
 
     def __init__(self, model: mujoco.MjModel, vision: CameraVision):
+        vision.check_renderer("cpu")
         vision.camera_ids(model)
         self.model, self.vision = model, vision
         # A GL context is current in one thread only, and JAX runs host callbacks in threads of its own (a new one
@@ -183,6 +202,7 @@ class WarpCameras:
     def __init__(self, model: mujoco.MjModel, vision: CameraVision, num_envs: int):
         from mujoco import mjx
 
+        vision.check_renderer("warp")
         ids = vision.camera_ids(model)
         wanted = set(ids)
         self.vision, self.ids = vision, ids

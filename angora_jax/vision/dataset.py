@@ -27,13 +27,15 @@ CUBE_REST = np.array([1.0, 0.875, 0.165])  # m, world frame: where a settled cub
 @dataclass(frozen=True)
 class PoseDataset:
     """images `(N, cameras, height, width, 3)` uint8; cube_position `(N, 3)` m and cube_quaternion `(N, 4)` (w, x,
-    y, z with w >= 0) in the world frame; hand_qpos `(N, 24)` the hand's joint angles (rad)."""
+    y, z with w >= 0) in the world frame; hand_qpos `(N, 24)` the hand's joint angles (rad); renderer: what drew the
+    images, "cpu" (OpenGL) or "warp"."""
 
     images: np.ndarray
     cube_position: np.ndarray
     cube_quaternion: np.ndarray
     hand_qpos: np.ndarray
     cameras: tuple[str, ...]
+    renderer: str = "cpu"
 
     def __len__(self) -> int:
         return len(self.images)
@@ -47,7 +49,7 @@ class PoseDataset:
 
     def _rows(self, rows: slice) -> PoseDataset:
         return PoseDataset(self.images[rows], self.cube_position[rows], self.cube_quaternion[rows],
-                           self.hand_qpos[rows], self.cameras)
+                           self.hand_qpos[rows], self.cameras, self.renderer)
 
 
 def random_quaternions(rng: np.random.Generator, count: int) -> np.ndarray:
@@ -107,7 +109,7 @@ def render_pose_dataset(samples: int, cameras: tuple[str, ...] = DEFAULT_CAMERAS
         with PoseRenderer(cameras, width, height) as cpu:
             images = np.stack([cpu.render(hand_qpos[i], position[i], quaternion[i]) for i in range(samples)])
     return PoseDataset(images, position.astype(np.float32), quaternion.astype(np.float32),
-                       hand_qpos.astype(np.float32), tuple(cameras))
+                       hand_qpos.astype(np.float32), tuple(cameras), renderer)
 
 
 def _render_warp(model: mujoco.MjModel, qpos: np.ndarray, cameras: int, width: int, height: int,

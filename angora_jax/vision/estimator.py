@@ -80,7 +80,9 @@ class PoseEstimator:
     """A trained `PoseNet` with what it needs to read frames: `params` (the whole network's), `encoder` and
     `encoder_options` (as `make_visual_encoder` takes them), `orientation` (`ORIENTATIONS`), `cameras` (names, in the
     order of the frames' camera axis), `size` (frame width and height in pixels), and the training set's cube
-    position `position_mean` and `position_spread` (`(3,)` m) that the network's position output is scaled by."""
+    position `position_mean` and `position_spread` (`(3,)` m) that the network's position output is scaled by;
+    `renderer`, what drew its training images ("cpu": OpenGL, "warp"; None: not recorded), the renderer it must read
+    (tasks refuse to feed it another's frames)."""
 
     params: Any
     encoder: str
@@ -90,6 +92,7 @@ class PoseEstimator:
     size: int
     position_mean: np.ndarray
     position_spread: np.ndarray
+    renderer: str | None = None
 
     def network(self) -> PoseNet:
         """The untrained `PoseNet` that `params` belong to."""
@@ -119,7 +122,7 @@ class PoseEstimator:
                                      for k, v in self.encoder_options.items()}, "orientation": self.orientation,
                  "cameras": list(self.cameras), "size": self.size,
                  "position_mean": np.asarray(self.position_mean, np.float32),
-                 "position_spread": np.asarray(self.position_spread, np.float32)}
+                 "position_spread": np.asarray(self.position_spread, np.float32), "renderer": self.renderer or ""}
         file.write_bytes(serialization.msgpack_serialize(state))
         return file
 
@@ -134,4 +137,5 @@ class PoseEstimator:
         # msgpack returns sequences as lists; the encoders' sizes are tuples
         options = {k: tuple(v) if isinstance(v, list) else v for k, v in state["encoder_options"].items()}
         return cls(state["params"], state["encoder"], options, state["orientation"], tuple(state["cameras"]),
-                   int(state["size"]), np.asarray(state["position_mean"]), np.asarray(state["position_spread"]))
+                   int(state["size"]), np.asarray(state["position_mean"]), np.asarray(state["position_spread"]),
+                   state.get("renderer") or None)

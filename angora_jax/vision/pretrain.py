@@ -95,7 +95,7 @@ def pretrain_pose_encoder(train: PoseDataset, test: PoseDataset, encoder: str = 
     seconds = time.perf_counter() - start
     estimator = PoseEstimator(jax.device_get(params), encoder, dict(encoder_options or {}), orientation,
                               train.cameras, train.images.shape[-2], mean.astype(np.float32),
-                              spread.astype(np.float32))
+                              spread.astype(np.float32), train.renderer)
     predict = jax.jit(estimator.__call__)
     predicted = [jax.device_get(predict(jnp.asarray(test.images[i:i + 256]))) for i in range(0, len(test), 256)]
     predicted_position = np.concatenate([p[0] for p in predicted])

@@ -76,7 +76,8 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
             raise ValueError("pose_estimator sees through the cameras it was trained on; give no vision option "
                              "with it.")
         estimator = PoseEstimator.load(pose_estimator)
-        vision = {"cameras": list(estimator.cameras), "width": estimator.size, "height": estimator.size}
+        vision = {"cameras": list(estimator.cameras), "width": estimator.size, "height": estimator.size,
+                  "renderer": estimator.renderer}
     cameras = CameraVision.from_options(vision)
     settings = CUBE_PHYSICS.with_options(physics)
     frame_skip = settings.frame_skip(control_dt)
