@@ -126,7 +126,6 @@ class HostCameras:
     MUJOCO_GL=egl or osmesa without a display). `frames(data) -> (cameras, height, width, channels)` uint8."""
 
     def __init__(self, model: mujoco.MjModel, vision: CameraVision):
-        vision.check_renderer("cpu")
         vision.camera_ids(model)
         self.model, self.vision = model, vision
         # A GL context is current in one thread only, and JAX runs host callbacks in threads of its own (a new one
@@ -142,6 +141,7 @@ class HostCameras:
         self._closer.atexit = False  # at exit the GL thread is already stopped, and the process frees its contexts
 
     def frames(self, data: mujoco.MjData) -> np.ndarray:
+        self.vision.check_renderer("cpu")
         return self._gl.submit(self._frames, data).result()
 
     def _frames(self, data: mujoco.MjData) -> np.ndarray:
@@ -170,6 +170,7 @@ class HostCameras:
 
     def traced_frames(self, qpos: jax.Array, mocap_pos: jax.Array, mocap_quat: jax.Array) -> jax.Array:
         """`frames_of_poses` for one environment inside a JAX program (`jax.pure_callback`, batched under vmap)."""
+        self.vision.check_renderer("cpu")  # when traced, before any frame
 
         def render(qpos, mocap_pos, mocap_quat):
             batch = qpos.shape[:-1]
@@ -202,7 +203,6 @@ class WarpCameras:
     def __init__(self, model: mujoco.MjModel, vision: CameraVision, num_envs: int):
         from mujoco import mjx
 
-        vision.check_renderer("warp")
         ids = vision.camera_ids(model)
         wanted = set(ids)
         self.vision, self.ids = vision, ids
@@ -214,6 +214,8 @@ class WarpCameras:
 
     def frames(self, mjx_model: Any, data: Any) -> jax.Array:
         from mujoco import mjx
+
+        self.vision.check_renderer("warp")  # when traced, before any frame
 
         data = mjx.refit_bvh(mjx_model, data, self._handle)
         rgb, depth, _ = mjx.render(mjx_model, data, self._handle)
