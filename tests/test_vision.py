@@ -302,6 +302,14 @@ def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_vis
     evaluation = aj.evaluate(run.run_dir, episodes=2, batch=2, save=False)
     assert evaluation.episodes["episode_return"].shape == (2,)
     assert np.isfinite(evaluation.episodes["episode_return"]).all()
+    assert aj.load_agent(run.run_dir).config.env.options["vision"]["renderer"] == "cpu", "trained on OpenGL frames"
+    # A pixel policy trained on Warp's frames is refused OpenGL's, unless the option is lifted.
+    sessions = run.run_dir / "sessions.jsonl"
+    sessions.write_text(sessions.read_text().replace('"impl": "jax"', '"impl": "warp"'))
+    with pytest.raises(ValueError, match="trained on MuJoCo Warp's images"):
+        aj.evaluate(run.run_dir, episodes=2, batch=2, save=False)
+    lifted = aj.load_agent(run.run_dir, env_overrides=["vision.renderer=null"])
+    assert lifted.config.env.options["vision"]["renderer"] is None
 
     agent = aj.load_agent(run.run_dir)
     obs = jax.tree.map(lambda s: jnp.zeros((3, *s.shape), s.dtype), agent.env.observation_shapes())

@@ -20,6 +20,7 @@ no skybox and draws the hand untextured, so most pixels differ (benchmarks/rende
 from __future__ import annotations
 
 import dataclasses
+import functools
 import weakref
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -87,6 +88,13 @@ class CameraVision:
         if vision.renderer not in (None, *RENDERERS):
             raise ValueError(f"vision.renderer must be one of {list(RENDERERS)} or null, got {vision.renderer!r}.")
         return vision
+
+    def refuse_when_run(self, renderer: str) -> None:
+        """Inside a JAX program: when these frames must come from another renderer than `renderer`, a host callback
+        that raises `check_renderer`'s error when the program runs (not when it is traced: a shape evaluation, as
+        loading a run does, still works); nothing otherwise."""
+        if self.renderer not in (None, renderer):
+            jax.debug.callback(functools.partial(self.check_renderer, renderer))
 
     def check_renderer(self, renderer: str) -> None:
         """A ValueError naming the fix when these frames must come from another renderer than `renderer`."""
@@ -170,7 +178,7 @@ class HostCameras:
 
     def traced_frames(self, qpos: jax.Array, mocap_pos: jax.Array, mocap_quat: jax.Array) -> jax.Array:
         """`frames_of_poses` for one environment inside a JAX program (`jax.pure_callback`, batched under vmap)."""
-        self.vision.check_renderer("cpu")  # when traced, before any frame
+        self.vision.refuse_when_run("cpu")
 
         def render(qpos, mocap_pos, mocap_quat):
             batch = qpos.shape[:-1]
@@ -215,7 +223,7 @@ class WarpCameras:
     def frames(self, mjx_model: Any, data: Any) -> jax.Array:
         from mujoco import mjx
 
-        self.vision.check_renderer("warp")  # when traced, before any frame
+        self.vision.refuse_when_run("warp")
 
         data = mjx.refit_bvh(mjx_model, data, self._handle)
         rgb, depth, _ = mjx.render(mjx_model, data, self._handle)

@@ -17,7 +17,7 @@ from flax import struct
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.experiment.checkpoint import Checkpoints
 from angora_jax.experiment.config import Config, DistributionConfig, load_config, to_dict, validate
-from angora_jax.experiment.run_dir import CHECKPOINTS, read_run_config
+from angora_jax.experiment.run_dir import CHECKPOINTS, read_run_config, read_sessions
 from angora_jax.experiment.runner import initial_state_shape
 from angora_jax.nets import ActorCritic, make_network
 from angora_jax.nets.visual import make_visual_area
@@ -114,7 +114,7 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
     may have another layout than the current task's (e.g. the scene changed since training). Raises CheckpointError
     when the parameters do not fit the config's network.
     """
-    config = read_run_config(run_dir)
+    config = _seeing_as_trained(read_run_config(run_dir), run_dir)
     if env_overrides:
         config = load_config(to_dict(config), [f"env.options.{override}" for override in env_overrides])
     # Acting needs the task and the model, not the training machine: a run trained on more devices, with TensorBoard
@@ -164,6 +164,19 @@ def _acting_parts(config_json: str) -> tuple[Env, nn.Module, PolicyHead, PolicyS
     shape = initial_state_shape(config, env)
     template = PolicyState(params=shape.params, obs_stats=shape.obs_stats, cycle=shape.cycle)
     return env, make_network(config.ppo.network), build_head(env, config.ppo), template, {}
+
+
+def _seeing_as_trained(config: Config, run_dir: str | Path) -> Config:
+    """`config` with its camera vision (if any) tied to the renderer it trained with (`vision.renderer`, from the
+    run's first session): a pixel policy acts only on frames drawn as it learned them, and a path that renders
+    otherwise refuses, naming the fix (the option `vision.renderer=null` lifts it)."""
+    vision = config.env.options.get("vision")
+    sessions = read_sessions(run_dir)
+    impl = sessions[0].get("physics", {}).get("impl") if sessions else None
+    if not isinstance(vision, dict) or "renderer" in vision or impl is None:
+        return config
+    options = {**config.env.options, "vision": {**vision, "renderer": "warp" if impl == "warp" else "cpu"}}
+    return replace(config, env=replace(config.env, options=options))
 
 
 def _without_missing_warp(options: dict[str, Any]) -> dict[str, Any]:
