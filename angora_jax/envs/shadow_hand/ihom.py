@@ -303,9 +303,14 @@ class Ihom(HandTask):
         pose = self.cube_pose(snap)  # a pose estimator's reading replaces it (`perceive`)
         if self.vision is not None and self.frames_in_vision:  # the backend renders the frames into vision
             privileged, pose = privileged + [pose], jnp.zeros((0,), jnp.float32)
-        goal = jnp.concatenate([info["goal"], rotation_matrix(to_goal)]) if self.relative_goal else info["goal"]
         return Sensation.make(proprioception=self.proprioception(snap), touch=snap.sensordata[self.touch_adr],
-                              vision=pose, goal=goal, asymmetric=jnp.concatenate(privileged))
+                              vision=pose, goal=self.goal_input(to_goal, info["goal"]),
+                              asymmetric=jnp.concatenate(privileged))
+
+    def goal_input(self, to_goal: jax.Array, goal: jax.Array) -> jax.Array:
+        """The goal modality: the goal quaternion, with `relative_goal` followed by the rotation `to_goal` (a
+        quaternion from the cube's orientation, true or estimated, to the goal) as a flattened 3 x 3 matrix."""
+        return jnp.concatenate([goal, rotation_matrix(to_goal)]) if self.relative_goal else goal
 
     def perceive(self, obs: Sensation, frames: jax.Array, info: dict[str, jax.Array]) -> Sensation:
         """With a pose estimator, the pose it reads from `frames` in `vision` (and the relative goal from its
@@ -313,9 +318,7 @@ class Ihom(HandTask):
         if self.pose_estimator is None:
             return super().perceive(obs, frames, info)
         position, quaternion = self.pose_estimator(frames[None])
-        goal = info["goal"]
-        if self.relative_goal:
-            goal = jnp.concatenate([goal, rotation_matrix(rotation_between(quaternion[0], goal))])
+        goal = self.goal_input(rotation_between(quaternion[0], info["goal"]), info["goal"])
         return obs.replace(vision=jnp.concatenate([position[0], quaternion[0]]), goal=goal)
 
     def task_variables(self, snap: Snapshot, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
