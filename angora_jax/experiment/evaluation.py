@@ -246,8 +246,9 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     changed = {"env_overrides": list(env_overrides)} if env_overrides else {}
     if path == "batched" or getattr(agent.env, "on_host", False):  # a Gymnasium task has its own simulator only
         return _evaluate_batched(agent, run_dir, checkpoint, episodes, stochastic, seed, save, changed)
-    task = getattr(agent.env, "task", None)
-    if getattr(task, "vision", None) is not None and getattr(agent.env, "impl", None) == "warp":
+    vision = getattr(getattr(agent.env, "task", None), "vision", None)
+    # A known training renderer is enforced where the frames are drawn (`CameraVision.renderer`); warn of the unknown.
+    if vision is not None and vision.renderer is None and getattr(agent.env, "impl", None) == "warp":
         warnings.warn("This agent sees camera images, and here they are rendered by MuJoCo Warp on the training path; "
                       "the CPU path draws them with OpenGL, which shades them differently (envs/cameras.py): use "
                       "path='batched' (--path batched) to evaluate it on the frames it trained on.", stacklevel=2)
