@@ -86,17 +86,15 @@ def train_one(task: str, config: str, head: str, seed: int, minutes: float, extr
     run = aj.train(config, overrides, minutes=minutes)
     wall = time.perf_counter() - start
     rows = read_metrics(run.run_dir)
-    returns = [r["episode_return"] for r in rows]
     rates = [r["steps_per_second"] for r in rows[1:]]  # the first cycle includes compilation
     begin = rows[0]["time"] - rows[0]["seconds"]
     curve = {"env_steps": [r["env_steps"] for r in rows], "cycle": [r["cycle"] for r in rows],
              "seconds": [r["time"] - begin for r in rows],
-             "episode_return": [None if not math.isfinite(x) else x for x in returns]}
-    curve |= {name: [finite_or_none(r.get(name)) for r in rows] for name in DIAGNOSTICS}
+             **{name: [finite_or_none(r.get(name)) for r in rows] for name in ("episode_return", *DIAGNOSTICS)}}
     return {"task": task, "config": config, "head": head, "seed": seed, "wall_seconds": wall,
             "compile_seconds": rows[0].get("compile_seconds"), "cycles": len(rows), "env_steps": rows[-1]["env_steps"],
             "env_steps_per_second": statistics.median(rates) if rates else None,
-            "final_return": tail_mean(returns),
+            "final_return": tail_mean(curve["episode_return"]),
             "target": first_past(curve, TARGETS.get(task)), "curve": curve}
 
 
