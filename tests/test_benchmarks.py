@@ -20,6 +20,7 @@ import angorapy_ratio  # noqa: E402
 import brax_side_by_side as side  # noqa: E402
 import ihom_curve  # noqa: E402
 import paper_figures  # noqa: E402
+import snapshot_evaluations  # noqa: E402
 import throughput_ladder  # noqa: E402
 
 EPISODE = 4
@@ -218,3 +219,30 @@ def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
     # A solved InvertedPendulum: its episodes all last 1,000 steps and end in the same cycles, none in the others.
     assert paper_figures.tail_mean([10.0, None, 1000.0, float("nan"), None]) == 1000.0
     assert paper_figures.tail_mean([None, float("nan")]) is None
+
+
+def test_snapshot_evaluations_set_each_snapshot_beside_the_training_mean_since_the_previous(tmp_path):
+    """Cycles without ended episodes are left out of the window's mean; stochastic evaluations are not snapshots."""
+    run = tmp_path / "run"
+    (run / "evaluation").mkdir(parents=True)
+    rows = [{"cycle": c, "env_steps": 10 * c, "episodes": 0 if c == 2 else 5, "episode_return": float(c),
+             "episode_length": 2.0 * c, "entropy": 1.0 / c} for c in range(1, 5)]
+    (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    (run / "sessions.jsonl").write_text(json.dumps({"devices": [{"kind": "cpu"}], "versions": {}}) + "\n")
+
+    def evaluation(cycle, stochastic=False, value=100.0):
+        summary = {"episode_return": {"mean": value, "stderr": 1.0}, "episode_length": {"mean": 50.0}}
+        return {"cycle": cycle, "stochastic": stochastic, "task": "Hopper", "episodes": 8, "summary": summary}
+
+    for name, record in (("a.json", evaluation(2)), ("b.json", evaluation(4, value=80.0)),
+                         ("c.json", evaluation(3, stochastic=True))):
+        (run / "evaluation" / name).write_text(json.dumps(record))
+    table = snapshot_evaluations.snapshot_rows("s", *snapshot_evaluations.read_run(run)[:2])
+    assert [r["cycle"] for r in table] == [2, 4]
+    assert table[0]["training_return"] == 1.0 and table[1]["training_return"] == 3.5  # cycle 2 ended no episode
+    assert table[1]["training_length"] == 7.0 and table[1]["entropy"] == 0.25
+    assert [r["evaluation_return"] for r in table] == [100.0, 80.0]
+    (run / "evaluation" / "a.json").unlink()
+    (run / "evaluation" / "b.json").unlink()
+    with pytest.raises(SystemExit, match="no evaluations"):
+        snapshot_evaluations.read_run(run)
