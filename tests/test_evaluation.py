@@ -287,6 +287,7 @@ def test_evaluation_in_a_changed_task_records_the_change(run_dir, tmp_path, caps
     path = Path(capsys.readouterr().out.split("Written: ")[1].split(" and ")[0])
     written = json.loads(path.read_text())
     assert path.name.endswith("-changed.json") and written["env_overrides"] == ["max_episode_steps=20"]
+    assert written["task_options"]["max_episode_steps"] == 20, "the options evaluated with, not only the change"
     assert max(written["per_episode"]["episode_length"]) <= 20
     assert main([*args[:-1], "max_episode_steps"]) == 2
     assert "must look like key.sub=value" in capsys.readouterr().err

@@ -40,6 +40,7 @@ from angora_jax.envs.core import Env, Sensation
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch, batch_functions, rowwise
 from angora_jax.experiment.agent import Agent, load_agent
+from angora_jax.experiment.config import to_dict
 from angora_jax.ppo.evaluate import make_evaluate
 
 EVALUATION_DIR = "evaluation"
@@ -259,20 +260,9 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
             start = time.perf_counter()
             per_episode = run_episodes(envs, policy, agent.initial_carry(envs.size), *episode_keys(seed, episodes))
             wall = time.perf_counter() - start
-    meta = {
-        "run_dir": str(run_dir),
-        "checkpoint": checkpoint,
-        "cycle": agent.cycle,
-        "task": agent.config.env.task,
-        "physics": "C MuJoCo (mujoco.mj_step)" if isinstance(envs.env, CpuEnv) else "JAX (jitted, batched)",
-        "episodes": episodes,
-        "batch": envs.size,
-        "workers": envs.workers,
-        "stochastic": stochastic,
-        "seed": seed,
-        "wall_seconds": wall,
-        **changed,
-    }
+    physics = "C MuJoCo (mujoco.mj_step)" if isinstance(envs.env, CpuEnv) else "JAX (jitted, batched)"
+    meta = _record(agent, run_dir, checkpoint, episodes, stochastic, seed, wall, changed,
+                   {"physics": physics, "batch": envs.size, "workers": envs.workers})
     result = Evaluation(per_episode, {name: summarize(v) for name, v in per_episode.items()}, meta)
     return save_evaluation(result, Path(run_dir) / EVALUATION_DIR) if save else result
 
@@ -288,23 +278,30 @@ def _evaluate_batched(agent: Agent, run_dir: str | Path, checkpoint: str | int, 
         compiled(agent.state, jax.random.key(seed))).items()}
     wall = time.perf_counter() - start
     env = agent.env.sized_for(episodes)
-    meta = {
+    physics = f"batched {type(env).__name__} ({getattr(env, 'impl', 'jax')}) on {jax.devices()[0].device_kind}"
+    meta = _record(agent, run_dir, checkpoint, episodes, stochastic, seed, wall, changed,
+                   {"physics": physics, "path": "batched", "batch": episodes, "workers": 1})
+    result = Evaluation(per_episode, {name: summarize(v) for name, v in per_episode.items()}, meta)
+    return save_evaluation(result, Path(run_dir) / EVALUATION_DIR) if save else result
+
+
+def _record(agent: Agent, run_dir: str | Path, checkpoint: str | int, episodes: int, stochastic: bool, seed: int,
+            wall: float, changed: dict[str, Any], where: dict[str, Any]) -> dict[str, Any]:
+    """What an evaluation ran: the checkpoint, the task with the options it was evaluated with (the run's, changed
+    by `env_overrides`), where the physics ran, the episodes and the seed."""
+    return {
         "run_dir": str(run_dir),
         "checkpoint": checkpoint,
         "cycle": agent.cycle,
         "task": agent.config.env.task,
-        "physics": f"batched {type(env).__name__} ({getattr(env, 'impl', 'jax')}) on {jax.devices()[0].device_kind}",
-        "path": "batched",
+        "task_options": to_dict(agent.config)["env"]["options"],
+        **where,
         "episodes": episodes,
-        "batch": episodes,
-        "workers": 1,
         "stochastic": stochastic,
         "seed": seed,
         "wall_seconds": wall,
         **changed,
     }
-    result = Evaluation(per_episode, {name: summarize(v) for name, v in per_episode.items()}, meta)
-    return save_evaluation(result, Path(run_dir) / EVALUATION_DIR) if save else result
 
 
 def save_evaluation(result: Evaluation, directory: Path) -> Evaluation:
