@@ -5,7 +5,8 @@ hand's reach), each task x policy head x seed trained with its family's config (
 Per run: `angora_jax.train` in this process with `--minutes` as its wall-clock cap (the run stops after the first
 cycle past it, compile included). Per figure: one PNG, a panel per task (top row: against env steps, bottom row:
 against cycles; per head the mean over seeds with the min-max band), and in the JSON every curve, each run's wall
-time, final return (mean over the last tenth of its cycles), the wall seconds and env steps at which its training
+time, final return (the training mean over the last tenth of its cycles, with sampled actions) and its final
+policy's mode evaluated on fresh episodes (`--evaluate`, 128 by default), the wall seconds and env steps at which its training
 mean first passed the task's target return (`TARGETS`), and, per task, which head ended higher over the seeds (mean
 and sample std of each run's return at the env steps that every run of the task reached, so that heads of unequal
 speed are compared at equal samples). Tasks not available here are listed as missing with the reason.
@@ -77,8 +78,11 @@ def finite_or_none(value: float | None) -> float | None:
     return value if value is not None and math.isfinite(value) else None
 
 
-def train_one(task: str, config: str, head: str, seed: int, minutes: float, extra: list[str], root: str) -> dict:
-    """One run; its curve and timing."""
+def train_one(task: str, config: str, head: str, seed: int, minutes: float, extra: list[str], root: str,
+              episodes: int = 0) -> dict:
+    """One run; its curve and timing, and with `episodes` > 0 its final policy's mode evaluated on that many
+    episodes (`evaluation`): the training mean averages sampled actions over the episodes that ended in a cycle,
+    which can fall while the learned policy does not (Hopper: `snapshot_evaluations.py`)."""
     overrides = [f"env.task={task}", f"ppo.head={head}", f"ppo.seed={seed}", f"logging.run_root={root}",
                  f"logging.run_name={task}-{head}-{seed}", "logging.progress=none", "logging.report=false",
                  "checkpoint.best_metric=null", *extra]
@@ -95,7 +99,17 @@ def train_one(task: str, config: str, head: str, seed: int, minutes: float, extr
             "compile_seconds": rows[0].get("compile_seconds"), "cycles": len(rows), "env_steps": rows[-1]["env_steps"],
             "env_steps_per_second": statistics.median(rates) if rates else None,
             "final_return": tail_mean(curve["episode_return"]),
-            "target": first_past(curve, TARGETS.get(task)), "curve": curve}
+            "target": first_past(curve, TARGETS.get(task)),
+            "evaluation": evaluate_mode(run.run_dir, episodes) if episodes > 0 else None, "curve": curve}
+
+
+def evaluate_mode(run_dir: str, episodes: int) -> dict:
+    """The final policy's deterministic return over `episodes` fresh episodes, all at once on the training path."""
+    result = aj.evaluate(run_dir, "latest", episodes=episodes, path="batched", save=False)
+    summary = result.summary
+    return {"episodes": episodes, "return": summary["episode_return"]["mean"],
+            "return_stderr": summary["episode_return"]["stderr"],
+            "episode_length": summary["episode_length"]["mean"], "seconds": result.meta["wall_seconds"]}
 
 
 def first_past(curve: dict, target: float | None) -> dict | None:
@@ -200,10 +214,12 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
         json.dump(record, file, indent=1)
     table = [{"task": r["task"], "head": r["head"], "seed": r["seed"], "final": r["final_return"],
               "steps": r["env_steps"], "wall": r["wall_seconds"],
-              "target": (r.get("target") or {}).get("seconds") or math.nan} for r in runs]
+              "target": (r.get("target") or {}).get("seconds") or math.nan,
+              "mode": (r.get("evaluation") or {}).get("return")} for r in runs]
     print(markdown_table(table, [("task", "task", ""), ("head", "head", ""), ("seed", "seed", "d"),
                                  ("final", "final return", ".1f"), ("steps", "env steps", ",d"),
-                                 ("wall", "wall s", ".0f"), ("target", "s to target", ".0f")]))
+                                 ("wall", "wall s", ".0f"), ("target", "s to target", ".0f"),
+                                 ("mode", "final policy's mode", ".1f")]))
     for task, result in comparison.items():
         print(f"{task}: better head at {result['env_steps']:,} env steps {result['better']}: " + ", ".join(
             f"{h} {s['mean']:.1f} +- {s['std']:.1f} ({s['seeds']} seeds"
@@ -243,6 +259,9 @@ def main() -> None:
     parser.add_argument("--heads", nargs="*", help="only these heads (default: each task's)")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--minutes", type=float, default=4.0, help="wall-clock cap per run (default: 4)")
+    parser.add_argument("--evaluate", type=int, default=128, metavar="EPISODES",
+                        help="evaluate each run's final policy (its mode) on this many episodes; 0: none "
+                             "(default: 128)")
     parser.add_argument("--smoke", action="store_true", help="tiny sizes, for a CPU check of the script")
     parser.add_argument("--name", default=None, help="results name (default: paper_fig<N>_<platform>)")
     parser.add_argument("--out", default=RESULTS, help="folder for the PNG and JSON (default: benchmarks/results)")
@@ -270,7 +289,7 @@ def main() -> None:
                     if args.heads and head not in args.heads:
                         continue
                     for seed in args.seeds:
-                        runs.append(train_one(task, config, head, seed, args.minutes, extra, root))
+                        runs.append(train_one(task, config, head, seed, args.minutes, extra, root, args.evaluate))
                         r = runs[-1]
                         print(f"{task} {head} seed {seed}: return {r['final_return']} after {r['env_steps']:,} "
                               f"steps, {r['wall_seconds']:.0f} s", flush=True)

@@ -169,7 +169,7 @@ def test_ihom_curve_joins_pieces_by_cycle_and_finds_the_milestones(tmp_path, mon
 def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(tmp_path):
     script = os.path.join(os.path.dirname(side.__file__), "paper_figures.py")
     subprocess.run([sys.executable, script, "--figure", "8", "--tasks", "Pendulum", "--seeds", "3",
-                    "--smoke", "--out", str(tmp_path), "--name", "fig8"], check=True)
+                    "--smoke", "--evaluate", "3", "--out", str(tmp_path), "--name", "fig8"], check=True)
     record = json.loads((tmp_path / "fig8.json").read_text())
     runs = record["runs"]
     assert sorted((r["head"], r["seed"]) for r in runs) == [("beta", 3), ("gaussian", 3)]
@@ -181,6 +181,9 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
     assert (tmp_path / "fig8.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert all(len(r["curve"]["seconds"]) == 2 and r["target"] is None for r in runs), "Pendulum has no target"
     assert all(len(r["curve"]["entropy"]) == 2 and r["curve"]["episode_length"][-1] > 0 for r in runs), "diagnostics"
+    for run in runs:  # the final policy's mode on 3 whole episodes of Pendulum's 200 steps
+        assert run["evaluation"]["episodes"] == 3 and run["evaluation"]["episode_length"] == 200.0
+        assert -16.3 * 200 <= run["evaluation"]["return"] <= 0.0, "Pendulum's cost per step lies in [0, 16.3]"
 
     # runs of separate invocations (here the same runs again, as seed 4) combine into one figure
     other = {**record, "runs": [{**run, "seed": 4} for run in runs]}
