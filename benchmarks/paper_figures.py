@@ -6,10 +6,10 @@ Per run: `angora_jax.train` in this process with `--minutes` as its wall-clock c
 cycle past it, compile included). Per figure: one PNG, a panel per task (top row: against env steps, bottom row:
 against cycles; per head the mean over seeds with the min-max band), and in the JSON every curve, each run's wall
 time, final return (the training mean over the last tenth of its cycles, with sampled actions) and its final
-policy's mode evaluated on fresh episodes (`--evaluate`, 128 by default), the wall seconds and env steps at which its training
-mean first passed the task's target return (`TARGETS`), and, per task, which head ended higher over the seeds (mean
-and sample std of each run's return at the env steps that every run of the task reached, so that heads of unequal
-speed are compared at equal samples). Tasks not available here are listed as missing with the reason.
+policy's mode evaluated on fresh episodes (`--evaluate`, 128 by default), the wall seconds and env steps at which its
+training mean first passed the task's target return (`TARGETS`), and, per task, which head ended higher over the seeds
+(mean and sample std of each run's return at the env steps that every run of the task reached, so that heads of
+unequal speed are compared at equal samples). Tasks not available here are listed as missing with the reason.
 
     python benchmarks/paper_figures.py --figure 9 --seeds 0 1 2 --minutes 4          # one GPU
     python benchmarks/paper_figures.py --figure 8 --tasks CartPole --seeds 0 --smoke  # CPU smoke: tiny sizes
