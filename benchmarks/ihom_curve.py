@@ -15,7 +15,8 @@ the episodes that ended in a cycle) first reached 1, 5, 10, 20 and 30, and the r
 1,187,512,320 samples, 96 h on 384 CPU cores and 32 GPUs, for a training mean of about 30). The plot overlays the
 runs against env steps (with the paper's endpoint) and against wall minutes. A run that started from another's
 policy (`ppo.init_from`, e.g. fine-tuned to read a pose estimator) continues that run's curve with `--continues
-LABEL=BASE`: its env steps and times count from where BASE's rows end.
+LABEL=BASE`: its env steps and times count from where BASE's rows end. `--before LABEL=MINUTES` adds wall time that
+run's route spent elsewhere first (e.g. pretraining the estimator), for comparisons at equal wall time.
 
     python benchmarks/ihom_curve.py fast=runs/fast/metrics.jsonl paper=runs/paper/metrics.jsonl \\
         --device "NVIDIA H100 80GB HBM3" --name ShadowHandCube_h100
@@ -121,6 +122,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--name", default="ShadowHandCube", help="results/ihom_curve_<name>.json and .png")
     parser.add_argument("--continues", action="append", default=[], metavar="LABEL=BASE",
                         help="run LABEL started from run BASE's last policy: its steps and times follow BASE's")
+    parser.add_argument("--before", action="append", default=[], metavar="LABEL=MINUTES",
+                        help="wall minutes that run LABEL's route spent outside the runs given, before it (e.g. "
+                             "pretraining its pose estimator): added to its wall clock")
     parser.add_argument("--note", default="", help="free text stored with the results (e.g. what else shared the GPU)")
     args = parser.parse_args(argv)
     runs = {}
@@ -136,11 +140,22 @@ def main(argv: list[str] | None = None) -> int:
         end = runs[base][-1]
         runs[label] = [{**r, **{k: r[k] + end[k] for k in ("env_steps", "train_seconds", "wall_seconds")}}
                        for r in runs[label]]
+    before = {}
+    for spec in args.before:
+        label, _, minutes = spec.partition("=")
+        try:
+            before[label] = float(minutes)
+        except ValueError:
+            raise SystemExit(f"--before {spec!r} must look like LABEL=MINUTES.") from None
+        if label not in runs:
+            raise SystemExit(f"--before {spec}: {label!r} is not a label of the runs given ({', '.join(runs)}).")
+        runs[label] = [{**r, "wall_seconds": r["wall_seconds"] + 60.0 * before[label]} for r in runs[label]]
     summary = {label: milestones(rows) for label, rows in runs.items()}
     os.makedirs(RESULTS, exist_ok=True)
     stem = os.path.join(RESULTS, f"ihom_curve_{args.name}")
     record = {"benchmark": "ihom_curve", "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-              "training_device": args.device, "note": args.note, "continues": continues, "paper": PAPER,
+              "training_device": args.device, "note": args.note, "continues": continues, "before_minutes": before,
+              "paper": PAPER,
               "milestones": summary,
               "curves": {label: [{k: r.get(k) for k in ("cycle", "env_steps", "train_seconds", "wall_seconds",
                                                          "steps_per_second",

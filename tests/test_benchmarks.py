@@ -164,6 +164,17 @@ def test_ihom_curve_joins_pieces_by_cycle_and_finds_the_milestones(tmp_path, mon
     record = json.loads((tmp_path / "ihom_curve_t.json").read_text())
     assert record["training_device"] == "cpu" and len(record["curves"]["run"]) == 4
     assert (tmp_path / "ihom_curve_t.png").read_bytes()[:4] == b"\x89PNG"
+    # A fine-tuned run continues its base's curve; time its route spent elsewhere first goes on its wall clock.
+    tuned = tmp_path / "tuned.jsonl"
+    tuned.write_text(json.dumps(row(1, 20.0, 900.0, compile=1.5)) + "\n")
+    assert ihom_curve.main([pieces, f"tuned={tuned}", "--continues", "tuned=run", "--before", "tuned=0.5",
+                            "--device", "cpu", "--name", "t2"]) == 0
+    record = json.loads((tmp_path / "ihom_curve_t2.json").read_text())
+    (point,) = record["curves"]["tuned"]
+    assert point["env_steps"] == 500 and point["train_seconds"] == 10.0 and point["wall_seconds"] == 11.0 + 2.0 + 30.0
+    assert record["before_minutes"] == {"tuned": 0.5} and record["continues"] == {"tuned": "run"}
+    with pytest.raises(SystemExit, match="LABEL=MINUTES"):
+        ihom_curve.main([pieces, "--before", "run=soon", "--device", "cpu", "--name", "t3"])
 
 
 def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(tmp_path):
