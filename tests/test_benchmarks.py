@@ -179,7 +179,7 @@ def test_ihom_curve_joins_pieces_by_cycle_and_finds_the_milestones(tmp_path, mon
 
 def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(tmp_path):
     script = os.path.join(os.path.dirname(side.__file__), "paper_figures.py")
-    subprocess.run([sys.executable, script, "--figure", "8", "--tasks", "Pendulum", "--seeds", "3",
+    subprocess.run([sys.executable, script, "--figure", "8", "--tasks", "Pendulum", "--seeds", "3", "--parallel", "2",
                     "--smoke", "--evaluate", "3", "--out", str(tmp_path), "--name", "fig8"], check=True)
     record = json.loads((tmp_path / "fig8.json").read_text())
     runs = record["runs"]
@@ -206,6 +206,12 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
                                                                        ("gaussian", 4)]
     assert merged["comparison"]["Pendulum"]["heads"]["beta"]["seeds"] == 2
     assert set(merged["config"]["merged"]) == {"fig8.json", "other.json"}
+    # a run that fails in its process is named with the end of its log
+    failing = subprocess.run([sys.executable, script, "--figure", "8", "--tasks", "Pendulum", "--seeds", "3",
+                              "--parallel", "2", "--smoke", "--out", str(tmp_path), "--name", "bad",
+                              "ppo.num_envs=0"], capture_output=True, text=True)
+    assert failing.returncode != 0 and "Every run failed" in failing.stderr and "num_envs" in failing.stderr
+    assert not (tmp_path / "bad.json").exists()
 
 
 def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
