@@ -44,6 +44,7 @@ from angora_jax.experiment import (
     load_agent,
     read_metrics,
     resume,
+    snapshot_cycles,
     train,
 )
 from angora_jax.experiment.distributed import ProcessFailed, initialize, is_main_process
@@ -138,7 +139,9 @@ def parser() -> argparse.ArgumentParser:
         "evaluate", help="episode statistics of a trained policy (eager CPU path or batched); JSON + box plot"
     )
     evaluate.add_argument("run_dir")
-    evaluate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
+    evaluate.add_argument("--checkpoint", default="best",
+                          help="best, latest, a cycle number, or snapshots: each snapshot the run keeps in turn, "
+                               "to follow its policy over training (default: best)")
     evaluate.add_argument("--episodes", "--num-envs", type=positive_int, default=480,
                           help="episodes to run (default: 480)")
     evaluate.add_argument("--seed", type=int, default=0)
@@ -357,19 +360,33 @@ def print_finished(run: TrainingRun) -> None:
 
 
 def command_evaluate(args: argparse.Namespace) -> int:
-    checkpoint = checkpoint_of(args.checkpoint)
-    result = evaluation.evaluate(args.run_dir, checkpoint, args.episodes, args.stochastic, args.seed,
-                                 batch=args.batch, workers=args.workers, path=args.path,
-                                 env_overrides=args.env_option)
-    meta = result.meta
-    actions = "sampled" if args.stochastic else "deterministic (mode)"
-    threads = f", {meta['workers']} threads stepping physics" if meta["workers"] > 1 else ""
-    print(f"{args.run_dir}, checkpoint of cycle {meta['cycle']}, {args.episodes} episodes on {meta['physics']} "
-          f"({meta['batch']} at a time{threads}), {actions} actions, {meta['wall_seconds']:.1f} s:")
-    print(f"  {'':>22} {'mean':>9} {'median':>9} {'mode':>9} {'stderr':>9}")
-    for name, stats in result.summary.items():
-        print(f"  {name:>22} " + " ".join(f"{stats[k]:9.4g}" for k in ("mean", "median", "mode", "stderr")))
-    print(f"Written: {result.json_path} and {result.plot_path}")
+    if args.checkpoint == "snapshots":
+        checkpoints = snapshot_cycles(args.run_dir)
+        if not checkpoints:
+            print(f"angora-jax evaluate: {args.run_dir} keeps no snapshots; train with checkpoint.snapshot_every=N "
+                  "to keep one every N cycles.", file=sys.stderr)
+            return EXIT_USAGE
+    else:
+        checkpoints = [checkpoint_of(args.checkpoint)]
+    rows = []
+    for checkpoint in checkpoints:
+        result = evaluation.evaluate(args.run_dir, checkpoint, args.episodes, args.stochastic, args.seed,
+                                     batch=args.batch, workers=args.workers, path=args.path,
+                                     env_overrides=args.env_option)
+        meta = result.meta
+        actions = "sampled" if args.stochastic else "deterministic (mode)"
+        threads = f", {meta['workers']} threads stepping physics" if meta["workers"] > 1 else ""
+        print(f"{args.run_dir}, checkpoint of cycle {meta['cycle']}, {args.episodes} episodes on {meta['physics']} "
+              f"({meta['batch']} at a time{threads}), {actions} actions, {meta['wall_seconds']:.1f} s:")
+        print(f"  {'':>22} {'mean':>9} {'median':>9} {'mode':>9} {'stderr':>9}")
+        for name, stats in result.summary.items():
+            print(f"  {name:>22} " + " ".join(f"{stats[k]:9.4g}" for k in ("mean", "median", "mode", "stderr")))
+        print(f"Written: {result.json_path} and {result.plot_path}")
+        rows.append((meta["cycle"], result.summary["episode_return"], result.summary["episode_length"]))
+    if len(rows) > 1:
+        print(f"Over the snapshots:\n  {'cycle':>7} {'return':>11} {'stderr':>9} {'length':>9}")
+        for cycle, returns, lengths in rows:
+            print(f"  {cycle:7d} {returns['mean']:11.4g} {returns['stderr']:9.3g} {lengths['mean']:9.4g}")
     return EXIT_OK
 
 

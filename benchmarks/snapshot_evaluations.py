@@ -5,7 +5,7 @@ The training mean of a cycle averages the episodes that ended in it, acted with 
 (`angora-jax evaluate RUN --checkpoint CYCLE`) runs a saved policy's mode on fresh episodes. Train with snapshots
 (`checkpoint.snapshot_every=25`), evaluate each, then:
 
-    for c in 100 125 150 175 200; do angora-jax evaluate runs/hopper0 --checkpoint $c --path batched; done
+    angora-jax evaluate runs/hopper0 --checkpoint snapshots --path batched
     python benchmarks/snapshot_evaluations.py seed0=runs/hopper0 seed1=runs/hopper1 --name hopper_snapshots_h100
 
 Per run and snapshot: the cycle's training-mean return and episode length (mean over the cycles since the previous

@@ -24,7 +24,7 @@ from angora_jax.envs.core import Sensation
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch
 from angora_jax.envs.rendering import RenderError
-from angora_jax.experiment import evaluation
+from angora_jax.experiment import evaluation, snapshot_cycles
 from angora_jax.experiment.evaluation import (
     EVALUATION_DIR,
     agent_policy,
@@ -49,7 +49,8 @@ def run_dir(tmp_path_factory):
     in is gone), as a run copied from another machine is."""
     root = tmp_path_factory.mktemp("runs")
     overrides = [*TINY_PPO, "ppo.num_cycles=20", "ppo.network.name=lstm", f"logging.run_root={root / 'trained'}",
-                 "logging.run_name=cartpole", "logging.report=false", "logging.progress=none"]
+                 "logging.run_name=cartpole", "logging.report=false", "logging.progress=none",
+                 "checkpoint.snapshot_every=10"]
     trained = aj.train(aj.load_config("cartpole", overrides)).run_dir
     moved = Path(shutil.move(trained, root / "cartpole"))
     shutil.rmtree(root / "trained")
@@ -353,3 +354,20 @@ def test_no_gl_backend_is_reported_with_the_package_to_install(monkeypatch):
     monkeypatch.setattr(mujoco, "Renderer", fail)
     with pytest.raises(RenderError, match="libegl-mesa0.*MUJOCO_GL=egl.*libosmesa6"):
         aj.render_frames(task="ShadowHandReach", task_options={"max_episode_steps": 1})
+
+
+def test_evaluating_the_snapshots_follows_the_policy_over_training(run_dir, tmp_path, capsys):
+    """`--checkpoint snapshots` evaluates each kept snapshot in turn (cycles 10 and 20 here) and sums them up; a run
+    that keeps none is refused with the setting that keeps them."""
+    assert snapshot_cycles(run_dir) == [10, 20]
+    assert main(["evaluate", str(run_dir), "--checkpoint", "snapshots", "--episodes", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "checkpoint of cycle 10," in out and "checkpoint of cycle 20," in out and "Over the snapshots:" in out
+    written = sorted(json.loads(p.read_text())["cycle"] for p in (run_dir / "evaluation").glob("10-*.json"))
+    assert written == [10], "each snapshot's evaluation is written as a single one would be"
+    bare = tmp_path / "bare"
+    shutil.copytree(run_dir, bare)
+    shutil.rmtree(bare / "checkpoints" / "snapshots")
+    assert main(["evaluate", str(bare), "--checkpoint", "snapshots", "--episodes", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "keeps no snapshots" in err and "checkpoint.snapshot_every=N" in err

@@ -6,7 +6,7 @@ reports. The `angora-jax` command is a thin layer over these functions.
     agent = load_agent(run.run_dir)                            # best checkpoint: act, evaluate, probe
 """
 
-from angora_jax.experiment.agent import Agent, load_agent
+from angora_jax.experiment.agent import Agent, load_agent, snapshot_cycles
 from angora_jax.experiment.checkpoint import Checkpoints
 from angora_jax.experiment.config import (
     CheckpointConfig,
@@ -41,6 +41,7 @@ __all__ = [
     "load_config",
     "read_metrics",
     "resume",
+    "snapshot_cycles",
     "to_dict",
     "train",
     "validate",

@@ -135,6 +135,16 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
     return Agent(config, env, network, head, state, int(state.cycle), compiled)
 
 
+def snapshot_cycles(run_dir: str | Path) -> list[int]:
+    """The cycles of the snapshots that a run keeps for probing (`checkpoint.snapshot_every`), ascending; empty when
+    it keeps none."""
+    checkpoints = Checkpoints(Path(run_dir) / CHECKPOINTS, read_run_config(run_dir).checkpoint, create=False)
+    try:
+        return checkpoints.steps("snapshots")
+    finally:
+        checkpoints.close()
+
+
 def saved_policy(source: str | Path) -> PolicyState:
     """The parameters and observation statistics saved in a run, named `RUN_DIR` (its best checkpoint, or its
     latest when it keeps no best), `RUN_DIR:latest` or `RUN_DIR:<cycle>`; FileNotFoundError when there is no such
