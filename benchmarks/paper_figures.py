@@ -4,13 +4,15 @@ hand's reach), each task x policy head x seed trained with its family's config (
 
 Per run: `angora_jax.train` in this process (with `--parallel`, in one of its own) with `--minutes` as its wall-
 clock cap (the run stops after the first cycle past it, compile included). Per figure: one PNG, a panel per task
-(top row: against env steps, bottom row: against cycles; per head the mean over seeds with the min-max band), and in
+(top row: against env steps, bottom row: against cycles; per head the mean over seeds with the min-max band as far
+as every seed ran, and each seed that ran further as a thin line), and in
 the JSON every curve, each run's wall time, final return (the training mean over the last tenth of its cycles, with
 sampled actions) and its final policy's mode evaluated on fresh episodes (`--evaluate`, 128 by default), the wall
 seconds and env steps at which its training mean first passed the task's target return (`TARGETS`), and, per task,
-which head ended higher over the seeds (mean and sample std of each run's return at the env steps that every run of
-the task reached, so that heads of unequal speed are compared at equal samples). Tasks not available here are listed
-as missing with the reason.
+the heads compared over the seeds (mean and sample std of each run's return at the env steps that every run of the
+task reached, so that heads of unequal speed are compared at equal samples; a head is better where Welch's t-test
+against the runner-up gives p < 0.05, else the two are level; the verdict heads each panel). Tasks not available here
+are listed as missing with the reason.
 
     python benchmarks/paper_figures.py --figure 9 --seeds 0 1 2 --minutes 4 --parallel 4   # one GPU, 4 runs at once
     python benchmarks/paper_figures.py --figure 8 --tasks CartPole --seeds 0 --smoke  # CPU smoke: tiny sizes
@@ -38,6 +40,7 @@ import time
 
 import gymnasium
 import matplotlib
+import scipy.stats
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -63,9 +66,13 @@ FIGURES = {
           ("ShadowHandFreeReach", "shadow_reach", (*CONTINUOUS, "multicategorical"))],
 }
 # Returns to reach (issue 18's bars): PPO's after 1M env steps in Schulman et al. 2017 (Fig. 3) for Hopper, Walker2d
-# and HalfCheetah, of the order of the paper's Fig. 9, and 5,000 for Humanoid (it walks). A run records when its
-# training mean first passed its task's.
-TARGETS = {"Hopper": 2300.0, "Walker2d": 3400.0, "HalfCheetah": 1700.0, "Humanoid": 5000.0}
+# and HalfCheetah, of the order of the paper's Fig. 9; for Ant, which Schulman et al. did not run, PPO's best average
+# return within 1M steps in Fujimoto et al. 2018 (the TD3 paper's table of results, Gym's Ant-v1: 1,083); and 5,000
+# for Humanoid (it walks). A run records when its training mean first passed its task's.
+TARGETS = {"Hopper": 2300.0, "Walker2d": 3400.0, "HalfCheetah": 1700.0, "Ant": 1083.0, "Humanoid": 5000.0}
+# A head is called better than the runner-up only where Welch's t-test over their seeds' returns gives p below this;
+# otherwise the two are "level".
+SIGNIFICANCE = 0.05
 # Gymnasium ids of the classic tasks, for their registered reward thresholds; the locomotion tasks are `<task>-v5`.
 GYMNASIUM_IDS = {"CartPole": "CartPole-v1", "Acrobot": "Acrobot-v1", "MountainCar": "MountainCar-v0",
                  "Pendulum": "Pendulum-v1", "MountainCarContinuous": "MountainCarContinuous-v0"}
@@ -157,26 +164,59 @@ def return_at(run: dict, env_steps: int) -> float | None:
 def compare_heads(runs: list[dict]) -> dict:
     """Per head: mean and sample std over seeds of the return at `env_steps`, the most env steps that every run
     reached, and how many of its runs ended at or above Gymnasium's reward threshold (`passed`, when the task has
-    one); `better`: the head with the higher mean."""
+    one). `highest`: the head with the highest mean; `p_value`: Welch's t-test between its seeds and the runner-up's;
+    `better`: `highest` where p < `SIGNIFICANCE`, "level" where not, None where a head has fewer than 2 seeds (no
+    test) or the task has one head."""
     env_steps = min(run["env_steps"] for run in runs)
     heads = {}
     for run in runs:
         heads.setdefault(run["head"], []).append(return_at(run, env_steps))
+    heads = {h: v for h, v in heads.items() if None not in v}
     stats = {h: {"mean": statistics.fmean(v), "std": statistics.stdev(v) if len(v) > 1 else 0.0, "seeds": len(v)}
-             for h, v in heads.items() if None not in v}
+             for h, v in heads.items()}
     threshold = gymnasium_threshold(runs[0]["task"])
     if threshold is not None:
         for head in stats:
             stats[head]["passed"] = sum(run["final_return"] is not None and run["final_return"] >= threshold
                                         for run in runs if run["head"] == head)
-    better = max(stats, key=lambda h: stats[h]["mean"]) if len(stats) > 1 else None
-    return {"env_steps": env_steps, "gymnasium_threshold": threshold, "heads": stats, "better": better}
+    ranked = sorted(stats, key=lambda h: stats[h]["mean"], reverse=True)
+    highest, p_value, better = (ranked[0] if len(ranked) > 1 else None), None, None
+    if highest is not None and min(len(heads[h]) for h in ranked[:2]) > 1:
+        p_value = welch_p_value(heads[ranked[0]], heads[ranked[1]])
+        better = highest if p_value < SIGNIFICANCE else "level"
+    return {"env_steps": env_steps, "gymnasium_threshold": threshold, "heads": stats, "highest": highest,
+            "p_value": p_value, "better": better}
 
 
-def plot_figure(figure: str, runs: list[dict], path: str, where: str) -> None:
+def welch_p_value(a: list[float], b: list[float]) -> float:
+    """Two-sided p-value of Welch's t-test (unequal variances) between two heads' seed returns; where neither
+    varies (e.g. both solved CartPole at 500 every seed), 1 for equal means and 0 for unequal ones."""
+    if statistics.pvariance(a) == statistics.pvariance(b) == 0.0:
+        return 1.0 if statistics.fmean(a) == statistics.fmean(b) else 0.0
+    return float(scipy.stats.ttest_ind(a, b, equal_var=False).pvalue)
+
+
+def verdict(comparison: dict) -> str:
+    """The comparison in words, for the figure and the table: e.g. "beta > gaussian (p=0.003)", "level (p=0.41)",
+    "one seed: beta highest"."""
+    if comparison["highest"] is None:
+        return ""
+    heads = comparison["heads"]
+    runner_up = sorted(heads, key=lambda h: heads[h]["mean"], reverse=True)[1]
+    if comparison["better"] is None:
+        return f"{comparison['highest']} highest (too few seeds to test)"
+    if comparison["better"] == "level":
+        return f"{comparison['highest']} ~ {runner_up}: level (p={comparison['p_value']:.2g})"
+    return f"{comparison['highest']} > {runner_up} (p={comparison['p_value']:.2g})"
+
+
+def plot_figure(figure: str, runs: list[dict], comparison: dict, path: str, where: str) -> None:
+    """A panel per task (top row: against env steps, bottom row: against cycles): per head the mean over seeds
+    with the min-max band as far as every seed ran, then each seed that ran further as a thin line of its own; the
+    heads' comparison (`verdict`) under the task's name."""
     tasks = list(dict.fromkeys(r["task"] for r in runs))
     colours = {head: f"C{i}" for i, head in enumerate(dict.fromkeys(r["head"] for r in runs))}  # one per head
-    fig, axes = plt.subplots(2, len(tasks), figsize=(3.4 * len(tasks), 5.6), squeeze=False)
+    fig, axes = plt.subplots(2, len(tasks), figsize=(3.4 * len(tasks), 5.8), squeeze=False)
     for col, task in enumerate(tasks):
         for row, x in enumerate(("env_steps", "cycle")):
             ax = axes[row][col]
@@ -187,17 +227,22 @@ def plot_figure(figure: str, runs: list[dict], path: str, where: str) -> None:
                 ys = [[c["episode_return"][i] for c in curves if c["episode_return"][i] is not None]
                       for i in range(length)]
                 keep = [i for i, y in enumerate(ys) if y]
-                ax.plot([xs[i] for i in keep], [statistics.fmean(ys[i]) for i in keep], label=head,
-                        color=colours[head])
+                ax.plot([xs[i] for i in keep], [statistics.fmean(ys[i]) for i in keep], color=colours[head],
+                        label=f"{head} ({len(curves)})")
                 ax.fill_between([xs[i] for i in keep], [min(ys[i]) for i in keep], [max(ys[i]) for i in keep],
                                 alpha=0.2, color=colours[head])
+                for curve in curves:
+                    beyond = [i for i in range(length - 1, len(curve[x])) if curve["episode_return"][i] is not None]
+                    if len(beyond) > 1:
+                        ax.plot([curve[x][i] for i in beyond], [curve["episode_return"][i] for i in beyond],
+                                color=colours[head], linewidth=0.6, alpha=0.7)
             ax.set_xlabel("env steps" if x == "env_steps" else "cycles")
             ax.grid(alpha=0.3)
             if row == 0:
-                ax.set_title(task)
+                ax.set_title(f"{task}\n{verdict(comparison[task])}", fontsize="small")
             if col == 0:
                 ax.set_ylabel("mean episode return")
-        axes[0][col].legend(fontsize="small")
+        axes[0][col].legend(fontsize="x-small", title="head (seeds)", title_fontsize="x-small")
     fig.suptitle(f"Fig. {figure}: {where}")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -213,7 +258,7 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
                   for task in dict.fromkeys(r["task"] for r in runs)}
     os.makedirs(out, exist_ok=True)
     png = os.path.join(out, f"{name}.png")
-    plot_figure(figure, runs, png, where["kind"])
+    plot_figure(figure, runs, comparison, png, where["kind"])
     record = {"benchmark": "paper_figures", "figure": figure, "device": where, "versions": made_with,
               "config": config, "comparison": comparison, "missing": missing, "runs": runs}
     with open(f"{png[:-4]}.json", "w") as file:
@@ -227,8 +272,8 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
                                  ("wall", "wall s", ".0f"), ("target", "s to target", ".0f"),
                                  ("mode", "final policy's mode", ".1f")]))
     for task, result in comparison.items():
-        print(f"{task}: better head at {result['env_steps']:,} env steps {result['better']}: " + ", ".join(
-            f"{h} {s['mean']:.1f} +- {s['std']:.1f} ({s['seeds']} seeds"
+        print(f"{task} at {result['env_steps']:,} env steps: {verdict(result) or 'one head'}; " + ", ".join(
+            f"{h} {s['mean']:.1f} +- {s['std']:.1f} ({s['seeds']} seed{'s' if s['seeds'] > 1 else ''}"
             + (f", {s['passed']} ended past Gymnasium's {result['gymnasium_threshold']:g})" if "passed" in s else ")")
             for h, s in result["heads"].items()))
     if missing:
@@ -238,8 +283,9 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
 
 def merge(figure: str, paths: list[str], name: str, out: str) -> None:
     """One figure from the runs recorded in earlier outputs of this script (`paths`, all of `figure`, made on one
-    kind of machine with the same versions). Final returns are taken again from the curves (`tail_mean`), so that
-    outputs of earlier versions of this script count alike."""
+    kind of machine with the same versions). Final returns and times to the targets are taken again from the curves
+    (`tail_mean`, `first_past`), so that outputs of earlier versions of this script count alike. A run (task, head,
+    seed) found twice is refused: it would count twice."""
     records = []
     for path in paths:
         with open(path) as file:
@@ -251,10 +297,21 @@ def merge(figure: str, paths: list[str], name: str, out: str) -> None:
             raise SystemExit(f"{path} was made on {records[-1]['device']} with {records[-1]['versions']}, "
                              f"{paths[0]} on {records[0]['device']} with {records[0]['versions']}: merge runs of "
                              "one machine kind and one set of versions.")
-    runs = [{**run, "final_return": tail_mean(run["curve"]["episode_return"])} for record in records
-            for run in record["runs"]]
+    runs, seen = [], {}
+    for path, record in zip(paths, records, strict=True):
+        for run in record["runs"]:
+            key = (run["task"], run["head"], run["seed"])
+            if key in seen:
+                raise SystemExit(f"{' '.join(map(str, key))} is in {seen[key]} and in {path}: a run merged twice "
+                                 "would count twice; give each run once.")
+            seen[key] = path
+            runs.append({**run, "final_return": tail_mean(run["curve"]["episode_return"]),
+                         "target": first_past(run["curve"], TARGETS.get(run["task"]))})
     missing = {task: why for record in records for task, why in record["missing"].items()}
-    config = {"merged": {os.path.basename(p): r["config"] for p, r in zip(paths, records, strict=True)}}
+    # The configs of the outputs merged, by file name; an output that was itself a merge lends its own entries.
+    config = {"merged": {}}
+    for path, record in zip(paths, records, strict=True):
+        config["merged"] |= record["config"].get("merged") or {os.path.basename(path): record["config"]}
     write_figure(figure, runs, missing, config, name, out, (records[0]["device"], records[0]["versions"]))
 
 

@@ -187,7 +187,8 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
     assert all(r["cycles"] == 2 and len(r["curve"]["episode_return"]) == 2 and r["wall_seconds"] > 0 for r in runs)
     comparison = record["comparison"]["Pendulum"]
     means = {head: stats["mean"] for head, stats in comparison["heads"].items()}
-    assert comparison["better"] == max(means, key=means.get) and comparison["heads"]["beta"]["seeds"] == 1
+    assert comparison["highest"] == max(means, key=means.get) and comparison["heads"]["beta"]["seeds"] == 1
+    assert comparison["better"] is None and comparison["p_value"] is None, "one seed per head: nothing to test"
     assert record["missing"] == {}, "every Fig. 8 task exists (LunarLander on the host path)"
     assert (tmp_path / "fig8.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert all(len(r["curve"]["seconds"]) == 2 and r["target"] is None for r in runs), "Pendulum has no target"
@@ -197,15 +198,26 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
         assert -16.3 * 200 <= run["evaluation"]["return"] <= 0.0, "Pendulum's cost per step lies in [0, 16.3]"
 
     # runs of separate invocations (here the same runs again, as seed 4) combine into one figure
-    other = {**record, "runs": [{**run, "seed": 4} for run in runs]}
+    other = {**record, "runs": [{**run, "seed": 4, "target": {"stale": True}} for run in runs]}
     (tmp_path / "other.json").write_text(json.dumps(other))
     subprocess.run([sys.executable, script, "--figure", "8", "--merge", str(tmp_path / "fig8.json"),
                     str(tmp_path / "other.json"), "--out", str(tmp_path), "--name", "merged"], check=True)
     merged = json.loads((tmp_path / "merged.json").read_text())
     assert sorted((r["head"], r["seed"]) for r in merged["runs"]) == [("beta", 3), ("beta", 4), ("gaussian", 3),
                                                                        ("gaussian", 4)]
-    assert merged["comparison"]["Pendulum"]["heads"]["beta"]["seeds"] == 2
+    assert all(run["target"] is None for run in merged["runs"]), "targets are taken again from the curves"
+    pendulum = merged["comparison"]["Pendulum"]
+    assert pendulum["heads"]["beta"]["seeds"] == 2 and 0.0 <= pendulum["p_value"] <= 1.0
+    assert pendulum["better"] in (pendulum["highest"], "level")
     assert set(merged["config"]["merged"]) == {"fig8.json", "other.json"}
+    # a merge of merges keeps the first outputs' configs; a run given twice is refused
+    subprocess.run([sys.executable, script, "--figure", "8", "--merge", str(tmp_path / "merged.json"), "--out",
+                    str(tmp_path), "--name", "again"], check=True)
+    assert set(json.loads((tmp_path / "again.json").read_text())["config"]["merged"]) == {"fig8.json", "other.json"}
+    twice = subprocess.run([sys.executable, script, "--figure", "8", "--merge", str(tmp_path / "fig8.json"),
+                            str(tmp_path / "merged.json"), "--out", str(tmp_path), "--name", "twice"],
+                           capture_output=True, text=True)
+    assert twice.returncode != 0 and "Pendulum" in twice.stderr and "merged twice" in twice.stderr
     # a run that fails in its process is named with the end of its log
     failing = subprocess.run([sys.executable, script, "--figure", "8", "--tasks", "Pendulum", "--seeds", "3",
                               "--parallel", "2", "--smoke", "--out", str(tmp_path), "--name", "bad",
@@ -222,7 +234,8 @@ def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
             "curve": {"env_steps": [100, 200], "episode_return": [2.5, 2.5]}}
     comparison = paper_figures.compare_heads([fast, slow])
     assert comparison["env_steps"] == 200, "the most env steps that every run reached"
-    assert comparison["heads"]["gaussian"]["mean"] == 2.0 and comparison["better"] == "beta"
+    assert comparison["heads"]["gaussian"]["mean"] == 2.0 and comparison["highest"] == "beta"
+    assert comparison["better"] is None, "one seed per head: no test"
     assert paper_figures.first_past(curve, 2.5) == {"return": 2.5, "reached": True, "seconds": 32.0,
                                                     "env_steps": 300, "cycle": 3}
     assert paper_figures.first_past(curve, 9.0)["reached"] is False
@@ -236,6 +249,18 @@ def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
                                           {**slow, "task": "Swimmer", "final_return": 300.0}])
     assert passed["gymnasium_threshold"] == 360.0
     assert passed["heads"]["gaussian"]["passed"] == 1 and passed["heads"]["beta"]["passed"] == 0
+    # Over seeds, a head is better only where Welch's t-test says so; otherwise the heads are level.
+    def seeds(head, returns):
+        return [{**fast, "head": head, "seed": i, "curve": {**curve, "episode_return": [r] * 4}}
+                for i, r in enumerate(returns)]
+
+    apart = paper_figures.compare_heads(seeds("gaussian", [1.0, 1.1, 0.9]) + seeds("beta", [5.0, 5.2, 4.9]))
+    assert apart["better"] == "beta" and apart["p_value"] < 0.05
+    assert paper_figures.verdict(apart).startswith("beta > gaussian (p=")
+    close = paper_figures.compare_heads(seeds("gaussian", [1.0, 2.0, 3.0]) + seeds("beta", [1.5, 2.5, 3.5]))
+    assert close["highest"] == "beta" and close["better"] == "level" and close["p_value"] > 0.5
+    solved = paper_figures.compare_heads(seeds("gaussian", [500.0] * 3) + seeds("beta", [500.0] * 3))
+    assert solved["better"] == "level" and solved["p_value"] == 1.0
     # A solved InvertedPendulum: its episodes all last 1,000 steps and end in the same cycles, none in the others.
     assert paper_figures.tail_mean([10.0, None, 1000.0, float("nan"), None]) == 1000.0
     assert paper_figures.tail_mean([None, float("nan")]) is None
