@@ -1,21 +1,25 @@
-"""Brax's PPO and ours, side by side, training the same task of ours with matched settings.
+"""Brax's PPO and ours, side by side, training the same task of ours: with matched settings (`--recipes matched`,
+the default: a like-for-like comparison of the two trainers' speed), or each with its own published recipe
+(`--recipes own`: ours with its family config as it ships, Brax with the settings of Brax's training colab for its
+version of the robot, `BRAX_RECIPES`: an anchor for the return and the wall time to a fixed return).
 
 Brax (`brax.training.agents.ppo.train`, from PyPI: `pip install -e ".[bench]"`) trains our environment through
 `BraxAdapter`, a `brax.envs.base.Env` over our `reset` and `advance` (a step without our auto-reset): Brax's own
-training wrappers add the episode limit and auto-reset, as for any Brax environment. Our trainer runs the same
-task with the same number of environments, unroll (rollout) length, minibatch size, epochs, learning rate,
-discount, GAE lambda, clipping, entropy and value coefficients, gradient clipping, observation normalisation, the
-same feed-forward network (policy and value MLPs of the same widths, tanh, the value MLP also reading the
-privileged `asymmetric` modality) and the same kind of policy (a Gaussian with state-independent learned log std,
-actions clipped to the bounds), for the same number of env steps.
+training wrappers add the episode limit and auto-reset, as for any Brax environment. With matched settings, our
+trainer runs the same task with the same number of environments, unroll (rollout) length, minibatch size, epochs,
+learning rate, discount, GAE lambda, clipping, entropy and value coefficients, gradient clipping, observation
+normalisation, the same feed-forward network (policy and value MLPs of the same widths, tanh, the value MLP also
+reading the privileged `asymmetric` modality) and the same kind of policy (a Gaussian with state-independent learned
+log std, actions clipped to the bounds), for the same number of env steps.
 
 Reported per side: env steps/s with compilation excluded (all training segments after the first), the first
-call's extra time (the first segment's time less what it takes at the steady rate: compilation, mostly), and the
-return at equal env steps and at equal wall time. Each side's policy is saved at `--snapshots` evenly spaced
-points, and every snapshot is scored the same way afterwards: mean episode return (and the task's metrics at the
-episode's end) of the deterministic policy (the Gaussian's mean) over `--eval-envs` episodes of our environment,
-same keys for both. Wall time is training time: the sum of the training segments, the first (compiling) one
-included, evaluation excluded.
+call's extra time (the first segment's time less what it takes at the steady rate: compilation, mostly), the
+return at equal env steps and at equal wall time, and the training wall time to the first snapshot that reached a
+target return (`--target`, by default the task's in `common.TARGETS`). Each side's policy is saved at `--snapshots`
+evenly spaced points, and every snapshot is scored the same way afterwards: mean episode return (and the task's
+metrics at the episode's end) of the deterministic policy (the Gaussian's mean) over `--eval-envs` episodes of our
+environment, same keys for both. Wall time is training time: the sum of the training segments, the first
+(compiling) one included, evaluation excluded.
 
 Differences that remain, by design of the two libraries: Brax auto-resets an environment to the first state it
 was reset to (same goal each episode of one environment; ours draws a fresh one), masks truncated steps out of
@@ -24,12 +28,15 @@ clip normalised observations; initialisations differ (orthogonal here, LeCun uni
 
     python benchmarks/brax_side_by_side.py --task Pendulum --num-envs 16 --timesteps 20000   # CPU, seconds
     python benchmarks/brax_side_by_side.py --num-envs 4096 --rollout-length 32 --timesteps 5000000 --eval-envs 512
+    python benchmarks/brax_side_by_side.py --task HalfCheetah --recipes own --timesteps 50000000 --snapshots 20 \
+        --eval-envs 128                                 # GPU: locomotion.yaml against Brax's HalfCheetah recipe
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import inspect
 import json
 import math
 import os
@@ -39,17 +46,19 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import yaml
 from brax.envs.base import Env as BraxEnv
 from brax.envs.base import State as BraxState
 from brax.envs.wrappers import training as brax_training
 from brax.training.agents.ppo import networks as brax_networks
 from brax.training.agents.ppo import train as brax_ppo
-from common import RESULTS, env_step_rate, markdown_table, measure_compiled, write_results
+from common import RESULTS, TARGETS, env_step_rate, markdown_table, measure_compiled, write_results
 from flax import linen
 
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.envs.random_rollout import random_action
 from angora_jax.envs.registry import make
+from angora_jax.experiment import load_config, validate
 from angora_jax.nets import ActorCritic, make_network, policy_inputs, value_inputs
 from angora_jax.ppo import NetworkConfig, PPOConfig, build_head, training_cycles
 from angora_jax.ppo.normalization import normalize_observation
@@ -100,8 +109,9 @@ class BraxAdapter(BraxEnv):
         action = jnp.clip(action, self.env.action_spec.low, self.env.action_spec.high)
         ended, _ = self.env.advance(state.pipeline_state, action)
         terminated = ended.done * (1.0 - ended.truncated)
+        # Keys that Brax's wrappers added at reset (its evaluator's "reward") stay: a scan's carry keeps its shape.
         return state.replace(pipeline_state=ended, obs=brax_observation(ended.obs), reward=ended.reward,
-                             done=terminated, metrics=dict(ended.metrics))
+                             done=terminated, metrics={**state.metrics, **ended.metrics})
 
     @property
     def observation_size(self) -> dict[str, tuple[int, ...]]:
@@ -152,6 +162,10 @@ class Settings:
             network=NetworkConfig(name="simple", width=self.width),
         )
 
+    def plan(self, env: Env) -> Plan:
+        """Both sides' settings for `env`."""
+        return Plan("matched", self.ppo_config(), self.brax_kwargs(env), self.cycles_per_snapshot, self.snapshots)
+
     def brax_kwargs(self, env: Env) -> dict[str, Any]:
         """Brax's `ppo.train` arguments for the same run. One Brax training step is one of our cycles: it collects
         `batch_size * num_minibatches = num_envs` trajectories of `unroll_length` steps, one per environment."""
@@ -174,6 +188,79 @@ class Settings:
             normalize_observations=ours.normalization.observations, normalize_advantage=ours.normalize_advantages,
             network_factory=network_factory, seed=self.seed, num_evals=self.snapshots + 1, run_evals=False,
         )
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """What each side trains: `recipes` "matched" (the same settings, `Settings`) or "own" (each library's published
+    settings for the task, `own_plan`); our `PPOConfig` and Brax's `ppo.train` arguments for about the same env steps;
+    our policy is kept every `cycles_per_snapshot` cycles, Brax's after each of its `snapshots` training epochs."""
+
+    recipes: str
+    ours: PPOConfig
+    brax: dict[str, Any]
+    cycles_per_snapshot: int
+    snapshots: int
+
+    @property
+    def steps_per_cycle(self) -> int:
+        return self.ours.num_envs * self.ours.rollout_length
+
+
+# Brax's own PPO settings for its versions of these robots (`train_fn` of Brax's training colab), for `--recipes own`:
+# each library trains with what its authors publish for the task. Brax's colab trains Hopper and Walker2d with SAC, so
+# it gives no PPO recipe for them. Every recipe also normalises observations, repeats no action and takes the
+# episode limit of the task.
+BRAX_RECIPES: dict[str, dict[str, Any]] = {
+    "HalfCheetah": dict(num_envs=2048, batch_size=512, num_minibatches=32, unroll_length=20, num_updates_per_batch=8,
+                        discounting=0.95, learning_rate=3e-4, entropy_cost=1e-3, reward_scaling=1.0),
+    "Ant": dict(num_envs=4096, batch_size=2048, num_minibatches=32, unroll_length=5, num_updates_per_batch=4,
+                discounting=0.97, learning_rate=3e-4, entropy_cost=1e-2, reward_scaling=10.0),
+    "Humanoid": dict(num_envs=2048, batch_size=1024, num_minibatches=32, unroll_length=10, num_updates_per_batch=8,
+                     discounting=0.97, learning_rate=3e-4, entropy_cost=1e-3, reward_scaling=0.1),
+    "InvertedPendulum": dict(num_envs=2048, batch_size=1024, num_minibatches=32, unroll_length=5,
+                             num_updates_per_batch=4, discounting=0.97, learning_rate=3e-4, entropy_cost=1e-2,
+                             reward_scaling=10.0),
+    "InvertedDoublePendulum": dict(num_envs=2048, batch_size=1024, num_minibatches=32, unroll_length=5,
+                                   num_updates_per_batch=4, discounting=0.97, learning_rate=3e-4, entropy_cost=1e-2,
+                                   reward_scaling=10.0),
+}
+
+
+def brax_recipe(task: str) -> dict[str, Any]:
+    """Brax's published PPO settings for `task` (`BRAX_RECIPES`); ValueError naming the tasks that have one."""
+    if task not in BRAX_RECIPES:
+        raise ValueError(f"Brax publishes no PPO recipe for {task} (its colab trains Hopper and Walker2d with SAC): "
+                         f"--recipes own takes one of {', '.join(BRAX_RECIPES)}; --recipes matched runs any task.")
+    return dict(BRAX_RECIPES[task])
+
+
+def brax_changes(assignments: list[str]) -> dict[str, Any]:
+    """`KEY=VALUE` strings (values read as YAML: numbers, booleans) as a dict; ValueError naming one without `=`."""
+    changes, known = {}, inspect.signature(brax_ppo.train).parameters
+    for assignment in assignments:
+        key, sep, value = assignment.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--brax takes KEY=VALUE changes to Brax's recipe, e.g. num_envs=16; got {assignment!r}.")
+        if key not in known:
+            raise ValueError(f"--brax {assignment}: Brax's ppo.train has no argument {key!r} (our config's keys, "
+                             "e.g. ppo.num_envs=16, go after the options, before --brax).")
+        changes[key] = yaml.safe_load(value)
+    return changes
+
+
+def own_plan(env: Env, ours: PPOConfig, recipe: dict[str, Any], timesteps: int, snapshots: int) -> Plan:
+    """Each library's own settings: ours (`ours`, e.g. the task's family config as it ships) and Brax's `recipe`
+    (Brax's default networks: a tanh-squashed Gaussian, 4 x 32 policy and 5 x 256 value MLPs), for about `timesteps`
+    env steps each (whole cycles of ours; Brax rounds up to whole training steps) and `snapshots` evaluation points.
+    Both use `ours.seed`."""
+    steps_per_cycle = ours.num_envs * ours.rollout_length
+    per_snapshot = max(1, round(timesteps / (steps_per_cycle * snapshots)))
+    ours = dataclasses.replace(ours, num_cycles=per_snapshot * snapshots)
+    brax = {**recipe, "num_timesteps": steps_per_cycle * per_snapshot * snapshots,
+            "episode_length": env.max_episode_steps, "normalize_observations": True, "action_repeat": 1,
+            "seed": ours.seed, "num_evals": snapshots + 1, "run_evals": False}
+    return Plan("own", ours, brax, per_snapshot, snapshots)
 
 
 @dataclasses.dataclass
@@ -199,21 +286,21 @@ class Run:
                 "train_wall_s": self.wall_s(), "total_wall_s": self.total_wall_s}
 
 
-def train_ours(env: Env, settings: Settings) -> Run:
+def train_ours(env: Env, plan: Plan) -> Run:
     """Our trainer (`training_cycles`, the loop under `angora_jax.ppo.train`); one segment per cycle, the policy
     kept every `cycles_per_snapshot` cycles."""
     run, start = Run(), time.perf_counter()
-    for state, metrics in training_cycles(settings.ppo_config(), env):
-        run.segments.append((settings.steps_per_cycle, metrics["seconds"]))
-        if metrics["cycle"] % settings.cycles_per_snapshot == 0:
+    for state, metrics in training_cycles(plan.ours, env):
+        run.segments.append((plan.steps_per_cycle, metrics["seconds"]))
+        if metrics["cycle"] % plan.cycles_per_snapshot == 0:
             run.snapshots.append((metrics["env_steps"], run.wall_s(), (state.params, state.obs_stats)))
     run.total_wall_s = time.perf_counter() - start
     return run
 
 
-def train_brax(env: Env, settings: Settings) -> tuple[Run, Callable]:
-    """Brax's `ppo.train` on `BraxAdapter(env)`; one segment per training epoch (`cycles_per_snapshot` training
-    steps in one compiled call), the policy kept after each. Returns the run and Brax's `make_policy`."""
+def train_brax(env: Env, plan: Plan) -> tuple[Run, Callable]:
+    """Brax's `ppo.train` on `BraxAdapter(env)`; one segment per training epoch (its training steps between two
+    evaluation points, in one compiled call), the policy kept after each. Returns the run and Brax's `make_policy`."""
     run, epochs = Run(), []
 
     def progress(step: int, metrics: dict) -> None:
@@ -224,12 +311,11 @@ def train_brax(env: Env, settings: Settings) -> tuple[Run, Callable]:
             run.snapshots.append((step, None, params))
 
     start = time.perf_counter()
-    make_policy, _, _ = brax_ppo.train(BraxAdapter(env), progress_fn=progress, policy_params_fn=keep,
-                                       **settings.brax_kwargs(env))
+    make_policy, _, _ = brax_ppo.train(BraxAdapter(env), progress_fn=progress, policy_params_fn=keep, **plan.brax)
     run.total_wall_s = time.perf_counter() - start
-    walls = [wall for _, wall in epochs]
-    run.segments = [(settings.steps_per_cycle * settings.cycles_per_snapshot, b - a)
-                    for a, b in zip([0.0, *walls[:-1]], walls, strict=True)]
+    steps, walls = [step for step, _ in epochs], [wall for _, wall in epochs]
+    run.segments = [(n - m, b - a) for m, n, a, b in zip([0, *steps[:-1]], steps, [0.0, *walls[:-1]], walls,
+                                                         strict=True)]
     run.snapshots = [(step, wall, params) for (step, _, params), wall in zip(run.snapshots, walls, strict=True)]
     return run, make_policy
 
@@ -298,15 +384,15 @@ def at_wall_time(curve: list[dict[str, float]], wall_s: float) -> dict[str, floa
     return reached[-1] if reached else None
 
 
-def env_alone_rates(env: Env, settings: Settings) -> dict[str, float]:
+def env_alone_rates(env: Env, plan: Plan) -> dict[str, float]:
     """Env steps/s of each side's environment stepping alone, random actions, `rollout_length` steps of `num_envs`
     environments per timed run: ours (`env.step`, which computes a fresh reset for every environment at every step
     and keeps it where an episode ended) and Brax's (`BraxAdapter` under Brax's training wrappers, which copy the
     stored first state instead). Tells apart the environment's share of a speed difference from the learner's."""
-    n, steps = settings.num_envs, settings.rollout_length
-    ours = env_step_rate(env, n, steps, seed=settings.seed)
+    n, steps, seed = plan.ours.num_envs, plan.ours.rollout_length, plan.ours.seed
+    ours = env_step_rate(env, n, steps, seed=seed)
     wrapped = brax_training.wrap(BraxAdapter(env), episode_length=env.max_episode_steps)
-    state = jax.jit(wrapped.reset)(jax.random.split(jax.random.PRNGKey(settings.seed), n))
+    state = jax.jit(wrapped.reset)(jax.random.split(jax.random.PRNGKey(seed), n))
 
     def rollout(state, key):
         def one(state, key):
@@ -314,17 +400,28 @@ def env_alone_rates(env: Env, settings: Settings) -> dict[str, float]:
 
         return jax.lax.scan(one, state, jax.random.split(key, steps))[0]
 
-    brax = measure_compiled(rollout, state, jax.random.key(settings.seed + 1))
+    brax = measure_compiled(rollout, state, jax.random.key(seed + 1))
     return {"angora_jax": ours["env_steps_per_s"], "brax": n * steps / brax.seconds}
 
 
-def compare(env: Env, settings: Settings, eval_envs: int, env_alone: bool = False) -> dict[str, Any]:
+def first_snapshot_past(curve: list[dict[str, float]], target: float | None) -> dict[str, float] | None:
+    """The first evaluated snapshot whose return reached `target` (its training wall time is an upper bound on the
+    time to that return, at the snapshots' spacing), or None (also without a target)."""
+    if target is None:
+        return None
+    return next((point for point in curve if point["episode_return"] >= target), None)
+
+
+def compare(env: Env, plan: Plan, eval_envs: int, env_alone: bool = False,
+            target: float | None = None) -> dict[str, Any]:
     """Train both sides, score their snapshots; rows for the table and both learning curves. With `env_alone`,
-    each row also has its environment's rate alone (`env_alone_rates`)."""
-    ours = train_ours(env, settings)
-    brax, make_brax_policy = train_brax(env, settings)
-    curves = {"angora_jax": score(env, ours, ours_act(env, settings.ppo_config()), eval_envs, settings.seed),
-              "brax": score(env, brax, brax_act(env, make_brax_policy), eval_envs, settings.seed)}
+    each row also has its environment's rate alone (`env_alone_rates`); with a `target` return, the training wall
+    seconds and env steps of each side's first snapshot that reached it."""
+    seed = plan.ours.seed
+    ours = train_ours(env, plan)
+    brax, make_brax_policy = train_brax(env, plan)
+    curves = {"angora_jax": score(env, ours, ours_act(env, plan.ours), eval_envs, seed),
+              "brax": score(env, brax, brax_act(env, make_brax_policy), eval_envs, seed)}
     summaries = {"angora_jax": ours.summary(), "brax": brax.summary()}
     equal_wall = min(s["train_wall_s"] for s in summaries.values())
     rows = []
@@ -337,9 +434,12 @@ def compare(env: Env, settings: Settings, eval_envs: int, env_alone: bool = Fals
             "equal_wall_s": equal_wall,
             "return_at_equal_wall": at_wall["episode_return"] if at_wall else None,
             "env_steps_at_equal_wall": at_wall["env_steps"] if at_wall else None,
+            "target": target,
+            "seconds_to_target": past["train_wall_s"] if (past := first_snapshot_past(curve, target)) else None,
+            "env_steps_to_target": past["env_steps"] if past else None,
         })
     if env_alone:
-        for row, rate in zip(rows, env_alone_rates(env, settings).values(), strict=True):
+        for row, rate in zip(rows, env_alone_rates(env, plan).values(), strict=True):
             row["env_alone_steps_per_s"] = rate
     rows[0]["speed_over_brax"] = rows[0]["env_steps_per_s"] / rows[1]["env_steps_per_s"]
     return {"rows": rows, "curves": curves}
@@ -348,7 +448,10 @@ def compare(env: Env, settings: Settings, eval_envs: int, env_alone: bool = Fals
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="ShadowHandReach")
-    parser.add_argument("--options", default="{}", help="task options as JSON")
+    parser.add_argument("--recipes", choices=("matched", "own"), default="matched",
+                        help="matched: both sides with the settings below; own: ours with --config (and the "
+                             "overrides), Brax with its published recipe for the task (BRAX_RECIPES, and --brax)")
+    parser.add_argument("--options", default="{}", help="task options as JSON (matched recipes)")
     parser.add_argument("--num-envs", type=int, default=16)
     parser.add_argument("--rollout-length", type=int, default=16, help="Brax's unroll_length")
     parser.add_argument("--minibatches", type=int, default=4, help="minibatches per epoch (Brax's num_minibatches)")
@@ -358,34 +461,55 @@ def main() -> None:
     parser.add_argument("--entropy-coef", type=float, default=0.01)
     parser.add_argument("--init-log-std", type=float, default=-1.0)
     parser.add_argument("--gamma", type=float, default=0.99)
+    parser.add_argument("--config", default="locomotion", help="our config for --recipes own (default: locomotion)")
+    parser.add_argument("--brax", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="changes to Brax's recipe for --recipes own, e.g. num_envs=16 batch_size=8 on a CPU")
     parser.add_argument("--timesteps", type=int, default=2048, help="env steps per side (rounded to whole cycles)")
     parser.add_argument("--snapshots", type=int, default=4, help="evaluation points per side (>= 2)")
     parser.add_argument("--eval-envs", type=int, default=16, help="episodes per evaluation")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--target", type=float, default=None,
+                        help="return to time each side to (default: the task's in common.TARGETS, if any)")
     parser.add_argument("--env-alone", action="store_true",
                         help="also time each side's env stepping alone (two more compiles)")
-    parser.add_argument("--out", default=None, help="JSON path (default: results/brax_side_by_side_<task>_<platform>)")
+    parser.add_argument("--out", default=None,
+                        help="JSON path (default: results/brax_side_by_side_<task>_<platform>[_own].json)")
+    parser.add_argument("overrides", nargs="*", help="key.sub=value overrides of --config (--recipes own)")
     args = parser.parse_args()
 
     if args.snapshots < 2:
         parser.error("--snapshots must be >= 2: the first training segment includes compilation.")
-    if args.num_envs % args.minibatches:
-        parser.error(f"--minibatches ({args.minibatches}) must divide --num-envs ({args.num_envs}): a Brax "
-                     "minibatch is num_envs / minibatches whole trajectories.")
-    env = make(args.task, **json.loads(args.options))
-    per_snapshot = max(1, round(args.timesteps / (args.num_envs * args.rollout_length * args.snapshots)))
-    settings = Settings(args.num_envs, args.rollout_length, args.minibatches, args.epochs, args.width,
-                        args.learning_rate, args.entropy_coef, args.init_log_std, args.gamma, per_snapshot,
-                        args.snapshots, args.seed)
-    settings.ppo_config().validate_for(env)
-    result = compare(env, settings, args.eval_envs, args.env_alone)
+    if args.recipes == "own":
+        try:
+            recipe = brax_recipe(args.task) | brax_changes(args.brax)
+        except ValueError as error:
+            parser.error(str(error))
+        config = load_config(args.config, [f"env.task={args.task}", f"ppo.seed={args.seed}", *args.overrides])
+        env = validate(config)
+        plan = own_plan(env, config.ppo, recipe, args.timesteps, args.snapshots)
+        described = {"config": args.config, "overrides": args.overrides, "options": config.env.options}
+    else:
+        if args.num_envs % args.minibatches:
+            parser.error(f"--minibatches ({args.minibatches}) must divide --num-envs ({args.num_envs}): a Brax "
+                         "minibatch is num_envs / minibatches whole trajectories.")
+        env = make(args.task, **json.loads(args.options))
+        per_snapshot = max(1, round(args.timesteps / (args.num_envs * args.rollout_length * args.snapshots)))
+        settings = Settings(args.num_envs, args.rollout_length, args.minibatches, args.epochs, args.width,
+                            args.learning_rate, args.entropy_coef, args.init_log_std, args.gamma, per_snapshot,
+                            args.snapshots, args.seed)
+        settings.ppo_config().validate_for(env)
+        plan = settings.plan(env)
+        described = {"options": json.loads(args.options), "settings": dataclasses.asdict(settings)}
+    target = args.target if args.target is not None else TARGETS.get(args.task)
+    result = compare(env, plan, args.eval_envs, args.env_alone, target)
     rows = result["rows"]
-    config = {"task": args.task, "options": json.loads(args.options), "eval_envs": args.eval_envs,
-              "settings": dataclasses.asdict(settings), "env_steps": settings.env_steps,
-              "ours": dataclasses.asdict(settings.ppo_config()),
-              "brax": {k: v for k, v in settings.brax_kwargs(env).items() if k != "network_factory"},
+    config = {"task": args.task, "recipes": args.recipes, **described, "eval_envs": args.eval_envs,
+              "env_steps": plan.steps_per_cycle * plan.cycles_per_snapshot * plan.snapshots,
+              "ours": dataclasses.asdict(plan.ours),
+              "brax": {k: v for k, v in plan.brax.items() if k != "network_factory"}, "target": target,
               "curves": result["curves"]}
-    out = args.out or os.path.join(RESULTS, f"brax_side_by_side_{args.task}_{jax.devices()[0].platform}.json")
+    suffix = "_own" if args.recipes == "own" else ""
+    out = args.out or os.path.join(RESULTS, f"brax_side_by_side_{args.task}_{jax.devices()[0].platform}{suffix}.json")
     path = write_results("brax_side_by_side", config, rows, out)
     metric_columns = [(k, k.removeprefix("final_metric/"), ".3f") for k in rows[0] if k.startswith("final_metric/")]
     print(markdown_table(rows, [
@@ -395,6 +519,8 @@ def main() -> None:
         ("env_steps", "env steps", ",d"), ("final_return", "return (final)", ".2f"), *metric_columns,
         ("return_at_equal_wall", "return at equal wall", ".2f"),
         ("env_steps_at_equal_wall", "its env steps", ",d"),
+        ("seconds_to_target", f"train s to {target:g}" if target is not None else "train s to target", ".1f"),
+        ("env_steps_to_target", "its env steps", ",d"),
     ]))
     print(f"ours / Brax env steps/s: {rows[0]['speed_over_brax']:.2f}; equal wall time {rows[0]['equal_wall_s']:.1f} s")
     print(f"wrote {path}")

@@ -8,11 +8,11 @@ clock cap (the run stops after the first cycle past it, compile included). Per f
 as every seed ran, and each seed that ran further as a thin line), and in
 the JSON every curve, each run's wall time, final return (the training mean over the last tenth of its cycles, with
 sampled actions) and its final policy's mode evaluated on fresh episodes (`--evaluate`, 128 by default), the wall
-seconds and env steps at which its training mean first passed the task's target return (`TARGETS`), and, per task,
-the heads compared over the seeds (mean and sample std of each run's return at the env steps that every run of the
-task reached, so that heads of unequal speed are compared at equal samples; a head is better where Welch's t-test
-against the runner-up gives p < 0.05, else the two are level; the verdict heads each panel). Tasks not available here
-are listed as missing with the reason.
+seconds and env steps at which its training mean first passed the task's target return (`common.TARGETS`), and,
+per task, the heads compared over the seeds (mean and sample std of each run's return at the env steps that every run
+of the task reached, so that heads of unequal speed are compared at equal samples; a head is better where Welch's
+t-test against the runner-up gives p < 0.05, else the two are level; the verdict heads each panel). Tasks not
+available here are listed as missing with the reason.
 
     python benchmarks/paper_figures.py --figure 9 --seeds 0 1 2 --minutes 4 --parallel 4   # one GPU, 4 runs at once
     python benchmarks/paper_figures.py --figure 8 --tasks CartPole --seeds 0 --smoke  # CPU smoke: tiny sizes
@@ -44,7 +44,7 @@ import scipy.stats
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from common import RESULTS, device, markdown_table, versions  # noqa: E402
+from common import RESULTS, TARGETS, device, markdown_table, versions  # noqa: E402
 
 import angora_jax as aj  # noqa: E402
 from angora_jax.envs.registry import is_gymnasium, list_tasks  # noqa: E402
@@ -65,11 +65,6 @@ FIGURES = {
           ("ShadowHandReach", "shadow_reach", (*CONTINUOUS, "multicategorical")),
           ("ShadowHandFreeReach", "shadow_reach", (*CONTINUOUS, "multicategorical"))],
 }
-# Returns to reach (issue 18's bars): PPO's after 1M env steps in Schulman et al. 2017 (Fig. 3) for Hopper, Walker2d
-# and HalfCheetah, of the order of the paper's Fig. 9; for Ant, which Schulman et al. did not run, PPO's best average
-# return within 1M steps in Fujimoto et al. 2018 (the TD3 paper's table of results, Gym's Ant-v1: 1,083); and 5,000
-# for Humanoid (it walks). A run records when its training mean first passed its task's.
-TARGETS = {"Hopper": 2300.0, "Walker2d": 3400.0, "HalfCheetah": 1700.0, "Ant": 1083.0, "Humanoid": 5000.0}
 # A head is called better than the runner-up only where Welch's t-test over their seeds' returns gives p below this;
 # otherwise the two are "level".
 SIGNIFICANCE = 0.05

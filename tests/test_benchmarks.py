@@ -14,6 +14,7 @@ import pytest
 from brax.envs.wrappers import training as brax_training
 
 from angora_jax.envs.registry import make
+from angora_jax.experiment import load_config, validate
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
 import angorapy_ratio  # noqa: E402
@@ -63,17 +64,45 @@ def test_side_by_side_trains_both_for_the_same_env_steps(pendulum):
     settings = side.Settings(num_envs=8, rollout_length=4, minibatches=2, epochs=1, width=16, learning_rate=3e-4,
                              entropy_coef=0.01, init_log_std=-1.0, gamma=0.99, cycles_per_snapshot=1, snapshots=2,
                              seed=0)
-    result = side.compare(pendulum, settings, eval_envs=4, env_alone=True)
+    result = side.compare(pendulum, settings.plan(pendulum), eval_envs=4, env_alone=True, target=-1e9)
     assert [row["trainer"] for row in result["rows"]] == ["angora_jax", "brax"]
-    for row in result["rows"]:
+    for row, curve in zip(result["rows"], result["curves"].values(), strict=True):
         assert row["env_steps"] == settings.env_steps == 64
         assert row["env_steps_per_s"] > 0 and row["train_wall_s"] > 0 and row["env_alone_steps_per_s"] > 0
         assert -WORST_STEP * EPISODE <= row["final_return"] <= 0
+        # any return passes -1e9: the first snapshot's time is the time to it
+        assert (row["seconds_to_target"], row["env_steps_to_target"]) == (curve[0]["train_wall_s"], 32)
     for curve in result["curves"].values():
         assert [point["env_steps"] for point in curve] == [32, 64]
         assert curve[0]["train_wall_s"] < curve[1]["train_wall_s"]
     ours, brax = result["rows"]
     assert ours["speed_over_brax"] == pytest.approx(ours["env_steps_per_s"] / brax["env_steps_per_s"])
+
+
+def test_own_recipes_train_ours_from_its_config_and_brax_from_its_recipe(pendulum):
+    """`--recipes own`: our side as a config says, Brax's with a recipe of its own (here a tiny one: Brax publishes
+    none for Pendulum), each to about the same env steps; a target neither reached is reported as None."""
+    config = load_config("pendulum", ["ppo.num_envs=8", "ppo.rollout_length=4", "ppo.chunk_length=4",
+                                      "ppo.minibatch_size=16", "ppo.num_epochs=1"])
+    validate(config)
+    recipe = dict(num_envs=8, batch_size=4, num_minibatches=2, unroll_length=4, num_updates_per_batch=1,
+                  discounting=0.97, learning_rate=3e-4, entropy_cost=1e-2, reward_scaling=1.0)
+    plan = side.own_plan(pendulum, config.ppo, recipe, timesteps=64, snapshots=2)
+    assert plan.ours.num_cycles == 2 and plan.brax["num_timesteps"] == 64 and plan.brax["num_evals"] == 3
+    assert plan.brax["episode_length"] == EPISODE and plan.brax["reward_scaling"] == 1.0
+    result = side.compare(pendulum, plan, eval_envs=4, target=1e9)
+    for row, curve in zip(result["rows"], result["curves"].values(), strict=True):
+        assert [point["env_steps"] for point in curve] == [32, 64] and row["env_steps"] == 64
+        assert -WORST_STEP * EPISODE <= row["final_return"] <= 0
+        assert row["seconds_to_target"] is None and row["target"] == 1e9
+    assert side.brax_recipe("HalfCheetah")["discounting"] == 0.95
+    with pytest.raises(ValueError, match="no PPO recipe for Hopper.*SAC.*HalfCheetah"):
+        side.brax_recipe("Hopper")
+    assert side.brax_changes(["num_envs=16", "reward_scaling=0.5"]) == {"num_envs": 16, "reward_scaling": 0.5}
+    with pytest.raises(ValueError, match="KEY=VALUE.*'num_envs'"):
+        side.brax_changes(["num_envs"])
+    with pytest.raises(ValueError, match="no argument 'ppo.num_envs'"):
+        side.brax_changes(["ppo.num_envs=16"])
 
 
 def test_ladder_measures_each_rung_in_its_own_process_and_reports_failures():
