@@ -8,16 +8,7 @@ import pytest
 
 from angora_jax.envs.classic import CartPole
 from angora_jax.envs.registry import make
-from angora_jax.ppo import (
-    NetworkConfig,
-    PPOConfig,
-    TrainingDivergedError,
-    make_cycle,
-    make_evaluate,
-    seed_cycles,
-    train,
-    training_cycles,
-)
+from angora_jax.ppo import NetworkConfig, PPOConfig, TrainingDivergedError, make_evaluate, train
 
 # Random policies score about 22 on CartPole (max 500), about -1200 on Pendulum (best about -150) and -500 on Acrobot
 # (the episode's limit; gymnasium's reward threshold is -100).
@@ -89,25 +80,3 @@ def test_divergence_raises_a_clear_error():
     config = CARTPOLE.replace(num_envs=4, rollout_length=16, minibatch_size=64, num_cycles=3)
     with pytest.raises(TrainingDivergedError, match="cycle 1.*Lower learning_rate"):
         train(config, NaNRewardCartPole(), log=None)
-
-
-def test_seeds_trained_as_one_program_each_compute_their_own_run():
-    """Three seeds vmapped in one program (`seed_cycles`) against seed 2 trained alone: the same metrics and
-    parameters up to float rounding, and different runs per seed; settings that cannot share a program are refused."""
-    config = PENDULUM.replace(num_envs=4, rollout_length=16, minibatch_size=32, num_epochs=2, num_cycles=3,
-                              head="beta", network=NetworkConfig(name="deeper", width=16))
-    env = make("Pendulum")
-    together = list(seed_cycles(config, env, [0, 1, 2]))
-    alone = list(training_cycles(config.replace(seed=2), env))
-    for (_, per_seed), (_, metrics) in zip(together, alone, strict=True):
-        assert [m["cycle"] for m in per_seed] == [metrics["cycle"]] * 3
-        for name in ("episode_return", "loss", "entropy", "approx_kl", "grad_norm"):
-            np.testing.assert_allclose(per_seed[2][name], metrics[name], rtol=1e-4, atol=1e-5, err_msg=name)
-    states, last = together[-1][0], together[-1][1]
-    jax.tree.map(lambda a, b: np.testing.assert_allclose(a[2], b, rtol=1e-4, atol=1e-5), states.params,
-                 alone[-1][0].params)
-    assert len({round(m["loss"], 6) for m in last}) == 3, "each seed is a run of its own"
-    with pytest.raises(ValueError, match="one program on one device"):
-        make_cycle(env, None, config, num_devices=2, num_seeds=2)
-    with pytest.raises(ValueError, match="feed-forward networks.*one at a time"):
-        make_cycle(env, None, config.replace(network=NetworkConfig(name="gru")), num_seeds=2)

@@ -16,7 +16,7 @@ from angora_jax.ppo.distributions import (
     register_head,
 )
 from angora_jax.ppo.evaluate import make_evaluate
-from angora_jax.ppo.train import TrainingDivergedError, format_metrics, seed_cycles, train, training_cycles
+from angora_jax.ppo.train import TrainingDivergedError, format_metrics, train, training_cycles
 
 __all__ = [
     "Beta",
@@ -38,7 +38,6 @@ __all__ = [
     "make_evaluate",
     "make_head",
     "register_head",
-    "seed_cycles",
     "tile_shape",
     "train",
     "training_cycles",

@@ -73,7 +73,7 @@ def build_head(env: Env, config: PPOConfig) -> PolicyHead:
 
 
 def make_cycle(
-    env: Env, network: nn.Module | None, config: PPOConfig, num_devices: int = 1, num_seeds: int = 1
+    env: Env, network: nn.Module | None, config: PPOConfig, num_devices: int = 1
 ) -> tuple[Callable[[jax.Array], TrainState], Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]]:
     """Build the jitted `init(key) -> TrainState` and `cycle(state) -> (state, metrics)`.
 
@@ -89,29 +89,15 @@ def make_cycle(
     Metrics are over all devices. D = 1 compiles the plain cycle, with no collectives; D > 1 computes the same
     cycle up to floating-point summation order (same random numbers, same minibatches). Either way `cycle.lower(state)`
     gives the compiled program, as for a `jax.jit` function.
-
-    num_seeds: S > 1 trains S independent runs as one program (the cycle vmapped over them, as PureJaxRL fills a GPU
-    with small runs; the environment is sized for all S x num_envs): `init` takes a batch of S keys, every leaf of
-    the state and every metric gains a leading seed axis, and run i computes what a run of its own from `keys[i]`
-    computes, up to floating-point reassociation. On one device, for feed-forward networks, and without pretrained
-    components or `init_from` (ValueError otherwise).
     """
     config.validate_for(env)
-    if getattr(env, "on_host", False) and (num_devices > 1 or num_seeds > 1):
+    if getattr(env, "on_host", False) and num_devices > 1:
         raise ValueError(f"{env.physics_info()['engine']} is simulated on the host, in one process: train it on one "
-                         "device (distribution.num_devices=1), one seed at a time.")
-    if num_seeds > 1 and (num_devices > 1 or config.network.pretrained or config.init_from):
-        raise ValueError(f"num_seeds={num_seeds} trains the seeds as one program on one device, each from its own "
-                         "initial values: train them apart with several devices, pretrained components or init_from.")
+                         "device (distribution.num_devices=1).")
     local = per_device(config, num_devices)
-    env = env.sized_for(local.num_envs * num_seeds)
+    env = env.sized_for(local.num_envs)
     axis = axis_name(num_devices)
     network = make_network(config.network) if network is None else network
-    if num_seeds > 1 and any(leaf.size for leaf in jax.tree.leaves(network.initial_carry(1))):
-        # Measured with jax 0.11.2: the vmapped cycle of a network with two recurrent cells (gru, lstm) never
-        # finished on XLA's CPU backend, even at 2 envs x 2 steps, while feed-forward ones ran in milliseconds.
-        raise ValueError(f"num_seeds={num_seeds} takes feed-forward networks (e.g. simple, deeper): a recurrent "
-                         "network's seeds vmapped in one program stalled XLA's CPU backend; train them one at a time.")
     head = build_head(env, config)
     model = ActorCritic(network, head, make_visual_area(config.network.visual))
     num_envs, chunk_length = local.num_envs, config.chunk_length
@@ -266,8 +252,6 @@ def make_cycle(
         )
         return new_state, metrics
 
-    if num_seeds > 1:
-        return jax.jit(jax.vmap(init)), jax.jit(jax.vmap(cycle))
     global_init = jax.jit(init)
     if config.network.pretrained or config.init_from:
         global_init = _with_saved_values(global_init, config.network.pretrained, config.init_from)

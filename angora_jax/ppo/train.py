@@ -1,6 +1,5 @@
 """`train(config, env)`: the thin Python loop around the compiled cycle, printing one line per cycle;
-`training_cycles` is the same loop as a generator for callers that act between cycles (checkpoints, monitors), and
-`seed_cycles` the loop for several seeds trained as one program."""
+`training_cycles` is the same loop as a generator for callers that act between cycles (checkpoints, monitors)."""
 
 from __future__ import annotations
 
@@ -10,8 +9,6 @@ from collections.abc import Callable, Iterator
 
 import flax.linen as nn
 import jax
-import jax.numpy as jnp
-import numpy as np
 
 from angora_jax.envs.core import Env
 from angora_jax.ppo.config import PPOConfig
@@ -63,55 +60,29 @@ def training_cycles(
     """
     init, cycle = make_cycle(env, network, config, num_devices)
     state = init(jax.random.key(config.seed)) if state is None else state
+    steps_per_cycle = config.num_envs * config.rollout_length
     first = int(state.cycle)
     for index in range(first, config.num_cycles):
         start = time.perf_counter()
         state, metrics = cycle(state)
-        metrics = jax.device_get(metrics)
-        yield state, cycle_record(config, metrics, index, first, time.perf_counter() - start)
-
-
-def seed_cycles(
-    config: PPOConfig, env: Env, seeds: list[int], network: nn.Module | None = None
-) -> Iterator[tuple[TrainState, list[dict[str, float]]]]:
-    """`training_cycles` for several seeds trained as one program (`make_cycle(..., num_seeds=len(seeds))`), from
-    cycle 0: yield the states of all seeds (a leading seed axis on every leaf) and one metrics dict per seed, as a
-    run of `config.replace(seed=seed)` alone would report them up to float rounding; their `seconds` (and
-    `steps_per_second`, per seed) are the program's, shared by all seeds. Raises TrainingDivergedError naming the
-    first seed whose training produced non-finite values."""
-    init, cycle = make_cycle(env, network, config, num_seeds=len(seeds))
-    state = init(jnp.stack([jax.random.key(seed) for seed in seeds]))
-    for index in range(config.num_cycles):
-        start = time.perf_counter()
-        state, metrics = cycle(state)
-        metrics = jax.device_get(metrics)
+        metrics = {name: float(value) for name, value in jax.device_get(metrics).items()}
         seconds = time.perf_counter() - start
-        yield state, [cycle_record(config, {name: value[i] for name, value in metrics.items()}, index, 0, seconds,
-                                   seed) for i, seed in enumerate(seeds)]
-
-
-def cycle_record(config: PPOConfig, metrics: dict[str, np.ndarray], index: int, first: int, seconds: float,
-                 seed: int | None = None) -> dict[str, float]:
-    """A finished cycle's metrics as floats with its count, env steps and timing (`compile_seconds` on the first
-    cycle of a call); TrainingDivergedError when they are not finite (naming `seed`, when several train at once)."""
-    steps_per_cycle = config.num_envs * config.rollout_length
-    record = {name: float(value) for name, value in metrics.items()} | {
-        "cycle": index + 1,
-        "env_steps": (index + 1) * steps_per_cycle,
-        "seconds": seconds,
-        "steps_per_second": steps_per_cycle / seconds,
-    }
-    if index == first:
-        record["compile_seconds"] = seconds
-    if not record["finite"]:
-        which = "" if seed is None else f" of seed {seed}"
-        raise TrainingDivergedError(
-            f"Training{which} diverged in cycle {index + 1}: the loss or the parameters are not finite "
-            f"(loss={record['loss']}, grad_norm={record['grad_norm']}). Lower learning_rate (now "
-            f"{config.learning_rate}) or max_grad_norm, keep normalization on, and check the task's rewards and "
-            "observations for NaN or huge values."
-        )
-    return record
+        metrics |= {
+            "cycle": index + 1,
+            "env_steps": (index + 1) * steps_per_cycle,
+            "seconds": seconds,
+            "steps_per_second": steps_per_cycle / seconds,
+        }
+        if index == first:
+            metrics["compile_seconds"] = seconds
+        if not metrics["finite"]:
+            raise TrainingDivergedError(
+                f"Training diverged in cycle {index + 1}: the loss or the parameters are not finite "
+                f"(loss={metrics['loss']}, grad_norm={metrics['grad_norm']}). Lower learning_rate (now "
+                f"{config.learning_rate}) or max_grad_norm, keep normalization on, and check the task's rewards and "
+                "observations for NaN or huge values."
+            )
+        yield state, metrics
 
 
 def format_metrics(metrics: dict[str, float]) -> str:
