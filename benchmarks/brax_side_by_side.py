@@ -164,7 +164,7 @@ class Settings:
 
     def plan(self, env: Env) -> Plan:
         """Both sides' settings for `env`."""
-        return Plan("matched", self.ppo_config(), self.brax_kwargs(env), self.cycles_per_snapshot, self.snapshots)
+        return Plan(self.ppo_config(), self.brax_kwargs(env), self.cycles_per_snapshot, self.snapshots)
 
     def brax_kwargs(self, env: Env) -> dict[str, Any]:
         """Brax's `ppo.train` arguments for the same run. One Brax training step is one of our cycles: it collects
@@ -192,11 +192,10 @@ class Settings:
 
 @dataclasses.dataclass(frozen=True)
 class Plan:
-    """What each side trains: `recipes` "matched" (the same settings, `Settings`) or "own" (each library's published
-    settings for the task, `own_plan`); our `PPOConfig` and Brax's `ppo.train` arguments for about the same env steps;
-    our policy is kept every `cycles_per_snapshot` cycles, Brax's after each of its `snapshots` training epochs."""
+    """What each side trains, with matched settings (`Settings.plan`) or each library's own (`own_plan`): our
+    `PPOConfig` and Brax's `ppo.train` arguments for about the same env steps; our policy is kept every
+    `cycles_per_snapshot` cycles, Brax's after each of its `snapshots` training epochs."""
 
-    recipes: str
     ours: PPOConfig
     brax: dict[str, Any]
     cycles_per_snapshot: int
@@ -218,13 +217,11 @@ BRAX_RECIPES: dict[str, dict[str, Any]] = {
                 discounting=0.97, learning_rate=3e-4, entropy_cost=1e-2, reward_scaling=10.0),
     "Humanoid": dict(num_envs=2048, batch_size=1024, num_minibatches=32, unroll_length=10, num_updates_per_batch=8,
                      discounting=0.97, learning_rate=3e-4, entropy_cost=1e-3, reward_scaling=0.1),
-    "InvertedPendulum": dict(num_envs=2048, batch_size=1024, num_minibatches=32, unroll_length=5,
-                             num_updates_per_batch=4, discounting=0.97, learning_rate=3e-4, entropy_cost=1e-2,
-                             reward_scaling=10.0),
-    "InvertedDoublePendulum": dict(num_envs=2048, batch_size=1024, num_minibatches=32, unroll_length=5,
-                                   num_updates_per_batch=4, discounting=0.97, learning_rate=3e-4, entropy_cost=1e-2,
-                                   reward_scaling=10.0),
 }
+# The colab gives both pendulums one recipe.
+BRAX_RECIPES["InvertedPendulum"] = BRAX_RECIPES["InvertedDoublePendulum"] = dict(
+    num_envs=2048, batch_size=1024, num_minibatches=32, unroll_length=5, num_updates_per_batch=4, discounting=0.97,
+    learning_rate=3e-4, entropy_cost=1e-2, reward_scaling=10.0)
 
 
 def brax_recipe(task: str) -> dict[str, Any]:
@@ -260,7 +257,7 @@ def own_plan(env: Env, ours: PPOConfig, recipe: dict[str, Any], timesteps: int, 
     brax = {**recipe, "num_timesteps": steps_per_cycle * per_snapshot * snapshots,
             "episode_length": env.max_episode_steps, "normalize_observations": True, "action_repeat": 1,
             "seed": ours.seed, "num_evals": snapshots + 1, "run_evals": False}
-    return Plan("own", ours, brax, per_snapshot, snapshots)
+    return Plan(ours, brax, per_snapshot, snapshots)
 
 
 @dataclasses.dataclass
