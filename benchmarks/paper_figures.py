@@ -159,9 +159,9 @@ def return_at(run: dict, env_steps: int) -> float | None:
 def compare_heads(runs: list[dict]) -> dict:
     """Per head: mean and sample std over seeds of the return at `env_steps`, the most env steps that every run
     reached, and how many of its runs ended at or above Gymnasium's reward threshold (`passed`, when the task has
-    one). `highest`: the head with the highest mean; `p_value`: Welch's t-test between its seeds and the runner-up's;
-    `better`: `highest` where p < `SIGNIFICANCE`, "level" where not, None where a head has fewer than 2 seeds (no
-    test) or the task has one head."""
+    one). `highest` and `runner_up`: the heads with the highest and second-highest means; `p_value`: Welch's t-test
+    between their seeds; `better`: `highest` where p < `SIGNIFICANCE`, "level" where not, None where either has
+    fewer than 2 seeds (no test) or the task has one head."""
     env_steps = min(run["env_steps"] for run in runs)
     heads = {}
     for run in runs:
@@ -175,12 +175,13 @@ def compare_heads(runs: list[dict]) -> dict:
             stats[head]["passed"] = sum(run["final_return"] is not None and run["final_return"] >= threshold
                                         for run in runs if run["head"] == head)
     ranked = sorted(stats, key=lambda h: stats[h]["mean"], reverse=True)
-    highest, p_value, better = (ranked[0] if len(ranked) > 1 else None), None, None
-    if highest is not None and min(len(heads[h]) for h in ranked[:2]) > 1:
-        p_value = welch_p_value(heads[ranked[0]], heads[ranked[1]])
+    highest, runner_up = ranked[:2] if len(ranked) > 1 else (None, None)
+    p_value, better = None, None
+    if highest is not None and min(len(heads[highest]), len(heads[runner_up])) > 1:
+        p_value = welch_p_value(heads[highest], heads[runner_up])
         better = highest if p_value < SIGNIFICANCE else "level"
     return {"env_steps": env_steps, "gymnasium_threshold": threshold, "heads": stats, "highest": highest,
-            "p_value": p_value, "better": better}
+            "runner_up": runner_up, "p_value": p_value, "better": better}
 
 
 def welch_p_value(a: list[float], b: list[float]) -> float:
@@ -192,17 +193,16 @@ def welch_p_value(a: list[float], b: list[float]) -> float:
 
 
 def verdict(comparison: dict) -> str:
-    """The comparison in words, for the figure and the table: e.g. "beta > gaussian (p=0.003)", "level (p=0.41)",
-    "one seed: beta highest"."""
-    if comparison["highest"] is None:
+    """The comparison in words, for the figure and the table: "beta > gaussian (p=0.003)", "beta ~ gaussian: level
+    (p=0.41)", "beta highest (too few seeds to test)", or "" for a task with one head."""
+    highest, runner_up, p_value = comparison["highest"], comparison["runner_up"], comparison["p_value"]
+    if highest is None:
         return ""
-    heads = comparison["heads"]
-    runner_up = sorted(heads, key=lambda h: heads[h]["mean"], reverse=True)[1]
     if comparison["better"] is None:
-        return f"{comparison['highest']} highest (too few seeds to test)"
+        return f"{highest} highest (too few seeds to test)"
     if comparison["better"] == "level":
-        return f"{comparison['highest']} ~ {runner_up}: level (p={comparison['p_value']:.2g})"
-    return f"{comparison['highest']} > {runner_up} (p={comparison['p_value']:.2g})"
+        return f"{highest} ~ {runner_up}: level (p={p_value:.2g})"
+    return f"{highest} > {runner_up} (p={p_value:.2g})"
 
 
 def plot_figure(figure: str, runs: list[dict], comparison: dict, path: str, where: str) -> None:

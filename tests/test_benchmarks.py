@@ -284,7 +284,7 @@ def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
                 for i, r in enumerate(returns)]
 
     apart = paper_figures.compare_heads(seeds("gaussian", [1.0, 1.1, 0.9]) + seeds("beta", [5.0, 5.2, 4.9]))
-    assert apart["better"] == "beta" and apart["p_value"] < 0.05
+    assert (apart["better"], apart["runner_up"]) == ("beta", "gaussian") and apart["p_value"] < 0.05
     assert paper_figures.verdict(apart).startswith("beta > gaussian (p=")
     close = paper_figures.compare_heads(seeds("gaussian", [1.0, 2.0, 3.0]) + seeds("beta", [1.5, 2.5, 3.5]))
     assert close["highest"] == "beta" and close["better"] == "level" and close["p_value"] > 0.5
