@@ -23,6 +23,10 @@ one figure from them. Runs made by separate invocations (e.g. one process per ta
 one per machine) are combined into one figure with `--merge`:
 
     python benchmarks/paper_figures.py --figure 9 --merge out/Hopper_gaussian_0.json out/Hopper_beta_0.json ...
+
+A run given in two outputs is refused, unless `--replace` keeps the later one (e.g. a run made again alone where it
+was starved before); the figure lists what was replaced. Outputs of different machines merge (each run keeps its
+device, which its wall times belong to), outputs of different package versions do not.
 """
 
 from __future__ import annotations
@@ -103,7 +107,8 @@ def train_one(task: str, config: str, head: str, seed: int, minutes: float, extr
     curve = {"env_steps": [r["env_steps"] for r in rows], "cycle": [r["cycle"] for r in rows],
              "seconds": [r["time"] - begin for r in rows],
              **{name: [finite_or_none(r.get(name)) for r in rows] for name in ("episode_return", *DIAGNOSTICS)}}
-    return {"task": task, "config": config, "head": head, "seed": seed, "wall_seconds": wall,
+    return {"task": task, "config": config, "head": head, "seed": seed, "device": device()["kind"],
+            "wall_seconds": wall,
             "compile_seconds": rows[0].get("compile_seconds"), "cycles": len(rows), "env_steps": rows[-1]["env_steps"],
             "env_steps_per_second": statistics.median(rates) if rates else None,
             "final_return": tail_mean(curve["episode_return"]),
@@ -247,25 +252,27 @@ def plot_figure(figure: str, runs: list[dict], comparison: dict, path: str, wher
 def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, name: str, out: str,
                  made_on: tuple[dict, dict] | None = None) -> None:
     """Compare heads, plot, write `<out>/<name>.{png,json}` and print the table. made_on: (device, versions) of
-    the machine that trained the runs (default: this one)."""
+    the machines that trained the runs (default: this one; a device field in which they differ lists each value)."""
     where, made_with = made_on or (device(), versions())
     comparison = {task: compare_heads([r for r in runs if r["task"] == task])
                   for task in dict.fromkeys(r["task"] for r in runs)}
     os.makedirs(out, exist_ok=True)
     png = os.path.join(out, f"{name}.png")
-    plot_figure(figure, runs, comparison, png, where["kind"])
+    kind = where["kind"]
+    plot_figure(figure, runs, comparison, png, kind if isinstance(kind, str) else " and ".join(kind))
     record = {"benchmark": "paper_figures", "figure": figure, "device": where, "versions": made_with,
               "config": config, "comparison": comparison, "missing": missing, "runs": runs}
     with open(f"{png[:-4]}.json", "w") as file:
         json.dump(record, file, indent=1)
-    table = [{"task": r["task"], "head": r["head"], "seed": r["seed"], "final": r["final_return"],
+    table = [{"task": r["task"], "head": r["head"], "seed": r["seed"], "device": r.get("device", where["kind"]),
+              "final": r["final_return"],
               "steps": r["env_steps"], "wall": r["wall_seconds"],
               "target": (r.get("target") or {}).get("seconds") or math.nan,
               "mode": (r.get("evaluation") or {}).get("return")} for r in runs]
     print(markdown_table(table, [("task", "task", ""), ("head", "head", ""), ("seed", "seed", "d"),
-                                 ("final", "final return", ".1f"), ("steps", "env steps", ",d"),
-                                 ("wall", "wall s", ".0f"), ("target", "s to target", ".0f"),
-                                 ("mode", "final policy's mode", ".1f")]))
+                                 ("device", "device", ""), ("final", "final return", ".1f"),
+                                 ("steps", "env steps", ",d"), ("wall", "wall s", ".0f"),
+                                 ("target", "s to target", ".0f"), ("mode", "final policy's mode", ".1f")]))
     for task, result in comparison.items():
         print(f"{task} at {result['env_steps']:,} env steps: {verdict(result) or 'one head'}; " + ", ".join(
             f"{h} {s['mean']:.1f} +- {s['std']:.1f} ({s['seeds']} seed{'s' if s['seeds'] > 1 else ''}"
@@ -276,11 +283,14 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
     print(f"wrote {png} and {png[:-4]}.json")
 
 
-def merge(figure: str, paths: list[str], name: str, out: str) -> None:
-    """One figure from the runs recorded in earlier outputs of this script (`paths`, all of `figure`, made on one
-    kind of machine with the same versions). Final returns and times to the targets are taken again from the curves
-    (`tail_mean`, `first_past`), so that outputs of earlier versions of this script count alike. A run (task, head,
-    seed) found twice is refused: it would count twice."""
+def merge(figure: str, paths: list[str], name: str, out: str, replace: bool = False) -> None:
+    """One figure from the runs recorded in earlier outputs of this script (`paths`, all of `figure`, made with
+    the same versions of the packages that decide the numbers). Final returns and times to the targets are taken
+    again from the curves (`tail_mean`, `first_past`), so that outputs of earlier versions of this script count
+    alike. Outputs of different machines may be merged: the heads are compared at equal env steps, and each run
+    keeps the name of the device that trained it (`device`), which its wall times belong to. A run (task, head,
+    seed) found twice is refused, as it would count twice, unless `replace`: then the later path's run is kept and
+    the figure lists the earlier one as `replaced`."""
     records = []
     for path in paths:
         with open(path) as file:
@@ -288,26 +298,38 @@ def merge(figure: str, paths: list[str], name: str, out: str) -> None:
         if records[-1]["figure"] != figure:
             raise SystemExit(f"{path} holds Fig. {records[-1]['figure']}, not Fig. {figure}: merge one figure at "
                              "a time (--figure).")
-        if (records[-1]["device"], records[-1]["versions"]) != (records[0]["device"], records[0]["versions"]):
-            raise SystemExit(f"{path} was made on {records[-1]['device']} with {records[-1]['versions']}, "
-                             f"{paths[0]} on {records[0]['device']} with {records[0]['versions']}: merge runs of "
-                             "one machine kind and one set of versions.")
-    runs, seen = [], {}
+        if deciding(records[-1]["versions"]) != deciding(records[0]["versions"]):
+            raise SystemExit(f"{path} was made with {deciding(records[-1]['versions'])}, {paths[0]} with "
+                             f"{deciding(records[0]['versions'])}: merge runs of one set of versions.")
+    runs, seen, replaced = {}, {}, []
     for path, record in zip(paths, records, strict=True):
         for run in record["runs"]:
             key = (run["task"], run["head"], run["seed"])
             if key in seen:
-                raise SystemExit(f"{' '.join(map(str, key))} is in {seen[key]} and in {path}: a run merged twice "
-                                 "would count twice; give each run once.")
+                if not replace:
+                    raise SystemExit(f"{' '.join(map(str, key))} is in {seen[key]} and in {path}: a run merged "
+                                     "twice would count twice; give each run once, or pass --replace to keep the "
+                                     "later one.")
+                replaced.append({"task": key[0], "head": key[1], "seed": key[2], "dropped": seen[key], "kept": path})
             seen[key] = path
-            runs.append({**run, "final_return": tail_mean(run["curve"]["episode_return"]),
-                         "target": first_past(run["curve"], TARGETS.get(run["task"]))})
+            runs[key] = {**run, "device": run.get("device", record["device"]["kind"]),
+                         "final_return": tail_mean(run["curve"]["episode_return"]),
+                         "target": first_past(run["curve"], TARGETS.get(run["task"]))}
     missing = {task: why for record in records for task, why in record["missing"].items()}
     # The configs of the outputs merged, by file name; an output that was itself a merge lends its own entries.
-    config = {"merged": {}}
+    config = {"merged": {}, "replaced": replaced}
     for path, record in zip(paths, records, strict=True):
         config["merged"] |= record["config"].get("merged") or {os.path.basename(path): record["config"]}
-    write_figure(figure, runs, missing, config, name, out, (records[0]["device"], records[0]["versions"]))
+        config["replaced"] = record["config"].get("replaced", []) + config["replaced"]
+    made_on = {key: values[0] if len(values) == 1 else values
+               for key in records[0]["device"]
+               for values in [list(dict.fromkeys(record["device"][key] for record in records))]}
+    write_figure(figure, list(runs.values()), missing, config, name, out, (made_on, records[0]["versions"]))
+
+
+def deciding(made_with: dict) -> dict:
+    """The versions that decide a figure's numbers: all of `versions()` but Brax's, which this script never runs."""
+    return {package: version for package, version in made_with.items() if package != "brax"}
 
 
 def main() -> None:
@@ -328,6 +350,8 @@ def main() -> None:
     parser.add_argument("--out", default=RESULTS, help="folder for the PNG and JSON (default: benchmarks/results)")
     parser.add_argument("--merge", nargs="+", metavar="JSON",
                         help="train nothing: combine the runs of these earlier outputs into one figure")
+    parser.add_argument("--replace", action="store_true",
+                        help="with --merge: a run found in several outputs is taken from the last of them")
     parser.add_argument("overrides", nargs="*", help="key.sub=value overrides for every run")
     args = parser.parse_args()
     extra = [*(SMOKE if args.smoke else []), *args.overrides]
@@ -337,7 +361,7 @@ def main() -> None:
     if args.merge:
         if args.figure == "all":
             raise SystemExit("--merge combines one figure: name it with --figure 8 or --figure 9.")
-        merge(args.figure, args.merge, args.name or f"paper_fig{args.figure}_{platform}", args.out)
+        merge(args.figure, args.merge, args.name or f"paper_fig{args.figure}_{platform}", args.out, args.replace)
         return
     for figure in FIGURES if args.figure == "all" else [args.figure]:
         jobs, missing = figure_jobs(figure, args.tasks, args.heads, args.seeds)

@@ -247,6 +247,30 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
                             str(tmp_path / "merged.json"), "--out", str(tmp_path), "--name", "twice"],
                            capture_output=True, text=True)
     assert twice.returncode != 0 and "Pendulum" in twice.stderr and "merged twice" in twice.stderr
+    # --replace keeps the later output's run and lists the earlier one; another machine's runs keep their device
+    redone = {**record, "device": {**record["device"], "kind": "Other GPU", "host_cpus": 32},
+              "versions": {**record["versions"], "brax": "absent"},
+              "runs": [{**run, "curve": {**run["curve"], "episode_return": [7.0, 7.0]}} for run in runs
+                       if run["head"] == "beta"]}
+    for run in redone["runs"]:
+        del run["device"]
+    (tmp_path / "redone.json").write_text(json.dumps(redone))
+    subprocess.run([sys.executable, script, "--figure", "8", "--merge", str(tmp_path / "merged.json"),
+                    str(tmp_path / "redone.json"), "--replace", "--out", str(tmp_path), "--name", "replaced"],
+                   check=True)
+    replaced = json.loads((tmp_path / "replaced.json").read_text())
+    by_key = {(r["head"], r["seed"]): r for r in replaced["runs"]}
+    assert len(replaced["runs"]) == 4 and by_key["beta", 3]["final_return"] == 7.0
+    assert by_key["beta", 3]["device"] == "Other GPU" and by_key["beta", 4]["device"] == record["device"]["kind"]
+    assert replaced["device"]["kind"] == [record["device"]["kind"], "Other GPU"]
+    assert [(r["head"], r["seed"], r["kept"]) for r in replaced["config"]["replaced"]] == [
+        ("beta", 3, str(tmp_path / "redone.json"))]
+    newer = {**redone, "versions": {**record["versions"], "jax": "0.0.1"}}
+    (tmp_path / "newer.json").write_text(json.dumps(newer))
+    mixed = subprocess.run([sys.executable, script, "--figure", "8", "--merge", str(tmp_path / "merged.json"),
+                            str(tmp_path / "newer.json"), "--replace", "--out", str(tmp_path), "--name", "mixed"],
+                           capture_output=True, text=True)
+    assert mixed.returncode != 0 and "one set of versions" in mixed.stderr
     # a run that fails in its process is named with the end of its log
     failing = subprocess.run([sys.executable, script, "--figure", "8", "--tasks", "Pendulum", "--seeds", "3",
                               "--parallel", "2", "--smoke", "--out", str(tmp_path), "--name", "bad",
