@@ -17,10 +17,10 @@ available here are listed as missing with the reason.
     python benchmarks/paper_figures.py --figure 9 --seeds 0 1 2 --minutes 4 --parallel 4   # one GPU, 4 runs at once
     python benchmarks/paper_figures.py --figure 8 --tasks CartPole --seeds 0 --smoke  # CPU smoke: tiny sizes
 
-`--parallel N` trains N runs at a time, each in a process of its own sharing the devices (measured on one H100: four
-Ant and Humanoid runs at once trained at 60,000-81,000 env steps/s each; 23 at once starved each other), and writes
-one figure from them. Runs made by separate invocations (e.g. one process per task, head and seed sharing a GPU, or
-one per machine) are combined into one figure with `--merge`:
+`--parallel N` trains N runs at a time, each in a process of its own (measured on one H100: four Ant and Humanoid runs
+at once trained at 60,000-81,000 env steps/s each; 23 at once starved each other), spread round-robin over the
+host's GPUs, one GPU per process, and writes one figure from them. Runs made by separate invocations (e.g. one
+process per task, head and seed, or one per machine) are combined into one figure with `--merge`:
 
     python benchmarks/paper_figures.py --figure 9 --merge out/Hopper_gaussian_0.json out/Hopper_beta_0.json ...
 
@@ -36,6 +36,7 @@ import concurrent.futures
 import json
 import math
 import os
+import queue
 import statistics
 import subprocess
 import sys
@@ -43,6 +44,7 @@ import tempfile
 import time
 
 import gymnasium
+import jax
 import matplotlib
 import scipy.stats
 
@@ -343,7 +345,7 @@ def main() -> None:
                         help="evaluate each run's final policy (its mode) on this many episodes; 0: none "
                              "(default: 128)")
     parser.add_argument("--parallel", type=int, default=1, metavar="N",
-                        help="train N runs at a time, each in its own process sharing the devices (default: 1, "
+                        help="train N runs at a time, each in its own process, spread over the GPUs (default: 1, "
                              "one after another in this process)")
     parser.add_argument("--smoke", action="store_true", help="tiny sizes, for a CPU check of the script")
     parser.add_argument("--name", default=None, help="results name (default: paper_fig<N>_<platform>)")
@@ -355,6 +357,9 @@ def main() -> None:
     parser.add_argument("overrides", nargs="*", help="key.sub=value overrides for every run")
     args = parser.parse_args()
     extra = [*(SMOKE if args.smoke else []), *args.overrides]
+    if args.parallel > 1 or args.merge:
+        # This process trains nothing: it must not take most of each GPU's memory from the processes that do.
+        os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
     platform = device()["platform"]
     if args.parallel < 1:
         raise SystemExit(f"--parallel must be >= 1, got {args.parallel}.")
@@ -406,22 +411,42 @@ def figure_jobs(figure: str, tasks: list[str] | None, heads: list[str] | None,
     return jobs, missing
 
 
+def gpu_slots(parallel: int, ordinals: list[int], visible: str | None) -> list[str | None]:
+    """The `CUDA_VISIBLE_DEVICES` of each of `parallel` process slots, spread round-robin over the GPUs that this
+    process sees (`ordinals`, JAX's local hardware ids; `visible`, this process's own `CUDA_VISIBLE_DEVICES`, which
+    those ids index into where it is set). None for every slot where there is no GPU."""
+    if not ordinals:
+        return [None] * parallel
+    names = [name.strip() for name in visible.split(",")] if visible else [str(o) for o in ordinals]
+    return [names[ordinals[slot % len(ordinals)]] for slot in range(parallel)]
+
+
 def train_in_processes(figure: str, jobs: list[tuple[str, str, str, int]],
                        args: argparse.Namespace) -> tuple[list[dict], dict[str, str]]:
-    """Each run in a process of its own (this script for that one run), `args.parallel` at a time sharing the
-    devices, as one GPU trains several small models faster together than one after another. JAX in each process
-    allocates device memory as it needs it instead of most of it up front. Returns the runs and, for each run that
-    failed, the last lines of its log."""
+    """Each run in a process of its own (this script for that one run), `args.parallel` at a time, as one GPU
+    trains several small models faster together than one after another. On a host of several GPUs the processes
+    are spread over them (`gpu_slots`: each process sees one GPU). JAX in each process allocates device memory as it
+    needs it instead of most of it up front. Returns the runs and, for each run that failed, the last lines of its
+    log."""
     environment = {**os.environ, "XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
+    ordinals = [d.local_hardware_id for d in jax.local_devices() if d.platform == "gpu"]
+    slots = queue.Queue()
+    for gpu in gpu_slots(args.parallel, ordinals, os.environ.get("CUDA_VISIBLE_DEVICES")):
+        slots.put(gpu)
     with tempfile.TemporaryDirectory() as folder:
-        def one(index: int, job: tuple[str, str, str, int]) -> tuple[int, str]:
+        def one(index: int, job: tuple[str, str, str, int]) -> tuple[int, int]:
             task, _, head, seed = job
             command = [sys.executable, os.path.abspath(__file__), "--figure", figure, "--tasks", task, "--heads",
                        head, "--seeds", str(seed), "--minutes", str(args.minutes), "--evaluate", str(args.evaluate),
                        *(["--smoke"] if args.smoke else []), "--out", folder, "--name", f"run{index}",
                        *args.overrides]
-            with open(os.path.join(folder, f"run{index}.log"), "w") as log:
-                return index, subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, env=environment).returncode
+            gpu = slots.get()
+            try:
+                with open(os.path.join(folder, f"run{index}.log"), "w") as log:
+                    return index, subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, env=environment | (
+                        {} if gpu is None else {"CUDA_VISIBLE_DEVICES": gpu})).returncode
+            finally:
+                slots.put(gpu)
 
         with concurrent.futures.ThreadPoolExecutor(args.parallel) as pool:
             codes = dict(pool.map(lambda item: one(*item), enumerate(jobs)))

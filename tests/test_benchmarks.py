@@ -319,6 +319,14 @@ def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
     assert paper_figures.tail_mean([None, float("nan")]) is None
 
 
+def test_paper_figures_spreads_its_processes_over_the_gpus():
+    assert paper_figures.gpu_slots(3, [], None) == [None, None, None], "no GPU: nothing to choose"
+    assert paper_figures.gpu_slots(5, [0, 1], None) == ["0", "1", "0", "1", "0"]
+    # JAX's ids index into this process's own CUDA_VISIBLE_DEVICES, which names the physical GPUs
+    assert paper_figures.gpu_slots(3, [0, 1], "2, 5") == ["2", "5", "2"]
+    assert paper_figures.gpu_slots(2, [1], "3,7") == ["7", "7"]
+
+
 def test_snapshot_evaluations_set_each_snapshot_beside_the_training_mean_since_the_previous(tmp_path):
     """Cycles without ended episodes are left out of the window's mean; stochastic evaluations are not snapshots."""
     run = tmp_path / "run"
