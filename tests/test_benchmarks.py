@@ -229,8 +229,8 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
     # runs of separate invocations (here the same runs again, as seed 4) combine into one figure
     other = {**record, "runs": [{**run, "seed": 4, "target": {"stale": True}} for run in runs]}
     (tmp_path / "other.json").write_text(json.dumps(other))
-    subprocess.run([sys.executable, script, "--figure", "8", "--merge", str(tmp_path / "fig8.json"),
-                    str(tmp_path / "other.json"), "--out", str(tmp_path), "--name", "merged"], check=True)
+    # (in this process: the training above and the --replace merge below go through the command line)
+    paper_figures.merge("8", [str(tmp_path / "fig8.json"), str(tmp_path / "other.json")], "merged", str(tmp_path))
     merged = json.loads((tmp_path / "merged.json").read_text())
     assert sorted((r["head"], r["seed"]) for r in merged["runs"]) == [("beta", 3), ("beta", 4), ("gaussian", 3),
                                                                        ("gaussian", 4)]
@@ -240,13 +240,10 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
     assert pendulum["better"] in (pendulum["highest"], "level")
     assert set(merged["config"]["merged"]) == {"fig8.json", "other.json"}
     # a merge of merges keeps the first outputs' configs; a run given twice is refused
-    subprocess.run([sys.executable, script, "--figure", "8", "--merge", str(tmp_path / "merged.json"), "--out",
-                    str(tmp_path), "--name", "again"], check=True)
+    paper_figures.merge("8", [str(tmp_path / "merged.json")], "again", str(tmp_path))
     assert set(json.loads((tmp_path / "again.json").read_text())["config"]["merged"]) == {"fig8.json", "other.json"}
-    twice = subprocess.run([sys.executable, script, "--figure", "8", "--merge", str(tmp_path / "fig8.json"),
-                            str(tmp_path / "merged.json"), "--out", str(tmp_path), "--name", "twice"],
-                           capture_output=True, text=True)
-    assert twice.returncode != 0 and "Pendulum" in twice.stderr and "merged twice" in twice.stderr
+    with pytest.raises(SystemExit, match="Pendulum .* merged twice"):
+        paper_figures.merge("8", [str(tmp_path / "fig8.json"), str(tmp_path / "merged.json")], "twice", str(tmp_path))
     # --replace keeps the later output's run and lists the earlier one; another machine's runs keep their device
     redone = {**record, "device": {**record["device"], "kind": "Other GPU", "host_cpus": 32},
               "versions": {**record["versions"], "brax": "absent"},
@@ -267,10 +264,9 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
         ("beta", 3, str(tmp_path / "redone.json"))]
     newer = {**redone, "versions": {**record["versions"], "jax": "0.0.1"}}
     (tmp_path / "newer.json").write_text(json.dumps(newer))
-    mixed = subprocess.run([sys.executable, script, "--figure", "8", "--merge", str(tmp_path / "merged.json"),
-                            str(tmp_path / "newer.json"), "--replace", "--out", str(tmp_path), "--name", "mixed"],
-                           capture_output=True, text=True)
-    assert mixed.returncode != 0 and "one set of versions" in mixed.stderr
+    with pytest.raises(SystemExit, match="one set of versions"):
+        paper_figures.merge("8", [str(tmp_path / "merged.json"), str(tmp_path / "newer.json")], "mixed",
+                            str(tmp_path), replace=True)
     # a run that fails in its process is named with the end of its log
     failing = subprocess.run([sys.executable, script, "--figure", "8", "--tasks", "Pendulum", "--seeds", "3",
                               "--parallel", "2", "--smoke", "--out", str(tmp_path), "--name", "bad",
