@@ -19,6 +19,7 @@ from angora_jax.experiment import load_config, validate
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
 import angorapy_ratio  # noqa: E402
 import brax_side_by_side as side  # noqa: E402
+import head_sampling  # noqa: E402
 import ihom_curve  # noqa: E402
 import paper_figures  # noqa: E402
 import snapshot_evaluations  # noqa: E402
@@ -313,6 +314,15 @@ def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
     # A solved InvertedPendulum: its episodes all last 1,000 steps and end in the same cycles, none in the others.
     assert paper_figures.tail_mean([10.0, None, 1000.0, float("nan"), None]) == 1000.0
     assert paper_figures.tail_mean([None, float("nan")]) is None
+
+
+def test_head_sampling_times_every_head_and_counts_betas_rejection_loops(tmp_path):
+    path = head_sampling.main(["--task", "Pendulum", "--num-envs", "8", "--rollout-length", "2", "--repeats", "1",
+                               "--out", str(tmp_path / "heads.json")])
+    rows = {row["head"]: row for row in json.loads(open(path).read())["results"]}
+    assert set(rows) == set(head_sampling.HEADS) and rows["gaussian"]["over_gaussian"] == 1.0
+    assert all(row["seconds"] > 0 and row["draws_per_s"] == 16 / row["seconds"] for row in rows.values())
+    assert rows["beta"]["while_loops"] > rows["gaussian"]["while_loops"], "jax.random.gamma rejects in a loop"
 
 
 def test_paper_figures_spreads_its_processes_over_the_gpus():
