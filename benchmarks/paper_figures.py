@@ -266,7 +266,7 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
               "config": config, "comparison": comparison, "missing": missing, "runs": runs}
     with open(f"{png[:-4]}.json", "w") as file:
         json.dump(record, file, indent=1)
-    table = [{"task": r["task"], "head": r["head"], "seed": r["seed"], "device": r.get("device", where["kind"]),
+    table = [{"task": r["task"], "head": r["head"], "seed": r["seed"], "device": r["device"],
               "final": r["final_return"],
               "steps": r["env_steps"], "wall": r["wall_seconds"],
               "target": (r.get("target") or {}).get("seconds") or math.nan,
@@ -323,9 +323,10 @@ def merge(figure: str, paths: list[str], name: str, out: str, replace: bool = Fa
     for path, record in zip(paths, records, strict=True):
         config["merged"] |= record["config"].get("merged") or {os.path.basename(path): record["config"]}
         config["replaced"] = record["config"].get("replaced", []) + config["replaced"]
-    made_on = {key: values[0] if len(values) == 1 else values
-               for key in records[0]["device"]
-               for values in [list(dict.fromkeys(record["device"][key] for record in records))]}
+    made_on = {}
+    for key in records[0]["device"]:
+        values = list(dict.fromkeys(record["device"][key] for record in records))
+        made_on[key] = values[0] if len(values) == 1 else values
     write_figure(figure, list(runs.values()), missing, config, name, out, (made_on, records[0]["versions"]))
 
 
