@@ -323,9 +323,14 @@ def merge(figure: str, paths: list[str], name: str, out: str, replace: bool = Fa
     for path, record in zip(paths, records, strict=True):
         config["merged"] |= record["config"].get("merged") or {os.path.basename(path): record["config"]}
         config["replaced"] = record["config"].get("replaced", []) + config["replaced"]
+    # A field's values over the outputs; an output that was itself a merge of unlike devices holds a list.
     made_on = {}
     for key in records[0]["device"]:
-        values = list(dict.fromkeys(record["device"][key] for record in records))
+        values = []
+        for record in records:
+            value = record["device"][key]
+            values += value if isinstance(value, list) else [value]
+        values = list(dict.fromkeys(values))
         made_on[key] = values[0] if len(values) == 1 else values
     write_figure(figure, list(runs.values()), missing, config, name, out, (made_on, records[0]["versions"]))
 

@@ -263,6 +263,12 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
     assert replaced["device"]["kind"] == [record["device"]["kind"], "Other GPU"]
     assert [(r["head"], r["seed"], r["kept"]) for r in replaced["config"]["replaced"]] == [
         ("beta", 3, str(tmp_path / "redone.json"))]
+    # an output already merged from unlike devices merges again: its lists of values join the others
+    paper_figures.merge("8", [str(tmp_path / "replaced.json"), str(tmp_path / "redone.json")], "remerged",
+                        str(tmp_path), replace=True)
+    remerged = json.loads((tmp_path / "remerged.json").read_text())
+    assert remerged["device"]["kind"] == [record["device"]["kind"], "Other GPU"]
+    assert remerged["device"]["host_cpus"] == replaced["device"]["host_cpus"]
     newer = {**redone, "versions": {**record["versions"], "jax": "0.0.1"}}
     (tmp_path / "newer.json").write_text(json.dumps(newer))
     with pytest.raises(SystemExit, match="one set of versions"):
