@@ -5,10 +5,11 @@ hand's reach), each task x policy head x seed trained with its family's config (
 Per run: `angora_jax.train` in this process (with `--parallel`, in one of its own) with `--minutes` as its wall-
 clock cap (the run stops after the first cycle past it, compile included). Per figure: one PNG, a panel per task
 (top row: against env steps, bottom row: against cycles; per head the mean over seeds with the min-max band as far
-as every seed ran, and each seed that ran further as a thin line), and in
-the JSON every curve, each run's wall time, final return (the training mean over the last tenth of its cycles, with
-sampled actions) and its final policy's mode evaluated on fresh episodes (`--evaluate`, 128 by default), the wall
-seconds and env steps at which its training mean first passed the task's target return (`common.TARGETS`), and,
+as every seed ran, and each seed that ran further as a thin line), and in the JSON every curve (the return, the
+task's own metrics such as reach's success, and training diagnostics), each run's wall time, final return (the
+training mean over the last tenth of its cycles, with sampled actions) and its final policy's mode evaluated on
+fresh episodes (`--evaluate`, 128 by default; return and task metrics), the wall seconds and env steps at which its
+training mean first passed the task's target return (`common.TARGETS`), and,
 per task, the heads compared over the seeds (mean and sample std of each run's return at the env steps that every run
 of the task reached, so that heads of unequal speed are compared at equal samples; a head is better where Welch's
 t-test against the runner-up gives p < 0.05, else the two are level; the verdict heads each panel). Tasks not
@@ -105,10 +106,7 @@ def train_one(task: str, config: str, head: str, seed: int, minutes: float, extr
     wall = time.perf_counter() - start
     rows = read_metrics(run.run_dir)
     rates = [r["steps_per_second"] for r in rows[1:]]  # the first cycle includes compilation
-    begin = rows[0]["time"] - rows[0]["seconds"]
-    curve = {"env_steps": [r["env_steps"] for r in rows], "cycle": [r["cycle"] for r in rows],
-             "seconds": [r["time"] - begin for r in rows],
-             **{name: [finite_or_none(r.get(name)) for r in rows] for name in ("episode_return", *DIAGNOSTICS)}}
+    curve = curve_of(rows)
     return {"task": task, "config": config, "head": head, "seed": seed, "device": device()["kind"],
             "wall_seconds": wall,
             "compile_seconds": rows[0].get("compile_seconds"), "cycles": len(rows), "env_steps": rows[-1]["env_steps"],
@@ -118,13 +116,27 @@ def train_one(task: str, config: str, head: str, seed: int, minutes: float, extr
             "evaluation": evaluate_mode(run.run_dir, episodes) if episodes > 0 else None, "curve": curve}
 
 
+def curve_of(rows: list[dict]) -> dict[str, list]:
+    """Per-cycle series from a run's metric rows: env steps, cycle, seconds since the run began, the return, the
+    task's own metrics (`metric/<name>`, e.g. reach's success: the measure a task is judged by where its return is
+    only the means) and `DIAGNOSTICS`; None where a cycle ended no episode."""
+    begin = rows[0]["time"] - rows[0]["seconds"]
+    task_metrics = sorted({name for row in rows for name in row if name.startswith("metric/")})
+    return {"env_steps": [r["env_steps"] for r in rows], "cycle": [r["cycle"] for r in rows],
+            "seconds": [r["time"] - begin for r in rows],
+            **{name: [finite_or_none(r.get(name)) for r in rows]
+               for name in ("episode_return", *task_metrics, *DIAGNOSTICS)}}
+
+
 def evaluate_mode(run_dir: str, episodes: int) -> dict:
-    """The final policy's deterministic return over `episodes` fresh episodes, all at once on the training path."""
+    """The final policy's deterministic return over `episodes` fresh episodes, all at once on the training path, and
+    the mean of each task metric at the episodes' ends (`metric/<name>`, e.g. reach's success rate)."""
     result = aj.evaluate(run_dir, "latest", episodes=episodes, path="batched", save=False)
     summary = result.summary
     return {"episodes": episodes, "return": summary["episode_return"]["mean"],
             "return_stderr": summary["episode_return"]["stderr"],
-            "episode_length": summary["episode_length"]["mean"], "seconds": result.meta["wall_seconds"]}
+            "episode_length": summary["episode_length"]["mean"], "seconds": result.meta["wall_seconds"],
+            **{name: summary[name]["mean"] for name in summary if name.startswith("metric/")}}
 
 
 def first_past(curve: dict, target: float | None) -> dict | None:
@@ -270,11 +282,15 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
               "final": r["final_return"],
               "steps": r["env_steps"], "wall": r["wall_seconds"],
               "target": (r.get("target") or {}).get("seconds") or math.nan,
-              "mode": (r.get("evaluation") or {}).get("return")} for r in runs]
+              "mode": (r.get("evaluation") or {}).get("return"),
+              "metrics": ", ".join(f"{k.removeprefix('metric/')} {v:.3g}"
+                                   for k, v in (r.get("evaluation") or {}).items() if k.startswith("metric/")) or "-"}
+             for r in runs]
     print(markdown_table(table, [("task", "task", ""), ("head", "head", ""), ("seed", "seed", "d"),
                                  ("device", "device", ""), ("final", "final return", ".1f"),
                                  ("steps", "env steps", ",d"), ("wall", "wall s", ".0f"),
-                                 ("target", "s to target", ".0f"), ("mode", "final policy's mode", ".1f")]))
+                                 ("target", "s to target", ".0f"), ("mode", "final policy's mode", ".1f"),
+                                 ("metrics", "its task metrics", "")]))
     for task, result in comparison.items():
         print(f"{task} at {result['env_steps']:,} env steps: {verdict(result) or 'one head'}; " + ", ".join(
             f"{h} {s['mean']:.1f} +- {s['std']:.1f} ({s['seeds']} seed{'s' if s['seeds'] > 1 else ''}"

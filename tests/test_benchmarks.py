@@ -282,6 +282,17 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
     assert not (tmp_path / "bad.json").exists()
 
 
+def test_paper_figures_curves_keep_the_tasks_own_metrics():
+    rows = [{"env_steps": 100, "cycle": 1, "time": 50.0, "seconds": 20.0, "episode_return": 1.0,
+             "metric/success": 0.25, "entropy": 3.0},
+            {"env_steps": 200, "cycle": 2, "time": 52.0, "seconds": 2.0, "episode_return": float("nan"),
+             "metric/success": float("nan"), "entropy": 2.5}]
+    curve = paper_figures.curve_of(rows)
+    assert curve["seconds"] == [20.0, 22.0], "from the run's start, its first cycle's compile included"
+    assert curve["metric/success"] == [0.25, None] and curve["episode_return"] == [1.0, None]
+    assert curve["entropy"] == [3.0, 2.5] and curve["value_loss"] == [None, None]
+
+
 def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
     curve = {"env_steps": [100, 200, 300, 400], "cycle": [1, 2, 3, 4], "seconds": [30.0, 31.0, 32.0, 33.0],
              "episode_return": [1.0, 2.0, 3.0, 4.0]}
