@@ -12,7 +12,8 @@ fresh episodes (`--evaluate`, 128 by default; return and task metrics), the wall
 training mean first passed the task's target return (`common.TARGETS`), and,
 per task, the heads compared over the seeds (mean and sample std of each run's return at the env steps that every run
 of the task reached, so that heads of unequal speed are compared at equal samples; a head is better where Welch's
-t-test against the runner-up gives p < 0.05, else the two are level; the verdict heads each panel). Tasks not
+t-test against the runner-up gives p < 0.05, else the two are level; the verdict heads each panel; beside it the
+final policies' modes, where every run of a head evaluated one). Tasks not
 available here are listed as missing with the reason.
 
     python benchmarks/paper_figures.py --figure 9 --seeds 0 1 2 --minutes 4 --parallel 4   # one GPU, 4 runs at once
@@ -178,9 +179,11 @@ def return_at(run: dict, env_steps: int) -> float | None:
 def compare_heads(runs: list[dict]) -> dict:
     """Per head: mean and sample std over seeds of the return at `env_steps`, the most env steps that every run
     reached, and how many of its runs ended at or above Gymnasium's reward threshold (`passed`, when the task has
-    one). `highest` and `runner_up`: the heads with the highest and second-highest means; `p_value`: Welch's t-test
-    between their seeds; `better`: `highest` where p < `SIGNIFICANCE`, "level" where not, None where either has
-    fewer than 2 seeds (no test) or the task has one head."""
+    one), and, where each of its runs evaluated its final policy's mode (`--evaluate`), their mean and sample std
+    (`mode`, with the mean of each task metric: a held InvertedPendulum or a solved reach ends few episodes while
+    training, which leaves the training mean stale). `highest` and `runner_up`: the heads with the highest and
+    second-highest means; `p_value`: Welch's t-test between their seeds; `better`: `highest` where p <
+    `SIGNIFICANCE`, "level" where not, None where either has fewer than 2 seeds (no test) or the task has one head."""
     env_steps = min(run["env_steps"] for run in runs)
     heads = {}
     for run in runs:
@@ -193,6 +196,13 @@ def compare_heads(runs: list[dict]) -> dict:
         for head in stats:
             stats[head]["passed"] = sum(run["final_return"] is not None and run["final_return"] >= threshold
                                         for run in runs if run["head"] == head)
+    for head in stats:
+        evaluations = [run.get("evaluation") for run in runs if run["head"] == head]
+        if all(evaluations):
+            modes = [e["return"] for e in evaluations]
+            stats[head]["mode"] = {"mean": statistics.fmean(modes), "std": statistics.stdev(modes) if len(modes) > 1
+                                   else 0.0, **{k: statistics.fmean(e[k] for e in evaluations)
+                                                for k in evaluations[0] if k.startswith("metric/")}}
     ranked = sorted(stats, key=lambda h: stats[h]["mean"], reverse=True)
     highest, runner_up = ranked[:2] if len(ranked) > 1 else (None, None)
     p_value, better = None, None
@@ -296,6 +306,11 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
             f"{h} {s['mean']:.1f} +- {s['std']:.1f} ({s['seeds']} seed{'s' if s['seeds'] > 1 else ''}"
             + (f", {s['passed']} ended past Gymnasium's {result['gymnasium_threshold']:g})" if "passed" in s else ")")
             for h, s in result["heads"].items()))
+        modes = [f"{h} {m['mean']:.1f} +- {m['std']:.1f}"
+                 + "".join(f", {k.removeprefix('metric/')} {v:.3g}" for k, v in m.items() if k.startswith("metric/"))
+                 for h, m in ((h, s["mode"]) for h, s in result["heads"].items() if "mode" in s)]
+        if modes:
+            print("  final policies' modes: " + "; ".join(modes))
     if missing:
         print("missing: " + "; ".join(f"{t} ({why})" for t, why in missing.items()))
     print(f"wrote {png} and {png[:-4]}.json")

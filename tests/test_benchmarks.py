@@ -308,6 +308,13 @@ def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
     assert paper_figures.first_past(curve, 9.0)["reached"] is False
     assert paper_figures.first_past(curve, None) is None
     assert comparison["gymnasium_threshold"] is None, "Gymnasium registers no threshold for Walker2d-v5"
+    assert "mode" not in comparison["heads"]["gaussian"], "no run evaluated its mode"
+    evaluated = [{**run, "head": "beta", "evaluation": {"return": value, "metric/success": success}}
+                 for run, value, success in ((fast, 1000.0, 1.0), (slow, 900.0, 0.5))]
+    modes = paper_figures.compare_heads(evaluated)["heads"]["beta"]["mode"]
+    assert modes == {"mean": 950.0, "std": pytest.approx(70.71, abs=0.01), "metric/success": 0.75}
+    partly = paper_figures.compare_heads([evaluated[0], {**slow, "head": "beta"}])
+    assert "mode" not in partly["heads"]["beta"], "modes are compared only where every run of the head has one"
     assert paper_figures.gymnasium_threshold("Hopper") == 3800.0
     assert paper_figures.gymnasium_threshold("CartPole") == 475.0
     assert paper_figures.gymnasium_threshold("gym:LunarLander-v3") == 200.0
