@@ -89,16 +89,16 @@ def plot(runs: dict[str, tuple[list[dict], list[dict]]], title: str, path: str) 
     plt.close(figure)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", metavar="LABEL=RUN_DIR")
     parser.add_argument("--name", required=True, help="results name: results/snapshot_evaluations_<name>.{json,png}")
     parser.add_argument("--out", default=RESULTS)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     runs, sessions, tasks, table = {}, {}, set(), []
     for spec in args.runs:
-        label, _, run_dir = spec.partition("=")
-        if not run_dir:
+        label, _, run_dir = spec.rpartition("=")  # the last "=": a label may hold one (e.g. an override)
+        if not label or not run_dir:
             raise SystemExit(f"Give runs as LABEL=RUN_DIR, got {spec!r}.")
         rows, evaluations, session = read_run(Path(run_dir))
         runs[label] = (rows, snapshot_rows(label, rows, evaluations))
@@ -115,7 +115,7 @@ def main() -> None:
     date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
     record = {"benchmark": "snapshot_evaluations", "date": date,
               "device": first["devices"], "versions": first["versions"], "physics": first.get("physics"),
-              "tasks": sorted(tasks), "runs": {label: {"run_dir": spec.partition("=")[2], "snapshots": runs[label][1]}
+              "tasks": sorted(tasks), "runs": {label: {"run_dir": spec.rpartition("=")[2], "snapshots": runs[label][1]}
                                      for label, spec in zip(runs, args.runs, strict=True)}}
     os.makedirs(args.out, exist_ok=True)
     stem = os.path.join(args.out, f"snapshot_evaluations_{args.name}")

@@ -378,6 +378,13 @@ def test_snapshot_evaluations_set_each_snapshot_beside_the_training_mean_since_t
     assert table[0]["training_return"] == 1.0 and table[1]["training_return"] == 3.5  # cycle 2 ended no episode
     assert table[1]["training_length"] == 7.0 and table[1]["entropy"] == 0.25
     assert [r["evaluation_return"] for r in table] == [100.0, 80.0]
+    # the command line: a label may hold "=" (an override); the last one splits it from the run directory
+    for spec in ("no-label", "=" + str(run), "label="):
+        with pytest.raises(SystemExit, match="LABEL=RUN_DIR"):
+            snapshot_evaluations.main([spec, "--name", "t", "--out", str(tmp_path)])
+    snapshot_evaluations.main([f"lr=1e-4={run}", "--name", "t", "--out", str(tmp_path)])
+    record = json.loads((tmp_path / "snapshot_evaluations_t.json").read_text())
+    assert record["runs"]["lr=1e-4"]["run_dir"] == str(run)
     (run / "evaluation" / "a.json").unlink()
     (run / "evaluation" / "b.json").unlink()
     with pytest.raises(SystemExit, match="no evaluations"):

@@ -80,8 +80,9 @@ def make_cycle(
     network: a module following the network contract (see `angora_jax.nets`), or None to build
     `config.network` from the registry. Each cycle consumes `num_envs * rollout_length` environment steps.
     Metrics are float32 scalars: episodes (finished in this cycle), episode_return and episode_length (means over
-    them, NaN if none finished), `metric/<name>` task metrics at episode ends, the loss parts averaged over all
-    minibatches, explained_variance, learning_rate and finite (1 if the losses and parameters are finite).
+    them, NaN if none finished; an environment's first episode counts its length from the staggered clock it starts
+    with, so early cycles' lengths run long), `metric/<name>` task metrics at episode ends, the loss parts averaged
+    over all minibatches, explained_variance, learning_rate and finite (1 if the losses and parameters are finite).
 
     num_devices: D devices to run data-parallel on; `config.num_envs` and `config.minibatch_size` are totals that
     must divide by D (ValueError otherwise). For D > 1, `init` returns the state already laid out over the devices
