@@ -287,7 +287,7 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
     record = {"benchmark": "paper_figures", "figure": figure, "device": where, "versions": made_with,
               "config": config, "comparison": comparison, "missing": missing, "runs": runs}
     with open(f"{png[:-4]}.json", "w") as file:
-        json.dump(record, file, indent=1)
+        json.dump(record, file)  # not indented: Fig. 9's curves, diagnostics and task metrics indented pass 2 MiB
     table = [{"task": r["task"], "head": r["head"], "seed": r["seed"], "device": r["device"],
               "final": r["final_return"],
               "steps": r["env_steps"], "wall": r["wall_seconds"],
