@@ -200,9 +200,10 @@ def compare_heads(runs: list[dict]) -> dict:
         evaluations = [run.get("evaluation") for run in runs if run["head"] == head]
         if all(evaluations):
             modes = [e["return"] for e in evaluations]
-            stats[head]["mode"] = {"mean": statistics.fmean(modes), "std": statistics.stdev(modes) if len(modes) > 1
-                                   else 0.0, **{k: statistics.fmean(e[k] for e in evaluations)
-                                                for k in evaluations[0] if k.startswith("metric/")}}
+            metrics = {k: statistics.fmean(e[k] for e in evaluations)
+                       for k in evaluations[0] if k.startswith("metric/")}
+            stats[head]["mode"] = {"mean": statistics.fmean(modes),
+                                   "std": statistics.stdev(modes) if len(modes) > 1 else 0.0, **metrics}
     ranked = sorted(stats, key=lambda h: stats[h]["mean"], reverse=True)
     highest, runner_up = ranked[:2] if len(ranked) > 1 else (None, None)
     p_value, better = None, None
@@ -293,9 +294,7 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
               "steps": r["env_steps"], "wall": r["wall_seconds"],
               "target": (r.get("target") or {}).get("seconds") or math.nan,
               "mode": (r.get("evaluation") or {}).get("return"),
-              "metrics": ", ".join(f"{k.removeprefix('metric/')} {v:.3g}"
-                                   for k, v in (r.get("evaluation") or {}).items() if k.startswith("metric/")) or "-"}
-             for r in runs]
+              "metrics": metrics_text(r.get("evaluation") or {}) or "-"} for r in runs]
     print(markdown_table(table, [("task", "task", ""), ("head", "head", ""), ("seed", "seed", "d"),
                                  ("device", "device", ""), ("final", "final return", ".1f"),
                                  ("steps", "env steps", ",d"), ("wall", "wall s", ".0f"),
@@ -306,14 +305,19 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
             f"{h} {s['mean']:.1f} +- {s['std']:.1f} ({s['seeds']} seed{'s' if s['seeds'] > 1 else ''}"
             + (f", {s['passed']} ended past Gymnasium's {result['gymnasium_threshold']:g})" if "passed" in s else ")")
             for h, s in result["heads"].items()))
-        modes = [f"{h} {m['mean']:.1f} +- {m['std']:.1f}"
-                 + "".join(f", {k.removeprefix('metric/')} {v:.3g}" for k, v in m.items() if k.startswith("metric/"))
-                 for h, m in ((h, s["mode"]) for h, s in result["heads"].items() if "mode" in s)]
+        modes = [", ".join(filter(None, (f"{h} {s['mode']['mean']:.1f} +- {s['mode']['std']:.1f}",
+                                         metrics_text(s["mode"]))))
+                 for h, s in result["heads"].items() if "mode" in s]
         if modes:
             print("  final policies' modes: " + "; ".join(modes))
     if missing:
         print("missing: " + "; ".join(f"{t} ({why})" for t, why in missing.items()))
     print(f"wrote {png} and {png[:-4]}.json")
+
+
+def metrics_text(values: dict) -> str:
+    """The task metrics among `values` (`metric/<name>` keys) as "success 0.98, goal_distance 0.012"."""
+    return ", ".join(f"{k.removeprefix('metric/')} {v:.3g}" for k, v in values.items() if k.startswith("metric/"))
 
 
 def merge(figure: str, paths: list[str], name: str, out: str, replace: bool = False) -> None:

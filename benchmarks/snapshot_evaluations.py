@@ -95,11 +95,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--name", required=True, help="results name: results/snapshot_evaluations_<name>.{json,png}")
     parser.add_argument("--out", default=RESULTS)
     args = parser.parse_args(argv)
-    runs, sessions, tasks, table = {}, {}, set(), []
+    runs, run_dirs, sessions, tasks, table = {}, {}, {}, set(), []
     for spec in args.runs:
         label, _, run_dir = spec.rpartition("=")  # the last "=": a label may hold one (e.g. an override)
         if not label or not run_dir:
             raise SystemExit(f"Give runs as LABEL=RUN_DIR, got {spec!r}.")
+        run_dirs[label] = run_dir
         rows, evaluations, session = read_run(Path(run_dir))
         runs[label] = (rows, snapshot_rows(label, rows, evaluations))
         sessions[label] = session
@@ -115,8 +116,9 @@ def main(argv: list[str] | None = None) -> None:
     date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
     record = {"benchmark": "snapshot_evaluations", "date": date,
               "device": first["devices"], "versions": first["versions"], "physics": first.get("physics"),
-              "tasks": sorted(tasks), "runs": {label: {"run_dir": spec.rpartition("=")[2], "snapshots": runs[label][1]}
-                                     for label, spec in zip(runs, args.runs, strict=True)}}
+              "tasks": sorted(tasks),
+              "runs": {label: {"run_dir": run_dirs[label], "snapshots": snapshots}
+                       for label, (_, snapshots) in runs.items()}}
     os.makedirs(args.out, exist_ok=True)
     stem = os.path.join(args.out, f"snapshot_evaluations_{args.name}")
     with open(stem + ".json", "w") as file:
