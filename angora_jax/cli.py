@@ -131,6 +131,10 @@ def parser() -> argparse.ArgumentParser:
 
     resume = commands.add_parser("resume", help="continue a run from its latest checkpoint, exactly")
     resume.add_argument("run_dir")
+    resume.add_argument(
+        "--exact", action="store_true",
+        help="refuse to continue unless bit for bit: a lean latest checkpoint (checkpoint.lean), or one saved on "
+             "another device count with MuJoCo Warp, otherwise continues with fresh environments")
     add_time_limit(resume)
     add_distributed_flags(resume)
     resume.set_defaults(handler=command_resume)
@@ -312,16 +316,36 @@ def add_time_limit(command: argparse.ArgumentParser) -> None:
 def add_distributed_flags(command: argparse.ArgumentParser) -> None:
     """--distributed and its optional settings (left out, they come from the cluster, e.g. SLURM)."""
     command.add_argument(
-        "--distributed", action="store_true", help="join a jax.distributed job (one process per host; see examples/)"
-    )
+        "--distributed", action="store_true",
+        help="join a jax.distributed job, one process per GPU (under SLURM each takes the GPU of its local rank; "
+             "elsewhere give --local-devices); see examples/slurm_train.sh")
     command.add_argument("--coordinator", help="host:port of process 0 (default: from the cluster environment)")
-    command.add_argument("--num-processes", type=int, help="processes in the job (default: from the cluster)")
-    command.add_argument("--process-id", type=int, help="this process's index (default: from the cluster)")
+    command.add_argument("--num-processes", type=positive_int,
+                         help="processes in the job (default: from the cluster)")
+    command.add_argument("--process-id", type=non_negative_int, help="this process's index (default: from the cluster)")
+    command.add_argument("--local-devices", type=device_ids, metavar="IDS",
+                         help="this process's GPUs on its host, e.g. 0 or 2,3 (default: from the cluster, else all)")
+
+
+def non_negative_int(text: str) -> int:
+    """An argparse type: a whole number >= 0."""
+    if not text.isdigit():
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}")
+    return int(text)
+
+
+def device_ids(text: str) -> list[int]:
+    """An argparse type: comma-separated device indices, e.g. "0" or "2,3"."""
+    return [non_negative_int(part.strip()) for part in text.split(",")]
 
 
 def start_distributed(args: argparse.Namespace) -> None:
     if args.distributed:
-        initialize(args.coordinator, args.num_processes, args.process_id)
+        initialize(args.coordinator, args.num_processes, args.process_id, args.local_devices)
+    elif any(value is not None for value in (args.coordinator, args.num_processes, args.process_id,
+                                             args.local_devices)):
+        raise ConfigError("--coordinator, --num-processes, --process-id and --local-devices set up a jax.distributed "
+                          "job: add --distributed (or leave them out for a single process).")
 
 
 def command_train(args: argparse.Namespace) -> int:
@@ -336,7 +360,7 @@ def command_train(args: argparse.Namespace) -> int:
 def command_resume(args: argparse.Namespace) -> int:
     start_distributed(args)
     with signals_exit_while_preparing():
-        run = resume(args.run_dir, minutes=args.minutes)
+        run = resume(args.run_dir, minutes=args.minutes, exact=args.exact)
     if is_main_process():
         print_finished(run)
     return EXIT_OK

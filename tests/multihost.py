@@ -56,7 +56,8 @@ for leaf in jax.tree.leaves(run.state.params):
     local_copies_agree &= all(np.array_equal(copies[0], other) for other in copies[1:])
     digest.update(copies[0].tobytes())
 untimed = [
-    {k: v for k, v in m.items() if k not in ("seconds", "steps_per_second", "compile_seconds")} for m in records
+    {k: v for k, v in m.items() if k not in ("seconds", "steps_per_second", "compile_seconds", "compile_cache_hits",
+                                          "compile_cache_misses")} for m in records
 ]
 summary = {"stopped": stopped, "params": digest.hexdigest(), "local_copies_agree": bool(local_copies_agree)}
 print(json.dumps(summary | {"metrics": untimed}))

@@ -31,8 +31,9 @@ TINY = [
     "checkpoint.every=100",
     "checkpoint.snapshot_every=2",
 ]
-# Wall-clock and memory readings differ between any two runs; everything else must match exactly.
-UNTIMED = {"seconds", "steps_per_second", "compile_seconds", "time", "memory/host_peak_bytes"}
+# Wall-clock, memory and compilation-cache readings differ between any two runs; everything else must match exactly.
+UNTIMED = {"seconds", "steps_per_second", "compile_seconds", "time", "memory/host_peak_bytes", "compile_cache_hits",
+           "compile_cache_misses"}
 
 
 def config(tmp_path, name):
@@ -96,10 +97,11 @@ def test_resume_equals_uninterrupted(runs):
     assert [r["cycle"] for r in read_metrics(resumed.run_dir)] == [1, 2, 3, 4]
 
 
-def test_acting_reads_only_parameters_and_statistics(runs, tmp_path):
+def test_acting_reads_only_parameters_and_statistics(runs, tmp_path, capsys):
     """A checkpoint whose stored environment states no longer fit the task (as reach's did after its scene dropped
-    contacts) still loads for acting, with the same parameters and actions; resuming it, or loading it under a
-    config whose network differs, stops with the cause and the fix."""
+    contacts) still loads for acting, with the same parameters and actions; resuming it exactly, or loading it under a
+    config whose network differs, stops with the cause and the fix; resuming it otherwise goes on with fresh
+    environments and says so."""
     whole = runs[0]
     changed_dir = tmp_path / "changed"
     shutil.copytree(whole.run_dir, changed_dir, ignore=shutil.ignore_patterns(CHECKPOINTS))
@@ -121,13 +123,60 @@ def test_acting_reads_only_parameters_and_statistics(runs, tmp_path):
 
     with pytest.raises(CheckpointError, match=r"actor\.env_state\.physics.*stored \(4, 8\).*expected \(4, 4\).*"
                                               r"Evaluating and rendering still work"):
-        resume(changed_dir)
+        resume(changed_dir, exact=True)
+    # Without --exact the run goes on from the checkpoint's parameters, optimizer and key, with fresh environments.
     saved = yaml.safe_load((changed_dir / "config.yaml").read_text())
+    saved["ppo"]["num_cycles"] = 5
+    (changed_dir / "config.yaml").write_text(yaml.safe_dump(saved))
+    continued = resume(changed_dir)
+    assert "from cycle 4 with fresh environments, not bit for bit" in capsys.readouterr().err
+    assert int(continued.state.cycle) == 5 and [r["cycle"] for r in continued.history] == [5]
+    assert continued.state.actor.env_state.physics.shape == (4, 4)
     saved["ppo"]["network"]["width"] = 32
     (changed_dir / "config.yaml").write_text(yaml.safe_dump(saved))
     with pytest.raises(CheckpointError, match=r"params\..*stored \(.*16\).*expected \(.*32\).*do not fit the "
                                               r"network.*Restore the config the run was trained with"):
         aj.load_agent(changed_dir, "latest")
+
+
+def test_a_lean_checkpoint_resumes_with_fresh_environments_only_when_not_asked_for_exactness(runs, tmp_path, capsys):
+    """checkpoint.lean=[latest, best, snapshots]: a run stopped by SIGTERM after cycle 2 saves its parameters,
+    optimizer, normalisers, key and cycle but no environments, and takes less disk than a whole checkpoint;
+    `resume --exact` refuses it naming the option, `resume` goes on with fresh environments and says so."""
+    whole = runs[0]
+    lean = aj.load_config("cartpole", [*TINY, f"logging.run_root={tmp_path}", "logging.run_name=lean",
+                                       "checkpoint.lean=[latest, best, snapshots]"])
+
+    def terminate_after_cycle_2(record):
+        if record["cycle"] == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    with pytest.raises(TrainingInterrupted):
+        aj.train(lean, on_cycle=terminate_after_cycle_2)
+    checkpoints = Checkpoints(tmp_path / "lean" / CHECKPOINTS, lean.checkpoint, create=False)
+    assert not checkpoints.holds_environments("latest") and not checkpoints.holds_environments(2)
+    checkpoints.close()
+    whole_checkpoints = Checkpoints(whole.run_dir / CHECKPOINTS, config(tmp_path, "whole").checkpoint, create=False)
+    # The whole run keeps environments in latest, not in its snapshots (the default lean kind), at the same cycle 4.
+    assert whole_checkpoints.holds_environments("latest") and not whole_checkpoints.holds_environments(2)
+    whole_checkpoints.close()
+    folder = whole.run_dir / CHECKPOINTS
+
+    def size(path):
+        return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+
+    assert size(folder / "snapshots" / "4") < size(folder / "latest" / "4")
+    # The same training up to the stop: the lean checkpoint holds the parameters the whole run had at cycle 2.
+    for a, b in zip(jax.tree.leaves(aj.load_agent(tmp_path / "lean", "latest").params),
+                    jax.tree.leaves(aj.load_agent(whole.run_dir, 2).params), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+    with pytest.raises(CheckpointError, match=r"exactly from cycle 2: it is lean .*Resume without --exact"):
+        resume(tmp_path / "lean", exact=True)
+    continued = resume(tmp_path / "lean")
+    assert "from cycle 2 with fresh environments, not bit for bit: it is lean" in capsys.readouterr().err
+    assert int(continued.state.cycle) == 4 and [r["cycle"] for r in read_metrics(tmp_path / "lean")] == [1, 2, 3, 4]
+    assert all(record["finite"] == 1.0 for record in continued.history)
 
 
 def test_checkpoint_kinds_and_monitor_records(runs, tmp_path):

@@ -1,8 +1,9 @@
 """Checkpoints of a run with Orbax: the latest state, the best state by a training metric, and kept snapshots.
 
 Each checkpoint holds the whole `TrainState` (params, optimizer state, normaliser statistics, environment states,
-recurrent carries, PRNG keys, cycle counter) plus JSON metadata (cycle, env steps, the cycle's metrics and the
-resolved config), so that a resumed run continues bit-for-bit. Layout: `checkpoints/{latest,best,snapshots}/<cycle>/`.
+recurrent carries, PRNG keys, cycle counter) plus JSON metadata (cycle, env steps, the cycle's metrics, the resolved
+config and whether it holds the environments), so that a resumed run continues bit-for-bit; the kinds named in
+`checkpoint.lean` leave the environments' part out (`TrainState.without_environments`). Layout: `checkpoints/{latest,best,snapshots}/<cycle>/`.
 Each leaf is stored under its own path (`to_storable`), so a sub-tree (e.g. only params and normaliser statistics for
 acting) can be read without the rest (`Checkpoints.restore(..., partial=True)`): the environment states' layout may
 have changed since saving.
@@ -19,10 +20,9 @@ import jax
 import jax.numpy as jnp
 import orbax.checkpoint as ocp
 
+from angora_jax.experiment.config import CHECKPOINT_KINDS as KINDS
 from angora_jax.experiment.config import CheckpointConfig
 from angora_jax.experiment.run_dir import RunDirError
-
-KINDS = ("latest", "best", "snapshots")
 
 
 def to_storable(state: Any) -> dict[str, jax.Array]:
@@ -112,10 +112,10 @@ class Checkpoints:
         for kind, is_due in due.items():
             # A resumed run recomputes the cycles after its checkpoint exactly; those already saved stay as they are.
             if is_due and cycle not in self._managers[kind].all_steps():
-                storable = to_storable(state)
-                self._managers[kind].save(
-                    cycle, args=ocp.args.Composite(state=ocp.args.PyTreeSave(storable), meta=ocp.args.JsonSave(meta))
-                )
+                lean = kind in self.config.lean
+                storable = to_storable(state.without_environments() if lean else state)
+                self._managers[kind].save(cycle, args=ocp.args.Composite(
+                    state=ocp.args.PyTreeSave(storable), meta=ocp.args.JsonSave(meta | {"environments": not lean})))
                 saved.append(kind)
         if "best" in saved:
             self.best_value = metrics[self.config.best_metric]
@@ -160,6 +160,11 @@ class Checkpoints:
                 f"(saved cycles: {existing}; pass its cycle to --checkpoint), or delete this one."
             ) from error
         return Restored(from_storable(template, restored["state"]), dict(restored["meta"]))
+
+    def holds_environments(self, which: str | int = "latest") -> bool:
+        """Whether checkpoint `which` holds the environments' states (not `checkpoint.lean`), so that resuming from
+        it continues exactly; FileNotFoundError as `restore` when there is no such checkpoint."""
+        return self._read_meta(*self._locate(which)).get("environments", True)
 
     def close(self) -> None:
         for manager in self._managers.values():

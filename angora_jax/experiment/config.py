@@ -66,6 +66,7 @@ class LoggingConfig:
 
 
 PROGRESS_MODES = ("auto", "bar", "lines", "none")
+CHECKPOINT_KINDS = ("latest", "best", "snapshots")
 
 
 @dataclass(frozen=True)
@@ -76,12 +77,19 @@ class CheckpointConfig:
     latest is replaced. best_metric: keep the state of the cycle with the best value of this per-cycle metric
     ("episode_return", "episode_length" or "metric/<task metric>"); None keeps no best checkpoint. best_mode: "max"
     or "min". snapshot_every: keep a snapshot every this many cycles for good, for probing later; 0 for none.
+    lean: the kinds of checkpoint ("latest", "best", "snapshots") saved without the environments' states (physics,
+    recurrent carries, episode accumulators): parameters, optimizer, normalisers, PRNG key and cycle only, a small
+    fraction of the size (the cube at 16,384 envs: the environments are most of a full checkpoint). Evaluating and
+    probing read only parameters and normalisers, so lean snapshots (the default) lose nothing for them. Resuming
+    from a lean checkpoint makes the environments afresh: the run goes on, but not bit for bit as if it had not
+    stopped (`angora-jax resume --exact` refuses it).
     """
 
     every: int = 10
     best_metric: str | None = "episode_return"
     best_mode: str = "max"
     snapshot_every: int = 0
+    lean: tuple[str, ...] = ("snapshots",)
 
 
 @dataclass(frozen=True)
@@ -179,6 +187,9 @@ def validate(config: Config) -> Env:
         raise ConfigError(f"checkpoint.every must be >= 1 (cycles between latest checkpoints), got {checkpoint.every}.")
     if checkpoint.snapshot_every < 0:
         raise ConfigError(f"checkpoint.snapshot_every must be >= 0 (0: no snapshots), got {checkpoint.snapshot_every}.")
+    for kind in checkpoint.lean:
+        if kind not in CHECKPOINT_KINDS:
+            raise ConfigError(_unknown("checkpoint.lean", kind, CHECKPOINT_KINDS, "kinds of checkpoint"))
     if checkpoint.best_mode not in ("max", "min"):
         raise ConfigError(_unknown("checkpoint.best_mode", checkpoint.best_mode, ("max", "min"), "modes"))
     choices = best_metric_choices(env)

@@ -2,7 +2,8 @@
 
 A line holds the cycle's training metrics (episode_return, episode_length, `metric/<task metric>`, the losses,
 entropy, approx_kl, clip_fraction, explained_variance, learning_rate, seconds, steps_per_second and, on the first
-cycle of a session, compile_seconds), normaliser statistics (`norm/...`), memory (`memory/...`, bytes) and
+cycle of a session, compile_seconds and the programs read from the persistent compilation cache or compiled,
+compile_cache_hits and compile_cache_misses), normaliser statistics (`norm/...`), memory (`memory/...`, bytes) and
 `time` (Unix seconds). Undefined values (no episode finished) are written as null.
 """
 

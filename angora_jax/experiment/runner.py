@@ -23,7 +23,8 @@ from typing import Any
 import jax
 
 from angora_jax.envs.core import Env
-from angora_jax.experiment.checkpoint import Checkpoints
+from angora_jax.experiment import compilation_cache
+from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints
 from angora_jax.experiment.config import Config, load_config, num_devices, to_dict, validate
 from angora_jax.experiment.distributed import ProcessFailed, agree_to_stop, is_main_process, shared_run_dir
 from angora_jax.experiment.doctor import devices, versions
@@ -78,6 +79,7 @@ def train(
     multi-process run (`angora_jax.experiment.distributed`) all processes stop after the same cycle: a signal to any
     one interrupts all, and an error in one (e.g. in `on_cycle`) raises ProcessFailed in the others.
     """
+    compilation_cache.enable()
     if not isinstance(config, Config):
         config = load_config(config, overrides)
     elif overrides:
@@ -94,11 +96,17 @@ def train(
 
 
 def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | None = None,
-           minutes: float | None = None) -> TrainingRun:
+           minutes: float | None = None, exact: bool = False) -> TrainingRun:
     """Continue `run_dir` from its latest checkpoint up to the config's `ppo.num_cycles`, exactly as if it had
-    not stopped (same device assumed). Without a checkpoint (killed before the first) the run starts over from
+    not stopped (same device count assumed). Without a checkpoint (killed before the first) the run starts over from
     cycle 0, which gives the same result. A run that has already finished is returned as it is. minutes: this
-    call's wall-clock limit, as for `train`."""
+    call's wall-clock limit, as for `train`.
+
+    A latest checkpoint without the environments' states (`checkpoint.lean`), or whose environments do not fit this
+    run (another `distribution.num_devices`: MuJoCo Warp's state holds a contact pool per device), continues with
+    its parameters, optimizer, normalisers and key, and environments made afresh: not bit for bit, as a printed note
+    says. exact: refuse that instead (CheckpointError naming the cause)."""
+    compilation_cache.enable()
     run_dir = Path(run_dir)
     config = read_run_config(run_dir)
     env = validate(config)
@@ -106,7 +114,7 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     try:
         state = None
         if checkpoints.steps("latest"):
-            state = checkpoints.restore(initial_state_shape(config, env), "latest").state
+            state = _restore_to_continue(checkpoints, initial_state_shape(config, env), exact, run_dir)
     finally:
         checkpoints.close()
     if is_main_process():
@@ -114,12 +122,41 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     return _run(config, env, run_dir, state=state, on_cycle=on_cycle, minutes=minutes)
 
 
+def _restore_to_continue(checkpoints: Checkpoints, template: TrainState, exact: bool, run_dir: Path) -> TrainState:
+    """The latest checkpoint's state, whole where it can be; else without its environments (see `resume`)."""
+    cycle = checkpoints.steps("latest")[-1]
+    lean = template.without_environments()
+    if checkpoints.holds_environments("latest"):
+        try:
+            return checkpoints.restore(template, "latest").state
+        except CheckpointError as error:
+            if exact:
+                raise
+            try:  # the parameters still fit, the environments' layout does not (another device count)
+                state = checkpoints.restore(lean, "latest", partial=True).state
+            except CheckpointError:
+                raise error from None
+            reason = f"its environments' states do not fit this run ({error})"
+    else:
+        reason = "it is lean (checkpoint.lean names 'latest'): it holds no environment states"
+        if exact:
+            raise CheckpointError(
+                f"Cannot resume {run_dir} exactly from cycle {cycle}: {reason}, so the run cannot continue bit for "
+                "bit. Resume without --exact (its environments are then made afresh), or keep environments in "
+                "future checkpoints with checkpoint.lean=[snapshots].")
+        state = checkpoints.restore(lean, "latest", partial=True).state
+    if is_main_process():
+        print(f"Resuming {run_dir} from cycle {cycle} with fresh environments, not bit for bit: {reason}.",
+              file=sys.stderr, flush=True)
+    return state
+
+
 def initial_state_shape(config: Config, env: Env) -> TrainState:
-    """Shapes and dtypes of the run's TrainState (a tree of `jax.ShapeDtypeStruct`), computed without running (and
-    without reading pretrained components or the run it starts from: where initial values come from does not change
-    a shape)."""
+    """Shapes and dtypes of the run's TrainState on its devices (a tree of `jax.ShapeDtypeStruct`), computed without
+    running (and without reading pretrained components or the run it starts from: where initial values come from does
+    not change a shape)."""
     network = dataclasses.replace(config.ppo.network, pretrained={})
-    init, _ = make_cycle(env, None, config.ppo.replace(network=network, init_from=None))
+    init, _ = make_cycle(env, None, config.ppo.replace(network=network, init_from=None), num_devices(config))
     return jax.eval_shape(init, jax.random.key(config.ppo.seed))
 
 
@@ -146,7 +183,8 @@ def _run(
     progress = Progress(config.ppo.num_cycles, config.logging.progress if main else "none",
                         shown=config.checkpoint.best_metric)
     if main:
-        physics = env.physics_info(per_device(config.ppo, num_devices(config)).num_envs)
+        devices_used = num_devices(config)
+        physics = env.physics_info(per_device(config.ppo, devices_used).num_envs) | {"num_devices": devices_used}
         start = 0 if state is None else int(state.cycle)
         record_session(run_dir, {"time": time.time(), "start_cycle": start, "host": socket.gethostname(),
                                  "processes": jax.process_count(), "devices": devices(), "versions": versions(),
@@ -161,7 +199,11 @@ def _run(
             # Divergence (TrainingDivergedError) is decided inside training_cycles from a metric that the compiled
             # cycle reduces over all devices, so every process raises it after the same cycle; every other reason to
             # stop is this process's own and goes through agree_to_stop, so that all processes stop together.
+            cached_before = compilation_cache.counts()
             for latest, metrics in training_cycles(config.ppo, env, None, state, num_devices(config)):
+                if "compile_seconds" in metrics:  # the programs this session compiled, and those read from the cache
+                    cached = compilation_cache.counts()
+                    metrics |= {f"compile_cache_{kind}": cached[kind] - cached_before[kind] for kind in cached}
                 prepared()
                 state, failure = latest, None
                 try:
@@ -273,10 +315,13 @@ def _save_together(checkpoints: Checkpoints, state: TrainState, record: dict[str
 
 
 def describe_physics(physics: dict[str, Any]) -> str:
-    """`Env.physics_info()` as one phrase: engine, device, Warp's buffer size and why this implementation."""
-    text = f"{physics['engine']} on {physics['device']}"
+    """`Env.physics_info()` as one phrase: engine, device(s), Warp's buffer size and why this implementation."""
+    devices_used = physics.get("num_devices", 1)
+    where = f"{devices_used} devices" if devices_used > 1 else physics["device"]
+    text = f"{physics['engine']} on {where}"
     if "warp_max_envs" in physics:
-        text += f", Warp buffers for {physics['warp_max_envs']:,} envs"
+        each = f" on each of the {devices_used} devices" if devices_used > 1 else ""
+        text += f", Warp buffers for {physics['warp_max_envs']:,} envs{each}"
     return text + (f" ({physics['why']})" if "why" in physics else "")
 
 

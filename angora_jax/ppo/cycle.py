@@ -24,7 +24,18 @@ from angora_jax.ppo.distributions import PolicyHead, make_head
 from angora_jax.ppo.gae import gae, next_values
 from angora_jax.ppo.losses import LossInputs, advantage_moments, normalized_advantages, ppo_loss
 from angora_jax.ppo.normalization import RunningMeanStd, discounted_returns, observation_stats
-from angora_jax.ppo.parallel import axis_name, data_parallel, environment_keys, per_device, pmean, psum
+from jax.sharding import PartitionSpec as P
+
+from angora_jax.ppo.parallel import (
+    AXIS,
+    axis_name,
+    data_parallel,
+    environment_keys,
+    local_share,
+    per_device,
+    pmean,
+    psum,
+)
 from angora_jax.ppo.rollout import ActorState, make_rollout
 from angora_jax.ppo.tbptt import gather_carries, gather_sequences, minibatch_indices, unroll
 
@@ -47,6 +58,15 @@ class TrainState:
     actor: ActorState
     key: jax.Array
     cycle: jax.Array
+
+    def without_environments(self) -> TrainState:
+        """This state without what belongs to the N environments (`actor`, `discounted_return` become None): what a
+        lean checkpoint keeps. `training_cycles` makes the environments afresh for such a state."""
+        return self.replace(actor=None, discounted_return=None)
+
+    @property
+    def has_environments(self) -> bool:
+        return self.actor is not None
 
 
 @struct.dataclass
@@ -132,17 +152,19 @@ def make_cycle(
     )
 
     def init(key: jax.Array) -> TrainState:
-        # The global state of all config.num_envs environments, whatever the device count.
+        # The state of all config.num_envs environments, whatever the device count: on D devices each makes its
+        # share from its block of the same per-environment keys (`environment_keys`), so the values do not depend
+        # on D, while whatever a share of environments owns together (MuJoCo Warp's contact pool) is its own.
         env_key, param_key, key = jax.random.split(key, 3)
-        env_state = jax.vmap(env.reset)(jax.random.split(env_key, config.num_envs))
+        env_state = jax.vmap(env.reset)(environment_keys(env_key, config.num_envs, axis))
         # Episode clocks start spread over [0, max_episode_steps): otherwise tasks without early termination (reach)
         # end every episode on the same step forever, so each cycle's batch holds one phase of the episode only and
         # consecutive updates chase different phases. The first episodes are shorter.
         first_steps = jax.random.randint(jax.random.fold_in(env_key, 1), (config.num_envs,), 0, env.max_episode_steps)
-        env_state = env_state.replace(steps=first_steps)
-        carry = network.initial_carry(config.num_envs)
+        env_state = env_state.replace(steps=local_share(first_steps, axis))
+        carry = network.initial_carry(num_envs)
         params = model.init(param_key, carry, env_state.obs)["params"]
-        zeros = jnp.zeros((config.num_envs,), jnp.float32)
+        zeros = jnp.zeros((num_envs,), jnp.float32)
         return TrainState(
             params=params,
             opt_state=optimizer.init(params),
@@ -253,13 +275,24 @@ def make_cycle(
         )
         return new_state, metrics
 
-    global_init = jax.jit(init)
-    if config.network.pretrained or config.init_from:
-        global_init = _with_saved_values(global_init, config.network.pretrained, config.init_from)
     if num_devices == 1:
-        return global_init, jax.jit(cycle)
-    parallel_cycle = data_parallel(cycle, jax.eval_shape(init, jax.random.key(0)), num_devices)
-    return lambda key: parallel_cycle.place(global_init(key)), parallel_cycle
+        init_fn, cycle_fn = jax.jit(init), jax.jit(cycle)
+    else:
+        specs = partition_specs()
+        init_fn = data_parallel(init, P(), specs, num_devices)
+        cycle_fn = data_parallel(cycle, specs, (specs, P()), num_devices)
+    if config.network.pretrained or config.init_from:
+        init_fn = _with_saved_values(init_fn, config.network.pretrained, config.init_from)
+    if num_devices == 1:
+        return init_fn, cycle_fn
+    return lambda key: cycle_fn.place(init_fn(key)), cycle_fn
+
+
+def partition_specs() -> TrainState:
+    """How a TrainState lies over the data-parallel mesh: what belongs to environments (their states, carries,
+    accumulators, discounted returns) split over `AXIS` by environment, everything else replicated."""
+    return TrainState(params=P(), opt_state=P(), obs_stats=P(), reward_stats=P(), discounted_return=P(AXIS),
+                      actor=P(AXIS), key=P(), cycle=P())
 
 
 def _with_saved_values(init: Callable[[jax.Array], TrainState], pretrained: dict[str, str], init_from: str | None):

@@ -3,18 +3,25 @@
 Why `shard_map` and not `pmap`: `pmap` is in maintenance mode and compiles its own way (one program per device,
 arrays with a leading device axis), while `jit` + `shard_map` is the path JAX develops: the TrainState stays one
 global array per leaf with a `NamedSharding` (no device axis to add or strip, so checkpoints and `eval_shape` see
-the same shapes as on one device), the same mesh spans several hosts under `jax.distributed`, and the per-device
+the shapes of one device, but for MuJoCo Warp's per-device buffers, below), the same mesh spans several hosts under `jax.distributed`, and the per-device
 body is exactly the single-device cycle with collectives switched on by an axis name.
 
 Layout: the N environments (their states, recurrent carries, accumulators, `discounted_return`) are split over
 the mesh axis `AXIS` in contiguous blocks, N / D per device; parameters, optimizer state, normaliser statistics,
 PRNG key and cycle count are replicated. With `axis_name=None` every helper here is the identity, which makes one
 device the D = 1 case of the same code, compiled without collectives.
+Each device makes its own environments: `init` runs data-parallel too, so an environment's state is whatever its
+device's share of the batch makes it. That matters for MuJoCo Warp, whose physics state holds, besides the
+per-environment leaves, buffers that one batch shares (the contact pool `contact__*`, sized for the batch the
+environment was sized for, and its counters `nacon`, `ncollision`, shape `(1,)`): each device's share is sized for
+N / D environments (`Env.sized_for`) and owns such a pool, so the global state holds D pools laid end to end on the
+same axis (`nacon` is `(D,)`), as `pmap` would stack them. Those buffers are scratch that every physics step
+refills, so they carry nothing from one step to the next.
 
 Equivalence: D devices compute what one device computes, up to floating-point summation order.
 - Random numbers depend on the environment, not on the device: the rollout key is split into one key per global
   environment and each device takes its block (`local_share`); environment states (and their auto-reset keys)
-  come from one global `init`.
+  come from the global environment keys the same way.
 - Minibatches are drawn from the replicated key over the global (trajectory, chunk) grid, the same for any D, and
   each device computes the gradient of its equal share of every global minibatch; gradients are averaged
   (`pmean`), advantages normalised by the whole minibatch's mean and std, normaliser statistics pooled exactly.
@@ -150,44 +157,32 @@ def environment_keys(key: jax.Array, num_envs: int, axis: str | None) -> jax.Arr
     return local_share(jax.random.split(key, num_envs), axis)
 
 
-def state_specs(state: Any) -> Any:
-    """PartitionSpecs for a TrainState: environments split over `AXIS` (leading axis N), everything else replicated."""
-    return state.replace(
-        params=P(),
-        opt_state=P(),
-        obs_stats=P(),
-        reward_stats=P(),
-        discounted_return=P(AXIS),
-        actor=P(AXIS),
-        key=P(),
-        cycle=P(),
-    )
-
-
 @dataclass(frozen=True)
 class DataParallel:
-    """A per-device function compiled over a device mesh (built by `data_parallel`); called and lowered like a
-    `jax.jit` function, on states in any layout (each call first lays its argument out, see `place`)."""
+    """A per-device function of one argument compiled over a device mesh (built by `data_parallel`); called,
+    lowered and shape-evaluated like a `jax.jit` function, on an argument in any layout (each call first lays it
+    out, see `place`)."""
 
     compiled: Any  # jit of the shard_map
-    shardings: Any  # NamedSharding per state leaf
+    shardings: Any  # NamedSharding per leaf of the argument (a prefix tree of it)
     platform: str
 
-    def __call__(self, state: Any) -> Any:
+    def __call__(self, arg: Any) -> Any:
         with self._partitioner():
-            return self.compiled(self.place(state))
+            return self.compiled(self.place(arg))
 
-    def lower(self, state: Any) -> jax.stages.Lowered:
+    def lower(self, arg: Any) -> jax.stages.Lowered:
         """The lowered program (for `.compile()`, its HLO text, or an ahead-of-time compiled executable)."""
         with self._partitioner():
-            return self.compiled.lower(self.place(state))
+            return self.compiled.lower(self.place(arg))
 
-    def place(self, state: Any) -> Any:
-        """A global state (fresh, or restored from a checkpoint onto one device) in the data-parallel layout."""
+    def place(self, arg: Any) -> Any:
+        """A global value (fresh, or restored from a checkpoint onto one device) in the data-parallel layout; traced
+        values (under `jax.eval_shape`) pass as they are."""
         return jax.tree.map(
             lambda sharding, part: jax.tree.map(lambda leaf: _put(leaf, sharding), part),
             self.shardings,
-            state,
+            arg,
             is_leaf=lambda x: isinstance(x, NamedSharding),
         )
 
@@ -207,31 +202,29 @@ class DataParallel:
             jax.config.update("jax_use_shardy_partitioner", previous)
 
 
-def data_parallel(
-    cycle: Callable[[Any], tuple[Any, dict[str, jax.Array]]], state_shape: Any, num_devices: int
-) -> DataParallel:
-    """Compile the per-device `cycle(state) -> (state, metrics)` over the first `num_devices` devices.
+def data_parallel(body: Callable[[Any], Any], in_specs: Any, out_specs: Any, num_devices: int) -> DataParallel:
+    """Compile the per-device `body(arg)` over the first `num_devices` devices.
 
-    state_shape: the global TrainState (or its `jax.eval_shape`), to lay out the state. The result's `place(state)`
-    puts a global state into the data-parallel layout; calling it runs the cycle on a state in any layout; metrics
-    come back replicated (already reduced over devices).
+    in_specs / out_specs: PartitionSpecs (prefix trees) of the argument and the result: `P(AXIS)` for leaves whose
+    leading axis is split over the devices (environments: each device holds N / D of them, and whatever else its
+    share owns, such as MuJoCo Warp's contact pool), `P()` for replicated ones. The result's `place(arg)` lays a
+    global argument out; outputs specified `P()` must be equal on every device (the collectives ensure it).
     """
     mesh = Mesh(np.array(jax.devices()[:num_devices]), (AXIS,))
-    specs = state_specs(state_shape)
-    shardings = jax.tree.map(lambda spec: NamedSharding(mesh, spec), specs, is_leaf=lambda x: isinstance(x, P))
-    # The inner jit keeps the constants `cycle` closes over (the MJX model) inside the per-device body, where XLA
+    shardings = jax.tree.map(lambda spec: NamedSharding(mesh, spec), in_specs, is_leaf=lambda x: isinstance(x, P))
+    # The inner jit keeps the constants `body` closes over (the MJX model) inside the per-device body, where XLA
     # folds them as in the plain cycle; shard_map alone would take them as operands (module docstring).
     # Environments build some state from constants (e.g. empty modalities), which the varying-manual-axes check
     # would reject as a scan carry changing type; replication of the P() outputs is ensured by the collectives.
-    body = jax.jit(cycle)
-    compiled = jax.jit(jax.shard_map(body, mesh=mesh, in_specs=(specs,), out_specs=(specs, P()), check_vma=False))
+    compiled = jax.jit(jax.shard_map(jax.jit(body), mesh=mesh, in_specs=(in_specs,), out_specs=out_specs,
+                                     check_vma=False))
     return DataParallel(compiled, shardings, mesh.devices.flat[0].platform)
 
 
 def _put(leaf: Any, sharding: NamedSharding) -> jax.Array:
     """`leaf` laid out by `sharding`; across hosts every process holds the same global value (same seed, same
     checkpoint) and contributes the slices of its own devices, since `device_put` reaches only local devices."""
-    if isinstance(leaf, jax.Array) and leaf.sharding == sharding:
+    if isinstance(leaf, jax.core.Tracer) or (isinstance(leaf, jax.Array) and leaf.sharding == sharding):
         return leaf
     if jax.process_count() == 1:
         return jax.device_put(leaf, sharding)
