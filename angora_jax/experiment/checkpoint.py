@@ -3,7 +3,8 @@
 Each checkpoint holds the whole `TrainState` (params, optimizer state, normaliser statistics, environment states,
 recurrent carries, PRNG keys, cycle counter) plus JSON metadata (cycle, env steps, the cycle's metrics, the resolved
 config and whether it holds the environments), so that a resumed run continues bit-for-bit; the kinds named in
-`checkpoint.lean` leave the environments' part out (`TrainState.without_environments`). Layout: `checkpoints/{latest,best,snapshots}/<cycle>/`.
+`checkpoint.lean` leave the environments' part out (`TrainState.without_environments`).
+Layout: `checkpoints/{latest,best,snapshots}/<cycle>/`.
 Each leaf is stored under its own path (`to_storable`), so a sub-tree (e.g. only params and normaliser statistics for
 acting) can be read without the rest (`Checkpoints.restore(..., partial=True)`): the environment states' layout may
 have changed since saving.

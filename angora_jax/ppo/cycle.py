@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
+from jax.sharding import PartitionSpec as P
 
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.nets import ActorCritic, make_network
@@ -24,8 +25,6 @@ from angora_jax.ppo.distributions import PolicyHead, make_head
 from angora_jax.ppo.gae import gae, next_values
 from angora_jax.ppo.losses import LossInputs, advantage_moments, normalized_advantages, ppo_loss
 from angora_jax.ppo.normalization import RunningMeanStd, discounted_returns, observation_stats
-from jax.sharding import PartitionSpec as P
-
 from angora_jax.ppo.parallel import (
     AXIS,
     axis_name,

@@ -3,8 +3,9 @@
 Why `shard_map` and not `pmap`: `pmap` is in maintenance mode and compiles its own way (one program per device,
 arrays with a leading device axis), while `jit` + `shard_map` is the path JAX develops: the TrainState stays one
 global array per leaf with a `NamedSharding` (no device axis to add or strip, so checkpoints and `eval_shape` see
-the shapes of one device, but for MuJoCo Warp's per-device buffers, below), the same mesh spans several hosts under `jax.distributed`, and the per-device
-body is exactly the single-device cycle with collectives switched on by an axis name.
+the shapes of one device, but for MuJoCo Warp's per-device buffers, below), the same mesh spans several hosts
+under `jax.distributed`, and the per-device body is exactly the single-device cycle with collectives switched on by
+an axis name.
 
 Layout: the N environments (their states, recurrent carries, accumulators, `discounted_return`) are split over
 the mesh axis `AXIS` in contiguous blocks, N / D per device; parameters, optimizer state, normaliser statistics,
