@@ -1,8 +1,9 @@
 """One process of the two-process localhost job that test_parallel.py starts: argv is coordinator address, process
-id and run root; each process has 2 CPU devices (XLA_FLAGS), 4 in all. `aj.train` runs 3 cycles over all 4 devices
-into one run directory (process 0 logs, both save the checkpoint), but process 1 alone gets a SIGTERM after cycle 2,
-so both should stop there; both then resume the run to cycle 3. Prints one JSON object: how training stopped, a
-digest of this process's copy of the final parameters, whether its two devices hold the same copy, and the
+id, run root and the run: "cartpole" (each process has 2 CPU devices by XLA_FLAGS, 4 in all) or "warp" (reach on
+MuJoCo Warp, one CPU device per process: the cluster layout, one process per GPU). `aj.train` runs 3 cycles over
+all devices into one run directory (process 0 logs, both save the checkpoint), but process 1 alone gets a SIGTERM after
+cycle 2, so both should stop there; both then resume the run to cycle 3. Prints one JSON object: how training stopped, a
+digest of this process's copy of the final parameters, whether its devices hold the same copy, and the
 metrics of every cycle."""
 
 import hashlib
@@ -24,9 +25,12 @@ from tiny import TINY_PPO  # noqa: E402
 import angora_jax as aj  # noqa: E402
 from angora_jax.experiment import TrainingInterrupted, resume  # noqa: E402
 
-run_root, process = Path(sys.argv[3]), int(sys.argv[2])
+run_root, process, variant = Path(sys.argv[3]), int(sys.argv[2]), sys.argv[4]
+config = {"cartpole": "cartpole", "warp": "shadow_reach"}[variant]
+task = ["env.options.physics={impl: warp}", "ppo.minibatch_size=64"] if variant == "warp" else []
 overrides = [
     *TINY_PPO,
+    *task,
     "ppo.num_envs=8",
     "ppo.num_cycles=3",
     "distribution.num_devices=all",
@@ -45,7 +49,7 @@ def terminate_process_1_after_cycle_2(record):
 
 
 try:
-    aj.train("cartpole", overrides, on_cycle=terminate_process_1_after_cycle_2)
+    aj.train(config, overrides, on_cycle=terminate_process_1_after_cycle_2)
     stopped = None
 except TrainingInterrupted as stop:
     stopped = {"cycle": stop.cycle, "signal": stop.signum}

@@ -99,14 +99,18 @@ def test_indivisible_totals_fail_naming_the_keys(changes, message):
         per_device(PPOConfig().replace(**changes), 4)
 
 
-def test_two_processes_with_jax_distributed_stop_together_train_in_sync_and_resume_in_one(tmp_path):
+@pytest.mark.parametrize("variant, devices_per_process", [("cartpole", 2), ("warp", 1)])
+def test_two_processes_with_jax_distributed_stop_together_train_in_sync_and_resume_in_one(tmp_path, variant,
+                                                                                         devices_per_process):
+    """CartPole on 2 devices per process, and reach on MuJoCo Warp on one device per process (the cluster layout)."""
     with socket.socket() as probe:  # a free port for the coordinator
         probe.bind(("localhost", 0))
         address = f"localhost:{probe.getsockname()[1]}"
-    env = os.environ | {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    env = os.environ | {"XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} "
+                                     f"--xla_force_host_platform_device_count={devices_per_process}"}
     processes = [
         subprocess.Popen(
-            [sys.executable, str(TESTS / "multihost.py"), address, str(index), str(tmp_path)],
+            [sys.executable, str(TESTS / "multihost.py"), address, str(index), str(tmp_path), variant],
             cwd=TESTS,
             env=env,
             stdout=subprocess.PIPE,

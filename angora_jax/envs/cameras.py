@@ -201,7 +201,9 @@ def _close_in(gl: ThreadPoolExecutor, renderers: list[SceneRenderer]) -> None:
 
 
 class WarpCameras:
-    """Frames of batches of `num_envs` MJX-on-Warp `Data` through `vision`'s cameras with MuJoCo Warp's ray tracer.
+    """Frames of batches of `num_envs` MJX-on-Warp `Data` through `vision`'s cameras with MuJoCo Warp's ray tracer,
+    on any of this process's GPUs (each has its own render context; data-parallel training renders each device's
+    share of `num_envs` environments on it).
 
     `frames(mjx_model, data)` renders one environment and must run under a vmap over exactly `num_envs` environments
     (the render context's buffers have that many worlds). Each instance holds its own context (its own BVH): a step
@@ -214,8 +216,12 @@ class WarpCameras:
         ids = vision.camera_ids(model)
         wanted = set(ids)
         self.vision, self.ids = vision, ids
+        # One context on each of this process's GPUs (Warp's FFI picks the one of the device a call runs on), so that
+        # data-parallel training renders each device's share on that device; Warp's default device otherwise.
+        gpus = [f"cuda:{device.local_hardware_id}" for device in jax.local_devices() if device.platform == "gpu"]
         self._context = mjx.create_render_context(
-            mjm=model, nworld=num_envs, cam_res=(vision.width, vision.height), use_textures=True, use_shadows=False,
+            mjm=model, nworld=num_envs, devices=gpus or None, cam_res=(vision.width, vision.height), use_textures=True,
+            use_shadows=False,
             render_rgb=[vision.rgb and i in wanted for i in range(model.ncam)],
             render_depth=[vision.depth and i in wanted for i in range(model.ncam)], enabled_geom_groups=[0, 1, 2])
         self._handle = self._context.pytree()

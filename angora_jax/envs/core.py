@@ -184,6 +184,11 @@ class Env(abc.ABC):
         with their batch; most environments need nothing and return themselves (MJX on Warp sizes its buffers)."""
         return self
 
+    def data_parallel_problem(self) -> str | None:
+        """Why this environment cannot be simulated data-parallel on several devices of one process (each device its
+        share of the batch), or None when it can."""
+        return None
+
     def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
         """What simulates this environment in batches of `num_envs` (as `sized_for(num_envs)` prepares it), for logs
         and the run directory: `engine` and `device`, and for MuJoCo tasks the MJX implementation (`impl`), `why` it

@@ -67,6 +67,9 @@ class GymnasiumHost(Env):
         """The same task with its own vector environment of `num_envs` copies (one per batch size per process)."""
         return _sized(self, num_envs) if num_envs != self.num_envs else self
 
+    def data_parallel_problem(self) -> str | None:
+        return f"{self.physics_info()['engine']} is simulated on the host, in one process"
+
     def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
         return {"engine": f"Gymnasium {gymnasium.__version__} on the host ({self.env_id})", "device": "host CPU"}
 

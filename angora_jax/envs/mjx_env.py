@@ -188,6 +188,12 @@ class MjxEnv(MujocoEnv):
         final_obs = jax.tree.map(lambda e, o: jnp.where(stepped.done > 0, e, o), ended, obs)
         return stepped.replace(obs=obs, final_obs=final_obs)
 
+    def data_parallel_problem(self) -> str | None:
+        if self.impl == "warp" and self.task.vision is not None and not on_gpu():
+            # Warp's CPU backend is one device: the devices' shares would render into one context's buffers at once.
+            return "Camera vision on MuJoCo Warp renders on the CPU into one render context for all devices"
+        return None
+
     def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
         info = super().physics_info() | {
             "engine": f"MuJoCo MJX ({'MuJoCo Warp' if self.impl == 'warp' else 'JAX'} implementation)",

@@ -55,7 +55,12 @@ def _is_key(x: Any) -> bool:
 
 
 class CheckpointError(RunDirError):
-    """A checkpoint that exists but cannot be read (corrupt, incomplete or from an incompatible version)."""
+    """A checkpoint that exists but cannot be read (corrupt, incomplete or from an incompatible version); `misfits`
+    lists the leaves that differ from what was asked for, when that is the cause."""
+
+    def __init__(self, message: str, misfits: str | None = None):
+        super().__init__(message)
+        self.misfits = misfits
 
 
 @dataclass(frozen=True)
@@ -230,7 +235,7 @@ def _check_fits(where: Path, stored: dict[str, Any], abstract: dict[str, jax.Sha
             "(`load_agent` reads only parameters and statistics); to resume, use the angora_jax version and config "
             "it was saved with, or train again"
         )
-    raise CheckpointError(f"Checkpoint {where} does not fit this run ({listed}). {cause}.")
+    raise CheckpointError(f"Checkpoint {where} does not fit this run ({listed}). {cause}.", misfits=listed)
 
 
 def _finite(metrics: dict[str, float]) -> dict[str, float | None]:

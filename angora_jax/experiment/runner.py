@@ -130,13 +130,14 @@ def _restore_to_continue(checkpoints: Checkpoints, template: TrainState, exact: 
         try:
             return checkpoints.restore(template, "latest").state
         except CheckpointError as error:
-            if exact:
+            if exact or error.misfits is None:  # asked to be exact, or unreadable rather than of another layout
                 raise
             try:  # the parameters still fit, the environments' layout does not (another device count)
                 state = checkpoints.restore(lean, "latest", partial=True).state
             except CheckpointError:
                 raise error from None
-            reason = f"its environments' states do not fit this run ({error})"
+            reason = (f"its environments' states do not fit this run ({error.misfits}): saved on another device "
+                      "count (MuJoCo Warp keeps a contact pool per device) or by another version of the task")
     else:
         reason = "it is lean (checkpoint.lean names 'latest'): it holds no environment states"
         if exact:

@@ -111,9 +111,8 @@ def make_cycle(
     gives the compiled program, as for a `jax.jit` function.
     """
     config.validate_for(env)
-    if getattr(env, "on_host", False) and num_devices > 1:
-        raise ValueError(f"{env.physics_info()['engine']} is simulated on the host, in one process: train it on one "
-                         "device (distribution.num_devices=1).")
+    if num_devices > 1 and env.data_parallel_problem():
+        raise ValueError(f"{env.data_parallel_problem()}: train it on one device (distribution.num_devices=1).")
     local = per_device(config, num_devices)
     env = env.sized_for(local.num_envs)
     axis = axis_name(num_devices)
