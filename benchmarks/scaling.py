@@ -1,4 +1,4 @@
-"""Data-parallel scaling: a task config trained for a few cycles on 1 and on D devices, in one process.
+"""Data-parallel scaling: a task config trained for a few cycles on 1 device and on D devices (several D at once).
 
 Strong scaling (default): the same totals on D devices (`ppo.num_envs`, `ppo.minibatch_size` are run totals, see
 angora_jax/ppo/parallel.py), so each device gets 1/D of the work. Weak scaling (`--weak`): the D-device run has D
@@ -13,19 +13,23 @@ per cycle stays the same (the usual way to use more GPUs: a larger batch in the 
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/scaling.py shadow_reach --cycles 2 \
         ppo.num_envs=4 ppo.rollout_length=16 ppo.minibatch_size=32 ppo.num_epochs=1
 
-`--processes` runs each side as processes with one device each, joined by `jax.distributed` on this host (the 1-device
-run as one such process): the layout of a cluster job, one process per GPU, against the default of one process
-driving all D devices.
+`--layouts` picks how D devices are driven: `one` process for all of them (the default), and/or `processes`, D
+processes with one device each, joined by `jax.distributed` on this host: the layout of a cluster job, one process
+per GPU. Every layout is compared with the same 1-device run (one process).
 
-    python benchmarks/scaling.py shadow_reach --cycles 30 --weak --processes   # 2 GPUs, one process each
+    python benchmarks/scaling.py shadow_reach --cycles 30 --weak --layouts processes   # 2 GPUs, one process each
+    # the cube on MuJoCo Warp, 16,384 envs per GPU, 2 and 4 GPUs, both layouts (about 12 minutes on 4 H100s):
+    python benchmarks/scaling.py shadow_ihom --cycles 6 --weak --devices 2 4 --layouts one processes
 
 Training steps/s exclude compilation: they count the cycles after the first (the first compiles the cycle); compile
 seconds are the first cycle's wall time less the median of the others. "scaling" is a run's steps/s over the
-1-device run's (the issue's target: at least 1.8 on 2 GPUs), "efficiency" that over D. Under strong scaling both
-runs compute the same training up to float rounding, so their final metrics and parameters are printed side by side:
-on CPU they agree to about 1e-6; on GPUs contact-rich physics can amplify rounding over many steps. Prints a
+1-device run's (targets under weak scaling: at least 1.9x on 2 GPUs, 3.6x on 4), "efficiency" that over D. Under
+strong scaling the runs compute the same training up to float rounding, so their final metrics and parameters are
+printed side by side: on CPU they agree to about 1e-6; on GPUs contact-rich physics can amplify rounding over many
+steps. Prints a
 Markdown table and writes JSON (device, versions, config, rows) to
-benchmarks/results/scaling_<task>[_weak][_processes]_<platform>.json or --out.
+benchmarks/results/scaling_<task>[_weak][_processes]_<platform>.json or --out (`_processes` when that is the only
+layout).
 """
 
 from __future__ import annotations
@@ -48,6 +52,7 @@ from angora_jax.experiment.distributed import initialize
 from angora_jax.ppo.train import training_cycles
 
 FINAL = ("episode_return", "episode_length", "entropy", "loss", "approx_kl", "explained_variance")
+LAYOUTS = ("one", "processes")
 
 
 def run(resolved: dict, cycles: int, num_devices: int, scale: int = 1) -> tuple[dict, list[np.ndarray]]:
@@ -127,10 +132,10 @@ def child(args: argparse.Namespace) -> None:
 def main() -> None:
     parser = config_parser(__doc__)
     parser.add_argument("--cycles", type=int, default=10, help="cycles per run, at least 2 (the first compiles)")
-    parser.add_argument("--devices", type=int, default=2, help="the device count compared with 1")
+    parser.add_argument("--devices", type=int, nargs="+", default=[2], help="the device counts compared with 1")
     parser.add_argument("--weak", action="store_true", help="weak scaling: D times the envs and minibatch on D devices")
-    parser.add_argument("--processes", action="store_true",
-                        help="one process per device (jax.distributed on localhost) instead of one for all devices")
+    parser.add_argument("--layouts", nargs="+", choices=LAYOUTS, default=["one"],
+                        help="one process for all devices, and/or one process per device (jax.distributed here)")
     parser.add_argument("--child", help=argparse.SUPPRESS)  # rank,processes,coordinator,params path
     parser.add_argument("--scale", type=int, default=1, help=argparse.SUPPRESS)
     parser.add_argument("--out", default=None,
@@ -140,36 +145,44 @@ def main() -> None:
         return child(args)
     if args.cycles < 2:
         parser.error(f"--cycles must be at least 2 (the first cycle compiles and is not timed), got {args.cycles}")
-    # With --processes this process must not take the devices: its children use them.
-    if not args.processes and args.devices > jax.device_count():
+    # One process per device needs no devices in this process (its children take them); one process for all does.
+    if "one" in args.layouts and max(args.devices) > jax.device_count():
         parser.error(
-            f"--devices {args.devices} but JAX sees {jax.device_count()} device(s); on CPU set "
-            f"XLA_FLAGS=--xla_force_host_platform_device_count={args.devices}"
+            f"--devices {max(args.devices)} but JAX sees {jax.device_count()} device(s); on CPU set "
+            f"XLA_FLAGS=--xla_force_host_platform_device_count={max(args.devices)}"
         )
 
-    # Read the config once, so that both runs train the same one even if the file changes meanwhile.
+    # Read the config once, so that all runs train the same one even if the file changes meanwhile.
     resolved = to_dict(load_config(args.config, args.overrides))
-    measure = run_in_processes if args.processes else run
-    single, single_params = measure(resolved, args.cycles, 1)
-    parallel, parallel_params = measure(resolved, args.cycles, args.devices, args.devices if args.weak else 1)
-    single["scaling"], parallel["scaling"] = 1.0, parallel["steps_per_s"] / single["steps_per_s"]
-    single["efficiency"], parallel["efficiency"] = 1.0, parallel["scaling"] / args.devices
-    rows = [single, parallel]
+    measure = {"one": run, "processes": run_in_processes}
+    single, single_params = measure[args.layouts[0]](resolved, args.cycles, 1)
+    single |= {"layout": args.layouts[0], "scaling": 1.0, "efficiency": 1.0}
+    rows = [single]
+    for layout in args.layouts:
+        for devices in args.devices:
+            row, params = measure[layout](resolved, args.cycles, devices, devices if args.weak else 1)
+            row |= {"layout": layout, "scaling": row["steps_per_s"] / single["steps_per_s"]}
+            row["efficiency"] = row["scaling"] / devices
+            if not args.weak:
+                row["max_param_difference"] = max(
+                    float(np.abs(a - b).max()) for a, b in zip(single_params, params, strict=True))
+            rows.append(row)
     metric_columns = [(f"final_{name}", name, ".4g") for name in single["final"]]
     for row in rows:
         row |= {f"final_{name}": value for name, value in row["final"].items()}
 
     print(markdown_table(rows, [
-        ("task", "task", "s"), ("devices", "devices", "d"), ("envs_per_device", "envs/device", "d"),
-        ("steps_per_s", "train env steps/s", ",.0f"), ("sim_s_per_s", "sim-s/s", ",.1f"),
-        ("num_envs", "envs", "d"), ("scaling", "scaling vs 1 device", ".2f"), ("efficiency", "efficiency", ".2f"),
-        ("compile_s", "compile s", ".1f"), *metric_columns,
+        ("task", "task", "s"), ("layout", "layout", "s"), ("devices", "devices", "d"),
+        ("envs_per_device", "envs/device", "d"), ("steps_per_s", "train env steps/s", ",.0f"),
+        ("sim_s_per_s", "sim-s/s", ",.1f"), ("num_envs", "envs", "d"), ("scaling", "scaling vs 1 device", ".2f"),
+        ("efficiency", "efficiency", ".2f"), ("compile_s", "compile s", ".1f"), *metric_columns,
     ]))
     if not args.weak:
-        difference = max(float(np.abs(a - b).max()) for a, b in zip(single_params, parallel_params, strict=True))
-        parallel["max_param_difference"] = difference
-        print(f"largest parameter difference after {args.cycles} cycles, {args.devices} devices vs 1: {difference:.3g}")
-    name = f"scaling_{single['task']}{'_weak' if args.weak else ''}{'_processes' if args.processes else ''}"
+        for row in rows[1:]:
+            print(f"largest parameter difference after {args.cycles} cycles, {row['devices']} devices "
+                  f"({row['layout']}) vs 1: {row['max_param_difference']:.3g}")
+    only_processes = args.layouts == ["processes"]
+    name = f"scaling_{single['task']}{'_weak' if args.weak else ''}{'_processes' if only_processes else ''}"
     path = write_results(name, {"args": vars(args), "config": resolved}, rows, args.out)
     print(f"wrote {path}")
 

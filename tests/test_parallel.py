@@ -160,7 +160,7 @@ def test_scaling_benchmark_runs_one_and_two_devices_at_smoke_size(tmp_path, weak
     tiny = [*TINY_PPO, "ppo.num_envs=8", "ppo.minibatch_size=64"]
     done = subprocess.run(
         [sys.executable, str(BENCHMARKS / "scaling.py"), "cartpole", *tiny, "--cycles", "2", "--out", str(out),
-         *(["--weak"] if weak else []), *(["--processes"] if processes else [])],
+         *(["--weak"] if weak else []), *(["--layouts", "processes"] if processes else [])],
         cwd=BENCHMARKS,
         env=os.environ | ({} if processes else {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}),
         capture_output=True,
@@ -169,7 +169,9 @@ def test_scaling_benchmark_runs_one_and_two_devices_at_smoke_size(tmp_path, weak
     )
     assert done.returncode == 0, done.stderr[-3000:]
     per_device = 8 if weak else 4
-    assert f"| CartPole | 2 | {per_device} |" in done.stdout  # the Markdown table: task, devices, envs per device
+    layout = "processes" if processes else "one"
+    # The Markdown table: task, layout, devices, envs per device.
+    assert f"| CartPole | {layout} | 2 | {per_device} |" in done.stdout
     single, double = json.loads(out.read_text())["results"]
     assert (single["devices"], double["devices"], double["envs_per_device"]) == (1, 2, per_device)
     assert double["num_envs"] == (16 if weak else 8)
@@ -177,7 +179,7 @@ def test_scaling_benchmark_runs_one_and_two_devices_at_smoke_size(tmp_path, weak
     assert double["scaling"] == pytest.approx(double["steps_per_s"] / single["steps_per_s"])
     assert double["efficiency"] == pytest.approx(double["scaling"] / 2)
     assert all(len(row["cycle_seconds"]) == 2 for row in (single, double))
-    assert double.get("processes") == (2 if processes else None)
+    assert double.get("processes") == (2 if processes else None) and double["layout"] == layout
     if not weak:
         # The same training on 1 and 2 devices, up to float rounding.
         assert double["max_param_difference"] < 1e-5
