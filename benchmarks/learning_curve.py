@@ -3,7 +3,10 @@
 The JSON is rewritten after every cycle and the PNG every 30 s (plotting costs more than a GPU cycle), and
 `--minutes` stops the run after that much wall time, so a run cut short by a time limit still leaves its curve.
 `--target metric/success=0.8` records the first cycle whose value reaches the bar (env steps and wall seconds,
-compile included: time to solve) and `--stop-at-target` ends the run there.
+compile included: time to solve) and `--stop-at-target` ends the run there. Compiled programs are kept in the
+persistent compilation cache, as `angora-jax train` keeps them (`angora_jax.experiment.compilation_cache`;
+ANGORA_JAX_CACHE=off to compile everything): a second run of the same settings reads them, and its JSON records how
+many programs were read from the cache and how many compiled.
 
     python benchmarks/learning_curve.py --task ShadowHandReach --num-envs 2048 --cycles 200 --minutes 6  # GPU
     python benchmarks/learning_curve.py --task CartPole --num-envs 16 --cycles 30                          # CPU
@@ -24,6 +27,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from common import RESULTS, markdown_table, write_results  # noqa: E402
 
 from angora_jax.envs import make  # noqa: E402
+from angora_jax.experiment import compilation_cache  # noqa: E402
 from angora_jax.ppo import NetworkConfig, PPOConfig  # noqa: E402
 from angora_jax.ppo.train import training_cycles  # noqa: E402
 
@@ -88,11 +92,14 @@ def main() -> None:
     target_name, target_value = parse_target(args.target)
     options = json.loads(args.options)
     settings = {"task": args.task, "options": options, "target": args.target, **dataclasses.asdict(config)}
+    settings["compilation_cache_dir"] = str(compilation_cache.enable())
     start, rows, path, plotted = time.perf_counter(), [], None, 0.0
     title = f"{args.task}, {args.model}, {args.num_envs} envs, seed {args.seed}"
     for _, metrics in training_cycles(config, make(args.task, **options)):
         now = time.perf_counter() - start
         rows.append({k: v for k, v in metrics.items() if isinstance(v, int | float)})
+        if len(rows) == 1:
+            settings["compilation_cache"] = compilation_cache.counts()
         settings["wall_seconds"] = now
         reached = target_name is not None and metrics.get(target_name, float("nan")) >= target_value
         if reached and "solved" not in settings:
