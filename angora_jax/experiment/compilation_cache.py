@@ -7,6 +7,10 @@ cluster, a scratch disk) or is `off`. A cache directory set for JAX itself (`JAX
 `jax.config.update("jax_compilation_cache_dir", ...)`) is left as it is. `train`, `resume` and the `angora-jax`
 command enable it; `counts()` says how many programs were read from it and how many compiled.
 
+Under `jax.distributed` (several processes) the default is off: on a 4-GPU host, a one-process-per-GPU cube run on
+MuJoCo Warp with the cache on hung in its first cycle, while the same layout without it trained (issue 33; the cause
+is not established). Naming a directory (`ANGORA_JAX_CACHE=DIR`, or `enable(DIR)`) turns it on there too.
+
 Entries are keyed by the program, the JAX and XLA versions and the device, so a stale entry is never read; delete the
 directory to reclaim its space. Programs that call back into Python (host-rendered camera vision on the CPU) are
 compiled every time.
@@ -29,12 +33,16 @@ _listening = False
 
 def enable(directory: str | Path | None = None) -> Path | None:
     """Use the persistent compilation cache in `directory` (default: `$ANGORA_JAX_CACHE`, else
-    `~/.cache/angora_jax`); "off" leaves it off. Returns the directory in use (JAX's own setting if one was made),
-    or None when off. Takes effect for programs compiled after the call, also when others were compiled before."""
-    _listen()
+    `~/.cache/angora_jax`, but off under jax.distributed unless named); "off" leaves it off. Returns the directory
+    in use (JAX's own setting if one was made), or None when off. Takes effect for programs compiled after the call,
+    also when others were compiled before."""
     if jax.config.jax_compilation_cache_dir:
+        _listen()
         return Path(jax.config.jax_compilation_cache_dir)
-    setting = str(directory if directory is not None else os.environ.get(ENV_VAR, DEFAULT))
+    named = directory if directory is not None else os.environ.get(ENV_VAR)
+    if named is None and jax.process_count() > 1:
+        return None  # off by default under jax.distributed (module docstring)
+    setting = str(named if named is not None else DEFAULT)
     if setting.lower() == "off":
         return None
     path = Path(setting).expanduser()
@@ -46,6 +54,7 @@ def enable(directory: str | Path | None = None) -> Path | None:
     jax.config.update("jax_compilation_cache_dir", str(path))
     # JAX decides whether to use its cache once, at the first compile: a notebook may have compiled before.
     compilation_cache.reset_cache()
+    _listen()
     return path
 
 

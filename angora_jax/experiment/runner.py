@@ -23,6 +23,7 @@ from typing import Any
 import jax
 
 from angora_jax.envs.core import Env
+from angora_jax.envs.mjx_env import on_gpu
 from angora_jax.experiment import compilation_cache
 from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints
 from angora_jax.experiment.config import Config, load_config, num_devices, to_dict, validate
@@ -192,6 +193,10 @@ def _run(
                                  "physics": physics})
         announcement = (f"{run_dir}: {config.env.task} on {describe_physics(physics)}; compiling the first cycle "
                         f"(from cycle {start} of {config.ppo.num_cycles}) ...")
+        if physics.get("impl") == "warp" and devices_used > 1 and jax.process_count() == 1 and on_gpu():
+            announcement += ("\nNote: one process driving several GPUs on MuJoCo Warp hung after 3 cycles on a 4-GPU "
+                             "host (2 GPUs ran); one process per GPU is the measured layout (3.94x on 4 H100s): "
+                             "examples/multi_gpu_host.sh, or --distributed under SLURM.")
     try:
         # The wake-up fd first: a signal that finds the stop handlers installed then also reaches the watcher.
         with _preparation(run_dir, new) as prepared, _stop_requests() as stop:
