@@ -1,11 +1,14 @@
 """The `angora-jax` command: exit codes, messages, SIGTERM on a real process, and the progress display."""
 
 import io
+import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from tiny import TINY_PPO
@@ -58,6 +61,11 @@ def test_doctor_reports_the_physics_choice_and_exits_0_on_the_cpu(capsys):
         (["monitor", "no/such/run"], "not a run directory"),
         (["train", "cartpole", "ppo.learning_rate=nan"], "ppo.learning_rate must be a finite number"),
         (["train", "cartpole", "ppo.num_envs=10000000000"], "cannot fit: it needs at least"),
+        (["train", "cartpole", "--num-processes", "2", "--process-id", "1"], "set up a jax.distributed job: add "
+                                                                               "--distributed"),
+        (["train", "cartpole", "distribution.num_devices=3"], "distribution.num_devices=3 but JAX sees only 1"),
+        (["train", "cartpole", "checkpoint.lean=[latest, everything]"], "Unknown value 'everything' for "
+                                                                        "checkpoint.lean"),
     ],
 )
 def test_bad_input_exits_2_with_the_cause(argv, message, capsys, tmp_path, monkeypatch):
@@ -229,3 +237,51 @@ def test_progress_is_a_live_line_on_a_terminal_and_log_lines_elsewhere():
     assert len(lines) == 2 and "\r" not in log.getvalue()
     assert lines[1].endswith("ETA 0:00:04")  # 8 cycles left at 0.5 s: the compiling first cycle is not counted
 
+
+
+def test_a_second_run_reads_every_program_from_the_compilation_cache(tmp_path):
+    """`train` keeps compiled programs in ANGORA_JAX_CACHE: the same config run again compiles nothing (counted by
+    JAX's cache events in the first cycle's record), and ANGORA_JAX_CACHE=off neither reads nor writes."""
+    environment = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}  # conftest's own cache
+    cache = tmp_path / "cache"
+    for name, setting in (("first", cache), ("second", cache), ("uncached", "off")):
+        subprocess.run([sys.executable, "-m", "angora_jax.cli", "train", "cartpole", *TINY, "ppo.num_cycles=2",
+                        f"logging.run_root={tmp_path}", f"logging.run_name={name}"],
+                       env=environment | {"ANGORA_JAX_CACHE": str(setting)}, check=True, capture_output=True,
+                       timeout=300)
+    first, second, off = (read_metrics(tmp_path / name)[0] for name in ("first", "second", "uncached"))
+    assert first["compile_cache_hits"] == 0 and first["compile_cache_misses"] >= 2, "init and the cycle at least"
+    assert second["compile_cache_misses"] == 0 and second["compile_cache_hits"] == first["compile_cache_misses"]
+    assert off["compile_cache_hits"] == off["compile_cache_misses"] == 0
+    assert any(cache.iterdir())
+    assert "compile_cache_hits" not in read_metrics(tmp_path / "second")[1], "the first cycle of a session only"
+
+
+def test_one_process_per_device_through_the_command_and_the_host_launcher(tmp_path):
+    """examples/multi_gpu_host.sh starts `angora-jax train ... --distributed --coordinator --num-processes
+    --process-id --local-devices` once per device (here 2 CPU processes for 2 "GPUs"): one run directory, logged by
+    process 0, trained over both; COMMAND=resume continues it with --minutes through the same flags."""
+    script = Path(__file__).resolve().parents[1] / "examples" / "multi_gpu_host.sh"
+    environment = os.environ | {"PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}", "GPUS": "2",
+                                "RUN_NAME": "two", "PORT": str(free_port())}
+    tiny = [*TINY, "ppo.num_envs=8", "ppo.num_cycles=2", f"logging.run_root={tmp_path}"]
+    done = subprocess.run(["bash", str(script), "cartpole", *tiny], env=environment, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.count("cycle 2/2") == 1, "process 0 alone logs"
+    assert [record["cycle"] for record in read_metrics(tmp_path / "two")] == [1, 2]
+    session = read_sessions(tmp_path / "two")[0]
+    assert session["processes"] == 2 and session["physics"]["num_devices"] == 2
+    saved = (tmp_path / "two" / "config.yaml").read_text()
+    (tmp_path / "two" / "config.yaml").write_text(saved.replace("num_cycles: 2", "num_cycles: 3"))
+    resumed = subprocess.run(["bash", str(script), str(tmp_path / "two"), "--minutes", "5"],
+                             env=environment | {"COMMAND": "resume", "PORT": str(free_port())}, capture_output=True,
+                             text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert [record["cycle"] for record in read_metrics(tmp_path / "two")] == [1, 2, 3]
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("localhost", 0))
+        return probe.getsockname()[1]
