@@ -53,22 +53,13 @@ def test_warp_steps_reach_as_mjx_jax_does():
     assert int(warp.physics._impl.nacon.max()) > 0, "fingers touch: Warp's contacts are exercised"
 
 
-@pytest.fixture(scope="module")
-def warp_run(tmp_path_factory):
-    """Reach trained on Warp for 3 cycles on one device."""
-    root = tmp_path_factory.mktemp("runs")
-    overrides = ["env.options.physics={impl: warp}", "ppo.num_envs=8", "ppo.rollout_length=16", "ppo.chunk_length=8",
-                 "ppo.minibatch_size=64", "ppo.num_epochs=1", "ppo.num_cycles=3", "logging.progress=none",
-                 "logging.report=false", "checkpoint.best_metric=null", f"logging.run_root={root}",
-                 "logging.run_name=warp"]
-    return aj.train("shadow_reach", overrides)
-
-
-def test_a_warp_run_evaluates_on_the_batched_path_as_on_c_mujoco(warp_run):
-    """`evaluate --path batched` steps the saved policy's episodes on Warp, sized for the episodes at once; the C
-    MuJoCo path plays the same episodes (same reset keys, mode actions): the same lengths, returns within 1%."""
-    batched = evaluate(warp_run.run_dir, "latest", episodes=4, save=False, path="batched")
-    cpu = evaluate(warp_run.run_dir, "latest", episodes=4, save=False)
+def test_a_warp_run_evaluates_on_the_batched_path_as_on_c_mujoco(two_devices):
+    """`evaluate --path batched` steps the saved policy's episodes on Warp (the one-device reach run of
+    warp_parallel.py), sized for the episodes at once; the C MuJoCo path plays the same episodes (same reset keys,
+    mode actions): the same lengths, returns within 1%."""
+    run_dir = Path(two_devices["root"]) / "devices1"
+    batched = evaluate(run_dir, "latest", episodes=4, save=False, path="batched")
+    cpu = evaluate(run_dir, "latest", episodes=4, save=False)
     assert batched.meta["path"] == "batched" and "MjxEnv (warp)" in batched.meta["physics"]
     np.testing.assert_array_equal(batched.episodes["episode_length"], cpu.episodes["episode_length"])
     np.testing.assert_allclose(batched.episodes["episode_return"], cpu.episodes["episode_return"], rtol=1e-2)
@@ -77,14 +68,15 @@ def test_a_warp_run_evaluates_on_the_batched_path_as_on_c_mujoco(warp_run):
 @pytest.fixture(scope="module")
 def two_devices(tmp_path_factory):
     """tests/warp_parallel.py's results; a subprocess because the CPU device count is fixed when JAX starts."""
+    root = tmp_path_factory.mktemp("runs")
     done = subprocess.run(
-        [sys.executable, str(TESTS / "warp_parallel.py"), str(tmp_path_factory.mktemp("runs"))],
+        [sys.executable, str(TESTS / "warp_parallel.py"), str(root)],
         cwd=TESTS, env=os.environ | {"XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} "
                                                   "--xla_force_host_platform_device_count=2"},
         capture_output=True, text=True, timeout=600,
     )
     assert done.returncode == 0, done.stderr[-3000:]
-    return json.loads(done.stdout.strip().splitlines()[-1]) | {"stderr": done.stderr}
+    return json.loads(done.stdout.strip().splitlines()[-1]) | {"stderr": done.stderr, "root": str(root)}
 
 
 def test_two_devices_train_on_warp_what_one_device_trains(two_devices):
@@ -109,3 +101,21 @@ def test_resuming_warp_on_another_device_count_goes_on_with_fresh_environments(t
     assert two_devices["sessions"][1]["physics"]["warp_max_envs"] == 8
     assert ("from cycle 3 with fresh environments, not bit for bit: its environments' states do not fit this run "
             "(actor.env_state.physics._impl.nacon: stored (2,) int32, expected (1,) int32") in two_devices["stderr"]
+
+
+def test_checkpoint_size_benchmark_saves_whole_and_lean_at_smoke_size(tmp_path):
+    """benchmarks/checkpoint_size.py on Warp reach at 2,048 envs with a 16-wide network, so that the environments are
+    most of the state: the lean checkpoint (no environments) takes a fraction of the whole one's disk (measured 0.107:
+    0.05 of 0.5 MB, far outside the tens of kB by which Orbax's own files vary), and each part's bytes are reported."""
+    out = tmp_path / "sizes.json"
+    done = subprocess.run(
+        [sys.executable, str(TESTS.parent / "benchmarks" / "checkpoint_size.py"), "shadow_reach", "ppo.num_envs=2048",
+         "ppo.minibatch_size=8192", "ppo.network.width=16", "env.options.physics={impl: warp}", "--out", str(out)],
+        cwd=TESTS.parent / "benchmarks", capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    record = json.loads(out.read_text())
+    whole, lean = record["results"]
+    assert (whole["checkpoint"], lean["checkpoint"], lean["impl"]) == ("whole", "lean", "warp")
+    assert 0 < lean["disk_mb"] and lean["fraction_of_whole"] < 0.4
+    assert record["config"]["state_mb"]["environments (actor, discounted_return)"] > 0
+    assert "| ShadowHandReach | warp | 2,048 | lean |" in done.stdout

@@ -39,6 +39,9 @@ Traffic that stays: one gradient all-reduce per minibatch (reach: 0.70 MB x 64 u
 52 MB x 192 = 10 GB per cycle), one per rollout step for the normaliser (every modality's moments together), one
 per epoch for the advantage statistics of all its minibatches, and the metrics once per cycle. Small all-reduces
 cost their latency, not their bytes, so each pools everything it can in one (`normalization.pooled_moments`).
+MuJoCo Warp on 4 H100s (the fast cube, weak scaling, 16,384 envs per GPU): one process per GPU 1.97x on 2 and 3.94x
+on 4; one process driving all GPUs 1.87x on 2, and on 4 it hung after 3 cycles (benchmarks/results/
+multi_gpu_warp_observations_4xh100.json; cause not established), so one process per GPU is the layout to use there.
 Measured on two H200s (reach, weak scaling, 4,096 envs per GPU; benchmarks/results/scaling_*): 1.76x one GPU's rate
 with one process driving both, 1.81x with one process per GPU. Communication is not what is lost: the same program
 on one GPU (this `shard_map` over a one-device mesh) runs at 0.91 of the plain `jax.jit` cycle, and two GPUs run it

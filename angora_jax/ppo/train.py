@@ -54,7 +54,7 @@ def training_cycles(
     """Yield `(state, metrics)` after each cycle, from `state.cycle` (0 for a fresh state) to `config.num_cycles`.
 
     A `state` without environments (`TrainState.without_environments`, from a lean checkpoint) continues with
-    environments made afresh, from keys of the seed and the state's cycle.
+    environments made afresh, from keys of the seed and the state's cycle (a finished one comes back as it is).
 
     A generator, so that a caller can checkpoint, log or stop between cycles. Besides the cycle's metrics (see
     `make_cycle`), each dict holds cycle, env_steps, seconds (wall time of the cycle) and steps_per_second; the first
@@ -64,7 +64,7 @@ def training_cycles(
     init, cycle = make_cycle(env, network, config, num_devices)
     if state is None:
         state = init(jax.random.key(config.seed))
-    elif not state.has_environments:
+    elif not state.has_environments and int(state.cycle) < config.num_cycles:
         fresh = init(jax.random.fold_in(jax.random.key(config.seed), int(state.cycle)))
         state = state.replace(actor=fresh.actor, discounted_return=fresh.discounted_return)
     steps_per_cycle = config.num_envs * config.rollout_length
