@@ -111,8 +111,9 @@ def make_cycle(
     gives the compiled program, as for a `jax.jit` function.
     """
     config.validate_for(env)
-    if num_devices > 1 and env.data_parallel_problem():
-        raise ValueError(f"{env.data_parallel_problem()}: train it on one device (distribution.num_devices=1).")
+    problem = env.data_parallel_problem() if num_devices > 1 else None
+    if problem:
+        raise ValueError(f"{problem}: train it on one device (distribution.num_devices=1).")
     local = per_device(config, num_devices)
     env = env.sized_for(local.num_envs)
     axis = axis_name(num_devices)
