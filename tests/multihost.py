@@ -4,11 +4,15 @@ MuJoCo Warp, one CPU device per process: the cluster layout, one process per GPU
 all devices into one run directory (process 0 logs, both save the checkpoint), but process 1 alone gets a SIGTERM after
 cycle 2, so both should stop there; both then resume the run to cycle 3 (the CartPole run; the test's process
 resumes the Warp run). Prints one JSON object: how training stopped, a
-digest of this process's copy of the final parameters, whether its devices hold the same copy, and the
-metrics of every cycle."""
+digest of this process's copy of the final parameters, whether its devices hold the same copy, the
+metrics of every cycle and the programs this process compiled (JAX's compile log): every process must compile the
+same programs, since a program over all processes' devices that one process runs alone waits for the others (on GPUs
+process 0's monitor hung a 4-process run that way)."""
 
+import collections
 import hashlib
 import json
+import logging
 import os
 import signal
 import sys
@@ -41,6 +45,18 @@ overrides = [
     "logging.run_name=two-hosts",
 ]
 records = []
+compiled = collections.Counter()
+
+
+class CompileLog(logging.Handler):
+    def emit(self, record):
+        message = record.getMessage()
+        if message.startswith("Compiling "):
+            compiled[message.split()[1]] += 1
+
+
+logging.getLogger("jax").addHandler(CompileLog())
+jax.config.update("jax_log_compiles", True)
 
 
 def terminate_process_1_after_cycle_2(record):
@@ -55,7 +71,7 @@ try:
 except TrainingInterrupted as stop:
     stopped = {"cycle": stop.cycle, "signal": stop.signum}
 if variant == "warp":  # the test's own process resumes the Warp run (one recompile instead of one per process)
-    print(json.dumps({"stopped": stopped, "metrics": [
+    print(json.dumps({"stopped": stopped, "compiled": compiled, "metrics": [
         {k: v for k, v in m.items() if k not in ("seconds", "steps_per_second", "compile_seconds",
                                                  "compile_cache_hits", "compile_cache_misses")} for m in records]}))
     sys.exit(0)
@@ -69,5 +85,6 @@ untimed = [
     {k: v for k, v in m.items() if k not in ("seconds", "steps_per_second", "compile_seconds", "compile_cache_hits",
                                           "compile_cache_misses")} for m in records
 ]
-summary = {"stopped": stopped, "params": digest.hexdigest(), "local_copies_agree": bool(local_copies_agree)}
+summary = {"stopped": stopped, "params": digest.hexdigest(), "local_copies_agree": bool(local_copies_agree),
+           "compiled": compiled}
 print(json.dumps(summary | {"metrics": untimed}))

@@ -124,6 +124,8 @@ def test_two_processes_with_jax_distributed_stop_together_train_in_sync_and_resu
     first, second = (json.loads(out.strip().splitlines()[-1]) for out, _ in outputs)
     # Process 1 alone got SIGTERM after cycle 2; both stopped there (agree_to_stop) and saved.
     assert first["stopped"] == second["stopped"] == {"cycle": 2, "signal": signal.SIGTERM}
+    # Process 0 also logs; it must not compile (and run alone) a program over both processes' devices.
+    assert first["compiled"] == second["compiled"] and "jit(cycle)" in first["compiled"]
     if variant == "warp":
         # One checkpoint of the two processes: this one-device process resumes it (the two contact pools do not fit
         # one device, so with fresh environments) and trains cycle 3.

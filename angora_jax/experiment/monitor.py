@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import jax.numpy as jnp
+import numpy as np
 
 from angora_jax.experiment.run_dir import METRICS_FILE
 from angora_jax.ppo.cycle import TrainState
@@ -27,12 +27,22 @@ from angora_jax.ppo.cycle import TrainState
 def normalizer_summary(state: TrainState) -> dict[str, float]:
     """Scalars that show what the running normalisation has learned: the reward scale (std of the discounted
     return) and, per observation modality that has features, the mean |mean| and mean std over features."""
-    stats = {"norm/reward_std": float(jnp.sqrt(state.reward_stats.var)), "norm/count": float(state.reward_stats.count)}
-    for name, modality in state.obs_stats.__dict__.items():
+    # NumPy on this process's copy of the (replicated) statistics: only process 0 of a multi-process run records, and
+    # a jnp operation there would be a program over every process's devices that the others never run. On GPUs such
+    # a one-process compile waited for the others forever (4 processes on 4 H100s hung before their first record).
+    reward, observations = _local_copy((state.reward_stats, state.obs_stats))
+    stats = {"norm/reward_std": float(np.sqrt(reward.var)), "norm/count": float(reward.count)}
+    for name, modality in observations.__dict__.items():
         if modality.mean.size:
-            stats[f"norm/{name}_abs_mean"] = float(jnp.abs(modality.mean).mean())
-            stats[f"norm/{name}_std"] = float(jnp.sqrt(modality.var).mean())
+            stats[f"norm/{name}_abs_mean"] = float(np.abs(modality.mean).mean())
+            stats[f"norm/{name}_std"] = float(np.sqrt(modality.var).mean())
     return stats
+
+
+def _local_copy(tree: Any) -> Any:
+    """The tree's replicated arrays as NumPy arrays read from this process's first device, without running a
+    program."""
+    return jax.tree.map(lambda x: np.asarray(x.addressable_data(0)), tree)
 
 
 def memory_summary() -> dict[str, float]:
@@ -40,7 +50,7 @@ def memory_summary() -> dict[str, float]:
     resident host memory."""
     scale = 1 if sys.platform == "darwin" else 1024  # ru_maxrss is bytes on macOS, KiB on Linux
     stats = {"memory/host_peak_bytes": float(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale)}
-    device = jax.devices()[0].memory_stats() or {}
+    device = jax.local_devices()[0].memory_stats() or {}
     for key in ("bytes_in_use", "peak_bytes_in_use"):
         if key in device:
             stats[f"memory/device_{key}"] = float(device[key])
