@@ -96,3 +96,29 @@ def test_shipped_configs_are_found_by_name_from_any_directory(tmp_path: Path, mo
     for name, text in shipped.items():
         assert text.count("(") == text.count(")") and text.count("`") % 2 == 0, (name, text)
     assert load_config("shadow_reach").env.task == "ShadowHandReach"
+
+
+def test_a_config_extends_another_by_name_or_relative_path(tmp_path: Path):
+    # The shipped 4-GPU recipe is the fast cube with its batch and learning rate changed and nothing else.
+    fast, four = to_dict(load_config("shadow_ihom")), to_dict(load_config("shadow_ihom_4gpu"))
+    changed = {key for key, value in flatten(four).items() if flatten(fast)[key] != value}
+    assert changed == {"ppo.num_envs", "ppo.minibatch_size", "ppo.learning_rate", "distribution.num_devices",
+                       "checkpoint.every", "checkpoint.lean"}
+    assert four["env"]["options"] == fast["env"]["options"] and four["ppo"]["learning_rate"] == 2 * 3e-4
+    # A file next to its base, which itself extends a shipped config; sections merge, lists and values replace.
+    (tmp_path / "base.yaml").write_text("extends: cartpole\nppo: {num_cycles: 9, network: {width: 32}}\n")
+    (tmp_path / "run.yaml").write_text("extends: base.yaml\nppo: {network: {width: 16}}\ncheckpoint: {lean: [best]}\n")
+    config = load_config(tmp_path / "run.yaml", ["ppo.gamma=0.9"])
+    assert (config.ppo.num_cycles, config.ppo.network.width, config.ppo.gamma) == (9, 16, 0.9)
+    assert config.ppo.network.name == load_config("cartpole").ppo.network.name and config.checkpoint.lean == ("best",)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("extends: missing.yaml\n", r"Config file 'missing.yaml' not found \(extended by .*run.yaml\)"),
+    ("extends: run.yaml\n", r"extends goes round in a circle: .*run.yaml -> .*run.yaml"),
+    ("extends: [cartpole]\n", r"extends names one config .*got \['cartpole'\]"),
+])
+def test_a_bad_extends_fails_naming_the_file(tmp_path: Path, text, message):
+    (tmp_path / "run.yaml").write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_config(tmp_path / "run.yaml")

@@ -33,6 +33,8 @@ from angora_jax.ppo.parallel import per_device, resolve_num_devices
 # Named configs (`load_config("cartpole")`) ship inside the package (the repository's configs/ links here), so a
 # name is found from any working directory and in an installed wheel.
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+# A config file may start from another: `extends: shadow_ihom` (a shipped name, or a path relative to the file).
+EXTENDS = "extends"
 
 
 class ConfigError(ValueError):
@@ -117,8 +119,9 @@ def load_config(source: str | Path | dict | None = None, overrides: typing.Itera
     against the task yet (see `validate`).
 
     source: a YAML file path, the name of a shipped config (`list_configs()`, e.g. "cartpole"), a dict with
-    the same structure, or None for the defaults. Raises ConfigError for a missing file, bad YAML, an unknown key
-    or a value of the wrong type.
+    the same structure, or None for the defaults. A file whose top-level `extends` names another config (a shipped
+    name, or a path relative to the file) is that config with the file's keys on top: sections merge key by key, other
+    values replace. Raises ConfigError for a missing file, bad YAML, an unknown key or a value of the wrong type.
     """
     data = _read(source)
     for override in overrides:
@@ -217,7 +220,7 @@ def num_devices(config: Config) -> int:
         raise ConfigError(str(error)) from None
 
 
-def _read(source: str | Path | dict | None) -> dict[str, Any]:
+def _read(source: str | Path | dict | None, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
     if source is None:
         return {}
     if isinstance(source, dict):
@@ -227,8 +230,8 @@ def _read(source: str | Path | dict | None) -> dict[str, Any]:
         path = CONFIGS / f"{source}.yaml"
     if not path.exists():
         raise ConfigError(
-            f"Config file {str(source)!r} not found. Give a YAML path or the name of a shipped config: "
-            f"{', '.join(list_configs())} (angora-jax list-configs)."
+            f"Config file {str(source)!r} not found{f' (extended by {chain[-1]})' if chain else ''}. Give a YAML path "
+            f"or the name of a shipped config: {', '.join(list_configs())} (angora-jax list-configs)."
         )
     try:
         data = yaml.safe_load(path.read_text())
@@ -238,7 +241,26 @@ def _read(source: str | Path | dict | None) -> dict[str, Any]:
         return {}
     if not isinstance(data, dict):
         raise ConfigError(f"{path} must hold a mapping of sections (env, ppo, ...), got {type(data).__name__}.")
-    return data
+    if EXTENDS not in data:
+        return data
+    # `extends: NAME` (a shipped config or a path relative to this file): that config with this file's keys on top.
+    base = data.pop(EXTENDS)
+    if not isinstance(base, str):
+        raise ConfigError(f"{path}: {EXTENDS} names one config (a shipped name or a YAML path), got {base!r}.")
+    here = path.resolve()
+    if here in chain:
+        raise ConfigError(f"{path}: {EXTENDS} goes round in a circle: {' -> '.join(map(str, (*chain, here)))}.")
+    relative = here.parent / base
+    return _merge(_read(relative if relative.suffix and relative.exists() else base, (*chain, here)), data)
+
+
+def _merge(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
+    """`top` over `base`: sections merge key by key, any other value (lists included) replaces the base's."""
+    merged = dict(base)
+    for key, value in top.items():
+        both = isinstance(value, dict) and isinstance(merged.get(key), dict)
+        merged[key] = _merge(merged[key], value) if both else value
+    return merged
 
 
 def _deep_copy(data: Any) -> Any:
