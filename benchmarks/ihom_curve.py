@@ -101,7 +101,7 @@ def plot(runs: dict[str, list[dict]], title: str, path: str) -> None:
     axes[0].scatter([PAPER["samples"]], [PAPER["cgr"]], marker="*", s=150, color="k", zorder=3,
                     label=f"AngoraPy (paper): {PAPER['cgr']:g} at {PAPER['samples']:.3g}")
     axes[0].set_xscale("log")
-    for ax, (xlabel, ylabel) in zip(axes, [("env steps", "training-mean CGR"), ("wall minutes (one GPU)", "CGR"),
+    for ax, (xlabel, ylabel) in zip(axes, [("env steps", "training-mean CGR"), ("wall minutes", "CGR"),
                                            ("env steps", "share of episode ends that are drops"),
                                            ("env steps", "goal distance at episode end (rad)")], strict=True):
         ax.set_xlabel(xlabel)

@@ -7,9 +7,11 @@ cluster, a scratch disk) or is `off`. A cache directory set for JAX itself (`JAX
 `jax.config.update("jax_compilation_cache_dir", ...)`) is left as it is. `train`, `resume` and the `angora-jax`
 command enable it; `counts()` says how many programs were read from it and how many compiled.
 
-Under `jax.distributed` (several processes) the default is off: on a 4-GPU host, a one-process-per-GPU cube run on
-MuJoCo Warp with the cache on hung in its first cycle, while the same layout without it trained (issue 33; the cause
-is not established). Naming a directory (`ANGORA_JAX_CACHE=DIR`, or `enable(DIR)`) turns it on there too.
+Under `jax.distributed` (several processes) the default is off. Every process must compile the same programs: on
+GPUs, XLA shares the autotuning of a program between the processes compiling it, so a process that read the program
+from the cache while another compiled it would leave that one waiting. (The first-cycle hang of a 4-GPU run first
+blamed on the cache was process 0's monitor running programs alone, since fixed; with the cache on, multi-process GPU
+runs are not yet measured.) Naming a directory (`ANGORA_JAX_CACHE=DIR`, or `enable(DIR)`) turns it on there too.
 
 Entries are keyed by the program, the JAX and XLA versions and the device, so a stale entry is never read; delete the
 directory to reclaim its space. Programs that call back into Python (host-rendered camera vision on the CPU) are
