@@ -30,6 +30,20 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 
 import pytest  # noqa: E402  (after the environment above, which must be set before JAX starts)
 
+
+@pytest.fixture(scope="session")
+def opengl():
+    """For tests that render with OpenGL (MuJoCo's renderer): skipped, with the reason and what to install, where
+    MuJoCo can make no OpenGL context (a machine without Mesa's EGL; `.ci/run` installs it, so CI runs them). Only
+    the probe is guarded: an error of our own rendering code fails the test."""
+    import mujoco
+
+    try:
+        mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 8, 8).close()
+    except Exception as error:  # MuJoCo raises several kinds of error when no OpenGL context can be made
+        pytest.skip(f"no OpenGL backend for MuJoCo with MUJOCO_GL={os.environ.get('MUJOCO_GL')} ({error}); install "
+                    "libegl-mesa0 and set MUJOCO_GL=egl")
+
 # The reach run of the brain-area model (`cortical`) that test_reach_learning checks and that the probing tests and
 # notebook analyse: trained once per session. 32 environments x 32 steps per cycle, 16 minibatch updates of 256
 # transitions, gamma 0.95, no entropy bonus, 30-step episodes (0.6 s), areas a quarter of AngoraPy's or less and a

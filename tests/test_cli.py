@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import jax
+import mujoco
 import pytest
 from tiny import TINY_PPO
 
@@ -42,12 +43,26 @@ def test_list_commands(capsys):
     assert re.search(r"shadow_reach_cortical +Shadow hand reach with the brain-area model", out)
 
 
-def test_doctor_reports_the_physics_choice_and_exits_0_on_the_cpu(capsys):
+def test_doctor_reports_the_physics_choice_and_exits_0_on_the_cpu(capsys, monkeypatch):
+    try:  # this machine's own answer, asked of MuJoCo directly
+        mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 8, 8).close()
+        renders = True
+    except Exception:
+        renders = False
     assert main(["doctor"]) == 0
     out = capsys.readouterr().out
     assert "mujoco-mjx" in out and "cpu:0" in out and "OK: angora_jax can train here." in out
     assert "MJX jax implementation (physics.impl auto: JAX runs on the CPU" in out
-    assert "off screen" in out  # rendering: either it works or the advice says what to install
+    verdict = re.search(r"off screen +(.*)", out).group(1)
+    assert verdict.startswith(f"yes, MUJOCO_GL={os.environ['MUJOCO_GL']}" if renders else "no: MUJOCO_GL=")
+    assert ("Videos (angora-jax render) cannot be made" in out) != renders
+    # Where no OpenGL context can be made, the verdict says no and the advice names what to install (exit 0: only
+    # training is required).
+    monkeypatch.setattr(mujoco, "Renderer", lambda *args: (_ for _ in ()).throw(mujoco.FatalError("gladLoadGL error")))
+    assert main(["doctor"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"off screen +no: MUJOCO_GL=\S+ \(gladLoadGL error\)", out)
+    assert re.search(r"advice: Videos \(angora-jax render\) cannot be made.*libegl-mesa0.*MUJOCO_GL=egl", out)
 
 
 @pytest.mark.parametrize(

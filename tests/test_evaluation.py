@@ -57,15 +57,6 @@ def run_dir(tmp_path_factory):
     return moved
 
 
-def gl_problem() -> str | None:
-    """Why MuJoCo cannot render here, or None when it can."""
-    try:
-        mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 8, 8).close()
-    except Exception as error:
-        return f"no OpenGL backend for MuJoCo ({error}); install libegl-mesa0 and set MUJOCO_GL=egl"
-    return None
-
-
 def test_evaluate_writes_statistics_json_and_box_plot_without_overwriting(run_dir):
     result = aj.evaluate(run_dir, "latest", episodes=6)
     record = json.loads(result.json_path.read_text())
@@ -325,18 +316,14 @@ def test_a_new_run_fine_tunes_a_saved_policy_in_a_changed_task(run_dir, tmp_path
         make_cycle(env, None, config.ppo.replace(init_from=str(tmp_path / "gone")))[0](jax.random.key(0))
 
 
-def test_render_frames_of_random_actions_differ():
-    if problem := gl_problem():
-        pytest.skip(problem)
+def test_render_frames_of_random_actions_differ(opengl):
     frames = aj.render_frames(task="ShadowHandReach", task_options={"max_episode_steps": 4}, camera="side")
     assert len(frames) == 5 and frames[0].shape == (240, 320, 3) and frames[0].dtype == np.uint8
     assert frames[0].std() > 10  # a scene, not a blank image
     assert not np.array_equal(frames[0], frames[-1])
 
 
-def test_cli_render_writes_a_video_and_refuses_to_overwrite(run_dir, tmp_path, capsys):
-    if problem := gl_problem():
-        pytest.skip(problem)
+def test_cli_render_writes_a_video_and_refuses_to_overwrite(run_dir, tmp_path, capsys, opengl):
     out = tmp_path / "reach.mp4"
     assert main(["render", "--task", "ShadowHandReach", "--out", str(out), "--width", "160", "--height", "120"]) == 0
     size = out.stat().st_size
@@ -371,3 +358,22 @@ def test_evaluating_the_snapshots_follows_the_policy_over_training(run_dir, tmp_
     assert main(["evaluate", str(bare), "--checkpoint", "snapshots", "--episodes", "1"]) == 2
     err = capsys.readouterr().err
     assert "keeps no snapshots" in err and "checkpoint.snapshot_every=N" in err
+
+
+def test_render_shows_a_trained_reach_policy_acting(cortical_reach, tmp_path, opengl):
+    """`angora-jax render RUN_DIR` on the session's trained reach run (the policy branch of experiment/video.py): the
+    episode `evaluate` plays with the same seed, one frame at its reset and one per step, from the start that random
+    actions get with that seed, then other frames than random actions make; written as a GIF."""
+    played = aj.evaluate(cortical_reach.run_dir, episodes=1, save=False)
+    frames = aj.render_frames(cortical_reach.run_dir, width=64, height=48, camera="side")
+    assert len(frames) == int(played.episodes["episode_length"][0]) + 1
+    random = aj.render_frames(task="ShadowHandReach", task_options={"max_episode_steps": 30}, width=64, height=48,
+                              camera="side")
+    np.testing.assert_array_equal(frames[0], random[0])
+    assert np.abs(frames[-1].astype(int) - random[-1].astype(int)).mean() > 1.0, "the policy moves otherwise"
+    out = tmp_path / "policy.gif"
+    assert main(["render", str(cortical_reach.run_dir), "--out", str(out), "--width", "64", "--height", "48",
+                 "--camera", "side"]) == 0
+    import imageio.v3 as iio
+
+    assert iio.imread(out).shape == (len(frames), 48, 64, 3)

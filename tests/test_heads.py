@@ -85,7 +85,7 @@ def test_beta_log_prob_is_finite_on_the_bounds():
 
 
 @pytest.mark.parametrize("index", range(4), ids=["categorical", "multicategorical", "gaussian", "beta"])
-def test_samples_in_bounds_entropy_finite_mode_deterministic(index):
+def test_samples_in_bounds_entropy_finite_and_no_likelier_than_the_mode(index):
     head = all_heads()[index]
     params = random_params(head, seed=3)
     samples = jnp.stack([head.env_action(head.sample(params, jax.random.key(k))) for k in range(5)])
@@ -96,12 +96,27 @@ def test_samples_in_bounds_entropy_finite_mode_deterministic(index):
         assert np.all((samples >= LOW) & (samples <= HIGH))
     assert np.all(np.isfinite(head.entropy(params)))
     assert head.entropy(params).shape == (BATCH,)
-    mode = head.mode(params)
-    np.testing.assert_array_equal(mode, head.mode(params))
-    assert not np.array_equal(samples[0], samples[1])  # sampling is random, the mode is not
+    assert not np.array_equal(samples[0], samples[1])  # sampling is random
     # The mode is at least as likely as any sample (unimodal or discrete distributions).
-    other = head.sample(params, jax.random.key(9))
+    mode, other = head.mode(params), head.sample(params, jax.random.key(9))
     assert np.all(head.log_prob(params, mode) >= head.log_prob(params, other) - 1e-4)
+
+
+def test_each_heads_mode_is_its_definition():
+    """What deterministic evaluation plays: the most likely action by each head's formula, in the stored space."""
+    categorical, binned, gaussian, beta = all_heads()
+    params = random_params(categorical, seed=4)
+    np.testing.assert_array_equal(categorical.mode(params), np.argmax(np.asarray(params), axis=-1))
+    params = random_params(binned, seed=5)
+    bins = np.argmax(np.asarray(params).reshape(BATCH, 3, 7), axis=-1)
+    np.testing.assert_array_equal(binned.mode(params), bins)
+    np.testing.assert_allclose(binned.env_action(binned.mode(params)), LOW + bins * (HIGH - LOW) / 6, rtol=1e-6)
+    params = random_params(gaussian, seed=6)
+    np.testing.assert_allclose(gaussian.mode(params), np.asarray(params)[:, :3], rtol=1e-6)  # the mean
+    params = random_params(beta, seed=7)
+    a, b = np.split(np.logaddexp(0.0, np.asarray(params, np.float64)) + 1.0, 2, axis=-1)
+    unit = (a - 1) / (a + b - 2)  # the Beta's mode for a, b > 1
+    np.testing.assert_allclose(beta.mode(params), LOW + unit * (HIGH - LOW), rtol=1e-4, atol=1e-5)
 
 
 def test_custom_head_can_be_registered_and_made():

@@ -21,7 +21,7 @@ from angora_jax.vision.estimator import orientation_error_degrees, quaternions, 
 FAR = np.array([10.0, 10.0, 0.0])  # m: a cube here is out of every camera's view
 
 
-def test_renders_are_uint8_deterministic_and_the_cube_pixels_follow_the_cube():
+def test_renders_are_uint8_deterministic_and_the_cube_pixels_follow_the_cube(opengl):
     with PoseRenderer(("top", "front"), width=64, height=48) as renderer:
         hand = renderer.joint_range.mean(axis=1)
         upright = np.array([1.0, 0.0, 0.0, 0.0])
@@ -71,7 +71,7 @@ def test_random_quaternions_are_unit_with_nonnegative_w():
     assert (q[:, 0] >= 0).all() and abs(q[:, 1:].mean()) < 0.05
 
 
-def test_pose_pretraining_lowers_its_loss_and_saves_an_encoder_component(tmp_path, capsys):
+def test_pose_pretraining_lowers_its_loss_and_saves_an_encoder_component(tmp_path, capsys, opengl):
     data = render_pose_dataset(48, cameras=("top",), width=32, height=32, seed=1)
     assert data.images.shape == (48, 1, 32, 32, 3) and data.cube_quaternion.shape == (48, 4)
     train, test = data.split(0.25)
@@ -110,7 +110,7 @@ def test_pose_pretraining_lowers_its_loss_and_saves_an_encoder_component(tmp_pat
         result.estimator.save(saved)
 
 
-def test_model_cameras_show_exactly_what_the_free_cameras_show():
+def test_model_cameras_show_exactly_what_the_free_cameras_show(opengl):
     """The fixed `vision_<name>` cameras (what MuJoCo Warp renders) against the free views of the palm used for
     videos: measured identical, pixel for pixel."""
     from angora_jax.envs.rendering import SceneRenderer, camera_named
@@ -146,7 +146,7 @@ SMALL_AREAS = "{SSC_1: 16, SSC_2: 16, SPL: 16, IPL: 16, IPS: 16, MCC: 16, LPFC: 
 
 
 @pytest.fixture(scope="module")
-def seeing_cube():
+def seeing_cube(opengl):
     import angora_jax as aj
 
     return aj.make("ShadowHandCube", vision=PIXELS, relative_goal=False, start_pool=8)
@@ -196,7 +196,7 @@ def test_camera_vision_options_and_the_networks_that_see_them_are_checked(seeing
                   network=NetworkConfig(visual=VisualConfig())).validate_for(aj.make("CartPole"))
 
 
-def test_a_pose_estimator_gives_the_policy_the_pose_it_reads_from_the_cameras(tmp_path):
+def test_a_pose_estimator_gives_the_policy_the_pose_it_reads_from_the_cameras(tmp_path, opengl):
     """Dactyl's way to the cube from pixels: `pose_estimator` renders the estimator's cameras and puts the pose it
     reads from them (and the relative goal from its orientation) where the pose-input policy reads the true
     pose, in inputs of the same shapes (a pose-trained network reads them unchanged); the network needs no
@@ -266,7 +266,7 @@ def test_warp_frames_are_each_envs_own_and_outlive_the_sized_env_that_compiled_t
     assert stepped.obs.vision.shape == (3, 2, 16, 16, 3) and np.any(stepped.obs.vision != state.obs.vision)
 
 
-def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_visual_area(tmp_path):
+def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_visual_area(tmp_path, opengl):
     """The brain-area model (`cortical`, whose parietal areas read the visual area's features) on reach seeing its hand
     through two cameras (the reach physics compiles in a third of the cube's time on the CPU; the cube's frames are
     checked above and its pixel config trained on the GPU), its visual area loaded from a component file and frozen:
