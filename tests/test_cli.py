@@ -20,6 +20,7 @@ from angora_jax import cli
 from angora_jax.cli import main
 from angora_jax.experiment import compilation_cache, runner
 from angora_jax.experiment.distributed import ProcessFailed, StopDecision
+from angora_jax.experiment.live_report import LiveReport
 from angora_jax.experiment.monitor import read_metrics
 from angora_jax.experiment.progress import Progress, progress_line
 from angora_jax.experiment.run_dir import read_sessions
@@ -141,10 +142,48 @@ def test_minutes_stop_training_with_the_command_to_continue(capsys, tmp_path):
     assert "cycle 1/3" in out and "cycle 2/3" not in out
     assert f"Stopped at the time limit (--minutes) with a checkpoint of cycle 1; continue with: angora-jax resume " \
            f"{tmp_path / 'p'}" in out
-    assert [r["cycle"] for r in read_metrics(tmp_path / "p")] == [1]  # resuming is tests/test_checkpoint.py's
+    assert [r["cycle"] for r in read_metrics(tmp_path / "p")] == [1]  # exactness is tests/test_checkpoint.py's
     with pytest.raises(SystemExit) as exit_info:
         main(["resume", str(tmp_path / "p"), "--minutes", "0"])
     assert exit_info.value.code == 2 and "--minutes: must be > 0" in capsys.readouterr().err
+    # The command it names continues the run to its end.
+    assert main(["resume", str(tmp_path / "p")]) == 0
+    out = capsys.readouterr().out
+    assert "cycle 3/3" in out and f"Run {tmp_path / 'p'}: 3 cycles done (2 in this session)." in out
+    assert [r["cycle"] for r in read_metrics(tmp_path / "p")] == [1, 2, 3]
+    assert main(["resume", str(tmp_path / "p")]) == 0, "a finished run is returned as it is"
+    assert "3 cycles done (0 in this session)" in capsys.readouterr().out
+
+
+def test_monitor_writes_the_page_and_refuses_a_busy_port(capsys, tmp_path, monkeypatch):
+    assert main(["train", "cartpole", *TINY, "ppo.num_cycles=1", f"logging.run_root={tmp_path}",
+                 "logging.run_name=m", "logging.report=false"]) == 0
+    capsys.readouterr()
+    # --no-serve: the page is written on disk and named; Ctrl-C (here at the first wait) ends the monitor, exit 0.
+    monkeypatch.setattr(LiveReport, "wait", lambda self: (_ for _ in ()).throw(KeyboardInterrupt))
+    out_dir = tmp_path / "page"
+    assert main(["monitor", str(tmp_path / "m"), "--no-serve", "--out", str(out_dir)]) == 0
+    out = capsys.readouterr().out
+    assert f"Monitoring 1 run(s): {(out_dir / 'index.html').resolve().as_uri()}" in out and "Monitor stopped." in out
+    assert "1/1" in (out_dir / "index.html").read_text()
+    with socket.socket() as busy:  # a port another program holds
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        assert main(["monitor", str(tmp_path / "m"), "--port", str(port), "--out", str(out_dir)]) == 2
+    err = capsys.readouterr().err
+    assert f"cannot serve on 127.0.0.1:{port}" in err
+    assert "pick another --port (0: any free one) or use --no-serve" in err
+
+
+def test_run_rolls_out_a_random_policy_and_names_an_unknown_task(capsys):
+    assert main(["run", "--task", "CartPole", "--num-envs", "2", "--steps", "300"]) == 0
+    out = capsys.readouterr().out
+    assert "CartPole: random policy, 2 envs x 300 steps on cpu" in out
+    assert re.search(r"mean_reward: 1\n", out), "CartPole pays 1 per step"
+    assert float(re.search(r"episodes_ended: ([\d.]+)", out).group(1)) >= 10, "random play drops the pole in ~22 steps"
+    assert main(["run", "--task", "CartPol"]) == 2
+    assert "CartPole" in capsys.readouterr().err
 
 
 def test_another_process_failing_to_save_stops_this_one_after_its_own_save(tmp_path, monkeypatch):
