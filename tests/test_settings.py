@@ -1,0 +1,68 @@
+"""Settings that no other test changes reach what they govern: each PPO setting changes the trained parameters (an
+ignored one leaves them bit for bit the same, all else being equal), `checkpoint.best_mode: min` keeps the lowest
+cycle, and `logging.tensorboard` writes every cycle's scalars."""
+
+import struct
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+from tensorboardX.proto import event_pb2
+from tiny import TINY_PPO
+
+import angora_jax as aj
+from angora_jax.experiment.config import load_config, validate
+from angora_jax.ppo.cycle import make_cycle
+
+
+def one_cycle(overrides: list[str]):
+    # Epochs at a high learning rate move the value function past the value clip's 0.2 in the cycle.
+    config = load_config("cartpole", [*TINY_PPO, "ppo.num_epochs=4", "ppo.learning_rate=0.01", *overrides])
+    init, cycle = make_cycle(validate(config), None, config.ppo)
+    state, _ = jax.jit(cycle)(jax.jit(init)(jax.random.key(0)))
+    return state.params
+
+
+@pytest.fixture(scope="module")
+def default_params():
+    return one_cycle([])
+
+
+@pytest.mark.parametrize("setting", [
+    "ppo.normalize_advantages=false", "ppo.max_grad_norm=0.001", "ppo.value_clip=false", "ppo.value_coef=0.1",
+    "ppo.gae_lambda=0.5", "ppo.normalization.clip=0.5",
+])
+def test_each_ppo_setting_changes_the_update(default_params, setting):
+    assert load_config("cartpole", [setting]) != load_config("cartpole"), "not the default already"
+    changed = one_cycle([setting])
+    differences = jax.tree.leaves(jax.tree.map(lambda a, b: float(np.abs(a - b).max()), changed, default_params))
+    assert max(differences) > 0, f"{setting} left the parameters as the default run's"
+
+
+def tensorboard_scalars(folder: Path) -> dict[str, dict[int, float]]:
+    """tag -> {step: value} from the TFRecord event files in `folder` (length, crc, Event proto, crc)."""
+    scalars: dict[str, dict[int, float]] = {}
+    for path in folder.glob("events.out.tfevents.*"):
+        data, offset = path.read_bytes(), 0
+        while offset < len(data):
+            (length,) = struct.unpack("<Q", data[offset:offset + 8])
+            event = event_pb2.Event.FromString(data[offset + 12:offset + 12 + length])
+            offset += 12 + length + 4
+            for value in event.summary.value:
+                scalars.setdefault(value.tag, {})[event.step] = value.simple_value
+    return scalars
+
+
+def test_best_mode_min_keeps_the_lowest_cycle_and_tensorboard_gets_every_cycles_scalars(tmp_path):
+    run = aj.train("cartpole", [*TINY_PPO, "ppo.num_cycles=4", "checkpoint.best_metric=episode_return",
+                                "checkpoint.best_mode=min", "logging.tensorboard=true", "logging.progress=none",
+                                "logging.report=false", f"logging.run_root={tmp_path}", "logging.run_name=r"])
+    returns = [record["episode_return"] for record in run.history]
+    assert len(set(returns)) > 1, "the cycles differ, so best and latest can too"
+    assert aj.load_agent(run.run_dir, "best").cycle == 1 + int(np.argmin(returns))
+    scalars = tensorboard_scalars(run.run_dir / "tensorboard")
+    steps = [record["env_steps"] for record in run.history]
+    assert sorted(scalars["episode_return"]) == steps
+    np.testing.assert_allclose([scalars["episode_return"][s] for s in steps], returns, rtol=1e-6)
+    assert {"loss", "entropy", "norm/reward_std"} <= set(scalars)
