@@ -176,6 +176,9 @@ def test_a_lean_checkpoint_resumes_with_fresh_environments_only_when_not_asked_f
     assert "from cycle 2 with fresh environments, not bit for bit: it is lean" in capsys.readouterr().err
     assert int(continued.state.cycle) == 4 and [r["cycle"] for r in read_metrics(tmp_path / "lean")] == [1, 2, 3, 4]
     assert all(record["finite"] == 1.0 for record in continued.history)
+    # Finished, it has nothing to continue: returned as it is, without the note, also when asked to be exact.
+    again = resume(tmp_path / "lean", exact=True)
+    assert int(again.state.cycle) == 4 and again.history == [] and "fresh environments" not in capsys.readouterr().err
 
 
 def test_checkpoint_kinds_and_monitor_records(runs, tmp_path):

@@ -125,7 +125,7 @@ def test_mjx_path_computes_humanoids_body_dynamics_as_the_c_mujoco_twin(humanoid
     the same terminations, and contacts in at least a third of the steps."""
     env, cpu, reset, step = humanoid_on_mjx
     keys = jax.random.split(jax.random.key(3), HUMANOID_BATCH)
-    actions = np.random.default_rng(0).uniform(-0.4, 0.4, (40, HUMANOID_BATCH, env.task.model.nu)).astype(np.float32)
+    actions = np.random.default_rng(0).uniform(-0.4, 0.4, (32, HUMANOID_BATCH, env.task.model.nu)).astype(np.float32)
     states = [reset(keys)]
     for action in actions:
         states.append(step(states[-1], jnp.asarray(action)))

@@ -115,7 +115,8 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     try:
         state = None
         if checkpoints.steps("latest"):
-            state = _restore_to_continue(checkpoints, initial_state_shape(config, env), exact, run_dir)
+            state = _restore_to_continue(checkpoints, initial_state_shape(config, env), exact, run_dir,
+                                         config.ppo.num_cycles)
     finally:
         checkpoints.close()
     if is_main_process():
@@ -123,10 +124,14 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     return _run(config, env, run_dir, state=state, on_cycle=on_cycle, minutes=minutes)
 
 
-def _restore_to_continue(checkpoints: Checkpoints, template: TrainState, exact: bool, run_dir: Path) -> TrainState:
-    """The latest checkpoint's state, whole where it can be; else without its environments (see `resume`)."""
+def _restore_to_continue(checkpoints: Checkpoints, template: TrainState, exact: bool, run_dir: Path,
+                         num_cycles: int) -> TrainState:
+    """The latest checkpoint's state, whole where it can be; else without its environments (see `resume`). A finished
+    run's needs none: nothing continues."""
     cycle = checkpoints.steps("latest")[-1]
     lean = template.without_environments()
+    if cycle >= num_cycles and not checkpoints.holds_environments("latest"):
+        return checkpoints.restore(lean, "latest", partial=True).state
     if checkpoints.holds_environments("latest"):
         try:
             return checkpoints.restore(template, "latest").state
