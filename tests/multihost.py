@@ -7,7 +7,7 @@ resumes the Warp run). Prints one JSON object: how training stopped, a
 digest of this process's copy of the final parameters, whether its devices hold the same copy, the
 metrics of every cycle and the programs this process compiled (JAX's compile log): every process must compile the
 same programs, since a program over all processes' devices that one process runs alone waits for the others (on GPUs
-process 0's monitor hung a 4-process run that way)."""
+process 0's monitor once did so, the likely cause of a 4-process hang)."""
 
 import collections
 import hashlib

@@ -28,8 +28,8 @@ def normalizer_summary(state: TrainState) -> dict[str, float]:
     """Scalars that show what the running normalisation has learned: the reward scale (std of the discounted
     return) and, per observation modality that has features, the mean |mean| and mean std over features."""
     # NumPy on this process's copy of the (replicated) statistics: only process 0 of a multi-process run records, and
-    # a jnp operation there would be a program over every process's devices that the others never run. On GPUs such
-    # a one-process compile waited for the others forever (4 processes on 4 H100s hung before their first record).
+    # a jnp operation there would be a program over every process's devices that the others never run: the likely
+    # cause of 4 processes on 4 H100s hanging before their first record (with it gone, the same launch trained).
     reward, observations = _local_copy((state.reward_stats, state.obs_stats))
     stats = {"norm/reward_std": float(np.sqrt(reward.var)), "norm/count": float(reward.count)}
     for name, modality in observations.__dict__.items():
