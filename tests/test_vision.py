@@ -316,3 +316,19 @@ def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_vis
     _, _, _, layers = layer_activity(agent, agent.initial_carry(3), obs)
     assert layers["visual.decoder"].shape == (3, 2 * 8), "each environment's two cameras, 8 features each"
     assert layers["network.IPS"].shape == (3, 16), "the parietal areas see"
+
+    # `angora-jax record --images` keeps the frames the policy saw (uint8 through NetCDF), without it they are left out.
+    import xarray as xr
+
+    from angora_jax.cli import main
+
+    kept, lean = tmp_path / "with.nc", tmp_path / "without.nc"
+    assert main(["record", str(run.run_dir), "--out", str(kept), "--episodes", "2", "--steps", "3", "--images",
+                 "--env-option", "vision.renderer=null"]) == 0
+    assert main(["record", str(run.run_dir), "--out", str(lean), "--episodes", "2", "--steps", "3",
+                 "--env-option", "vision.renderer=null"]) == 0
+    with xr.open_dataset(kept) as recording, xr.open_dataset(lean) as without:
+        frames = recording["input_vision"]
+        assert frames.dims == ("episode", "time", "camera", "y", "x", "channel") and frames.dtype == np.uint8
+        assert frames.shape == (2, 3, 2, 32, 32, 3) and int(frames.max()) > int(frames.min()), "images, not blanks"
+        assert "input_vision" not in without and recording.attrs["camera_images"] == 1

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import angora_jax as aj
+from angora_jax.cli import main
 from angora_jax.experiment.evaluation import evaluate
 
 TESTS = Path(__file__).resolve().parent
@@ -54,15 +55,17 @@ def test_warp_steps_reach_as_c_mujoco_and_mjx_jax_do():
 
 
 def test_a_warp_run_evaluates_on_the_batched_path_as_on_c_mujoco(two_devices):
-    """`evaluate --path batched` steps the saved policy's episodes on Warp (the one-device reach run of
+    """`angora-jax evaluate --path batched` steps the saved policy's episodes on Warp (the one-device reach run of
     warp_parallel.py), sized for the episodes at once; the C MuJoCo path plays the same episodes (same reset keys,
     mode actions): the same lengths, returns within 1%."""
     run_dir = Path(two_devices["root"]) / "devices1"
-    batched = evaluate(run_dir, "latest", episodes=4, save=False, path="batched")
+    assert main(["evaluate", str(run_dir), "--checkpoint", "latest", "--episodes", "4", "--path", "batched"]) == 0
+    (written,) = (run_dir / "evaluation").glob("latest-*-batched.json")
+    batched = json.loads(written.read_text())
     cpu = evaluate(run_dir, "latest", episodes=4, save=False)
-    assert batched.meta["path"] == "batched" and "MjxEnv (warp)" in batched.meta["physics"]
-    np.testing.assert_array_equal(batched.episodes["episode_length"], cpu.episodes["episode_length"])
-    np.testing.assert_allclose(batched.episodes["episode_return"], cpu.episodes["episode_return"], rtol=1e-2)
+    assert batched["path"] == "batched" and "MjxEnv (warp)" in batched["physics"]
+    np.testing.assert_array_equal(batched["per_episode"]["episode_length"], cpu.episodes["episode_length"])
+    np.testing.assert_allclose(batched["per_episode"]["episode_return"], cpu.episodes["episode_return"], rtol=1e-2)
 
 
 @pytest.fixture(scope="module")
