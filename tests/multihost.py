@@ -1,4 +1,4 @@
-"""One process of the two-process localhost job that test_parallel.py starts: argv is coordinator address, process
+"""One process of the two-process localhost job that test_distributed.py starts: argv is coordinator address, process
 id, run root and the run: "cartpole" (each process has 2 CPU devices by XLA_FLAGS, 4 in all) or "warp" (reach on
 MuJoCo Warp, one CPU device per process: the cluster layout, one process per GPU). `aj.train` runs 3 cycles over
 all devices into one run directory (process 0 logs, both save the checkpoint), but process 1 alone gets a SIGTERM after

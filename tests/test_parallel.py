@@ -2,24 +2,15 @@
 device, normaliser statistics pool exactly, a 4-device run computes the single-device run with the same totals up
 to float rounding, and resuming a 4-device run is bit for bit; indivisible totals fail naming the keys."""
 
-import hashlib
 import json
 import os
-import signal
-import socket
 import subprocess
 import sys
 from pathlib import Path
 
-import jax
 import numpy as np
 import pytest
-from tiny import TINY_PPO
 
-import angora_jax as aj
-from angora_jax.experiment import Checkpoints, read_metrics, resume, runner
-from angora_jax.experiment.distributed import ProcessFailed, StopDecision
-from angora_jax.experiment.run_dir import CHECKPOINTS
 from angora_jax.ppo import PPOConfig
 from angora_jax.ppo.parallel import per_device
 
@@ -97,103 +88,3 @@ def test_single_device_config_is_unchanged():
 def test_indivisible_totals_fail_naming_the_keys(changes, message):
     with pytest.raises(ValueError, match=message):
         per_device(PPOConfig().replace(**changes), 4)
-
-
-@pytest.mark.parametrize("variant, devices_per_process", [("cartpole", 2), ("warp", 1)])
-def test_two_processes_with_jax_distributed_stop_together_train_in_sync_and_resume_in_one(tmp_path, variant,
-                                                                                         devices_per_process):
-    """CartPole on 2 devices per process, and reach on MuJoCo Warp on one device per process (the cluster layout)."""
-    with socket.socket() as probe:  # a free port for the coordinator
-        probe.bind(("localhost", 0))
-        address = f"localhost:{probe.getsockname()[1]}"
-    env = os.environ | {"XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} "
-                                     f"--xla_force_host_platform_device_count={devices_per_process}"}
-    processes = [
-        subprocess.Popen(
-            [sys.executable, str(TESTS / "multihost.py"), address, str(index), str(tmp_path), variant],
-            cwd=TESTS,
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        for index in range(2)
-    ]
-    outputs = [process.communicate(timeout=300) for process in processes]
-    assert all(process.returncode == 0 for process in processes), [err[-3000:] for _, err in outputs]
-    first, second = (json.loads(out.strip().splitlines()[-1]) for out, _ in outputs)
-    # Process 1 alone got SIGTERM after cycle 2; both stopped there (agree_to_stop) and saved.
-    assert first["stopped"] == second["stopped"] == {"cycle": 2, "signal": signal.SIGTERM}
-    # Process 0 also logs; it must not compile (and run alone) a program over both processes' devices.
-    assert first["compiled"] == second["compiled"] and "jit(cycle)" in first["compiled"]
-    if variant == "warp":
-        # One checkpoint of the two processes: this one-device process resumes it (the two contact pools do not fit
-        # one device, so with fresh environments) and trains cycle 3.
-        for main, other in zip(first["metrics"], second["metrics"], strict=True):
-            assert {key: main[key] for key in other} == other
-        resumed = resume(tmp_path / "two-hosts")
-        assert [record["cycle"] for record in read_metrics(tmp_path / "two-hosts")] == [1, 2, 3]
-        assert int(resumed.state.cycle) == 3 and resumed.history[0]["finite"] == 1.0
-        return
-    # Both resumed together.
-    assert first["local_copies_agree"] and second["local_copies_agree"]
-    assert first["params"] == second["params"]
-    # Process 0's records add the monitor's normaliser, memory and time fields to the cycle metrics both have.
-    assert len(first["metrics"]) == len(second["metrics"]) == 3
-    for main, other in zip(first["metrics"], second["metrics"], strict=True):
-        assert {key: main[key] for key in other} == other and "norm/count" in main
-    # Process 0 alone logged; the checkpoint both wrote restores in this single-device process.
-    assert [record["cycle"] for record in read_metrics(tmp_path / "two-hosts")] == [1, 2, 3]
-    restored = resume(tmp_path / "two-hosts")
-    digest = hashlib.sha256()
-    for leaf in jax.tree.leaves(restored.state.params):
-        digest.update(np.asarray(leaf).tobytes())
-    assert int(restored.state.cycle) == 3 and digest.hexdigest() == first["params"]
-
-
-def test_a_failure_in_another_process_stops_this_one_after_the_same_cycle(tmp_path, monkeypatch):
-    # What agree_to_stop reports when process 1 of two failed after this cycle (the real all-gather is exercised by
-    # the two-process test above): this process stops too, naming it, and saves no checkpoint of that cycle.
-    monkeypatch.setattr(runner, "agree_to_stop", lambda signum, failed, out_of_time: StopDecision(signum, (1,)))
-    overrides = [*TINY_PPO, "logging.progress=none", "logging.report=false", f"logging.run_root={tmp_path}"]
-    with pytest.raises(ProcessFailed, match=r"Process\(es\) 1 of this run failed after cycle 1 .*angora-jax resume"):
-        aj.train("cartpole", [*overrides, "logging.run_name=peer"])
-    assert [record["cycle"] for record in read_metrics(tmp_path / "peer")] == [1]
-    checkpoints = Checkpoints(tmp_path / "peer" / CHECKPOINTS, aj.load_config("cartpole").checkpoint, create=False)
-    assert checkpoints.steps("latest") == []
-    checkpoints.close()
-
-
-# Weak scaling in one process and strong scaling with one process per device cover both sizings and both launches.
-@pytest.mark.parametrize("weak, processes", [(True, False), (False, True)], ids=["weak", "strong-processes"])
-def test_scaling_benchmark_runs_one_and_two_devices_at_smoke_size(tmp_path, weak, processes):
-    """Two devices of one process, or (processes) two processes of one CPU device each joined by jax.distributed."""
-    out = tmp_path / "scaling.json"
-    tiny = [*TINY_PPO, "ppo.num_envs=8", "ppo.minibatch_size=64"]
-    done = subprocess.run(
-        [sys.executable, str(BENCHMARKS / "scaling.py"), "cartpole", *tiny, "--cycles", "2", "--out", str(out),
-         *(["--weak"] if weak else []), *(["--layouts", "processes"] if processes else [])],
-        cwd=BENCHMARKS,
-        env=os.environ | ({} if processes else {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}),
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert done.returncode == 0, done.stderr[-3000:]
-    per_device = 8 if weak else 4
-    layout = "processes" if processes else "one"
-    # The Markdown table: task, layout, devices, envs per device.
-    assert f"| CartPole | {layout} | 2 | {per_device} |" in done.stdout
-    single, double = json.loads(out.read_text())["results"]
-    assert (single["devices"], double["devices"], double["envs_per_device"]) == (1, 2, per_device)
-    assert double["num_envs"] == (16 if weak else 8)
-    assert single["steps_per_s"] > 0 and single["scaling"] == 1.0
-    assert double["scaling"] == pytest.approx(double["steps_per_s"] / single["steps_per_s"])
-    assert double["efficiency"] == pytest.approx(double["scaling"] / 2)
-    assert all(len(row["cycle_seconds"]) == 2 for row in (single, double))
-    assert double.get("processes") == (2 if processes else None) and double["layout"] == layout
-    if not weak:
-        # The same training on 1 and 2 devices, up to float rounding.
-        assert double["max_param_difference"] < 1e-5
-        np.testing.assert_allclose(list(double["final"].values()), list(single["final"].values()), rtol=1e-5,
-                                   atol=1e-5)

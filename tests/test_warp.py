@@ -2,7 +2,7 @@
 warp-lang's CPU backend (the `test` extra installs it): its env step agrees with C MuJoCo as MJX's JAX path does, a run
 trained on it evaluates on the batched path, 2 devices train what 1 device trains (each device with its own
 contact pool), and resuming on another device count goes on with fresh environments. The two-process
-`jax.distributed` run on Warp is in test_parallel.py."""
+`jax.distributed` run on Warp is in test_distributed.py."""
 
 import json
 import os
