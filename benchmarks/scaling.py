@@ -49,6 +49,7 @@ from common import config_parser, markdown_table, write_results
 
 from angora_jax.experiment.config import load_config, to_dict, validate
 from angora_jax.experiment.distributed import initialize
+from angora_jax.ppo.parallel import host_copy
 from angora_jax.ppo.train import training_cycles
 
 FINAL = ("episode_return", "episode_length", "entropy", "loss", "approx_kl", "explained_variance")
@@ -84,7 +85,7 @@ def run(resolved: dict, cycles: int, num_devices: int, scale: int = 1) -> tuple[
     }
     row["sim_s_per_s"] = row["steps_per_s"] * env.dt
     # Parameters are replicated: this process's copy is all of them (also when other processes hold the rest).
-    return row, [np.asarray(leaf.addressable_data(0)) for leaf in jax.tree.leaves(params)]
+    return row, jax.tree.leaves(host_copy(params))
 
 
 def run_in_processes(resolved: dict, cycles: int, processes: int, scale: int = 1) -> tuple[dict, list[np.ndarray]]:

@@ -32,17 +32,26 @@ import pytest  # noqa: E402  (after the environment above, which must be set bef
 
 
 @pytest.fixture(scope="session")
-def opengl():
-    """For tests that render with OpenGL (MuJoCo's renderer): skipped, with the reason and what to install, where
-    MuJoCo can make no OpenGL context (a machine without Mesa's EGL; `.ci/run` installs it, so CI runs them). Only
-    the probe is guarded: an error of our own rendering code fails the test."""
+def gl_problem() -> str | None:
+    """Why MuJoCo can make no OpenGL context here (with what to install), asked of MuJoCo itself; None when it can."""
     import mujoco
 
     try:
         mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 8, 8).close()
     except Exception as error:  # MuJoCo raises several kinds of error when no OpenGL context can be made
-        pytest.skip(f"no OpenGL backend for MuJoCo with MUJOCO_GL={os.environ.get('MUJOCO_GL')} ({error}); install "
-                    "libegl-mesa0 and set MUJOCO_GL=egl")
+        return (f"no OpenGL backend for MuJoCo with MUJOCO_GL={os.environ.get('MUJOCO_GL')} ({error}); install "
+                "libegl-mesa0 and set MUJOCO_GL=egl")
+    return None
+
+
+@pytest.fixture(scope="session")
+def opengl(gl_problem):
+    """For tests that render with OpenGL (MuJoCo's renderer): skipped, with the reason and what to install, where
+    MuJoCo can make no OpenGL context (a machine without Mesa's EGL; `.ci/run` installs it, so CI runs them). Only
+    the probe is guarded: an error of our own rendering code fails the test."""
+    if gl_problem:
+        pytest.skip(gl_problem)
+
 
 # The reach run of the brain-area model (`cortical`) that test_reach_learning checks and that the probing tests and
 # notebook analyse: trained once per session. 32 environments x 32 steps per cycle, 16 minibatch updates of 256

@@ -22,27 +22,22 @@ import numpy as np
 
 from angora_jax.experiment.run_dir import METRICS_FILE
 from angora_jax.ppo.cycle import TrainState
+from angora_jax.ppo.parallel import host_copy
 
 
 def normalizer_summary(state: TrainState) -> dict[str, float]:
     """Scalars that show what the running normalisation has learned: the reward scale (std of the discounted
     return) and, per observation modality that has features, the mean |mean| and mean std over features."""
-    # NumPy on this process's copy of the (replicated) statistics: only process 0 of a multi-process run records, and
-    # a jnp operation there would be a program over every process's devices that the others never run: the likely
-    # cause of 4 processes on 4 H100s hanging before their first record (with it gone, the same launch trained).
-    reward, observations = _local_copy((state.reward_stats, state.obs_stats))
+    # NumPy on this process's copy: only process 0 of a multi-process run records, and a jnp operation there, a
+    # program the others never run, is the likely cause of 4 processes on 4 H100s hanging before their first record
+    # (with it gone, the same launch trained).
+    reward, observations = host_copy((state.reward_stats, state.obs_stats))
     stats = {"norm/reward_std": float(np.sqrt(reward.var)), "norm/count": float(reward.count)}
     for name, modality in observations.__dict__.items():
         if modality.mean.size:
             stats[f"norm/{name}_abs_mean"] = float(np.abs(modality.mean).mean())
             stats[f"norm/{name}_std"] = float(np.sqrt(modality.var).mean())
     return stats
-
-
-def _local_copy(tree: Any) -> Any:
-    """The tree's replicated arrays as NumPy arrays read from this process's first device, without running a
-    program."""
-    return jax.tree.map(lambda x: np.asarray(x.addressable_data(0)), tree)
 
 
 def memory_summary() -> dict[str, float]:

@@ -155,6 +155,13 @@ def local_share(x: jax.Array, axis: str | None) -> jax.Array:
     return jax.lax.dynamic_slice_in_dim(x, jax.lax.axis_index(axis) * size, size)
 
 
+def host_copy(tree: Any) -> Any:
+    """This process's copy of a tree of replicated arrays, as NumPy arrays read from its first device. No program
+    runs: under jax.distributed an operation on the global arrays would be a program over every process's devices,
+    which all processes must run (one process computing alone waits for the others)."""
+    return jax.tree.map(lambda x: np.asarray(x.addressable_data(0)), tree)
+
+
 def environment_keys(key: jax.Array, num_envs: int, axis: str | None) -> jax.Array:
     """`(N / D,)` keys for this device's environments: the replicated `key` split into one key per environment of
     the run's `num_envs`, so an environment's random stream does not depend on the device count."""
