@@ -4,6 +4,7 @@ trained on it evaluates on the batched path, 2 devices train what 1 device train
 contact pool), and resuming on another device count goes on with fresh environments. The two-process
 `jax.distributed` run on Warp is in test_distributed.py."""
 
+import inspect
 import json
 import os
 import subprocess
@@ -52,6 +53,16 @@ def test_warp_steps_reach_as_c_mujoco_and_mjx_jax_do():
             assert float(warp.done[t, b]) == float(twin.done)
     assert float(jnp.abs(warp.physics.qpos[-1] - warp.physics.qpos[0]).max()) > 0.05, "the hand must move"
     assert int(warp.physics._impl.nacon.max()) > 0, "fingers touch: Warp's contacts are exercised"
+
+
+def test_a_warp_environment_keeps_every_cuda_graph_warp_captures():
+    """One process driving 4 GPUs hung after 3 cycles with Warp's default cache of 32 CUDA graphs per call, which
+    that process had outgrown, and ran 10 cycles without the bound: making a Warp environment lifts the bound for
+    every Warp call MJX creates afterwards (`keep_warp_graphs`)."""
+    import warp
+
+    aj.make("ShadowHandReach", physics={"impl": "warp"})
+    assert inspect.signature(warp.jax_callable).parameters["graph_cache_max"].default is None
 
 
 def test_a_warp_run_evaluates_on_the_batched_path_as_on_c_mujoco(two_devices):

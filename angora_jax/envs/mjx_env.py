@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import importlib.util
+import inspect
 import io
 from typing import Any
 
@@ -97,6 +98,27 @@ def quiet_iteration_caps(mjx_model: mjx.Model) -> mjx.Model:
     return mjx_model.tree_replace({"opt._impl.warn_overflow": quiet})
 
 
+def keep_warp_graphs() -> None:
+    """Let MuJoCo Warp keep every CUDA graph it captures (an unbounded graph cache per Warp call from JAX), instead of
+    warp-lang's default of the 32 most recent.
+
+    Why: Warp replays a captured graph for each (device, call, buffer addresses) it has seen. One process driving
+    several GPUs needs one set per GPU: on 4 H100s the cube's two Warp calls held 16 graphs each for 4 GPUs on top of
+    the 1-GPU run's 4 and 9 (benchmarks/results/scaling_ShadowHandCube_weak_one_4xh100.json). A benchmark process
+    that had run 1 and 2 GPUs before 4 (by these counts past 32 for one call, so evicting graphs) hung after 3
+    cycles on 4 GPUs; with no bound the 4-GPU run of one process ran 10 cycles at 3.87x one GPU's rate. MJX creates
+    its Warp calls with warp-lang's default bound, so the default is changed here (warp-lang 1.18's `jax_callable`;
+    a version without the setting is left as it is). A compiled cycle reuses its buffers, so few graphs are added
+    once it runs (4 more per call over the last 8 of those 10 cycles)."""
+    from warp._src.jax import ffi  # importable only with warp-lang installed
+
+    names = list(inspect.signature(ffi.jax_callable).parameters)[1:]  # __defaults__ covers all but `func`
+    if "graph_cache_max" in names and len(ffi.jax_callable.__defaults__) == len(names):
+        defaults = list(ffi.jax_callable.__defaults__)
+        defaults[names.index("graph_cache_max")] = None
+        ffi.jax_callable.__defaults__ = tuple(defaults)
+
+
 class MjxEnv(MujocoEnv):
     """Run `task` in MJX: each policy step applies `task.control(action)` and advances `frame_skip` physics
     steps of `task.model.opt.timestep` seconds. Actions are float32 in [-1, 1] (shape `(nu,)`).
@@ -112,6 +134,7 @@ class MjxEnv(MujocoEnv):
         sizes = {}
         if self.impl == "warp":
             require_warp()
+            keep_warp_graphs()
             sizes = warp_sizes(task.model, warp_max_envs or WARP_MAX_ENVS)
         device = local_device(self.impl)
         self.mjx_model = mjx.put_model(task.model, device=device, impl=self.impl)
