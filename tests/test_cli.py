@@ -79,13 +79,19 @@ def test_doctor_reports_the_physics_choice_and_exits_0_on_the_cpu(capsys, monkey
         (["train", "cartpole", "distribution.num_devices=3"], "distribution.num_devices=3 but JAX sees only 1"),
         (["train", "cartpole", "checkpoint.lean=[latest, everything]"], "Unknown value 'everything' for "
                                                                         "checkpoint.lean"),
+        (["train", "cartpole", "logging.run_name=../escape"], "must be a plain folder name"),
+        (["train", "binary.yaml"], "binary.yaml is not a text file (not UTF-8)"),
+        (["train", "empty.yaml"], "empty.yaml holds no settings"),
     ],
 )
 def test_bad_input_exits_2_with_the_cause(argv, message, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
+    (tmp_path / "binary.yaml").write_bytes(bytes(range(128, 256)))
+    (tmp_path / "empty.yaml").write_text("")
     assert main(argv) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
+    assert sorted(path.name for path in tmp_path.iterdir() if path.name != "runs") == ["binary.yaml", "empty.yaml"]
 
 
 def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys, tmp_path, monkeypatch):

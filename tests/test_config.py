@@ -64,6 +64,8 @@ BAD = {
         r"ppo.num_envs=10,000,000,000 .*cannot fit: it needs at least .* GiB per device .* Use ppo.num_envs <= ",
     ),
     "progress mode": (["logging.progress=fancy"], r"logging.progress.*auto, bar, lines, none"),
+    "run name leaves run_root": (["logging.run_name=../escape"], r"run_name='../escape' must be a plain folder"),
+    "run name with a folder": (["logging.run_name=a/b"], r"logging.run_name='a/b' must be a plain folder name"),
     "override without =": (["ppo.num_cycles"], r"must look like key.sub=value"),
 }
 
@@ -86,6 +88,16 @@ def test_bad_files_fail_clearly(tmp_path: Path):
     listed.write_text("- ppo\n")
     with pytest.raises(ConfigError, match="must hold a mapping of sections"):
         load_config(listed)
+    binary = tmp_path / "weights.bin"
+    binary.write_bytes(bytes(range(128, 256)))
+    with pytest.raises(ConfigError, match=r"weights.bin is not a text file \(not UTF-8\): a config is a YAML file"):
+        load_config(binary)
+    for text in ("", "# only a comment\n"):
+        (tmp_path / "empty.yaml").write_text(text)
+        with pytest.raises(ConfigError, match="empty.yaml holds no settings .* Name a shipped config .*cartpole"):
+            load_config(tmp_path / "empty.yaml")
+    with pytest.raises(ConfigError, match="is a directory; give a config's YAML file"):
+        load_config(tmp_path)
 
 
 def test_shipped_configs_are_found_by_name_from_any_directory(tmp_path: Path, monkeypatch):
@@ -102,8 +114,8 @@ def test_a_config_extends_another_by_name_or_relative_path(tmp_path: Path):
     # The shipped 4-GPU recipe is the fast cube with its batch and learning rate changed and nothing else.
     fast, four = to_dict(load_config("shadow_ihom")), to_dict(load_config("shadow_ihom_4gpu"))
     changed = {key for key, value in flatten(four).items() if flatten(fast)[key] != value}
-    assert changed == {"ppo.num_envs", "ppo.minibatch_size", "ppo.learning_rate", "distribution.num_devices",
-                       "checkpoint.every", "checkpoint.lean"}
+    assert changed == {"ppo.num_envs", "ppo.rollout_length", "ppo.minibatch_size", "ppo.learning_rate",
+                       "distribution.num_devices", "checkpoint.every", "checkpoint.lean"}
     assert four["env"]["options"] == fast["env"]["options"] and four["ppo"]["learning_rate"] == 2 * 3e-4
     # A file next to its base, which itself extends a shipped config; sections merge, lists and values replace.
     (tmp_path / "base.yaml").write_text("extends: cartpole\nppo: {num_cycles: 9, network: {width: 32}}\n")

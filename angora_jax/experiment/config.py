@@ -181,6 +181,12 @@ def validate(config: Config) -> Env:
     logging, checkpoint = config.logging, config.checkpoint
     if logging.progress not in PROGRESS_MODES:
         raise ConfigError(_unknown("logging.progress", logging.progress, PROGRESS_MODES, "modes"))
+    name = logging.run_name
+    if name is not None and (name in ("", ".", "..") or "/" in name or "\\" in name):
+        raise ConfigError(
+            f"logging.run_name={name!r} must be a plain folder name (no '/', '\\' or '..'): the run directory is made "
+            f"inside logging.run_root ({logging.run_root!r}); to write elsewhere, change logging.run_root."
+        )
     if logging.tensorboard and importlib.util.find_spec("tensorboardX") is None:
         raise ConfigError(
             "logging.tensorboard=true needs the tensorboardX package: pip install 'angora-jax[tensorboard]', or set "
@@ -233,12 +239,21 @@ def _read(source: str | Path | dict | None, chain: tuple[Path, ...] = ()) -> dic
             f"Config file {str(source)!r} not found{f' (extended by {chain[-1]})' if chain else ''}. Give a YAML path "
             f"or the name of a shipped config: {', '.join(list_configs())} (angora-jax list-configs)."
         )
+    if path.is_dir():
+        raise ConfigError(f"{path} is a directory; give a config's YAML file (to continue a run: angora-jax resume "
+                          f"{path}).")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path} is not a text file (not UTF-8): a config is a YAML file such as "
+                          f"{CONFIGS / 'cartpole.yaml'}, or the name of a shipped config (angora-jax list-configs)."
+                          ) from None
     except yaml.YAMLError as error:
         raise ConfigError(f"{path} is not valid YAML: {error}") from None
     if data is None:
-        return {}
+        raise ConfigError(f"{path} holds no settings (it is empty or only comments). Name a shipped config instead "
+                          f"({', '.join(list_configs())}), or start the file with `{EXTENDS}: NAME` and the keys to "
+                          "change.")
     if not isinstance(data, dict):
         raise ConfigError(f"{path} must hold a mapping of sections (env, ppo, ...), got {type(data).__name__}.")
     if EXTENDS not in data:
