@@ -19,6 +19,8 @@ import angora_jax as aj
 from angora_jax import cli
 from angora_jax.cli import main
 from angora_jax.experiment import compilation_cache, runner
+from angora_jax.experiment.config import load_config, validate
+from angora_jax.experiment.cpu_sizing import cpu_note
 from angora_jax.experiment.distributed import ProcessFailed, StopDecision
 from angora_jax.experiment.live_report import LiveReport
 from angora_jax.experiment.monitor import read_metrics
@@ -345,3 +347,25 @@ def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("localhost", 0))
         return probe.getsockname()[1]
+
+
+def test_a_gpu_sized_config_started_without_a_gpu_says_so_before_compiling(capsys, tmp_path, monkeypatch):
+    """`angora-jax train shadow_ihom` on a CPU: before anything compiles, the note gives the env steps per cycle, the
+    time per cycle at the CPU rate measured for the cube, and an override that makes a valid CPU-sized run."""
+
+    def compile_nothing(*args, **kwargs):
+        raise RuntimeError("stopped before compiling")
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(runner, "training_cycles", compile_nothing)
+    with pytest.raises(RuntimeError, match="stopped before compiling"):
+        runner.train("shadow_ihom", ["logging.progress=lines"])
+    out = capsys.readouterr().out
+    assert "Note: no GPU found, and this config is sized for one: 16,384 envs x 32 steps = 524,288 env steps" in out
+    assert "about 3.3 hours per cycle at the 44 env steps/s" in out
+    override = re.search(r"For a CPU run, add: (.*?);", out).group(1).split()
+    assert override == ["ppo.num_envs=64", "ppo.minibatch_size=512"]
+    validate(load_config("shadow_ihom", override))
+    assert cpu_note(load_config("shadow_ihom", override), {"engine": "MuJoCo MJX (JAX implementation)"}, False) is None
+    assert cpu_note(load_config("shadow_ihom"), {"engine": "MuJoCo MJX (MuJoCo Warp implementation)"}, True) is None
+    assert cpu_note(load_config("cartpole", ["ppo.num_envs=100000"]), {"engine": "pure JAX"}, False) is None

@@ -27,6 +27,7 @@ from angora_jax.envs.mjx_env import on_gpu
 from angora_jax.experiment import compilation_cache
 from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints
 from angora_jax.experiment.config import Config, load_config, num_devices, to_dict, validate
+from angora_jax.experiment.cpu_sizing import cpu_note
 from angora_jax.experiment.distributed import ProcessFailed, agree_to_stop, is_main_process, shared_run_dir
 from angora_jax.experiment.doctor import devices, versions
 from angora_jax.experiment.monitor import Monitor, read_metrics, set_aside_after
@@ -198,6 +199,9 @@ def _run(
                                  "physics": physics})
         announcement = (f"{run_dir}: {config.env.task} on {describe_physics(physics)}; compiling the first cycle "
                         f"(from cycle {start} of {config.ppo.num_cycles}) ...")
+        note = cpu_note(config, physics, on_gpu())
+        if note:
+            announcement += "\n" + note
         if physics.get("impl") == "warp" and devices_used > 1 and jax.process_count() == 1 and on_gpu():
             announcement += ("\nNote: one process driving several GPUs on MuJoCo Warp is measured for 10 cycles only "
                              "(3.87x on 4 H100s); one process per GPU is the layout measured over whole runs (3.94x): "

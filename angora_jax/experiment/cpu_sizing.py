@@ -1,0 +1,47 @@
+"""A GPU-sized run started without a GPU: what one cycle would cost on the CPU, said before compiling, with a CPU-sized
+override to use instead."""
+
+from __future__ import annotations
+
+from angora_jax.experiment.config import Config
+
+# Env steps per second of MJX's JAX implementation on 2 CPU cores (batch 16, the tasks' own physics settings;
+# benchmarks/results/physics_throughput_cpu.json, configs "reach-tuned" and "cube-tuned"). More cores run faster,
+# roughly in proportion.
+CPU_ENV_STEPS_PER_S = {"ShadowHandReach": 1715.0, "ShadowHandFreeReach": 1715.0, "ShadowHandCube": 44.0}
+# Past this many env steps per cycle, a task without a measured rate is called GPU-sized.
+GPU_SIZED_STEPS = 65536
+CPU_ENVS = 64
+
+
+def cpu_note(config: Config, physics: dict, on_gpu: bool) -> str | None:
+    """A warning for a run on MJX (`physics`: `Env.physics_info()`) without a GPU whose cycle would take more than
+    5 minutes at the measured CPU rate (or, for tasks without one, more than `GPU_SIZED_STEPS` env steps): the env
+    steps per cycle, the estimated time per cycle and a CPU-sized override (`ppo.num_envs`, `ppo.minibatch_size`).
+    None on a GPU, on the eager C MuJoCo path, or for a run small enough."""
+    if on_gpu or not physics.get("engine", "").startswith("MuJoCo MJX"):
+        return None
+    ppo = config.ppo
+    steps = ppo.num_envs * ppo.rollout_length
+    rate = CPU_ENV_STEPS_PER_S.get(config.env.task)
+    if (steps / rate < 300) if rate else steps <= GPU_SIZED_STEPS:
+        return None
+    envs = min(CPU_ENVS, ppo.num_envs)
+    minibatch = envs // (4 if envs % 4 == 0 else 1) * ppo.rollout_length  # 4 minibatches of whole trajectories
+    override = f"ppo.num_envs={envs} ppo.minibatch_size={minibatch}"
+    cost = "" if rate is None else (
+        f", about {_duration(steps / rate)} per cycle at the {rate:,.0f} env steps/s that 2 CPU cores ran "
+        f"(benchmarks/results/physics_throughput_cpu.json; {_duration(envs * ppo.rollout_length / rate)} with the "
+        "override)")
+    return (f"Note: no GPU found, and this config is sized for one: {ppo.num_envs:,} envs x {ppo.rollout_length} steps "
+            f"= {steps:,} env steps per cycle on {physics['engine']} on the CPU{cost}. For a CPU run, add: {override}; "
+            "for the GPU, install JAX's CUDA build and warp-lang (README, `angora-jax doctor`).")
+
+
+def _duration(seconds: float) -> str:
+    """`seconds` in the largest fitting unit, e.g. '3.3 hours', '47 s'."""
+    if seconds >= 5400:
+        return f"{seconds / 3600:.1f} hours"
+    if seconds >= 90:
+        return f"{seconds / 60:.0f} minutes"
+    return f"{seconds:.0f} s"
