@@ -273,6 +273,13 @@ def parser() -> argparse.ArgumentParser:
     vision.add_argument("--seed", type=int, default=0)
     vision.set_defaults(handler=command_pretrain_vision)
 
+    config = commands.add_parser("config", help="show the config a run would use, every key resolved")
+    config_commands = config.add_subparsers(dest="config_command", required=True)
+    show = config_commands.add_parser("show", help="print the resolved config (YAML) of CONFIG with the overrides, "
+                                                   "checked as train checks it, without running anything")
+    show.add_argument("config", help="YAML path or the name of a shipped config (see list-configs)")
+    show.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. ppo.num_envs=64")
+    show.set_defaults(handler=command_config_show)
     configs = commands.add_parser("list-configs", help="print the shipped configs and what each trains")
     configs.set_defaults(handler=command_list_configs)
     doctor = commands.add_parser("doctor", help="what this machine gives angora_jax and what to install")
@@ -648,6 +655,18 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
           f"{errors['orientation_deg_median']:.1f} deg median ({errors['orientation_deg_p90']:.1f} p90).")
     print(f"Encoder: {out} (load with network.pretrained); the whole pose network: {estimator_out} "
           f"(angora_jax.vision.PoseEstimator.load); numbers: {out.with_suffix('.json')}")
+    return EXIT_OK
+
+
+def command_config_show(args: argparse.Namespace) -> int:
+    import yaml
+
+    from angora_jax.experiment.config import load_config, to_dict, validate
+
+    config = load_config(args.config, args.overrides)
+    validate(config)
+    print(f"# {args.config} {' '.join(args.overrides)}".rstrip() + ": what `angora-jax train` would use")
+    print(yaml.safe_dump(to_dict(config), sort_keys=False), end="")
     return EXIT_OK
 
 

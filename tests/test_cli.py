@@ -369,3 +369,16 @@ def test_a_gpu_sized_config_started_without_a_gpu_says_so_before_compiling(capsy
     assert cpu_note(load_config("shadow_ihom", override), {"engine": "MuJoCo MJX (JAX implementation)"}, False) is None
     assert cpu_note(load_config("shadow_ihom"), {"engine": "MuJoCo MJX (MuJoCo Warp implementation)"}, True) is None
     assert cpu_note(load_config("cartpole", ["ppo.num_envs=100000"]), {"engine": "pure JAX"}, False) is None
+
+
+def test_config_show_prints_the_resolved_config_a_run_would_use(capsys, tmp_path):
+    """`config show` prints every key of the resolved config as YAML that trains the same run when saved, and a bad
+    override gets the same exit 2 and message as `train`."""
+    assert main(["config", "show", "shadow_ihom_4gpu", "ppo.seed=3"]) == 0
+    shown = capsys.readouterr().out
+    assert shown.startswith("# shadow_ihom_4gpu ppo.seed=3: what `angora-jax train` would use\n")
+    assert "  rollout_length: 16\n" in shown and "  seed: 3\n" in shown and "extends" not in shown
+    (tmp_path / "shown.yaml").write_text(shown)
+    assert load_config(tmp_path / "shown.yaml") == load_config("shadow_ihom_4gpu", ["ppo.seed=3"])
+    assert main(["config", "show", "cartpole", "ppo.gama=1"]) == 2
+    assert "Unknown key 'ppo.gama'. Did you mean 'gamma'?" in capsys.readouterr().err
