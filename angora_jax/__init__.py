@@ -10,6 +10,7 @@ from angora_jax.envs.gym_view import register_gymnasium_envs
 from angora_jax.experiment import list_configs, load_agent, load_config, resume, train
 from angora_jax.experiment.evaluation import evaluate
 from angora_jax.experiment.video import render_frames
+from angora_jax.vision import estimator as _registers_the_pose_estimator_reader  # noqa: F401  (see envs.shadow_hand)
 
 make_env = make
 register_gymnasium_envs()

@@ -20,6 +20,7 @@ from angora_jax.experiment.config import Config, DistributionConfig, load_config
 from angora_jax.experiment.run_dir import CHECKPOINTS, read_run_config, read_sessions
 from angora_jax.experiment.runner import initial_state_shape
 from angora_jax.nets import ActorCritic, make_network
+from angora_jax.nets.components import register_run_reader
 from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.cycle import build_head
 from angora_jax.ppo.distributions import PolicyHead
@@ -155,6 +156,9 @@ def saved_policy(source: str | Path) -> PolicyState:
         raise FileNotFoundError(f"{text!r} names no saved run (no directory {run_dir!r}): give "
                                 "RUN_DIR[:best|latest|<cycle>] (network.pretrained also takes a component file).")
     return load_agent(run_dir, int(which) if which.isdigit() else (which or "best")).state
+
+
+register_run_reader(saved_policy)
 
 
 def _acting_config(config: Config) -> Config:

@@ -10,7 +10,7 @@ A component is addressed by its module path with dots, as in recordings and lesi
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +18,27 @@ import jax
 import numpy as np
 import optax
 from flax import serialization
+
+# What reads a saved run's policy (an object with `params` and `obs_stats`) from "RUN_DIR[:best|latest|<cycle>]":
+# run directories belong to the experiment layer, which builds on nets and ppo, so it registers its reader here
+# (angora_jax.experiment.agent) and nets and ppo never import it.
+_run_reader: Callable[[str], Any] | None = None
+
+
+def register_run_reader(reader: Callable[[str], Any]) -> None:
+    """Make `reader(source) -> saved policy` the way `read_saved_run` (and so `init_from` and run-directory
+    components) reads runs. angora_jax.experiment registers its `saved_policy` when it is imported."""
+    global _run_reader
+    _run_reader = reader
+
+
+def read_saved_run(source: str | Path) -> Any:
+    """The saved policy (`params`, `obs_stats`) of the run `source` ("RUN_DIR[:best|latest|<cycle>]"), read by the
+    registered reader; RuntimeError naming the fix when none is registered."""
+    if _run_reader is None:
+        raise RuntimeError(f"Reading the saved run {str(source)!r} needs angora_jax.experiment, which registers the "
+                           "run-directory reader: import angora_jax first.")
+    return _run_reader(str(source))
 
 
 def module_paths(params: Any) -> list[str]:
@@ -78,10 +99,7 @@ def load_component(source: str | Path, path: str) -> Any:
     checkpoint, or `RUN_DIR:latest` / `RUN_DIR:<cycle>`), from whose parameters the same path is taken."""
     if Path(source).is_file():
         return serialization.msgpack_restore(Path(source).read_bytes())
-    # experiment builds on nets, so nets reaches for the run-directory reader only when a run is the source
-    from angora_jax.experiment.agent import saved_policy
-
-    return component(saved_policy(source).params, path)
+    return component(read_saved_run(source).params, path)
 
 
 def with_pretrained(params: Any, pretrained: Mapping[str, str | Path]) -> Any:

@@ -18,7 +18,13 @@ from jax.sharding import PartitionSpec as P
 
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.nets import ActorCritic, make_network
-from angora_jax.nets.components import frozen_optimizer, load_component, stop_frozen_gradients, with_component
+from angora_jax.nets.components import (
+    frozen_optimizer,
+    load_component,
+    read_saved_run,
+    stop_frozen_gradients,
+    with_component,
+)
 from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.config import PPOConfig, tile_shape
 from angora_jax.ppo.distributions import PolicyHead, make_head
@@ -303,10 +309,7 @@ def _with_saved_values(init: Callable[[jax.Array], TrainState], pretrained: dict
     def init_with_saved_values(key: jax.Array) -> TrainState:
         if not loaded:
             if init_from:  # checked against the shapes first: a run that does not fit fails before any compile
-                # experiment builds on ppo, so ppo reaches for the run-directory reader only when a run is named
-                from angora_jax.experiment.agent import saved_policy
-
-                saved, shapes = saved_policy(init_from), jax.eval_shape(init, key)
+                saved, shapes = read_saved_run(init_from), jax.eval_shape(init, key)
                 loaded["run"] = (_fitting(shapes.params, saved.params, "network parameters", init_from),
                                  _fitting(shapes.obs_stats, saved.obs_stats, "observation statistics", init_from))
             loaded["components"] = {path: load_component(source, path) for path, source in pretrained.items()}

@@ -27,6 +27,7 @@ import numpy as np
 from flax import serialization
 from jax.scipy.spatial.transform import Rotation
 
+from angora_jax.envs.shadow_hand import register_pose_estimator_reader
 from angora_jax.nets.visual import make_visual_encoder
 
 ORIENTATIONS = {"quaternion": 4, "6d": 6}  # the head's outputs per orientation representation
@@ -139,3 +140,6 @@ class PoseEstimator:
         return cls(state["params"], state["encoder"], options, state["orientation"], tuple(state["cameras"]),
                    int(state["size"]), np.asarray(state["position_mean"]), np.asarray(state["position_spread"]),
                    state.get("renderer") or None)
+
+
+register_pose_estimator_reader(PoseEstimator.load)

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from angora_jax.envs.backends import on_backend
 from angora_jax.envs.cameras import CameraVision
 from angora_jax.envs.core import Env
 from angora_jax.envs.mujoco_task import MujocoTask
 from angora_jax.envs.registry import register
 from angora_jax.envs.shadow_hand.cube import CUBE_PHYSICS, load_cube_scene
-from angora_jax.envs.shadow_hand.ihom import Ihom, reward_coefficients
+from angora_jax.envs.shadow_hand.ihom import Ihom, PoseReader, reward_coefficients
 from angora_jax.envs.shadow_hand.model import PhysicsSettings, load_scene
 from angora_jax.envs.shadow_hand.reach import Reach, ReachReward
 
@@ -37,6 +39,26 @@ def make_reach(free: bool = False, reward: dict[str, float] | None = None, contr
     scene = load_scene("reach.xml", physics=settings, cameras=cameras.cameras if cameras else ())
     task = Reach(scene, ReachReward.from_dict(reward), free=free, control=control, vision=cameras)
     return build(backend, task, frame_skip, max_episode_steps, settings)
+
+
+# Reads a pose estimator file for the cube's `pose_estimator` option. Estimators are made and trained in
+# angora_jax.vision, which builds on envs, so it registers its reader here (`PoseEstimator.load`) when imported.
+_pose_estimator_reader: Callable[[str], PoseReader] | None = None
+
+
+def register_pose_estimator_reader(reader: Callable[[str], PoseReader]) -> None:
+    """Make `reader(file) -> pose estimator` the way `make_ihom` reads its `pose_estimator` file; angora_jax.vision
+    registers `PoseEstimator.load` when it is imported (as `import angora_jax` does)."""
+    global _pose_estimator_reader
+    _pose_estimator_reader = reader
+
+
+def read_pose_estimator(file: str) -> PoseReader:
+    """The pose estimator saved in `file`, read by the registered reader; RuntimeError naming the fix without one."""
+    if _pose_estimator_reader is None:
+        raise RuntimeError(f"Reading the pose estimator {file!r} needs angora_jax.vision, which registers the reader: "
+                           "import angora_jax (or angora_jax.vision) first.")
+    return _pose_estimator_reader(file)
 
 
 def make_free_reach(**options) -> Env:
@@ -70,12 +92,10 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
     """
     estimator = None
     if pose_estimator is not None:
-        from angora_jax.vision.estimator import PoseEstimator  # vision builds on envs: loaded only when asked for
-
         if vision is not None:
             raise ValueError("pose_estimator sees through the cameras it was trained on; give no vision option "
                              "with it.")
-        estimator = PoseEstimator.load(pose_estimator)
+        estimator = read_pose_estimator(pose_estimator)
         vision = {"cameras": list(estimator.cameras), "width": estimator.size, "height": estimator.size,
                   "renderer": estimator.renderer}
     cameras = CameraVision.from_options(vision)

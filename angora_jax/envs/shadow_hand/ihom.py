@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import jax
 import jax.numpy as jnp
@@ -67,8 +67,18 @@ from angora_jax.envs.shadow_hand.cube import CUBE_JOINT
 from angora_jax.envs.shadow_hand.hand import HandTask
 from angora_jax.envs.shadow_hand.model import HAND_JOINT_PREFIX
 
-if TYPE_CHECKING:
-    from angora_jax.vision.estimator import PoseEstimator
+
+class PoseReader(Protocol):
+    """What the cube task needs of a pose estimator (`angora_jax.vision.PoseEstimator` is one): the cameras it reads
+    (names, in the order of the frames' camera axis), their frame size in pixels, the renderer its training frames
+    came from ("cpu": OpenGL, "warp", or None), and `(B, cameras, size, size, 3)` uint8 frames -> the cube's position
+    `(B, 3)` (m, world frame) and orientation `(B, 4)` (quaternion w x y z)."""
+
+    cameras: tuple[str, ...]
+    size: int
+    renderer: str | None
+
+    def __call__(self, frames: jax.Array) -> tuple[jax.Array, jax.Array]: ...
 
 # Gym HandManipulateBlock starts from the flat, open hand (all joints 0) with the cube a few cm above the palm.
 # Std (m) of the cube's initial position noise, as in AngoraPy/Gym.
@@ -201,7 +211,7 @@ class Ihom(HandTask):
                  steps_per_goal: int = 100, max_goals: int = 50, dt: float = 0.08, timer: str = "terminal",
                  relative_goal: bool = False, control: str = "absolute", action_scale: float = 0.2,
                  start_pool: int = 512, vision: CameraVision | None = None,
-                 pose_estimator: PoseEstimator | None = None):
+                 pose_estimator: PoseReader | None = None):
         if success_angle <= 0 or steps_per_goal < 1 or max_goals < 1 or dt <= 0 or start_pool < 1:
             raise ValueError(f"Ihom needs success_angle > 0, steps_per_goal >= 1, max_goals >= 1, dt > 0 and "
                              f"start_pool >= 1, got {success_angle}, {steps_per_goal}, {max_goals}, {dt}, "

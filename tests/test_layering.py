@@ -1,0 +1,85 @@
+"""The packages form layers, and each imports only its own and those below it, at import time or inside a function:
+envs -> nets -> ppo -> experiment -> analysis, vision -> the package's public API (its `__init__`) -> cli, with
+angora_jax.registry below all. Where a lower layer needs something of a higher one (reading a saved
+run's policy for `init_from`, reading a pose estimator file for the cube), the higher one registers it with the lower
+(`nets.components.register_run_reader`, `envs.shadow_hand.register_pose_estimator_reader`). Imports only for type
+hints (under `if TYPE_CHECKING:`) never run and are not counted."""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+import angora_jax
+
+# "api": the package itself (`import angora_jax as aj`), the public API its __init__ gathers.
+LAYERS = {"registry": 0, "envs": 1, "nets": 2, "ppo": 3, "experiment": 4, "analysis": 5, "vision": 5, "api": 6,
+          "cli": 7}
+PACKAGE = Path(angora_jax.__file__).parent
+
+
+def runtime_imports(tree: ast.AST) -> list[tuple[int, str]]:
+    """(line, module) of every `angora_jax...` import in `tree` outside `if TYPE_CHECKING:` blocks."""
+    found = []
+
+    def visit(node: ast.AST) -> None:
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            for child in node.orelse:
+                visit(child)
+            return
+        if isinstance(node, ast.Import):
+            found.extend((node.lineno, alias.name) for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.append((node.lineno, node.module))
+        for child in ast.iter_child_nodes(node):
+            visit(child)
+
+    visit(tree)
+    return [(line, module) for line, module in found if module.split(".")[0] == "angora_jax"]
+
+
+def layer_of(module: str) -> str:
+    """The layer of `angora_jax.X...` (X a package or a top-level module); "api" for the package itself."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "api"
+
+
+def test_every_package_imports_only_its_own_and_lower_layers():
+    files = sorted(PACKAGE.rglob("*.py"))
+    assert len(files) > 50
+    upward = []
+    for file in files:
+        relative = file.relative_to(PACKAGE)
+        if relative.as_posix() == "__init__.py":
+            continue
+        source = relative.parts[0].removesuffix(".py")
+        assert source in LAYERS, f"{relative}: a new package; give it a layer in LAYERS"
+        for line, module in runtime_imports(ast.parse(file.read_text(), str(file))):
+            target = layer_of(module)
+            assert target in LAYERS, f"{relative}:{line} imports {module}, outside every layer"
+            if target != source and LAYERS[target] >= LAYERS[source]:
+                upward.append(f"{relative}:{line} ({source}) imports {module} ({target})")
+    assert not upward, "imports of a layer from one not above it:\n" + "\n".join(upward)
+
+
+def test_the_check_sees_upward_imports_in_functions_and_ignores_type_hints():
+    tree = ast.parse("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from angora_jax.ppo import config\n"
+                     "def f():\n    from angora_jax.experiment.agent import saved_policy\n"
+                     "import angora_jax.envs.core\n")
+    assert runtime_imports(tree) == [(5, "angora_jax.experiment.agent"), (6, "angora_jax.envs.core")]
+    assert layer_of("angora_jax.registry") == "registry" and layer_of("angora_jax") == "api"
+
+
+def test_lower_layers_read_runs_and_estimators_through_the_readers_the_higher_ones_registered(monkeypatch):
+    from angora_jax.envs import shadow_hand
+    from angora_jax.experiment.agent import saved_policy
+    from angora_jax.nets import components
+    from angora_jax.vision.estimator import PoseEstimator
+
+    assert components._run_reader is saved_policy and shadow_hand._pose_estimator_reader == PoseEstimator.load
+    monkeypatch.setattr(components, "_run_reader", None)
+    monkeypatch.setattr(shadow_hand, "_pose_estimator_reader", None)
+    with pytest.raises(RuntimeError, match="needs angora_jax.experiment, which registers the run-directory reader"):
+        components.read_saved_run("runs/x:latest")
+    with pytest.raises(RuntimeError, match="needs angora_jax.vision, which registers the reader"):
+        shadow_hand.read_pose_estimator("estimator.pose.msgpack")
