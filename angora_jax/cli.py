@@ -47,6 +47,7 @@ from angora_jax.experiment import (
     snapshot_cycles,
     train,
 )
+from angora_jax.experiment.config_reference import reference_markdown
 from angora_jax.experiment.distributed import ProcessFailed, initialize, is_main_process
 from angora_jax.experiment.runner import signals_exit_while_preparing
 from angora_jax.nets import list_networks
@@ -280,6 +281,9 @@ def parser() -> argparse.ArgumentParser:
     show.add_argument("config", help="YAML path or the name of a shipped config (see list-configs)")
     show.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. ppo.num_envs=64")
     show.set_defaults(handler=command_config_show)
+    reference = config_commands.add_parser("reference", help="print every config key with its type, default and "
+                                                             "description (Markdown; docs/config.md)")
+    reference.set_defaults(handler=lambda args: print(reference_markdown(), end="") or EXIT_OK)
     configs = commands.add_parser("list-configs", help="print the shipped configs and what each trains")
     configs.set_defaults(handler=command_list_configs)
     doctor = commands.add_parser("doctor", help="what this machine gives angora_jax and what to install")

@@ -20,6 +20,7 @@ from angora_jax import cli
 from angora_jax.cli import main
 from angora_jax.experiment import compilation_cache, runner
 from angora_jax.experiment.config import load_config, validate
+from angora_jax.experiment.config_reference import reference_markdown
 from angora_jax.experiment.cpu_sizing import cpu_note
 from angora_jax.experiment.distributed import ProcessFailed, StopDecision
 from angora_jax.experiment.live_report import LiveReport
@@ -382,3 +383,5 @@ def test_config_show_prints_the_resolved_config_a_run_would_use(capsys, tmp_path
     assert load_config(tmp_path / "shown.yaml") == load_config("shadow_ihom_4gpu", ["ppo.seed=3"])
     assert main(["config", "show", "cartpole", "ppo.gama=1"]) == 2
     assert "Unknown key 'ppo.gama'. Did you mean 'gamma'?" in capsys.readouterr().err
+    assert main(["config", "reference"]) == 0
+    assert capsys.readouterr().out == reference_markdown()

@@ -1,11 +1,13 @@
 """Experiment configs: YAML plus overrides load into typed dataclasses; bad input fails before any compile with
 a message that names the key and what is allowed."""
 
+import dataclasses
 from pathlib import Path
 
 import pytest
 
 from angora_jax.experiment.config import Config, ConfigError, flatten, list_configs, load_config, to_dict, validate
+from angora_jax.experiment.config_reference import config_keys, field_descriptions, reference_markdown
 from angora_jax.ppo import PPOConfig
 
 
@@ -134,3 +136,35 @@ def test_a_bad_extends_fails_naming_the_file(tmp_path: Path, text, message):
     (tmp_path / "run.yaml").write_text(text)
     with pytest.raises(ConfigError, match=message):
         load_config(tmp_path / "run.yaml")
+
+
+def test_the_config_reference_describes_every_key_and_docs_hold_it_as_generated():
+    """Every key of every config section has a type, a default and a description read from its class's docstring;
+    docs/config.md is what `angora-jax config reference` prints (regenerate it after changing a config class)."""
+    keys = config_keys()
+    assert [key.key for key in keys][:3] == ["env", "env.task", "env.options"] and len(keys) > 50
+    assert {key.key for key in keys} >= {f"ppo.{name}" for name in to_dict(load_config("cartpole"))["ppo"]}
+    undescribed = [key.key for key in keys if len(key.description) < 10]
+    assert not undescribed, f"config keys without a description in their class's docstring: {undescribed}"
+    by_key = {key.key: key for key in keys}
+    assert by_key["distribution.num_devices"].type == "int | str" and by_key["ppo.init_from"].default == "null"
+    assert by_key["logging.run_name"].description.startswith("the run directory's name; None makes one")
+    assert by_key["checkpoint.best_mode"].description == '"max" or "min".'
+    docs = Path(__file__).resolve().parents[1] / "docs" / "config.md"
+    assert docs.read_text() == reference_markdown(), "stale: angora-jax config reference > docs/config.md"
+
+
+def test_a_field_missing_from_its_docstring_has_no_description():
+    @dataclasses.dataclass(frozen=True)
+    class Section:
+        """first: described. second: also described, over
+        two lines.
+
+        third is mentioned but not introduced."""
+
+        first: int = 1
+        second: str = "x"
+        third: float = 0.5
+
+    assert field_descriptions(Section) == {"first": "described.", "second": "also described, over two lines."}
+    assert [key.description for key in config_keys(Section)][2] == ""

@@ -105,7 +105,11 @@ class DistributionConfig:
 
 @dataclass(frozen=True)
 class Config:
-    """Everything one experiment needs; `to_dict(config)` is its resolved form as saved with a run."""
+    """Everything one experiment needs; `to_dict(config)` is its resolved form as saved with a run.
+
+    env: the task and its options. ppo: the PPO run and its network. logging: where the run is written and what is
+    shown. checkpoint: which checkpoints are kept. distribution: the devices of a data-parallel run.
+    """
 
     env: EnvConfig = field(default_factory=EnvConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)

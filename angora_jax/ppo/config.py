@@ -23,7 +23,8 @@ class VisualConfig:
     """The visual area: a convolutional encoder of camera images (`angora_jax.nets.visual`), shared by the cameras,
     whose features (cameras x `features`) take the images' place in `vision` for the network.
 
-    encoder: "cornet_z" or "impala". widths: channels per stage (empty: the encoder's own). features: per camera.
+    encoder: "cornet_z" or "impala". widths: channels per stage (empty: the encoder's own). features: features
+    the encoder gives per camera.
     """
 
     encoder: str = "cornet_z"
@@ -81,7 +82,12 @@ class NetworkConfig:
 
 @dataclass(frozen=True)
 class NormalizationConfig:
-    """Running normalisation of observations (per modality) and of rewards (by the discounted return's std)."""
+    """Running normalisation of observations (per modality) and of rewards (by the discounted return's std).
+
+    observations: standardise each observation modality by its running mean and std.
+    rewards: divide rewards by the running std of the discounted return.
+    clip: normalised observations are clipped to +-clip (standard deviations).
+    """
 
     observations: bool = True
     rewards: bool = True
@@ -93,11 +99,27 @@ class PPOConfig:
     """One PPO run on a task given separately (the experiment config's `env` section names it). A cycle collects
     `num_envs * rollout_length` transitions, then runs `num_epochs` passes of minibatch updates over them.
 
+    seed: the run's PRNG seed (environments, initial parameters, minibatch draws); a run is reproducible from it.
+    num_cycles: cycles to train (rollout plus updates each).
+    num_envs: environments stepped in parallel (a run total, divided over the devices).
     rollout_length: policy steps per environment per cycle (T).
     chunk_length: truncated-BPTT chunk length s; the rollout stores the recurrent carry every s steps. Must divide
         `rollout_length`; equal to it means full BPTT.
     minibatch_size: transitions per minibatch, a multiple of `chunk_length`; a minibatch is a tile of n
         trajectories x m chunks with n * m * chunk_length = minibatch_size.
+    num_epochs: passes of minibatch updates over each cycle's transitions.
+    gamma: discount factor per policy step (0.99 weighs about the next 100 steps).
+    gae_lambda: the lambda of generalised advantage estimation (1: Monte Carlo returns, 0: one-step TD).
+    clip_epsilon: PPO's clip range of the probability ratio.
+    value_coef: weight of the value loss beside the policy loss.
+    entropy_coef: weight of the entropy bonus (exploration).
+    learning_rate: Adam's learning rate.
+    max_grad_norm: the global gradient norm is clipped to this.
+    normalize_advantages: standardise the advantages of each minibatch (mean 0, std 1).
+    bins: bins per action dimension of the multicategorical head.
+    init_log_std: initial log standard deviation of the Gaussian head.
+    network: the network (`NetworkConfig`).
+    normalization: running normalisation of observations and rewards (`NormalizationConfig`).
     head: "categorical" (discrete), "multicategorical" (continuous, `bins` per dimension), "gaussian", "beta", or
         "auto" (categorical for discrete tasks, gaussian for continuous ones), or a head added with `register_head`.
     value_clip: clip the value update to +-`clip_epsilon` around the rollout's values.

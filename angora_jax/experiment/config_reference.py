@@ -1,0 +1,80 @@
+"""The config reference: every key of `Config`, with its type, default and description, read from the typed
+dataclasses themselves (each field is described in its class's docstring as `name: description`), so the reference
+cannot drift from the code. `angora-jax config reference` prints it; docs/config.md holds it."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import types
+import typing
+from dataclasses import dataclass
+from typing import Any
+
+from angora_jax.experiment.config import Config
+
+
+@dataclass(frozen=True)
+class ConfigKey:
+    """One key: dotted name (e.g. `ppo.network.width`), type as written in the code, default (YAML-like text) and
+    the sentence(s) of its class's docstring ("" when the docstring has none)."""
+
+    key: str
+    type: str
+    default: str
+    description: str
+
+
+def config_keys(cls: type = Config, prefix: str = "") -> list[ConfigKey]:
+    """Every key of the config dataclass `cls` and of the sections inside it, depth first in field order."""
+    hints = typing.get_type_hints(cls)
+    described = field_descriptions(cls)
+    keys = []
+    for field in dataclasses.fields(cls):
+        kind = hints[field.name]
+        default = field.default_factory() if field.default_factory is not dataclasses.MISSING else field.default
+        section = next((a for a in (kind, *typing.get_args(kind)) if dataclasses.is_dataclass(a)), None)
+        shown = "(section)" if dataclasses.is_dataclass(default) else _yaml(default)
+        keys.append(ConfigKey(prefix + field.name, _type_name(kind), shown, described.get(field.name, "")))
+        if section is not None:
+            keys.extend(config_keys(section, f"{prefix}{field.name}."))
+    return keys
+
+
+def field_descriptions(cls: type) -> dict[str, str]:
+    """`name -> description` from `cls`'s docstring, where each field is introduced as `name: ` (at a line's start
+    or after a sentence) and described up to the next field's introduction or a blank line."""
+    doc = " ".join(line.strip() if line.strip() else "\n" for line in (cls.__doc__ or "").splitlines())
+    names = "|".join(re.escape(field.name) for field in dataclasses.fields(cls))
+    pattern = re.compile(rf"(?:^|(?<=[.)] )|(?<=\n ))({names}): (.*?)(?=\s(?:{names}): |\n|$)", re.S)
+    return {name: " ".join(text.split()) for name, text in pattern.findall(doc)}
+
+
+def reference_markdown() -> str:
+    """The reference as a Markdown table: key, type, default, description."""
+    rows = ["| key | type | default | description |", "|---|---|---|---|"]
+    for key in config_keys():
+        kind, default, description = (text.replace("|", "\\|") for text in (key.type, key.default, key.description))
+        rows.append(f"| `{key.key}` | `{kind}` | `{default}` | {description} |")
+    return ("# Config reference\n\nEvery key of an experiment config (`angora_jax.experiment.config.Config`), "
+            "generated from the typed dataclasses by `angora-jax config reference`. A YAML file gives any of them "
+            "(missing keys take these defaults); `angora-jax config show CONFIG` prints what a run would use.\n\n"
+            + "\n".join(rows) + "\n")
+
+
+def _type_name(kind: Any) -> str:
+    if isinstance(kind, types.UnionType) or typing.get_origin(kind) is typing.Union:
+        return " | ".join(_type_name(a) for a in typing.get_args(kind))
+    if typing.get_origin(kind) is not None:
+        return str(kind).replace("typing.", "")
+    return "None" if kind is type(None) else kind.__name__
+
+
+def _yaml(value: Any) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, tuple):
+        return "[" + ", ".join(map(str, value)) + "]"
+    return str(value)
