@@ -16,6 +16,7 @@ from tiny import TINY_PPO
 import angora_jax as aj
 from angora_jax.experiment import Checkpoints, RunDirError, TrainingInterrupted, read_metrics, resume
 from angora_jax.experiment.checkpoint import CheckpointError
+from angora_jax.experiment.config import CheckpointConfig
 from angora_jax.experiment.monitor import set_aside_after
 from angora_jax.experiment.run_dir import CHECKPOINTS
 
@@ -214,3 +215,22 @@ def test_records_after_the_checkpoint_are_set_aside_not_lost(tmp_path):
     assert [r["cycle"] for r in read_metrics(tmp_path)] == [1, 2, 3]
     assert side.name == "metrics.after-cycle-3.jsonl" and side.read_text().splitlines() == lines[3:]
     assert set_aside_after(tmp_path, 3) is None  # nothing later than cycle 3 any more
+
+
+def test_the_best_state_is_written_with_the_next_latest_save_not_in_each_improving_cycle(runs, tmp_path):
+    """A metric that improves in cycles 1, 2 and 3 with `every: 4` writes nothing until cycle 4, then latest (4) and
+    the best (cycle 3, whose state it holds, lean here); a stop (`final`) writes a best reached since."""
+    whole = runs[0]
+    saver = Checkpoints(tmp_path / "best", CheckpointConfig(every=4, best_metric="episode_return", lean=("best",)))
+    returns = {1: 1.0, 2: 2.0, 3: 3.0, 4: 2.5, 5: 9.0, 6: 1.0}
+    saved, best = {}, {}
+    for cycle, value in returns.items():
+        state = whole.state.replace(cycle=jnp.asarray(cycle, whole.state.cycle.dtype))
+        saved[cycle] = saver.save(state, {"episode_return": value}, {}, final=cycle == 6)
+        best[cycle] = saver.steps("best")
+    assert saved == {1: [], 2: [], 3: [], 4: ["latest", "best"], 5: [], 6: ["latest", "best"]}
+    assert best == {1: [], 2: [], 3: [], 4: [3], 5: [3], 6: [5]} and saver.steps("latest") == [6]
+    restored = saver.restore(jax.eval_shape(lambda: whole.state.without_environments()), "best")
+    assert restored.meta["cycle"] == 5 and restored.meta["metrics"]["episode_return"] == 9.0
+    assert not restored.meta["environments"]
+    saver.close()
