@@ -21,6 +21,7 @@ import jax.numpy as jnp
 from angora_jax.envs.core import Env
 from angora_jax.envs.mjx_env import mjx  # through ours, which drops mujoco-mjx's notice that optional Warp is absent
 from angora_jax.envs.random_rollout import batched_reset, make_random_rollout
+from angora_jax.experiment.doctor import versions as doctor_versions
 from angora_jax.ppo import PPOConfig, make_cycle
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
@@ -31,15 +32,14 @@ RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 TARGETS = {"Hopper": 2300.0, "Walker2d": 3400.0, "HalfCheetah": 1700.0, "Ant": 1083.0, "Humanoid": 5000.0}
 
 
-def versions() -> dict[str, str]:
-    """Versions of the packages that decide the numbers."""
-    names = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "brax", "angora-jax")
-    found = {}
-    for name in names:
-        try:
-            found[name] = importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            found[name] = "absent"
+def versions() -> dict[str, str | None]:
+    """Versions of the packages that decide the numbers (None: not installed): those a run records
+    (`experiment.doctor.versions`, warp-lang included), Brax (the peer some benchmarks run) and Python."""
+    found = doctor_versions()
+    try:
+        found["brax"] = importlib.metadata.version("brax")
+    except importlib.metadata.PackageNotFoundError:
+        found["brax"] = None
     found["python"] = platform.python_version()
     return found
 
