@@ -335,9 +335,11 @@ def merge(figure: str, paths: list[str], name: str, out: str, replace: bool = Fa
         if records[-1]["figure"] != figure:
             raise SystemExit(f"{path} holds Fig. {records[-1]['figure']}, not Fig. {figure}: merge one figure at "
                              "a time (--figure).")
-        if deciding(records[-1]["versions"]) != deciding(records[0]["versions"]):
-            raise SystemExit(f"{path} was made with {deciding(records[-1]['versions'])}, {paths[0]} with "
-                             f"{deciding(records[0]['versions'])}: merge runs of one set of versions.")
+        first, this = deciding(records[0]["versions"]), deciding(records[-1]["versions"])
+        # compared on the packages both name: results written before warp-lang was recorded still merge
+        if any(first[package] != this[package] for package in first.keys() & this.keys()):
+            raise SystemExit(f"{path} was made with {this}, {paths[0]} with {first}: merge runs of one set of "
+                             "versions.")
     runs, seen, replaced = {}, {}, []
     for path, record in zip(paths, records, strict=True):
         for run in record["runs"]:
@@ -371,8 +373,10 @@ def merge(figure: str, paths: list[str], name: str, out: str, replace: bool = Fa
 
 
 def deciding(made_with: dict) -> dict:
-    """The versions that decide a figure's numbers: all of `versions()` but Brax's, which this script never runs."""
-    return {package: version for package, version in made_with.items() if package != "brax"}
+    """The versions that decide a figure's numbers: all of `versions()` but Brax's, which this script never runs
+    (not installed: None, written "absent" by earlier versions of this script)."""
+    return {package: None if version == "absent" else version for package, version in made_with.items()
+            if package != "brax"}
 
 
 def main() -> None:

@@ -287,6 +287,12 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
     with pytest.raises(SystemExit, match="one set of versions"):
         paper_figures.merge("8", [str(tmp_path / "merged.json"), str(tmp_path / "newer.json")], "mixed",
                             str(tmp_path), replace=True)
+    # results written before warp-lang was recorded (and with "absent" for what was not installed) still merge
+    older = {**redone, "versions": {package: "absent" if version is None else version
+                                    for package, version in record["versions"].items() if package != "warp-lang"}}
+    (tmp_path / "older.json").write_text(json.dumps(older))
+    paper_figures.merge("8", [str(tmp_path / "merged.json"), str(tmp_path / "older.json")], "older", str(tmp_path),
+                        replace=True)
     # a run that fails in its process is named with the end of its log
     failing = subprocess.run([sys.executable, script, "--figure", "8", "--tasks", "Pendulum", "--seeds", "3",
                               "--parallel", "2", "--smoke", "--out", str(tmp_path), "--name", "bad",
