@@ -30,6 +30,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+import yaml
 
 from angora_jax.envs import list_tasks, make
 from angora_jax.envs.random_rollout import batched_reset, episode_mean, make_random_rollout
@@ -47,6 +48,7 @@ from angora_jax.experiment import (
     snapshot_cycles,
     train,
 )
+from angora_jax.experiment.config import load_config, to_dict, validate
 from angora_jax.experiment.config_reference import reference_markdown
 from angora_jax.experiment.distributed import ProcessFailed, initialize, is_main_process
 from angora_jax.experiment.runner import signals_exit_while_preparing
@@ -663,10 +665,6 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
 
 
 def command_config_show(args: argparse.Namespace) -> int:
-    import yaml
-
-    from angora_jax.experiment.config import load_config, to_dict, validate
-
     config = load_config(args.config, args.overrides)
     validate(config)
     print(f"# {args.config} {' '.join(args.overrides)}".rstrip() + ": what `angora-jax train` would use")
