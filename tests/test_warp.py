@@ -55,14 +55,16 @@ def test_warp_steps_reach_as_c_mujoco_and_mjx_jax_do():
     assert int(warp.physics._impl.nacon.max()) > 0, "fingers touch: Warp's contacts are exercised"
 
 
-def test_a_warp_environment_keeps_every_cuda_graph_warp_captures():
+def test_a_warp_environment_sizes_warp_graph_cache_for_its_devices():
     """One process driving 4 GPUs hung after 3 cycles with Warp's default cache of 32 CUDA graphs per call, which
-    that process had outgrown, and ran 10 cycles without the bound: making a Warp environment lifts the bound for
-    every Warp call MJX creates afterwards (`keep_warp_graphs`)."""
+    that process had outgrown; with no bound, runs of one GPU per process ran out of GPU memory (each graph holds
+    its allocations). Making a Warp environment sets the bound to 32 graphs per local device for every Warp call
+    MJX creates afterwards (`size_warp_graph_cache`)."""
     import warp
 
     aj.make("ShadowHandReach", physics={"impl": "warp"})
-    assert inspect.signature(warp.jax_callable).parameters["graph_cache_max"].default is None
+    bound = inspect.signature(warp.jax_callable).parameters["graph_cache_max"].default
+    assert bound == 32 * len(jax.local_devices())
 
 
 def test_a_warp_run_evaluates_on_the_batched_path_as_on_c_mujoco(two_devices):

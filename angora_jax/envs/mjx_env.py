@@ -34,6 +34,7 @@ with contextlib.redirect_stdout(io.StringIO()) if _WARP_ABSENT else contextlib.n
 # batch size is known): it holds this many environments' worst case. Larger batches can run out of contact slots
 # (Warp then prints an overflow warning and drops contacts).
 WARP_MAX_ENVS = 32768
+WARP_GRAPHS_PER_DEVICE = 32  # warp-lang's default bound for one device (`size_warp_graph_cache`)
 # The warp-lang version that mujoco-mjx 3.17's `warp` extra pins (its MuJoCo Warp is vendored inside mujoco-mjx).
 WARP_REQUIREMENT = "warp-lang==1.18.0"
 
@@ -98,24 +99,27 @@ def quiet_iteration_caps(mjx_model: mjx.Model) -> mjx.Model:
     return mjx_model.tree_replace({"opt._impl.warn_overflow": quiet})
 
 
-def keep_warp_graphs() -> None:
-    """Let MuJoCo Warp keep every CUDA graph it captures (an unbounded graph cache per Warp call from JAX), instead of
-    warp-lang's default of the 32 most recent.
+def size_warp_graph_cache() -> None:
+    """Let MuJoCo Warp keep `WARP_GRAPHS_PER_DEVICE` captured CUDA graphs per Warp call for each local device,
+    instead of warp-lang's 32 per call whatever the device count.
 
-    Why: Warp replays a captured graph for each (device, call, buffer addresses) it has seen. One process driving
-    several GPUs needs one set per GPU: on 4 H100s the cube's two Warp calls held 16 graphs each for 4 GPUs on top of
-    the 1-GPU run's 4 and 9 (benchmarks/results/scaling_ShadowHandCube_weak_one_4xh100.json). A benchmark process
-    that had run 1 and 2 GPUs before 4 (by these counts past 32 for one call, so evicting graphs) hung after 3
-    cycles on 4 GPUs; with no bound the 4-GPU run of one process ran 10 cycles at 3.87x one GPU's rate. MJX creates
-    its Warp calls with warp-lang's default bound, so the default is changed here (warp-lang 1.18's `jax_callable`;
-    a version without the setting is left as it is). A compiled cycle reuses its buffers, so few graphs are added
-    once it runs (4 more per call over the last 8 of those 10 cycles)."""
+    Why: Warp replays a captured graph for each (device, call, buffer addresses) it has seen, and each graph holds
+    the memory its call allocated while it was captured (the cube's contact pass: 38 MB for 16,384 envs). One
+    process driving several GPUs needs a set per GPU: on 4 H100s the cube's two Warp calls held 16 graphs each for
+    4 GPUs on top of a 1-GPU run's 4 and 9 (benchmarks/results/scaling_ShadowHandCube_weak_one_4xh100.json). A
+    benchmark process that had run 1 and 2 GPUs before 4, by these counts past 32 for one call and so evicting
+    graphs, hung after 3 cycles on 4 GPUs. No bound is no cure where XLA keeps placing buffers at new addresses (as
+    it did while the checkpointer held a best cycle's arrays for a later save): 4 processes of one GPU each then ran
+    out of GPU memory inside Warp after 58 cycles of the fast cube and 28 of the paper's setup
+    (benchmarks/results/ihom_4gpu_warp_graphs_4xh100.md). So the bound scales with the devices, and one process per
+    GPU keeps Warp's default. MJX creates its Warp calls with warp-lang's default bound, so the default is changed
+    here (warp-lang 1.18's `jax_callable`; a version without the setting is left as it is)."""
     from warp._src.jax import ffi  # importable only with warp-lang installed
 
     names = list(inspect.signature(ffi.jax_callable).parameters)[1:]  # __defaults__ covers all but `func`
     if "graph_cache_max" in names and len(ffi.jax_callable.__defaults__) == len(names):
         defaults = list(ffi.jax_callable.__defaults__)
-        defaults[names.index("graph_cache_max")] = None
+        defaults[names.index("graph_cache_max")] = WARP_GRAPHS_PER_DEVICE * len(jax.local_devices())
         ffi.jax_callable.__defaults__ = tuple(defaults)
 
 
@@ -134,7 +138,7 @@ class MjxEnv(MujocoEnv):
         sizes = {}
         if self.impl == "warp":
             require_warp()
-            keep_warp_graphs()
+            size_warp_graph_cache()
             sizes = warp_sizes(task.model, warp_max_envs or WARP_MAX_ENVS)
         device = local_device(self.impl)
         self.mjx_model = mjx.put_model(task.model, device=device, impl=self.impl)

@@ -76,13 +76,11 @@ class Checkpoints:
     """The checkpoints of one run directory: decides what to save after a cycle, and restores.
 
     Saving is synchronous: a checkpoint is complete on disk when `save` returns, which is what an interrupted run
-    needs. The best state is written with the next latest or snapshot save (and at the end or a stop), not in the
-    cycle that reached it: while a policy improves, nearly every cycle is a new best, and writing each took 1.1-1.4 s
-    at the cube's 16,384 envs on one H100 and 0.5 s for a lean one on 4 H100s, against cycles of 2.4 and 1.25 s
-    (`benchmarks/results/ihom_*_metrics.jsonl`: the time between cycles' records less their own). Until written, the
-    best cycle's arrays are held (no copy: at most one more state's device memory, without its environments' when
-    the best is lean). After a crash the best on disk is at most `every` cycles old; resuming recomputes the cycles
-    after the latest checkpoint, and with them the best.
+    needs. The best state is written in the cycle that reaches it, although while a policy improves that is nearly
+    every cycle (0.5 s for a lean save on 4 H100s beside 1.25 s cycles): holding the best cycle's device arrays
+    until a later save made XLA place each cycle's buffers at new addresses, MuJoCo Warp captured a CUDA graph for
+    each new set, and 4 processes of one H100 each ran out of GPU memory inside Warp after 58 and 108 cycles of the
+    fast cube (benchmarks/results/ihom_4gpu_warp_graphs_4xh100.md).
     """
 
     def __init__(self, directory: Path, config: CheckpointConfig, create: bool = True):
@@ -103,7 +101,6 @@ class Checkpoints:
         }
         best = self._managers["best"].latest_step()
         self.best_value = None if best is None else self._read_meta("best", best)["metrics"].get(config.best_metric)
-        self._unwritten_best: tuple[int, Any, dict[str, Any]] | None = None  # (cycle, state, meta)
 
     def steps(self, kind: str) -> list[int]:
         """Cycles at which checkpoints of `kind` ("latest", "best", "snapshots") exist, ascending."""
@@ -112,31 +109,26 @@ class Checkpoints:
     def save(
         self, state: Any, metrics: dict[str, float], config: dict[str, Any], final: bool = False
     ) -> list[str]:
-        """Save what is due after this cycle (latest every `every` cycles or when `final`; a snapshot every
-        `snapshot_every` cycles; with either, the best state since the last save, if the metric improved: see the
-        class docstring) and return the kinds saved."""
+        """Save what is due after this cycle (latest every `every` cycles or when `final`; best when the metric
+        improved; a snapshot every `snapshot_every` cycles) and return the kinds saved."""
         cycle = int(state.cycle)
         meta = {"cycle": cycle, "env_steps": metrics.get("env_steps"), "metrics": _finite(metrics), "config": config}
-        if self._improves(metrics):
-            self.best_value = metrics[self.config.best_metric]
-            self._unwritten_best = (cycle, state.without_environments() if "best" in self.config.lean else state, meta)
         due = {
             "latest": final or cycle % self.config.every == 0,
+            "best": self._improves(metrics),
             "snapshots": self.config.snapshot_every > 0 and cycle % self.config.snapshot_every == 0,
         }
-        writes = [(kind, cycle, state, meta) for kind, is_due in due.items() if is_due]
-        if writes and self._unwritten_best is not None:
-            writes.insert(1, ("best", *self._unwritten_best))
-            self._unwritten_best = None
         saved = []
-        for kind, at, written, info in writes:
+        for kind, is_due in due.items():
             # A resumed run recomputes the cycles after its checkpoint exactly; those already saved stay as they are.
-            if at not in self._managers[kind].all_steps():
+            if is_due and cycle not in self._managers[kind].all_steps():
                 lean = kind in self.config.lean
-                storable = to_storable(written.without_environments() if lean else written)
-                self._managers[kind].save(at, args=ocp.args.Composite(
-                    state=ocp.args.PyTreeSave(storable), meta=ocp.args.JsonSave(info | {"environments": not lean})))
+                storable = to_storable(state.without_environments() if lean else state)
+                self._managers[kind].save(cycle, args=ocp.args.Composite(
+                    state=ocp.args.PyTreeSave(storable), meta=ocp.args.JsonSave(meta | {"environments": not lean})))
                 saved.append(kind)
+        if "best" in saved:
+            self.best_value = metrics[self.config.best_metric]
         return saved
 
     def restore(self, template: Any, which: str | int = "latest", partial: bool = False) -> Restored:
