@@ -382,6 +382,8 @@ def command_resume(args: argparse.Namespace) -> int:
 def print_finished(run: TrainingRun) -> None:
     cycle = int(run.state.cycle)
     print(f"Run {run.run_dir}: {cycle} cycles done ({len(run.history)} in this session).")
+    if run.stopped_at is not None:
+        print(f"Stopped early at cycle {cycle}, as ppo.stop_at asks: {run.stopped_at}.")
     if not run.finished:
         print(f"Stopped at the time limit (--minutes) with a checkpoint of cycle {cycle}; continue with: "
               f"angora-jax resume {run.run_dir}")

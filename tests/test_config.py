@@ -69,6 +69,9 @@ BAD = {
     "run name leaves run_root": (["logging.run_name=../escape"], r"run_name='../escape' must be a plain folder"),
     "run name with a folder": (["logging.run_name=a/b"], r"logging.run_name='a/b' must be a plain folder name"),
     "override without =": (["ppo.num_cycles"], r"must look like key.sub=value"),
+    "stop at a metric the task lacks": (["ppo.stop_at={metric: metric/goals_reached, value: 30}"],
+                                        r"ppo.stop_at.metric.*episode_return"),
+    "stop at an unknown mode": (["ppo.stop_at={value: 30, mode: above}"], r"ppo.stop_at.mode must be 'max' or 'min'"),
 }
 
 

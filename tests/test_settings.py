@@ -66,3 +66,19 @@ def test_best_mode_min_keeps_the_lowest_cycle_and_tensorboard_gets_every_cycles_
     assert sorted(scalars["episode_return"]) == steps
     np.testing.assert_allclose([scalars["episode_return"][s] for s in steps], returns, rtol=1e-6)
     assert {"loss", "entropy", "norm/reward_std"} <= set(scalars)
+
+
+def test_stop_at_ends_the_run_with_a_checkpoint_after_the_first_cycle_that_reaches_the_value(tmp_path):
+    common = [*TINY_PPO, "ppo.num_cycles=8", "logging.progress=none", "logging.report=false",
+              f"logging.run_root={tmp_path}"]
+    returns = [r["episode_return"] for r in aj.train("cartpole", [*common, "logging.run_name=all"]).history]
+    value = max(returns[:-1])
+    assert value > returns[0], f"the returns must rise before the last cycle for this test: {returns}"
+    first = next(cycle for cycle, r in enumerate(returns, 1) if r >= value)
+    run = aj.train("cartpole", [*common, "logging.run_name=stop",
+                                f"ppo.stop_at={{metric: episode_return, value: {value!r}}}"])
+    assert run.finished and int(run.state.cycle) == first < len(returns)
+    assert run.stopped_at == f"episode_return {value:.4g} >= {value:g}"
+    assert [r["episode_return"] for r in run.history] == returns[:first], "the same run, cut short"
+    assert aj.experiment.Checkpoints(run.run_dir / "checkpoints", load_config("cartpole").checkpoint,
+                                     create=False).steps("latest") == [first]

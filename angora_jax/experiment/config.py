@@ -208,6 +208,9 @@ def validate(config: Config) -> Env:
     choices = best_metric_choices(env)
     if checkpoint.best_metric is not None and checkpoint.best_metric not in choices:
         raise ConfigError(_unknown("checkpoint.best_metric", checkpoint.best_metric, [*choices, "null"], "metrics"))
+    stop_at = config.ppo.stop_at
+    if stop_at is not None and stop_at.metric not in choices:
+        raise ConfigError(_unknown("ppo.stop_at.metric", stop_at.metric, choices, "metrics"))
     try:
         per_device(config.ppo, num_devices(config))
     except ValueError as error:

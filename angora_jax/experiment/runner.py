@@ -43,14 +43,16 @@ class TrainingRun:
     """What a finished (or already complete) run returns.
 
     run_dir: the run directory. state: the final TrainState. history: the monitor records of the cycles run by
-    this call (see `monitor`). finished: all of the config's cycles are done; False when the call stopped at its
-    time limit (`minutes`), with a checkpoint saved, and `resume(run_dir)` continues.
+    this call (see `monitor`). finished: all of the config's cycles are done, or `ppo.stop_at` was reached; False
+    when the call stopped at its time limit (`minutes`), with a checkpoint saved, and `resume(run_dir)` continues.
+    stopped_at: what ended the run early under `ppo.stop_at` ("metric/goals_reached 30.4 >= 30"), else None.
     """
 
     run_dir: Path
     state: TrainState
     history: list[dict[str, Any]] = field(default_factory=list)
     finished: bool = True
+    stopped_at: str | None = None
 
 
 class TrainingInterrupted(Exception):
@@ -181,6 +183,7 @@ def _run(
         raise ValueError(f"minutes (the call's time limit) must be > 0, got {minutes}.")
     deadline = None if minutes is None else time.monotonic() + 60.0 * minutes
     finished = state is not None and int(state.cycle) >= config.ppo.num_cycles
+    stop_at, stopped_at = config.ppo.stop_at, None
     history: list[dict[str, Any]] = []
     resolved = to_dict(config)
     checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint)
@@ -236,12 +239,16 @@ def _run(
                     raise failure
                 if decision.failed:
                     raise ProcessFailed(decision.failed, int(metrics["cycle"]), run_dir)
-                finished = record["cycle"] == config.ppo.num_cycles
+                # The compiled cycle reduces its metrics over every device, so all processes decide this alike.
+                if stop_at is not None and stop_at.reached(metrics):
+                    relation = ">=" if stop_at.mode == "max" else "<="
+                    stopped_at = f"{stop_at.metric} {float(metrics[stop_at.metric]):.4g} {relation} {stop_at.value:g}"
+                finished = record["cycle"] == config.ppo.num_cycles or stopped_at is not None
                 stopping = decision.signum is not None or decision.out_of_time
                 _save_together(checkpoints, state, record, resolved, stopping or finished, run_dir)
                 if decision.signum is not None:
                     raise TrainingInterrupted(decision.signum, run_dir, int(record["cycle"]))
-                if decision.out_of_time and not finished:
+                if (decision.out_of_time and not finished) or stopped_at is not None:
                     break
     finally:
         progress.close()
@@ -252,7 +259,7 @@ def _run(
         from angora_jax.experiment.report import write_report  # matplotlib is loaded only when a report is made
 
         write_report([run_dir], run_dir / "report")
-    return TrainingRun(run_dir, state, history, finished)
+    return TrainingRun(run_dir, state, history, finished, stopped_at)
 
 
 _EXIT_WHILE_PREPARING = contextvars.ContextVar("exit_while_preparing", default=False)

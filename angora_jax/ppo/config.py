@@ -95,6 +95,34 @@ class NormalizationConfig:
 
 
 @dataclass(frozen=True)
+class StopAt:
+    """End a run early, with a checkpoint, after the first cycle whose training metric reaches a value (AngoraPy's
+    `--stop-early`).
+
+    metric: a per-cycle metric, as `checkpoint.best_metric` names them ("episode_return", "metric/goals_reached").
+    value: the value to reach, in the metric's units. mode: "max" stops when the metric is >= value, "min" when it
+    is <= value. A cycle in which no episode ended has no value (NaN) and never stops the run.
+    """
+
+    metric: str = "episode_return"
+    value: float = 0.0
+    mode: str = "max"
+
+    def validate(self) -> StopAt:
+        """Raise a ValueError naming the field when a setting cannot apply; return self."""
+        if self.mode not in ("max", "min"):
+            raise ValueError(f"ppo.stop_at.mode must be 'max' or 'min', got {self.mode!r}.")
+        if not isinstance(self.value, (int, float)) or not math.isfinite(self.value):
+            raise ValueError(f"ppo.stop_at.value must be a finite number, got {self.value!r}.")
+        return self
+
+    def reached(self, metrics: dict[str, float]) -> bool:
+        """Whether this cycle's `metrics` reach the value."""
+        value = float(metrics.get(self.metric, math.nan))
+        return value >= self.value if self.mode == "max" else value <= self.value
+
+
+@dataclass(frozen=True)
 class PPOConfig:
     """One PPO run on a task given separately (the experiment config's `env` section names it). A cycle collects
     `num_envs * rollout_length` transitions, then runs `num_epochs` passes of minibatch updates over them.
@@ -124,6 +152,7 @@ class PPOConfig:
         "auto" (categorical for discrete tasks, gaussian for continuous ones), or a head added with `register_head`.
     value_clip: clip the value update to +-`clip_epsilon` around the rollout's values.
     lr_decay: decay the learning rate linearly to 0 over `num_cycles`.
+    stop_at: end the run early once a per-cycle metric reaches a value (`StopAt`); None trains all `num_cycles`.
     init_from: a saved run, `RUN_DIR` (its best checkpoint) or `RUN_DIR:latest` / `RUN_DIR:<cycle>`, whose network
         parameters and observation statistics this run starts from, to fine-tune a trained policy on a changed task
         (e.g. the cube's pose-input policy reading a pose estimator's estimate). The network must have the same
@@ -153,6 +182,7 @@ class PPOConfig:
     init_log_std: float = 0.0
     network: NetworkConfig = field(default_factory=NetworkConfig)
     normalization: NormalizationConfig = field(default_factory=NormalizationConfig)
+    stop_at: StopAt | None = None
 
     def replace(self, **changes) -> PPOConfig:
         """A copy with `changes` applied (frozen dataclasses cannot be edited in place)."""
@@ -161,6 +191,8 @@ class PPOConfig:
     def validate(self) -> PPOConfig:
         """Raise a ValueError naming the field when a setting is out of range or inconsistent; return self."""
         self.network.validate()
+        if self.stop_at is not None:
+            self.stop_at.validate()
         settings = [*vars(self).items(), *((f"normalization.{k}", v) for k, v in vars(self.normalization).items())]
         for name, value in settings:
             if isinstance(value, float) and not math.isfinite(value):  # NaN passes every comparison below
