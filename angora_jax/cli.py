@@ -5,6 +5,7 @@ angora-jax train cartpole ppo.network.name=lstm logging.run_name=lstm
 angora-jax resume runs/lstm                     continue from the latest checkpoint, exactly
 angora-jax evaluate runs/lstm                   episode statistics of the best checkpoint (CPU path), JSON + PNG
 angora-jax render runs/lstm --out lstm.mp4      a video of an episode (MuJoCo tasks)
+angora-jax export runs/lstm --out lstm.msgpack  the policy in one file, for aj.load_policy without the run
 angora-jax report runs/lstm runs/other          PNG curves + index.html comparing runs
 angora-jax monitor runs/lstm runs/other         the same page while runs train, served on http://127.0.0.1:8000
 angora-jax list-configs                         the shipped configs (train one by name from any directory)
@@ -177,6 +178,12 @@ def parser() -> argparse.ArgumentParser:
     render.add_argument("--seed", type=int, default=0)
     render.add_argument("--stochastic", action="store_true", help="sample actions instead of taking the mode")
     render.set_defaults(handler=command_render)
+
+    export = commands.add_parser("export", help="a trained policy in one file (aj.load_policy reads it)")
+    export.add_argument("run_dir", help="the run whose policy is exported")
+    export.add_argument("--out", required=True, help="the file to write (msgpack); never overwritten")
+    export.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
+    export.set_defaults(handler=command_export)
 
     report = commands.add_parser("report", help="PNG learning curves and an HTML page comparing runs")
     report.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
@@ -441,6 +448,18 @@ def command_render(args: argparse.Namespace) -> int:
         print(f"angora-jax render: {error}", file=sys.stderr)
         return EXIT_USAGE
     print(f"Video: {out}")
+    return EXIT_OK
+
+
+def command_export(args: argparse.Namespace) -> int:
+    from angora_jax.experiment.export import export_policy
+
+    try:
+        out = export_policy(args.run_dir, args.out, checkpoint_of(args.checkpoint))
+    except FileExistsError as error:
+        print(f"angora-jax export: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    print(f"Policy: {out} (load it with angora_jax.load_policy)")
     return EXIT_OK
 
 

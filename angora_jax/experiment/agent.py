@@ -118,15 +118,7 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
     config = _seeing_as_trained(read_run_config(run_dir), run_dir)
     if env_overrides:
         config = load_config(to_dict(config), [f"env.options.{override}" for override in env_overrides])
-    # Acting needs the task and the model, not the training machine: a run trained on more devices, with TensorBoard
-    # or with MuJoCo Warp (and copied here) loads too.
-    here = replace(
-        config,
-        env=replace(config.env, options=_without_missing_warp(config.env.options)),
-        distribution=DistributionConfig(),
-        logging=replace(config.logging, tensorboard=False),
-    )
-    env, network, head, template, compiled = _acting_parts(json.dumps(to_dict(_acting_config(here)), sort_keys=True))
+    env, network, head, template, compiled = acting_parts(config)
     checkpoints = Checkpoints(Path(run_dir) / CHECKPOINTS, config.checkpoint, create=False)
     try:
         which = "latest" if checkpoint == "best" and not checkpoints.steps("best") else checkpoint
@@ -159,6 +151,20 @@ def saved_policy(source: str | Path) -> PolicyState:
 
 
 register_run_reader(saved_policy)
+
+
+def acting_parts(config: Config) -> tuple[Env, nn.Module, PolicyHead, PolicyState, dict[Any, Any]]:
+    """Environment, network, head, `PolicyState` template (shapes) and shared compiled functions for acting as
+    `config`'s run does, on this machine."""
+    # Acting needs the task and the model, not the training machine: a run trained on more devices, with TensorBoard
+    # or with MuJoCo Warp (and copied here) loads too.
+    here = replace(
+        config,
+        env=replace(config.env, options=_without_missing_warp(config.env.options)),
+        distribution=DistributionConfig(),
+        logging=replace(config.logging, tensorboard=False),
+    )
+    return _acting_parts(json.dumps(to_dict(_acting_config(here)), sort_keys=True))
 
 
 def _acting_config(config: Config) -> Config:

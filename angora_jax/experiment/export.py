@@ -1,0 +1,80 @@
+"""A trained policy in one file: `export_policy(run_dir, out)` writes it, `load_policy(file)` acts from it with no run
+directory (for another machine, a robot controller, a colleague's notebook).
+
+The file is msgpack (flax's serialization): the format name, the run's config (JSON; acting uses its task and model)
+and the `PolicyState` (network parameters, observation normaliser, training cycle).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jax
+from flax import serialization
+
+from angora_jax.envs.core import Sensation
+from angora_jax.experiment.agent import Agent, acting_parts, load_agent
+from angora_jax.experiment.config import load_config, to_dict
+from angora_jax.experiment.run_dir import RunDirError
+
+FORMAT = "angora_jax.policy/1"
+
+
+def export_policy(run_dir: str | Path, out: str | Path, checkpoint: str | int = "best") -> Path:
+    """Write the policy of `run_dir`'s checkpoint ("best", "latest" or a cycle, as `load_agent` takes it) to `out`;
+    an existing `out` is never overwritten (FileExistsError). Returns the path written."""
+    out = Path(out)
+    if out.exists():
+        raise FileExistsError(f"{out} exists; exporting never overwrites a file: give another --out.")
+    agent = load_agent(run_dir, checkpoint)
+    content = {
+        "format": FORMAT,
+        "config": json.dumps(to_dict(agent.config), sort_keys=True),
+        "state": serialization.to_state_dict(jax.device_get(agent.state)),
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_bytes(serialization.msgpack_serialize(content))
+    return out
+
+
+@dataclass(frozen=True)
+class Policy:
+    """An exported policy, acting deterministically (the head's mode), as `evaluate` does by default.
+
+    agent: the `Agent` rebuilt from the file (its task, network, head and parameters), for what `act` does not cover:
+    values, sampled actions, probing.
+    """
+
+    agent: Agent
+
+    def initial_carry(self, batch_size: int) -> Any:
+        """The recurrent state at an episode's start for `batch_size` environments (empty for feed-forward nets)."""
+        return self.agent.initial_carry(batch_size)
+
+    def act(self, carry: Any, obs: Sensation) -> tuple[Any, jax.Array]:
+        """One step for a batch of raw observations (leaves `(B, size)`): `(carry, actions)`, actions ready for the
+        task's `step` (`(B, action_dim)` floats in [-1, 1] for continuous tasks, `(B,)` integers for discrete ones).
+        Pure: jit it, or call it inside a jitted rollout."""
+        carry, actions, _ = self.agent.act(carry, obs)
+        return carry, actions
+
+
+def load_policy(path: str | Path) -> Policy:
+    """The policy in a file written by `export_policy` (or `angora-jax export`). Raises FileNotFoundError when there
+    is no such file and RunDirError when the file is not an exported policy."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"No exported policy at {path}: write one with angora-jax export RUN_DIR --out FILE.")
+    try:
+        content = serialization.msgpack_restore(path.read_bytes())
+    except Exception as error:  # msgpack raises several types for a file that is not msgpack
+        raise RunDirError(f"{path} is not an exported policy (not msgpack: {error}).") from None
+    if not isinstance(content, dict) or content.get("format") != FORMAT:
+        raise RunDirError(f"{path} is not an exported policy of this version (format {FORMAT!r} expected).")
+    config = load_config(json.loads(content["config"]))
+    env, network, head, template, compiled = acting_parts(config)
+    state = serialization.from_state_dict(template, content["state"])
+    return Policy(Agent(config, env, network, head, state, int(state.cycle), compiled))
