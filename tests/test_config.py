@@ -72,6 +72,11 @@ BAD = {
     "stop at a metric the task lacks": (["ppo.stop_at={metric: metric/goals_reached, value: 30}"],
                                         r"ppo.stop_at.metric.*episode_return"),
     "stop at an unknown mode": (["ppo.stop_at={value: 30, mode: above}"], r"ppo.stop_at.mode must be 'max' or 'min'"),
+    "negative evaluation interval": (["evaluation.every=-1"], r"evaluation.every must be >= 0"),
+    "best by an evaluation that never runs": (
+        ["checkpoint.best_metric=eval/episode_return"],
+        r"checkpoint.best_metric='eval/episode_return' names a held-out .* set evaluation.every=N",
+    ),
 }
 
 

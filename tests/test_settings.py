@@ -82,3 +82,18 @@ def test_stop_at_ends_the_run_with_a_checkpoint_after_the_first_cycle_that_reach
     assert [r["episode_return"] for r in run.history] == returns[:first], "the same run, cut short"
     assert aj.experiment.Checkpoints(run.run_dir / "checkpoints", load_config("cartpole").checkpoint,
                                      create=False).steps("latest") == [first]
+
+
+def test_held_out_evaluations_are_logged_on_their_cycles_and_can_choose_the_best(tmp_path):
+    run = aj.train("cartpole", [*TINY_PPO, "ppo.num_cycles=4", "evaluation.every=2", "evaluation.episodes=4",
+                                "evaluation.seed=3", "checkpoint.best_metric=eval/episode_return",
+                                "logging.progress=none", "logging.report=false", f"logging.run_root={tmp_path}",
+                                "logging.run_name=r"])
+    evaluated = {r["cycle"]: r for r in run.history if "eval/episode_return" in r}
+    assert sorted(evaluated) == [2, 4]
+    assert {"eval/episode_length", "eval/episode_return"} <= set(evaluated[4])
+    latest = aj.load_agent(run.run_dir, "latest")
+    assert latest.cycle == 4 and latest.evaluate(num_envs=4, seed=3) == {
+        k.removeprefix("eval/"): v for k, v in evaluated[4].items() if k.startswith("eval/")}, "the same 4 episodes"
+    best = max(evaluated, key=lambda c: evaluated[c]["eval/episode_return"])
+    assert aj.load_agent(run.run_dir, "best").cycle == best

@@ -12,7 +12,6 @@ from typing import Any
 
 import flax.linen as nn
 import jax
-from flax import struct
 
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.experiment.checkpoint import Checkpoints
@@ -24,20 +23,8 @@ from angora_jax.nets.components import register_run_reader
 from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.cycle import build_head
 from angora_jax.ppo.distributions import PolicyHead
-from angora_jax.ppo.evaluate import make_evaluate
+from angora_jax.ppo.evaluate import PolicyState, make_evaluate
 from angora_jax.ppo.normalization import normalize_observation
-
-
-@struct.dataclass
-class PolicyState:
-    """What acting needs from a checkpoint: `params` (network parameters), `obs_stats` (a Sensation of
-    `RunningMeanStd`, the observation normaliser) and `cycle` (int32, the training cycle it was saved at). Named as in
-    `TrainState`, so it is read from a checkpoint under the same paths, and it serves where `make_evaluate` takes a
-    TrainState."""
-
-    params: Any
-    obs_stats: Sensation
-    cycle: jax.Array
 
 
 @dataclass(frozen=True)

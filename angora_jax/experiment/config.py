@@ -95,6 +95,25 @@ class CheckpointConfig:
 
 
 @dataclass(frozen=True)
+class EvaluationConfig:
+    """Deterministic evaluation on held-out episodes during training. The training mean goes stale on tasks whose
+    good policies end few episodes per cycle (a cube policy that keeps the cube for 50 goals), and it mixes the
+    policy's exploration noise into the metric.
+
+    every: evaluate after every this many cycles (and after the last); 0 never. episodes: fresh environments, one
+    episode each, run at once on the batched path (the training physics) with the head's mode on this process's
+    first device. seed: the episodes' starts, the same at every evaluation, so that evaluations compare policies on
+    the same episodes (the training seed does not draw them). An evaluated cycle's record gets
+    `eval/episode_return`, `eval/episode_length` and `eval/metric/<name>` (means over the episodes), which
+    `checkpoint.best_metric` and `ppo.stop_at.metric` may name.
+    """
+
+    every: int = 0
+    episodes: int = 64
+    seed: int = 1
+
+
+@dataclass(frozen=True)
 class DistributionConfig:
     """num_devices: devices to train on data-parallel, an integer or "all" (every device JAX sees); 1 is the plain
     single-device cycle. `ppo.num_envs` and `ppo.minibatch_size` are run totals, divided over the devices, so they
@@ -108,7 +127,8 @@ class Config:
     """Everything one experiment needs; `to_dict(config)` is its resolved form as saved with a run.
 
     env: the task and its options. ppo: the PPO run and its network. logging: where the run is written and what is
-    shown. checkpoint: which checkpoints are kept. distribution: the devices of a data-parallel run.
+    shown. checkpoint: which checkpoints are kept. distribution: the devices of a data-parallel run. evaluation:
+    held-out evaluations during training.
     """
 
     env: EnvConfig = field(default_factory=EnvConfig)
@@ -116,6 +136,7 @@ class Config:
     logging: LoggingConfig = field(default_factory=LoggingConfig)
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
     distribution: DistributionConfig = field(default_factory=DistributionConfig)
+    evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
 
 
 def load_config(source: str | Path | dict | None = None, overrides: typing.Iterable[str] = ()) -> Config:
@@ -159,9 +180,11 @@ def flatten(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return flat
 
 
-def best_metric_choices(env: Env) -> list[str]:
-    """Per-cycle metrics that `checkpoint.best_metric` may name for `env`."""
-    return ["episode_return", "episode_length", *(f"metric/{name}" for name in env.metric_names)]
+def best_metric_choices(env: Env, evaluation: EvaluationConfig | None = None) -> list[str]:
+    """Per-cycle metrics that `checkpoint.best_metric` and `ppo.stop_at.metric` may name for `env`: the training
+    means, and with `evaluation.every` the held-out evaluation's (`eval/...`)."""
+    names = ["episode_return", "episode_length", *(f"metric/{name}" for name in env.metric_names)]
+    return names + [f"eval/{name}" for name in names] if evaluation is not None and evaluation.every else names
 
 
 def validate(config: Config) -> Env:
@@ -205,7 +228,15 @@ def validate(config: Config) -> Env:
             raise ConfigError(_unknown("checkpoint.lean", kind, CHECKPOINT_KINDS, "kinds of checkpoint"))
     if checkpoint.best_mode not in ("max", "min"):
         raise ConfigError(_unknown("checkpoint.best_mode", checkpoint.best_mode, ("max", "min"), "modes"))
-    choices = best_metric_choices(env)
+    if config.evaluation.every < 0 or config.evaluation.episodes < 1:
+        raise ConfigError(f"evaluation.every must be >= 0 (0: never) and evaluation.episodes >= 1, got "
+                          f"{config.evaluation.every} and {config.evaluation.episodes}.")
+    choices = best_metric_choices(env, config.evaluation)
+    stop_metric = config.ppo.stop_at.metric if config.ppo.stop_at is not None else None
+    for key, name in (("checkpoint.best_metric", checkpoint.best_metric), ("ppo.stop_at.metric", stop_metric)):
+        if isinstance(name, str) and name.startswith("eval/") and not config.evaluation.every:
+            raise ConfigError(f"{key}={name!r} names a held-out evaluation's metric, but none runs: set "
+                              "evaluation.every=N (evaluate every N cycles).")
     if checkpoint.best_metric is not None and checkpoint.best_metric not in choices:
         raise ConfigError(_unknown("checkpoint.best_metric", checkpoint.best_metric, [*choices, "null"], "metrics"))
     stop_at = config.ppo.stop_at

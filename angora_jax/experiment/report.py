@@ -71,9 +71,10 @@ def load_run(run_dir: str | Path) -> RunRecord:
 
 
 def curve_names(runs: list[RunRecord]) -> list[str]:
-    """The metrics to plot: those of CURVES and every task metric that some run recorded."""
+    """The metrics to plot: those of CURVES, every task metric and every held-out evaluation's (eval/...) that
+    some run recorded."""
     present = {key for run in runs for row in run.rows for key in row}
-    task = sorted(k for k in present if k.startswith("metric/"))
+    task = sorted(k for k in present if k.startswith(("metric/", "eval/")))
     ordered = [CURVES[0], *task, *CURVES[1:]]
     return [name for name in ordered if name in present]
 

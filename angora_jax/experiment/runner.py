@@ -30,6 +30,7 @@ from angora_jax.experiment.config import Config, load_config, num_devices, to_di
 from angora_jax.experiment.cpu_sizing import cpu_note
 from angora_jax.experiment.distributed import ProcessFailed, agree_to_stop, is_main_process, shared_run_dir
 from angora_jax.experiment.doctor import devices, versions
+from angora_jax.experiment.held_out import held_out_evaluation
 from angora_jax.experiment.monitor import Monitor, read_metrics, set_aside_after
 from angora_jax.experiment.progress import Progress
 from angora_jax.experiment.run_dir import CHECKPOINTS, create_run_dir, read_run_config, record_session
@@ -187,6 +188,7 @@ def _run(
     history: list[dict[str, Any]] = []
     resolved = to_dict(config)
     checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint)
+    evaluate = held_out_evaluation(config, env)
     # Under jax.distributed only process 0 logs; all processes take part in saving checkpoints (Orbax coordinates
     # them: each writes the shards of its own devices, process 0 the replicated arrays and metadata).
     main = is_main_process()
@@ -223,6 +225,8 @@ def _run(
                     cached = compilation_cache.counts()
                     metrics |= {f"compile_cache_{kind}": cached[kind] - cached_before[kind] for kind in cached}
                 prepared()
+                if evaluate is not None:
+                    metrics |= evaluate(latest)
                 state, failure = latest, None
                 try:
                     record = monitor.record(metrics, state) if monitor is not None else metrics

@@ -3,17 +3,31 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+from flax import struct
 
-from angora_jax.envs.core import Env
+from angora_jax.envs.core import Env, Sensation
 from angora_jax.nets import ActorCritic, make_network
 from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.config import PPOConfig
 from angora_jax.ppo.cycle import TrainState, build_head
 from angora_jax.ppo.normalization import normalize_observation
+
+
+@struct.dataclass
+class PolicyState:
+    """What acting needs from a checkpoint: `params` (network parameters), `obs_stats` (a Sensation of
+    `RunningMeanStd`, the observation normaliser) and `cycle` (int32, the training cycle it was saved at). Named as in
+    `TrainState`, so it is read from a checkpoint under the same paths, and it serves where `make_evaluate` takes a
+    TrainState."""
+
+    params: Any
+    obs_stats: Sensation
+    cycle: jax.Array
 
 
 def make_evaluate(
