@@ -7,8 +7,11 @@ episode's end the observation is the next episode's first and the last one is ke
 has it). Everything else is the code that trains MJX tasks: acting, GAE, TBPTT, updates, checkpoints, evaluation,
 recording, CLI and report. Slower by nature: each step leaves the compiled program and the simulator is Gymnasium's.
 
-Spaces: a Box observation (flattened) is `proprioception`; Discrete actions train a categorical head, Box actions a
-continuous one. Episode statistics come from the rewards and ends; such tasks have no task metrics.
+Spaces: the observation, encoded by `gymnasium.spaces.flatten` (a Box flattened, Discrete and MultiDiscrete one-hot,
+MultiBinary as 0/1, Dict and Tuple as their parts end to end), is `proprioception`; so a cognitive task with discrete
+states (AngoraPy's Tower of Hanoi, Gymnasium's FrozenLake or Blackjack) trains as a control task does. Discrete actions
+train a categorical head, Box actions a continuous one. Episode statistics come from the rewards and ends; such tasks
+have no task metrics.
 
 What lives outside JAX: the simulators. A batch size gets its vector environment once per process (`sized_for`),
 seeded from the keys of the first `reset`; a state's `physics` is only each environment's slot in that batch. So a
@@ -45,9 +48,15 @@ class GymnasiumHost(Env):
         except gymnasium.error.Error as error:
             raise ValueError(f"gymnasium.make({env_id!r}) failed: {error}") from None
         observation, action = probe.observation_space, probe.action_space
-        if not isinstance(observation, gymnasium.spaces.Box):
-            raise ValueError(f"{env_id} observes {observation}; host tasks take Box observations (flattened). Wrap "
-                             "the environment with gymnasium.wrappers.FlattenObservation and register it.")
+        try:
+            flat = gymnasium.spaces.flatten_space(observation)
+        except NotImplementedError:
+            flat = None
+        if not isinstance(flat, gymnasium.spaces.Box):
+            raise ValueError(f"{env_id} observes {observation}, which has no fixed-size encoding: host tasks take "
+                             "observations that gymnasium.spaces.flatten_space makes a Box (Box, Discrete, "
+                             "MultiDiscrete, MultiBinary, Text, and Dict or Tuple of these). Wrap the environment to "
+                             "observe such a space and register it.")
         if isinstance(action, gymnasium.spaces.Discrete):
             self.action_spec = ActionSpec(low=jnp.zeros(0), high=jnp.zeros(0), num_actions=int(action.n))
         elif isinstance(action, gymnasium.spaces.Box):
@@ -58,7 +67,8 @@ class GymnasiumHost(Env):
         self.env_id, self.kwargs, self.num_envs = env_id, kwargs, num_envs
         self.max_episode_steps = int(probe.spec.max_episode_steps or 1_000_000)
         self.dt = float(getattr(probe.unwrapped, "dt", 1.0))
-        self.observation_size = int(np.prod(observation.shape))
+        self.observation_space = observation
+        self.observation_size = int(flat.shape[0])
         probe.close()
         self._vector: gymnasium.vector.VectorEnv | None = None
         self._started = False
@@ -126,7 +136,7 @@ class GymnasiumHost(Env):
         obs, reward, terminated, truncated, info = vector.step(batch)
         final = self._flat(obs).copy()
         for index in np.flatnonzero(np.logical_or(terminated, truncated)):
-            final[index] = np.asarray(info["final_obs"][index], np.float32).reshape(-1)
+            final[index] = gymnasium.spaces.flatten(self.observation_space, info["final_obs"][index])
         outputs = (self._flat(obs), np.asarray(reward, np.float32), np.asarray(terminated, bool),
                    np.asarray(truncated, bool), final)
         return outputs if batched else tuple(x[0] for x in outputs)
@@ -142,9 +152,12 @@ class GymnasiumHost(Env):
                 max_episode_steps=self.max_episode_steps, **self.kwargs)
         return self._vector
 
-    @staticmethod
-    def _flat(obs: np.ndarray) -> np.ndarray:
-        return np.asarray(obs, np.float32).reshape(len(obs), -1)
+    def _flat(self, obs: Any) -> np.ndarray:
+        """The batch's observations as `(num_envs, observation_size)` float32, each encoded as `flatten` does."""
+        if isinstance(self.observation_space, gymnasium.spaces.Box):  # flattening a Box is a reshape: skip the loop
+            return np.asarray(obs, np.float32).reshape(self.num_envs, -1)
+        items = gymnasium.vector.utils.iterate(self._batch(self.num_envs).observation_space, obs)
+        return np.stack([gymnasium.spaces.flatten(self.observation_space, item) for item in items]).astype(np.float32)
 
 
 @functools.cache
