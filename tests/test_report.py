@@ -8,13 +8,14 @@ import time
 import urllib.request
 from pathlib import Path
 
+import numpy as np
 import pytest
 from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.cli import main
 from angora_jax.experiment.live_report import LiveReport
-from angora_jax.experiment.report import load_run
+from angora_jax.experiment.report import RunRecord, group_band, load_run, seed_groups
 
 TINY = [
     *TINY_PPO,
@@ -57,6 +58,22 @@ def test_report_compares_runs_in_pngs_and_html(runs, comparison):
     assert page.count('<tr class="run"') == 2 and "seed0" in page and "seed1" in page
     assert page.count("<img ") == len(pngs)
     assert "minibatch_size: 32" in page  # each run's resolved config is on the page
+    assert "<td>0 (group of 2)</td>" in page and "<td>1 (group of 2)</td>" in page, "two seeds of one config"
+
+
+def test_runs_that_differ_only_in_seed_are_one_group_drawn_as_mean_and_95_percent_band(tmp_path):
+    def run(name, seed, learning_rate, returns):
+        config = {"ppo": {"seed": seed, "learning_rate": learning_rate}, "logging": {"run_name": name}}
+        rows = [{"env_steps": 10 * (i + 1), "episode_return": r} for i, r in enumerate(returns)]
+        return RunRecord(name, tmp_path / name, config, rows)
+
+    a, b = run("a", 0, 1e-3, [1.0, 3.0, 7.0]), run("b", 1, 1e-3, [3.0, 5.0, float("nan")])
+    c, d = run("c", 0, 3e-4, [0.0]), run("d", 2, 1e-3, [2.0, 4.0])
+    assert seed_groups([a, c, b, d]) == [[a, b, d], [c]]
+    steps, mean, half = group_band([a, b], "episode_return")
+    assert steps.tolist() == [10, 20], "a step that only one run recorded (NaN at 30 in b) has no band"
+    assert mean.tolist() == [2.0, 4.0]
+    np.testing.assert_allclose(half, [12.7062, 12.7062], rtol=1e-5)  # t(0.975, 1 dof) x sem([1, 3]) = 12.7062 x 1
 
 
 def rendered(page: Path, fragment: str) -> str:

@@ -16,6 +16,8 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib
+import numpy as np
+import scipy.stats
 
 matplotlib.use("Agg")  # files only: no display needed
 import matplotlib.pyplot as plt  # noqa: E402
@@ -79,10 +81,44 @@ def curve_names(runs: list[RunRecord]) -> list[str]:
     return [name for name in ordered if name in present]
 
 
-def plot_curve(runs: list[RunRecord], name: str, path: Path) -> None:
-    """One PNG: metric `name` against env steps, one line per run."""
-    fig, ax = plt.subplots(figsize=(6, 3.6))
+def seed_groups(runs: list[RunRecord]) -> list[list[RunRecord]]:
+    """The runs grouped by config, ignoring `ppo.seed` and `logging` (names, folders, display): runs that differ
+    only in their seed share a group. Groups and their runs keep the order of `runs`."""
+    groups: dict[str, list[RunRecord]] = {}
     for run in runs:
+        config = {section: values for section, values in run.config.items() if section != "logging"}
+        config["ppo"] = {key: value for key, value in config.get("ppo", {}).items() if key != "seed"}
+        groups.setdefault(json.dumps(config, sort_keys=True), []).append(run)
+    return list(groups.values())
+
+
+def group_band(group: list[RunRecord], name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`(env_steps, mean, half_width)` of metric `name` over a group's seeds: at each env step that at least two
+    runs recorded (NaN excluded), the mean and the half width of its 95% confidence interval (Student's t)."""
+    values: dict[float, list[float]] = {}
+    for run in group:
+        for row in run.rows:
+            if name in row and not math.isnan(row[name]):
+                values.setdefault(row["env_steps"], []).append(row[name])
+    steps = np.array(sorted(step for step, seen in values.items() if len(seen) >= 2))
+    mean = np.array([np.mean(values[step]) for step in steps])
+    half = np.array([scipy.stats.t.ppf(0.975, len(values[step]) - 1) * scipy.stats.sem(values[step])
+                     for step in steps])
+    return steps, mean, half
+
+
+def plot_curve(runs: list[RunRecord], name: str, path: Path) -> None:
+    """One PNG: metric `name` against env steps, one line per run; runs that differ only in `ppo.seed` are drawn as
+    their mean with a 95% confidence band, labelled with the seed count."""
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    for group in seed_groups(runs):
+        if len(group) > 1:
+            steps, mean, half = group_band(group, name)
+            if len(steps):
+                line, = ax.plot(steps, mean, label=f"{group[0].name} and others: mean of {len(group)} seeds")
+                ax.fill_between(steps, mean - half, mean + half, color=line.get_color(), alpha=0.25, linewidth=0)
+            continue
+        run = group[0]
         points = [(r["env_steps"], r[name]) for r in run.rows if name in r and not math.isnan(r[name])]
         if points:
             ax.plot(*zip(*points, strict=True), marker="." if len(points) < 50 else None, label=run.name)
@@ -116,8 +152,9 @@ def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_second
     return page
 
 
-def summary(run: RunRecord) -> dict[str, Any]:
-    """Table cells of a run: task, network, head, cycles done, env steps, final and best return."""
+def summary(run: RunRecord, seeds: int = 1) -> dict[str, Any]:
+    """Table cells of a run: task, network, head, seeds (runs of its group, see `seed_groups`), cycles done, env
+    steps, final and best return."""
     returns = [r["episode_return"] for r in run.rows if not math.isnan(r.get("episode_return", math.nan))]
     tail = returns[-max(1, len(returns) // 10) :]
     ppo = run.config.get("ppo", {})
@@ -126,6 +163,7 @@ def summary(run: RunRecord) -> dict[str, Any]:
         "task": run.config.get("env", {}).get("task", "?"),
         "network": ppo.get("network", {}).get("name", "?"),
         "head": ppo.get("head", "?"),
+        "seed": f"{ppo.get('seed', '?')} (group of {seeds})" if seeds > 1 else str(ppo.get("seed", "?")),
         "cycles": f"{run.rows[-1]['cycle'] if run.rows else 0}/{ppo.get('num_cycles', '?')}",
         "env steps": f"{run.rows[-1]['env_steps']:,}" if run.rows else "0",
         "final return": f"{sum(tail) / len(tail):.2f}" if tail else "-",
@@ -139,9 +177,10 @@ def render_html(runs: list[RunRecord], images: list[tuple[str, str]], refresh_se
     columns = ["run", *summary(runs[0])] if runs else ["run"]
     head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
     rows = []
+    group_size = {id(run): len(group) for group in seed_groups(runs) for run in group}
     for run in runs:
         config_text = yaml.safe_dump(run.config, sort_keys=False)
-        cells = "".join(f"<td>{html.escape(str(v))}</td>" for v in summary(run).values())
+        cells = "".join(f"<td>{html.escape(str(v))}</td>" for v in summary(run, group_size[id(run)]).values())
         search = html.escape(f"{run.name} {json.dumps(run.config)}".lower(), quote=True)
         rows.append(
             f'<tr class="run" data-search="{search}"><td><details><summary>{html.escape(run.name)}</summary>'
