@@ -197,7 +197,8 @@ def parser() -> argparse.ArgumentParser:
     record.add_argument("run_dir")
     record.add_argument("--out", required=True, help="NetCDF file to write (never overwritten)")
     record.add_argument("--episodes", type=positive_int, default=64)
-    record.add_argument("--steps", type=positive_int, default=None, help="policy steps (default: episode length)")
+    record.add_argument("--steps", type=positive_int, default=None,
+                        help="policy steps (default: until every episode has ended, at most the episode length)")
     record.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
     record.add_argument("--seed", type=int, default=0)
     add_env_option(record)

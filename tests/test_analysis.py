@@ -27,6 +27,7 @@ from angora_jax.analysis import (
     similarity,
     with_random_weights,
 )
+from angora_jax.analysis import recording as recording_module
 from angora_jax.analysis.decoding import cross_validated_r2
 from angora_jax.cli import main
 from angora_jax.envs.core import Sensation
@@ -48,6 +49,18 @@ def agent(tmp_path_factory):
 @pytest.fixture(scope="module")
 def recording(agent):
     return record_activity(agent, episodes=10, steps=40)
+
+
+def test_a_recording_without_steps_ends_with_its_longest_episode(agent, monkeypatch):
+    monkeypatch.setattr(recording_module, "RECORDING_CHUNK", 7)  # several chunks for CartPole's short episodes
+    until_ended = record_activity(agent, episodes=10)
+    alive = until_ended["alive"].values
+    length = until_ended.sizes["time"]
+    assert length == int(alive.sum(1).max()) < agent.env.max_episode_steps, "the longest episode's last step"
+    assert length > 7, "the episodes outlasted a chunk, so recording went on past the first"
+    fixed = record_activity(agent, episodes=10, steps=length)
+    for name in ("alive", "reward", f"activity_{LAYER}"):
+        np.testing.assert_array_equal(until_ended[name].values, fixed[name].values)
 
 
 def test_recording_is_labelled_episode_by_time_by_unit(agent, recording):

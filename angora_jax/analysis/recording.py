@@ -43,6 +43,10 @@ from flax import linen as nn
 from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, load_agent
 
+# Policy steps compiled as one program when recording until the episodes end: a recording stops at most this many
+# steps after its longest episode ended (a cube episode lasts 100-5,000 steps).
+RECORDING_CHUNK = 100
+
 
 def layer_activity(agent: Agent, carry: Any, obs: Any) -> tuple[Any, jax.Array, jax.Array, dict[str, jax.Array]]:
     """One step of `agent` on raw observations with every layer's output: (carry, env action (mode), value,
@@ -94,14 +98,20 @@ def run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: in
                  capture: bool = False) -> dict[str, Any]:
     """`episodes` batched episodes of `agent` (the policy's mode) from the resets of `seed`, as host arrays
     `(time, episode, ...)`: inputs, action, value, reward, metrics, alive, steps, task (variables), and with
-    `capture` every layer's activity ("layers"). Compiled once per agent kind, episode count and length: parameters
-    and normaliser statistics are arguments, so lesioned variants of an agent reuse the program."""
+    `capture` every layer's activity ("layers"). `steps` policy steps, or with None until every episode has ended
+    (at most the task's episode length): the time axis then ends with the longest episode's last step. Compiled once
+    per agent kind, episode count and length: parameters and normaliser statistics are arguments, so lesioned
+    variants of an agent reuse the program."""
     env = agent.env.sized_for(episodes)
-    steps = steps or env.max_episode_steps
+    limit = steps or env.max_episode_steps
+    chunk = steps or min(RECORDING_CHUNK, limit)
 
-    def run(policy_state, key):
+    def start(key):
+        return jax.vmap(env.reset)(jax.random.split(key, episodes)), agent.initial_carry(episodes), jnp.ones(
+            (episodes,), jnp.float32)
+
+    def advance(policy_state, carry):
         acting = replace(agent, state=policy_state)
-        state = jax.vmap(env.reset)(jax.random.split(key, episodes))
 
         def step(carry, _):
             state, net_carry, alive = carry
@@ -117,11 +127,21 @@ def run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: in
                 record["layers"] = layers
             return (next_state, net_carry, alive * (1.0 - next_state.done)), record
 
-        carry = (state, acting.initial_carry(episodes), jnp.ones((episodes,), jnp.float32))
-        return jax.lax.scan(step, carry, None, length=steps)[1]
+        return jax.lax.scan(step, carry, None, length=chunk)
 
-    program = agent.compiled_once(("episodes", episodes, steps, capture), lambda: jax.jit(run))
-    return jax.device_get(program(agent.state, jax.random.key(seed)))
+    programs = agent.compiled_once(("episodes", episodes, chunk, capture),
+                                   lambda: (jax.jit(start), jax.jit(advance)))
+    carry, records, done = programs[0](jax.random.key(seed)), [], 0
+    while done < limit:
+        carry, record = programs[1](agent.state, carry)
+        records.append(jax.device_get(record))
+        done += chunk
+        if steps is None and not np.any(np.asarray(carry[2])):
+            break
+    record = jax.tree.map(lambda *parts: np.concatenate(parts)[:limit], *records)
+    if steps is None:  # end with the longest episode's last step
+        record = jax.tree.map(lambda x: x[:int(np.asarray(record["alive"]).sum(0).max())], record)
+    return record
 
 
 def episode_outcomes(agent: Agent, episodes: int = 256, steps: int | None = None,
