@@ -61,6 +61,15 @@ def test_registry_lists_tasks_and_rejects_unknown_names():
         aj.make("ShadowHandReach", backend="gpu")
     with pytest.raises(ValueError, match="Unknown reward coefficients.*success_bonus"):
         aj.make("ShadowHandReach", reward={"sucess_bonus": 1.0})
+    with pytest.raises(ValueError, match=r"Unknown reward preset 'punished'.*\['default', 'force_punished'\]"):
+        aj.make("ShadowHandReach", backend="cpu", reward_preset="punished")
+
+
+@pytest.mark.parametrize("task", ["ShadowHandReach", "ShadowHandFreeReach"])
+def test_angorapys_force_punished_reach_preset_costs_force(task):
+    punished = aj.make(task, backend="cpu", reward_preset="force_punished", reward={"success_bonus": 0.5})
+    assert punished.task.reward_config.force_multiplier == 0.05 and punished.task.reward_config.success_bonus == 0.5
+    assert aj.make(task, backend="cpu").task.reward_config.force_multiplier == 0.0
 
 
 def test_wrong_action_shape_names_the_expected_shape(env):

@@ -7,6 +7,9 @@ compile). MJX compiles of the cube scene take about a minute on a CPU, so the mo
 once, as one program; the paper preset's cycle is traced, not compiled.
 """
 
+import dataclasses
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -16,6 +19,7 @@ import angora_jax as aj
 from angora_jax.envs.shadow_hand.ihom import (
     RESTING_HEIGHT,
     REWARD_PRESETS,
+    TENDON_STRESS_SCALE,
     Ihom,
     IhomReward,
     angular_distance,
@@ -24,6 +28,7 @@ from angora_jax.envs.shadow_hand.ihom import (
     rotation_between,
     rotation_matrix,
 )
+from angora_jax.envs.shadow_hand.reach import REWARD_PRESETS as REACH_REWARDS
 from angora_jax.experiment import load_config, validate
 from angora_jax.ppo.cycle import make_cycle
 from angora_jax.ppo.gae import next_values
@@ -230,6 +235,14 @@ def test_reward_coefficients_change_the_reward(cpu, start):
     assert reward(step_penalty=0.1) == pytest.approx(base - 0.1, abs=1e-4)
     assert reward(progress=2.0) == pytest.approx(base + 0.8, abs=1e-4)
     assert reward(orientation=2.0) == pytest.approx(base + 2.0 * 0.08 * (1 - 0.2 / np.pi), abs=1e-4)
+    # The Gym hand's 44 tendons are fixed (joint couplings), so their lengths are small: weights large enough to see
+    stress = TENDON_STRESS_SCALE * float(np.sum(np.asarray(now.ten_length, np.float64) ** 2))
+    force = float(np.sum(np.asarray(now.actuator_force[2:], np.float64) ** 2))
+    assert stress > 1e-4 and force > 1e-4, (stress, force)
+    assert reward(tendon_stress_multiplier=1.0 / stress) == pytest.approx(base - 1.0, abs=1e-3)
+    assert reward(force_multiplier=1.0 / force) == pytest.approx(base - 1.0, abs=1e-3)
+    anatomy = IhomReward.preset(REWARD_PRESETS, "penalized_anatomy")
+    assert (anatomy.force_multiplier, anatomy.tendon_stress_multiplier, anatomy.drop_penalty) == (0.01, 0.01, 20.0)
 
 
 def scripted_return(task: Ihom, snap, info, behaviour: str, gamma: float, horizon: int = 4000) -> float:
@@ -357,6 +370,7 @@ def test_mjx_and_cpu_paths_agree_for_2_seconds(rollout):
         np.testing.assert_allclose(mjx_obs.vision[:3], state.obs.vision[:3], atol=5e-3)
         assert float(angular_distance(mjx_obs.vision[3:], state.obs.vision[3:])) < 0.05
         np.testing.assert_allclose(states.reward[t, 0], state.reward, atol=6e-2)
+        np.testing.assert_allclose(states.physics.ten_length[t, 0], state.physics.ten_length, atol=2e-3)
         assert float(states.done[t, 0]) == float(state.done)
         if float(state.done):
             break
@@ -389,3 +403,12 @@ def test_the_cube_configs_compile_and_train_a_cycle_on_warp(name):
     moved = jax.tree.map(lambda a, b: float(jnp.abs(a - b).max()), after.params, state.params)
     assert max(jax.tree.leaves(moved)) > 0, "the updates change the parameters"
     assert all(m.shape == () and m.dtype == jnp.float32 for m in metrics.values())
+
+
+def test_the_tasks_page_lists_every_reward_preset_with_its_coefficients():
+    page = (Path(__file__).parent.parent / "docs" / "tasks.md").read_text()
+    tasks = {"ShadowHandReach, ShadowHandFreeReach": REACH_REWARDS, "ShadowHandCube": REWARD_PRESETS}
+    for task, presets in tasks.items():
+        for name, coefficients in presets.items():
+            values = ", ".join(f"{k} {v:g}" for k, v in dataclasses.asdict(coefficients).items())
+            assert f"| {task} | `{name}` | {values} |" in page, f"docs/tasks.md lacks or misstates {task} {name}"

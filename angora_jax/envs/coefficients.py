@@ -18,3 +18,12 @@ class Coefficients:
         if unknown:
             raise ValueError(f"Unknown reward coefficients {unknown}; known: {sorted(known)}.")
         return cls(**{k: float(v) for k, v in values.items()})
+
+    @classmethod
+    def preset(cls, presets: dict[str, Self], name: str, overrides: dict[str, float] | None = None) -> Self:
+        """The coefficients of `presets[name]` with `overrides` (coefficient name -> value) applied; a ValueError
+        naming the presets, or the known coefficients, when one is unknown."""
+        if name not in presets:
+            raise ValueError(f"Unknown reward preset {name!r}; choose one of {sorted(presets)}.")
+        cls.from_dict(overrides)  # a ValueError naming the known coefficients when one is unknown
+        return dataclasses.replace(presets[name], **{k: float(v) for k, v in (overrides or {}).items()})

@@ -26,7 +26,7 @@ MJX_IMPLS = ("jax", "warp")
 MJX_IMPL_TEXT = "angora_jax:mjx_impl"
 MJX_IMPL_WHY_TEXT = "angora_jax:mjx_impl_why"
 SNAPSHOT_FIELDS = ("time", "qpos", "qvel", "ctrl", "actuator_length", "actuator_force", "site_xpos", "xpos",
-                   "xquat", "sensordata", "qfrc_constraint")
+                   "xquat", "sensordata", "qfrc_constraint", "ten_length")
 # What only tasks with `MujocoTask.body_dynamics` read (Gymnasium's Ant and Humanoid): a snapshot holds them only then,
 # so the eager path of other tasks copies nothing more per step.
 DYNAMICS_FIELDS = ("xipos", "cinert", "cvel", "qfrc_actuator", "cfrc_ext")
@@ -37,11 +37,12 @@ _MJX_IMPL_FIELDS = ("cinert", "cfrc_ext")
 @struct.dataclass
 class Snapshot:
     """What task logic may read of the simulation: `mjData` fields of the same name, as float32 arrays
-    (time in s, positions in m, site/body arrays indexed by MuJoCo ids). The `DYNAMICS_FIELDS` are None unless the
-    snapshot was taken with them: `xipos` (bodies' centres of mass, `(nbody, 3)` m), `cinert` (`(nbody, 10)`
-    inertias and masses), `cvel` (`(nbody, 6)` velocities, rotation then translation) and `cfrc_ext` (`(nbody, 6)`
-    external forces on each body, contacts included, torque then force, as `mj_rnePostConstraint` computes them; zero
-    where it did not run), all three in MuJoCo's centre-of-mass frames, and `qfrc_actuator` (`(nv,)`)."""
+    (time in s, positions in m, site/body arrays indexed by MuJoCo ids; `ten_length` `(ntendon,)` in m). The
+    `DYNAMICS_FIELDS` are None unless the snapshot was taken with them: `xipos` (bodies' centres of mass,
+    `(nbody, 3)` m), `cinert` (`(nbody, 10)` inertias and masses), `cvel` (`(nbody, 6)` velocities, rotation then
+    translation) and `cfrc_ext` (`(nbody, 6)` external forces on each body, contacts included, torque then force, as
+    `mj_rnePostConstraint` computes them; zero where it did not run), all three in MuJoCo's centre-of-mass frames,
+    and `qfrc_actuator` (`(nv,)`)."""
 
     time: jax.Array
     qpos: jax.Array
@@ -54,6 +55,7 @@ class Snapshot:
     xquat: jax.Array
     sensordata: jax.Array
     qfrc_constraint: jax.Array
+    ten_length: jax.Array
     xipos: jax.Array | None = None
     cinert: jax.Array | None = None
     cvel: jax.Array | None = None

@@ -10,8 +10,10 @@ from angora_jax.envs.core import Env
 from angora_jax.envs.mujoco_task import MujocoTask
 from angora_jax.envs.registry import register
 from angora_jax.envs.shadow_hand.cube import CUBE_PHYSICS, load_cube_scene
-from angora_jax.envs.shadow_hand.ihom import Ihom, PoseReader, reward_coefficients
+from angora_jax.envs.shadow_hand.ihom import REWARD_PRESETS as IHOM_REWARDS
+from angora_jax.envs.shadow_hand.ihom import Ihom, IhomReward, PoseReader
 from angora_jax.envs.shadow_hand.model import PhysicsSettings, load_scene
+from angora_jax.envs.shadow_hand.reach import REWARD_PRESETS as REACH_REWARDS
 from angora_jax.envs.shadow_hand.reach import Reach, ReachReward
 
 
@@ -25,19 +27,22 @@ def build(backend: str, task: MujocoTask, frame_skip: int, max_episode_steps: in
 REACH_PHYSICS = PhysicsSettings(timestep=0.005, iterations=2, ls_iterations=4)
 
 
-def make_reach(free: bool = False, reward: dict[str, float] | None = None, control_dt: float = 0.02,
-               max_episode_steps: int = 100, control: str = "position",
+def make_reach(free: bool = False, reward_preset: str = "default", reward: dict[str, float] | None = None,
+               control_dt: float = 0.02, max_episode_steps: int = 100, control: str = "position",
                physics: dict[str, float] | None = None, vision: dict | None = None, backend: str = "mjx") -> Env:
     """Build a reach task. Defaults follow AngoraPy: 0.02 s per policy step, 100 policy steps per episode,
     joint targets set relative to the joints' positions (`control`: see `HandTask`). physics: `PhysicsSettings`
     fields overriding `REACH_PHYSICS` (the Gym scene's own settings are timestep 0.002, iterations 20,
     ls_iterations 50). `backend="cpu"` gives the eager MuJoCo twin. vision: camera images of the hand in
-    `Sensation.vision` (`envs.cameras.CameraVision` fields, as for the cube), besides the usual inputs."""
+    `Sensation.vision` (`envs.cameras.CameraVision` fields, as for the cube), besides the usual inputs.
+    reward_preset: a key of `reach.REWARD_PRESETS`, AngoraPy's "default" or "force_punished"; `reward` overrides
+    single coefficients of it."""
     cameras = CameraVision.from_options(vision)
     settings = REACH_PHYSICS.with_options(physics)
     frame_skip = settings.frame_skip(control_dt)
     scene = load_scene("reach.xml", physics=settings, cameras=cameras.cameras if cameras else ())
-    task = Reach(scene, ReachReward.from_dict(reward), free=free, control=control, vision=cameras)
+    task = Reach(scene, ReachReward.preset(REACH_REWARDS, reward_preset, reward), free=free, control=control,
+                 vision=cameras)
     return build(backend, task, frame_skip, max_episode_steps, settings)
 
 
@@ -74,7 +79,8 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
     """Build in-hand cube reorientation (see `ihom.Ihom`). Times in s, angles in rad.
 
     The defaults are the recipe of `configs/shadow_ihom.yaml`; `configs/shadow_ihom_paper.yaml` sets AngoraPy's.
-    reward_preset: "dense" or "paper" (AngoraPy's eq. 1-2), `reward` overrides single coefficients of it.
+    reward_preset: a key of `ihom.REWARD_PRESETS`: "dense", "paper" (AngoraPy's eq. 1-2, its "default"),
+    "penalized_force" or "penalized_anatomy" (AngoraPy's); `reward` overrides single coefficients of it.
     timer: "terminal" (a goal that times out ends the episode, as in AngoraPy) or "truncation".
     relative_goal: the goal modality also holds the rotation from the cube to the goal (AngoraPy: False).
     control, action_scale: how actions move the joint targets (`HandTask`; AngoraPy: "position", 1.0).
@@ -105,7 +111,7 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
     if steps_per_goal < 1:
         raise ValueError(f"goal_timeout ({goal_timeout} s) must last at least one policy step ({control_dt} s).")
     scene = load_cube_scene(touch, settings, cameras=cameras.cameras if cameras else ())
-    task = Ihom(scene, reward_coefficients(reward_preset, reward),
+    task = Ihom(scene, IhomReward.preset(IHOM_REWARDS, reward_preset, reward),
                 success_angle=success_angle, steps_per_goal=steps_per_goal, max_goals=max_goals, dt=control_dt,
                 timer=timer, relative_goal=relative_goal, control=control, action_scale=action_scale,
                 start_pool=start_pool, vision=cameras, pose_estimator=estimator)

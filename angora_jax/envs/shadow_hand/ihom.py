@@ -33,9 +33,12 @@ C MuJoCo, at construction; a reset picks one with its key, on both physics paths
 Reward (`IhomReward` coefficients), with d the angular distance to the goal in rad and dt the policy step in s:
     r = progress * (d(t-1) - d(t)) + orientation * dt * (1 - d(t) / pi) + success_bonus * success
         - drop_penalty * dropped - step_penalty - force_multiplier * sum(actuator_force[2:] ** 2)
+        - tendon_stress_multiplier * 116 * sum(ten_length ** 2)
 Both distances are to the goal that was active during the step; after a success the next step measures progress to
 the new goal from the pose where the old one was reached. `REWARD_PRESETS`: "paper" is AngoraPy's MANIPULATE_BASE
-(the paper's eq. 1-2: progress, +5 per goal, -20 for a drop); "dense" adds an absolute orientation term (MuJoCo
+(the paper's eq. 1-2: progress, +5 per goal, -20 for a drop; AngoraPy calls it `default`); "penalized_force" and
+"penalized_anatomy" are AngoraPy's presets of the same names (its `--rcon`), which add costs of the actuator forces
+and of the tendons' stretch; "dense" adds an absolute orientation term (MuJoCo
 Playground's LEAP cube rewards 5 x a linear tolerance of the angle per second) and pays 25 per goal.
 
 The recipe that learns (`configs/shadow_ihom.yaml`; the README's "In-hand cube reorientation" section compares it
@@ -106,6 +109,8 @@ class IhomReward(Coefficients):
     drop_penalty: subtracted on the step the cube drops.
     step_penalty: subtracted on every step (a time cost); 0 in AngoraPy.
     force_multiplier: weight of the squared actuator forces (wrist excluded), a metabolic cost; 0 in AngoraPy.
+    tendon_stress_multiplier: weight of the tendons' squared lengths (m^2) times `TENDON_STRESS_SCALE`, AngoraPy's
+        anatomical cost (its `calculate_tendon_stress_penalty`, scaled to the force cost's average size).
     """
 
     progress: float = 1.0
@@ -114,20 +119,18 @@ class IhomReward(Coefficients):
     drop_penalty: float = 20.0
     step_penalty: float = 0.0
     force_multiplier: float = 0.0
+    tendon_stress_multiplier: float = 0.0
 
+
+# AngoraPy's scaling of the tendon cost to the force cost's average under random play (its reward.py).
+TENDON_STRESS_SCALE = 116.0
 
 REWARD_PRESETS = {
     "paper": IhomReward(),
     "dense": IhomReward(orientation=5.0, success_bonus=25.0),
+    "penalized_force": IhomReward(force_multiplier=0.001),
+    "penalized_anatomy": IhomReward(force_multiplier=0.01, tendon_stress_multiplier=0.01),
 }
-
-
-def reward_coefficients(name: str, overrides: dict[str, float] | None = None) -> IhomReward:
-    """The coefficients of preset `name` ("paper" or "dense") with `overrides` (coefficient name -> value) applied."""
-    if name not in REWARD_PRESETS:
-        raise ValueError(f"Unknown reward preset {name!r}; choose one of {sorted(REWARD_PRESETS)}.")
-    IhomReward.from_dict(overrides)  # a ValueError naming the known coefficients when one is unknown
-    return dataclasses.replace(REWARD_PRESETS[name], **{k: float(v) for k, v in (overrides or {}).items()})
 
 
 def quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -350,8 +353,10 @@ class Ihom(HandTask):
         success = distance <= self.success_angle
         dropped = self.dropped(snap)
         force = jnp.sum(snap.actuator_force[2:] ** 2)
+        stress = TENDON_STRESS_SCALE * jnp.sum(snap.ten_length ** 2)
         reward = (c.progress * (before - distance) + c.orientation * self.dt * (1.0 - distance / jnp.pi)
-                  + c.success_bonus * success - c.drop_penalty * dropped - c.step_penalty - c.force_multiplier * force)
+                  + c.success_bonus * success - c.drop_penalty * dropped - c.step_penalty - c.force_multiplier * force
+                  - c.tendon_stress_multiplier * stress)
         goals_reached = info["goals_reached"] + success.astype(jnp.int32)
         goal_steps = jnp.where(success, 0, info["goal_steps"] + 1)
         timer_ran_out = jnp.logical_and(goal_steps >= self.steps_per_goal, jnp.logical_not(dropped))

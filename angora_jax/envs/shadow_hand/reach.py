@@ -47,6 +47,10 @@ class ReachReward(Coefficients):
     stay_probability: float = 0.1
 
 
+# AngoraPy's reach presets (its reward_configs.py `reach` and `free_reach`, chosen with `--rcon`).
+REWARD_PRESETS = {"default": ReachReward(), "force_punished": ReachReward(force_multiplier=0.05)}
+
+
 class Reach(HandTask):
     """Bring all fingertips to goal positions: thumb and target finger meet, the others stay.
 
