@@ -118,13 +118,13 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
     config = _seeing_as_trained(read_run_config(run_dir), run_dir)
     if env_overrides:
         config = load_config(to_dict(config), [f"env.options.{override}" for override in env_overrides])
-    # Acting needs the task and the model, not the training machine: a run trained on more devices, with TensorBoard
-    # or with MuJoCo Warp (and copied here) loads too.
+    # Acting needs the task and the model, not the training machine: a run trained on more devices, with TensorBoard,
+    # W&B or MuJoCo Warp (and copied here) loads too.
     here = replace(
         config,
         env=replace(config.env, options=_without_missing_warp(config.env.options)),
         distribution=DistributionConfig(),
-        logging=replace(config.logging, tensorboard=False),
+        logging=replace(config.logging, tensorboard=False, wandb=None),
     )
     env, network, head, template, compiled = _acting_parts(json.dumps(to_dict(_acting_config(here)), sort_keys=True))
     checkpoints = Checkpoints(Path(run_dir) / CHECKPOINTS, config.checkpoint, create=False)
