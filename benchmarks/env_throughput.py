@@ -25,8 +25,8 @@ from common import env_step_rate, markdown_table, peak_memory_bytes, raw_mjx_rat
 import angora_jax as aj
 
 
-def c_mujoco(env, task: str, options: dict, seconds: float = 2.0) -> dict:
-    """Single-threaded C MuJoCo `mj_step` with uniform random controls, and our eager CPU twin."""
+def c_mujoco(env, task: str, options: dict, seconds: float) -> dict:
+    """Single-threaded C MuJoCo `mj_step` with uniform random controls, and our eager CPU twin, `seconds` each."""
     model = env.task.model
     data = mujoco.MjData(model)
     rng = np.random.default_rng(0)
@@ -50,7 +50,7 @@ def c_mujoco(env, task: str, options: dict, seconds: float = 2.0) -> dict:
     return {"c_mujoco_physics_steps_per_s": raw, "cpu_twin_physics_steps_per_s": twin}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="ShadowHandReach")
     parser.add_argument("--options", default="{}", help='task options as JSON, e.g. \'{"touch": false}\'')
@@ -58,13 +58,15 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20, help="policy steps per environment per timed run")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--repeats", type=int, default=3, help="timed runs after compiling; the best counts")
+    parser.add_argument("--c-seconds", type=float, default=2.0,
+                        help="seconds of C MuJoCo and of the eager CPU twin, each, on one thread")
     parser.add_argument("--out", default=None, help="JSON path (default: results/env_throughput_<platform>.json)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
 
     options = json.loads(args.options)
     env = aj.make(args.task, **options)
     timestep = float(env.task.model.opt.timestep)
-    single = c_mujoco(env, args.task, options)
+    single = c_mujoco(env, args.task, options, args.c_seconds)
     rows = []
     for batch in (int(b) for b in args.batch_sizes.split(",")):
         mine = env_step_rate(env, batch, args.steps, args.repeats, args.seed)

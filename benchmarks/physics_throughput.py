@@ -397,7 +397,7 @@ def chosen_configs(args: argparse.Namespace) -> list[Config]:
     return [known[n] for n in names] + extra_configs(args.physics)
 
 
-def parse_args() -> argparse.Namespace:
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--configs", default=None, help=f"comma-separated, run in this order; all: {list(CONFIGS)}")
     parser.add_argument("--physics", default=None, help="extra configurations, e.g. 'reach:0.004/4/8,cube:0.01/4/8'")
@@ -420,7 +420,7 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--out", default=None)
     parser.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--impl", default="jax", help=argparse.SUPPRESS)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     gpu = {"batch_sizes": GPU_SWEEP, "compare_batch": GPU_COMPARE, "policy_steps": 5, "max_minutes": 8.0}
     cpu = {"batch_sizes": "4", "compare_batch": "4", "policy_steps": 2, "max_minutes": None}
     for key, value in (gpu if args.gpu else cpu).items():
@@ -456,8 +456,8 @@ def measure_throughput(configs: list[Config], args: argparse.Namespace) -> list[
     return rows
 
 
-def main() -> None:
-    args = parse_args()
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
     if args.worker:
         worker(args)
         return
@@ -471,8 +471,9 @@ def main() -> None:
     rows = rows or [{"config": c.name} for c in configs]
     for row in rows:
         row.update(fidelities[row["config"]])
-    config = {"configs": [c.name for c in configs], "scenes": {c.name: c.task for c in configs},
-              "menagerie_scene": MENAGERIE_SCENE, **vars(args)}
+    # The arguments first: the names measured (with --physics's) replace --configs's text, which may be empty.
+    config = {**vars(args), "configs": [c.name for c in configs], "scenes": {c.name: c.task for c in configs},
+              "menagerie_scene": MENAGERIE_SCENE}
     path = write_results("physics_throughput", config, rows, args.out)
     print(markdown_table(rows, [
         ("config", "configuration", "s"), ("impl", "MJX", "s"), ("batch", "envs", "d"),

@@ -13,6 +13,7 @@ import argparse
 import os
 import time
 
+import jax
 import numpy as np
 from common import RESULTS, markdown_table, write_results
 
@@ -23,13 +24,16 @@ LAYERS = ["network.SSC_2", "network.SPL", "network.IPS", "network.MCC", "network
 VARIABLES = ["input_goal", "input_asymmetric", "input_proprioception", "metric_goal_distance"]
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("run_dir")
     parser.add_argument("--episodes", type=int, default=480)
     parser.add_argument("--decode-episodes", type=int, default=64, help="episodes used for decoding and dynamics")
     parser.add_argument("--name", default="reach_cortical_probe")
-    args = parser.parse_args()
+    parser.add_argument("--fixed-point-starts", type=int, default=64, help="states the fixed-point search starts from")
+    parser.add_argument("--fixed-point-iterations", type=int, default=500, help="optimisation steps of that search")
+    parser.add_argument("--out-dir", default=RESULTS, help="folder of the plots and the JSON (default: results/)")
+    args = parser.parse_args(argv)
     agent = aj.load_agent(args.run_dir, "best")
     seconds = {}
     for attempt in ("record_first_with_compile", "record_again"):
@@ -51,11 +55,13 @@ def main() -> None:
     ablation = an.ablation(agent, lesions, episodes=args.episodes)
     seconds["ablation"] = time.perf_counter() - start
     start = time.perf_counter()
-    points = an.agent_fixed_points(agent, part, "network.PMC", "network.PMC_in", starts=64, iterations=500)
+    points = an.agent_fixed_points(agent, part, "network.PMC", "network.PMC_in", starts=args.fixed_point_starts,
+                                   iterations=args.fixed_point_iterations)
     components = an.principal_components(part, LAYERS)
     scales = an.timescales(part, LAYERS)
     seconds["dynamics"] = time.perf_counter() - start
-    out = os.path.join(RESULTS, args.name)
+    os.makedirs(args.out_dir, exist_ok=True)
+    out = os.path.join(args.out_dir, args.name)
     an.plot_decoding(decoding, f"{out}_decoding.png")
     an.plot_ablation(ablation, "success", f"{out}_ablation.png")
     an.plot_dynamics(components, f"{out}_dynamics.png", points)
@@ -77,8 +83,10 @@ def main() -> None:
         "timescale_median_s": dict(zip(LAYERS, scales["timescale_median"].values.round(4).tolist(), strict=True)),
     }
     print({k: v for k, v in summary.items() if not k.startswith("decoding")})
-    print(write_results(args.name, {"run_dir": args.run_dir, "episodes": args.episodes,
-                                    "decode_episodes": args.decode_episodes, "summary": summary}, rows))
+    config = {"run_dir": args.run_dir, "episodes": args.episodes, "decode_episodes": args.decode_episodes,
+              "fixed_point_starts": args.fixed_point_starts, "fixed_point_iterations": args.fixed_point_iterations,
+              "summary": summary}
+    print(write_results(args.name, config, rows, f"{out}_{jax.devices()[0].platform}.json"))
 
 
 if __name__ == "__main__":

@@ -108,7 +108,7 @@ def compare_frames(model: mujoco.MjModel, qpos: np.ndarray, frames: np.ndarray,
     return {"pixels_differing_over_16": float(np.mean(differ)), "mean_abs_difference": float(np.mean(mean))}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--envs", type=int, nargs="+", default=[4096])
     parser.add_argument("--compare", default=None, help="an .npz of --save-frames: compare it with mujoco.Renderer")
@@ -118,7 +118,8 @@ def main() -> None:
     parser.add_argument("--name", default="render_throughput")
     parser.add_argument("--save-frames", default=None,
                         help="an .npz of the first 8 worlds' qpos and frames at each size, to compare elsewhere")
-    args = parser.parse_args()
+    parser.add_argument("--out", default=None, help="JSON path (default: results/<name>_<platform>.json)")
+    args = parser.parse_args(argv)
     cameras = tuple(args.cameras)
     model = load_cube_scene(touch=False, cameras=cameras)
     if args.compare:
@@ -135,16 +136,16 @@ def main() -> None:
         print(row, flush=True)
         for size in args.sizes:
             row, frames, data = measure(model, envs, size, args.steps, frame_skip, len(cameras))
-            rows.append(row)
+            rows.append(row | (agreement(model, data, frames, cameras) or {}))
             saved[f"qpos_{size}"], saved[f"frames_{size}"] = np.asarray(data.qpos[:8]), frames[:8]
-            print(row, flush=True)
+            print(rows[-1], flush=True)
     print(markdown_table(rows, [("envs", "envs", "d"), ("size", "pixels", "d"), ("render", "render", ""),
                                 ("frames_per_s", "frames/s", ",.0f"), ("policy_steps_per_s", "steps/s", ",.0f"),
                                 ("sim_s_per_s", "sim-s/s", ",.0f"), ("pixels_differing_over_16", "px differ", ".3f")]))
     if args.save_frames:
         np.savez_compressed(args.save_frames, **saved)
     print(write_results(args.name, {"cameras": cameras, "steps": args.steps, "frame_skip": frame_skip,
-                                    "timestep": model.opt.timestep}, rows))
+                                    "timestep": model.opt.timestep}, rows, args.out))
 
 
 if __name__ == "__main__":

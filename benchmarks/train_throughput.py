@@ -33,7 +33,7 @@ from angora_jax.envs.registry import make
 from angora_jax.ppo import NetworkConfig, PPOConfig, VisualConfig
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="CartPole")
     parser.add_argument("--num-envs", type=int, nargs="+", default=[64])
@@ -52,7 +52,7 @@ def main() -> None:
     parser.add_argument("--visual-area", nargs="+", choices=("trained", "frozen"), default=["trained"],
                         help="with --vision-sizes: train the visual area, or keep it frozen (no backward pass)")
     parser.add_argument("--out", default=None, help="JSON path (default: results/train_throughput_<platform>.json)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
 
     impls = args.impls.split(",") if args.impls else [None]
     rows = []

@@ -1,14 +1,17 @@
 """Probing a trained agent: the recorded dataset's shapes and labels, decoding against known readouts and noise,
 and lesions (an empty lesion changes nothing, bit for bit); then the brain-area model trained on reach (the
 session's `cortical_reach` run): decoding, the untrained control, lesions of areas and inputs, premotor fixed
-points, RDMs, a pretrained component read from the run, and every `angora-jax analyze` verb."""
+points, RDMs, a pretrained component read from the run, every `angora-jax analyze` verb, and the probing benchmark
+script (benchmarks/probe_trained.py) on the same run."""
 
 import dataclasses
+import sys
 
 import jax
 import numpy as np
 import pytest
 import xarray as xr
+from benchmark_results import BENCHMARKS, results
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -34,6 +37,9 @@ from angora_jax.envs.core import Sensation
 from angora_jax.nets import ActorCritic, make_network
 from angora_jax.nets.components import load_component
 from angora_jax.ppo import NetworkConfig
+
+sys.path.insert(0, str(BENCHMARKS))
+import probe_trained  # noqa: E402
 
 LAYER = "network.policy_trunk.Dense_1"
 
@@ -225,3 +231,34 @@ def test_every_analysis_verb_writes_its_plot_and_numbers(reach, cortical_reach, 
                  "--out", str(out)]) == 0
     assert out.read_bytes()[:4] == b"\x89PNG" and "-50% network.M1" in capsys.readouterr().out
     assert main(["analyze", "ablate", str(cortical_reach.run_dir), "--fraction", "network.M1:2"]) == 2
+
+
+def test_probe_trained_script_writes_every_part_and_finds_the_reach_policy_needs_its_inputs(reach, cortical_reach,
+                                                                                           tmp_path):
+    """benchmarks/probe_trained.py end to end, last in this file: at 32 episodes of 30 steps and 8 fixed-point starts
+    of 200 iterations it runs the programs that the tests above compiled in this process (alone, it compiled for
+    about 100 s of its 130 s here); decoding (scikit-learn's ridge, some 280 fits per call) on 6 of the episodes takes
+    5 s instead of 17 s on 32."""
+    probe_trained.main([str(cortical_reach.run_dir), "--episodes", "32", "--decode-episodes", "6",
+                        "--fixed-point-starts", "8", "--fixed-point-iterations", "200", "--name", "probe",
+                        "--out-dir", str(tmp_path)])
+    record = results(tmp_path / "probe_cpu.json", "probe")
+    summary = record["config"]["summary"]
+    assert record["config"]["episodes"] == 32 and summary["run_cycle"] == 120
+    assert all(seconds > 0 for seconds in summary["seconds"].values())
+    for key in ("decoding_r2", "decoding_noise_baseline", "decoding_r2_random_weights_same_inputs"):
+        assert set(summary[key]) == set(probe_trained.VARIABLES), key
+        assert all(set(row) == set(probe_trained.LAYERS) for row in summary[key].values()), key
+    assert summary["fixed_points"]["starts"] == 8
+    assert set(summary["pca_components_for_90pct"]) == set(probe_trained.LAYERS)
+    assert all(seconds > 0 for seconds in summary["timescale_median_s"].values())
+    for plot in ("decoding", "ablation", "dynamics", "timescales"):
+        assert (tmp_path / f"probe_{plot}.png").stat().st_size > 0, plot
+    rows = {row["lesion"]: row for row in record["results"]}
+    assert list(rows) == ["intact", "-SSC_2", "-IPS", "-MCC", "-50% M1", "-10% M1", "-goal input",
+                          "-proprioception", "-none"]
+    assert rows["-none"] == {**rows["intact"], "lesion": "-none"}, "lesioning no unit changes nothing (on a CPU)"
+    intact = rows["intact"]["goal_distance_mean"]
+    # The trained policy ends 0.044 m from the goal; without its goal or its own joint angles it reaches blindly.
+    for name in ("-goal input", "-proprioception"):
+        assert rows[name]["goal_distance_mean"] > intact + 3 * rows[name]["goal_distance_sem"], name

@@ -1,6 +1,7 @@
 """The `angora-jax` command: exit codes, messages, SIGTERM on a real process, and the progress display."""
 
 import io
+import json
 import os
 import re
 import signal
@@ -135,7 +136,11 @@ def test_train_then_evaluate_exit_0(capsys, tmp_path):
     session = read_sessions(tmp_path / "r")[0]  # what the run ran on, for later readers of the run directory
     assert session["start_cycle"] == 0 and session["physics"]["engine"] == "pure JAX" and session["versions"]["jax"]
     assert main(["evaluate", str(tmp_path / "r"), "--checkpoint", "latest", "--num-envs", "2"]) == 0
-    assert "episode_return" in capsys.readouterr().out
+    written = json.loads(Path(capsys.readouterr().out.split("Written: ")[1].split(" and ")[0]).read_text())
+    assert (written["checkpoint"], written["cycle"], written["episodes"]) == ("latest", 3, 2)
+    returns = written["per_episode"]["episode_return"]
+    assert returns == written["per_episode"]["episode_length"], "CartPole pays 1 per step"
+    assert written["summary"]["episode_return"]["mean"] == sum(returns) / 2
     assert main(argv) == 2  # the run directory exists: refused, untouched
     assert "already exists" in capsys.readouterr().err
 

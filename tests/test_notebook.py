@@ -46,10 +46,32 @@ def test_example_notebook_trains_evaluates_and_probes_top_to_bottom(tmp_path):
     assert 0 < found["values"][0] <= found["values"][1] < 200, found
 
 
+# What the probing notebook found, printed as one JSON line after its cells have run.
+PROBE_FINDINGS = """
+import json
+distance, sem = (ablation[stat].sel(outcome="goal_distance") for stat in ("mean", "sem"))
+goal = decoding.sel(variable="input_goal")
+print("FINDINGS", json.dumps({
+    "cycle": agent.cycle, "episodes": recording.sizes["episode"],
+    "goal_r2_over_baseline": float((goal["r2"] - goal["baseline"]).max()),
+    "distance": {str(name): float(distance.sel(lesion=name)) for name in distance["lesion"].values},
+    "sem": {str(name): float(sem.sel(lesion=name)) for name in sem["lesion"].values},
+    "fixed_points": [int(points["fixed"].sum()), len(points["fixed"])],
+}))
+"""
+
+
 def test_probing_notebook_runs_every_analysis_on_the_trained_reach_run(cortical_reach, tmp_path):
-    """On the session's reach run of the brain-area model, 32 episodes (the CPU's limit per hand program)."""
-    result = run_notebook("probe_a_trained_hand.ipynb", tmp_path, ANGORA_RUN=str(cortical_reach.run_dir),
-                          ANGORA_EPISODES="32")
-    assert "ShadowHandReach cortical cycle 120" in result.stdout and "premotor fixed points" in result.stdout
+    """On the session's reach run of the brain-area model, 32 episodes (the CPU's limit per hand program): the
+    recorded areas hold the goal (decoded above the noise baseline), silencing the goal input leaves the hand farther
+    from it, and the premotor search finds fixed points."""
+    result = run_notebook("probe_a_trained_hand.ipynb", tmp_path, epilogue=PROBE_FINDINGS,
+                          ANGORA_RUN=str(cortical_reach.run_dir), ANGORA_EPISODES="32")
+    found = json.loads(result.stdout.split("FINDINGS ", 1)[1].splitlines()[0])
+    assert (found["cycle"], found["episodes"]) == (120, 32), found
+    assert found["goal_r2_over_baseline"] > 0.5, found
+    distance, sem = found["distance"], found["sem"]
+    assert distance["-goal input"] > distance["intact"] + 3 * sem["-goal input"], found
+    assert 2 * found["fixed_points"][0] >= found["fixed_points"][1], "most starts converge"
     names = ["decoding", "similarity", "dynamics", "timescales", "tuning", "ablation"]
     assert all((tmp_path / f"{name}.png").read_bytes()[:4] == b"\x89PNG" for name in names)

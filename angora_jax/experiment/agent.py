@@ -143,13 +143,13 @@ register_run_reader(saved_policy)
 def acting_parts(config: Config) -> tuple[Env, nn.Module, PolicyHead, PolicyState, dict[Any, Any]]:
     """Environment, network, head, `PolicyState` template (shapes) and shared compiled functions for acting as
     `config`'s run does, on this machine."""
-    # Acting needs the task and the model, not the training machine: a run trained on more devices, with TensorBoard
-    # or with MuJoCo Warp (and copied here) loads too.
+    # Acting needs the task and the model, not the training machine: a run trained on more devices, with TensorBoard,
+    # W&B or MuJoCo Warp (and copied here) loads too.
     here = replace(
         config,
         env=replace(config.env, options=_without_missing_warp(config.env.options)),
         distribution=DistributionConfig(),
-        logging=replace(config.logging, tensorboard=False),
+        logging=replace(config.logging, tensorboard=False, wandb=None),
     )
     return _acting_parts(json.dumps(to_dict(_acting_config(here)), sort_keys=True))
 

@@ -25,6 +25,7 @@ import yaml
 
 from angora_jax.envs.core import Env
 from angora_jax.envs.registry import is_gymnasium, list_tasks, make
+from angora_jax.experiment.wandb_logging import WANDB_INSTALL, WANDB_MODES, WandbConfig
 from angora_jax.nets.registry import list_networks
 from angora_jax.ppo.config import PPOConfig
 from angora_jax.ppo.memory import estimate_memory
@@ -57,13 +58,16 @@ class LoggingConfig:
     run_root: folder that holds run directories. run_name: the run directory's name; None makes one from task,
     network and start time. progress: "auto" (a live line on a terminal, plain log lines otherwise), "bar" (live
     line), "lines" (one line per cycle) or "none". tensorboard: also write TensorBoard event files (needs the
-    tensorboardX package). report: write the run's PNG and HTML report into `RUN_DIR/report` when training ends.
+    tensorboardX package). wandb: also log to Weights & Biases (needs the wandb package): null (the default) for no,
+    or a section (`logging.wandb.project=NAME`, or `logging.wandb={}` for the defaults) for yes. report: write the
+    run's PNG and HTML report into `RUN_DIR/report` when training ends.
     """
 
     run_root: str = "runs"
     run_name: str | None = None
     progress: str = "auto"
     tensorboard: bool = False
+    wandb: WandbConfig | None = None
     report: bool = True
 
 
@@ -219,6 +223,12 @@ def validate(config: Config) -> Env:
             "logging.tensorboard=true needs the tensorboardX package: pip install 'angora-jax[tensorboard]', or set "
             "logging.tensorboard=false (metrics.jsonl is always written)."
         )
+    if logging.wandb is not None:
+        if logging.wandb.mode not in WANDB_MODES:
+            raise ConfigError(_unknown("logging.wandb.mode", logging.wandb.mode, WANDB_MODES, "modes"))
+        if importlib.util.find_spec("wandb") is None:
+            raise ConfigError(f"logging.wandb needs the wandb package: {WANDB_INSTALL}; or set logging.wandb=null "
+                              "(metrics.jsonl is always written).")
     if checkpoint.every < 1:
         raise ConfigError(f"checkpoint.every must be >= 1 (cycles between latest checkpoints), got {checkpoint.every}.")
     if checkpoint.snapshot_every < 0:

@@ -1,4 +1,5 @@
-"""The experiment monitor: one JSON line per cycle in `RUN_DIR/metrics.jsonl`, optionally TensorBoard events.
+"""The experiment monitor: one JSON line per cycle in `RUN_DIR/metrics.jsonl`, optionally TensorBoard events and
+Weights & Biases (`experiment.wandb_logging`).
 
 A line holds the cycle's training metrics (episode_return, episode_length, `metric/<task metric>`, the losses,
 entropy, approx_kl, clip_fraction, explained_variance, learning_rate, seconds, steps_per_second and, on the first
@@ -21,6 +22,7 @@ import jax
 import numpy as np
 
 from angora_jax.experiment.run_dir import METRICS_FILE
+from angora_jax.experiment.wandb_logging import WandbConfig, WandbLog
 from angora_jax.ppo.cycle import TrainState
 from angora_jax.ppo.parallel import host_copy
 
@@ -53,9 +55,11 @@ def memory_summary() -> dict[str, float]:
 
 
 class Monitor:
-    """Appends one record per cycle to `metrics.jsonl` (and TensorBoard when asked)."""
+    """Appends one record per cycle to `metrics.jsonl` (and to TensorBoard and W&B when asked). `config`, the run's
+    resolved config, is what W&B shows as the run's config."""
 
-    def __init__(self, run_dir: Path, tensorboard: bool = False):
+    def __init__(self, run_dir: Path, tensorboard: bool = False, wandb: WandbConfig | None = None,
+                 config: dict[str, Any] | None = None):
         self.path = Path(run_dir) / METRICS_FILE
         self._file = self.path.open("a")
         self._writer = None
@@ -63,6 +67,7 @@ class Monitor:
             from tensorboardX import SummaryWriter  # optional dependency, checked by config.validate
 
             self._writer = SummaryWriter(str(Path(run_dir) / "tensorboard"))
+        self._wandb = WandbLog(run_dir, wandb, config or {}) if wandb is not None else None
 
     def record(self, metrics: dict[str, float], state: TrainState) -> dict[str, Any]:
         """Write the cycle's record (metrics plus normaliser and memory statistics) and return it."""
@@ -75,12 +80,16 @@ class Monitor:
                 if isinstance(value, float) and math.isfinite(value) and key != "time":
                     self._writer.add_scalar(key, value, step)
             self._writer.flush()
+        if self._wandb is not None:
+            self._wandb.log(record)
         return record
 
     def close(self) -> None:
         self._file.close()
         if self._writer is not None:
             self._writer.close()
+        if self._wandb is not None:
+            self._wandb.close()
 
 
 def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:

@@ -7,6 +7,7 @@
                                   versions, devices, and the physics it ran on (engine, MJX implementation and why)
     RUN_DIR/checkpoints/          Orbax checkpoints (see `checkpoint`)
     RUN_DIR/tensorboard/          TensorBoard event files, when logging.tensorboard is on
+    RUN_DIR/wandb/                Weights & Biases' files and the W&B run id, when logging.wandb is on
     RUN_DIR/report/               PNG learning curves and index.html (see `report`)
 
 A new run never reuses an existing directory.

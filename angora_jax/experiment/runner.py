@@ -192,7 +192,7 @@ def _run(
     # Under jax.distributed only process 0 logs; all processes take part in saving checkpoints (Orbax coordinates
     # them: each writes the shards of its own devices, process 0 the replicated arrays and metadata).
     main = is_main_process()
-    monitor = Monitor(run_dir, config.logging.tensorboard) if main else None
+    monitor = Monitor(run_dir, config.logging.tensorboard, config.logging.wandb, resolved) if main else None
     progress = Progress(config.ppo.num_cycles, config.logging.progress if main else "none",
                         shown=config.checkpoint.best_metric)
     if main:

@@ -1,0 +1,137 @@
+"""Smoke runs of the throughput and probing benchmark scripts at tiny sizes on the CPU, each in this process through
+its `main(argv)`, writing its JSON into the test's folder. Each checks what the results file must hold (device,
+versions, config) and what a broken script would violate: rates that are positive and divide as the table says
+(sim-s/s = steps/s x timestep, ratios of rates measured in the same run), identical episodes across settings,
+rows that did not fail. The MJX scripts run MuJoCo Warp's CPU kernels, whose compiles are seconds where MJX's JAX
+implementation takes a minute per program on 2 cores; evaluation_speed reads the session's `cortical_reach` run.
+probe_trained's smoke run is in tests/test_analysis.py, after the tests whose programs it runs again. (A file of its
+own, apart from tests/test_benchmarks.py's pure-JAX scripts: pytest-xdist gives each file to one worker, so the two
+spread over CI's 2 cores.)"""
+
+import json
+import sys
+
+import mujoco
+import numpy as np
+import pytest
+from benchmark_results import BENCHMARKS, results
+
+from angora_jax.envs.registry import make
+from angora_jax.envs.shadow_hand import REACH_PHYSICS
+
+sys.path.insert(0, str(BENCHMARKS))
+import env_throughput  # noqa: E402
+import evaluation_speed  # noqa: E402
+import physics_throughput  # noqa: E402
+import render_throughput  # noqa: E402
+import train_throughput  # noqa: E402
+
+WARP = '{"physics": {"impl": "warp"}}'
+REACH_FRAME_SKIP = 4  # 0.02 s per policy step of 5 ms physics steps
+
+
+def test_train_throughput_divides_the_training_rate_by_the_env_rate_of_the_same_batch(tmp_path):
+    out = tmp_path / "train.json"
+    train_throughput.main(["--task", "CartPole", "--num-envs", "4", "--model", "simple", "--rollout-length", "4",
+                           "--chunk-length", "4", "--epochs", "1", "--minibatches", "2", "--repeats", "1",
+                           "--out", str(out)])
+    record = results(out, "train_throughput")
+    dt = make("CartPole").dt
+    assert record["config"]["control_dt_s"] == dt and record["config"]["args"]["num_envs"] == [4]
+    (row,) = record["results"]
+    assert (row["task"], row["model"], row["num_envs"], row["vision"]) == ("CartPole", "simple", 4, "pose")
+    assert row["config"]["minibatch_size"] == 8 and row["config"]["rollout_length"] == 4
+    assert row["raw_env_steps_per_s"] > 0 and row["train_env_steps_per_s"] > 0 and row["train_compile_s"] > 0
+    assert row["train_sim_s_per_s"] == pytest.approx(row["train_env_steps_per_s"] * dt)
+    assert row["train_over_raw"] == pytest.approx(row["train_env_steps_per_s"] / row["raw_env_steps_per_s"])
+    assert row["train_frames_per_s"] == 0, "no cameras"
+
+
+def test_env_throughput_counts_physics_steps_and_compares_rates_of_the_same_run(tmp_path):
+    out = tmp_path / "env.json"
+    env_throughput.main(["--task", "ShadowHandReach", "--options", WARP, "--batch-sizes", "2", "--steps", "2",
+                         "--repeats", "1", "--c-seconds", "0.2", "--out", str(out)])
+    record = results(out, "env_throughput")
+    config = record["config"]
+    assert config["options"] == json.loads(WARP) and config["steps"] == 2
+    assert (config["timestep_s"], config["frame_skip"]) == (REACH_PHYSICS.timestep, REACH_FRAME_SKIP)
+    assert config["control_dt_s"] == pytest.approx(config["frame_skip"] * config["timestep_s"])
+    assert config["c_mujoco_physics_steps_per_s"] > 0 and config["cpu_twin_physics_steps_per_s"] > 0
+    (row,) = record["results"]
+    assert row["batch"] == 2 and row["env_steps_per_s"] > 0 and row["raw_mjx_physics_steps_per_s"] > 0
+    assert row["compile_s"] > 0 and row["raw_mjx_compile_s"] > 0
+    assert row["physics_steps_per_s"] == pytest.approx(row["env_steps_per_s"] * REACH_FRAME_SKIP)
+    assert row["sim_s_per_s"] == pytest.approx(row["physics_steps_per_s"] * REACH_PHYSICS.timestep)
+    assert row["ours_over_raw_mjx"] == pytest.approx(row["physics_steps_per_s"] / row["raw_mjx_physics_steps_per_s"])
+    assert row["ours_over_c_mujoco_1_thread"] == pytest.approx(
+        row["physics_steps_per_s"] / config["c_mujoco_physics_steps_per_s"])
+
+
+def test_physics_throughput_measures_in_a_worker_and_checks_the_tuned_scene_against_the_stock_one(tmp_path):
+    out = tmp_path / "physics.json"
+    physics_throughput.main(["--configs", "reach-tuned", "--impls", "warp", "--warp-configs", "reach-tuned",
+                             "--batch-sizes", "1", "--policy-steps", "1", "--repeats", "1", "--fidelity-steps", "2",
+                             "--out", str(out)])
+    record = results(out, "physics_throughput")
+    assert record["config"]["configs"] == ["reach-tuned"] and record["config"]["scenes"] == {"reach-tuned": "reach"}
+    (row,) = record["results"]
+    assert "status" not in row, f"the worker failed: {row.get('status')}"
+    assert (row["config"], row["impl"], row["batch"]) == ("reach-tuned", "warp", 1)
+    assert (row["timestep_ms"], row["frame_skip"]) == (1e3 * REACH_PHYSICS.timestep, REACH_FRAME_SKIP)
+    assert row["policy_steps_per_s"] > 0 and row["compile_s"] > 0 and row["setup_s"] > 0
+    assert row["physics_steps_per_s"] == pytest.approx(row["policy_steps_per_s"] * REACH_FRAME_SKIP)
+    assert row["sim_s_per_s"] == pytest.approx(row["physics_steps_per_s"] * REACH_PHYSICS.timestep)
+    assert row["contacts"] > 0 and row["constraint_rows"] > 0 and row["data_kib_per_env"] > 0
+    # 5 ms steps and pruned contacts move the fingertips other than Gym's 2 ms scene does, by millimetres
+    assert 0 < row["tip_error_mean_mm"] <= row["tip_error_max_mm"] < 50
+
+
+def test_render_throughput_renders_every_camera_and_compares_the_frames_with_mujocos_renderer(tmp_path, opengl):
+    out, saved = tmp_path / "render.json", tmp_path / "frames.npz"
+    cameras = ("front", "top")
+    render_throughput.main(["--envs", "1", "--sizes", "8", "--cameras", *cameras, "--steps", "1", "--out", str(out),
+                            "--save-frames", str(saved)])
+    record = results(out, "render_throughput")
+    config = record["config"]
+    assert config["cameras"] == list(cameras) and config["frame_skip"] * config["timestep"] == pytest.approx(0.08)
+    bare, rendered = record["results"]
+    assert (bare["render"], bare["size"], bare["frames_per_s"]) == (False, 0, 0.0)
+    assert (rendered["render"], rendered["size"]) == (True, 8)
+    for row in (bare, rendered):
+        assert row["policy_steps_per_s"] == pytest.approx(1 / row["seconds"])
+        assert row["sim_s_per_s"] == pytest.approx(row["policy_steps_per_s"] * 0.08)
+    assert rendered["frames_per_s"] == pytest.approx(2 * rendered["policy_steps_per_s"]), "one frame per camera"
+    # The comparison is of the frames the run rendered, and it measures a difference: MuJoCo's own frames of the same
+    # states score zero. (Warp's score high: it draws no skybox and an untextured hand; README, 89-91% at 32-96 px.)
+    frames, qpos = np.load(saved)["frames_8"], np.load(saved)["qpos_8"]
+    assert frames.shape == (1, 2, 8, 8, 3) and frames.any(), "Warp drew something"
+    model = render_throughput.load_cube_scene(touch=False, cameras=cameras)
+    assert render_throughput.compare_frames(model, qpos, frames, cameras) == {
+        key: rendered[key] for key in ("pixels_differing_over_16", "mean_abs_difference")}
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos[0]
+    mujoco.mj_forward(model, data)
+    with mujoco.Renderer(model, 8, 8) as renderer:
+        own = []
+        for name in cameras:
+            renderer.update_scene(data, render_throughput.VISION_PREFIX + name)
+            own.append(renderer.render())
+    assert render_throughput.compare_frames(model, qpos, np.stack(own)[None], cameras) == {
+        "pixels_differing_over_16": 0.0, "mean_abs_difference": 0.0}
+
+
+def test_evaluation_speed_gets_the_same_episodes_from_every_batch_and_worker_setting(tmp_path, cortical_reach):
+    out = tmp_path / "evaluation.json"
+    evaluation_speed.main([str(cortical_reach.run_dir), "--episodes", "4", "--settings", "1x1", "2x2",
+                           "--repeats", "1", "--out", str(out)])
+    record = results(out, "evaluation_speed_ShadowHandReach")
+    config = record["config"]
+    assert (config["task"], config["network"], config["episodes"]) == ("ShadowHandReach", "cortical", 4)
+    assert 0 < config["mean_episode_length"] <= 30
+    first, second = record["results"]
+    assert [(row["batch"], row["workers"]) for row in (first, second)] == [(1, 1), (2, 2)]
+    assert first["identical"] and second["identical"], "a batch or thread count changed an episode"
+    assert first["speedup"] == 1.0 and second["speedup"] == pytest.approx(first["seconds"] / second["seconds"])
+    for row in (first, second):
+        assert row["episodes_per_s"] == pytest.approx(4 / row["seconds"])
+        assert row["env_steps_per_s"] == pytest.approx(row["episodes_per_s"] * config["mean_episode_length"])
