@@ -29,20 +29,22 @@ REACH_PHYSICS = PhysicsSettings(timestep=0.005, iterations=2, ls_iterations=4)
 
 def make_reach(free: bool = False, reward_preset: str = "default", reward: dict[str, float] | None = None,
                control_dt: float = 0.02, max_episode_steps: int = 100, control: str = "position",
-               physics: dict[str, float] | None = None, vision: dict | None = None, backend: str = "mjx") -> Env:
+               physics: dict[str, float] | None = None, vision: dict | None = None, target_finger: str | None = None,
+               freeze_wrist: bool = False, backend: str = "mjx") -> Env:
     """Build a reach task. Defaults follow AngoraPy: 0.02 s per policy step, 100 policy steps per episode,
     joint targets set relative to the joints' positions (`control`: see `HandTask`). physics: `PhysicsSettings`
     fields overriding `REACH_PHYSICS` (the Gym scene's own settings are timestep 0.002, iterations 20,
     ls_iterations 50). `backend="cpu"` gives the eager MuJoCo twin. vision: camera images of the hand in
     `Sensation.vision` (`envs.cameras.CameraVision` fields, as for the cube), besides the usual inputs.
     reward_preset: a key of `reach.REWARD_PRESETS`, AngoraPy's "default" or "force_punished"; `reward` overrides
-    single coefficients of it."""
+    single coefficients of it. target_finger: "FF", "MF", "RF" or "LF" for every episode (AngoraPy's
+    `force_finger`), None to draw one per episode. freeze_wrist: the wrist holds its initial pose (`HandTask`)."""
     cameras = CameraVision.from_options(vision)
     settings = REACH_PHYSICS.with_options(physics)
     frame_skip = settings.frame_skip(control_dt)
     scene = load_scene("reach.xml", physics=settings, cameras=cameras.cameras if cameras else ())
     task = Reach(scene, ReachReward.preset(REACH_REWARDS, reward_preset, reward), free=free, control=control,
-                 vision=cameras)
+                 vision=cameras, target_finger=target_finger, freeze_wrist=freeze_wrist)
     return build(backend, task, frame_skip, max_episode_steps, settings)
 
 
@@ -75,7 +77,8 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
               success_angle: float = 0.4, goal_timeout: float = 8.0, timer: str = "terminal", max_goals: int = 50,
               control_dt: float = 0.08, relative_goal: bool = True, control: str = "absolute",
               action_scale: float = 0.2, start_pool: int = 512, physics: dict[str, float] | None = None,
-              vision: dict | None = None, pose_estimator: str | None = None, backend: str = "mjx") -> Env:
+              vision: dict | None = None, pose_estimator: str | None = None, freeze_wrist: bool = False,
+              backend: str = "mjx") -> Env:
     """Build in-hand cube reorientation (see `ihom.Ihom`). Times in s, angles in rad.
 
     The defaults are the recipe of `configs/shadow_ihom.yaml`; `configs/shadow_ihom_paper.yaml` sets AngoraPy's.
@@ -95,6 +98,7 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
     policy sees the pose it estimates from its cameras' RGB frames (which set `vision`; give no other) where it saw
     the true pose, with inputs of the same shapes. Train the estimator on the renderer these frames come from (Warp's
     on a GPU).
+    freeze_wrist: the wrist holds its initial pose whatever the policy's first two actions say (`HandTask`).
     """
     estimator = None
     if pose_estimator is not None:
@@ -114,7 +118,7 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
     task = Ihom(scene, IhomReward.preset(IHOM_REWARDS, reward_preset, reward),
                 success_angle=success_angle, steps_per_goal=steps_per_goal, max_goals=max_goals, dt=control_dt,
                 timer=timer, relative_goal=relative_goal, control=control, action_scale=action_scale,
-                start_pool=start_pool, vision=cameras, pose_estimator=estimator)
+                start_pool=start_pool, vision=cameras, pose_estimator=estimator, freeze_wrist=freeze_wrist)
     return build(backend, task, frame_skip, max_goals * steps_per_goal, settings)
 
 

@@ -28,6 +28,9 @@ REACH_INITIAL_QPOS = {
 }
 
 
+# The wrist's actuators (`HandTask`'s freeze_wrist holds them).
+WRIST_ACTUATOR_PREFIX = "robot0:A_WRJ"
+
 # How an action becomes joint targets (`HandTask.control`).
 CONTROL_MODES = ("position", "target", "absolute")
 
@@ -42,12 +45,15 @@ class HandTask(MujocoTask):
     - "target": targets move from the previous step's targets (MuJoCo Playground's LEAP hand). A zero action holds
       the hand still, so a policy that does nothing keeps an object it holds.
     - "absolute": [-1, 1] maps onto the control range (`action_scale` unused).
+    freeze_wrist: the two wrist actuators hold the wrist at its initial pose whatever the policy's first two action
+    values say (AngoraPy's option), so only the fingers move.
     """
 
     camera_body = PALM_BODY
 
     def __init__(self, model: mujoco.MjModel, control: str = "position", action_scale: float = 1.0,
-                 initial_qpos: dict[str, float] | None = None, vision: CameraVision | None = None):
+                 initial_qpos: dict[str, float] | None = None, vision: CameraVision | None = None,
+                 freeze_wrist: bool = False):
         if control not in CONTROL_MODES:
             raise ValueError(f"Unknown control {control!r}; choose one of {CONTROL_MODES}.")
         if action_scale <= 0:
@@ -71,6 +77,11 @@ class HandTask(MujocoTask):
         low, high = model.actuator_ctrlrange.T.astype(np.float32)
         self._ctrl_low, self._ctrl_high = low, high
         self._ctrl_half_range = (high - low) / 2
+        self.freeze_wrist = freeze_wrist
+        wrist = [a for a in range(model.nu) if model.actuator(a).name.startswith(WRIST_ACTUATOR_PREFIX)]
+        self._wrist_actuators = np.array(wrist)
+        # Each wrist actuator drives one joint (joint transmission): its target is that joint's initial position.
+        self._wrist_hold = np.clip(qpos[model.jnt_qposadr[model.actuator_trnid[wrist, 0]]], low[wrist], high[wrist])
 
     def initial_qpos(self, key: jax.Array) -> jax.Array:
         return jnp.asarray(self._qpos0)
@@ -81,7 +92,8 @@ class HandTask(MujocoTask):
         else:
             center = snap.actuator_length if self.control_mode == "position" else snap.ctrl
             scale = self.action_scale
-        return jnp.clip(center + action * scale * self._ctrl_half_range, self._ctrl_low, self._ctrl_high)
+        ctrl = jnp.clip(center + action * scale * self._ctrl_half_range, self._ctrl_low, self._ctrl_high)
+        return ctrl.at[self._wrist_actuators].set(self._wrist_hold) if self.freeze_wrist else ctrl
 
     def fingertips(self, snap: Snapshot) -> jax.Array:
         """Fingertip positions (m, world frame), shape `(5, 3)` in the order FF, MF, RF, LF, thumb."""

@@ -214,7 +214,7 @@ class Ihom(HandTask):
                  steps_per_goal: int = 100, max_goals: int = 50, dt: float = 0.08, timer: str = "terminal",
                  relative_goal: bool = False, control: str = "absolute", action_scale: float = 0.2,
                  start_pool: int = 512, vision: CameraVision | None = None,
-                 pose_estimator: PoseReader | None = None):
+                 pose_estimator: PoseReader | None = None, freeze_wrist: bool = False):
         if success_angle <= 0 or steps_per_goal < 1 or max_goals < 1 or dt <= 0 or start_pool < 1:
             raise ValueError(f"Ihom needs success_angle > 0, steps_per_goal >= 1, max_goals >= 1, dt > 0 and "
                              f"start_pool >= 1, got {success_angle}, {steps_per_goal}, {max_goals}, {dt}, "
@@ -228,7 +228,8 @@ class Ihom(HandTask):
             raise ValueError("A pose estimator reads camera frames: give the cameras it was trained on as `vision`.")
         hand_joints = [j for j in range(model.njnt) if model.joint(j).name.startswith(HAND_JOINT_PREFIX)]
         super().__init__(model, control=control, action_scale=action_scale,
-                         initial_qpos={model.joint(j).name: 0.0 for j in hand_joints}, vision=vision)
+                         initial_qpos={model.joint(j).name: 0.0 for j in hand_joints}, vision=vision,
+                         freeze_wrist=freeze_wrist)
         self.reward_config = reward
         self.success_angle = success_angle
         self.steps_per_goal = steps_per_goal

@@ -1,6 +1,7 @@
 """Finger reaching on the Shadow hand, after AngoraPy's `Reach` and `FreeReach` tasks.
 
-Both bring the thumb tip to a target finger's tip (first, middle, ring or little finger, drawn per episode).
+Both bring the thumb tip to a target finger's tip (first, middle, ring or little finger, drawn per episode, or one
+fixed finger with `target_finger`, AngoraPy's `force_finger`).
 `reach` asks for all five fingertips at sampled positions (the non-target fingers where they started, thumb and
 target at a meeting point above the palm); `freereach` only asks thumb and target to meet and penalises other
 fingertips that enter a zone around the thumb. Rewards are a prototype function plus `ReachReward` coefficients,
@@ -23,6 +24,8 @@ from angora_jax.envs.shadow_hand.hand import HandTask
 
 THUMB = 4
 NUM_TARGET_FINGERS = 4
+# The target fingers in `HandTask.fingertips` order, by AngoraPy's names (its `force_finger`).
+TARGET_FINGERS = ("FF", "MF", "RF", "LF")
 # Gym HandReach's meeting point relative to the palm (m), for the hand's pose in reach.xml; fingers point to -y.
 MEETING_OFFSET = (0.0, -0.09, 0.05)
 
@@ -61,14 +64,20 @@ class Reach(HandTask):
     metric_names = ("success", "goal_distance")
 
     def __init__(self, model: mujoco.MjModel, reward: ReachReward = ReachReward(), free: bool = False,
-                 control: str = "position", vision: CameraVision | None = None):
-        super().__init__(model, control=control, vision=vision)
+                 control: str = "position", vision: CameraVision | None = None, target_finger: str | None = None,
+                 freeze_wrist: bool = False):
+        super().__init__(model, control=control, vision=vision, freeze_wrist=freeze_wrist)
+        if target_finger is not None and target_finger not in TARGET_FINGERS:
+            raise ValueError(f"Unknown target_finger {target_finger!r}; choose one of {TARGET_FINGERS} (first, "
+                             "middle, ring, little) or None to draw one per episode.")
         self.reward_config = reward
         self.free = free
+        self.target_finger = target_finger
 
     def initial_info(self, key: jax.Array, snap: Snapshot) -> dict[str, jax.Array]:
         finger_key, meet_key, stay_key = jax.random.split(key, 3)
-        target = jax.random.randint(finger_key, (), 0, NUM_TARGET_FINGERS)
+        target = (jax.random.randint(finger_key, (), 0, NUM_TARGET_FINGERS) if self.target_finger is None
+                  else jnp.asarray(TARGET_FINGERS.index(self.target_finger), jnp.int32))
         tips = self.fingertips(snap)
         meeting = snap.xpos[self.palm_id] + jnp.asarray(MEETING_OFFSET) + 0.005 * jax.random.normal(meet_key, (3,))
         goal = tips
