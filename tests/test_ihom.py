@@ -412,3 +412,25 @@ def test_the_tasks_page_lists_every_reward_preset_with_its_coefficients():
         for name, coefficients in presets.items():
             values = ", ".join(f"{k} {v:g}" for k, v in dataclasses.asdict(coefficients).items())
             assert f"| {task} | `{name}` | {values} |" in page, f"docs/tasks.md lacks or misstates {task} {name}"
+
+
+def test_pose_noise_as_angorapys_noisy_cube():
+    """The policy sees the cube 3.71 mm off in a random direction and turned by a random small rotation, drawn anew
+    every step from the step's key; the value function also sees the true pose; goals stay those of the clean task."""
+    noisy, clean = aj.make("ShadowHandCube", backend="cpu", pose_noise={}), aj.make("ShadowHandCube", backend="cpu")
+    state, reference = noisy.reset(jax.random.key(3)), clean.reset(jax.random.key(3))
+    np.testing.assert_array_equal(state.info["goal"], reference.info["goal"])
+    np.testing.assert_allclose(state.obs.asymmetric[-7:], reference.obs.vision, atol=1e-6)
+    again = aj.make("ShadowHandCube", backend="cpu", pose_noise={}).reset(jax.random.key(3))
+    np.testing.assert_array_equal(again.obs.vision, state.obs.vision)  # reproducible from the key
+    turns = []
+    for _ in range(12):
+        state = noisy.step(state, jnp.zeros(20))
+        true, seen = np.asarray(state.obs.asymmetric[-7:]), np.asarray(state.obs.vision)
+        assert np.linalg.norm(seen[:3] - true[:3]) == pytest.approx(0.00371, abs=1e-6)
+        turns.append(float(angular_distance(jnp.asarray(seen[3:]), jnp.asarray(true[3:]))))
+    assert len(set(turns)) == 12 and 0.005 < np.mean(turns) < 0.15, turns  # 5-degree scale, drawn every step
+    with pytest.raises(ValueError, match="position >= 0"):
+        aj.make("ShadowHandCube", backend="cpu", pose_noise={"position": -0.001})
+    with pytest.raises(ValueError, match=r"Unknown pose_noise fields \['angle'\]"):
+        aj.make("ShadowHandCube", backend="cpu", pose_noise={"angle": 0.1})

@@ -179,6 +179,51 @@ def rotation_matrix(q: jax.Array) -> jax.Array:
                       2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)
 
 
+@dataclasses.dataclass(frozen=True)
+class PoseNoise:
+    """Noise on the cube's pose as the policy sees it, drawn afresh every step (AngoraPy's NoisyManipulateBlock), in a
+    pose estimator's units; the value function's asymmetric inputs then hold the true pose too. The defaults are
+    AngoraPy's, its pose estimator's measured error.
+
+    position: m, the length of a displacement in a uniformly random direction (AngoraPy: 3.71 mm).
+    rotation: rad, the standard deviation of a rotation angle whose share about the x, y and z axes is drawn uniformly
+        (AngoraPy: pi / 36, 5 degrees).
+    """
+
+    position: float = 0.00371
+    rotation: float = float(np.pi / 36)
+
+    def __post_init__(self):
+        if not (self.position >= 0 and self.rotation >= 0):
+            raise ValueError(f"pose_noise needs position >= 0 (m) and rotation >= 0 (rad), got {self}.")
+
+    @classmethod
+    def from_options(cls, options: dict[str, float]) -> PoseNoise:
+        """From the `pose_noise` option; a ValueError naming the fields for an unknown one."""
+        unknown = sorted(set(options) - {"position", "rotation"})
+        if unknown:
+            raise ValueError(f"Unknown pose_noise fields {unknown}; known: position (m), rotation (rad).")
+        return cls(**{k: float(v) for k, v in options.items()})
+
+    def apply(self, key: jax.Array, pose: jax.Array) -> jax.Array:
+        """`pose` (position 3 in m, quaternion 4) with noise drawn from `key`."""
+        angle_key, share_key, direction_key = jax.random.split(key, 3)
+        shares = jax.random.uniform(share_key, (3,))
+        angles = shares / jnp.sum(shares) * self.rotation * jax.random.normal(angle_key)
+        noise = jnp.asarray([1.0, 0.0, 0.0, 0.0])
+        for axis in range(3):  # about x, then y, then z, as AngoraPy composes them
+            half = angles[axis] / 2
+            noise = quat_mul(noise, jnp.concatenate([jnp.cos(half)[None], jnp.sin(half) * jnp.eye(3)[axis]]))
+        direction = jax.random.normal(direction_key, (3,))
+        position = pose[:3] + self.position * direction / jnp.linalg.norm(direction)
+        return jnp.concatenate([position, quat_mul(pose[3:], noise)])
+
+
+# `pose_noise`'s key is drawn from each step's key on a stream of its own, so that the goals stay those of a run
+# without noise.
+POSE_NOISE_STREAM = 1
+
+
 class Ihom(HandTask):
     """Cube reorientation on the cube scene (`load_cube_scene`), one policy step lasting `dt` s.
 
@@ -214,7 +259,8 @@ class Ihom(HandTask):
                  steps_per_goal: int = 100, max_goals: int = 50, dt: float = 0.08, timer: str = "terminal",
                  relative_goal: bool = False, control: str = "absolute", action_scale: float = 0.2,
                  start_pool: int = 512, vision: CameraVision | None = None,
-                 pose_estimator: PoseReader | None = None, freeze_wrist: bool = False):
+                 pose_estimator: PoseReader | None = None, freeze_wrist: bool = False,
+                 pose_noise: PoseNoise | None = None):
         if success_angle <= 0 or steps_per_goal < 1 or max_goals < 1 or dt <= 0 or start_pool < 1:
             raise ValueError(f"Ihom needs success_angle > 0, steps_per_goal >= 1, max_goals >= 1, dt > 0 and "
                              f"start_pool >= 1, got {success_angle}, {steps_per_goal}, {max_goals}, {dt}, "
@@ -230,6 +276,10 @@ class Ihom(HandTask):
         super().__init__(model, control=control, action_scale=action_scale,
                          initial_qpos={model.joint(j).name: 0.0 for j in hand_joints}, vision=vision,
                          freeze_wrist=freeze_wrist)
+        if pose_noise is not None and vision is not None:
+            raise ValueError("pose_noise applies to the true pose the policy sees; with camera vision or a pose "
+                             "estimator there is none to add it to.")
+        self.pose_noise = pose_noise
         self.reward_config = reward
         self.success_angle = success_angle
         self.steps_per_goal = steps_per_goal
@@ -306,8 +356,15 @@ class Ihom(HandTask):
         return jnp.asarray(self.starts)[jax.random.randint(key, (), 0, len(self.starts))]
 
     def initial_info(self, key: jax.Array, snap: Snapshot) -> dict[str, jax.Array]:
-        return {"goal": random_rotation(key), "goal_steps": jnp.zeros((), jnp.int32),
+        info = {"goal": random_rotation(key), "goal_steps": jnp.zeros((), jnp.int32),
                 "goals_reached": jnp.zeros((), jnp.int32), "time_out": jnp.zeros((), bool)}
+        return self._with_noise_key(info, key)
+
+    def _with_noise_key(self, info: dict[str, jax.Array], key: jax.Array) -> dict[str, jax.Array]:
+        """`info` with the key of this step's pose noise, when the task has some."""
+        if self.pose_noise is None:
+            return info
+        return info | {"pose_noise_key": jax.random.key_data(jax.random.fold_in(key, POSE_NOISE_STREAM))}
 
     def observe(self, snap: Snapshot, info: dict[str, jax.Array]) -> Sensation:
         cube_velocity = snap.qvel[self.cube_dof:self.cube_dof + 6]
@@ -315,10 +372,15 @@ class Ihom(HandTask):
         clocks = jnp.stack([1.0 - info["goal_steps"] / self.steps_per_goal, info["goals_reached"] / self.max_goals])
         privileged = [self.fingertips(snap).reshape(-1), to_goal, cube_velocity, clocks]
         pose = self.cube_pose(snap)  # a pose estimator's reading replaces it (`perceive`)
+        seen_to_goal = to_goal
         if self.vision is not None and self.frames_in_vision:  # the backend renders the frames into vision
             privileged, pose = privileged + [pose], jnp.zeros((0,), jnp.float32)
+        elif self.pose_noise is not None:  # the policy sees a noisy pose, the value function also the true one
+            privileged = privileged + [pose]
+            pose = self.pose_noise.apply(jax.random.wrap_key_data(info["pose_noise_key"]), pose)
+            seen_to_goal = rotation_between(pose[3:], info["goal"])
         return Sensation.make(proprioception=self.proprioception(snap), touch=snap.sensordata[self.touch_adr],
-                              vision=pose, goal=self.goal_input(to_goal, info["goal"]),
+                              vision=pose, goal=self.goal_input(seen_to_goal, info["goal"]),
                               asymmetric=jnp.concatenate(privileged))
 
     def goal_input(self, to_goal: jax.Array, goal: jax.Array) -> jax.Array:
@@ -372,4 +434,4 @@ class Ihom(HandTask):
         }
         metrics = {"goals_reached": goals_reached, "dropped": dropped, "timed_out": timer_ran_out,
                    "goal_distance": distance}
-        return reward, terminated, next_info, metrics
+        return reward, terminated, self._with_noise_key(next_info, key), metrics
