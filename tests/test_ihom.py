@@ -23,6 +23,7 @@ from angora_jax.envs.shadow_hand.ihom import (
     Ihom,
     IhomReward,
     angular_distance,
+    axis_aligned_rotations,
     quat_mul,
     random_rotation,
     rotation_between,
@@ -434,3 +435,24 @@ def test_pose_noise_as_angorapys_noisy_cube():
         aj.make("ShadowHandCube", backend="cpu", pose_noise={"position": -0.001})
     with pytest.raises(ValueError, match=r"Unknown pose_noise fields \['angle'\]"):
         aj.make("ShadowHandCube", backend="cpu", pose_noise={"angle": 0.1})
+
+
+def test_the_test_set_of_goals_is_the_24_axis_aligned_orientations(cpu, start):
+    """`goals="test_set"` (AngoraPy's TestCaseManipulateBlock): first goals and goals after a success are drawn from
+    the 24 rotations that map the cube's faces onto the world axes, so runs can be evaluated on one fixed set."""
+    test_set = axis_aligned_rotations()
+    similarity = np.abs(test_set @ test_set.T)  # |q . p| is 1 for the same rotation (q or -q), below 0.71 otherwise
+    assert len(test_set) == 24 and (similarity - np.eye(24)).max() < 0.71, "24 distinct rotations"
+    task = Ihom(cpu.task.model, goals="test_set")
+    snap, _ = start
+    drawn = []
+    for k in range(16):
+        info = task.initial_info(jax.random.key(k), snap)
+        now = with_cube(task, snap, quat=info["goal"])  # reached: the next goal is drawn
+        after = task.evaluate(jax.random.key(100 + k), snap, now, info)[2]
+        drawn += [np.asarray(info["goal"]), np.asarray(after["goal"])]
+    matches = np.abs(np.stack(drawn) @ test_set.T).max(axis=1)
+    np.testing.assert_allclose(matches, 1.0, atol=1e-6)
+    assert len({tuple(np.round(g, 4)) for g in drawn}) > 8, "several of the set are drawn"
+    with pytest.raises(ValueError, match=r"Unknown goals 'fixed'.*\('random', 'test_set'\)"):
+        aj.make("ShadowHandCube", backend="cpu", goals="fixed")

@@ -78,7 +78,7 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
               control_dt: float = 0.08, relative_goal: bool = True, control: str = "absolute",
               action_scale: float = 0.2, start_pool: int = 512, physics: dict[str, float] | None = None,
               vision: dict | None = None, pose_estimator: str | None = None, freeze_wrist: bool = False,
-              pose_noise: dict[str, float] | None = None, backend: str = "mjx") -> Env:
+              pose_noise: dict[str, float] | None = None, goals: str = "random", backend: str = "mjx") -> Env:
     """Build in-hand cube reorientation (see `ihom.Ihom`). Times in s, angles in rad.
 
     The defaults are the recipe of `configs/shadow_ihom.yaml`; `configs/shadow_ihom_paper.yaml` sets AngoraPy's.
@@ -101,6 +101,8 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
     freeze_wrist: the wrist holds its initial pose whatever the policy's first two actions say (`HandTask`).
     pose_noise: noise on the pose the policy sees, `ihom.PoseNoise` fields (position in m, rotation in rad); `{}`
     gives AngoraPy's NoisyManipulateBlock (3.71 mm, pi / 36).
+    goals: "random" (any rotation) or "test_set", the 24 axis-aligned orientations (AngoraPy's
+    TestCaseManipulateBlock), to evaluate runs on the same fixed set: `evaluate --env-option goals=test_set`.
     """
     estimator = None
     if pose_estimator is not None:
@@ -121,7 +123,7 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
                 success_angle=success_angle, steps_per_goal=steps_per_goal, max_goals=max_goals, dt=control_dt,
                 timer=timer, relative_goal=relative_goal, control=control, action_scale=action_scale,
                 start_pool=start_pool, vision=cameras, pose_estimator=estimator, freeze_wrist=freeze_wrist,
-                pose_noise=None if pose_noise is None else PoseNoise.from_options(pose_noise))
+                pose_noise=None if pose_noise is None else PoseNoise.from_options(pose_noise), goals=goals)
     return build(backend, task, frame_skip, max_goals * steps_per_goal, settings)
 
 

@@ -170,6 +170,25 @@ def random_rotation(key: jax.Array) -> jax.Array:
     return jnp.where(q[0] < 0, -q, q)
 
 
+def axis_aligned_rotations() -> np.ndarray:
+    """The 24 rotations that map the cube's faces onto the world axes (w >= 0), shape `(24, 4)`: AngoraPy's
+    TestCaseManipulateBlock set. Six faces up (none, +-90 degrees about x, +-90 and 180 about y), each turned by 0,
+    +-90 and 180 degrees about z."""
+    def about(axis: int, angle: float) -> np.ndarray:
+        return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * np.eye(3)[axis]])
+
+    faces = [np.array([1.0, 0, 0, 0]), about(0, np.pi / 2), about(0, -np.pi / 2), about(1, np.pi / 2),
+             about(1, -np.pi / 2), about(1, np.pi)]
+    turns = [np.zeros(0)] + [about(2, angle) for angle in (np.pi / 2, -np.pi / 2, np.pi)]
+    rotations = [face if turn.size == 0 else np.asarray(quat_mul(jnp.asarray(face), jnp.asarray(turn)))
+                 for turn in turns for face in faces]
+    return np.array([q if q[0] >= 0 else -q for q in rotations], np.float32)
+
+
+# Where each episode's goals come from (`Ihom`'s `goals`).
+GOAL_SETS = ("random", "test_set")
+
+
 def rotation_matrix(q: jax.Array) -> jax.Array:
     """The rotation matrix of unit quaternion `q` (w, x, y, z), flattened row by row: shape `(..., 9)`. Unlike the
     quaternion it is continuous and unique (q and -q give the same matrix), which makes it the better network input."""
@@ -260,7 +279,7 @@ class Ihom(HandTask):
                  relative_goal: bool = False, control: str = "absolute", action_scale: float = 0.2,
                  start_pool: int = 512, vision: CameraVision | None = None,
                  pose_estimator: PoseReader | None = None, freeze_wrist: bool = False,
-                 pose_noise: PoseNoise | None = None):
+                 pose_noise: PoseNoise | None = None, goals: str = "random"):
         if success_angle <= 0 or steps_per_goal < 1 or max_goals < 1 or dt <= 0 or start_pool < 1:
             raise ValueError(f"Ihom needs success_angle > 0, steps_per_goal >= 1, max_goals >= 1, dt > 0 and "
                              f"start_pool >= 1, got {success_angle}, {steps_per_goal}, {max_goals}, {dt}, "
@@ -280,6 +299,10 @@ class Ihom(HandTask):
             raise ValueError("pose_noise applies to the true pose the policy sees; with camera vision or a pose "
                              "estimator there is none to add it to.")
         self.pose_noise = pose_noise
+        if goals not in GOAL_SETS:
+            raise ValueError(f"Unknown goals {goals!r}; choose one of {GOAL_SETS}.")
+        self.goals = goals
+        self._test_goals = axis_aligned_rotations()
         self.reward_config = reward
         self.success_angle = success_angle
         self.steps_per_goal = steps_per_goal
@@ -356,9 +379,16 @@ class Ihom(HandTask):
         return jnp.asarray(self.starts)[jax.random.randint(key, (), 0, len(self.starts))]
 
     def initial_info(self, key: jax.Array, snap: Snapshot) -> dict[str, jax.Array]:
-        info = {"goal": random_rotation(key), "goal_steps": jnp.zeros((), jnp.int32),
+        info = {"goal": self.sample_goal(key), "goal_steps": jnp.zeros((), jnp.int32),
                 "goals_reached": jnp.zeros((), jnp.int32), "time_out": jnp.zeros((), bool)}
         return self._with_noise_key(info, key)
+
+    def sample_goal(self, key: jax.Array) -> jax.Array:
+        """A goal orientation (quaternion): any rotation (AngoraPy's "xyz"), or with `goals="test_set"` one of the
+        24 axis-aligned ones (`axis_aligned_rotations`), so that runs are compared on a fixed set of goals."""
+        if self.goals == "random":
+            return random_rotation(key)
+        return jnp.asarray(self._test_goals)[jax.random.randint(key, (), 0, len(self._test_goals))]
 
     def _with_noise_key(self, info: dict[str, jax.Array], key: jax.Array) -> dict[str, jax.Array]:
         """`info` with the key of this step's pose noise, when the task has some."""
@@ -427,7 +457,7 @@ class Ihom(HandTask):
         terminated = jnp.logical_or(dropped, jnp.logical_and(timer_ran_out, terminal_timer))
         cut = jnp.logical_or(goals_reached >= self.max_goals, jnp.logical_and(timer_ran_out, not terminal_timer))
         next_info = {
-            "goal": jnp.where(success, random_rotation(key), goal),
+            "goal": jnp.where(success, self.sample_goal(key), goal),
             "goal_steps": goal_steps,
             "goals_reached": goals_reached,
             "time_out": jnp.logical_and(cut, jnp.logical_not(terminated)),
