@@ -16,6 +16,8 @@ angora-jax analyze similarity act.nc --condition metric_goal_distance    RDMs pe
 angora-jax analyze dynamics act.nc --run runs/lstm --recurrent network.PMC --inputs network.PMC_in
                                                 PCA per layer; fixed points of a recurrent layer
 angora-jax analyze timescales act.nc             activity autocorrelation and timescale per layer
+angora-jax analyze crosscorrelation act.nc       which layer's leading component leads which, over lags
+angora-jax analyze decode act.nc --lags 0 4 8    decode each variable k steps after the activity
 angora-jax analyze tuning act.nc --layer network.SSC_2 --variable metric_goal_distance
 angora-jax analyze ablate runs/lstm --lesion network.SSC_2 --silence goal    task outcomes under lesions
 angora-jax pretrain-vision --out encoder.msgpack    a visual encoder that sees the cube's pose, from renders
@@ -213,6 +215,9 @@ def parser() -> argparse.ArgumentParser:
     decoding.add_argument("--layers", nargs="*", help="layer names (default: all)")
     decoding.add_argument("--variables", nargs="*", help="variables (default: every input_*, task_* and metric_*)")
     decoding.add_argument("--folds", type=positive_int, default=5)
+    decoding.add_argument("--lags", nargs="*", type=int, default=None,
+                          help="policy steps k: decode the variable k steps after the activity (k < 0: before), "
+                               "e.g. --lags -4 0 4 8 16")
     decoding.add_argument("--out", default=None, help="heat map PNG (default: beside the recording)")
     decoding.set_defaults(handler=command_decode)
 
@@ -239,6 +244,9 @@ def parser() -> argparse.ArgumentParser:
     scales = analysis("timescales", "activity autocorrelation and intrinsic timescale per layer")
     scales.add_argument("--layers", nargs="*", help="layer names (default: all)")
     scales.add_argument("--max-lag", type=positive_int, default=20, help="policy steps (default: 20)")
+    crosscorrelation = analysis("crosscorrelation", "correlation of layers' leading components over lags")
+    crosscorrelation.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    crosscorrelation.add_argument("--max-lag", type=positive_int, default=20, help="policy steps (default: 20)")
     tuning = analysis("tuning", "unit responses as functions of a task variable")
     tuning.add_argument("--layer", required=True)
     tuning.add_argument("--variable", required=True)
@@ -530,14 +538,16 @@ def command_decode(args: argparse.Namespace) -> int:
     from angora_jax.analysis import decode, plot_decoding
 
     def summary(result):
-        for layer in result["layer"].values:
-            yield f"{layer}: " + ", ".join(
-                f"{v} {result['r2'].sel(layer=layer, variable=v).item():.2f} "
-                f"(noise {result['baseline'].sel(layer=layer, variable=v).item():.2f})"
-                for v in result["variable"].values)
+        for lag in (result["lag"].values if "lag" in result.dims else [None]):
+            at = result if lag is None else result.sel(lag=lag)
+            for layer in result["layer"].values:
+                yield ("" if lag is None else f"lag {lag}: ") + f"{layer}: " + ", ".join(
+                    f"{v} {at['r2'].sel(layer=layer, variable=v).item():.2f} "
+                    f"(noise {at['baseline'].sel(layer=layer, variable=v).item():.2f})"
+                    for v in result["variable"].values)
 
-    return _analyze(args, lambda data: decode(data, args.layers, args.variables, args.folds), plot_decoding, summary,
-                    stem="decoding")
+    return _analyze(args, lambda data: decode(data, args.layers, args.variables, args.folds, lags=args.lags),
+                    plot_decoding, summary, stem="decoding")
 
 
 def command_analysis(args: argparse.Namespace) -> int:
@@ -551,6 +561,8 @@ def command_analysis(args: argparse.Namespace) -> int:
             return analysis.similarity(data, args.condition, args.layers, args.variables, args.bins, args.feature)
         if args.analysis == "timescales":
             return analysis.timescales(data, args.layers, args.max_lag)
+        if args.analysis == "crosscorrelation":
+            return analysis.cross_correlation(data, args.layers, args.max_lag)
         if args.analysis == "tuning":
             return analysis.tuning_curves(data, args.layer, args.variable, args.bins, args.feature)
         if (args.run is None) != (args.recurrent is None) or (args.recurrent is None) != (args.inputs is None):
@@ -566,6 +578,7 @@ def command_analysis(args: argparse.Namespace) -> int:
             analysis.plot_dynamics(result, path, fixed or None)
         else:
             {"similarity": analysis.plot_similarity, "timescales": analysis.plot_timescales,
+             "crosscorrelation": analysis.plot_cross_correlation,
              "tuning": analysis.plot_tuning}[args.analysis](result, path)
 
     def summary(result):
@@ -573,6 +586,8 @@ def command_analysis(args: argparse.Namespace) -> int:
             yield f"Layer x layer RDM similarity (Spearman):\n{result['layer_similarity'].to_pandas().round(2)}"
             if "model_similarity" in result:
                 yield f"Layer x variable (Spearman):\n{result['model_similarity'].to_pandas().round(2)}"
+        elif args.analysis == "crosscorrelation":
+            yield f"Lag of the peak |correlation| (s; > 0: the row leads):\n{result['peak_lag'].to_pandas().round(3)}"
         elif args.analysis == "timescales":
             yield from (f"{layer}: timescale median {result['timescale_median'].sel(layer=layer).item():.3g} s"
                         for layer in result["layer"].values)

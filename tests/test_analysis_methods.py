@@ -1,12 +1,21 @@
 """The analyses on data with known answers: RDMs (symmetric, zero diagonal, the right model RDM wins), fixed points
-of a hand-built linear RNN, timescales of AR(1) units, tuning strength, PCA dimensionality."""
+of a hand-built linear RNN, timescales of AR(1) units, tuning strength, PCA dimensionality, lagged decoding and
+cross-correlation of a layer that another follows by 3 steps."""
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 import xarray as xr
 
-from angora_jax.analysis import find_fixed_points, principal_components, similarity, timescales, tuning_curves
+from angora_jax.analysis import (
+    cross_correlation,
+    decode,
+    find_fixed_points,
+    principal_components,
+    similarity,
+    timescales,
+    tuning_curves,
+)
 
 DT = 0.02
 
@@ -78,3 +87,37 @@ def test_pca_finds_one_dimension_in_a_rank_one_code():
     assert int(result["dimensionality"].sel(layer="noise")) >= 4
     trajectory = result["trajectory_code"].values
     assert np.isnan(trajectory[0, 45]).all() and np.isfinite(trajectory[1]).all(), "dead steps are not projected"
+
+
+def leader_and_follower(episodes=16, steps=60, delay=3, seed=0):
+    """A layer `lead` whose units carry one white-noise signal, a layer `follow` that repeats it `delay` steps later
+    (mixed, plus a little noise), and `metric_echo`, lead's first unit `delay` steps later: the variable at t + delay
+    is the activity at t, while the activity at t says nothing of the variable at t."""
+    rng = np.random.default_rng(seed)
+    signal = rng.standard_normal((episodes, steps + delay))
+    full = signal[..., None] * rng.standard_normal(5) + 0.1 * rng.standard_normal((episodes, steps + delay, 5))
+    lead = full[:, delay:]
+    follow = full[:, :steps] @ rng.standard_normal((5, 4)) + 0.05 * rng.standard_normal((episodes, steps, 4))
+    data = {"alive": (("episode", "time"), np.ones((episodes, steps))),
+            "metric_echo": (("episode", "time"), full[:, :steps, 0]),
+            "activity_lead": (("episode", "time", "lead_unit"), lead),
+            "activity_follow": (("episode", "time", "follow_unit"), follow)}
+    return xr.Dataset(data, coords={"time": np.arange(steps) * DT}, attrs={"policy_step_s": DT})
+
+
+def test_lagged_decoding_finds_what_a_layer_tells_of_the_future():
+    result = decode(leader_and_follower(), layers=["lead"], variables=["metric_echo"], lags=[0, 3])
+    r2 = result["r2"].sel(layer="lead", variable="metric_echo")
+    assert r2.sel(lag=3) > 0.95 and r2.sel(lag=0) < 0.2, r2.values  # metric_echo(t + 3) = lead(t)
+    assert float(result["baseline"].max()) < 0.1 and result["lag_s"].values.tolist() == [0.0, 3 * DT]
+    with pytest.raises(ValueError, match="lags must be shorter than the recording's 60 steps"):
+        decode(leader_and_follower(), layers=["lead"], variables=["metric_echo"], lags=[60])
+
+
+def test_cross_correlation_peaks_where_one_layer_follows_another():
+    result = cross_correlation(leader_and_follower(), max_lag=6)
+    assert float(result["peak_lag"].sel(layer="lead", other="follow")) == pytest.approx(3 * DT)
+    assert float(result["peak_lag"].sel(layer="follow", other="lead")) == pytest.approx(-3 * DT)
+    peak = result["cross_correlation"].sel(layer="lead", other="follow").sel(lag=3 * DT, method="nearest")
+    assert abs(float(peak)) > 0.95
+    np.testing.assert_allclose(result["cross_correlation"].sel(layer="lead", other="lead").sel(lag=0.0), 1.0, atol=1e-9)

@@ -3,7 +3,8 @@
 Record every layer's activity with the task variables (`record_activity`, an xarray Dataset), then: decode
 variables from layers (`decode`, ridge R^2 against a noise baseline), compare representations (`similarity`, RSA
 with rsatoolbox), reduce dimensionality and find fixed points (`principal_components`, `agent_fixed_points`),
-measure intrinsic timescales (`timescales`) and tuning (`tuning_curves`), and lesion units, areas or input
+measure intrinsic timescales (`timescales`), which layer leads which (`cross_correlation`), what a layer tells of the
+future (`decode(..., lags=...)`) and tuning (`tuning_curves`), and lesion units, areas or input
 modalities and measure the task outcome (`ablation`). Each analysis has a `plot_*` and an `angora-jax analyze` verb.
 """
 
@@ -21,11 +22,11 @@ from angora_jax.analysis.lesion import (
 )
 from angora_jax.analysis.recording import episode_outcomes, record_activity, replay_activity, save_activity
 from angora_jax.analysis.similarity import plot_similarity, similarity
-from angora_jax.analysis.timescales import plot_timescales, timescales
+from angora_jax.analysis.timescales import cross_correlation, plot_cross_correlation, plot_timescales, timescales
 from angora_jax.analysis.tuning import plot_tuning, tuning_curves
 
-__all__ = ["ablation", "agent_fixed_points", "decode", "dense_layers", "episode_outcomes", "find_fixed_points",
-           "lesion", "lesion_area", "lesion_fraction", "plot_ablation", "plot_decoding", "plot_dynamics",
-           "plot_similarity", "plot_timescales", "plot_tuning", "principal_components", "record_activity",
-           "replay_activity", "save_activity", "silence_modality", "similarity", "timescales", "tuning_curves",
-           "with_random_weights"]
+__all__ = ["ablation", "agent_fixed_points", "cross_correlation", "decode", "dense_layers", "episode_outcomes",
+           "find_fixed_points", "lesion", "lesion_area", "lesion_fraction", "plot_ablation",
+           "plot_cross_correlation", "plot_decoding", "plot_dynamics", "plot_similarity", "plot_timescales",
+           "plot_tuning", "principal_components", "record_activity", "replay_activity", "save_activity",
+           "silence_modality", "similarity", "timescales", "tuning_curves", "with_random_weights"]

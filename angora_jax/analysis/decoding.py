@@ -38,13 +38,15 @@ def cross_validated_r2(features: np.ndarray, targets: np.ndarray, groups: np.nda
 
 
 def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: Sequence[str] | None = None,
-           folds: int = 5, seed: int = 0) -> xr.Dataset:
+           folds: int = 5, seed: int = 0, lags: Sequence[int] | None = None) -> xr.Dataset:
     """R^2 of every layer x variable, with the noise baseline and 95% intervals, as a Dataset with variables `r2`,
     `r2_low`, `r2_high`, `baseline` (dims layer x variable).
 
     layers: names as in `activity_<name>` (default: all). variables: dataset variables to decode, e.g.
     `input_goal`, `task_cube_angular_velocity`, `metric_goal_distance` (default: every `input_*`, `task_*` and
-    `metric_*`).
+    `metric_*`). lags: policy steps k; with them, the variable at step t + k is decoded from the activity at step t
+    (k > 0: which areas predict the future; k < 0: which keep the past), at the steps where both are alive, and
+    every result gets a leading `lag` dim (coordinate in steps, `lag_s` in s).
     """
     layers = list(layers or recorded_layers(dataset))
     variables = list(variables or [n for n in dataset.data_vars if n.startswith(("input_", "task_", "metric_"))])
@@ -57,19 +59,41 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
                          for name, found in outputs.items() if found and f"activity_{name}" in missing)
         raise ValueError(f"Not in the recording: {missing}; it has {sorted(dataset.data_vars)}."
                          + (f" ({hint})" if hint else ""))
-    alive = dataset["alive"].values.reshape(-1) > 0
-    groups = np.repeat(np.arange(dataset.sizes["episode"]), dataset.sizes["time"])[alive]
-    if len(np.unique(groups)) < folds:
-        raise ValueError(f"Decoding with {folds} folds needs at least {folds} episodes; the recording has "
-                         f"{len(np.unique(groups))}.")
+    steps = dataset.sizes["time"]
+    if lags is not None and any(abs(k) >= steps for k in lags):
+        raise ValueError(f"lags must be shorter than the recording's {steps} steps, got {list(lags)}.")
     rng = np.random.default_rng(seed)
+    results = [_decode_at(dataset, layers, variables, folds, rng, lag) for lag in (lags if lags is not None else [0])]
+    names = ("r2", "r2_low", "r2_high", "baseline")
+    coords = {"layer": layers, "variable": variables}
+    attrs = {"folds": folds, "description": "held-out ridge R^2 (GroupKFold over episodes)"}
+    if lags is None:
+        return xr.Dataset({name: (("layer", "variable"), results[0][name]) for name in names}, coords=coords,
+                          attrs=attrs)
+    dt = float(dataset.attrs.get("policy_step_s", 1.0))
+    return xr.Dataset({name: (("lag", "layer", "variable"), np.stack([r[name] for r in results])) for name in names},
+                      coords={"lag": list(lags), "lag_s": ("lag", np.asarray(lags) * dt, {"units": "s"}), **coords},
+                      attrs=attrs)
+
+
+def _decode_at(dataset: xr.Dataset, layers: list[str], variables: list[str], folds: int, rng: np.random.Generator,
+               lag: int) -> dict[str, np.ndarray]:
+    """`decode`'s arrays (layer x variable) for the variables `lag` steps after the activity."""
+    steps = dataset.sizes["time"]
+    now, then = slice(max(0, -lag), steps - max(0, lag)), slice(max(0, lag), steps + min(0, lag))
+    alive_values = dataset["alive"].values > 0
+    alive = (alive_values[:, now] & alive_values[:, then]).reshape(-1)
+    groups = np.repeat(np.arange(dataset.sizes["episode"]), steps - abs(lag))[alive]
+    if len(np.unique(groups)) < folds:
+        raise ValueError(f"Decoding with {folds} folds needs at least {folds} episodes alive at lag {lag}; the "
+                         f"recording has {len(np.unique(groups))}.")
     shape = (len(layers), len(variables))
     result = {name: np.full(shape, np.nan) for name in ("r2", "r2_low", "r2_high", "baseline")}
     for i, layer in enumerate(layers):
-        features = _samples(dataset[f"activity_{layer}"])[alive]
+        features = _samples(dataset[f"activity_{layer}"].isel(time=now))[alive]
         noise = rng.standard_normal(features.shape)
         for j, variable in enumerate(variables):
-            targets = _samples(dataset[variable])[alive]
+            targets = _samples(dataset[variable].isel(time=then))[alive]
             if np.all(targets.std(axis=0) == 0):
                 continue  # a constant has nothing to decode
             scores = cross_validated_r2(features, targets, groups, folds)
@@ -77,9 +101,7 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
             result["r2"][i, j], result["r2_low"][i, j], result["r2_high"][i, j] = (
                 scores.mean(), scores.mean() - half, scores.mean() + half)
             result["baseline"][i, j] = cross_validated_r2(noise, targets, groups, folds).mean()
-    return xr.Dataset({name: (("layer", "variable"), values) for name, values in result.items()},
-                      coords={"layer": layers, "variable": variables},
-                      attrs={"folds": folds, "description": "held-out ridge R^2 (GroupKFold over episodes)"})
+    return result
 
 
 def recorded_layers(dataset: xr.Dataset) -> list[str]:
@@ -94,12 +116,31 @@ def _samples(array: xr.DataArray) -> np.ndarray:
 
 
 def plot_decoding(result: xr.Dataset, path: str) -> None:
-    """A heat map layer x variable of R^2 (the baseline in each cell's label)."""
+    """A heat map layer x variable of R^2 (the baseline in each cell's label); for a lagged decoding, R^2 against
+    the lag per variable, one line per layer, the noise baseline dashed."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if "lag" in result.dims:
+        variables = result["variable"].values
+        fig, axes = plt.subplots(1, len(variables), figsize=(4.2 * len(variables), 3.4), squeeze=False)
+        for ax, variable in zip(axes[0], variables, strict=True):
+            for layer in result["layer"].values:
+                cell = result.sel(layer=layer, variable=variable)
+                line, = ax.plot(result["lag_s"].values, cell["r2"].values, marker=".",
+                                label=str(layer).removeprefix("network."))
+                ax.fill_between(result["lag_s"].values, cell["r2_low"].values, cell["r2_high"].values,
+                                color=line.get_color(), alpha=0.2, linewidth=0)
+                ax.plot(result["lag_s"].values, cell["baseline"].values, ls="--", color=line.get_color(), lw=0.8)
+            ax.set(title=str(variable), xlabel="lag of the variable after the activity (s)", ylabel="held-out R^2")
+            ax.axvline(0, color="k", lw=0.5)
+        axes[0][0].legend(fontsize="small")
+        fig.tight_layout()
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        return
     r2 = result["r2"].values
     fig, ax = plt.subplots(figsize=(1.2 + 1.1 * r2.shape[1], 1.0 + 0.45 * r2.shape[0]))
     image = ax.imshow(r2, vmin=0, vmax=1, cmap="viridis", aspect="auto")

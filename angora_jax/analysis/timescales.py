@@ -1,5 +1,6 @@
 """Intrinsic timescales: the autocorrelation of each unit's activity over lags within episodes (Murray et al. 2014
-measured it across cortical areas), and the lag at which it first falls below 1/e as the unit's timescale.
+measured it across cortical areas), and the lag at which it first falls below 1/e as the unit's timescale; and the
+cross-correlation between areas' leading principal components over lags (which area's activity leads which).
 
 The autocorrelation at lag k pools every pair of alive steps (t, t + k) of all episodes, each unit standardised by
 its mean and standard deviation over the alive steps; a constant unit has none (NaN).
@@ -17,17 +18,52 @@ from angora_jax.analysis.decoding import recorded_layers
 
 def autocorrelation(dataset: xr.Dataset, layer: str, max_lag: int = 20) -> np.ndarray:
     """`(max_lag + 1, units)`: the autocorrelation of each unit of `layer` at lags 0..max_lag (policy steps)."""
-    values = np.asarray(dataset[f"activity_{layer}"].values, np.float64)
     alive = dataset["alive"].values > 0
+    z = _standardised(np.asarray(dataset[f"activity_{layer}"].values, np.float64), alive)
+    return np.stack([_lagged_correlation(z, z, alive, lag) for lag in range(max_lag + 1)])
+
+
+def _standardised(values: np.ndarray, alive: np.ndarray) -> np.ndarray:
+    """`values` `(episode, time, units)` standardised per unit over the alive steps (NaN for a constant unit)."""
     mean, std = values[alive].mean(0), values[alive].std(0)
-    z = (values - mean) / np.where(std > 0, std, np.nan)
-    lags = min(max_lag, values.shape[1] - 1)
-    result = np.full((max_lag + 1, values.shape[-1]), np.nan)
-    for lag in range(lags + 1):
-        both = alive[:, : values.shape[1] - lag] & alive[:, lag:]
-        if both.any():
-            result[lag] = (z[:, : values.shape[1] - lag][both] * z[:, lag:][both]).mean(0)
-    return result
+    return (values - mean) / np.where(std > 0, std, np.nan)
+
+
+def _lagged_correlation(a: np.ndarray, b: np.ndarray, alive: np.ndarray, lag: int) -> np.ndarray:
+    """Per unit, the mean of a(t) * b(t + lag) over the pairs of alive steps of every episode (`lag` may be
+    negative); NaN where no pair is alive."""
+    steps = a.shape[1]
+    if abs(lag) >= steps:
+        return np.full(a.shape[-1], np.nan)
+    now, then = slice(max(0, -lag), steps - max(0, lag)), slice(max(0, lag), steps + min(0, lag))
+    both = alive[:, now] & alive[:, then]
+    return (a[:, now][both] * b[:, then][both]).mean(0) if both.any() else np.full(a.shape[-1], np.nan)
+
+
+def cross_correlation(dataset: xr.Dataset, layers: Sequence[str] | None = None, max_lag: int = 20) -> xr.Dataset:
+    """Between every two layers, the correlation of their leading principal components (PCA over the alive steps,
+    scikit-learn) at lags -max_lag..max_lag: `cross_correlation` (layer x other x lag) is corr(a(t), b(t + lag)), so
+    a peak at a positive lag means `layer` leads `other`. A component's sign is arbitrary, so `peak_lag` (layer x
+    other, in s) is the lag of the largest |correlation|."""
+    from sklearn.decomposition import PCA
+
+    layers = list(layers or recorded_layers(dataset))
+    alive = dataset["alive"].values > 0
+    leading = {}
+    for layer in layers:
+        values = np.asarray(dataset[f"activity_{layer}"].values, np.float64)
+        component = np.zeros(values.shape[:2] + (1,))
+        component[alive] = PCA(1).fit_transform(values[alive])
+        leading[layer] = _standardised(component, alive)
+    lags = np.arange(-max_lag, max_lag + 1)
+    dt = float(dataset.attrs.get("policy_step_s", 1.0))
+    curves = np.array([[[_lagged_correlation(leading[a], leading[b], alive, int(k))[0] for k in lags]
+                        for b in layers] for a in layers])
+    peak = np.where(np.isfinite(curves).any(-1), lags[np.nanargmax(np.nan_to_num(np.abs(curves), nan=-1), -1)] * dt,
+                    np.nan)
+    return xr.Dataset({"cross_correlation": (("layer", "other", "lag"), curves),
+                       "peak_lag": (("layer", "other"), peak, {"units": "s"})},
+                      coords={"layer": layers, "other": layers, "lag": ("lag", lags * dt, {"units": "s"})})
 
 
 def timescales(dataset: xr.Dataset, layers: Sequence[str] | None = None, max_lag: int = 20) -> xr.Dataset:
@@ -79,6 +115,27 @@ def plot_timescales(result: xr.Dataset, path: str) -> None:
     ax.axhline(1 / np.e, color="k", lw=0.6, ls="--")
     ax.set(xlabel="lag (s)", ylabel="autocorrelation (mean over units)")
     ax.legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_cross_correlation(result: xr.Dataset, path: str) -> None:
+    """The cross-correlation curves of every pair of different layers over lags (s)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.4))
+    layers = list(result["layer"].values)
+    for i, layer in enumerate(layers):
+        for other in layers[i + 1:]:
+            ax.plot(result["lag"].values, result["cross_correlation"].sel(layer=layer, other=other).values,
+                    label=f"{str(layer).removeprefix('network.')} -> {str(other).removeprefix('network.')}")
+    ax.axvline(0, color="k", lw=0.5)
+    ax.set(xlabel="lag (s; > 0: the first leads)", ylabel="correlation of leading components")
+    ax.legend(fontsize="x-small")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
