@@ -14,6 +14,7 @@ def compile_quickly(function, *example_args):
     """`function` jitted and compiled for arguments shaped as `example_args`, with the settings above."""
     return jax.jit(function).lower(*example_args).compile(compiler_options=QUICK)
 
+
 # The same for a subprocess that trains a few cycles (its environment): JAX then compiles every program with XLA's
 # CPU backend at optimisation level 0 and LLVM's expensive passes off. Measured on 2 CPU cores: tests/warp_parallel.py
 # (Warp reach, 3 cycles on 1 and on 2 devices, and a resume) in 41 s of CPU time instead of 61.
