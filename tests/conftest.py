@@ -53,6 +53,18 @@ def opengl(gl_problem):
         pytest.skip(gl_problem)
 
 
+@pytest.fixture
+def quick_compiles():
+    """For a test that runs every program it compiles only briefly (a cycle or two, a few steps): JAX compiles them
+    with XLA's CPU backend at optimisation level 0 and LLVM's expensive passes off (tests/quick_compile.py says what
+    that saves), and back to the default afterwards. The setting is part of the compilation cache's key."""
+    import jax
+
+    jax.config.update("jax_disable_most_optimizations", True)
+    yield
+    jax.config.update("jax_disable_most_optimizations", False)
+
+
 # The reach run of the brain-area model (`cortical`) that test_reach_learning checks and that the probing tests and
 # notebook analyse: trained once per session. 32 environments x 32 steps per cycle, 16 minibatch updates of 256
 # transitions, gamma 0.95, no entropy bonus, 30-step episodes (0.6 s), areas a quarter of AngoraPy's or less and a

@@ -15,6 +15,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from quick_compile import QUICK_SUBPROCESS
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -33,8 +34,9 @@ def test_two_processes_with_jax_distributed_stop_together_train_in_sync_and_resu
     with socket.socket() as probe:  # a free port for the coordinator
         probe.bind(("localhost", 0))
         address = f"localhost:{probe.getsockname()[1]}"
-    env = os.environ | {"XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} "
-                                     f"--xla_force_host_platform_device_count={devices_per_process}"}
+    # Three cycles per process: compiling is most of their time (tests/quick_compile.py).
+    env = os.environ | QUICK_SUBPROCESS | {"XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} "
+                                                        f"--xla_force_host_platform_device_count={devices_per_process}"}
     processes = [
         subprocess.Popen(
             [sys.executable, str(TESTS / "multihost.py"), address, str(index), str(tmp_path), variant],
@@ -101,7 +103,8 @@ def test_scaling_benchmark_runs_one_and_two_devices_at_smoke_size(tmp_path, weak
         [sys.executable, str(BENCHMARKS / "scaling.py"), "cartpole", *tiny, "--cycles", "2", "--out", str(out),
          *(["--weak"] if weak else []), *(["--layouts", "processes"] if processes else [])],
         cwd=BENCHMARKS,
-        env=os.environ | ({} if processes else {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}),
+        env=os.environ | QUICK_SUBPROCESS | ({} if processes else
+                                             {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}),
         capture_output=True,
         text=True,
         timeout=300,

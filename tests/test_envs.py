@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from quick_compile import compile_quickly
 
 import angora_jax as aj
 from angora_jax.envs import backends, mjx_env
@@ -37,7 +38,10 @@ def env():
 
 @pytest.fixture(scope="module")
 def batched(env):
-    return jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+    """The batched reset and step, compiled quickly (tests/quick_compile.py): the module runs them for 51 steps."""
+    keys = jax.random.split(jax.random.key(0), BATCH)
+    reset = compile_quickly(jax.vmap(env.reset), keys)
+    return reset, compile_quickly(jax.vmap(env.step), reset(keys), jnp.zeros((BATCH, 20), jnp.float32))
 
 
 @pytest.fixture(scope="module")

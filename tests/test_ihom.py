@@ -381,7 +381,7 @@ def test_mjx_and_cpu_paths_agree_for_2_seconds(rollout):
 
 
 @pytest.mark.parametrize("name", ["shadow_ihom", "shadow_ihom_paper"])
-def test_the_cube_configs_compile_and_train_a_cycle_on_warp(name):
+def test_the_cube_configs_compile_and_train_a_cycle_on_warp(name, quick_compiles):
     """The shipped cube configs as they are (the paper's: wide LSTM 1024, 11 bins, TBPTT 16, AngoraPy's reward), on
     MuJoCo Warp as on a GPU, with only the batch made small: two cycles compile and run, the state keeps its shapes,
     the cube's metrics come out finite where defined and the parameters change."""

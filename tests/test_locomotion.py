@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from quick_compile import compile_quickly
 
 import angora_jax as aj
 from angora_jax.envs.locomotion import EPISODE_STEPS
@@ -94,8 +95,9 @@ def test_mjx_path_tracks_the_c_mujoco_twin():
     after 20 steps."""
     mjx_env, cpu_env = aj.make("Swimmer", impl="jax"), aj.make("Swimmer", backend="cpu")
     actions = np.random.default_rng(0).uniform(-1, 1, (20, 2)).astype(np.float32)
-    step = jax.jit(mjx_env.step)
-    state, twin = jax.jit(mjx_env.reset)(jax.random.key(3)), cpu_env.reset(jax.random.key(3))
+    state = compile_quickly(mjx_env.reset, jax.random.key(3))(jax.random.key(3))
+    step = compile_quickly(mjx_env.step, state, jnp.asarray(actions[0]))
+    twin = cpu_env.reset(jax.random.key(3))
     np.testing.assert_allclose(state.obs.proprioception, twin.obs.proprioception, atol=1e-5)
     for action in actions:
         state, twin = step(state, jnp.asarray(action)), cpu_env.step(twin, jnp.asarray(action))
@@ -110,10 +112,14 @@ WARP = pytest.param("warp", marks=pytest.mark.skipif(importlib.util.find_spec("w
 @pytest.fixture(scope="module", params=["jax", WARP])
 def humanoid_on_mjx(request):
     """Humanoid on one of MJX's implementations and its C MuJoCo twin (Newton on both), with the MJX path's batched
-    reset and step compiled once (JAX: about 60 s on 2 CPU cores; Warp, which computes the contact forces inside its
-    step, runs where warp-lang is installed, on a GPU or the CPU)."""
+    reset and step compiled once, quickly (tests/quick_compile.py; JAX: about 60 s on 2 CPU cores instead of 90;
+    Warp, which computes the contact forces inside its step, runs where warp-lang is installed, on a GPU or the
+    CPU)."""
     env = aj.make("Humanoid", impl=request.param).sized_for(HUMANOID_BATCH)
-    return env, aj.make("Humanoid", backend="cpu"), jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+    keys = jax.random.split(jax.random.key(3), HUMANOID_BATCH)
+    reset = compile_quickly(jax.vmap(env.reset), keys)
+    actions = jnp.zeros((HUMANOID_BATCH, env.task.model.nu), jnp.float32)
+    return env, aj.make("Humanoid", backend="cpu"), reset, compile_quickly(jax.vmap(env.step), reset(keys), actions)
 
 
 def test_mjx_path_computes_humanoids_body_dynamics_as_the_c_mujoco_twin(humanoid_on_mjx):

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from quick_compile import QUICK_SUBPROCESS
 
 from angora_jax.ppo import PPOConfig
 from angora_jax.ppo.parallel import per_device
@@ -20,8 +21,9 @@ BENCHMARKS = TESTS.parent / "benchmarks"
 
 @pytest.fixture(scope="module")
 def four_devices(tmp_path_factory):
-    """tests/multidevice.py's results; a subprocess because the CPU device count is fixed when JAX starts."""
-    env = os.environ | {"XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
+    """tests/multidevice.py's results; a subprocess because the CPU device count is fixed when JAX starts. Its runs
+    are a few cycles of CartPole, so it compiles quickly (tests/quick_compile.py)."""
+    env = os.environ | QUICK_SUBPROCESS | {"XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
     done = subprocess.run(
         [sys.executable, str(TESTS / "multidevice.py"), str(tmp_path_factory.mktemp("runs"))],
         cwd=TESTS,

@@ -196,7 +196,7 @@ def test_camera_vision_options_and_the_networks_that_see_them_are_checked(seeing
                   network=NetworkConfig(visual=VisualConfig())).validate_for(aj.make("CartPole"))
 
 
-def test_a_pose_estimator_gives_the_policy_the_pose_it_reads_from_the_cameras(tmp_path, opengl):
+def test_a_pose_estimator_gives_the_policy_the_pose_it_reads_from_the_cameras(tmp_path, opengl, quick_compiles):
     """Dactyl's way to the cube from pixels: `pose_estimator` renders the estimator's cameras and puts the pose it
     reads from them (and the relative goal from its orientation) where the pose-input policy reads the true
     pose, in inputs of the same shapes (a pose-trained network reads them unchanged); the network needs no
@@ -266,7 +266,8 @@ def test_warp_frames_are_each_envs_own_and_outlive_the_sized_env_that_compiled_t
     assert stepped.obs.vision.shape == (3, 2, 16, 16, 3) and np.any(stepped.obs.vision != state.obs.vision)
 
 
-def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_visual_area(tmp_path, opengl):
+def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_visual_area(tmp_path, opengl,
+                                                                                        quick_compiles):
     """The brain-area model (`cortical`, whose parietal areas read the visual area's features) on reach seeing its hand
     through two cameras (the reach physics compiles in a third of the cube's time on the CPU; the cube's frames are
     checked above and its pixel config trained on the GPU), its visual area loaded from a component file and frozen:
