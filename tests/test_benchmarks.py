@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from brax.envs.wrappers import training as brax_training
+from quick_compile import QUICK_SUBPROCESS
 from scipy import stats
 
 from angora_jax.envs.registry import make
@@ -214,8 +215,10 @@ def test_ihom_curve_joins_pieces_by_cycle_and_finds_the_milestones(tmp_path, mon
 
 def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(tmp_path):
     script = os.path.join(os.path.dirname(side.__file__), "paper_figures.py")
+    # Smoke runs of two cycles: compiling is nearly all of their time, so XLA compiles them quickly (QUICK_SUBPROCESS).
     subprocess.run([sys.executable, script, "--figure", "8", "--tasks", "Pendulum", "--seeds", "3", "--parallel", "2",
-                    "--smoke", "--evaluate", "3", "--out", str(tmp_path), "--name", "fig8"], check=True)
+                    "--smoke", "--evaluate", "3", "--out", str(tmp_path), "--name", "fig8"], check=True,
+                   env=os.environ | QUICK_SUBPROCESS)
     record = json.loads((tmp_path / "fig8.json").read_text())
     runs = record["runs"]
     assert sorted((r["head"], r["seed"]) for r in runs) == [("beta", 3), ("gaussian", 3)]
@@ -296,7 +299,7 @@ def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(
     # a run that fails in its process is named with the end of its log
     failing = subprocess.run([sys.executable, script, "--figure", "8", "--tasks", "Pendulum", "--seeds", "3",
                               "--parallel", "2", "--smoke", "--out", str(tmp_path), "--name", "bad",
-                              "ppo.num_envs=0"], capture_output=True, text=True)
+                              "ppo.num_envs=0"], capture_output=True, text=True, env=os.environ | QUICK_SUBPROCESS)
     assert failing.returncode != 0 and "Every run failed" in failing.stderr and "num_envs" in failing.stderr
     assert not (tmp_path / "bad.json").exists()
 

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from quick_compile import QUICK_SUBPROCESS
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
@@ -42,8 +43,9 @@ def marked_blocks(page: str) -> tuple[str, str]:
 
 
 def code_env() -> dict[str, str]:
-    """This checkout's code first, and the interpreter's scripts (`angora-jax`) on the PATH."""
-    env = dict(os.environ)
+    """This checkout's code first, and the interpreter's scripts (`angora-jax`) on the PATH. The pages train a cycle
+    or two, so XLA compiles quickly (`QUICK_SUBPROCESS`)."""
+    env = dict(os.environ) | QUICK_SUBPROCESS
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
     env["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), env["PATH"]])
     return env
