@@ -80,7 +80,7 @@ def _decode_at(dataset: xr.Dataset, layers: list[str], variables: list[str], fol
                lag: int) -> dict[str, np.ndarray]:
     """`decode`'s arrays (layer x variable) for the variables `lag` steps after the activity."""
     steps = dataset.sizes["time"]
-    now, then = slice(max(0, -lag), steps - max(0, lag)), slice(max(0, lag), steps + min(0, lag))
+    now, then = lagged_steps(steps, lag)
     alive_values = dataset["alive"].values > 0
     alive = (alive_values[:, now] & alive_values[:, then]).reshape(-1)
     groups = np.repeat(np.arange(dataset.sizes["episode"]), steps - abs(lag))[alive]
@@ -102,6 +102,12 @@ def _decode_at(dataset: xr.Dataset, layers: list[str], variables: list[str], fol
                 scores.mean(), scores.mean() - half, scores.mean() + half)
             result["baseline"][i, j] = cross_validated_r2(noise, targets, groups, folds).mean()
     return result
+
+
+def lagged_steps(steps: int, lag: int) -> tuple[slice, slice]:
+    """`(now, then)`: the time slices of a recording of `steps` steps whose pairs (t, t + lag) are in the recording
+    (`lag` may be negative)."""
+    return slice(max(0, -lag), steps - max(0, lag)), slice(max(0, lag), steps + min(0, lag))
 
 
 def recorded_layers(dataset: xr.Dataset) -> list[str]:

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 import xarray as xr
 
-from angora_jax.analysis.decoding import recorded_layers
+from angora_jax.analysis.decoding import lagged_steps, recorded_layers
 
 
 def autocorrelation(dataset: xr.Dataset, layer: str, max_lag: int = 20) -> np.ndarray:
@@ -35,7 +35,7 @@ def _lagged_correlation(a: np.ndarray, b: np.ndarray, alive: np.ndarray, lag: in
     steps = a.shape[1]
     if abs(lag) >= steps:
         return np.full(a.shape[-1], np.nan)
-    now, then = slice(max(0, -lag), steps - max(0, lag)), slice(max(0, lag), steps + min(0, lag))
+    now, then = lagged_steps(steps, lag)
     both = alive[:, now] & alive[:, then]
     return (a[:, now][both] * b[:, then][both]).mean(0) if both.any() else np.full(a.shape[-1], np.nan)
 
@@ -59,7 +59,7 @@ def cross_correlation(dataset: xr.Dataset, layers: Sequence[str] | None = None, 
     dt = float(dataset.attrs.get("policy_step_s", 1.0))
     curves = np.array([[[_lagged_correlation(leading[a], leading[b], alive, int(k))[0] for k in lags]
                         for b in layers] for a in layers])
-    peak = np.where(np.isfinite(curves).any(-1), lags[np.nanargmax(np.nan_to_num(np.abs(curves), nan=-1), -1)] * dt,
+    peak = np.where(np.isfinite(curves).any(-1), lags[np.argmax(np.nan_to_num(np.abs(curves), nan=-1), -1)] * dt,
                     np.nan)
     return xr.Dataset({"cross_correlation": (("layer", "other", "lag"), curves),
                        "peak_lag": (("layer", "other"), peak, {"units": "s"})},

@@ -170,19 +170,20 @@ def random_rotation(key: jax.Array) -> jax.Array:
     return jnp.where(q[0] < 0, -q, q)
 
 
+def about_axis(axis: int, angle: jax.Array | float) -> jax.Array:
+    """The quaternion of a rotation by `angle` rad about world axis `axis` (0: x, 1: y, 2: z)."""
+    half = jnp.asarray(angle, jnp.float32) / 2
+    return jnp.concatenate([jnp.cos(half)[None], jnp.sin(half) * jnp.eye(3)[axis]])
+
+
 def axis_aligned_rotations() -> np.ndarray:
     """The 24 rotations that map the cube's faces onto the world axes (w >= 0), shape `(24, 4)`: AngoraPy's
     TestCaseManipulateBlock set. Six faces up (none, +-90 degrees about x, +-90 and 180 about y), each turned by 0,
     +-90 and 180 degrees about z."""
-    def about(axis: int, angle: float) -> np.ndarray:
-        return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * np.eye(3)[axis]])
-
-    faces = [np.array([1.0, 0, 0, 0]), about(0, np.pi / 2), about(0, -np.pi / 2), about(1, np.pi / 2),
-             about(1, -np.pi / 2), about(1, np.pi)]
-    turns = [np.zeros(0)] + [about(2, angle) for angle in (np.pi / 2, -np.pi / 2, np.pi)]
-    rotations = [face if turn.size == 0 else np.asarray(quat_mul(jnp.asarray(face), jnp.asarray(turn)))
-                 for turn in turns for face in faces]
-    return np.array([q if q[0] >= 0 else -q for q in rotations], np.float32)
+    faces = [(0, 0.0), (0, np.pi / 2), (0, -np.pi / 2), (1, np.pi / 2), (1, -np.pi / 2), (1, np.pi)]
+    turns = [0.0, np.pi / 2, -np.pi / 2, np.pi]
+    rotations = np.array([quat_mul(about_axis(*face), about_axis(2, turn)) for turn in turns for face in faces])
+    return np.where(rotations[:, :1] >= 0, rotations, -rotations).astype(np.float32)
 
 
 # Where each episode's goals come from (`Ihom`'s `goals`).
@@ -229,10 +230,8 @@ class PoseNoise:
         angle_key, share_key, direction_key = jax.random.split(key, 3)
         shares = jax.random.uniform(share_key, (3,))
         angles = shares / jnp.sum(shares) * self.rotation * jax.random.normal(angle_key)
-        noise = jnp.asarray([1.0, 0.0, 0.0, 0.0])
-        for axis in range(3):  # about x, then y, then z, as AngoraPy composes them
-            half = angles[axis] / 2
-            noise = quat_mul(noise, jnp.concatenate([jnp.cos(half)[None], jnp.sin(half) * jnp.eye(3)[axis]]))
+        # About x, then y, then z, as AngoraPy composes them.
+        noise = quat_mul(quat_mul(about_axis(0, angles[0]), about_axis(1, angles[1])), about_axis(2, angles[2]))
         direction = jax.random.normal(direction_key, (3,))
         position = pose[:3] + self.position * direction / jnp.linalg.norm(direction)
         return jnp.concatenate([position, quat_mul(pose[3:], noise)])
