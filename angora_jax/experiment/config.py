@@ -242,16 +242,15 @@ def validate(config: Config) -> Env:
         raise ConfigError(f"evaluation.every must be >= 0 (0: never) and evaluation.episodes >= 1, got "
                           f"{config.evaluation.every} and {config.evaluation.episodes}.")
     choices = best_metric_choices(env, config.evaluation)
-    stop_metric = config.ppo.stop_at.metric if config.ppo.stop_at is not None else None
-    for key, name in (("checkpoint.best_metric", checkpoint.best_metric), ("ppo.stop_at.metric", stop_metric)):
-        if isinstance(name, str) and name.startswith("eval/") and not config.evaluation.every:
+    named = {"checkpoint.best_metric": (checkpoint.best_metric, [*choices, "null"]),
+             "ppo.stop_at.metric": (config.ppo.stop_at.metric if config.ppo.stop_at else None, choices)}
+    for key, (name, allowed) in named.items():
+        if name is None or name in choices:
+            continue
+        if name.startswith("eval/") and not config.evaluation.every:
             raise ConfigError(f"{key}={name!r} names a held-out evaluation's metric, but none runs: set "
                               "evaluation.every=N (evaluate every N cycles).")
-    if checkpoint.best_metric is not None and checkpoint.best_metric not in choices:
-        raise ConfigError(_unknown("checkpoint.best_metric", checkpoint.best_metric, [*choices, "null"], "metrics"))
-    stop_at = config.ppo.stop_at
-    if stop_at is not None and stop_at.metric not in choices:
-        raise ConfigError(_unknown("ppo.stop_at.metric", stop_at.metric, choices, "metrics"))
+        raise ConfigError(_unknown(key, name, allowed, "metrics"))
     try:
         per_device(config.ppo, num_devices(config))
     except ValueError as error:
