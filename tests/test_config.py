@@ -127,6 +127,12 @@ def test_a_config_extends_another_by_name_or_relative_path(tmp_path: Path):
     assert changed == {"ppo.num_envs", "ppo.rollout_length", "ppo.minibatch_size", "ppo.learning_rate",
                        "distribution.num_devices", "checkpoint.every", "checkpoint.lean"}
     assert four["env"]["options"] == fast["env"]["options"] and four["ppo"]["learning_rate"] == 2 * 3e-4
+    # The 2-GPU recipe is the 4-GPU one at the same sizes per GPU: half the environments and minibatch samples.
+    two = to_dict(load_config("shadow_ihom_2gpu"))
+    assert {key for key, value in flatten(two).items() if flatten(four)[key] != value} == {
+        "ppo.num_envs", "ppo.minibatch_size"}
+    assert (two["ppo"]["num_envs"] * 2, two["ppo"]["minibatch_size"] * 2) == (
+        four["ppo"]["num_envs"], four["ppo"]["minibatch_size"])
     # A file next to its base, which itself extends a shipped config; sections merge, lists and values replace.
     (tmp_path / "base.yaml").write_text("extends: cartpole\nppo: {num_cycles: 9, network: {width: 32}}\n")
     (tmp_path / "run.yaml").write_text("extends: base.yaml\nppo: {network: {width: 16}}\ncheckpoint: {lean: [best]}\n")
