@@ -292,7 +292,7 @@ def test_evaluation_in_a_changed_task_records_the_change(run_dir, tmp_path, caps
     assert recording["alive"].values[:, 20:].sum() == 0, "no episode outlives its changed limit"
 
 
-def test_a_new_run_fine_tunes_a_saved_policy_in_a_changed_task(run_dir, tmp_path):
+def test_a_new_run_fine_tunes_a_saved_policy_in_a_changed_task(run_dir, tmp_path, quick_compiles):
     """`ppo.init_from`: a run that starts from a saved run's network and observation statistics (e.g. the cube's
     pose-input policy, fine-tuned reading a pose estimator; here CartPole's with shorter episodes) and trains on; a
     network that does not fit, or no such run, is refused naming the cause."""

@@ -107,7 +107,7 @@ def test_cortical_areas_are_named_sized_and_recurrent():
             PPOConfig(network=NetworkConfig(**{"name": "cortical"} | bad)).validate()
 
 
-def test_frozen_component_keeps_its_pretrained_values_through_updates(tmp_path):
+def test_frozen_component_keeps_its_pretrained_values_through_updates(tmp_path, quick_compiles):
     areas = {name: 8 for name in AREA_SIZES}
     network = NetworkConfig(name="cortical", cell="gru", width=8, areas=areas)
     config = PPOConfig(num_envs=4, rollout_length=16, chunk_length=8, minibatch_size=32, num_epochs=2,
