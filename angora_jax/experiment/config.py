@@ -21,10 +21,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import yaml
 
 from angora_jax.envs.core import Env
+from angora_jax.envs.mujoco_task import MujocoEnv
 from angora_jax.envs.registry import is_gymnasium, list_tasks, make
+from angora_jax.envs.rendering import CAMERAS, RenderError, SceneRenderer
 from angora_jax.experiment.wandb_logging import WANDB_INSTALL, WANDB_MODES, WandbConfig
 from angora_jax.nets.registry import list_networks
 from angora_jax.ppo.config import PPOConfig
@@ -99,6 +102,25 @@ class CheckpointConfig:
 
 
 @dataclass(frozen=True)
+class VideoConfig:
+    """A video of the current policy during training: one episode, mode actions, started with seed
+    `evaluation.seed` (the episode `angora-jax render RUN_DIR --seed S` shows), rendered off screen on the C MuJoCo
+    path from the parameters in memory and written to `RUN_DIR/videos/cycle_NNNNNN.gif`; the run's report shows the
+    latest. Needs a MuJoCo task and an OpenGL backend (MUJOCO_GL=egl or osmesa on a machine without a display).
+
+    every: a video after every this many cycles and after the last. steps: at most this many policy steps of the
+    episode (rendering runs on one CPU core, about as fast as the episode plays). camera: a view of the hand or body
+    (`angora_jax.envs.rendering.CAMERAS`). width: the frames' width in pixels. height: their height in pixels.
+    """
+
+    every: int = 50
+    steps: int = 200
+    camera: str = "front"
+    width: int = 320
+    height: int = 240
+
+
+@dataclass(frozen=True)
 class EvaluationConfig:
     """Deterministic evaluation on held-out episodes during training. The training mean goes stale on tasks whose
     good policies end few episodes per cycle (a cube policy that keeps the cube for 50 goals), and it mixes the
@@ -109,12 +131,15 @@ class EvaluationConfig:
     first device. seed: the episodes' starts, the same at every evaluation, so that evaluations compare policies on
     the same episodes (the training seed does not draw them). An evaluated cycle's record gets
     `eval/episode_return`, `eval/episode_length` and `eval/metric/<name>` (means over the episodes), which
-    `checkpoint.best_metric` and `ppo.stop_at.metric` may name.
+    `checkpoint.best_metric` and `ppo.stop_at.metric` may name. video: null (the default) for none, or a section
+    (`evaluation.video={every: 50}`) for a video of the policy every so many cycles (see `VideoConfig`); it runs
+    whether or not `every` does.
     """
 
     every: int = 0
     episodes: int = 64
     seed: int = 1
+    video: VideoConfig | None = None
 
 
 @dataclass(frozen=True)
@@ -184,6 +209,22 @@ def flatten(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return flat
 
 
+def _check_video(video: VideoConfig, env: Env) -> None:
+    """Refuse a video section that cannot be rendered, before anything compiles."""
+    if not isinstance(env, MujocoEnv):
+        raise ConfigError(f"evaluation.video needs a MuJoCo task (one with a scene to render); {type(env).__name__} "
+                          "has none: set evaluation.video=null.")
+    for key in ("every", "steps", "width", "height"):
+        if getattr(video, key) < 1:
+            raise ConfigError(f"evaluation.video.{key} must be >= 1, got {getattr(video, key)}.")
+    if video.camera not in CAMERAS:
+        raise ConfigError(_unknown("evaluation.video.camera", video.camera, sorted(CAMERAS), "cameras"))
+    try:  # an OpenGL context now, rather than a failed video after hours of training
+        SceneRenderer(mujoco.MjModel.from_xml_string("<mujoco/>"), None, CAMERAS[video.camera], 16, 16).close()
+    except RenderError as error:
+        raise ConfigError(f"evaluation.video cannot render here: {error} Or set evaluation.video=null.") from None
+
+
 def best_metric_choices(env: Env, evaluation: EvaluationConfig | None = None) -> list[str]:
     """Per-cycle metrics that `checkpoint.best_metric` and `ppo.stop_at.metric` may name for `env`: the training
     means, and with `evaluation.every` the held-out evaluation's (`eval/...`)."""
@@ -241,6 +282,8 @@ def validate(config: Config) -> Env:
     if config.evaluation.every < 0 or config.evaluation.episodes < 1:
         raise ConfigError(f"evaluation.every must be >= 0 (0: never) and evaluation.episodes >= 1, got "
                           f"{config.evaluation.every} and {config.evaluation.episodes}.")
+    if config.evaluation.video is not None:
+        _check_video(config.evaluation.video, env)
     choices = best_metric_choices(env, config.evaluation)
     named = {"checkpoint.best_metric": (checkpoint.best_metric, [*choices, "null"]),
              "ppo.stop_at.metric": (config.ppo.stop_at.metric if config.ppo.stop_at else None, choices)}

@@ -130,14 +130,16 @@ def episode_keys(seed: int, episodes: int) -> tuple[jax.Array, jax.Array]:
 
 
 def run_episodes(batch: EagerBatch, policy: Policy, carry: Any, reset_keys: jax.Array, act_keys: jax.Array,
-                 on_step: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
+                 on_step: Callable[[int, int], None] | None = None,
+                 max_steps: int | None = None) -> dict[str, np.ndarray]:
     """Run episode `i` from `reset_keys[i]` (acting with `act_keys[i]`) for every `i`, `batch.size` at a time: a slot
     whose episode ends takes the next pending one.
 
     carry: the policy's recurrent state for a batch of `batch.size` (its rows are reset as episodes start). on_step:
     called with (episode, slot) after an episode's reset and after each of its steps, e.g. to render
-    `batch.physics(slot)`. Returns name -> `(episodes,)` array: episode_return, episode_length and `metric/<name>` at
-    each episode's last step.
+    `batch.physics(slot)`. max_steps: cut each episode after this many steps (a video's length); None plays each to
+    its end. Returns name -> `(episodes,)` array: episode_return, episode_length and `metric/<name>` at each
+    episode's last step.
     """
     episodes = reset_keys.shape[0]
     slot_episode = np.full(batch.size, -1)  # the episode each slot runs; -1 when it has none left
@@ -171,7 +173,7 @@ def run_episodes(batch: EagerBatch, policy: Policy, carry: Any, reset_keys: jax.
             returns[episode] += float(reward[slot])
             if on_step is not None:
                 on_step(episode, slot)
-            if done[slot] > 0:
+            if done[slot] > 0 or (max_steps is not None and steps[slot] >= max_steps):
                 row = {"episode_return": returns[episode], "episode_length": float(steps[slot]),
                        **{f"metric/{name}": float(value[slot]) for name, value in metrics.items()}}
                 for name, value in row.items():

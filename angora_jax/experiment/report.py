@@ -10,6 +10,7 @@ from __future__ import annotations
 import html
 import json
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +25,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import yaml  # noqa: E402
 
 from angora_jax.experiment.monitor import read_metrics  # noqa: E402
-from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError, read_sessions  # noqa: E402
+from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError, latest_video, read_sessions  # noqa: E402
 
 # Curves drawn when at least one run has them, in this order; task metrics (metric/*) follow the return.
 CURVES = (
@@ -145,9 +146,11 @@ def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_second
         image = out / (name.replace("/", "_") + ".png")
         plot_curve(runs, name, image)
         images.append((name, image.name))
+    # Each run's latest video (evaluation.video), linked where it lies rather than copied: videos are large.
+    videos = [(run.name, os.path.relpath(video, out)) for run in runs if (video := latest_video(run.path))]
     page = out / "index.html"
     partial = out / "index.html.partial"  # a browser reloading while this writes sees the old page or the new one
-    partial.write_text(render_html(runs, images, refresh_seconds))
+    partial.write_text(render_html(runs, images, refresh_seconds, videos))
     partial.replace(page)
     return page
 
@@ -171,9 +174,11 @@ def summary(run: RunRecord, seeds: int = 1) -> dict[str, Any]:
     }
 
 
-def render_html(runs: list[RunRecord], images: list[tuple[str, str]], refresh_seconds: int | None = None) -> str:
-    """The report page: a filterable table of runs (config in a fold-out) and the learning-curve images; with
-    `refresh_seconds`, a page that reloads itself (keeping the filter, which lives in the address)."""
+def render_html(runs: list[RunRecord], images: list[tuple[str, str]], refresh_seconds: int | None = None,
+                videos: list[tuple[str, str]] = ()) -> str:
+    """The report page: a filterable table of runs (config in a fold-out), the learning-curve images and `videos`
+    ((run name, path relative to the page) of each run's latest video); with `refresh_seconds`, a page that reloads
+    itself (keeping the filter, which lives in the address)."""
     columns = ["run", *summary(runs[0])] if runs else ["run"]
     head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
     rows = []
@@ -190,6 +195,12 @@ def render_html(runs: list[RunRecord], images: list[tuple[str, str]], refresh_se
         f'<figure><img src="{html.escape(file)}" alt="{html.escape(name)}"></figure>'
         for name, file in images
     )
+    if videos:
+        figures += "<h2>The policy, latest video</h2>" + "".join(
+            f'<figure><img src="{html.escape(file)}" alt="{html.escape(name)}">'
+            f"<figcaption>{html.escape(name)}: {html.escape(Path(file).stem)}</figcaption></figure>"
+            for name, file in videos
+        )
     refresh = "" if refresh_seconds is None else f'<meta http-equiv="refresh" content="{int(refresh_seconds)}">'
     updated = time.strftime("%Y-%m-%d %H:%M:%S")
     live = "" if refresh_seconds is None else f", reloads every {int(refresh_seconds)} s"

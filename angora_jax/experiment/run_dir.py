@@ -9,6 +9,7 @@
     RUN_DIR/tensorboard/          TensorBoard event files, when logging.tensorboard is on
     RUN_DIR/wandb/                Weights & Biases' files and the W&B run id, when logging.wandb is on
     RUN_DIR/report/               PNG learning curves and index.html (see `report`)
+    RUN_DIR/videos/               cycle_NNNNNN.gif, the policy during training, when evaluation.video is on
 
 A new run never reuses an existing directory.
 """
@@ -28,6 +29,7 @@ HYPERPARAMETERS_FILE = "hyperparameters.json"
 METRICS_FILE = "metrics.jsonl"
 CHECKPOINTS = "checkpoints"
 SESSIONS_FILE = "sessions.jsonl"
+VIDEOS = "videos"
 
 
 class RunDirError(ValueError):
@@ -90,3 +92,10 @@ def read_sessions(run_dir: str | Path) -> list[dict]:
     """The session records of `run_dir`, oldest first ([] for a run made before they were written)."""
     path = Path(run_dir) / SESSIONS_FILE
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
+
+
+def latest_video(run_dir: str | Path) -> Path | None:
+    """The run's video of its latest cycle (`evaluation.video`; of two for one cycle, which a resume that repeated
+    cycles makes, the later), or None when it has none."""
+    videos = sorted(Path(run_dir, VIDEOS).glob("cycle_*.gif"), key=lambda p: (p.stem[:12], p.stat().st_mtime))
+    return videos[-1] if videos else None

@@ -192,6 +192,12 @@ def _run(
     # Under jax.distributed only process 0 logs; all processes take part in saving checkpoints (Orbax coordinates
     # them: each writes the shards of its own devices, process 0 the replicated arrays and metadata).
     main = is_main_process()
+    video = None
+    if main and config.evaluation.video is not None:
+        # Imported here: the video renders through an Agent, and the agent module imports this one.
+        from angora_jax.experiment.training_video import training_videos
+
+        video = training_videos(config, run_dir)
     monitor = Monitor(run_dir, config.logging.tensorboard, config.logging.wandb, resolved) if main else None
     progress = Progress(config.ppo.num_cycles, config.logging.progress if main else "none",
                         shown=config.checkpoint.best_metric)
@@ -227,6 +233,8 @@ def _run(
                 prepared()
                 if evaluate is not None:
                     metrics |= evaluate(latest)
+                if video is not None:
+                    video(latest)
                 state, failure = latest, None
                 try:
                     record = monitor.record(metrics, state) if monitor is not None else metrics

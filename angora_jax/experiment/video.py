@@ -18,7 +18,7 @@ from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.envs.registry import make
 from angora_jax.envs.rendering import RenderError, SceneRenderer, camera_named
-from angora_jax.experiment.agent import load_agent
+from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.evaluation import agent_policy, episode_keys, on_host, random_policy, run_episodes
 
 
@@ -32,18 +32,21 @@ def render_frames(run_dir: str | Path | None = None, *, task: str | None = None,
     of `evaluate(run_dir, seed=seed)`) or `task` (uniformly random actions; `task_options` go to the task).
     camera: a name in `angora_jax.envs.rendering.CAMERAS`. Raises RenderError without a GL backend or a MuJoCo task.
     """
-    return _render(run_dir, task, checkpoint, episodes, camera, width, height, seed, stochastic, task_options)[0]
+    return render_episodes(run_dir, task, checkpoint, episodes, camera, width, height, seed, stochastic,
+                           task_options)[0]
 
 
-def _render(run_dir: str | Path | None, task: str | None, checkpoint: str | int = "best", episodes: int = 1,
-            camera: str = "front", width: int = 320, height: int = 240, seed: int = 0, stochastic: bool = False,
-            task_options: dict[str, Any] | None = None) -> tuple[list[np.ndarray], float]:
-    """`render_frames` and the seconds of simulated time per frame."""
+def render_episodes(run_dir: str | Path | Agent | None, task: str | None, checkpoint: str | int = "best",
+                    episodes: int = 1, camera: str = "front", width: int = 320, height: int = 240, seed: int = 0,
+                    stochastic: bool = False, task_options: dict[str, Any] | None = None,
+                    max_steps: int | None = None) -> tuple[list[np.ndarray], float]:
+    """`render_frames`, and the seconds of simulated time per frame. run_dir may also be an `Agent` in memory (a
+    policy still training, `evaluation.video`); max_steps cuts each episode after that many steps."""
     if (run_dir is None) == (task is None):
         raise ValueError("Give either run_dir (a trained policy) or task (random actions), not both or neither.")
     with on_host():
         if run_dir is not None:
-            agent = load_agent(run_dir, checkpoint)
+            agent = run_dir if isinstance(run_dir, Agent) else load_agent(run_dir, checkpoint)
             env, policy, carry = agent.env, agent_policy(agent, stochastic), agent.initial_carry(1)
             compiled = agent.compiled_once("eager batch", lambda: batch_functions(agent.env))
         else:
@@ -57,7 +60,8 @@ def _render(run_dir: str | Path | None, task: str | None, checkpoint: str | int 
             frames: list[np.ndarray] = []
             try:
                 run_episodes(batch, policy, carry, *episode_keys(seed, episodes),
-                             on_step=lambda episode, slot: frames.append(renderer.render(batch.physics(slot))))
+                             on_step=lambda episode, slot: frames.append(renderer.render(batch.physics(slot))),
+                             max_steps=max_steps)
             finally:
                 renderer.close()
     return frames, batch.env.dt
@@ -69,7 +73,7 @@ def render_video(out: str | Path, run_dir: str | Path | None = None, *, task: st
     (`1 / env.dt` frames per second). Refuses an existing `out` before rendering anything."""
     if Path(out).exists():
         raise FileExistsError(f"{out} exists already and is left untouched; choose another --out path.")
-    frames, dt = _render(run_dir, task, **options)
+    frames, dt = render_episodes(run_dir, task, **options)
     return write_video(frames, out, 1.0 / dt)
 
 
