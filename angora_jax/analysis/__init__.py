@@ -6,6 +6,8 @@ with rsatoolbox), reduce dimensionality and find fixed points (`principal_compon
 measure intrinsic timescales (`timescales`), which layer leads which (`cross_correlation`), what a layer tells of the
 future (`decode(..., lags=...)`) and tuning (`tuning_curves`), and lesion units, areas or input
 modalities and measure the task outcome (`ablation`). Each analysis has a `plot_*` and an `angora-jax analyze` verb.
+Inside the visual area of an agent that sees camera images (`visual_analysis`): first-layer filters, feature maps,
+gradient saliency and preferred stimuli (no `analyze` verb yet).
 """
 
 from angora_jax.analysis.decoding import decode, plot_decoding
@@ -24,9 +26,19 @@ from angora_jax.analysis.recording import episode_outcomes, record_activity, rep
 from angora_jax.analysis.similarity import plot_similarity, similarity
 from angora_jax.analysis.timescales import cross_correlation, plot_cross_correlation, plot_timescales, timescales
 from angora_jax.analysis.tuning import plot_tuning, tuning_curves
+from angora_jax.analysis.visual import (
+    feature_maps,
+    first_layer_filters,
+    gradient_saliency,
+    plot_visual,
+    preferred_stimuli,
+    saliency,
+    visual_analysis,
+)
 
 __all__ = ["ablation", "agent_fixed_points", "cross_correlation", "decode", "dense_layers", "episode_outcomes",
-           "find_fixed_points", "lesion", "lesion_area", "lesion_fraction", "plot_ablation",
-           "plot_cross_correlation", "plot_decoding", "plot_dynamics", "plot_similarity", "plot_timescales",
-           "plot_tuning", "principal_components", "record_activity", "replay_activity", "save_activity",
-           "silence_modality", "similarity", "timescales", "tuning_curves", "with_random_weights"]
+           "feature_maps", "find_fixed_points", "first_layer_filters", "gradient_saliency", "lesion", "lesion_area",
+           "lesion_fraction", "plot_ablation", "plot_cross_correlation", "plot_decoding", "plot_dynamics",
+           "plot_similarity", "plot_timescales", "plot_tuning", "plot_visual", "preferred_stimuli",
+           "principal_components", "record_activity", "replay_activity", "saliency", "save_activity",
+           "silence_modality", "similarity", "timescales", "tuning_curves", "visual_analysis", "with_random_weights"]

@@ -1,0 +1,81 @@
+"""Inside the visual area (angora_jax.analysis.visual), on a small CORnet-Z with its initial weights: saliency is the
+gradient it claims to be, activation maximization raises the unit's activation, and the parts fit together."""
+
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import angora_jax as aj
+from angora_jax.analysis import visual
+from angora_jax.nets.visual import make_visual_encoder
+
+SIZE = 32
+
+
+@pytest.fixture(scope="module")
+def agent():
+    """What the analyses read of an agent: its config (a reach run seeing one 32 x 32 camera through a CORnet-Z of 4
+    channels per area and 6 features) and its parameters."""
+    config = aj.load_config("shadow_reach", [
+        "ppo.network.visual={encoder: cornet_z, widths: [4, 4, 4, 4], features: 6}",
+        f"env.options.vision={{cameras: [front], width: {SIZE}, height: {SIZE}}}"])
+    encoder = make_visual_encoder("cornet_z", widths=(4, 4, 4, 4), features=6)
+    params = encoder.init(jax.random.key(0), jnp.zeros((1, SIZE, SIZE, 3), jnp.uint8))["params"]
+    return SimpleNamespace(config=config, params={"visual": params})
+
+
+@pytest.fixture(scope="module")
+def images():
+    return np.random.default_rng(0).integers(0, 256, (2, SIZE, SIZE, 3), dtype=np.uint8)
+
+
+def test_the_saliency_of_a_linear_map_is_its_weights():
+    weights = np.random.default_rng(1).normal(size=(SIZE, SIZE, 3)).astype(np.float32)
+    images = np.random.default_rng(2).integers(0, 256, (3, SIZE, SIZE, 3), dtype=np.uint8)
+    found = visual.gradient_saliency(lambda pixels: (pixels * weights).sum(axis=(1, 2, 3)), images)
+    np.testing.assert_allclose(found, np.broadcast_to(np.abs(weights).max(axis=-1), (3, SIZE, SIZE)), rtol=1e-6)
+
+
+def test_saliency_of_a_unit_is_that_of_its_one_hot_readout_and_bad_outputs_are_refused(agent, images):
+    unit = visual.saliency(agent, images, unit=2)
+    assert unit.shape == (2, SIZE, SIZE) and unit.max() > 0
+    np.testing.assert_allclose(visual.saliency(agent, images, readout=np.eye(6)[2]), unit, rtol=1e-6)
+    for bad in ({"unit": 6}, {"readout": np.ones(5)}, {}, {"unit": 0, "readout": np.ones(6)}):
+        with pytest.raises(ValueError, match="unit|readout"):
+            visual.saliency(agent, images, **bad)
+
+
+def test_activation_maximization_raises_each_units_activation(agent, images):
+    """Each unit's preferred image (as the uint8 image returned) drives it well above what random frames do, and the
+    optimization's trace rose."""
+    found, trace = visual.preferred_stimuli(agent, "V2", [0, 3], steps=48)
+    assert found.shape == (2, SIZE, SIZE, 3) and found.dtype == np.uint8 and trace.shape == (2, 48)
+    assert (trace[:, -1] > trace[:, 0]).all(), trace[:, [0, -1]]
+    own = visual.feature_maps(agent, found)["V2"].mean(axis=(1, 2))[[0, 1], [0, 3]]
+    noise = visual.feature_maps(agent, images)["V2"].mean(axis=(1, 2))[:, [0, 3]].max(axis=0)
+    assert (own > noise + 0.1).all(), (own, noise)
+    with pytest.raises(ValueError, match=r"No convolution 'V3'.*V1"):
+        visual.preferred_stimuli(agent, "V3", [0])
+    with pytest.raises(ValueError, match=r"V1 has 4 units"):
+        visual.preferred_stimuli(agent, "V1", [4])
+
+
+def test_filters_maps_and_the_whole_analysis_fit_together(agent, images, tmp_path):
+    assert visual.conv_layers(agent) == ["V1", "V2", "V4", "IT"]
+    assert visual.first_layer_filters(agent).shape == (4, 7, 7, 3)
+    maps = visual.feature_maps(agent, images)
+    assert {name: m.shape for name, m in maps.items()} == {
+        "V1": (2, 16, 16, 4), "V2": (2, 8, 8, 4), "V4": (2, 4, 4, 4), "IT": (2, 2, 2, 4)}
+    result = visual.visual_analysis(agent, images, units=1, steps=4, layers=["V1"])
+    assert result["preferred"].shape == (1, 1, SIZE, SIZE, 3) and result["saliency"].shape == (2, 1, SIZE, SIZE)
+    np.testing.assert_allclose(result["last_map"].values, maps["IT"].mean(axis=-1))
+    visual.plot_visual(result, str(tmp_path / "visual.png"))
+    assert (tmp_path / "visual.png").read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(ValueError, match=r"images must be \(N, height, width, 3\) uint8"):
+        visual.visual_analysis(agent, images.astype(np.float32))
+    blind = SimpleNamespace(config=aj.load_config("shadow_reach"), params={"network": {}})
+    with pytest.raises(ValueError, match="has no visual area"):
+        visual.first_layer_filters(blind)
