@@ -20,6 +20,7 @@ angora-jax analyze crosscorrelation act.nc       which layer's leading component
 angora-jax analyze decode act.nc --lags 0 4 8    decode each variable k steps after the activity
 angora-jax analyze tuning act.nc --layer network.SSC_2 --variable metric_goal_distance
 angora-jax analyze ablate runs/lstm --lesion network.SSC_2 --silence goal    task outcomes under lesions
+angora-jax analyze visual act.nc --run runs/pixels   a pixel agent's visual area: filters, saliency, preferred stimuli
 angora-jax pretrain-vision --out encoder.msgpack    a visual encoder that sees the cube's pose, from renders
 """
 
@@ -247,6 +248,14 @@ def parser() -> argparse.ArgumentParser:
     crosscorrelation = analysis("crosscorrelation", "correlation of layers' leading components over lags")
     crosscorrelation.add_argument("--layers", nargs="*", help="layer names (default: all)")
     crosscorrelation.add_argument("--max-lag", type=positive_int, default=20, help="policy steps (default: 20)")
+    seeing = analysis("visual", "inside the visual area: filters, feature maps, saliency, preferred stimuli")
+    seeing.add_argument("--run", required=True, help="the recorded run (one that sees camera images)")
+    seeing.add_argument("--checkpoint", default="best", help="the recorded checkpoint (default: best)")
+    seeing.add_argument("--frames", type=positive_int, default=4, help="frames of the first episode (default: 4)")
+    seeing.add_argument("--camera", type=int, default=0, help="which camera's frames (default: 0, the first)")
+    seeing.add_argument("--units", type=positive_int, default=4, help="units per layer to show (default: 4)")
+    seeing.add_argument("--steps", type=positive_int, default=256, help="steps of activation maximization")
+    add_env_option(seeing)
     tuning = analysis("tuning", "unit responses as functions of a task variable")
     tuning.add_argument("--layer", required=True)
     tuning.add_argument("--variable", required=True)
@@ -565,6 +574,16 @@ def command_analysis(args: argparse.Namespace) -> int:
             return analysis.cross_correlation(data, args.layers, args.max_lag)
         if args.analysis == "tuning":
             return analysis.tuning_curves(data, args.layer, args.variable, args.bins, args.feature)
+        if args.analysis == "visual":
+            if "input_vision" not in data:
+                raise ValueError("The recording kept no camera images: record it with angora-jax record RUN_DIR "
+                                 "--images.")
+            cameras = data["input_vision"].sizes["camera"]
+            if not 0 <= args.camera < cameras:
+                raise ValueError(f"--camera must be in [0, {cameras}): the recording has {cameras} cameras.")
+            images = data["input_vision"].values[0, : args.frames, args.camera]
+            agent = load_agent(args.run, checkpoint_of(args.checkpoint), args.env_option)
+            return analysis.visual_analysis(agent, images, args.units, args.steps)
         if (args.run is None) != (args.recurrent is None) or (args.recurrent is None) != (args.inputs is None):
             raise ValueError("Fixed points need --run, --recurrent and --inputs together.")
         if args.run:
@@ -578,7 +597,7 @@ def command_analysis(args: argparse.Namespace) -> int:
             analysis.plot_dynamics(result, path, fixed or None)
         else:
             {"similarity": analysis.plot_similarity, "timescales": analysis.plot_timescales,
-             "crosscorrelation": analysis.plot_cross_correlation,
+             "crosscorrelation": analysis.plot_cross_correlation, "visual": analysis.plot_visual,
              "tuning": analysis.plot_tuning}[args.analysis](result, path)
 
     def summary(result):
@@ -591,6 +610,10 @@ def command_analysis(args: argparse.Namespace) -> int:
         elif args.analysis == "timescales":
             yield from (f"{layer}: timescale median {result['timescale_median'].sel(layer=layer).item():.3g} s"
                         for layer in result["layer"].values)
+        elif args.analysis == "visual":
+            yield from (f"{layer}: preferred stimuli drive units 0-{len(result['unit']) - 1} to " + ", ".join(
+                f"{a:.3g}" for a in result["preferred_activation"].sel(layer=layer).values)
+                for layer in result["layer"].values)
         elif args.analysis == "tuning":
             strength = result["strength"].values
             yield f"eta^2 of {args.variable} per unit: median {np.median(strength):.2f}, max {strength.max():.2f}"

@@ -333,3 +333,15 @@ def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_vis
         assert frames.dims == ("episode", "time", "camera", "y", "x", "channel") and frames.dtype == np.uint8
         assert frames.shape == (2, 3, 2, 32, 32, 3) and int(frames.max()) > int(frames.min()), "images, not blanks"
         assert "input_vision" not in without and recording.attrs["camera_images"] == 1
+        seen_by_camera_1 = frames.values[0, :2, 1]
+
+    # `angora-jax analyze visual`: inside the visual area, on the recorded frames of one camera.
+    out = tmp_path / "visual.png"
+    assert main(["analyze", "visual", str(kept), "--run", str(run.run_dir), "--frames", "2", "--camera", "1",
+                 "--units", "2", "--steps", "4", "--out", str(out), "--env-option", "vision.renderer=null"]) == 0
+    with xr.open_dataset(out.with_suffix(".nc")) as seen:
+        assert seen["preferred"].shape == (4, 2, 32, 32, 3) and seen["saliency"].shape == (2, 2, 32, 32)
+        np.testing.assert_array_equal(seen["frames"].values, seen_by_camera_1)
+    assert out.read_bytes()[:4] == b"\x89PNG"
+    assert main(["analyze", "visual", str(kept), "--run", str(run.run_dir), "--camera", "2"]) == 2
+    assert main(["analyze", "visual", str(lean), "--run", str(run.run_dir)]) == 2, "no images kept"

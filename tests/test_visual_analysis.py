@@ -64,8 +64,10 @@ def test_activation_maximization_raises_each_units_activation(agent, images):
 
 
 def test_filters_maps_and_the_whole_analysis_fit_together(agent, images, tmp_path):
-    assert visual.conv_layers(agent) == ["V1", "V2", "V4", "IT"]
-    assert visual.first_layer_filters(agent).shape == (4, 7, 7, 3)
+    # A restored checkpoint holds the layers sorted by name: the order is still the one images pass them.
+    restored = SimpleNamespace(config=agent.config, params={"visual": dict(sorted(agent.params["visual"].items()))})
+    assert visual.conv_layers(agent) == visual.conv_layers(restored) == ["V1", "V2", "V4", "IT"]
+    assert visual.first_layer_filters(restored).shape == (4, 7, 7, 3)
     maps = visual.feature_maps(agent, images)
     assert {name: m.shape for name, m in maps.items()} == {
         "V1": (2, 16, 16, 4), "V2": (2, 8, 8, 4), "V4": (2, 4, 4, 4), "IT": (2, 2, 2, 4)}

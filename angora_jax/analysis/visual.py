@@ -36,9 +36,15 @@ def visual_area(agent: Agent) -> tuple[nn.Module, Any]:
 
 
 def conv_layers(agent: Agent) -> list[str]:
-    """Names of the visual area's convolutions, input first (e.g. V1, V2, V4, IT for cornet_z)."""
-    _, params = visual_area(agent)
-    return [name for name, leaves in params.items() if np.ndim(leaves.get("kernel", 0)) == 4]
+    """Names of the visual area's convolutions in the order images pass them (e.g. V1, V2, V4, IT for cornet_z)."""
+    module, params = visual_area(agent)
+    # The order of calls, not of the parameters: a restored checkpoint holds them sorted by name (IT before V1).
+    # Applied eagerly: JAX's tree functions would sort the captured layers by name too.
+    vision = agent.config.env.options.get("vision") or {}
+    blank = jnp.zeros((1, vision.get("height", 64), vision.get("width", 64), 3), jnp.uint8)
+    _, captured = module.apply({"params": params}, blank, capture_intermediates=True, mutable=["intermediates"])
+    return [name for name in captured["intermediates"]
+            if np.ndim(params.get(name, {}).get("kernel", 0)) == 4]
 
 
 def first_layer_filters(agent: Agent) -> np.ndarray:
@@ -143,7 +149,7 @@ def visual_analysis(agent: Agent, images: np.ndarray, units: int = 4, steps: int
     convolution's mean feature map per image (`last_map`), the saliency of each of the first `units` output features
     (`saliency`, image x unit x y x x) and the preferred stimulus of each of the first `units` channels of each of
     `layers` (default: every convolution; `preferred`, layer x unit x y x x x rgb) with its final activation
-    (`preferred_activation`)."""
+    (`preferred_activation`); images (`preferred`, `frames`) hold 0-255 as int16."""
     images = np.asarray(images)
     if images.ndim != 4 or images.shape[-1] != 3 or images.dtype != np.uint8:
         raise ValueError(f"images must be (N, height, width, 3) uint8 camera frames, got {images.shape} "
@@ -155,14 +161,16 @@ def visual_analysis(agent: Agent, images: np.ndarray, units: int = 4, steps: int
     where = np.stack([saliency(agent, images, unit=u) for u in range(units)], axis=1)
     preferred = [preferred_stimuli(agent, layer, range(units), images.shape[1:3], steps) for layer in layers]
     last = maps[convolutions[-1]].mean(axis=-1)
+    # Images as int16 (values 0-255): NetCDF 3, which `angora-jax analyze` writes, has no unsigned bytes.
     return xr.Dataset(
         {
             "filters": (("filter", "ky", "kx", "rgb"), filters),
             "last_map": (("image", "my", "mx"), last),
             "saliency": (("image", "unit", "y", "x"), where),
-            "preferred": (("layer", "unit", "y", "x", "rgb"), np.stack([found for found, _ in preferred])),
+            "preferred": (("layer", "unit", "y", "x", "rgb"),
+                          np.stack([found for found, _ in preferred]).astype(np.int16)),
             "preferred_activation": (("layer", "unit"), np.stack([trace[:, -1] for _, trace in preferred])),
-            "frames": (("image", "y", "x", "rgb"), images),
+            "frames": (("image", "y", "x", "rgb"), images.astype(np.int16)),
         },
         coords={"layer": layers, "unit": np.arange(units)},
         attrs={"last_layer": convolutions[-1]},
