@@ -4,12 +4,15 @@ Record every layer's activity with the task variables (`record_activity`, an xar
 variables from layers (`decode`, ridge R^2 against a noise baseline), compare representations (`similarity`, RSA
 with rsatoolbox), reduce dimensionality and find fixed points (`principal_components`, `agent_fixed_points`),
 measure intrinsic timescales (`timescales`), which layer leads which (`cross_correlation`), what a layer tells of the
-future (`decode(..., lags=...)`) and tuning (`tuning_curves`), and lesion units, areas or input
-modalities and measure the task outcome (`ablation`). Each analysis has a `plot_*` and an `angora-jax analyze` verb.
+future (`decode(..., lags=...)`), tuning (`tuning_curves`), the equations of a layer's dynamics in its leading
+principal components and how well they predict held-out episodes (`sindy`, with pysindy), and lesion units, areas or
+input modalities and measure the task outcome (`ablation`). Each analysis has a `plot_*` and an `angora-jax analyze`
+verb.
 """
 
 from angora_jax.analysis.decoding import decode, plot_decoding
 from angora_jax.analysis.dynamics import agent_fixed_points, find_fixed_points, plot_dynamics, principal_components
+from angora_jax.analysis.equations import fit_sindy, plot_sindy, sindy
 from angora_jax.analysis.lesion import (
     ablation,
     dense_layers,
@@ -26,7 +29,8 @@ from angora_jax.analysis.timescales import cross_correlation, plot_cross_correla
 from angora_jax.analysis.tuning import plot_tuning, tuning_curves
 
 __all__ = ["ablation", "agent_fixed_points", "cross_correlation", "decode", "dense_layers", "episode_outcomes",
-           "find_fixed_points", "lesion", "lesion_area", "lesion_fraction", "plot_ablation",
-           "plot_cross_correlation", "plot_decoding", "plot_dynamics", "plot_similarity", "plot_timescales",
-           "plot_tuning", "principal_components", "record_activity", "replay_activity", "save_activity",
-           "silence_modality", "similarity", "timescales", "tuning_curves", "with_random_weights"]
+           "find_fixed_points", "fit_sindy", "lesion", "lesion_area", "lesion_fraction", "plot_ablation",
+           "plot_cross_correlation", "plot_decoding", "plot_dynamics", "plot_similarity", "plot_sindy",
+           "plot_timescales", "plot_tuning", "principal_components", "record_activity", "replay_activity",
+           "save_activity", "silence_modality", "similarity", "sindy", "timescales", "tuning_curves",
+           "with_random_weights"]
