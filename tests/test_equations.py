@@ -1,7 +1,8 @@
 """SINDy of a layer's dynamics (angora_jax.analysis.equations) on systems whose equations are known: a linear RNN
 h[k+1] = A h[k] and a damped oscillator (continuous time) recover their terms, and coefficients within 5%; a linear
 RNN hidden in a recording's units is found in its principal components, and predicts held-out episodes far better
-than next = current; bad input gets a message naming the fix. The trained reach agent is in test_analysis.py."""
+than next = current; a driven one is predicted from its input layer; bad input gets a message naming the fix. The
+trained reach agent is in test_analysis.py."""
 
 import numpy as np
 import pytest
@@ -55,20 +56,21 @@ def test_a_damped_oscillator_gets_its_equations_back_in_continuous_time():
     assert_recovers(model, OSCILLATOR, ["x", "v"])
 
 
-def recording(latent: list[np.ndarray], units: int, dt: float = 0.02, seed: int = 1) -> xr.Dataset:
+def recording(latent: list[np.ndarray], units: int, dt: float = 0.02, seed: int = 1, **layers) -> xr.Dataset:
     """A recording whose layer `rnn` is the latent trajectories embedded in `units` units (an orthonormal map plus an
-    offset). Each episode ends at a different step, and the steps after its end hold large garbage, as a recording's
-    next episode would: the analysis must use the alive steps only."""
+    offset), and so each of `layers` (name: (episode, time, n) latent). Each episode ends at a different step, and
+    the steps after its end hold large garbage, as a recording's next episode would: the analysis must use the
+    alive steps only."""
     rng = np.random.default_rng(seed)
-    embedding = np.linalg.qr(rng.standard_normal((units, latent[0].shape[1])))[0]
-    activity = np.stack(latent) @ embedding.T + rng.standard_normal(units)
-    episodes, steps = activity.shape[:2]
-    lengths = rng.integers(steps // 2, steps + 1, size=episodes)
-    alive = np.arange(steps)[None] < lengths[:, None]
-    activity[~alive] = 100.0 * rng.standard_normal((int((~alive).sum()), units))
-    return xr.Dataset({"activity_rnn": (("episode", "time", "rnn_unit"), activity),
-                       "alive": (("episode", "time"), alive.astype(np.float32))},
-                      coords={"time": np.arange(steps) * dt}, attrs={"policy_step_s": dt})
+    lengths = rng.integers(len(latent[0]) // 2, len(latent[0]) + 1, size=len(latent))
+    alive = np.arange(len(latent[0]))[None] < lengths[:, None]
+    data = {"alive": (("episode", "time"), alive.astype(np.float32))}
+    for name, values in {"rnn": np.stack(latent), **layers}.items():
+        embedding = np.linalg.qr(rng.standard_normal((units, values.shape[-1])))[0]
+        activity = values @ embedding.T + rng.standard_normal(units)
+        activity[~alive] = 100.0 * rng.standard_normal((int((~alive).sum()), units))
+        data[f"activity_{name}"] = (("episode", "time", f"{name}_unit"), activity)
+    return xr.Dataset(data, coords={"time": np.arange(alive.shape[1]) * dt}, attrs={"policy_step_s": dt})
 
 
 def test_a_linear_rnn_in_a_recording_is_found_in_its_principal_components_and_predicts_held_out_episodes():
@@ -92,12 +94,32 @@ def test_a_linear_rnn_in_a_recording_is_found_in_its_principal_components_and_pr
     assert error[0] == baseline[0] == 0 and np.all(error[1:] < 1e-6) and np.all(baseline[1:] > 0.2), (error, baseline)
 
 
+def test_a_driven_rnn_is_predicted_from_its_input_layer_at_the_step_it_enters():
+    """h[k+1] = A h[k] + B x[k+1], as a recurrent cell's state follows its input at the same step: with the input
+    layer as terms the held-out simulation is exact; without, the model misses what the input drives."""
+    rng = np.random.default_rng(2)
+    drive = rng.standard_normal((16, 40, 2))
+    state = np.zeros((16, 40, 2))
+    state[:, 0] = rng.standard_normal((16, 2))
+    for k in range(1, 40):
+        state[:, k] = state[:, k - 1] @ (0.9 * np.eye(2)).T + drive[:, k] @ np.array([[0.5, 0.0], [0.2, 0.4]]).T
+    data = recording(list(state), units=6, rnn_in=drive)
+    # The centring leaves constants of about 0.006 (see the test above), which 0.01 would drop.
+    driven = sindy(data, "rnn", components=2, inputs="rnn_in", degree=1, threshold=0.001)
+    assert set(driven["term"].values) == {"1", "PC1", "PC2", "IN1", "IN2"}
+    assert "IN1[k+1]" in " ".join(driven["equation"].values) and "IN1[k]" not in " ".join(driven["equation"].values)
+    assert driven.attrs["inputs"] == "rnn_in" and float(driven["r2_one_step"]) > 0.999
+    assert np.all(driven["simulation_error"].values < 1e-6), driven["simulation_error"].values
+    alone = sindy(data, "rnn", components=2, degree=1, threshold=0.001)
+    assert float(alone["r2_one_step"]) < 0.8 and np.all(alone["simulation_error"].values[1:] > 0.1)
+
+
 def test_bad_input_names_the_cause_and_the_fix():
     data = recording(linear_trajectories(LINEAR_RNN, episodes=4, steps=10), units=5)
     with pytest.raises(ValueError, match=r"Not in the recording: \['activity_cortex'\]"):
         sindy(data, "cortex")
     with pytest.raises(ValueError, match="6 components of 'rnn', which has 5 units: ask for at most 5"):
-        sindy(data, "rnn", components=6)
+        sindy(data, "rnn", components=6, horizon=5)
     with pytest.raises(ValueError, match="2 time steps; the dynamics need at least 3.*--steps"):
         sindy(data.isel(time=slice(0, 2)), "rnn", horizon=1)
     with pytest.raises(ValueError, match=r"1 episode; SINDy needs one to fit and one held out.*--episodes"):
