@@ -1,13 +1,14 @@
 """SINDy of a layer's dynamics (angora_jax.analysis.equations) on systems whose equations are known: a linear RNN
 h[k+1] = A h[k] and a damped oscillator (continuous time) recover their terms, and coefficients within 5%; a linear
 RNN hidden in a recording's units is found in its principal components, and predicts held-out episodes far better
-than next = current; a driven one is predicted from its input layer; bad input gets a message naming the fix. The
-trained reach agent is in test_analysis.py."""
+than next = current; a driven one is predicted from its input layer; bad input gets a message naming the fix; the
+probing page's example runs. The trained reach agent is in test_analysis.py."""
 
 import numpy as np
 import pytest
 import xarray as xr
 from scipy.linalg import expm
+from test_docs import marked_blocks
 
 from angora_jax.analysis import fit_sindy, sindy
 
@@ -128,3 +129,14 @@ def test_bad_input_names_the_cause_and_the_fix():
         sindy(data, "rnn", components=5, degree=3, horizon=5)
     with pytest.raises(ValueError, match="give --horizon from 1 to 9"):
         sindy(data, "rnn", horizon=10)
+
+
+def test_the_probing_page_example_runs_and_finds_its_equations(tmp_path, monkeypatch, capsys):
+    """docs/probing.md's marked block, run here in-process (tests/test_docs.py runs other pages' blocks in a fresh
+    interpreter, which for this one would spend some 8 s of CPU importing what this file has imported)."""
+    _, script = marked_blocks("probing.md")
+    monkeypatch.chdir(tmp_path)
+    exec(compile(script, "docs/probing.md", "exec"), {})
+    out = capsys.readouterr().out
+    assert "PC1[k+1] = " in out and "one-step R^2 0.99" in out, out
+    assert (tmp_path / "sindy.png").read_bytes()[:4] == b"\x89PNG"
