@@ -242,15 +242,17 @@ def plot_sindy(result: xr.Dataset, path: str) -> None:
     import matplotlib.pyplot as plt
 
     coefficients = result["coefficients"].values
-    fig, axes = plt.subplots(1, 3, figsize=(4.0 + 0.45 * coefficients.shape[1] + 7.0, 3.4),
-                             gridspec_kw={"width_ratios": [1.0 + 0.12 * coefficients.shape[1], 1, 1]})
+    # The coefficients above, as wide as their terms need; the two curves below.
+    fig = plt.figure(figsize=(max(8.0, 2.5 + 0.3 * coefficients.shape[1]), 6.4))
+    grid = fig.add_gridspec(2, 2, height_ratios=[1.0, 1.3])
+    axes = [fig.add_subplot(grid[0, :]), fig.add_subplot(grid[1, 0]), fig.add_subplot(grid[1, 1])]
     bound = max(float(np.abs(coefficients).max()), 1e-12)
     image = axes[0].imshow(coefficients, cmap="RdBu_r", vmin=-bound, vmax=bound, aspect="auto")
     axes[0].set_xticks(range(coefficients.shape[1]), result["term"].values, rotation=60, ha="right", fontsize=7)
     discrete = result.attrs["time"] == "discrete"
     axes[0].set_yticks(range(coefficients.shape[0]),
                        [f"{c}[k+1]" if discrete else f"d{c}/dt" for c in result["component"].values])
-    axes[0].set_title(f"{str(result.attrs['layer']).removeprefix('network.')}: identified terms", fontsize=9)
+    axes[0].set_title(f"{str(result.attrs['layer']).removeprefix('network.')}: identified terms")
     fig.colorbar(image, ax=axes[0])
     seconds = result["step_s"].values
     axes[1].plot(seconds, result["simulation_error"].values, marker=".",
