@@ -19,6 +19,8 @@ angora-jax analyze timescales act.nc             activity autocorrelation and ti
 angora-jax analyze crosscorrelation act.nc       which layer's leading component leads which, over lags
 angora-jax analyze decode act.nc --lags 0 4 8    decode each variable k steps after the activity
 angora-jax analyze tuning act.nc --layer network.SSC_2 --variable metric_goal_distance
+angora-jax analyze sindy act.nc --layer network.PMC.1 --inputs network.PMC_in
+                                                equations of a layer's dynamics in its leading components
 angora-jax analyze ablate runs/lstm --lesion network.SSC_2 --silence goal    task outcomes under lesions
 angora-jax analyze visual act.nc --run runs/pixels   a pixel agent's visual area: filters, saliency, preferred stimuli
 angora-jax pretrain-vision --out encoder.msgpack    a visual encoder that sees the cube's pose, from renders
@@ -261,6 +263,21 @@ def parser() -> argparse.ArgumentParser:
     tuning.add_argument("--variable", required=True)
     tuning.add_argument("--feature", type=int, default=None, help="component of a vector variable")
     tuning.add_argument("--bins", type=positive_int, default=10)
+    equations = analysis("sindy", "equations of a layer's dynamics in its leading principal components (SINDy), "
+                                  "scored on held-out episodes against next = current")
+    equations.add_argument("--layer", required=True, help="e.g. network.PMC.1, the premotor cell's output")
+    equations.add_argument("--components", type=positive_int, default=3, help="principal components (default: 3)")
+    equations.add_argument("--inputs", default=None,
+                           help="the layer feeding it, e.g. network.PMC_in: its leading components become terms")
+    equations.add_argument("--degree", type=positive_int, default=2, help="polynomial library degree (default: 2)")
+    equations.add_argument("--threshold", type=float, default=0.05,
+                           help="smallest coefficient kept, in PC1 standard deviations per step (per s with "
+                                "--continuous; default: 0.05)")
+    equations.add_argument("--continuous", action="store_true",
+                           help="fit dPC/dt (1/s) instead of the map from one policy step to the next")
+    equations.add_argument("--horizon", type=positive_int, default=10,
+                           help="policy steps of the held-out simulation (default: 10)")
+    equations.add_argument("--held-out", type=float, default=0.25, help="fraction of episodes held out (default: 0.25)")
     ablate = analyses.add_parser("ablate", help="task outcomes of a run with areas, modalities or units silenced")
     ablate.add_argument("run_dir")
     ablate.add_argument("--lesion", nargs="*", default=[], metavar="AREA", help="dense layers or areas to silence")
@@ -560,7 +577,7 @@ def command_decode(args: argparse.Namespace) -> int:
 
 
 def command_analysis(args: argparse.Namespace) -> int:
-    """similarity, dynamics, timescales and tuning of a recording."""
+    """similarity, dynamics, timescales, crosscorrelation, tuning and sindy of a recording."""
     from angora_jax import analysis
 
     fixed = {}
@@ -584,6 +601,9 @@ def command_analysis(args: argparse.Namespace) -> int:
             images = data["input_vision"].values[0, : args.frames, args.camera]
             agent = load_agent(args.run, checkpoint_of(args.checkpoint), args.env_option)
             return analysis.visual_analysis(agent, images, args.units, args.steps)
+        if args.analysis == "sindy":
+            return analysis.sindy(data, args.layer, args.components, args.inputs, not args.continuous, args.degree,
+                                  args.threshold, args.horizon, args.held_out)
         if (args.run is None) != (args.recurrent is None) or (args.recurrent is None) != (args.inputs is None):
             raise ValueError("Fixed points need --run, --recurrent and --inputs together.")
         if args.run:
@@ -598,7 +618,7 @@ def command_analysis(args: argparse.Namespace) -> int:
         else:
             {"similarity": analysis.plot_similarity, "timescales": analysis.plot_timescales,
              "crosscorrelation": analysis.plot_cross_correlation, "visual": analysis.plot_visual,
-             "tuning": analysis.plot_tuning}[args.analysis](result, path)
+             "tuning": analysis.plot_tuning, "sindy": analysis.plot_sindy}[args.analysis](result, path)
 
     def summary(result):
         if args.analysis == "similarity":
@@ -617,6 +637,12 @@ def command_analysis(args: argparse.Namespace) -> int:
         elif args.analysis == "tuning":
             strength = result["strength"].values
             yield f"eta^2 of {args.variable} per unit: median {np.median(strength):.2f}, max {strength.max():.2f}"
+        elif args.analysis == "sindy":
+            yield from result["equation"].values
+            error, baseline = result["simulation_error"].values[-1], result["baseline_error"].values[-1]
+            yield (f"Held out ({result.attrs['held_out_episodes']} episodes): one-step R^2 "
+                   f"{float(result['r2_one_step']):.3f} (next = current {float(result['baseline_r2_one_step']):.3f}); "
+                   f"RMSE after {args.horizon} steps {error:.3g} (next = current {baseline:.3g}) PC1 std")
         else:
             yield from (f"{layer}: {result['dimensionality'].sel(layer=layer).item()} components for 90% of the "
                         f"variance, participation ratio {result['participation_ratio'].sel(layer=layer).item():.1f}"

@@ -50,15 +50,7 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
     """
     layers = list(layers or recorded_layers(dataset))
     variables = list(variables or [n for n in dataset.data_vars if n.startswith(("input_", "task_", "metric_"))])
-    missing = [v for v in [*(f"activity_{n}" for n in layers), *variables] if v not in dataset.data_vars]
-    if missing:
-        # A recurrent module records its outputs by index (e.g. network.PMC.1, the cell's output).
-        outputs = {name: [layer for layer in recorded_layers(dataset) if layer.startswith(f"{name}.")]
-                   for name in layers}
-        hint = "; ".join(f"module {name} records {', '.join(found)}: name one of those"
-                         for name, found in outputs.items() if found and f"activity_{name}" in missing)
-        raise ValueError(f"Not in the recording: {missing}; it has {sorted(dataset.data_vars)}."
-                         + (f" ({hint})" if hint else ""))
+    require(dataset, layers, variables)
     steps = dataset.sizes["time"]
     if lags is not None and any(abs(k) >= steps for k in lags):
         raise ValueError(f"lags must be shorter than the recording's {steps} steps, got {list(lags)}.")
@@ -102,6 +94,20 @@ def _decode_at(dataset: xr.Dataset, layers: list[str], variables: list[str], fol
                 scores.mean(), scores.mean() - half, scores.mean() + half)
             result["baseline"][i, j] = cross_validated_r2(noise, targets, groups, folds).mean()
     return result
+
+
+def require(dataset: xr.Dataset, layers: Sequence[str], variables: Sequence[str] = ()) -> None:
+    """Raise a ValueError naming what of `layers` (as in `activity_<name>`) and `variables` the recording lacks, with
+    what it has."""
+    missing = [v for v in [*(f"activity_{n}" for n in layers), *variables] if v not in dataset.data_vars]
+    if missing:
+        # A recurrent module records its outputs by index (e.g. network.PMC.1, the cell's output).
+        outputs = {name: [layer for layer in recorded_layers(dataset) if layer.startswith(f"{name}.")]
+                   for name in layers}
+        hint = "; ".join(f"module {name} records {', '.join(found)}: name one of those"
+                         for name, found in outputs.items() if found and f"activity_{name}" in missing)
+        raise ValueError(f"Not in the recording: {missing}; it has {sorted(dataset.data_vars)}."
+                         + (f" ({hint})" if hint else ""))
 
 
 def lagged_steps(steps: int, lag: int) -> tuple[slice, slice]:
