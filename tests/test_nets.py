@@ -39,13 +39,13 @@ def small(name: str, shared: bool = False) -> NetworkConfig:
 
 
 def test_registry_has_the_required_models():
-    assert {"simple", "deeper", "lstm", "gru", "wide", "cortical", "areas"} <= set(list_networks())
+    assert {"simple", "deeper", "rnn", "lstm", "gru", "wide", "cortical", "areas"} <= set(list_networks())
     with pytest.raises(ValueError, match="Unknown network 'nope'"):
         make_network(NetworkConfig(name="nope"))
 
 
 @pytest.mark.parametrize("shared", [False, True], ids=["separate", "shared"])
-@pytest.mark.parametrize("name", ["simple", "deeper", "lstm", "gru", "wide", "cortical"])
+@pytest.mark.parametrize("name", ["simple", "deeper", "rnn", "lstm", "gru", "wide", "cortical"])
 def test_network_contract_shapes_and_asymmetric_reaches_only_the_value(name, shared):
     model = ActorCritic(make_network(small(name, shared)), HEAD)
     obs = hand_like_obs(jax.random.key(0))
@@ -106,9 +106,19 @@ def test_cortical_areas_are_named_sized_and_recurrent():
         carry, features, _ = network.apply({"params": params}, network.initial_carry(BATCH), obs)
         assert jax.tree.map(jnp.shape, carry) == {"PMC": carry_shapes} and features.shape == (BATCH, 24)
     for bad, match in [({"areas": {"V9": 3}}, "Unknown areas \\['V9'\\]"), ({"cell": "lstm2"}, "network.cell must be"),
-                       ({"name": "simple", "cell": "gru"}, "cortical network only")]:
+                       ({"name": "simple", "cell": "gru"}, "network.cell applies to the wide and cortical networks")]:
         with pytest.raises(ValueError, match=match):
             PPOConfig(network=NetworkConfig(**{"name": "cortical"} | bad)).validate()
+
+
+def test_the_wide_network_takes_any_cell_and_rnn_is_a_plain_network():
+    obs = hand_like_obs(jax.random.key(0))
+    for config, cell_params in [(NetworkConfig(name="wide", cell="rnn", width=8, cell_size=8), {"i", "h"}),
+                                (NetworkConfig(name="wide", cell="gru", width=8, cell_size=8), {"ir", "iz", "in"}),
+                                (small("rnn"), {"i", "h"})]:
+        network = make_network(config.validate())
+        params = network.init(jax.random.key(0), network.initial_carry(BATCH), obs)["params"]
+        assert cell_params <= set(params["policy_cell"]), (config, sorted(params["policy_cell"]))
 
 
 def tiny_sizes(config: str) -> list[str]:

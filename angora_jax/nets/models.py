@@ -130,7 +130,7 @@ def cell_output(kind: str, carry: jax.Array | tuple[jax.Array, jax.Array]) -> ja
 
 
 class Recurrent(nn.Module):
-    """Encoder, then an LSTM or GRU, then the heads.
+    """Encoder, then a recurrent cell (Elman RNN, LSTM or GRU), then the heads.
 
     cell: "rnn", "lstm" or "gru". encoder: "modality" (one embedding per modality) or "concat" (one embedding of all).
     shared: the value head reads the policy's recurrent features and `asymmetric`; otherwise a second encoder +

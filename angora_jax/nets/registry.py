@@ -39,7 +39,7 @@ def _recurrent(cell: str, encoder: str, width: int, cell_size: int) -> Callable[
         return Recurrent(
             width=config.width or width,
             cell_size=config.cell_size or cell_size,
-            cell=cell,
+            cell=config.cell or cell,
             encoder=encoder,
             shared=config.shared_trunk,
         )
@@ -49,9 +49,11 @@ def _recurrent(cell: str, encoder: str, width: int, cell_size: int) -> Callable[
 
 register_network("simple", lambda c: FeedForward(sizes=(c.width or 64,) * 2, shared=c.shared_trunk))
 register_network("deeper", lambda c: FeedForward(sizes=(c.width or 64,) * 4, shared=c.shared_trunk))
+register_network("rnn", _recurrent("rnn", "modality", width=64, cell_size=64))
 register_network("lstm", _recurrent("lstm", "modality", width=64, cell_size=64))
 register_network("gru", _recurrent("gru", "modality", width=64, cell_size=64))
-# OpenAI's in-hand manipulation policy: modalities concatenated, a dense embedding, then a wide LSTM.
+# OpenAI's in-hand manipulation policy: modalities concatenated, a dense embedding, then a wide LSTM (network.cell
+# may make it an rnn or gru).
 register_network("wide", _recurrent("lstm", "concat", width=512, cell_size=1024))
 
 

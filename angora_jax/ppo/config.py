@@ -37,12 +37,13 @@ class VisualConfig:
 class NetworkConfig:
     """Which registered network to build and its sizes; `None` sizes mean the model's own default.
 
-    name: a name from `angora_jax.nets.list_networks()` ("simple", "deeper", "lstm", "gru", "wide", "cortical",
-        "areas").
+    name: a name from `angora_jax.nets.list_networks()` ("simple", "deeper", "rnn", "lstm", "gru", "wide",
+        "cortical", "areas").
     width: units of the dense layers (embedding width for recurrent models; the value net's for cortical).
     cell_size: units of the recurrent cell (ignored by feed-forward models; the premotor PMC for cortical).
     shared_trunk: one trunk for policy and value (the value head also reads `asymmetric`) instead of two.
-    cell: the cortical model's recurrent premotor cell, "rnn", "lstm" or "gru" (default lstm).
+    cell: the recurrent cell, "rnn", "lstm" or "gru", of the wide network (default lstm) and of the cortical model's
+        premotor area PMC (default lstm); the rnn, lstm and gru networks are named for theirs.
     areas: the cortical model's area sizes that differ from AngoraPy's, e.g. `{SSC_1: 32, PMC: 64}`.
     graph: the brain-area graph of the areas network (`angora_jax.nets.area_graph.AreaGraph`): its areas (size,
         inputs, activation, recurrent cell), the area the policy head reads and the value net. The shipped configs
@@ -73,8 +74,9 @@ class NetworkConfig:
             make_visual_area(self.visual)
         if self.cell is not None and self.cell not in RECURRENT_CELLS:
             raise ValueError(f"network.cell must be one of {RECURRENT_CELLS}, got {self.cell!r}.")
-        if self.cell is not None and self.name != "cortical":
-            raise ValueError(f"network.cell applies to the cortical network only, not {self.name!r}.")
+        if self.cell is not None and self.name not in ("wide", "cortical"):
+            raise ValueError(f"network.cell applies to the wide and cortical networks, not {self.name!r}: the rnn, "
+                             "lstm and gru networks are named for their cell, and simple and deeper have none.")
         if self.areas and self.name != "cortical":
             raise ValueError(f"network.areas sizes the cortical network's areas, not {self.name!r}'s (an areas graph "
                              "sizes its own: network.graph.areas.<name>.size).")
