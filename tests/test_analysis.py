@@ -153,7 +153,7 @@ def test_a_graph_area_is_recorded_and_lesioned_by_its_name(agent):
                              "M1": AreaSpec(size=7, inputs=("PMC", "S1"))}, policy="M1", value=ValueSpec(sizes=(4,)))
     network = make_network(NetworkConfig(name="areas", graph=graph))
     obs = jax.vmap(agent.env.reset)(jax.random.split(jax.random.key(1), 3)).obs
-    params = ActorCritic(network, agent.head).init(jax.random.key(0), network.initial_carry(3), obs)["params"]
+    params = jax.jit(ActorCritic(network, agent.head).init)(jax.random.key(0), network.initial_carry(3), obs)["params"]
     areas = dataclasses.replace(agent, network=network, state=agent.state.replace(params=params))
     _, _, _, layers = record_layers(areas, obs)
     assert {"network.S1", "network.PMC.0", "network.PMC.1", "network.M1"} <= set(layers), sorted(layers)
