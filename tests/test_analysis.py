@@ -35,7 +35,7 @@ from angora_jax.analysis import recording as recording_module
 from angora_jax.analysis.decoding import cross_validated_r2
 from angora_jax.cli import main
 from angora_jax.envs.core import Sensation
-from angora_jax.nets import ActorCritic, make_network
+from angora_jax.nets import ActorCritic, AreaGraph, AreaSpec, ValueSpec, make_network
 from angora_jax.nets.components import load_component
 from angora_jax.ppo import NetworkConfig
 
@@ -144,6 +144,23 @@ def test_a_recurrent_cell_records_its_activity_not_its_gates(agent, cell):
                 "gru": {"network.policy_cell.0", "network.policy_cell.1"}}[cell]
     assert cell_layers == expected, sorted(layers)
     assert all(name.startswith(("network.", "policy_head")) for name in layers), sorted(layers)
+
+
+def test_a_graph_area_is_recorded_and_lesioned_by_its_name(agent):
+    """An `areas` network's areas are layers by name, as the cortical model's: a dense area's output, a recurrent
+    area's carry and output; lesioning a dense area silences it."""
+    graph = AreaGraph(areas={"S1": AreaSpec(size=5, inputs=("proprioception",)),
+                             "PMC": AreaSpec(size=6, inputs=("S1", "M1"), cell="gru"),
+                             "M1": AreaSpec(size=7, inputs=("PMC", "S1"))}, policy="M1", value=ValueSpec(sizes=(4,)))
+    network = make_network(NetworkConfig(name="areas", graph=graph))
+    obs = jax.vmap(agent.env.reset)(jax.random.split(jax.random.key(1), 3)).obs
+    params = jax.jit(ActorCritic(network, agent.head).init)(jax.random.key(0), network.initial_carry(3), obs)["params"]
+    areas = dataclasses.replace(agent, network=network, state=agent.state.replace(params=params))
+    _, _, _, layers = record_layers(areas, obs)
+    assert {"network.S1", "network.PMC.0", "network.PMC.1", "network.M1"} <= set(layers), sorted(layers)
+    assert layers["network.M1"].shape == (3, 7) and np.any(np.asarray(layers["network.S1"]) != 0)
+    _, _, _, lesioned = record_layers(lesion_area(areas, "network.S1"), obs)
+    assert np.all(np.asarray(lesioned["network.S1"]) == 0)
 
 
 def record_layers(agent, obs):

@@ -87,6 +87,62 @@ def test_bad_config_fails_naming_the_key(case):
         validate(load_config("cartpole", overrides))
 
 
+# A small valid graph on CartPole (proprioception only; goal is empty there), which each bad case below changes; the
+# cartpole config's width does not apply to it.
+GRAPH = ["ppo.network.name=areas", "ppo.network.width=null",
+         "ppo.network.graph={areas: {S1: {size: 4, inputs: [proprioception]}, M1: {size: 4, inputs: [S1, goal]}}, "
+         "policy: M1}"]
+AREA = "ppo.network.graph.areas"
+BAD_GRAPHS = {
+    "cycle without recurrence": ([f"{AREA}.S1.inputs=[proprioception, M1]"],
+                                 r"network.graph.areas: (S1 -> M1 -> S1|M1 -> S1 -> M1) form a loop of dense areas.*"
+                                 r"make one of them recurrent \(cell: rnn, lstm or gru\)"),
+    "self-loop without recurrence": ([f"{AREA}.M1.inputs=[S1, M1]"], r"M1 -> M1 form a loop of dense areas"),
+    "edge from an area that does not exist": ([f"{AREA}.M1.inputs=[S1, SS1]"],
+                                              r"network.graph.areas.M1.inputs names 'SS1', which is neither an area "
+                                              r"nor an input \(did you mean 'S1'\?\).*areas are S1, M1"),
+    "policy from an area that does not exist": (["ppo.network.graph.policy=M_1"],
+                                                r"network.graph.policy='M_1' is not an area \(did you mean 'M1'"),
+    "value reads nothing": (["ppo.network.graph.value.inputs=[]"], r"network.graph.value.inputs is empty"),
+    "value from an area that does not exist": (["ppo.network.graph.value.inputs=[S1, V1]"],
+                                               r"network.graph.value.inputs names 'V1'"),
+    "input that reaches nothing": ([f"{AREA}.T1={{size: 4, inputs: [touch]}}"],
+                                   r"network.graph.areas.T1 reaches neither head.*its inputs \(touch\) reach nothing"),
+    "recurrent area that reaches nothing": ([f"{AREA}.R1={{size: 4, inputs: [goal, R1], cell: gru}}"],
+                                            r"network.graph.areas.R1 reaches neither head"),
+    "policy that no input reaches": ([f"{AREA}={{R1: {{size: 4, inputs: [M1], cell: rnn}}, M1: {{size: 4, "
+                                      "inputs: [R1]}}"], r"policy='M1': no input modality reaches it"),
+    "area that reads asymmetric": ([f"{AREA}.S1.inputs=[proprioception, asymmetric]"],
+                                   r"network.graph.areas.S1 reads 'asymmetric', which only the value function"),
+    "unknown activation": ([f"{AREA}.S1.activation=sigmoid"],
+                           r"network.graph.areas.S1.activation='sigmoid' is unknown; use one of tanh, relu, lif"),
+    "unknown cell": ([f"{AREA}.S1.cell=lsmt"], r"network.graph.areas.S1.cell='lsmt' is unknown \(did you mean 'lstm'"),
+    "size not positive": ([f"{AREA}.S1.size=0"],
+                          r"network.graph.areas.S1.size must be a positive integer \(the area's units\), got 0"),
+    "size missing": ([f"{AREA}.S1={{inputs: [proprioception]}}"], r"ppo.network.graph.areas.S1 needs size"),
+    "no inputs": ([f"{AREA}.S1.inputs=[]"], r"network.graph.areas.S1.inputs is empty"),
+    "input listed twice": ([f"{AREA}.M1.inputs=[S1, goal, S1]"], r"network.graph.areas.M1.inputs lists S1 more than"),
+    "area named like a modality": ([f"{AREA}.goal={{size: 4, inputs: [S1]}}"], r"'goal' names an input modality"),
+    "area name with a dot": ([f"{AREA}={{PMC.in: {{size: 4, inputs: [proprioception]}}}}",
+                              "ppo.network.graph.policy=x"], r"'PMC.in' cannot name an area; use letters, digits"),
+    "no graph": (["ppo.network.graph=null"], r"network.name=areas needs network.graph"),
+    "graph of another network": (["ppo.network.name=simple"], r"network.graph is the areas network's, not 'simple'"),
+    "sizes the graph gives": (["ppo.network.width=32"], r"The areas network takes no network.width \(set it to null"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_GRAPHS)
+def test_a_bad_brain_area_graph_is_refused_naming_the_area(case):
+    overrides, message = BAD_GRAPHS[case]
+    with pytest.raises(ConfigError, match=message):
+        validate(load_config("cartpole", [*GRAPH, *overrides]))
+
+
+def test_the_small_graph_of_the_bad_cases_is_valid_and_loops_through_recurrence():
+    validate(load_config("cartpole", GRAPH))
+    validate(load_config("cartpole", [*GRAPH, f"{AREA}.S1.inputs=[proprioception, M1]", f"{AREA}.M1.cell=gru"]))
+
+
 def test_bad_files_fail_clearly(tmp_path: Path):
     with pytest.raises(ConfigError, match="not found. Give a YAML path or the name of a shipped config: .*cartpole"):
         load_config("cartpol")

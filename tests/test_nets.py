@@ -11,10 +11,14 @@ import pytest
 
 from angora_jax.envs.classic import CartPole
 from angora_jax.envs.core import ActionSpec, Sensation
+from angora_jax.experiment.config import load_config
 from angora_jax.nets import ActorCritic, list_networks, make_network, register_network
+from angora_jax.nets.activations import lif, lif_fraction
+from angora_jax.nets.area_graph import evaluation_order, feedback_inputs
 from angora_jax.nets.components import save_component, stop_frozen_gradients
 from angora_jax.nets.cortical import AREA_SIZES
 from angora_jax.ppo import NetworkConfig, NormalizationConfig, PPOConfig, make_cycle, make_head
+from angora_jax.ppo.tbptt import unroll
 
 BATCH = 3
 HEAD = make_head("gaussian", ActionSpec(low=-jnp.ones(20), high=jnp.ones(20)))
@@ -35,13 +39,13 @@ def small(name: str, shared: bool = False) -> NetworkConfig:
 
 
 def test_registry_has_the_required_models():
-    assert {"simple", "deeper", "lstm", "gru", "wide", "cortical"} <= set(list_networks())
+    assert {"simple", "deeper", "rnn", "lstm", "gru", "wide", "cortical", "areas"} <= set(list_networks())
     with pytest.raises(ValueError, match="Unknown network 'nope'"):
         make_network(NetworkConfig(name="nope"))
 
 
 @pytest.mark.parametrize("shared", [False, True], ids=["separate", "shared"])
-@pytest.mark.parametrize("name", ["simple", "deeper", "lstm", "gru", "wide", "cortical"])
+@pytest.mark.parametrize("name", ["simple", "deeper", "rnn", "lstm", "gru", "wide", "cortical"])
 def test_network_contract_shapes_and_asymmetric_reaches_only_the_value(name, shared):
     model = ActorCritic(make_network(small(name, shared)), HEAD)
     obs = hand_like_obs(jax.random.key(0))
@@ -100,11 +104,99 @@ def test_cortical_areas_are_named_sized_and_recurrent():
         assert params["SSC_1"]["kernel"].shape == (48, 128), "SSC reads proprioception (and touch, empty here)"
         assert params["MCC"]["kernel"].shape == (15 + 64, 64), "MCC reads the goal and SSC"
         carry, features, _ = network.apply({"params": params}, network.initial_carry(BATCH), obs)
-        assert jax.tree.map(jnp.shape, carry) == carry_shapes and features.shape == (BATCH, 24)
+        assert jax.tree.map(jnp.shape, carry) == {"PMC": carry_shapes} and features.shape == (BATCH, 24)
     for bad, match in [({"areas": {"V9": 3}}, "Unknown areas \\['V9'\\]"), ({"cell": "lstm2"}, "network.cell must be"),
-                       ({"name": "simple", "cell": "gru"}, "cortical network only")]:
+                       ({"name": "simple", "cell": "gru"}, "network.cell applies to the wide and cortical networks")]:
         with pytest.raises(ValueError, match=match):
             PPOConfig(network=NetworkConfig(**{"name": "cortical"} | bad)).validate()
+
+
+def test_the_wide_network_takes_any_cell_and_rnn_is_a_plain_network():
+    obs = hand_like_obs(jax.random.key(0))
+    for config, cell_params in [(NetworkConfig(name="wide", cell="rnn", width=8, cell_size=8), {"i", "h"}),
+                                (NetworkConfig(name="wide", cell="gru", width=8, cell_size=8), {"ir", "iz", "in"}),
+                                (small("rnn"), {"i", "h"})]:
+        network = make_network(config.validate())
+        params = network.init(jax.random.key(0), network.initial_carry(BATCH), obs)["params"]
+        assert cell_params <= set(params["policy_cell"]), (config, sorted(params["policy_cell"]))
+
+
+def tiny_sizes(config: str) -> list[str]:
+    """Overrides that shrink every area of a shipped graph config (4 units and up, each area a different size, so
+    that a size given to the wrong area shows) and its value net."""
+    areas = load_config(config).ppo.network.graph.areas
+    return [*(f"ppo.network.graph.areas.{name}.size={4 + i}" for i, name in enumerate(areas)),
+            "ppo.network.graph.value.sizes=[6, 6]"]
+
+
+def every_modality(key: jax.Array, batch: int = BATCH) -> Sensation:
+    """Every modality present (none empty), random, `(batch, size)`: each kernel row of every input is used."""
+    sizes = {"proprioception": 7, "touch": 3, "vision": 4, "goal": 2, "asymmetric": 3}
+    keys = jax.random.split(key, len(sizes))
+    return Sensation.make(**{name: jax.random.normal(k, (batch, size))
+                             for k, (name, size) in zip(keys, sizes.items(), strict=True)})
+
+
+def test_the_shipped_cortical_graph_is_the_builtin_cortical_model(quick_compiles):
+    """shadow_reach_cortical_graph (an `areas` graph in YAML) and shadow_reach_cortical (the built-in `cortical`) at
+    the same sizes: the same graph, so for one seed the same parameters and, from the same carry, the same outputs.
+    The models are the programs' static arguments: equal models compile once."""
+    graph = load_config("shadow_reach_cortical_graph", tiny_sizes("shadow_reach_cortical_graph")).ppo.network
+    sizes = {name: spec.size for name, spec in graph.graph.areas.items()}
+    builtin = load_config("shadow_reach_cortical", [f"ppo.network.areas={sizes}", "ppo.network.width=6"]).ppo.network
+    yaml_model, builtin_model = make_network(graph.validate()), make_network(builtin.validate())
+    assert yaml_model.graph == builtin_model.graph
+    obs = every_modality(jax.random.key(0))
+    carry = jax.tree.map(lambda x: jax.random.normal(jax.random.key(1), x.shape), builtin_model.initial_carry(BATCH))
+    init = jax.jit(lambda model, key: model.init(key, carry, obs), static_argnums=0)
+    apply = jax.jit(lambda model, params: model.apply(params, carry, obs), static_argnums=0)
+    outputs = []
+    for model in (yaml_model, builtin_model):
+        params = init(model, jax.random.key(2))
+        outputs.append((params, apply(model, params)))
+    assert jax.tree.structure(outputs[0]) == jax.tree.structure(outputs[1])
+    for mine, builtin_leaf in zip(jax.tree.leaves(outputs[0]), jax.tree.leaves(outputs[1]), strict=True):
+        np.testing.assert_array_equal(mine, builtin_leaf)
+    assert outputs[0][0]["params"]["value_net"]["Dense_1"]["kernel"].shape == (6, 6)
+
+
+def test_a_shipped_graph_with_feedback_and_lif_unrolls_and_resets(quick_compiles):
+    """AngoraPy's shadowv2 wiring (shipped), tiny, with M1 firing as LiF units and a feedback input (LPFC reads the
+    premotor cell, which reads LPFC): LPFC takes PMC's previous output. Over a sequence an environment whose episode
+    restarts acts as a fresh one; one that goes on remembers; the policy never sees `asymmetric`."""
+    overrides = [*tiny_sizes("shadow_reach_shadowv2"), "ppo.network.graph.areas.M1.activation=lif",
+                 "ppo.network.graph.areas.LPFC.inputs=[MCC, IPL, IPS, PMC]"]
+    config = load_config("shadow_reach_shadowv2", overrides).ppo.network.validate()
+    network = make_network(config)
+    assert feedback_inputs(network.graph) == {("LPFC", "PMC")}
+    assert evaluation_order(network.graph).index("LPFC") < evaluation_order(network.graph).index("PMC")
+    model = ActorCritic(network, HEAD)
+    steps = 4
+    obs = jax.tree.map(lambda x: x.reshape(steps, BATCH, -1), every_modality(jax.random.key(0), steps * BATCH))
+    initial = network.initial_carry(BATCH)
+    params = jax.jit(model.init)(jax.random.key(1), initial, jax.tree.map(lambda x: x[0], obs))
+
+    @jax.jit
+    def run(sequence, resets):
+        return unroll(lambda carry, o: model.apply(params, carry, o), initial, initial, sequence, resets)[1:]
+
+    resets = jnp.zeros((steps, BATCH)).at[2, 0].set(1.0)
+    policy, value = run(obs, resets)
+    # The last two steps first, from the initial carry (twice over: one sequence length, one compiled program).
+    fresh, _ = run(jax.tree.map(lambda x: jnp.concatenate([x[2:], x[2:]]), obs), jnp.zeros((steps, BATCH)))
+    np.testing.assert_allclose(policy[2:, 0], fresh[:2, 0], rtol=1e-6, atol=1e-6)
+    assert not np.allclose(policy[2:, 1], fresh[:2, 1]), "without a reset the carry remembers the first steps"
+    other = obs.replace(asymmetric=obs.asymmetric + 5.0)
+    other_policy, other_value = run(other, resets)
+    np.testing.assert_array_equal(policy, other_policy)
+    assert not np.allclose(value, other_value)
+
+
+def test_lif_is_angorapys_soft_leaky_integrate_and_fire_rate():
+    x = jnp.array([-100.0, 0.0, 1.0, 1000.0])
+    np.testing.assert_allclose(lif(x), [0.005, 9.655, 55.98, 248.76], rtol=2e-3)
+    assert np.all(np.isfinite(jax.vmap(jax.grad(lif))(x))), "no NaN gradient below the threshold"
+    np.testing.assert_allclose(lif_fraction(x), lif(x) / 250.0, rtol=1e-6)
 
 
 def test_frozen_component_keeps_its_pretrained_values_through_updates(tmp_path, quick_compiles):

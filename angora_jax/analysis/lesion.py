@@ -2,8 +2,9 @@
 metric loses (`ablation`: many episodes per lesion, means with standard errors).
 
 A unit of a dense layer is silenced by zeroing its kernel column and bias entry: its pre-activation is then 0, and
-so is its output after the networks' tanh (or relu). The rest of the network is untouched, and an empty unit set
-leaves the parameters bit for bit as they were. A modality is silenced at the network's input: its normalised
+so is its output after the networks' tanh (or relu); a brain-area graph's LiF unit (`activation: lif`) then fires at
+its constant resting rate, which carries no information either. The rest of the network is untouched, and an empty
+unit set leaves the parameters bit for bit as they were. A modality is silenced at the network's input: its normalised
 value is held at 0, the mean the normaliser saw in training (its variance is set to infinity), so the network
 receives no information from it.
 """

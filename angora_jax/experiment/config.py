@@ -404,6 +404,10 @@ def _build(cls: type, data: Any, path: str) -> Any:
             hint = f" Did you mean {close[0]!r}?" if close else ""
             full = f"{path}.{key}" if path else str(key)
             raise ConfigError(f"Unknown key {full!r}.{hint} Keys of {where}: {', '.join(names)}.")
+    required = [f.name for f in dataclasses.fields(cls)
+                if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING and f.name not in data]
+    if required:
+        raise ConfigError(f"{where} needs {', '.join(required)} (keys of {where}: {', '.join(names)}).")
     hints = typing.get_type_hints(cls)
     return cls(**{key: _convert(hints[key], value, f"{path}.{key}" if path else key) for key, value in data.items()})
 
@@ -429,7 +433,8 @@ def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
     if typing.get_origin(kind) is dict:
         if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
             raise ConfigError(f"{key} must be a mapping with string keys, got {value!r}.")
-        return value
+        item = typing.get_args(kind)[1]
+        return {name: _convert(item, entry, f"{key}.{name}") for name, entry in value.items()}
     if kind is bool and isinstance(value, bool):
         return value
     if kind is int and isinstance(value, int) and not isinstance(value, bool):

@@ -37,7 +37,9 @@ def config_keys(cls: type = Config, prefix: str = "") -> list[ConfigKey]:
         shown = "(section)" if dataclasses.is_dataclass(default) else _yaml(default)
         keys.append(ConfigKey(prefix + field.name, _type_name(kind), shown, described.get(field.name, "")))
         if section is not None:
-            keys.extend(config_keys(section, f"{prefix}{field.name}."))
+            # A mapping of sections (name -> section) has its keys under each name: `areas.<name>.size`.
+            named = "<name>." if typing.get_origin(kind) is dict else ""
+            keys.extend(config_keys(section, f"{prefix}{field.name}.{named}"))
     return keys
 
 
@@ -65,12 +67,14 @@ def reference_markdown() -> str:
 def _type_name(kind: Any) -> str:
     if isinstance(kind, types.UnionType) or typing.get_origin(kind) is typing.Union:
         return " | ".join(_type_name(a) for a in typing.get_args(kind))
-    if typing.get_origin(kind) is not None:
-        return str(kind).replace("typing.", "")
+    if typing.get_origin(kind) is not None:  # e.g. dict[str, angora_jax.nets.area_graph.AreaSpec]: names only
+        return re.sub(r"\b(?:\w+\.)+(\w+)", r"\1", str(kind))
     return "None" if kind is type(None) else kind.__name__
 
 
 def _yaml(value: Any) -> str:
+    if value is dataclasses.MISSING:
+        return "(required)"
     if value is None:
         return "null"
     if isinstance(value, bool):

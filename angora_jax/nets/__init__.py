@@ -12,18 +12,26 @@ Network contract (what `make_cycle` accepts; every built-in model follows it). A
 
 The trainer resets the carry to `initial_carry` where an episode starts and scans the module over time, so a
 network never sees episode boundaries itself. Register a builder with `register_network(name, builder)` to select
-it from `NetworkConfig.name`, or pass the module to `make_cycle` directly.
+it from `NetworkConfig.name`, or pass the module to `make_cycle` directly. A network of brain areas needs no Python:
+`network.name: areas` builds `Areas` from the graph in `network.graph` (`AreaGraph`, see `nets.area_graph`).
 """
 
 from angora_jax.nets.actor_critic import ActorCritic
+from angora_jax.nets.area_graph import AreaGraph, AreaSpec, ValueSpec, check_graph
+from angora_jax.nets.areas import Areas
 from angora_jax.nets.models import FeedForward, ModalityEncoder, Recurrent, policy_inputs, value_inputs
 from angora_jax.nets.registry import list_networks, make_network, register_network
 
 __all__ = [
     "ActorCritic",
+    "AreaGraph",
+    "AreaSpec",
+    "Areas",
     "FeedForward",
     "ModalityEncoder",
     "Recurrent",
+    "ValueSpec",
+    "check_graph",
     "list_networks",
     "make_network",
     "policy_inputs",

@@ -7,6 +7,8 @@ function. Empty modalities (size 0) are skipped, so no model assumes any particu
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
@@ -102,20 +104,33 @@ class ConcatEncoder(nn.Module):
 RECURRENT_CELLS = ("rnn", "lstm", "gru")
 
 
-def recurrent_cell(kind: str, size: int, name: str) -> nn.RNNCellBase:
-    """A flax cell of `size` units: "rnn" (Elman, tanh), "lstm" or "gru"; its carry is `(c, h)` for an LSTM and
-    `h` otherwise, each `(B, size)`."""
+def recurrent_cell(kind: str, size: int, name: str, activation: Callable[[jax.Array], jax.Array] = jnp.tanh
+                   ) -> nn.RNNCellBase:
+    """A flax cell of `size` units: "rnn" (Elman), "lstm" or "gru", with `activation` in its update (the Elman
+    update's, the LSTM's and GRU's candidate); its carry is `(c, h)` for an LSTM and `h` otherwise, each `(B, size)`
+    (see `initial_cell_carry`), and its output `h`."""
     if kind == "rnn":
-        return nn.SimpleCell(size, name=name)
+        return nn.SimpleCell(size, activation_fn=activation, name=name)
     if kind == "lstm":
-        return nn.OptimizedLSTMCell(size, name=name)
+        return nn.OptimizedLSTMCell(size, activation_fn=activation, name=name)
     if kind == "gru":
-        return nn.GRUCell(size, name=name)
+        return nn.GRUCell(size, activation_fn=activation, name=name)
     raise ValueError(f"Unknown recurrent cell {kind!r}; use one of {RECURRENT_CELLS}.")
 
 
+def initial_cell_carry(kind: str, size: int, batch_size: int) -> jax.Array | tuple[jax.Array, jax.Array]:
+    """The zero carry of a `recurrent_cell` of `kind` and `size` for `batch_size` environments."""
+    zeros = jnp.zeros((batch_size, size), jnp.float32)
+    return (zeros, zeros) if kind == "lstm" else zeros
+
+
+def cell_output(kind: str, carry: jax.Array | tuple[jax.Array, jax.Array]) -> jax.Array:
+    """The output `h` that a `recurrent_cell` of `kind` gave with `carry`: the LSTM's second entry, else the carry."""
+    return carry[1] if kind == "lstm" else carry
+
+
 class Recurrent(nn.Module):
-    """Encoder, then an LSTM or GRU, then the heads.
+    """Encoder, then a recurrent cell (Elman RNN, LSTM or GRU), then the heads.
 
     cell: "rnn", "lstm" or "gru". encoder: "modality" (one embedding per modality) or "concat" (one embedding of all).
     shared: the value head reads the policy's recurrent features and `asymmetric`; otherwise a second encoder +
@@ -128,14 +143,9 @@ class Recurrent(nn.Module):
     encoder: str = "modality"
     shared: bool = False
 
-    def _single_carry(self, batch_size: int):
-        zeros = jnp.zeros((batch_size, self.cell_size), jnp.float32)
-        return (zeros, zeros) if self.cell == "lstm" else zeros
-
     def initial_carry(self, batch_size: int):
-        if self.shared:
-            return {"policy": self._single_carry(batch_size)}
-        return {"policy": self._single_carry(batch_size), "value": self._single_carry(batch_size)}
+        pathways = ("policy",) if self.shared else ("policy", "value")
+        return {pathway: initial_cell_carry(self.cell, self.cell_size, batch_size) for pathway in pathways}
 
     def _encode(self, obs: Sensation, modalities: tuple[str, ...], name: str) -> jax.Array:
         encoder = ModalityEncoder if self.encoder == "modality" else ConcatEncoder

@@ -7,7 +7,9 @@ from typing import TYPE_CHECKING
 
 import flax.linen as nn
 
-from angora_jax.nets.cortical import Cortical, area_sizes
+from angora_jax.nets.area_graph import check_graph
+from angora_jax.nets.areas import Areas
+from angora_jax.nets.cortical import area_sizes, cortical_graph
 from angora_jax.nets.models import FeedForward, Recurrent
 from angora_jax.registry import Registry
 
@@ -37,7 +39,7 @@ def _recurrent(cell: str, encoder: str, width: int, cell_size: int) -> Callable[
         return Recurrent(
             width=config.width or width,
             cell_size=config.cell_size or cell_size,
-            cell=cell,
+            cell=config.cell or cell,
             encoder=encoder,
             shared=config.shared_trunk,
         )
@@ -47,16 +49,26 @@ def _recurrent(cell: str, encoder: str, width: int, cell_size: int) -> Callable[
 
 register_network("simple", lambda c: FeedForward(sizes=(c.width or 64,) * 2, shared=c.shared_trunk))
 register_network("deeper", lambda c: FeedForward(sizes=(c.width or 64,) * 4, shared=c.shared_trunk))
+register_network("rnn", _recurrent("rnn", "modality", width=64, cell_size=64))
 register_network("lstm", _recurrent("lstm", "modality", width=64, cell_size=64))
 register_network("gru", _recurrent("gru", "modality", width=64, cell_size=64))
-# OpenAI's in-hand manipulation policy: modalities concatenated, a dense embedding, then a wide LSTM.
+# OpenAI's in-hand manipulation policy: modalities concatenated, a dense embedding, then a wide LSTM (network.cell
+# may make it an rnn or gru).
 register_network("wide", _recurrent("lstm", "concat", width=512, cell_size=1024))
-# AngoraPy's shadow brain: sub-networks named after cortical areas (see `angora_jax.nets.cortical`).
+
+
 def _cortical(config: NetworkConfig) -> nn.Module:
-    # cell_size sizes the premotor cell (PMC) unless network.areas does; width sets the value net's two layers.
+    """AngoraPy's shadow brain (`angora_jax.nets.cortical`): cell_size sizes the premotor cell (PMC) unless
+    network.areas does; width sets the value net's two layers."""
     sizes = area_sizes(({"PMC": config.cell_size} if config.cell_size else {}) | config.areas)
-    return Cortical(sizes=tuple(sizes.items()), cell=config.cell or "lstm", shared_trunk=config.shared_trunk,
-                    value_sizes=(config.width or 512,) * 2)
+    return Areas(cortical_graph(sizes, cell=config.cell or "lstm", shared_trunk=config.shared_trunk,
+                                value_sizes=(config.width or 512,) * 2))
+
+
+def _areas(config: NetworkConfig) -> nn.Module:
+    """The brain-area graph of the config (`angora_jax.nets.area_graph`)."""
+    return Areas(check_graph(config.graph))
 
 
 register_network("cortical", _cortical)
+register_network("areas", _areas)

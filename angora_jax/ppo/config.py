@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass, field
 
 from angora_jax.envs.core import Env
+from angora_jax.nets.area_graph import AreaGraph, check_graph
 from angora_jax.nets.cortical import area_sizes
 from angora_jax.nets.models import RECURRENT_CELLS
 from angora_jax.nets.visual import make_visual_area
@@ -36,12 +37,17 @@ class VisualConfig:
 class NetworkConfig:
     """Which registered network to build and its sizes; `None` sizes mean the model's own default.
 
-    name: a name from `angora_jax.nets.list_networks()` ("simple", "deeper", "lstm", "gru", "wide", "cortical").
+    name: a name from `angora_jax.nets.list_networks()` ("simple", "deeper", "rnn", "lstm", "gru", "wide",
+        "cortical", "areas").
     width: units of the dense layers (embedding width for recurrent models; the value net's for cortical).
     cell_size: units of the recurrent cell (ignored by feed-forward models; the premotor PMC for cortical).
     shared_trunk: one trunk for policy and value (the value head also reads `asymmetric`) instead of two.
-    cell: the cortical model's recurrent premotor cell, "rnn", "lstm" or "gru" (default lstm).
+    cell: the recurrent cell, "rnn", "lstm" or "gru", of the wide network (default lstm) and of the cortical model's
+        premotor area PMC (default lstm); the rnn, lstm and gru networks are named for theirs.
     areas: the cortical model's area sizes that differ from AngoraPy's, e.g. `{SSC_1: 32, PMC: 64}`.
+    graph: the brain-area graph of the areas network (`angora_jax.nets.area_graph.AreaGraph`): its areas (size,
+        inputs, activation, recurrent cell), the area the policy head reads and the value net. The shipped configs
+        shadow_reach_cortical_graph (the cortical model) and shadow_reach_shadowv2 hold examples.
     frozen: parameter paths (dotted module paths as in recordings, e.g. `network.SSC_1`) that training leaves
         unchanged: their updates are masked to zero (`optax.multi_transform`). Each must name a module.
     pretrained: parameter path -> where its values come from at the start of a run: a run directory (its best
@@ -57,6 +63,7 @@ class NetworkConfig:
     shared_trunk: bool = False
     cell: str | None = None
     areas: dict[str, int] = field(default_factory=dict)
+    graph: AreaGraph | None = None
     frozen: tuple[str, ...] = ()
     pretrained: dict[str, str] = field(default_factory=dict)
     visual: VisualConfig | None = None
@@ -67,9 +74,23 @@ class NetworkConfig:
             make_visual_area(self.visual)
         if self.cell is not None and self.cell not in RECURRENT_CELLS:
             raise ValueError(f"network.cell must be one of {RECURRENT_CELLS}, got {self.cell!r}.")
-        if (self.cell is not None or self.areas) and self.name != "cortical":
-            raise ValueError(f"network.cell and network.areas apply to the cortical network only, not {self.name!r}.")
+        if self.cell is not None and self.name not in ("wide", "cortical"):
+            raise ValueError(f"network.cell applies to the wide and cortical networks, not {self.name!r}: the rnn, "
+                             "lstm and gru networks are named for their cell, and simple and deeper have none.")
+        if self.areas and self.name != "cortical":
+            raise ValueError(f"network.areas sizes the cortical network's areas, not {self.name!r}'s (an areas graph "
+                             "sizes its own: network.graph.areas.<name>.size).")
         area_sizes(self.areas)
+        if self.name == "areas":
+            check_graph(self.graph)
+            unused = [key for key in ("width", "cell_size", "shared_trunk") if getattr(self, key)]
+            if unused:
+                raise ValueError(f"The areas network takes no network.{' or network.'.join(unused)} (set it to null "
+                                 "or false): its graph gives the sizes (network.graph.areas.<name>.size) and the value "
+                                 "net (network.graph.value).")
+        elif self.graph is not None:
+            raise ValueError(f"network.graph is the areas network's, not {self.name!r}'s: set network.name=areas, or "
+                             "remove network.graph.")
         if not all(isinstance(source, str) for source in self.pretrained.values()):
             raise ValueError(f"network.pretrained maps module paths to sources (a file or RUN_DIR), got "
                              f"{self.pretrained}.")
