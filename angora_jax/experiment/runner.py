@@ -214,9 +214,10 @@ def _run(
         if note:
             announcement += "\n" + note
         if physics.get("impl") == "warp" and devices_used > 1 and jax.process_count() == 1 and on_gpu():
-            announcement += ("\nNote: one process driving several GPUs on MuJoCo Warp is measured for 10 cycles only "
-                             "(3.87x on 4 H100s); one process per GPU is the layout measured over whole runs (3.94x): "
-                             "examples/multi_gpu_host.sh, or --distributed under SLURM.")
+            announcement += ("\nNote: one process driving several GPUs on MuJoCo Warp is measured over whole runs on "
+                             "2 H100s but for 10 cycles only on 4 (3.87x); one process per GPU is measured over whole "
+                             "runs on 2 and 4 (3.94x on 4 H100s): examples/multi_gpu_host.sh, or --distributed under "
+                             "SLURM.")
     try:
         # The wake-up fd first: a signal that finds the stop handlers installed then also reaches the watcher.
         with _preparation(run_dir, new) as prepared, _stop_requests() as stop:
