@@ -37,14 +37,23 @@ def visual_area(agent: Agent) -> tuple[nn.Module, Any]:
 
 def conv_layers(agent: Agent) -> list[str]:
     """Names of the visual area's convolutions in the order images pass them (e.g. V1, V2, V4, IT for cornet_z)."""
+    return list(_convolutions(agent, jnp.zeros((1, *_camera_size(agent), 3), jnp.uint8)))
+
+
+def _convolutions(agent: Agent, images: jax.Array) -> dict[str, jax.Array]:
+    """Each convolution's output for `images`, in the order of the calls, not of the parameters: a restored
+    checkpoint holds them sorted by name (IT before V1). Applied eagerly, since JAX's tree functions would sort the
+    captured layers by name too."""
     module, params = visual_area(agent)
-    # The order of calls, not of the parameters: a restored checkpoint holds them sorted by name (IT before V1).
-    # Applied eagerly: JAX's tree functions would sort the captured layers by name too.
+    _, captured = module.apply({"params": params}, images, capture_intermediates=True, mutable=["intermediates"])
+    return {name: outputs["__call__"][0] for name, outputs in captured["intermediates"].items()
+            if np.ndim(params.get(name, {}).get("kernel", 0)) == 4}
+
+
+def _camera_size(agent: Agent) -> tuple[int, int]:
+    """(height, width) of the agent's camera images (64 x 64 where its config names none)."""
     vision = agent.config.env.options.get("vision") or {}
-    blank = jnp.zeros((1, vision.get("height", 64), vision.get("width", 64), 3), jnp.uint8)
-    _, captured = module.apply({"params": params}, blank, capture_intermediates=True, mutable=["intermediates"])
-    return [name for name in captured["intermediates"]
-            if np.ndim(params.get(name, {}).get("kernel", 0)) == 4]
+    return vision.get("height", 64), vision.get("width", 64)
 
 
 def first_layer_filters(agent: Agent) -> np.ndarray:
@@ -57,11 +66,7 @@ def first_layer_filters(agent: Agent) -> np.ndarray:
 def feature_maps(agent: Agent, images: np.ndarray) -> dict[str, np.ndarray]:
     """Each convolution's output (before its ReLU) for `images` `(N, height, width, 3)` uint8: layer ->
     `(N, h, w, channels)`."""
-    module, params = visual_area(agent)
-    _, captured = module.apply({"params": params}, jnp.asarray(images), capture_intermediates=True,
-                               mutable=["intermediates"])
-    layers = captured["intermediates"]
-    return {name: np.asarray(layers[name]["__call__"][0]) for name in conv_layers(agent)}
+    return {name: np.asarray(output) for name, output in _convolutions(agent, jnp.asarray(images)).items()}
 
 
 def saliency(agent: Agent, images: np.ndarray, unit: int | None = None,
@@ -105,8 +110,7 @@ def preferred_stimuli(agent: Agent, layer: str, units: list[int] | np.ndarray, s
     if layer != "output" and layer not in conv_layers(agent):
         raise ValueError(f"No convolution {layer!r} in the visual area; choose one of {conv_layers(agent)} or "
                          "'output'.")
-    vision = agent.config.env.options.get("vision") or {}
-    height, width = size or (vision.get("height", 64), vision.get("width", 64))
+    height, width = size or _camera_size(agent)
     units = np.asarray(units, int)
 
     def activations(pixels: jax.Array) -> jax.Array:

@@ -41,6 +41,7 @@ from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch, batch_functions, rowwise
 from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.config import to_dict
+from angora_jax.experiment.run_dir import numbered_paths
 from angora_jax.ppo.evaluate import make_evaluate
 
 EVALUATION_DIR = "evaluation"
@@ -316,8 +317,7 @@ def save_evaluation(result: Evaluation, directory: Path) -> Evaluation:
     stem += "-batched" if meta.get("path") == "batched" else ""
     stem += "-changed" if meta.get("env_overrides") else ""
     record = {**meta, "summary": result.summary, "per_episode": {k: v.tolist() for k, v in result.episodes.items()}}
-    for suffix in ("", *(f"-{i}" for i in range(2, 10_000))):
-        json_path = directory / f"{stem}{suffix}.json"
+    for json_path in numbered_paths(directory, stem, ".json"):
         try:
             with json_path.open("x") as file:  # "x": fails instead of overwriting an earlier evaluation
                 json.dump(record, file, indent=1)

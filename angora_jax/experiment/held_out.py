@@ -30,11 +30,15 @@ def held_out_evaluation(config: Config, env: Env) -> Callable[[TrainState], dict
     device = jax.local_devices()[0]
 
     def evaluate(state: TrainState) -> dict[str, float]:
-        cycle = int(host_copy(state.cycle))
-        if cycle % settings.every and cycle != config.ppo.num_cycles:
+        if not is_due(int(host_copy(state.cycle)), settings.every, config.ppo.num_cycles):
             return {}
         policy = PolicyState(params=state.params, obs_stats=state.obs_stats, cycle=state.cycle)
         values = jax.device_get(run_episodes(jax.device_put(host_copy(policy), device), key))
         return {f"eval/{name}": float(value) for name, value in values.items()}
 
     return evaluate
+
+
+def is_due(cycle: int, every: int, last: int) -> bool:
+    """Whether a task run every `every` cycles and after the `last` (an evaluation, a video) is due after `cycle`."""
+    return cycle % every == 0 or cycle == last

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import yaml
@@ -97,5 +98,14 @@ def read_sessions(run_dir: str | Path) -> list[dict]:
 def latest_video(run_dir: str | Path) -> Path | None:
     """The run's video of its latest cycle (`evaluation.video`; of two for one cycle, which a resume that repeated
     cycles makes, the later), or None when it has none."""
-    videos = sorted(Path(run_dir, VIDEOS).glob("cycle_*.gif"), key=lambda p: (p.stem[:12], p.stat().st_mtime))
+    videos = sorted(Path(run_dir, VIDEOS).glob("cycle_*.gif"),
+                    key=lambda p: (p.stem.partition("-")[0], p.stat().st_mtime))
     return videos[-1] if videos else None
+
+
+def numbered_paths(directory: Path, stem: str, extension: str) -> Iterator[Path]:
+    """`directory/<stem><extension>`, then the same with `-2`, `-3`, ... `-9999` before the extension: the names to
+    try, in order, for a file that must not overwrite an earlier one (evaluations, videos)."""
+    yield directory / f"{stem}{extension}"
+    for number in range(2, 10_000):
+        yield directory / f"{stem}-{number}{extension}"

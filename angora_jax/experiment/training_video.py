@@ -8,7 +8,8 @@ from pathlib import Path
 
 from angora_jax.experiment.agent import Agent, acting_parts
 from angora_jax.experiment.config import Config
-from angora_jax.experiment.run_dir import VIDEOS
+from angora_jax.experiment.held_out import is_due
+from angora_jax.experiment.run_dir import VIDEOS, numbered_paths
 from angora_jax.experiment.video import render_episodes, write_video
 from angora_jax.ppo.cycle import TrainState
 from angora_jax.ppo.evaluate import PolicyState
@@ -26,23 +27,18 @@ def training_videos(config: Config, run_dir: Path) -> Callable[[TrainState], Pat
 
     def video(state: TrainState) -> Path | None:
         cycle = int(host_copy(state.cycle))
-        if cycle % settings.every and cycle != config.ppo.num_cycles:
+        if not is_due(cycle, settings.every, config.ppo.num_cycles):
             return None
         policy = PolicyState(params=host_copy(state.params), obs_stats=host_copy(state.obs_stats),
                              cycle=host_copy(state.cycle))
         agent = Agent(config, env, network, head, policy, cycle, compiled)
         frames, dt = render_episodes(agent, None, camera=settings.camera, width=settings.width,
                                      height=settings.height, seed=config.evaluation.seed, max_steps=settings.steps)
-        return write_video(frames, _free_path(run_dir / VIDEOS, f"cycle_{cycle:06d}"), 1.0 / dt)
+        # A resumed run repeats the cycles after its checkpoint: a repeated cycle's video goes beside the first.
+        names = numbered_paths(run_dir / VIDEOS, f"cycle_{cycle:06d}", ".gif")
+        out = next((path for path in names if not path.exists()), None)
+        if out is None:
+            raise FileExistsError(f"{run_dir / VIDEOS} holds 10,000 videos of cycle {cycle}; move some away.")
+        return write_video(frames, out, 1.0 / dt)
 
     return video
-
-
-def _free_path(directory: Path, stem: str) -> Path:
-    """`directory/stem.gif`, or with a `-2`, `-3`, ... suffix when taken (a resumed run repeats the cycles after its
-    checkpoint): nothing is overwritten."""
-    for suffix in ("", *(f"-{i}" for i in range(2, 10_000))):
-        path = directory / f"{stem}{suffix}.gif"
-        if not path.exists():
-            return path
-    raise FileExistsError(f"{directory} holds 10,000 videos named {stem}; move some away.")
