@@ -2,15 +2,21 @@
 exactly as the run's own agent does; bad files and an existing output are refused."""
 
 import shutil
+import sys
 
 import jax
 import numpy as np
 import pytest
+from benchmark_results import BENCHMARKS, results
 from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.cli import main
 from angora_jax.experiment import RunDirError
+from angora_jax.experiment.export import export_policy
+
+sys.path.insert(0, str(BENCHMARKS))
+import exported_policy  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -56,3 +62,21 @@ def test_export_never_overwrites_and_load_policy_refuses_other_files(lstm_run, t
         aj.load_policy(taken)
     with pytest.raises(FileNotFoundError, match="angora-jax export RUN_DIR --out FILE"):
         aj.load_policy(tmp_path / "missing.msgpack")
+
+
+def test_the_exported_policy_benchmark_reproduces_evaluates_episodes_in_a_loop_of_its_own(lstm_run, tmp_path):
+    policy_file = tmp_path / "policy.msgpack"
+    export_policy(lstm_run, policy_file)
+    cpu = aj.evaluate(lstm_run, episodes=12, save=True)
+    with pytest.raises(SystemExit, match="not a deterministic batched evaluation"):
+        exported_policy.main([str(policy_file), str(cpu.json_path), "--out", str(tmp_path / "refused.json")])
+    batched = aj.evaluate(lstm_run, episodes=12, path="batched", save=True)
+    out = tmp_path / "exported.json"
+    exported_policy.main([str(policy_file), str(batched.json_path), "--out", str(out)])
+    record = results(out, "exported_policy")
+    assert record["config"]["episodes"] == 12 and record["config"]["cycle"] == 2
+    rows = {row["quantity"]: row for row in record["results"]}
+    assert set(rows) == {"episode_return", "episode_length"}
+    for row in rows.values():  # CartPole on the CPU: the plain loop rounds as evaluate's program does
+        assert row["equal_episodes"] == 1.0 and row["agree"] and row["exported"] == row["evaluate"]
+    assert np.ptp(batched.episodes["episode_length"]) > 0, "episodes differ: the comparison is not of constants"
