@@ -22,7 +22,7 @@ run: $(BIN)/.installed
 
 test: $(BIN)/.installed
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q -rs -n auto --dist loadfile --durations=15
+	$(BIN)/python -m pytest -q -rs -n auto --dist loadfile --no-loadscope-reorder --durations=15
 
 lint: $(BIN)/.installed
 	$(BIN)/ruff check .
