@@ -41,7 +41,7 @@ class ReachReward(Coefficients):
     force_multiplier: weight of the squared actuator forces (wrist excluded), a metabolic cost.
     auxiliary_zone_radius: freereach only; non-target fingertips closer than this to the thumb are penalised.
     auxiliary_penalty_multiplier: freereach only; penalty per metre of intrusion into that zone.
-    stay_probability: reach only; share of episodes whose goal is to hold the initial pose.
+    stay_probability: reach without a sequence only; share of episodes whose goal is to hold the initial pose.
     """
 
     success_distance: float = 0.02
