@@ -36,6 +36,14 @@ def test_a_sequence_is_reproducible_per_key_differs_across_keys_and_never_repeat
     assert set(drawn.ravel()) == {0, 1, 2, 3}
 
 
+def test_angorapys_free_sequence_is_the_fixed_order_in_every_episode():
+    env = aj.make("ShadowHandFreeReachSequential", backend="cpu", sequence_length=6)
+    for k in range(3):
+        np.testing.assert_array_equal(env.reset(jax.random.key(k)).info["sequence"], [0, 1, 2, 3, 0, 1])
+    drawn = aj.make("ShadowHandFreeReachSequential", backend="cpu", sequence_order="random").reset(jax.random.key(0))
+    assert not np.array_equal(drawn.info["sequence"], [0, 1, 2, 3]), "key 0 draws another order"
+
+
 @pytest.mark.parametrize("task", ["ShadowHandReachSequential", "ShadowHandFreeReachSequential"])
 def test_the_goal_advances_exactly_when_the_target_is_reached(task):
     """Under small random actions and a 7 cm success distance, first and middle finger start within reach of the
@@ -86,6 +94,10 @@ def test_bad_sequence_options_are_refused():
         aj.make("ShadowHandFreeReachSequential", backend="cpu", target_finger="RF")
     with pytest.raises(ValueError, match=r"Unknown target_finger 'TH'"):
         aj.make("ShadowHandReachSequential", backend="cpu", target_finger="TH")
+    with pytest.raises(ValueError, match=r"Unknown sequence_order 'sorted'.*\('random', 'fixed'\)"):
+        aj.make("ShadowHandReachSequential", backend="cpu", sequence_order="sorted")
+    with pytest.raises(ValueError, match="sequence_order='fixed'.*give sequence_length too"):
+        aj.make("ShadowHandReach", backend="cpu", sequence_order="fixed")
 
 
 def test_mjx_and_cpu_paths_agree_on_the_sequence():

@@ -30,6 +30,8 @@ NUM_TARGET_FINGERS = 4
 TARGET_FINGERS = ("FF", "MF", "RF", "LF")
 # Gym HandReach's meeting point relative to the palm (m), for the hand's pose in reach.xml; fingers point to -y.
 MEETING_OFFSET = (0.0, -0.09, 0.05)
+# How a sequential task orders its targets (`Reach`'s sequence_order).
+SEQUENCE_ORDERS = ("random", "fixed")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,6 +69,8 @@ class Reach(HandTask):
     advances to the next finger on the step the current one is reached (`success`). The episode terminates when the
     last one is reached. Extra metrics: `sequence_steps` (targets reached so far this episode) and
     `sequence_success` (1 once all `sequence_length` targets are reached).
+    sequence_order: "random" (the fingers drawn as above, AngoraPy's ReachSequential) or "fixed" (FF, MF, RF, LF,
+    FF, ... in every episode, AngoraPy's FreeReachSequential with its default exemplary sequence).
     """
 
     metric_names = ("success", "goal_distance")
@@ -74,7 +78,7 @@ class Reach(HandTask):
 
     def __init__(self, model: mujoco.MjModel, reward: ReachReward = ReachReward(), free: bool = False,
                  control: str = "position", vision: CameraVision | None = None, target_finger: str | None = None,
-                 freeze_wrist: bool = False, sequence_length: int | None = None):
+                 freeze_wrist: bool = False, sequence_length: int | None = None, sequence_order: str = "random"):
         super().__init__(model, control=control, vision=vision, freeze_wrist=freeze_wrist)
         if target_finger is not None and target_finger not in TARGET_FINGERS:
             raise ValueError(f"Unknown target_finger {target_finger!r}; choose one of {TARGET_FINGERS} (first, "
@@ -90,13 +94,22 @@ class Reach(HandTask):
                                  f"{sequence_length} draws a sequence of different fingers; give target_finger=None "
                                  "or sequence_length=None.")
             self.metric_names = self.metric_names + self.sequence_metric_names
+        if sequence_order not in SEQUENCE_ORDERS:
+            raise ValueError(f"Unknown sequence_order {sequence_order!r}; choose one of {SEQUENCE_ORDERS}.")
+        if sequence_order == "fixed" and sequence_length is None:
+            raise ValueError("sequence_order='fixed' orders a sequence of targets; give sequence_length too, e.g. "
+                             "sequence_length=4.")
         self.reward_config = reward
         self.free = free
         self.target_finger = target_finger
         self.sequence_length = sequence_length
+        self.sequence_order = sequence_order
 
     def draw_sequence(self, key: jax.Array) -> jax.Array:
-        """`sequence_length` target finger indices (int32, in 0..3), uniform, each differing from the one before."""
+        """`sequence_length` target finger indices (int32, in 0..3): with `sequence_order` "random" uniform, each
+        differing from the one before; with "fixed" 0, 1, 2, 3, 0, ... whatever the key."""
+        if self.sequence_order == "fixed":
+            return jnp.arange(self.sequence_length, dtype=jnp.int32) % NUM_TARGET_FINGERS
         first_key, shift_key = jax.random.split(key)
         first = jax.random.randint(first_key, (1,), 0, NUM_TARGET_FINGERS)
         # A shift of 1-3 fingers (mod 4) gives each of the three other fingers with equal chance.
