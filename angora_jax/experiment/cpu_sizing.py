@@ -8,7 +8,8 @@ from angora_jax.experiment.config import Config
 # Env steps per second of MJX's JAX implementation on 2 CPU cores (batch 16, the tasks' own physics settings;
 # benchmarks/results/physics_throughput_cpu.json, configs "reach-tuned" and "cube-tuned"). More cores run faster,
 # roughly in proportion.
-CPU_ENV_STEPS_PER_S = {"ShadowHandReach": 1715.0, "ShadowHandFreeReach": 1715.0, "ShadowHandCube": 44.0}
+CPU_ENV_STEPS_PER_S = {"ShadowHandReach": 1715.0, "ShadowHandFreeReach": 1715.0, "ShadowHandCube": 44.0,
+                       "ShadowHandReachSequential": 1715.0, "ShadowHandFreeReachSequential": 1715.0}
 # Past this many env steps per cycle, a task without a measured rate is called GPU-sized.
 GPU_SIZED_STEPS = 65536
 CPU_ENVS = 64

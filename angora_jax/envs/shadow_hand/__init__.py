@@ -1,4 +1,5 @@
-"""Shadow Dexterous Hand tasks, registered as `ShadowHandReach`, `ShadowHandFreeReach` and `ShadowHandCube`."""
+"""Shadow Dexterous Hand tasks, registered as `ShadowHandReach`, `ShadowHandFreeReach`, their sequential variants
+`ShadowHandReachSequential` and `ShadowHandFreeReachSequential`, and `ShadowHandCube`."""
 
 from __future__ import annotations
 
@@ -30,7 +31,8 @@ REACH_PHYSICS = PhysicsSettings(timestep=0.005, iterations=2, ls_iterations=4)
 def make_reach(free: bool = False, reward_preset: str = "default", reward: dict[str, float] | None = None,
                control_dt: float = 0.02, max_episode_steps: int = 100, control: str = "position",
                physics: dict[str, float] | None = None, vision: dict | None = None, target_finger: str | None = None,
-               freeze_wrist: bool = False, backend: str = "mjx") -> Env:
+               freeze_wrist: bool = False, sequence_length: int | None = None, sequence_order: str = "random",
+               backend: str = "mjx") -> Env:
     """Build a reach task. Defaults follow AngoraPy: 0.02 s per policy step, 100 policy steps per episode,
     joint targets set relative to the joints' positions (`control`: see `HandTask`). physics: `PhysicsSettings`
     fields overriding `REACH_PHYSICS` (the Gym scene's own settings are timestep 0.002, iterations 20,
@@ -38,13 +40,18 @@ def make_reach(free: bool = False, reward_preset: str = "default", reward: dict[
     `Sensation.vision` (`envs.cameras.CameraVision` fields, as for the cube), besides the usual inputs.
     reward_preset: a key of `reach.REWARD_PRESETS`, AngoraPy's "default" or "force_punished"; `reward` overrides
     single coefficients of it. target_finger: "FF", "MF", "RF" or "LF" for every episode (AngoraPy's
-    `force_finger`), None to draw one per episode. freeze_wrist: the wrist holds its initial pose (`HandTask`)."""
+    `force_finger`), None to draw one per episode. freeze_wrist: the wrist holds its initial pose (`HandTask`).
+    sequence_length: None for one target per episode, or the number of target fingers an episode asks for in turn
+    (AngoraPy's sequential tasks; `reach.Reach`), with metrics `sequence_steps` and `sequence_success`.
+    sequence_order: "random" (each target drawn among the three fingers other than the previous) or "fixed" (FF,
+    MF, RF, LF, FF, ...)."""
     cameras = CameraVision.from_options(vision)
     settings = REACH_PHYSICS.with_options(physics)
     frame_skip = settings.frame_skip(control_dt)
     scene = load_scene("reach.xml", physics=settings, cameras=cameras.cameras if cameras else ())
     task = Reach(scene, ReachReward.preset(REACH_REWARDS, reward_preset, reward), free=free, control=control,
-                 vision=cameras, target_finger=target_finger, freeze_wrist=freeze_wrist)
+                 vision=cameras, target_finger=target_finger, freeze_wrist=freeze_wrist,
+                 sequence_length=sequence_length, sequence_order=sequence_order)
     return build(backend, task, frame_skip, max_episode_steps, settings)
 
 
@@ -71,6 +78,17 @@ def read_pose_estimator(file: str) -> PoseReader:
 def make_free_reach(**options) -> Env:
     """`make_reach(free=True, ...)`: only the thumb and the target finger need to meet."""
     return make_reach(free=True, **options)
+
+
+def make_reach_sequential(sequence_length: int = 4, **options) -> Env:
+    """AngoraPy's `ReachSequential`: `make_reach(sequence_length=4, ...)`, four target fingers per episode in turn."""
+    return make_reach(sequence_length=sequence_length, **options)
+
+
+def make_free_reach_sequential(sequence_length: int = 4, sequence_order: str = "fixed", **options) -> Env:
+    """AngoraPy's `FreeReachSequential`: `make_reach(free=True, sequence_length=4, sequence_order="fixed", ...)`,
+    FF, MF, RF, LF in every episode as AngoraPy's default exemplary sequence; "random" draws them."""
+    return make_reach(free=True, sequence_length=sequence_length, sequence_order=sequence_order, **options)
 
 
 def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = None, touch: bool = True,
@@ -129,4 +147,6 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
 
 register("ShadowHandReach", make_reach)
 register("ShadowHandFreeReach", make_free_reach)
+register("ShadowHandReachSequential", make_reach_sequential)
+register("ShadowHandFreeReachSequential", make_free_reach_sequential)
 register("ShadowHandCube", make_ihom)
