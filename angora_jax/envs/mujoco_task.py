@@ -19,6 +19,7 @@ from flax import struct
 
 from angora_jax.envs.cameras import CameraVision
 from angora_jax.envs.core import ActionSpec, Env, Sensation, State
+from angora_jax.envs.randomization import ModelRandomizer
 
 MJX_IMPLS = ("jax", "warp")
 # Name of the MJCF custom text that names a model's MJX implementation: the compiled model is what the MJX path and
@@ -99,6 +100,9 @@ class MujocoTask(abc.ABC):
     # Whether `perceive` passes the camera frames on as the vision modality (the policy sees images), or the task
     # reads them into other observations.
     frames_in_vision: bool = True
+    # Domain randomization (`envs.randomization`): model fields drawn per environment at reset, action and observation
+    # noise per step; both physics paths apply it. None: the task as its model says.
+    randomizer: ModelRandomizer | None = None
 
     @property
     def snapshot_fields(self) -> tuple[str, ...]:
@@ -241,23 +245,27 @@ def _model_text(model: mujoco.MjModel, name: str) -> str:
 
 
 def start_physics(task: MujocoTask, qpos: np.ndarray, data: mujoco.MjData | None = None,
-                  qvel: np.ndarray | None = None) -> mujoco.MjData:
+                  qvel: np.ndarray | None = None, model: mujoco.MjModel | None = None) -> mujoco.MjData:
     """C MuJoCo data at an episode's start: `qpos` (and `qvel`, else at rest) set, kinematics computed, `ctrl` as
-    `task.initial_control` says. Resets and reuses `data` when given."""
+    `task.initial_control` says. Resets and reuses `data` when given; `model` replaces `task.model` (a randomized
+    copy of it)."""
+    model = task.model if model is None else model
     if data is None:
-        data = mujoco.MjData(task.model)
-    mujoco.mj_resetData(task.model, data)
+        data = mujoco.MjData(model)
+    mujoco.mj_resetData(model, data)
     data.qpos[:] = qpos
     if qvel is not None:
         data.qvel[:] = qvel
-    mujoco.mj_forward(task.model, data)
+    mujoco.mj_forward(model, data)
     data.ctrl[:] = np.asarray(task.initial_control(task.snapshot(data)), np.float64)
     return data
 
 
-def step_physics(task: MujocoTask, data: mujoco.MjData, frame_skip: int) -> None:
-    """Advance C MuJoCo `data` by `frame_skip` physics steps of `task`'s model (one policy step), then compute its
-    `cfrc_ext` when the task reads it (`MujocoTask.body_dynamics`), as Gymnasium's MuJoCo environments do."""
-    mujoco.mj_step(task.model, data, nstep=frame_skip)
+def step_physics(task: MujocoTask, data: mujoco.MjData, frame_skip: int, model: mujoco.MjModel | None = None) -> None:
+    """Advance C MuJoCo `data` by `frame_skip` physics steps of `task`'s model or of `model` (a randomized copy of it),
+    one policy step, then compute its `cfrc_ext` when the task reads it (`MujocoTask.body_dynamics`), as Gymnasium's
+    MuJoCo environments do."""
+    model = task.model if model is None else model
+    mujoco.mj_step(model, data, nstep=frame_skip)
     if task.body_dynamics:
-        mujoco.mj_rnePostConstraint(task.model, data)
+        mujoco.mj_rnePostConstraint(model, data)

@@ -1,0 +1,149 @@
+"""Domain randomization of the hand tasks (`envs.randomization`): ranges are checked before anything compiles, a draw
+is per environment and per key, zero-width ranges give the unrandomized task bit for bit, randomized fields change
+the physics on both MJX implementations (Warp reading one world's fields per environment), and the C MuJoCo twin
+simulates the same worlds for the same key.
+
+Warp's CPU kernels compile in seconds, so most tests run on Warp; one runs on MJX's JAX implementation."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from quick_compile import compile_quickly
+
+import angora_jax as aj
+from angora_jax.envs.randomization import INFO_KEY
+
+BATCH, STEPS = 3, 6
+# Converged solves, so that Warp and C MuJoCo agree within test_warp.py's tolerance (2e-3 rad).
+WARP = {"impl": "warp", "iterations": 50, "ls_iterations": 50}
+WIDE = {"friction": [0.2, 2.0], "joint_damping": [0.2, 5.0], "armature": [0.5, 2.0], "actuator_gain": [0.3, 3.0],
+        "action_noise": 0.1, "observation_noise": 0.01}
+ZERO_WIDTH = {"friction": [1, 1], "joint_damping": [1, 1], "armature": [1, 1], "actuator_gain": [1, 1],
+              "action_noise": 0, "observation_noise": 0}
+
+
+def rollout(env):
+    """`run(keys, actions)`: the batch's first states and its states after each of `STEPS` steps, jitted."""
+    sized = env.sized_for(BATCH)
+
+    @jax.jit
+    def run(keys, actions):
+        first = jax.vmap(sized.reset)(keys)
+        return first, jax.lax.scan(lambda s, a: (jax.vmap(sized.step)(s, a),) * 2, first, actions)[1]
+
+    return run
+
+
+@pytest.fixture(scope="module")
+def inputs():
+    keys = jax.random.split(jax.random.key(3), BATCH)
+    actions = jnp.asarray(np.random.default_rng(0).uniform(-1, 1, (STEPS, BATCH, 20)), jnp.float32)
+    return keys, actions
+
+
+@pytest.fixture(scope="module")
+def warp_runs(inputs):
+    """Reach on Warp unrandomized, with zero-width ranges and with wide ranges: (env, first states, states)."""
+    runs = {}
+    for name, ranges in {"plain": None, "zero": ZERO_WIDTH, "wide": WIDE}.items():
+        env = aj.make("ShadowHandReach", physics=WARP, randomization=ranges)
+        runs[name] = (env, *rollout(env)(*inputs))
+    return runs
+
+
+@pytest.mark.parametrize("ranges, message", [
+    ({"friction": [-0.5, 1.0]}, "randomization.friction .* minimum must be >= 0"),
+    ({"joint_damping": [2.0, 1.0]}, "randomization.joint_damping's minimum 2.0 is above its maximum 1.0"),
+    ({"frction": [0.5, 1.0]}, "Unknown randomization key 'frction'"),
+    ({"cube_mass": [0.5, 1.5]}, "randomization.cube_mass applies to the cube task only"),
+    ({"armature": 1.5}, r"randomization.armature is a range of scale factors: give \[lo, hi\]"),
+    ({"action_noise": -0.1}, "randomization.action_noise is a standard deviation"),
+])
+def test_bad_ranges_are_refused_before_compiling_with_the_key_named(ranges, message):
+    with pytest.raises(ValueError, match=message):
+        aj.make("ShadowHandReach", randomization=ranges)
+
+
+def test_the_cube_refuses_a_mass_that_is_not_positive():
+    with pytest.raises(ValueError, match="randomization.cube_mass scales the cube's mass: its minimum must be > 0"):
+        aj.make("ShadowHandCube", randomization={"cube_mass": [0.0, 1.0]})
+
+
+def test_a_draw_differs_per_environment_and_is_reproducible_per_key(warp_runs, inputs):
+    env, first, _ = warp_runs["wide"]
+    draws = first.info[INFO_KEY]
+    assert set(draws) == {"geom_friction", "dof_damping", "dof_armature", "actuator_gainprm", "actuator_biasprm"}
+    friction = np.asarray(draws["geom_friction"][:, 0, 0])
+    assert len(set(friction.tolist())) == BATCH and (0.2 <= friction).all() and (friction <= 2.0).all()
+    again = jax.jit(jax.vmap(env.sized_for(BATCH).reset))(inputs[0])
+    jax.tree.map(np.testing.assert_array_equal, again.info[INFO_KEY], draws)
+    zero = warp_runs["zero"][1].info[INFO_KEY]
+    assert all(bool((factors == 1).all()) for factors in jax.tree.leaves(zero)), "zero width at 1 draws exactly 1"
+
+
+def test_zero_width_ranges_give_the_unrandomized_task_bit_for_bit_on_warp(warp_runs):
+    _, plain_first, plain = warp_runs["plain"]
+    _, zero_first, zero = warp_runs["zero"]
+    for a, b in ((plain_first, zero_first), (plain, zero)):
+        np.testing.assert_array_equal(a.physics.qpos, b.physics.qpos)
+        np.testing.assert_array_equal(a.physics.qvel, b.physics.qvel)
+        jax.tree.map(np.testing.assert_array_equal, a.obs, b.obs)
+        np.testing.assert_array_equal(a.reward, b.reward)
+
+
+def test_warp_simulates_each_environment_with_its_own_fields(warp_runs, inputs):
+    """Randomized fields change the trajectory, and each environment of a Warp batch reads its own world's fields:
+    with the keys' order reversed every environment's trajectory is the same, only in reversed place (had Warp read
+    one world's fields for all, the environments would swap worlds)."""
+    env, _, wide = warp_runs["wide"]
+    _, _, plain = warp_runs["plain"]
+    assert float(jnp.abs(wide.physics.qpos[-1] - plain.physics.qpos[-1]).max()) > 0.05
+    keys, actions = inputs
+    _, reversed_run = rollout(env)(keys[::-1], actions[:, ::-1])
+    np.testing.assert_allclose(reversed_run.physics.qpos[:, ::-1], wide.physics.qpos, atol=1e-5)
+
+
+def test_the_cpu_twin_simulates_the_same_worlds_for_the_same_key(warp_runs, inputs):
+    _, first, wide = warp_runs["wide"]
+    _, _, plain = warp_runs["plain"]
+    cpu = aj.make("ShadowHandReach", physics=WARP, randomization=WIDE, backend="cpu")
+    keys, actions = inputs
+    for b in range(BATCH):
+        twin = cpu.reset(keys[b])
+        row = jax.tree.map(lambda x, b=b: x[b], first.info[INFO_KEY])
+        jax.tree.map(np.testing.assert_array_equal, row, twin.info[INFO_KEY])
+        np.testing.assert_allclose(first.obs.proprioception[b], twin.obs.proprioception, atol=1e-5)
+        for t in range(STEPS):
+            twin = cpu.step(twin, actions[t, b])
+            np.testing.assert_allclose(wide.final_obs.proprioception[t, b], twin.obs.proprioception, atol=2e-3)
+        assert float(jnp.abs(plain.physics.qpos[-1, b] - twin.physics.qpos).max()) > 0.02, "the twin is randomized"
+
+
+def test_randomized_fields_change_mjx_jax_physics_and_ones_give_the_unrandomized_task_bit_for_bit(inputs):
+    """On MJX's JAX implementation (compiled once for the randomized task, once for the plain one): the drawn factors
+    change the trajectory, and factors of exactly 1 (what zero-width ranges draw) give the plain task's states."""
+    keys, actions = inputs
+    ranges = {k: v for k, v in WIDE.items() if not k.endswith("noise")}
+    randomized = aj.make("ShadowHandReach", physics={"impl": "jax"}, randomization=ranges)
+    plain = aj.make("ShadowHandReach", physics={"impl": "jax"})
+
+    def compiled(env):
+        first = jax.vmap(env.reset)(keys)
+        return first, compile_quickly(jax.vmap(env.step), first, actions[0])
+
+    def run(first, step):
+        states = []
+        for action in actions:
+            first = step(first, action)
+            states.append(first)
+        return jax.tree.map(lambda *s: jnp.stack(s), *states)
+
+    first, step = compiled(randomized)
+    drawn = run(first, step)
+    ones = run(first.replace(info=first.info | {INFO_KEY: jax.tree.map(jnp.ones_like, first.info[INFO_KEY])}), step)
+    unrandomized = run(*compiled(plain))
+    assert float(jnp.abs(drawn.physics.qpos[-1] - unrandomized.physics.qpos[-1]).max()) > 0.05
+    np.testing.assert_array_equal(ones.physics.qpos, unrandomized.physics.qpos)
+    np.testing.assert_array_equal(ones.physics.qvel, unrandomized.physics.qvel)
+    np.testing.assert_array_equal(ones.reward, unrandomized.reward)
