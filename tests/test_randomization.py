@@ -19,6 +19,7 @@ BATCH, STEPS = 3, 6
 WARP = {"impl": "warp", "iterations": 50, "ls_iterations": 50}
 WIDE = {"friction": [0.2, 2.0], "joint_damping": [0.2, 5.0], "armature": [0.5, 2.0], "actuator_gain": [0.3, 3.0],
         "action_noise": 0.1, "observation_noise": 0.01}
+FIELDS = {k: v for k, v in WIDE.items() if not k.endswith("noise")}
 ZERO_WIDTH = {"friction": [1, 1], "joint_damping": [1, 1], "armature": [1, 1], "actuator_gain": [1, 1],
               "action_noise": 0, "observation_noise": 0}
 
@@ -44,9 +45,10 @@ def inputs():
 
 @pytest.fixture(scope="module")
 def warp_runs(inputs):
-    """Reach on Warp unrandomized, with zero-width ranges and with wide ranges: (env, first states, states)."""
+    """Reach on Warp unrandomized, with zero-width ranges, with wide ranges and with wide ranges of the model's fields
+    only (no noise): (env, first states, states)."""
     runs = {}
-    for name, ranges in {"plain": None, "zero": ZERO_WIDTH, "wide": WIDE}.items():
+    for name, ranges in {"plain": None, "zero": ZERO_WIDTH, "wide": WIDE, "fields": FIELDS}.items():
         env = aj.make("ShadowHandReach", physics=WARP, randomization=ranges)
         runs[name] = (env, *rollout(env)(*inputs))
     return runs
@@ -96,12 +98,12 @@ def test_warp_simulates_each_environment_with_its_own_fields(warp_runs, inputs):
     """Randomized fields change the trajectory, and each environment of a Warp batch reads its own world's fields:
     with the keys' order reversed every environment's trajectory is the same, only in reversed place (had Warp read
     one world's fields for all, the environments would swap worlds)."""
-    env, _, wide = warp_runs["wide"]
+    env, _, fields = warp_runs["fields"]
     _, _, plain = warp_runs["plain"]
-    assert float(jnp.abs(wide.physics.qpos[-1] - plain.physics.qpos[-1]).max()) > 0.05
+    assert float(jnp.abs(fields.physics.qpos[-1] - plain.physics.qpos[-1]).max()) > 0.05
     keys, actions = inputs
     _, reversed_run = rollout(env)(keys[::-1], actions[:, ::-1])
-    np.testing.assert_allclose(reversed_run.physics.qpos[:, ::-1], wide.physics.qpos, atol=1e-5)
+    np.testing.assert_allclose(reversed_run.physics.qpos[:, ::-1], fields.physics.qpos, atol=1e-5)
 
 
 def test_the_cpu_twin_simulates_the_same_worlds_for_the_same_key(warp_runs, inputs):
@@ -124,8 +126,7 @@ def test_randomized_fields_change_mjx_jax_physics_and_ones_give_the_unrandomized
     """On MJX's JAX implementation (compiled once for the randomized task, once for the plain one): the drawn factors
     change the trajectory, and factors of exactly 1 (what zero-width ranges draw) give the plain task's states."""
     keys, actions = inputs
-    ranges = {k: v for k, v in WIDE.items() if not k.endswith("noise")}
-    randomized = aj.make("ShadowHandReach", physics={"impl": "jax"}, randomization=ranges)
+    randomized = aj.make("ShadowHandReach", physics={"impl": "jax"}, randomization=FIELDS)
     plain = aj.make("ShadowHandReach", physics={"impl": "jax"})
 
     def compiled(env):
