@@ -5,14 +5,20 @@ simulates the same worlds for the same key.
 
 Warp's CPU kernels compile in seconds, so most tests run on Warp; one runs on MJX's JAX implementation."""
 
+import json
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from quick_compile import compile_quickly
+from tiny import TINY_PPO
 
 import angora_jax as aj
+from angora_jax.cli import main
 from angora_jax.envs.randomization import INFO_KEY
+from angora_jax.experiment.evaluation import evaluate
 
 BATCH, STEPS = 3, 6
 # Converged solves, so that Warp and C MuJoCo agree within test_warp.py's tolerance (2e-3 rad).
@@ -148,3 +154,21 @@ def test_randomized_fields_change_mjx_jax_physics_and_ones_give_the_unrandomized
     np.testing.assert_array_equal(ones.physics.qpos, unrandomized.physics.qpos)
     np.testing.assert_array_equal(ones.physics.qvel, unrandomized.physics.qvel)
     np.testing.assert_array_equal(ones.reward, unrandomized.reward)
+
+
+def test_evaluate_runs_a_policy_under_randomization_given_as_an_env_option(tmp_path, capsys):
+    """`angora-jax evaluate --env-option randomization=...` on the batched path (Warp) plays the saved reach policy in
+    randomized worlds, recorded as a changed task; the C MuJoCo batch of the CPU path refuses it, naming the fix."""
+    run = aj.train("shadow_reach", [*TINY_PPO, "ppo.num_cycles=1", "env.options.physics={impl: warp}",
+                                    "env.options.max_episode_steps=20", "logging.progress=none",
+                                    "logging.report=false", "checkpoint.best_metric=null",
+                                    f"logging.run_root={tmp_path}", "logging.run_name=reach"]).run_dir
+    option = "randomization={friction: [0.5, 1.5], actuator_gain: [0.8, 1.2], observation_noise: 0.01}"
+    args = ["evaluate", str(run), "--checkpoint", "latest", "--episodes", "2", "--path", "batched"]
+    assert main([*args, "--env-option", option]) == 0
+    path = Path(capsys.readouterr().out.split("Written: ")[1].split(" and ")[0])
+    written = json.loads(path.read_text())
+    assert "-changed" in path.name
+    assert written["task_options"]["randomization"]["friction"] == [0.5, 1.5]
+    with pytest.raises(ValueError, match="--path batched"):
+        evaluate(run, "latest", episodes=2, save=False, env_overrides=[option])

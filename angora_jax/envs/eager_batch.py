@@ -62,6 +62,10 @@ def batch_functions(env: Env) -> tuple[Env, dict[str, Callable[..., Any]]]:
     batches (`EagerBatch(..., compiled=)`) and they compile once."""
     env = eager(env)
     functions = {"insert": jax.jit(_insert)}
+    if isinstance(env, CpuEnv) and env.task.randomizer is not None:
+        # Its slots step one shared model; one `CpuEnv` and the batched path draw the model per environment.
+        raise ValueError("Domain randomization (env.options.randomization) does not run on the C MuJoCo batch of the "
+                         "CPU evaluation path yet: evaluate with path='batched' (--path batched).")
     if isinstance(env, CpuEnv):
         after_physics = _AfterPhysics(env.task, env.frame_skip, env.max_episode_steps)
 
