@@ -19,7 +19,6 @@ from angora_jax.envs.cameras import HostCameras
 from angora_jax.envs.core import Env, Sensation, State
 from angora_jax.envs.mjx_env import MjxEnv
 from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, Snapshot, start_physics, step_physics
-from angora_jax.envs.randomization import INFO_KEY
 
 
 class CpuEnv(MujocoEnv):
@@ -33,14 +32,11 @@ class CpuEnv(MujocoEnv):
         self.data = mujoco.MjData(self.model)
         self._initial_qpos = jax.jit(task.initial_qpos)
         self._initial_qvel = jax.jit(task.initial_qvel)
-        self._begin = jax.jit(task.begin)
-        self._advance = jax.jit(task.advance)
-        self._control = jax.jit(task.control)
+        self._begin = jax.jit(self._begin_task)
+        self._advance = jax.jit(self._advance_task)
+        self._control = jax.jit(lambda action, key, snap: task.control(self._acted(action, key), snap))
         self._perceive = jax.jit(task.perceive)
-        if task.randomizer is not None:
-            self._draw = jax.jit(task.randomizer.draw)
-            self._noisy_action = jax.jit(task.randomizer.noisy_action)
-            self._noisy_observation = jax.jit(task.randomizer.noisy_observation)
+        self._draw = None if task.randomizer is None else jax.jit(task.randomizer.draw)
         self._last: State | None = None
         # Camera vision is rendered with OpenGL from the C MuJoCo data (`envs.cameras`).
         self.cameras = None if task.vision is None else HostCameras(self.model, task.vision)
@@ -53,32 +49,23 @@ class CpuEnv(MujocoEnv):
 
     def _reset(self, key: jax.Array) -> tuple[Snapshot, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)
-        randomizer = self.task.randomizer
-        if randomizer is not None:  # the factors MjxEnv draws from the same key
+        factors = {}
+        if self._draw is not None:  # the factors MjxEnv draws from the same key
             factors = self._draw(key)
-            randomizer.write(self.model, factors)
+            self.task.randomizer.write(self.model, factors)
         qvel = None  # a fixed start is at rest (`MujocoTask.initial_qvel`)
         if self.task.random_initial_qpos:
             qvel = np.asarray(self._initial_qvel(jax.random.fold_in(pose_key, 1)), np.float64)
         start_physics(self.task, np.asarray(self._initial_qpos(pose_key), np.float64), self.data, qvel, self.model)
         snap = self.task.snapshot(self.data)
-        info, obs = self._begin(task_key, snap)
-        if randomizer is not None:
-            info, obs = info | {INFO_KEY: factors}, self._noisy_observation(obs, key)
+        info, obs = self._begin(key, task_key, snap, factors)
         return snap, self.see(obs, self.data, info), info
 
     def _step(self, physics: Snapshot, info: dict[str, jax.Array], action: jax.Array, key: jax.Array):
-        randomizer = self.task.randomizer
-        if randomizer is not None:
-            info = dict(info)
-            factors = info.pop(INFO_KEY)
-            action = self._noisy_action(action, key, self.action_spec.low, self.action_spec.high)
-        self.data.ctrl[:] = np.asarray(self._control(action, physics), np.float64)
+        self.data.ctrl[:] = np.asarray(self._control(action, key, physics), np.float64)
         step_physics(self.task, self.data, self.frame_skip, self.model)
         snap = self.task.snapshot(self.data)
         obs, reward, terminated, info, metrics = self._advance(key, physics, snap, info)
-        if randomizer is not None:
-            info, obs = info | {INFO_KEY: factors}, self._noisy_observation(obs, key)
         return snap, self.see(obs, self.data, info), reward, terminated, info, metrics
 
     def reset(self, key: jax.Array) -> State:

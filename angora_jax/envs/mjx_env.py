@@ -256,29 +256,22 @@ class MjxEnv(MujocoEnv):
             data = data.replace(qpos=qpos, ctrl=self.task.initial_control(self.task.snapshot(data)))
         else:
             data = self._start
-        info, obs = self.task.begin(task_key, self.task.snapshot(data))
-        if randomizer is not None:
-            # The drawn factors ride in the episode's info: the auto-reset replaces them with the next episode's.
-            info, obs = info | {INFO_KEY: factors}, randomizer.noisy_observation(obs, key)
+        # The drawn factors ride in the episode's info: the auto-reset replaces them with the next episode's.
+        info, obs = self._begin_task(key, task_key, self.task.snapshot(data), factors)
         return data, self._unseen(obs), info
 
     def _step(self, physics: mjx.Data, info: dict[str, jax.Array], action: jax.Array, key: jax.Array):
         model, randomizer = self.mjx_model, self.task.randomizer
         if randomizer is not None:
-            info = dict(info)
-            factors = info.pop(INFO_KEY)
-            model = randomizer.apply(model, factors)
-            action = randomizer.noisy_action(action, key, self.action_spec.low, self.action_spec.high)
+            model = randomizer.apply(model, info[INFO_KEY])
         prev = self.task.snapshot(physics)
-        data = physics.replace(ctrl=self.task.control(action, prev))
+        data = physics.replace(ctrl=self.task.control(self._acted(action, key), prev))
         data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(model, d), data)
         # C MuJoCo's `step_physics` calls rne_postconstraint after the last physics step: from the state that step's
         # forward pass left, which is where Warp computed it (`run_rne_postconstraint`); MJX's JAX step does not.
         if self.task.body_dynamics and self.impl == "jax":
             data = mjx.rne_postconstraint(model, data)
-        obs, reward, terminated, info, metrics = self.task.advance(key, prev, self.task.snapshot(data), info)
-        if randomizer is not None:
-            info, obs = info | {INFO_KEY: factors}, randomizer.noisy_observation(obs, key)
+        obs, reward, terminated, info, metrics = self._advance_task(key, prev, self.task.snapshot(data), info)
         return data, self._unseen(obs), reward, terminated, info, metrics
 
     def _select_physics(self, done: jax.Array, fresh: mjx.Data, ended: mjx.Data) -> mjx.Data:
