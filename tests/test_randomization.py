@@ -178,3 +178,22 @@ def test_evaluate_runs_a_policy_under_randomization_given_as_an_env_option(tmp_p
     np.testing.assert_allclose(cpu.episodes["episode_return"], returns, rtol=1e-2)
     plain = evaluate(run, "latest", episodes=2, save=False)
     assert np.abs(plain.episodes["episode_return"] - returns).max() > 0.02 * np.abs(returns).max()
+
+
+def test_the_cube_ranges_scale_only_the_cube_and_change_its_motion_on_warp(inputs):
+    """On the cube, `cube_mass` scales the cube's mass and inertia only, `cube_damping` its free joint's 6 dofs only and
+    `joint_damping` the hand's joints only; a heavier, more damped cube moves otherwise on Warp."""
+    ranges = {"cube_mass": [4.0, 5.0], "cube_damping": [50.0, 60.0], "joint_damping": [2.0, 3.0]}
+    env = aj.make("ShadowHandCube", physics={"impl": "warp"}, randomization=ranges)
+    randomizer = env.task.randomizer
+    factors = randomizer.draw(jax.random.key(0))
+    mass, damping = np.asarray(factors["body_mass"]), np.asarray(factors["dof_damping"])
+    assert np.flatnonzero(mass != 1).tolist() == [randomizer.cube_body] and 4 <= mass[randomizer.cube_body] <= 5
+    np.testing.assert_array_equal(np.asarray(factors["body_inertia"])[randomizer.cube_body], mass[randomizer.cube_body])
+    assert len(randomizer.cube_dofs) == 6 and (damping[randomizer.cube_dofs] >= 50).all()
+    assert ((2 <= damping[randomizer.hand_dofs]) & (damping[randomizer.hand_dofs] <= 3)).all()
+    keys, actions = inputs
+    plain = aj.make("ShadowHandCube", physics={"impl": "warp"})
+    cube = slice(env.task.cube_qpos, env.task.cube_qpos + 7)
+    moved = [rollout(e)(keys, actions)[1].physics.qpos[-1, :, cube] for e in (env, plain)]
+    assert float(jnp.abs(moved[0] - moved[1]).max()) > 1e-3
