@@ -202,7 +202,7 @@ class Env(abc.ABC):
     def advance(self, state: State, action: jax.Array) -> tuple[State, jax.Array]:
         """One step without auto-reset: return the state at the step's end and the key to reset with."""
         action = self.check_action(action)
-        key, step_key, reset_key = jax.random.split(state.key, 3)
+        key, step_key, reset_key = step_keys(state.key)
         physics, obs, reward, terminated, info, metrics = self._step(state.physics, state.info, action, step_key)
         steps = state.steps + 1
         terminated = jnp.asarray(terminated, bool)
@@ -249,3 +249,9 @@ class Env(abc.ABC):
     def observation_shapes(self) -> Sensation:
         """Shapes and dtypes of one observation, as a Sensation of `jax.ShapeDtypeStruct`, without simulating."""
         return jax.eval_shape(self.reset, jax.random.key(0)).obs
+
+
+def step_keys(key: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """A state's key split for one step, as `Env.advance` splits it: (the next state's key, the step's key, the key
+    to reset with)."""
+    return tuple(jax.random.split(key, 3))

@@ -7,6 +7,7 @@ in `Env.reset`/`Env.advance`, so the same key gives the same goals on both paths
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 
 import jax
@@ -26,14 +27,16 @@ class CpuEnv(MujocoEnv):
 
     def __init__(self, task: MujocoTask, frame_skip: int, max_episode_steps: int):
         super().__init__(task, frame_skip, max_episode_steps)
-        self.model = task.model
+        # A randomized task scales its own copy of the model at each reset (`ModelRandomizer.write`).
+        self.model = task.model if task.randomizer is None else copy.deepcopy(task.model)
         self.data = mujoco.MjData(self.model)
         self._initial_qpos = jax.jit(task.initial_qpos)
         self._initial_qvel = jax.jit(task.initial_qvel)
-        self._begin = jax.jit(task.begin)
-        self._advance = jax.jit(task.advance)
-        self._control = jax.jit(task.control)
+        self._begin = jax.jit(self._begin_task)
+        self._advance = jax.jit(self._advance_task)
+        self._control = jax.jit(lambda action, key, snap: task.control(self._acted(action, key), snap))
         self._perceive = jax.jit(task.perceive)
+        self._draw = None if task.randomizer is None else jax.jit(task.randomizer.draw)
         self._last: State | None = None
         # Camera vision is rendered with OpenGL from the C MuJoCo data (`envs.cameras`).
         self.cameras = None if task.vision is None else HostCameras(self.model, task.vision)
@@ -46,17 +49,21 @@ class CpuEnv(MujocoEnv):
 
     def _reset(self, key: jax.Array) -> tuple[Snapshot, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)
+        factors = {}
+        if self._draw is not None:  # the factors MjxEnv draws from the same key
+            factors = self._draw(key)
+            self.task.randomizer.write(self.model, factors)
         qvel = None  # a fixed start is at rest (`MujocoTask.initial_qvel`)
         if self.task.random_initial_qpos:
             qvel = np.asarray(self._initial_qvel(jax.random.fold_in(pose_key, 1)), np.float64)
-        start_physics(self.task, np.asarray(self._initial_qpos(pose_key), np.float64), self.data, qvel)
+        start_physics(self.task, np.asarray(self._initial_qpos(pose_key), np.float64), self.data, qvel, self.model)
         snap = self.task.snapshot(self.data)
-        info, obs = self._begin(task_key, snap)
+        info, obs = self._begin(key, task_key, snap, factors)
         return snap, self.see(obs, self.data, info), info
 
     def _step(self, physics: Snapshot, info: dict[str, jax.Array], action: jax.Array, key: jax.Array):
-        self.data.ctrl[:] = np.asarray(self._control(action, physics), np.float64)
-        step_physics(self.task, self.data, self.frame_skip)
+        self.data.ctrl[:] = np.asarray(self._control(action, key, physics), np.float64)
+        step_physics(self.task, self.data, self.frame_skip, self.model)
         snap = self.task.snapshot(self.data)
         obs, reward, terminated, info, metrics = self._advance(key, physics, snap, info)
         return snap, self.see(obs, self.data, info), reward, terminated, info, metrics

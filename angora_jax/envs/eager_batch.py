@@ -12,6 +12,7 @@ the batch size, the other slots or the number of threads.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
@@ -21,9 +22,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from angora_jax.envs.core import Env, State
+from angora_jax.envs.core import Env, State, step_keys
 from angora_jax.envs.cpu_env import CpuEnv, eager
 from angora_jax.envs.mujoco_task import MujocoEnv, Snapshot, step_physics
+from angora_jax.envs.randomization import INFO_KEY
 
 
 def rowwise(fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -49,7 +51,7 @@ class _AfterPhysics(MujocoEnv):
 
     def _step(self, physics: tuple[Snapshot, Snapshot], info, action, key):
         before, after = physics
-        obs, reward, terminated, info, metrics = self.task.advance(key, before, after, info)
+        obs, reward, terminated, info, metrics = self._advance_task(key, before, after, info)
         return after, obs, reward, terminated, info, metrics
 
 
@@ -65,8 +67,9 @@ def batch_functions(env: Env) -> tuple[Env, dict[str, Callable[..., Any]]]:
     if isinstance(env, CpuEnv):
         after_physics = _AfterPhysics(env.task, env.frame_skip, env.max_episode_steps)
 
-        def control(action: jax.Array, snap: Snapshot) -> jax.Array:
-            return env.task.control(env.check_action(action), snap)
+        def control(state: State, action: jax.Array) -> jax.Array:
+            step_key = step_keys(state.key)[1]  # the key `Env.advance` gives the step (action noise)
+            return env.task.control(env._acted(env.check_action(action), step_key), state.physics)
 
         def finish(state: State, action: jax.Array, after: Snapshot) -> State:
             return after_physics.advance(state.replace(physics=(state.physics, after)), action)[0]
@@ -108,6 +111,9 @@ class EagerBatch:
             self._control, self._finish = functions["control"], functions["finish"]
             self._perceive = functions["perceive"]
             self.datas = [mujoco.MjData(self.env.model) for _ in range(size)]
+            # A randomized task's slots each simulate their own world (`CpuEnv` draws it at reset).
+            randomized = self.env.task.randomizer is not None
+            self.models = [copy.deepcopy(self.env.model) if randomized else self.env.model for _ in range(size)]
             self.workers = min(workers, size)
         else:
             self._advance = functions["advance"]
@@ -120,6 +126,8 @@ class EagerBatch:
         state = jax.device_put(self._reset_one(key), self.device)
         if self.datas:
             mujoco.mj_copyData(self.datas[slot], self.env.model, self.env.data)
+            if self.env.task.randomizer is not None:
+                self.env.task.randomizer.write(self.models[slot], state.info[INFO_KEY])
         if self.states is None:
             self.states = jax.tree.map(lambda x: jnp.stack([x] * self.size), state)
         else:
@@ -136,7 +144,7 @@ class EagerBatch:
         if not self.datas:
             self.states = self._advance(self.states, actions)
             return self.states
-        ctrl = np.asarray(self._control(actions, self.states.physics), np.float64)
+        ctrl = np.asarray(self._control(self.states, actions), np.float64)
         slots = np.flatnonzero(active)
         if self._pool is None:
             self._step_physics(ctrl, slots)
@@ -158,7 +166,7 @@ class EagerBatch:
         for slot in slots:
             data = self.datas[slot]
             data.ctrl[:] = ctrl[slot]
-            step_physics(self.env.task, data, self.env.frame_skip)
+            step_physics(self.env.task, data, self.env.frame_skip, self.models[slot])
 
     def physics(self, slot: int) -> mujoco.MjData:
         """The C MuJoCo data of `slot` (MuJoCo tasks only), e.g. to render it."""

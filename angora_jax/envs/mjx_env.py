@@ -23,6 +23,7 @@ import numpy as np
 from angora_jax.envs.cameras import HostCameras, WarpCameras
 from angora_jax.envs.core import Sensation, State
 from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, mjx_impl, mjx_impl_why, start_physics
+from angora_jax.envs.randomization import INFO_KEY
 
 # Without the optional warp-lang, importing mujoco-mjx prints "Failed to import warp" (twice): nothing failed for the
 # default JAX implementation, so that output is dropped then (impl="warp" still raises `require_warp`'s error).
@@ -244,26 +245,33 @@ class MjxEnv(MujocoEnv):
 
     def _reset(self, key: jax.Array) -> tuple[mjx.Data, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)
+        randomizer = self.task.randomizer
+        factors = {} if randomizer is None else randomizer.draw(key)
         if self._start is None:
             qpos, qvel = self.task.initial_qpos(pose_key), self.task.initial_qvel(jax.random.fold_in(pose_key, 1))
-            data = mjx.forward(self.mjx_model, self._data0.replace(qpos=qpos, qvel=qvel))
+            model = self.mjx_model if randomizer is None else randomizer.apply(self.mjx_model, factors)
+            data = mjx.forward(model, self._data0.replace(qpos=qpos, qvel=qvel))
             # MJX's forward writes free joints' quaternions back normalised, C MuJoCo's (the twin, Gymnasium) does not:
             # the start keeps the drawn qpos as C MuJoCo does (Ant's start draws unnormalised ones).
             data = data.replace(qpos=qpos, ctrl=self.task.initial_control(self.task.snapshot(data)))
         else:
             data = self._start
-        info, obs = self.task.begin(task_key, self.task.snapshot(data))
+        # The drawn factors ride in the episode's info: the auto-reset replaces them with the next episode's.
+        info, obs = self._begin_task(key, task_key, self.task.snapshot(data), factors)
         return data, self._unseen(obs), info
 
     def _step(self, physics: mjx.Data, info: dict[str, jax.Array], action: jax.Array, key: jax.Array):
+        model, randomizer = self.mjx_model, self.task.randomizer
+        if randomizer is not None:
+            model = randomizer.apply(model, info[INFO_KEY])
         prev = self.task.snapshot(physics)
-        data = physics.replace(ctrl=self.task.control(action, prev))
-        data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(self.mjx_model, d), data)
+        data = physics.replace(ctrl=self.task.control(self._acted(action, key), prev))
+        data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(model, d), data)
         # C MuJoCo's `step_physics` calls rne_postconstraint after the last physics step: from the state that step's
         # forward pass left, which is where Warp computed it (`run_rne_postconstraint`); MJX's JAX step does not.
         if self.task.body_dynamics and self.impl == "jax":
-            data = mjx.rne_postconstraint(self.mjx_model, data)
-        obs, reward, terminated, info, metrics = self.task.advance(key, prev, self.task.snapshot(data), info)
+            data = mjx.rne_postconstraint(model, data)
+        obs, reward, terminated, info, metrics = self._advance_task(key, prev, self.task.snapshot(data), info)
         return data, self._unseen(obs), reward, terminated, info, metrics
 
     def _select_physics(self, done: jax.Array, fresh: mjx.Data, ended: mjx.Data) -> mjx.Data:

@@ -19,6 +19,7 @@ from flax import struct
 
 from angora_jax.envs.cameras import CameraVision
 from angora_jax.envs.core import ActionSpec, Env, Sensation, State
+from angora_jax.envs.randomization import INFO_KEY, ModelRandomizer
 
 MJX_IMPLS = ("jax", "warp")
 # Name of the MJCF custom text that names a model's MJX implementation: the compiled model is what the MJX path and
@@ -99,6 +100,9 @@ class MujocoTask(abc.ABC):
     # Whether `perceive` passes the camera frames on as the vision modality (the policy sees images), or the task
     # reads them into other observations.
     frames_in_vision: bool = True
+    # Domain randomization (`envs.randomization`): model fields drawn per environment at reset, action and observation
+    # noise per step; both physics paths apply it. None: the task as its model says.
+    randomizer: ModelRandomizer | None = None
 
     @property
     def snapshot_fields(self) -> tuple[str, ...]:
@@ -184,6 +188,32 @@ class MujocoEnv(Env):
         low, high = task.action_bounds()
         self.action_spec = ActionSpec(low=jnp.asarray(low, jnp.float32), high=jnp.asarray(high, jnp.float32))
 
+    def _begin_task(self, key: jax.Array, task_key: jax.Array, snap: Snapshot,
+                    factors: dict[str, jax.Array]) -> tuple[dict[str, jax.Array], Sensation]:
+        """`task.begin(task_key, snap)` of a reset from `key`, randomized: the drawn model `factors` held in the
+        episode's info, observation noise added (pure JAX)."""
+        info, obs = self.task.begin(task_key, snap)
+        if self.task.randomizer is None:
+            return info, obs
+        return info | {INFO_KEY: factors}, self.task.randomizer.noisy_observation(obs, key)
+
+    def _acted(self, action: jax.Array, key: jax.Array) -> jax.Array:
+        """The action the physics receive at a step with `key`: with the randomization's action noise (pure JAX)."""
+        if self.task.randomizer is None:
+            return action
+        return self.task.randomizer.noisy_action(action, key, self.action_spec.low, self.action_spec.high)
+
+    def _advance_task(self, key: jax.Array, prev: Snapshot, snap: Snapshot, info: dict[str, jax.Array]):
+        """`task.advance` of a step with `key`, randomized: the held model factors pass by the task, observation
+        noise is added (pure JAX)."""
+        randomizer = self.task.randomizer
+        if randomizer is None:
+            return self.task.advance(key, prev, snap, info)
+        task_info = {k: v for k, v in info.items() if k != INFO_KEY}
+        obs, reward, terminated, task_info, metrics = self.task.advance(key, prev, snap, task_info)
+        return (randomizer.noisy_observation(obs, key), reward, terminated, task_info | {INFO_KEY: info[INFO_KEY]},
+                metrics)
+
     def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
         return {"engine": "C MuJoCo (eager)", "device": "host CPU", "timestep_s": float(self.task.model.opt.timestep),
                 "frame_skip": self.frame_skip}
@@ -241,23 +271,27 @@ def _model_text(model: mujoco.MjModel, name: str) -> str:
 
 
 def start_physics(task: MujocoTask, qpos: np.ndarray, data: mujoco.MjData | None = None,
-                  qvel: np.ndarray | None = None) -> mujoco.MjData:
+                  qvel: np.ndarray | None = None, model: mujoco.MjModel | None = None) -> mujoco.MjData:
     """C MuJoCo data at an episode's start: `qpos` (and `qvel`, else at rest) set, kinematics computed, `ctrl` as
-    `task.initial_control` says. Resets and reuses `data` when given."""
+    `task.initial_control` says. Resets and reuses `data` when given; `model` replaces `task.model` (a randomized
+    copy of it)."""
+    model = task.model if model is None else model
     if data is None:
-        data = mujoco.MjData(task.model)
-    mujoco.mj_resetData(task.model, data)
+        data = mujoco.MjData(model)
+    mujoco.mj_resetData(model, data)
     data.qpos[:] = qpos
     if qvel is not None:
         data.qvel[:] = qvel
-    mujoco.mj_forward(task.model, data)
+    mujoco.mj_forward(model, data)
     data.ctrl[:] = np.asarray(task.initial_control(task.snapshot(data)), np.float64)
     return data
 
 
-def step_physics(task: MujocoTask, data: mujoco.MjData, frame_skip: int) -> None:
-    """Advance C MuJoCo `data` by `frame_skip` physics steps of `task`'s model (one policy step), then compute its
-    `cfrc_ext` when the task reads it (`MujocoTask.body_dynamics`), as Gymnasium's MuJoCo environments do."""
-    mujoco.mj_step(task.model, data, nstep=frame_skip)
+def step_physics(task: MujocoTask, data: mujoco.MjData, frame_skip: int, model: mujoco.MjModel | None = None) -> None:
+    """Advance C MuJoCo `data` by `frame_skip` physics steps of `task`'s model or of `model` (a randomized copy of it),
+    one policy step, then compute its `cfrc_ext` when the task reads it (`MujocoTask.body_dynamics`), as Gymnasium's
+    MuJoCo environments do."""
+    model = task.model if model is None else model
+    mujoco.mj_step(model, data, nstep=frame_skip)
     if task.body_dynamics:
-        mujoco.mj_rnePostConstraint(task.model, data)
+        mujoco.mj_rnePostConstraint(model, data)

@@ -9,8 +9,9 @@ from angora_jax.envs.backends import on_backend
 from angora_jax.envs.cameras import CameraVision
 from angora_jax.envs.core import Env
 from angora_jax.envs.mujoco_task import MujocoTask
+from angora_jax.envs.randomization import ModelRandomizer, Randomization
 from angora_jax.envs.registry import register
-from angora_jax.envs.shadow_hand.cube import CUBE_PHYSICS, load_cube_scene
+from angora_jax.envs.shadow_hand.cube import CUBE_BODY, CUBE_PHYSICS, load_cube_scene
 from angora_jax.envs.shadow_hand.ihom import REWARD_PRESETS as IHOM_REWARDS
 from angora_jax.envs.shadow_hand.ihom import Ihom, IhomReward, PoseNoise, PoseReader
 from angora_jax.envs.shadow_hand.model import PhysicsSettings, load_scene
@@ -18,8 +19,12 @@ from angora_jax.envs.shadow_hand.reach import REWARD_PRESETS as REACH_REWARDS
 from angora_jax.envs.shadow_hand.reach import Reach, ReachReward
 
 
-def build(backend: str, task: MujocoTask, frame_skip: int, max_episode_steps: int, settings: PhysicsSettings) -> Env:
-    """The task on a backend (`angora_jax.envs.backends.on_backend`), Warp sized by `settings`."""
+def build(backend: str, task: MujocoTask, frame_skip: int, max_episode_steps: int, settings: PhysicsSettings,
+          randomization: Randomization | None = None, cube_body: str | None = None) -> Env:
+    """The task on a backend (`angora_jax.envs.backends.on_backend`), Warp sized by `settings`, domain-randomized by
+    `randomization` (`cube_body` names the cube's body for its ranges)."""
+    if randomization is not None:
+        task.randomizer = ModelRandomizer(randomization, task.model, cube_body)
     return on_backend(backend, task, frame_skip, max_episode_steps, settings.warp_max_envs)
 
 
@@ -32,7 +37,7 @@ def make_reach(free: bool = False, reward_preset: str = "default", reward: dict[
                control_dt: float = 0.02, max_episode_steps: int = 100, control: str = "position",
                physics: dict[str, float] | None = None, vision: dict | None = None, target_finger: str | None = None,
                freeze_wrist: bool = False, sequence_length: int | None = None, sequence_order: str = "random",
-               backend: str = "mjx") -> Env:
+               randomization: dict | None = None, backend: str = "mjx") -> Env:
     """Build a reach task. Defaults follow AngoraPy: 0.02 s per policy step, 100 policy steps per episode,
     joint targets set relative to the joints' positions (`control`: see `HandTask`). physics: `PhysicsSettings`
     fields overriding `REACH_PHYSICS` (the Gym scene's own settings are timestep 0.002, iterations 20,
@@ -44,7 +49,9 @@ def make_reach(free: bool = False, reward_preset: str = "default", reward: dict[
     sequence_length: None for one target per episode, or the number of target fingers an episode asks for in turn
     (AngoraPy's sequential tasks; `reach.Reach`), with metrics `sequence_steps` and `sequence_success`.
     sequence_order: "random" (each target drawn among the three fingers other than the previous) or "fixed" (FF,
-    MF, RF, LF, FF, ...)."""
+    MF, RF, LF, FF, ...). randomization: domain randomization ranges, `randomization.Randomization` fields without
+    the cube's."""
+    ranges = Randomization.from_options(randomization, cube=False)
     cameras = CameraVision.from_options(vision)
     settings = REACH_PHYSICS.with_options(physics)
     frame_skip = settings.frame_skip(control_dt)
@@ -52,7 +59,7 @@ def make_reach(free: bool = False, reward_preset: str = "default", reward: dict[
     task = Reach(scene, ReachReward.preset(REACH_REWARDS, reward_preset, reward), free=free, control=control,
                  vision=cameras, target_finger=target_finger, freeze_wrist=freeze_wrist,
                  sequence_length=sequence_length, sequence_order=sequence_order)
-    return build(backend, task, frame_skip, max_episode_steps, settings)
+    return build(backend, task, frame_skip, max_episode_steps, settings, ranges)
 
 
 # Reads a pose estimator file for the cube's `pose_estimator` option. Estimators are made and trained in
@@ -96,7 +103,8 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
               control_dt: float = 0.08, relative_goal: bool = True, control: str = "absolute",
               action_scale: float = 0.2, start_pool: int = 512, physics: dict[str, float] | None = None,
               vision: dict | None = None, pose_estimator: str | None = None, freeze_wrist: bool = False,
-              pose_noise: dict[str, float] | None = None, goals: str = "random", backend: str = "mjx") -> Env:
+              pose_noise: dict[str, float] | None = None, goals: str = "random", randomization: dict | None = None,
+              backend: str = "mjx") -> Env:
     """Build in-hand cube reorientation (see `ihom.Ihom`). Times in s, angles in rad.
 
     The defaults are the recipe of `configs/shadow_ihom.yaml`; `configs/shadow_ihom_paper.yaml` sets AngoraPy's.
@@ -121,7 +129,9 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
     gives AngoraPy's NoisyManipulateBlock (3.71 mm, pi / 36).
     goals: "random" (any rotation) or "test_set", the 24 axis-aligned orientations (AngoraPy's
     TestCaseManipulateBlock), to evaluate runs on the same fixed set: `evaluate --env-option goals=test_set`.
+    randomization: domain randomization ranges, `randomization.Randomization` fields (docs/tasks.md).
     """
+    ranges = Randomization.from_options(randomization, cube=True)
     estimator = None
     if pose_estimator is not None:
         if vision is not None:
@@ -142,7 +152,7 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
                 timer=timer, relative_goal=relative_goal, control=control, action_scale=action_scale,
                 start_pool=start_pool, vision=cameras, pose_estimator=estimator, freeze_wrist=freeze_wrist,
                 pose_noise=None if pose_noise is None else PoseNoise.from_options(pose_noise), goals=goals)
-    return build(backend, task, frame_skip, max_goals * steps_per_goal, settings)
+    return build(backend, task, frame_skip, max_goals * steps_per_goal, settings, ranges, CUBE_BODY)
 
 
 register("ShadowHandReach", make_reach)

@@ -1,0 +1,178 @@
+"""Domain randomization of the hand tasks: model fields scaled per environment at reset, noise on actions and
+observations at every step.
+
+`Randomization` holds the ranges of an env's `randomization` option (validated before anything compiles);
+`ModelRandomizer` resolves them against a compiled model and draws, from a reset key, one environment's factors on
+the model's fields. The draw is a pure JAX function of the key, so the MJX path (per-environment model fields set
+with `mjx.Model.replace` inside the vmapped step: MJX's JAX implementation vmaps over them, MuJoCo Warp takes model
+fields with a leading world axis) and the eager C MuJoCo twin (the same factors written into its own `MjModel`)
+simulate the same worlds for the same key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from angora_jax.envs.core import Sensation
+
+# Key of the drawn factors in an episode's `info`: they are held there for the whole episode.
+INFO_KEY = "randomized_model"
+# Streams folded into the reset and step keys, so that randomization leaves the task's own draws as they were.
+_MODEL_STREAM, _ACTION_STREAM, _OBSERVATION_STREAM = 0x4D4F44, 0x414354, 0x4F4253
+SCALES = ("friction", "joint_damping", "armature", "actuator_gain", "cube_mass", "cube_damping")
+NOISES = ("action_noise", "observation_noise")
+CUBE_KEYS = ("cube_mass", "cube_damping")
+
+
+@dataclasses.dataclass(frozen=True)
+class Randomization:
+    """Ranges of domain randomization; a scale range `(lo, hi)` multiplies the model's value by a factor drawn
+    uniformly from it at every reset (None: not randomized). Noise is a standard deviation, drawn at every step.
+
+    friction: sliding friction of every geom, one factor per environment.
+    joint_damping, armature: damping and armature of each hand joint, one factor per joint.
+    actuator_gain: each position actuator's stiffness kp (gain and bias together, so it still targets its
+        control), one factor per actuator.
+    cube_mass: the cube's mass and inertia (its density), one factor per environment.
+    cube_damping: the damping of the cube's free joint, one factor per environment.
+    action_noise: Gaussian noise added to each policy action component (action units, actions lie in [-1, 1];
+        the noisy action is clipped to the action bounds).
+    observation_noise: Gaussian noise added to the proprioception and touch modalities, in their own units.
+    """
+
+    friction: tuple[float, float] | None = None
+    joint_damping: tuple[float, float] | None = None
+    armature: tuple[float, float] | None = None
+    actuator_gain: tuple[float, float] | None = None
+    cube_mass: tuple[float, float] | None = None
+    cube_damping: tuple[float, float] | None = None
+    action_noise: float = 0.0
+    observation_noise: float = 0.0
+
+    @classmethod
+    def from_options(cls, options: dict | None, cube: bool) -> Randomization | None:
+        """The ranges of an env's `randomization` option (None when it is absent); a ValueError naming the key
+        and the fix for an unknown key, a key of the cube on a task without one (`cube` False), a range that is not
+        `[lo, hi]` with `0 <= lo <= hi` (`0 < lo` for the cube's mass) or a negative noise."""
+        if options is None:
+            return None
+        if not isinstance(options, dict):
+            raise ValueError(f"env.options.randomization must be a mapping of {SCALES + NOISES} to ranges, got "
+                             f"{options!r}.")
+        known = SCALES + NOISES if cube else tuple(k for k in SCALES + NOISES if k not in CUBE_KEYS)
+        for key in options:
+            if key in CUBE_KEYS and not cube:
+                raise ValueError(f"randomization.{key} applies to the cube task only; remove it for this task.")
+            if key not in known:
+                raise ValueError(f"Unknown randomization key {key!r}; known: {list(known)}.")
+        values = {}
+        for key, value in options.items():
+            name = f"randomization.{key}"
+            if key in NOISES:
+                if not isinstance(value, int | float) or not value >= 0:
+                    raise ValueError(f"{name} is a standard deviation: give a number >= 0, got {value!r}.")
+                values[key] = float(value)
+                continue
+            if not isinstance(value, list | tuple) or len(value) != 2 or not all(
+                    isinstance(v, int | float) for v in value):
+                raise ValueError(f"{name} is a range of scale factors: give [lo, hi], got {value!r}.")
+            lo, hi = float(value[0]), float(value[1])
+            if key == "cube_mass" and not lo > 0:
+                raise ValueError(f"{name} scales the cube's mass: its minimum must be > 0, got {lo}.")
+            if not lo >= 0:
+                raise ValueError(f"{name} scales a physical quantity: its minimum must be >= 0, got {lo}.")
+            if lo > hi:
+                raise ValueError(f"{name}'s minimum {lo} is above its maximum {hi}: give [lo, hi] with lo <= hi.")
+            values[key] = (lo, hi)
+        return cls(**values)
+
+
+class ModelRandomizer:
+    """`randomization` resolved against `model`: which fields and elements each range scales. `cube_body` names the
+    cube's body (its free joint's dofs are the cube's, every other dof the hand's)."""
+
+    def __init__(self, randomization: Randomization, model: mujoco.MjModel, cube_body: str | None = None):
+        self.randomization = randomization
+        self.model = model
+        cube_dofs = np.zeros(model.nv, bool)
+        self.cube_body = -1
+        if cube_body is not None:
+            self.cube_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, cube_body)
+            cube_dofs = model.dof_bodyid == self.cube_body
+        self.hand_dofs = np.flatnonzero(~cube_dofs)
+        self.cube_dofs = np.flatnonzero(cube_dofs)
+
+    def draw(self, key: jax.Array) -> dict[str, jax.Array]:
+        """One environment's factors drawn from a reset key: `MjModel` field name -> float32 array of the field's
+        shape, by which `apply` and `write` multiply the model's value (1 where a field is not randomized). Factors
+        rather than values, so that a range of zero width at 1 leaves each path's model exactly as it was (MJX's in
+        float32, C MuJoCo's in float64). Pure JAX (jit, vmap)."""
+        r, m = self.randomization, self.model
+        # Every range takes its own key whether or not it is set, so one range's draw does not depend on the others.
+        friction_key, damping_key, armature_key, gain_key, mass_key, cube_damping_key = jax.random.split(
+            jax.random.fold_in(key, _MODEL_STREAM), 6)
+
+        def factor(bounds: tuple[float, float], k: jax.Array, shape: tuple[int, ...] = ()) -> jax.Array:
+            return jax.random.uniform(k, shape, jnp.float32, bounds[0], bounds[1])
+
+        def ones(field: str) -> jax.Array:
+            return jnp.ones(getattr(m, field).shape, jnp.float32)
+
+        factors = {}
+        if r.friction is not None:
+            factors["geom_friction"] = ones("geom_friction").at[:, 0].set(factor(r.friction, friction_key))
+        if r.joint_damping is not None or r.cube_damping is not None:
+            damping = ones("dof_damping")
+            if r.joint_damping is not None:
+                damping = damping.at[self.hand_dofs].set(factor(r.joint_damping, damping_key, self.hand_dofs.shape))
+            if r.cube_damping is not None:
+                damping = damping.at[self.cube_dofs].set(factor(r.cube_damping, cube_damping_key))
+            factors["dof_damping"] = damping
+        if r.armature is not None:
+            factors["dof_armature"] = ones("dof_armature").at[self.hand_dofs].set(
+                factor(r.armature, armature_key, self.hand_dofs.shape))
+        if r.actuator_gain is not None:
+            # A position actuator's force is kp * ctrl - kp * length: gain and bias scale together.
+            gain = factor(r.actuator_gain, gain_key, (m.nu,))
+            factors["actuator_gainprm"] = ones("actuator_gainprm").at[:, 0].set(gain)
+            factors["actuator_biasprm"] = ones("actuator_biasprm").at[:, 1].set(gain)
+        if r.cube_mass is not None:
+            density = factor(r.cube_mass, mass_key)
+            factors["body_mass"] = ones("body_mass").at[self.cube_body].set(density)
+            factors["body_inertia"] = ones("body_inertia").at[self.cube_body].set(density)
+        return factors
+
+    def apply(self, mjx_model, factors: dict[str, jax.Array]):
+        """`mjx_model` (an `mjx.Model`) scaled by one environment's drawn `factors`; inside a vmapped step they carry
+        the batch axis, which MJX's JAX implementation vmaps over and MuJoCo Warp reads as one world each."""
+        return mjx_model.replace(**{name: getattr(mjx_model, name) * f for name, f in factors.items()})
+
+    def write(self, model: mujoco.MjModel, factors: dict[str, jax.Array]) -> None:
+        """Set C MuJoCo `model` (the eager twin's own copy) to `self.model` scaled by one environment's `factors`."""
+        for name, f in factors.items():
+            getattr(model, name)[:] = getattr(self.model, name) * np.asarray(f, np.float64)
+
+    def noisy_action(self, action: jax.Array, key: jax.Array, low: jax.Array, high: jax.Array) -> jax.Array:
+        """`action` `(nu,)` with `action_noise` added from a step key, clipped to `[low, high]` (unchanged when the
+        noise is 0)."""
+        std = self.randomization.action_noise
+        if std == 0:
+            return action
+        noise = std * jax.random.normal(jax.random.fold_in(key, _ACTION_STREAM), action.shape, action.dtype)
+        return jnp.clip(action + noise, low, high)
+
+    def noisy_observation(self, obs: Sensation, key: jax.Array) -> Sensation:
+        """`obs` with `observation_noise` added to proprioception and touch from a reset or step key (unchanged when
+        the noise is 0)."""
+        std = self.randomization.observation_noise
+        if std == 0:
+            return obs
+        proprio_key, touch_key = jax.random.split(jax.random.fold_in(key, _OBSERVATION_STREAM))
+        return obs.replace(
+            proprioception=obs.proprioception + std * jax.random.normal(proprio_key, obs.proprioception.shape),
+            touch=obs.touch + std * jax.random.normal(touch_key, obs.touch.shape))

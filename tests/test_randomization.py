@@ -1,0 +1,202 @@
+"""Domain randomization of the hand tasks (`envs.randomization`): ranges are checked before anything compiles, a draw
+is per environment and per key, zero-width ranges give the unrandomized task bit for bit, randomized fields change
+the physics on both MJX implementations (Warp reading one world's fields per environment), and the C MuJoCo twin
+simulates the same worlds for the same key.
+
+Warp's CPU kernels compile in seconds, so most tests run on Warp; one runs on MJX's JAX implementation."""
+
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from quick_compile import compile_quickly
+from tiny import TINY_PPO
+
+import angora_jax as aj
+from angora_jax.cli import main
+from angora_jax.envs.randomization import INFO_KEY
+from angora_jax.experiment.evaluation import evaluate
+
+BATCH, STEPS = 3, 6
+# Converged solves, so that Warp and C MuJoCo agree within test_warp.py's tolerance (2e-3 rad).
+WARP = {"impl": "warp", "iterations": 50, "ls_iterations": 50}
+WIDE = {"friction": [0.2, 2.0], "joint_damping": [0.2, 5.0], "armature": [0.5, 2.0], "actuator_gain": [0.3, 3.0],
+        "action_noise": 0.1, "observation_noise": 0.01}
+FIELDS = {k: v for k, v in WIDE.items() if not k.endswith("noise")}
+ZERO_WIDTH = {"friction": [1, 1], "joint_damping": [1, 1], "armature": [1, 1], "actuator_gain": [1, 1],
+              "action_noise": 0, "observation_noise": 0}
+
+
+def rollout(env):
+    """`run(keys, actions)`: the batch's first states and its states after each of `STEPS` steps, jitted."""
+    sized = env.sized_for(BATCH)
+
+    @jax.jit
+    def run(keys, actions):
+        first = jax.vmap(sized.reset)(keys)
+        return first, jax.lax.scan(lambda s, a: (jax.vmap(sized.step)(s, a),) * 2, first, actions)[1]
+
+    return run
+
+
+@pytest.fixture(scope="module")
+def inputs():
+    keys = jax.random.split(jax.random.key(3), BATCH)
+    actions = jnp.asarray(np.random.default_rng(0).uniform(-1, 1, (STEPS, BATCH, 20)), jnp.float32)
+    return keys, actions
+
+
+@pytest.fixture(scope="module")
+def warp_runs(inputs):
+    """Reach on Warp unrandomized, with zero-width ranges, with wide ranges and with wide ranges of the model's fields
+    only (no noise): (env, first states, states)."""
+    runs = {}
+    for name, ranges in {"plain": None, "zero": ZERO_WIDTH, "wide": WIDE, "fields": FIELDS}.items():
+        env = aj.make("ShadowHandReach", physics=WARP, randomization=ranges)
+        runs[name] = (env, *rollout(env)(*inputs))
+    return runs
+
+
+@pytest.mark.parametrize("ranges, message", [
+    ({"friction": [-0.5, 1.0]}, "randomization.friction .* minimum must be >= 0"),
+    ({"joint_damping": [2.0, 1.0]}, "randomization.joint_damping's minimum 2.0 is above its maximum 1.0"),
+    ({"frction": [0.5, 1.0]}, "Unknown randomization key 'frction'"),
+    ({"cube_mass": [0.5, 1.5]}, "randomization.cube_mass applies to the cube task only"),
+    ({"armature": 1.5}, r"randomization.armature is a range of scale factors: give \[lo, hi\]"),
+    ({"action_noise": -0.1}, "randomization.action_noise is a standard deviation"),
+])
+def test_bad_ranges_are_refused_before_compiling_with_the_key_named(ranges, message):
+    with pytest.raises(ValueError, match=message):
+        aj.make("ShadowHandReach", randomization=ranges)
+
+
+def test_the_cube_refuses_a_mass_that_is_not_positive():
+    with pytest.raises(ValueError, match="randomization.cube_mass scales the cube's mass: its minimum must be > 0"):
+        aj.make("ShadowHandCube", randomization={"cube_mass": [0.0, 1.0]})
+
+
+def test_a_draw_differs_per_environment_and_is_reproducible_per_key(warp_runs, inputs):
+    env, first, _ = warp_runs["wide"]
+    draws = first.info[INFO_KEY]
+    assert set(draws) == {"geom_friction", "dof_damping", "dof_armature", "actuator_gainprm", "actuator_biasprm"}
+    friction = np.asarray(draws["geom_friction"][:, 0, 0])
+    assert len(set(friction.tolist())) == BATCH and (0.2 <= friction).all() and (friction <= 2.0).all()
+    again = jax.jit(jax.vmap(env.sized_for(BATCH).reset))(inputs[0])
+    jax.tree.map(np.testing.assert_array_equal, again.info[INFO_KEY], draws)
+    zero = warp_runs["zero"][1].info[INFO_KEY]
+    assert all(bool((factors == 1).all()) for factors in jax.tree.leaves(zero)), "zero width at 1 draws exactly 1"
+
+
+def test_zero_width_ranges_give_the_unrandomized_task_bit_for_bit_on_warp(warp_runs):
+    _, plain_first, plain = warp_runs["plain"]
+    _, zero_first, zero = warp_runs["zero"]
+    for a, b in ((plain_first, zero_first), (plain, zero)):
+        np.testing.assert_array_equal(a.physics.qpos, b.physics.qpos)
+        np.testing.assert_array_equal(a.physics.qvel, b.physics.qvel)
+        jax.tree.map(np.testing.assert_array_equal, a.obs, b.obs)
+        np.testing.assert_array_equal(a.reward, b.reward)
+
+
+def test_warp_simulates_each_environment_with_its_own_fields(warp_runs, inputs):
+    """Randomized fields change the trajectory, and each environment of a Warp batch reads its own world's fields:
+    with the keys' order reversed every environment's trajectory is the same, only in reversed place (had Warp read
+    one world's fields for all, the environments would swap worlds)."""
+    env, _, fields = warp_runs["fields"]
+    _, _, plain = warp_runs["plain"]
+    assert float(jnp.abs(fields.physics.qpos[-1] - plain.physics.qpos[-1]).max()) > 0.05
+    keys, actions = inputs
+    _, reversed_run = rollout(env)(keys[::-1], actions[:, ::-1])
+    np.testing.assert_allclose(reversed_run.physics.qpos[:, ::-1], fields.physics.qpos, atol=1e-5)
+
+
+def test_the_cpu_twin_simulates_the_same_worlds_for_the_same_key(warp_runs, inputs):
+    _, first, wide = warp_runs["wide"]
+    _, _, plain = warp_runs["plain"]
+    cpu = aj.make("ShadowHandReach", physics=WARP, randomization=WIDE, backend="cpu")
+    keys, actions = inputs
+    for b in range(BATCH):
+        twin = cpu.reset(keys[b])
+        row = jax.tree.map(lambda x, b=b: x[b], first.info[INFO_KEY])
+        jax.tree.map(np.testing.assert_array_equal, row, twin.info[INFO_KEY])
+        np.testing.assert_allclose(first.obs.proprioception[b], twin.obs.proprioception, atol=1e-5)
+        for t in range(STEPS):
+            twin = cpu.step(twin, actions[t, b])
+            np.testing.assert_allclose(wide.final_obs.proprioception[t, b], twin.obs.proprioception, atol=2e-3)
+        assert float(jnp.abs(plain.physics.qpos[-1, b] - twin.physics.qpos).max()) > 0.02, "the twin is randomized"
+
+
+def test_randomized_fields_change_mjx_jax_physics_and_ones_give_the_unrandomized_task_bit_for_bit(inputs):
+    """On MJX's JAX implementation (compiled once for the randomized task, once for the plain one): the drawn factors
+    change the trajectory, and factors of exactly 1 (what zero-width ranges draw) give the plain task's states."""
+    keys, actions = inputs
+    randomized = aj.make("ShadowHandReach", physics={"impl": "jax"}, randomization=FIELDS)
+    plain = aj.make("ShadowHandReach", physics={"impl": "jax"})
+
+    def compiled(env):
+        first = jax.vmap(env.reset)(keys)
+        return first, compile_quickly(jax.vmap(env.step), first, actions[0])
+
+    def run(first, step):
+        states = []
+        for action in actions:
+            first = step(first, action)
+            states.append(first)
+        return jax.tree.map(lambda *s: jnp.stack(s), *states)
+
+    first, step = compiled(randomized)
+    drawn = run(first, step)
+    ones = run(first.replace(info=first.info | {INFO_KEY: jax.tree.map(jnp.ones_like, first.info[INFO_KEY])}), step)
+    unrandomized = run(*compiled(plain))
+    assert float(jnp.abs(drawn.physics.qpos[-1] - unrandomized.physics.qpos[-1]).max()) > 0.05
+    np.testing.assert_array_equal(ones.physics.qpos, unrandomized.physics.qpos)
+    np.testing.assert_array_equal(ones.physics.qvel, unrandomized.physics.qvel)
+    np.testing.assert_array_equal(ones.reward, unrandomized.reward)
+
+
+def test_evaluate_runs_a_policy_under_randomization_given_as_an_env_option(tmp_path, capsys):
+    """A reach run trains under randomization; `angora-jax evaluate --env-option randomization=...` on the batched
+    path (Warp) plays its policy in other randomized worlds, recorded as a changed task; the CPU path (C MuJoCo slots,
+    each its own world) plays the same episodes: the same lengths, returns within 1% (as test_warp.py's evaluation),
+    and returns unlike those of the task it trained in."""
+    run = aj.train("shadow_reach", [*TINY_PPO, "ppo.num_cycles=1", "env.options.physics={impl: warp}",
+                                    "env.options.randomization={joint_damping: [0.8, 1.2]}",
+                                    "env.options.max_episode_steps=20", "logging.progress=none",
+                                    "logging.report=false", "checkpoint.best_metric=null",
+                                    f"logging.run_root={tmp_path}", "logging.run_name=reach"]).run_dir
+    option = "randomization={friction: [0.5, 1.5], actuator_gain: [0.2, 0.4], observation_noise: 0.01}"
+    args = ["evaluate", str(run), "--checkpoint", "latest", "--episodes", "2", "--path", "batched"]
+    assert main([*args, "--env-option", option]) == 0
+    path = Path(capsys.readouterr().out.split("Written: ")[1].split(" and ")[0])
+    written = json.loads(path.read_text())
+    assert "-changed" in path.name
+    assert written["task_options"]["randomization"]["friction"] == [0.5, 1.5], written["task_options"]
+    returns = np.asarray(written["per_episode"]["episode_return"])
+    cpu = evaluate(run, "latest", episodes=2, save=False, env_overrides=[option])
+    np.testing.assert_array_equal(cpu.episodes["episode_length"], written["per_episode"]["episode_length"])
+    np.testing.assert_allclose(cpu.episodes["episode_return"], returns, rtol=1e-2)
+    plain = evaluate(run, "latest", episodes=2, save=False)
+    # The same episodes on the same path in the run's own task: a change well above float rounding.
+    changed = np.abs(plain.episodes["episode_return"] - cpu.episodes["episode_return"])
+    assert changed.max() > 1e-3 * np.abs(returns).max()
+
+
+def test_the_cube_ranges_scale_only_the_cube_and_change_its_motion_on_warp(inputs):
+    """On the cube, `cube_mass` scales the cube's mass and inertia only, `cube_damping` its free joint's 6 dofs only and
+    `joint_damping` the hand's joints only; a heavier, more damped cube moves otherwise on Warp."""
+    ranges = {"cube_mass": [4.0, 5.0], "cube_damping": [50.0, 60.0], "joint_damping": [2.0, 3.0]}
+    env = aj.make("ShadowHandCube", physics={"impl": "warp"}, randomization=ranges)
+    randomizer = env.task.randomizer
+    factors = randomizer.draw(jax.random.key(0))
+    mass, damping = np.asarray(factors["body_mass"]), np.asarray(factors["dof_damping"])
+    assert np.flatnonzero(mass != 1).tolist() == [randomizer.cube_body] and 4 <= mass[randomizer.cube_body] <= 5
+    np.testing.assert_array_equal(np.asarray(factors["body_inertia"])[randomizer.cube_body], mass[randomizer.cube_body])
+    assert len(randomizer.cube_dofs) == 6 and (damping[randomizer.cube_dofs] >= 50).all()
+    assert ((2 <= damping[randomizer.hand_dofs]) & (damping[randomizer.hand_dofs] <= 3)).all()
+    keys, actions = inputs
+    plain = aj.make("ShadowHandCube", physics={"impl": "warp"})
+    cube = slice(env.task.cube_qpos, env.task.cube_qpos + 7)
+    moved = [rollout(e)(keys, actions)[1].physics.qpos[-1, :, cube] for e in (env, plain)]
+    assert float(jnp.abs(moved[0] - moved[1]).max()) > 1e-3
