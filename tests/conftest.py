@@ -35,12 +35,14 @@ import pytest  # noqa: E402  (after the environment above, which must be set bef
 # the last files to start are short and both workers end together. test_evaluation comes first because it trains
 # the shared cortical reach run (`cortical_reach` below, about 2 minutes), and the files after it that read that run
 # come late enough for it to be ready, so no worker waits. Measured per file on 2 CPU cores (seconds, `make test`
-# with --junitxml): evaluation 205, vision 179, benchmarks 187, locomotion 145, distributed 135, cli 122, analysis
-# 89, ihom 113, docs 101, ppo_learning 101, warp 92; every file not listed is shorter and follows in name order.
+# with --junitxml): evaluation 205, vision 179, benchmarks 187, locomotion 145, randomization 140, distributed 135,
+# cli 122, analysis 89, ihom 113, docs 101, ppo_learning 101, warp 92, ..., reach_sequential 35; every file not
+# listed is shorter and follows in name order.
 LONGEST_FIRST = (
-    "test_evaluation", "test_vision", "test_benchmarks", "test_locomotion", "test_distributed", "test_cli",
-    "test_analysis", "test_ihom", "test_docs", "test_ppo_learning", "test_warp", "test_notebook", "test_checkpoint",
-    "test_reach_learning", "test_nets", "test_settings", "test_training_video", "test_benchmark_scripts",
+    "test_evaluation", "test_vision", "test_benchmarks", "test_locomotion", "test_randomization", "test_distributed",
+    "test_cli", "test_analysis", "test_ihom", "test_docs", "test_ppo_learning", "test_warp", "test_notebook",
+    "test_checkpoint", "test_reach_learning", "test_nets", "test_settings", "test_training_video",
+    "test_benchmark_scripts", "test_reach_sequential",
 )
 
 
