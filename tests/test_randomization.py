@@ -132,11 +132,13 @@ def test_randomized_fields_change_mjx_jax_physics_and_ones_give_the_unrandomized
     """On MJX's JAX implementation (compiled once for the randomized task, once for the plain one): the drawn factors
     change the trajectory, and factors of exactly 1 (what zero-width ranges draw) give the plain task's states."""
     keys, actions = inputs
-    randomized = aj.make("ShadowHandReach", physics={"impl": "jax"}, randomization=FIELDS)
-    plain = aj.make("ShadowHandReach", physics={"impl": "jax"})
+    # tests/test_envs.py's episode length and batch: the plain task's programs are its, read from the compilation cache
+    # by whichever test compiles them second.
+    randomized = aj.make("ShadowHandReach", physics={"impl": "jax"}, randomization=FIELDS, max_episode_steps=50)
+    plain = aj.make("ShadowHandReach", physics={"impl": "jax"}, max_episode_steps=50)
 
     def compiled(env):
-        first = jax.vmap(env.reset)(keys)
+        first = compile_quickly(jax.vmap(env.reset), keys)(keys)
         return first, compile_quickly(jax.vmap(env.step), first, actions[0])
 
     def run(first, step):
