@@ -17,6 +17,11 @@ does; on a GPU, Warp renders inside the compiled step, at every step and every a
     python benchmarks/train_throughput.py --task ShadowHandCube --num-envs 4096 --model simple --impls warp \
         --warp-sized-to-batch --rollout-length 32 --vision-sizes 0 32 64 --cameras front top   # GPU
 
+`--configs` trains shipped configs (or YAML files) as they are, network, rollout and minibatches included, at each
+`--num-envs` (the minibatch keeps its share of the batch), e.g. the brain-area model against the MLP on the cube:
+
+    python benchmarks/train_throughput.py --configs shadow_ihom shadow_ihom_cortical --num-envs 16384   # GPU
+
 Prints a Markdown table and writes JSON (device, versions, config, numbers) under benchmarks/results/. Compile time
 is measured separately (ahead-of-time lowering and compilation) and excluded from the rates.
 """
@@ -30,7 +35,40 @@ import itertools
 from common import env_step_rate, markdown_table, peak_memory_bytes, train_rate, write_results
 
 from angora_jax.envs.registry import make
+from angora_jax.experiment.config import load_config, validate
 from angora_jax.ppo import NetworkConfig, PPOConfig, VisualConfig
+
+
+def config_rows(names: list[str], num_envs: list[int], repeats: int) -> list[dict]:
+    """One row per shipped config (or YAML path) and batch size, each trained as its config says."""
+    rows = []
+    for name, envs in itertools.product(names, num_envs):
+        shipped = load_config(name)
+        share = shipped.ppo.minibatch_size / shipped.ppo.num_envs
+        config = load_config(name, [f"ppo.num_envs={envs}", f"ppo.minibatch_size={round(envs * share)}"])
+        env = validate(config)
+        raw = env_step_rate(env, envs, config.ppo.rollout_length, repeats)
+        trained = train_rate(env, config.ppo, repeats)
+        rows.append(row(config.env.task, name, env, config.ppo, getattr(env, "impl", None), raw, trained))
+        print(f"{name} @ {envs} envs: {trained['env_steps_per_s']:,.0f} train steps/s", flush=True)
+    return rows
+
+
+def row(task: str, model: str, env, config: PPOConfig, impl: str | None, raw: dict, trained: dict, vision: str = "pose",
+        area: str = "-", cameras: int = 0) -> dict:
+    """A table row: rates of the compiled cycle (`trained`) and of random-action env steps (`raw`)."""
+    return {
+        "task": task, "impl": impl or "-", "model": model, "num_envs": config.num_envs,
+        "vision": vision, "visual_area": area,
+        "train_frames_per_s": trained["env_steps_per_s"] * cameras,
+        "raw_env_steps_per_s": raw["env_steps_per_s"],
+        "train_env_steps_per_s": trained["env_steps_per_s"],
+        "train_sim_s_per_s": trained["env_steps_per_s"] * env.dt, "control_dt_s": env.dt,
+        "train_over_raw": trained["env_steps_per_s"] / raw["env_steps_per_s"],
+        "raw_compile_s": raw["compile_s"], "train_compile_s": trained["compile_s"],
+        "peak_memory_gib": (peak_memory_bytes() or 0) / 2**30 or None,
+        "config": dataclasses.asdict(config),
+    }
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -51,12 +89,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--cameras", nargs="+", default=["front"], help="cameras for --vision-sizes")
     parser.add_argument("--visual-area", nargs="+", choices=("trained", "frozen"), default=["trained"],
                         help="with --vision-sizes: train the visual area, or keep it frozen (no backward pass)")
+    parser.add_argument("--configs", nargs="+", default=None,
+                        help="train these configs as they are (configs/ names or YAML) instead of --task/--model")
     parser.add_argument("--out", default=None, help="JSON path (default: results/train_throughput_<platform>.json)")
     args = parser.parse_args(argv)
 
     impls = args.impls.split(",") if args.impls else [None]
-    rows = []
-    for impl, num_envs, size in itertools.product(impls, args.num_envs, args.vision_sizes):
+    rows = config_rows(args.configs, args.num_envs, args.repeats) if args.configs else []
+    combinations = [] if args.configs else itertools.product(impls, args.num_envs, args.vision_sizes)
+    for impl, num_envs, size in combinations:
         physics = {"impl": impl} if impl else {}
         # Camera vision on Warp renders batches of a fixed size: the environment is always sized for its batch.
         if impl == "warp" and (args.warp_sized_to_batch or size):
@@ -79,19 +120,8 @@ def main(argv: list[str] | None = None) -> None:
             ).validate_for(env)
             trained = train_rate(env, config, args.repeats)
             cameras = len(args.cameras) if size else 0
-            rows.append({
-                "task": args.task, "impl": impl or "-", "model": model, "num_envs": num_envs,
-                "vision": f"{cameras} x {size}x{size}" if size else "pose",
-                "visual_area": area if size else "-",
-                "train_frames_per_s": trained["env_steps_per_s"] * cameras,
-                "raw_env_steps_per_s": raw["env_steps_per_s"],
-                "train_env_steps_per_s": trained["env_steps_per_s"],
-                "train_sim_s_per_s": trained["env_steps_per_s"] * env.dt,
-                "train_over_raw": trained["env_steps_per_s"] / raw["env_steps_per_s"],
-                "raw_compile_s": raw["compile_s"], "train_compile_s": trained["compile_s"],
-                "peak_memory_gib": (peak_memory_bytes() or 0) / 2**30 or None,
-                "config": dataclasses.asdict(config),
-            })
+            vision = f"{cameras} x {size}x{size}" if size else "pose"
+            rows.append(row(args.task, model, env, config, impl, raw, trained, vision, area if size else "-", cameras))
             print(f"{impl or ''} {model} @ {num_envs} envs, {rows[-1]['vision']} ({area}): "
                   f"{trained['env_steps_per_s']:,.0f} train steps/s", flush=True)
 
@@ -103,7 +133,8 @@ def main(argv: list[str] | None = None) -> None:
         ("train_compile_s", "compile train s", ".1f"), ("raw_compile_s", "compile raw s", ".1f"),
         ("peak_memory_gib", "peak GiB", ".2f"),
     ]))
-    path = write_results("train_throughput", {"args": vars(args), "control_dt_s": env.dt}, rows, args.out)
+    path = write_results("train_throughput", {"args": vars(args), "control_dt_s": rows[-1]["control_dt_s"]}, rows,
+                         args.out)
     print(f"wrote {path}")
 
 

@@ -18,6 +18,7 @@ from benchmark_results import BENCHMARKS, results
 
 from angora_jax.envs.registry import make
 from angora_jax.envs.shadow_hand import REACH_PHYSICS
+from angora_jax.experiment.config import load_config
 
 sys.path.insert(0, str(BENCHMARKS))
 import env_throughput  # noqa: E402
@@ -45,6 +46,19 @@ def test_train_throughput_divides_the_training_rate_by_the_env_rate_of_the_same_
     assert row["train_sim_s_per_s"] == pytest.approx(row["train_env_steps_per_s"] * dt)
     assert row["train_over_raw"] == pytest.approx(row["train_env_steps_per_s"] / row["raw_env_steps_per_s"])
     assert row["train_frames_per_s"] == 0, "no cameras"
+
+
+def test_train_throughput_trains_shipped_configs_as_they_are(tmp_path):
+    """`--configs`: each config's own network, rollout and minibatch share, at the given batch size."""
+    out = tmp_path / "configs.json"
+    train_throughput.main(["--configs", "cartpole", "--num-envs", "4", "--repeats", "1", "--out", str(out)])
+    (row,) = results(out, "train_throughput")["results"]
+    shipped = load_config("cartpole").ppo
+    assert (row["task"], row["model"], row["num_envs"]) == ("CartPole", "cartpole", 4)
+    assert row["config"]["network"]["name"] == shipped.network.name
+    assert row["config"]["rollout_length"] == shipped.rollout_length
+    assert row["config"]["minibatch_size"] == 4 * shipped.minibatch_size // shipped.num_envs
+    assert row["train_env_steps_per_s"] > 0 and row["control_dt_s"] == make("CartPole").dt
 
 
 def test_env_throughput_counts_physics_steps_and_compares_rates_of_the_same_run(tmp_path):

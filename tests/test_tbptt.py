@@ -223,3 +223,74 @@ def test_feed_forward_unroll_runs_the_chunk_as_one_batch_with_the_same_outputs_a
     np.testing.assert_allclose(batched(params), looped(params), rtol=1e-5)
     for a, b in zip(jax.tree.leaves(jax.grad(batched)(params)), jax.tree.leaves(jax.grad(looped)(params)), strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
+
+
+def inner_jaxprs(eqn) -> list:
+    """The jaxprs in an equation's parameters (a scan's body, a jit's program)."""
+    found = []
+    for param in eqn.params.values():
+        for value in param if isinstance(param, tuple) else (param,):
+            inner = getattr(value, "jaxpr", value)
+            if hasattr(inner, "eqns"):
+                found.append(inner)
+    return found
+
+
+def scan_bodies(jaxpr) -> list:
+    """The body of every scan in `jaxpr`, nested programs searched."""
+    bodies = []
+    for eqn in jaxpr.eqns:
+        if eqn.primitive.name == "scan":
+            bodies.append(eqn.params["jaxpr"].jaxpr)
+        else:
+            for inner in inner_jaxprs(eqn):
+                bodies.extend(scan_bodies(inner))
+    return bodies
+
+
+def matmuls(jaxpr) -> int:
+    """dot_general equations in `jaxpr`, nested programs included."""
+    return sum((eqn.primitive.name == "dot_general") + sum(matmuls(inner) for inner in inner_jaxprs(eqn))
+               for eqn in jaxpr.eqns)
+
+
+# network, its cell, the cells it scans, and the matrix products of one cell's step (flax's GRU: three for the input,
+# three for the state; its optimized LSTM: one for each)
+@pytest.mark.parametrize("name,cell,cells,products", [("cortical", "gru", 1, 6), ("cortical", "lstm", 1, 2),
+                                                       ("lstm", None, 2, 2), ("simple", None, 0, 0)])
+def test_networks_that_run_sequences_match_the_step_scan_with_only_their_cells_scanned(name, cell, cells, products):
+    """Training runs a built-in network over a whole chunk (`runs_sequences`): dense layers on all s x B rows, only
+    the recurrent cells scanned. Outputs, final carry and gradients equal those of the scan over whole steps, with
+    the carry reset at episode starts, and the scanned body holds only the cell's matrix products."""
+    from angora_jax.nets.cortical import AREA_SIZES
+
+    config = NetworkConfig(name=name, width=8, cell_size=8, cell=cell,
+                           areas={area: 6 for area in AREA_SIZES} if name == "cortical" else {})
+    network = make_network(config.validate())
+    model = ActorCritic(network, make_head("gaussian", ActionSpec(low=-jnp.ones(2), high=jnp.ones(2))))
+    assert model.runs_sequences
+    keys = jax.random.split(jax.random.key(2), 6)
+    obs = Sensation.make(proprioception=jax.random.normal(keys[0], (T, B, 5)),
+                         touch=jax.random.normal(keys[1], (T, B, 3)), goal=jax.random.normal(keys[2], (T, B, 4)),
+                         asymmetric=jax.random.normal(keys[3], (T, B, 2)))
+    initial = network.initial_carry(B)
+    params = model.init(keys[4], initial, jax.tree.map(lambda x: x[0], obs))["params"]
+    start = jax.tree.map(lambda x: x + 0.3, initial)  # a stored carry from the rollout, not the episode start
+    weights = jax.random.normal(keys[5], (T, B, model.head.num_params + 1))
+
+    def loss(params, sequences):
+        step = lambda c, o, *sequence: model.apply({"params": params}, c, o, *sequence)  # noqa: E731
+        carry, policy, values = unroll(step, start, initial, obs, RESETS, sequences)
+        return (jnp.concatenate([policy, values[..., None]], -1) * weights).sum(), carry
+
+    (whole, carry), grads = jax.value_and_grad(loss, has_aux=True)(params, True)
+    (stepped, stepped_carry), stepped_grads = jax.value_and_grad(loss, has_aux=True)(params, False)
+    np.testing.assert_allclose(whole, stepped, rtol=1e-5)
+    for a, b in zip(jax.tree.leaves((carry, grads)), jax.tree.leaves((stepped_carry, stepped_grads)), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
+    bodies = scan_bodies(jax.make_jaxpr(lambda p: loss(p, True)[0])(params).jaxpr)
+    stepped_bodies = scan_bodies(jax.make_jaxpr(lambda p: loss(p, False)[0])(params).jaxpr)
+    assert len(bodies) == cells  # the plain LSTM's value pathway has a cell of its own
+    assert sum(matmuls(body) for body in bodies) == cells * products
+    if cells:
+        assert sum(matmuls(body) for body in stepped_bodies) > cells * products

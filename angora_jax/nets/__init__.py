@@ -11,7 +11,11 @@ Network contract (what `make_cycle` accepts; every built-in model follows it). A
   `obs.asymmetric`, which only the value function may read.
 
 The trainer resets the carry to `initial_carry` where an episode starts and scans the module over time, so a
-network never sees episode boundaries itself. Register a builder with `register_network(name, builder)` to select
+network never sees episode boundaries itself. A network may instead run whole training sequences itself: it sets
+`runs_sequences = True` and also accepts `__call__(carry, obs, resets, initial)` with obs leaves `(s, B, size)` and
+`resets` `(s, B)`, returning (final carry, `(s, B, F)`, `(s, B)`). Every built-in model does, through
+`nets.models.run_cell`: its dense layers take all s x B rows at once and only its cells scan, which on a GPU is far
+fewer kernel launches than a scan over every layer. Register a builder with `register_network(name, builder)` to select
 it from `NetworkConfig.name`, or pass the module to `make_cycle` directly. A network of brain areas needs no Python:
 `network.name: areas` builds `Areas` from the graph in `network.graph` (`AreaGraph`, see `nets.area_graph`).
 """

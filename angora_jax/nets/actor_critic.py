@@ -40,7 +40,16 @@ class ActorCritic(nn.Module):
         features = self.visual(images.reshape((-1, *images.shape[-3:])))
         return obs.replace(vision=features.reshape((*lead, cameras * features.shape[-1])))
 
+    @property
+    def runs_sequences(self) -> bool:
+        """Whether `__call__` also runs whole sequences (the network's `runs_sequences`, see `angora_jax.nets`)."""
+        return bool(getattr(self.network, "runs_sequences", False))
+
     @nn.compact
-    def __call__(self, carry: Any, obs: Sensation) -> tuple[Any, jax.Array, jax.Array]:
-        carry, features, value = self.network(carry, self.perceive(obs))
+    def __call__(self, carry: Any, obs: Sensation, resets: jax.Array | None = None,
+                 initial: Any = None) -> tuple[Any, jax.Array, jax.Array]:
+        """One step; or, given `resets` `(s, B)` and `initial` (a network that `runs_sequences`), a sequence with obs
+        leaves `(s, B, ...)`: (final carry, distribution parameters (s, B, P), values (s, B))."""
+        sequence = () if resets is None else (resets, initial)
+        carry, features, value = self.network(carry, self.perceive(obs), *sequence)
         return carry, self.head.module()(features), value

@@ -19,7 +19,15 @@ import jax.numpy as jnp
 from angora_jax.envs.core import Sensation
 from angora_jax.nets.activations import ACTIVATIONS
 from angora_jax.nets.area_graph import VALUE_MODALITIES, AreaGraph, evaluation_order, feedback_inputs
-from angora_jax.nets.models import HIDDEN_INIT, MLP, cell_output, initial_cell_carry, recurrent_cell, value_head
+from angora_jax.nets.models import (
+    HIDDEN_INIT,
+    MLP,
+    cell_output,
+    initial_cell_carry,
+    recurrent_cell,
+    run_cell,
+    value_head,
+)
 
 
 class Area(nn.Module):
@@ -41,9 +49,18 @@ class Area(nn.Module):
 class Areas(nn.Module):
     """The network of `graph` (checked with `area_graph.check_graph`), following the network contract: one step
     `(carry, obs) -> (carry, policy features (B, policy area's size), value (B,))`. Areas are computed in
-    `evaluation_order`; a feedback input reads its recurrent source's output of the previous step from the carry."""
+    `evaluation_order`; a feedback input reads its recurrent source's output of the previous step from the carry.
+
+    A graph without feedback inputs also runs whole sequences (`runs_sequences`, see `angora_jax.nets`): every dense
+    area and the value net take all s x B rows at once and only the recurrent areas scan, each over its inputs'
+    sequence. With feedback, an area's input at t needs a cell's output at t - 1, so training scans the whole step.
+    """
 
     graph: AreaGraph
+
+    @property
+    def runs_sequences(self) -> bool:
+        return not feedback_inputs(self.graph)
 
     def initial_carry(self, batch_size: int) -> Any:
         recurrent = {name: spec for name, spec in self.graph.areas.items() if spec.cell is not None}
@@ -52,8 +69,12 @@ class Areas(nn.Module):
         return {name: initial_cell_carry(spec.cell, spec.size, batch_size) for name, spec in recurrent.items()}
 
     @nn.compact
-    def __call__(self, carry: Any, obs: Sensation) -> tuple[Any, jax.Array, jax.Array]:
+    def __call__(self, carry: Any, obs: Sensation, resets: jax.Array | None = None,
+                 initial: Any = None) -> tuple[Any, jax.Array, jax.Array]:
         areas, feedback = self.graph.areas, feedback_inputs(self.graph)
+        if resets is not None and feedback:
+            raise ValueError(f"A graph with feedback inputs {sorted(feedback)} runs one step at a time: call it "
+                             "without resets (the trainer scans it; see runs_sequences).")
         outputs = {modality: getattr(obs, modality) for modality in VALUE_MODALITIES}
         new_carry = {}
         for name in evaluation_order(self.graph):
@@ -64,7 +85,9 @@ class Areas(nn.Module):
                 outputs[name] = Area(spec.size, spec.activation, name=name)(*inputs)
             else:
                 cell = recurrent_cell(spec.cell, spec.size, name, ACTIVATIONS[spec.activation])
-                new_carry[name], outputs[name] = cell(carry[name], jnp.concatenate(inputs, axis=-1))
+                start = None if initial is None else initial[name]
+                new_carry[name], outputs[name] = run_cell(cell, carry[name], jnp.concatenate(inputs, axis=-1),
+                                                          resets, start)
         value_features = jnp.concatenate([outputs[source] for source in self.graph.value.inputs], axis=-1)
         value = value_head(MLP(self.graph.value.sizes, name="value_net")(value_features))
         return new_carry or carry, outputs[self.graph.policy], value

@@ -8,6 +8,7 @@ function. Empty modalities (size 0) are skipped, so no model assumes any particu
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import flax.linen as nn
 import jax
@@ -58,12 +59,14 @@ class FeedForward(nn.Module):
 
     sizes: tuple[int, ...] = (64, 64)
     shared: bool = False
+    runs_sequences = True
 
     def initial_carry(self, batch_size: int) -> jax.Array:
         return jnp.zeros((batch_size, 0), jnp.float32)
 
     @nn.compact
-    def __call__(self, carry: jax.Array, obs: Sensation) -> tuple[jax.Array, jax.Array, jax.Array]:
+    def __call__(self, carry: jax.Array, obs: Sensation, resets: jax.Array | None = None,
+                 initial: jax.Array | None = None) -> tuple[jax.Array, jax.Array, jax.Array]:
         features = MLP(self.sizes, name="policy_trunk")(policy_inputs(obs))
         if self.shared:
             value = value_head(jnp.concatenate([features, obs.asymmetric], axis=-1))
@@ -124,6 +127,31 @@ def initial_cell_carry(kind: str, size: int, batch_size: int) -> jax.Array | tup
     return (zeros, zeros) if kind == "lstm" else zeros
 
 
+def reset_carry(carry: Any, initial: Any, reset: jax.Array) -> Any:
+    """Replace the carry by `initial` in the rows where `reset` `(B,)` is nonzero (an episode starts there)."""
+
+    def pick(init, current):
+        mask = reset.reshape(reset.shape + (1,) * (current.ndim - 1)) > 0
+        return jnp.where(mask, init, current)
+
+    return jax.tree.map(pick, initial, carry)
+
+
+def run_cell(cell: nn.RNNCellBase, carry: Any, inputs: jax.Array, resets: jax.Array | None = None,
+             initial: Any = None) -> tuple[Any, jax.Array]:
+    """`cell` for one step, `(carry, inputs (B, F)) -> (carry, output (B, size))`; or, given `resets` `(s, B)`, over
+    a sequence `inputs (s, B, F)` -> (final carry, outputs (s, B, size)), the carry replaced by `initial` before
+    each step where `resets` is set. Only the cell is scanned: what feeds it ran before as one batch of s x B rows."""
+    if resets is None:
+        return cell(carry, inputs)
+
+    def step(cell, carry, x):
+        inputs_t, reset_t = x
+        return cell(reset_carry(carry, initial, reset_t), inputs_t)
+
+    return nn.scan(step, variable_broadcast="params", split_rngs={"params": False})(cell, carry, (inputs, resets))
+
+
 def cell_output(kind: str, carry: jax.Array | tuple[jax.Array, jax.Array]) -> jax.Array:
     """The output `h` that a `recurrent_cell` of `kind` gave with `carry`: the LSTM's second entry, else the carry."""
     return carry[1] if kind == "lstm" else carry
@@ -142,6 +170,7 @@ class Recurrent(nn.Module):
     cell: str = "lstm"
     encoder: str = "modality"
     shared: bool = False
+    runs_sequences = True
 
     def initial_carry(self, batch_size: int):
         pathways = ("policy",) if self.shared else ("policy", "value")
@@ -152,17 +181,18 @@ class Recurrent(nn.Module):
         return encoder(self.width, modalities, name=name)(obs)
 
     @nn.compact
-    def __call__(self, carry, obs: Sensation):
-        policy_carry, features = recurrent_cell(self.cell, self.cell_size, "policy_cell")(
-            carry["policy"], self._encode(obs, POLICY_MODALITIES, "policy_encoder")
-        )
+    def __call__(self, carry, obs: Sensation, resets: jax.Array | None = None, initial=None):
+        def cell(pathway: str, inputs: jax.Array):
+            start = None if initial is None else initial[pathway]
+            module = recurrent_cell(self.cell, self.cell_size, f"{pathway}_cell")
+            return run_cell(module, carry[pathway], inputs, resets, start)
+
+        policy_carry, features = cell("policy", self._encode(obs, POLICY_MODALITIES, "policy_encoder"))
         new_carry = {"policy": policy_carry}
         if self.shared:
             value = value_head(jnp.concatenate([features, obs.asymmetric], axis=-1))
         else:
             all_modalities = POLICY_MODALITIES + ("asymmetric",)
-            new_carry["value"], value_features = recurrent_cell(self.cell, self.cell_size, "value_cell")(
-                carry["value"], self._encode(obs, all_modalities, "value_encoder")
-            )
+            new_carry["value"], value_features = cell("value", self._encode(obs, all_modalities, "value_encoder"))
             value = value_head(value_features)
         return new_carry, features, value

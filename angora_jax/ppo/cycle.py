@@ -186,11 +186,12 @@ def make_cycle(
         # Camera images of all s steps are encoded as one batch, not step by step inside the recurrent scan.
         obs = model.apply({"params": params}, sequences.obs, method=ActorCritic.perceive)
         _, policy_params, values = unroll(
-            lambda carry, obs: apply_fn(params, carry, obs),
+            lambda carry, obs, *sequence: model.apply({"params": params}, carry, obs, *sequence),
             jax.lax.stop_gradient(start_carry),  # truncated BPTT: no gradient across chunk borders
             network.initial_carry(minibatch_rows),
             obs,
             sequences.resets,
+            model.runs_sequences,
         )
         return ppo_loss(
             head,

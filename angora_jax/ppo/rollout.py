@@ -14,9 +14,9 @@ import jax.numpy as jnp
 from flax import struct
 
 from angora_jax.envs.core import Env, Sensation, State
+from angora_jax.nets.models import reset_carry
 from angora_jax.ppo.distributions import PolicyHead
 from angora_jax.ppo.normalization import normalize_observation, update_observation_stats
-from angora_jax.ppo.tbptt import reset_carry
 
 # (params, carry, obs) -> (carry, policy parameters (B, P), value (B,))
 ApplyFn = Callable[[Any, Any, Sensation], tuple[Any, jax.Array, jax.Array]]

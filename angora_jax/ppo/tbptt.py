@@ -13,17 +13,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from angora_jax.nets.models import reset_carry
 from angora_jax.ppo.parallel import local_share
-
-
-def reset_carry(carry: Any, initial: Any, reset: jax.Array) -> Any:
-    """Replace the carry by `initial` in the rows where `reset` `(B,)` is nonzero (an episode starts there)."""
-
-    def pick(init, current):
-        mask = reset.reshape(reset.shape + (1,) * (current.ndim - 1)) > 0
-        return jnp.where(mask, init, current)
-
-    return jax.tree.map(pick, initial, carry)
 
 
 def unroll(
@@ -32,13 +23,20 @@ def unroll(
     initial: Any,
     obs: Any,
     resets: jax.Array,
+    runs_sequences: bool = False,
 ) -> tuple[Any, jax.Array, jax.Array]:
     """Run `step(carry, obs_t) -> (carry, policy_params, value)` over a sequence, resetting the carry first
     wherever `resets[t]` is set.
 
     carry, initial: pytrees with leading axis B; obs: pytree with leaves `(s, B, ...)`; resets: `(s, B)`.
     Returns the final carry, policy parameters `(s, B, P)` and values `(s, B)`.
+
+    runs_sequences: `step(carry, obs, resets, initial)` runs the whole sequence itself (a network that
+    `runs_sequences`, see `angora_jax.nets`): its feed-forward layers take all s x B rows at once and only its
+    recurrent cells scan, instead of a scan over every layer of every step.
     """
+    if runs_sequences:
+        return step(carry, obs, resets, initial)
 
     if all(leaf.size == 0 for leaf in jax.tree.leaves(carry)):
         # No recurrent state (feed-forward networks): the steps are independent, so they run as one batch of s x B
