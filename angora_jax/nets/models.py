@@ -127,6 +127,10 @@ def initial_cell_carry(kind: str, size: int, batch_size: int) -> jax.Array | tup
     return (zeros, zeros) if kind == "lstm" else zeros
 
 
+# Longest sequence that `run_cell` unrolls instead of looping over.
+MAX_UNROLLED_STEPS = 32
+
+
 def reset_carry(carry: Any, initial: Any, reset: jax.Array) -> Any:
     """Replace the carry by `initial` in the rows where `reset` `(B,)` is nonzero (an episode starts there)."""
 
@@ -149,7 +153,11 @@ def run_cell(cell: nn.RNNCellBase, carry: Any, inputs: jax.Array, resets: jax.Ar
         inputs_t, reset_t = x
         return cell(reset_carry(carry, initial, reset_t), inputs_t)
 
-    return nn.scan(step, variable_broadcast="params", split_rngs={"params": False})(cell, carry, (inputs, resets))
+    # A training chunk is short (16 steps by default): unrolled, its steps are one program without a loop, which on a
+    # GPU saves the loop's per-step bookkeeping and lets XLA fuse across steps.
+    unroll = inputs.shape[0] if inputs.shape[0] <= MAX_UNROLLED_STEPS else 1
+    return nn.scan(step, variable_broadcast="params", split_rngs={"params": False}, unroll=unroll)(
+        cell, carry, (inputs, resets))
 
 
 def cell_output(kind: str, carry: jax.Array | tuple[jax.Array, jax.Array]) -> jax.Array:
