@@ -1,10 +1,13 @@
 """Probe a trained run end to end and time each part: recording N episodes of every layer (compile, then again),
 decoding task variables from areas (against noise and against the same network with random weights on the same
-inputs), ablations of areas, unit fractions and input modalities (success and goal distance with standard errors),
-fixed points of the recurrent premotor layer, PCA and timescales. Written for the brain-area model on reach.
+inputs), ablations of areas, unit fractions and input modalities (task outcomes with standard errors), fixed points of
+the recurrent premotor layer, PCA, timescales and, for the cube, RSA against model RDMs. Written for the brain-area
+model (`cortical`) on reach and on the cube; what is decoded and lesioned depends on the task (`PROBES`).
 
     python benchmarks/probe_trained.py runs/reach_cortical --episodes 480     # e.g. after
     angora-jax train shadow_reach_cortical logging.run_name=reach_cortical
+    python benchmarks/probe_trained.py runs/cube_cortical --episodes 480 --name cube_cortical_probe   # GPU, after
+    angora-jax train shadow_ihom_cortical logging.run_name=cube_cortical
 """
 
 from __future__ import annotations
@@ -12,6 +15,8 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import jax
 import numpy as np
@@ -19,9 +24,58 @@ from common import RESULTS, markdown_table, write_results
 
 import angora_jax as aj
 from angora_jax import analysis as an
+from angora_jax.experiment.agent import Agent
 
-LAYERS = ["network.SSC_2", "network.SPL", "network.IPS", "network.MCC", "network.LPFC", "network.PMC.1", "network.M1"]
-VARIABLES = ["input_goal", "input_asymmetric", "input_proprioception", "metric_goal_distance"]
+
+@dataclass(frozen=True)
+class Probe:
+    """What to probe on a task: the layers to decode from and analyse, the variables to decode, the lesions (name ->
+    lesioned agent), the episode outcomes to compare them by, and the model variables of RSA (none: no RSA), whose
+    conditions are bins of `rsa_condition`."""
+
+    layers: tuple[str, ...]
+    variables: tuple[str, ...]
+    lesions: Callable[[Agent], dict[str, Agent]]
+    outcomes: tuple[str, ...]
+    rsa_variables: tuple[str, ...] = ()
+    rsa_condition: str = "metric_goal_distance"
+
+
+def reach_lesions(agent: Agent) -> dict[str, Agent]:
+    return {"-SSC_2": an.lesion_area(agent, "network.SSC_2"), "-IPS": an.lesion_area(agent, "network.IPS"),
+            "-MCC": an.lesion_area(agent, "network.MCC"), "-50% M1": an.lesion_fraction(agent, "network.M1", 0.5),
+            "-10% M1": an.lesion_fraction(agent, "network.M1", 0.1),
+            "-goal input": an.silence_modality(agent, "goal"),
+            "-proprioception": an.silence_modality(agent, "proprioception"),
+            "-none": an.lesion(agent, "network.M1", [])}
+
+
+def cube_lesions(agent: Agent) -> dict[str, Agent]:
+    return {"-SSC": an.lesion_area(an.lesion_area(agent, "network.SSC_1"), "network.SSC_2"),
+            "-touch input": an.silence_modality(agent, "touch"),
+            "-goal input": an.silence_modality(agent, "goal"),
+            "-10% M1": an.lesion_fraction(agent, "network.M1", 0.1),
+            "-50% M1": an.lesion_fraction(agent, "network.M1", 0.5),
+            "-none": an.lesion(agent, "network.M1", [])}
+
+
+CUBE_LAYERS = ("network.SSC_1", "network.SSC_2", "network.SPL", "network.IPL", "network.IPS", "network.MCC",
+               "network.LPFC", "network.PMC_in", "network.PMC.1", "network.M1")
+PROBES = {
+    "ShadowHandReach": Probe(
+        layers=("network.SSC_2", "network.SPL", "network.IPS", "network.MCC", "network.LPFC", "network.PMC.1",
+                "network.M1"),
+        variables=("input_goal", "input_asymmetric", "input_proprioception", "metric_goal_distance"),
+        lesions=reach_lesions, outcomes=("success", "goal_distance")),
+    # The cube's variables (Env.task_variables): its orientation (quaternion), angular velocity (rad/s, cube frame),
+    # the rotation from it to the goal (quaternion), the fingertips (m) and the touch sensors (N).
+    "ShadowHandCube": Probe(
+        layers=CUBE_LAYERS,
+        variables=("task_cube_orientation", "task_cube_angular_velocity", "task_rotation_to_goal", "task_fingertips",
+                   "input_touch"),
+        lesions=cube_lesions, outcomes=("goals_reached", "dropped"),
+        rsa_variables=("task_cube_orientation", "task_rotation_to_goal", "task_cube_angular_velocity")),
+}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -35,6 +89,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out-dir", default=RESULTS, help="folder of the plots and the JSON (default: results/)")
     args = parser.parse_args(argv)
     agent = aj.load_agent(args.run_dir, "best")
+    task = agent.config.env.task
+    if task not in PROBES:
+        parser.error(f"{task} has no probe here; tasks with one: {sorted(PROBES)}.")
+    probe = PROBES[task]
+    layers, variables = list(probe.layers), list(probe.variables)
     seconds = {}
     for attempt in ("record_first_with_compile", "record_again"):
         start = time.perf_counter()
@@ -42,36 +101,41 @@ def main(argv: list[str] | None = None) -> None:
         seconds[attempt] = time.perf_counter() - start
     part = recording.isel(episode=slice(0, args.decode_episodes))
     start = time.perf_counter()
-    decoding = an.decode(part, LAYERS, VARIABLES)
-    control = an.decode(an.replay_activity(an.with_random_weights(agent), part), LAYERS, VARIABLES)
+    decoding = an.decode(part, layers, variables)
+    control = an.decode(an.replay_activity(an.with_random_weights(agent), part), layers, variables)
     seconds["decode_both"] = time.perf_counter() - start
-    lesions = {"-SSC_2": an.lesion_area(agent, "network.SSC_2"), "-IPS": an.lesion_area(agent, "network.IPS"),
-               "-MCC": an.lesion_area(agent, "network.MCC"), "-50% M1": an.lesion_fraction(agent, "network.M1", 0.5),
-               "-10% M1": an.lesion_fraction(agent, "network.M1", 0.1),
-               "-goal input": an.silence_modality(agent, "goal"),
-               "-proprioception": an.silence_modality(agent, "proprioception"),
-               "-none": an.lesion(agent, "network.M1", [])}
     start = time.perf_counter()
-    ablation = an.ablation(agent, lesions, episodes=args.episodes)
+    ablation = an.ablation(agent, probe.lesions(agent), episodes=args.episodes)
     seconds["ablation"] = time.perf_counter() - start
     start = time.perf_counter()
     points = an.agent_fixed_points(agent, part, "network.PMC", "network.PMC_in", starts=args.fixed_point_starts,
                                    iterations=args.fixed_point_iterations)
-    components = an.principal_components(part, LAYERS)
-    scales = an.timescales(part, LAYERS)
-    seconds["dynamics"] = time.perf_counter() - start
+    seconds["fixed_points"] = time.perf_counter() - start
+    start = time.perf_counter()
+    components = an.principal_components(part, layers)
+    seconds["principal_components"] = time.perf_counter() - start
+    start = time.perf_counter()
+    scales = an.timescales(part, layers)
+    seconds["timescales"] = time.perf_counter() - start
     os.makedirs(args.out_dir, exist_ok=True)
     out = os.path.join(args.out_dir, args.name)
+    similarity = None
+    if probe.rsa_variables:
+        start = time.perf_counter()
+        similarity = an.similarity(part, probe.rsa_condition, layers, probe.rsa_variables)
+        seconds["similarity"] = time.perf_counter() - start
+        an.plot_similarity(similarity, f"{out}_similarity.png")
     an.plot_decoding(decoding, f"{out}_decoding.png")
-    an.plot_ablation(ablation, "success", f"{out}_ablation.png")
+    an.plot_ablation(ablation, probe.outcomes[0], f"{out}_ablation.png")
     an.plot_dynamics(components, f"{out}_dynamics.png", points)
     an.plot_timescales(scales, f"{out}_timescales.png")
     rows = [{"lesion": str(name), **{f"{o}_{stat}": float(ablation[stat].sel(lesion=name, outcome=o))
-                                     for o in ("success", "goal_distance") for stat in ("mean", "sem")}}
+                                     for o in probe.outcomes for stat in ("mean", "sem")}}
             for name in ablation["lesion"].values]
-    print(markdown_table(rows, [("lesion", "lesion", "s"), ("success_mean", "success", ".3f"),
-                                ("success_sem", "s.e.m.", ".3f"), ("goal_distance_mean", "goal distance (m)", ".4f"),
-                                ("goal_distance_sem", "s.e.m.", ".4f")]))
+    columns = [("lesion", "lesion", "s")]
+    for o in probe.outcomes:
+        columns += [(f"{o}_mean", o, ".3f"), (f"{o}_sem", "s.e.m.", ".3f")]
+    print(markdown_table(rows, columns))
     summary = {
         "seconds": seconds, "recording_mb": recording.nbytes / 1e6, "run_cycle": agent.cycle,
         "decoding_r2": decoding["r2"].to_pandas().round(3).to_dict(),
@@ -79,9 +143,14 @@ def main(argv: list[str] | None = None) -> None:
         "decoding_r2_random_weights_same_inputs": control["r2"].to_pandas().round(3).to_dict(),
         "fixed_points": {"starts": len(points["fixed"]), "max_speed": float(points["speed"].max()),
                          "largest_eigenvalue_modulus_median": float(np.median(np.abs(points["eigenvalues"][:, 0])))},
-        "pca_components_for_90pct": dict(zip(LAYERS, components["dimensionality"].values.tolist(), strict=True)),
-        "timescale_median_s": dict(zip(LAYERS, scales["timescale_median"].values.round(4).tolist(), strict=True)),
+        "pca_components_for_90pct": dict(zip(layers, components["dimensionality"].values.tolist(), strict=True)),
+        "timescale_median_s": dict(zip(layers, scales["timescale_median"].values.round(4).tolist(), strict=True)),
+        "recorded_steps": int(recording.sizes["time"]),
+        "episode_length_mean_steps": float(recording["alive"].sum("time").mean()),
     }
+    if similarity is not None:
+        summary["rsa_condition"] = probe.rsa_condition
+        summary["rsa_model_similarity"] = similarity["model_similarity"].to_pandas().round(3).to_dict()
     print({k: v for k, v in summary.items() if not k.startswith("decoding")})
     config = {"run_dir": args.run_dir, "episodes": args.episodes, "decode_episodes": args.decode_episodes,
               "fixed_point_starts": args.fixed_point_starts, "fixed_point_iterations": args.fixed_point_iterations,

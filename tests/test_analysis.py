@@ -144,6 +144,9 @@ def test_a_recurrent_cell_records_its_activity_not_its_gates(agent, cell):
                 "gru": {"network.policy_cell.0", "network.policy_cell.1"}}[cell]
     assert cell_layers == expected, sorted(layers)
     assert all(name.startswith(("network.", "policy_head")) for name in layers), sorted(layers)
+    # The network's returned (carry, features, value) would repeat the cell and the policy's features as
+    # `network.0.policy`, `network.1`, ...: recorded once, under the layers' names.
+    assert not [name for name in layers if name.split(".")[:2][-1].isdigit()], sorted(layers)
 
 
 def test_a_graph_area_is_recorded_and_lesioned_by_its_name(agent):
@@ -284,11 +287,12 @@ def test_probe_trained_script_writes_every_part_and_finds_the_reach_policy_needs
     summary = record["config"]["summary"]
     assert record["config"]["episodes"] == 32 and summary["run_cycle"] == 120
     assert all(seconds > 0 for seconds in summary["seconds"].values())
+    probe = probe_trained.PROBES["ShadowHandReach"]
     for key in ("decoding_r2", "decoding_noise_baseline", "decoding_r2_random_weights_same_inputs"):
-        assert set(summary[key]) == set(probe_trained.VARIABLES), key
-        assert all(set(row) == set(probe_trained.LAYERS) for row in summary[key].values()), key
+        assert set(summary[key]) == set(probe.variables), key
+        assert all(set(row) == set(probe.layers) for row in summary[key].values()), key
     assert summary["fixed_points"]["starts"] == 8
-    assert set(summary["pca_components_for_90pct"]) == set(probe_trained.LAYERS)
+    assert set(summary["pca_components_for_90pct"]) == set(probe.layers)
     assert all(seconds > 0 for seconds in summary["timescale_median_s"].values())
     for plot in ("decoding", "ablation", "dynamics", "timescales"):
         assert (tmp_path / f"probe_{plot}.png").stat().st_size > 0, plot

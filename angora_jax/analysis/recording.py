@@ -42,6 +42,7 @@ from flax import linen as nn
 
 from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, load_agent
+from angora_jax.nets import ActorCritic
 
 # Policy steps compiled as one program when recording until the episodes end: a recording stops at most this many
 # steps after its longest episode ended (a cube episode lasts 100-5,000 steps).
@@ -72,8 +73,12 @@ def layer_activity(agent: Agent, carry: Any, obs: Any) -> tuple[Any, jax.Array, 
 def _captures_activity(module: nn.Module, method_name: str) -> bool:
     """Capture the outputs of modules' `__call__`, except those of a recurrent cell's own submodules: they are parts
     of one step of the cell, not layers (the GRU's gate pre-activations `ir`, `hz`, ...; the "lstm" cell's
-    `DenseParams`, which even return gate kernels: a weight matrix per step). The cell's output is recorded."""
-    return method_name == "__call__" and not isinstance(module.parent, nn.RNNCellBase)
+    `DenseParams`, which even return gate kernels: a weight matrix per step). The cell's output is recorded. Nor the
+    network's own returned (carry, features, value): its layers are recorded under their names (`network.PMC.1`,
+    `network.M1`), and the returned copies would only repeat them."""
+    if method_name != "__call__" or isinstance(module.parent, nn.RNNCellBase):
+        return False
+    return not (isinstance(module.parent, ActorCritic) and module.name == "network")
 
 
 def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | None = None, seed: int = 0,
