@@ -2,8 +2,9 @@
 its `main(argv)`, writing its JSON into the test's folder. Each checks what the results file must hold (device,
 versions, config) and what a broken script would violate: rates that are positive and divide as the table says
 (sim-s/s = steps/s x timestep, ratios of rates measured in the same run), identical episodes across settings,
-rows that did not fail. The MJX scripts run MuJoCo Warp's CPU kernels, whose compiles are seconds where MJX's JAX
-implementation takes a minute per program on 2 cores; evaluation_speed reads the session's `cortical_reach` run.
+rows that did not fail, a robustness width of 0 that is the unrandomized evaluation. The MJX scripts run MuJoCo Warp's
+CPU kernels, whose compiles are seconds where MJX's JAX implementation takes a minute per program on 2 cores;
+evaluation_speed reads the session's `cortical_reach` run, robustness a reach run of one tiny cycle.
 probe_trained's smoke run is in tests/test_analysis.py, after the tests whose programs it runs again. (A file of its
 own, apart from tests/test_benchmarks.py's pure-JAX scripts: pytest-xdist gives each file to one worker, so the two
 spread over CI's 2 cores.)"""
@@ -15,15 +16,19 @@ import mujoco
 import numpy as np
 import pytest
 from benchmark_results import BENCHMARKS, results
+from tiny import TINY_PPO
 
+import angora_jax as aj
 from angora_jax.envs.registry import make
 from angora_jax.envs.shadow_hand import REACH_PHYSICS
+from angora_jax.experiment.evaluation import evaluate
 
 sys.path.insert(0, str(BENCHMARKS))
 import env_throughput  # noqa: E402
 import evaluation_speed  # noqa: E402
 import physics_throughput  # noqa: E402
 import render_throughput  # noqa: E402
+import robustness  # noqa: E402
 import train_throughput  # noqa: E402
 
 WARP = '{"physics": {"impl": "warp"}}'
@@ -135,3 +140,35 @@ def test_evaluation_speed_gets_the_same_episodes_from_every_batch_and_worker_set
     for row in (first, second):
         assert row["episodes_per_s"] == pytest.approx(4 / row["seconds"])
         assert row["env_steps_per_s"] == pytest.approx(row["episodes_per_s"] * config["mean_episode_length"])
+
+
+def test_robustness_scales_the_ranges_by_width_and_width_0_is_the_unrandomized_evaluation(tmp_path):
+    """A reach run of one tiny cycle (Warp) evaluated at widths 0 and 1 of reference ranges that hold a cube key (left
+    out for reach): width 0 gives zero-width ranges and the unrandomized batched evaluation's episodes exactly, width 1
+    the reference ranges and other episodes; the JSON names the metric, ranges and runs, and the plot is written."""
+    run = aj.train("shadow_reach", [*TINY_PPO, "ppo.num_cycles=1", "env.options.physics={impl: warp}",
+                                    "env.options.max_episode_steps=20", "logging.progress=none",
+                                    "logging.report=false", "checkpoint.best_metric=null",
+                                    f"logging.run_root={tmp_path}", "logging.run_name=reach"]).run_dir
+    reference = {"friction": [0.5, 1.5], "actuator_gain": [0.2, 1.0], "observation_noise": 0.01}
+    out = tmp_path / "robustness.json"
+    record = robustness.main([f"{run}:latest", "--label", "tiny", "--widths", "0", "1", "--episodes", "3",
+                              "--ranges", json.dumps({**reference, "cube_mass": [0.5, 1.5]}), "--out", str(out)])
+    assert record == results(out, "robustness_ShadowHandReach")
+    config = record["config"]
+    assert (config["metric"], config["widths"], config["episodes"]) == ("metric/success", [0.0, 1.0], 3)
+    assert config["reference_ranges"] == reference and config["runs"][0]["checkpoint"] == "latest"
+    zero, one = record["results"]
+    assert (zero["run"], zero["width"], one["width"]) == ("tiny", 0.0, 1.0)
+    assert zero["ranges"] == {"friction": [1.0, 1.0], "actuator_gain": [1.0, 1.0], "observation_noise": 0.0}
+    assert one["ranges"] == reference
+    plain = evaluate(run, "latest", episodes=3, save=False, path="batched")
+    assert zero["per_episode"] == plain.episodes["metric/success"].tolist()
+    assert zero["per_episode_return"] == plain.episodes["episode_return"].tolist()
+    assert (zero["return_mean"], zero["mean"]) == (plain.summary["episode_return"]["mean"],
+                                                   plain.summary["metric/success"]["mean"])
+    assert one["return_mean"] != zero["return_mean"], "width 1 evaluated the unrandomized task"
+    assert out.with_suffix(".png").stat().st_size > 0
+    # Past width 1 a minimum is clipped: at 0, or above 0 for the cube's mass.
+    assert robustness.scaled({"cube_mass": [0.5, 1.5], "friction": [0.3, 1.3], "action_noise": 0.1}, 2) == {
+        "cube_mass": [robustness.POSITIVE_FLOOR, 2.0], "friction": [0.0, pytest.approx(1.6)], "action_noise": 0.2}

@@ -27,6 +27,8 @@ _MODEL_STREAM, _ACTION_STREAM, _OBSERVATION_STREAM = 0x4D4F44, 0x414354, 0x4F425
 SCALES = ("friction", "joint_damping", "armature", "actuator_gain", "cube_mass", "cube_damping")
 NOISES = ("action_noise", "observation_noise")
 CUBE_KEYS = ("cube_mass", "cube_damping")
+# Scale ranges whose minimum must be > 0 (a cube without mass is no cube); the others' must be >= 0.
+POSITIVE_SCALES = ("cube_mass",)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,7 +84,7 @@ class Randomization:
                     isinstance(v, int | float) for v in value):
                 raise ValueError(f"{name} is a range of scale factors: give [lo, hi], got {value!r}.")
             lo, hi = float(value[0]), float(value[1])
-            if key == "cube_mass" and not lo > 0:
+            if key in POSITIVE_SCALES and not lo > 0:
                 raise ValueError(f"{name} scales the cube's mass: its minimum must be > 0, got {lo}.")
             if not lo >= 0:
                 raise ValueError(f"{name} scales a physical quantity: its minimum must be >= 0, got {lo}.")
