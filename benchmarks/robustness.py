@@ -7,7 +7,8 @@ randomization scaled by each width:
 
 Width w scales each range of the reference about the nominal model (a factor of 1): a scale range [lo, hi] becomes
 [1 - w (1 - lo), 1 + w (hi - 1)] (its minimum clipped at 0, or at 0.05 for keys that must stay positive), a noise
-standard deviation s becomes w s. Width 0 is the unrandomized task (zero-width ranges give it bit for bit), width 1
+standard deviation s becomes w s, a delay range [lo, hi] of policy steps [round(w lo), round(w hi)]. Width 0 is the
+unrandomized task (zero-width ranges give it bit for bit), width 1
 the reference itself. The reference is `env.options.randomization` of configs/shadow_ihom_randomized.yaml unless
 `--ranges` gives a YAML or JSON mapping (a file or inline text); keys of the cube are left out for tasks without
 one.
@@ -31,7 +32,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from common import markdown_table, write_results  # noqa: E402
 
-from angora_jax.envs.randomization import CUBE_KEYS, NOISES, POSITIVE_SCALES  # noqa: E402
+from angora_jax.envs.randomization import CUBE_KEYS, DELAYS, NOISES, POSITIVE_SCALES  # noqa: E402
 from angora_jax.experiment.config import load_config  # noqa: E402
 from angora_jax.experiment.evaluation import evaluate  # noqa: E402
 from angora_jax.experiment.run_dir import read_run_config  # noqa: E402
@@ -45,11 +46,13 @@ METRICS = ("metric/goals_reached", "metric/success")
 
 def scaled(ranges: dict, width: float) -> dict:
     """The randomization `ranges` (`randomization` option keys) scaled by `width` about the nominal model (module
-    docstring); width 0 gives zero-width ranges at 1 and zero noise."""
+    docstring); width 0 gives zero-width ranges at 1, zero noise and no delay."""
     out = {}
     for key, value in ranges.items():
         if key in NOISES:
             out[key] = width * float(value)
+        elif key in DELAYS:
+            out[key] = [round(width * value[0]), round(width * value[1])]
         else:
             # w x + (1 - w), the same as 1 - w (1 - x), is exact at widths 0 (1) and 1 (the reference's x).
             floor = POSITIVE_FLOOR if key in POSITIVE_SCALES else 0.0
@@ -158,7 +161,7 @@ def main(argv: list[str] | None = None) -> dict:
               "actions": "mode (deterministic)", "path": "batched", "reference_ranges": reference,
               "reference_source": source,
               "scaling": "scale [lo, hi] -> [max(1 - w (1 - lo), floor), 1 + w (hi - 1)], floor 0 (0.05 for "
-                         f"{list(POSITIVE_SCALES)}); noise s -> w s",
+                         f"{list(POSITIVE_SCALES)}); noise s -> w s; delay [lo, hi] -> [round(w lo), round(w hi)]",
               "runs": [{"label": label, "run_dir": str(run_dir), "checkpoint": checkpoint}
                        for (run_dir, checkpoint), label in zip(runs, labels, strict=True)]}
     path = Path(write_results(f"robustness_{task}", config, rows, args.out))

@@ -184,5 +184,9 @@ def test_robustness_scales_the_ranges_by_width_and_width_0_is_the_unrandomized_e
     assert one["return_mean"] != zero["return_mean"], "width 1 evaluated the unrandomized task"
     assert out.with_suffix(".png").stat().st_size > 0
     # Past width 1 a minimum is clipped: at 0, or above 0 for the cube's mass.
-    assert robustness.scaled({"cube_mass": [0.5, 1.5], "friction": [0.3, 1.3], "action_noise": 0.1}, 2) == {
-        "cube_mass": [robustness.POSITIVE_FLOOR, 2.0], "friction": [0.0, pytest.approx(1.6)], "action_noise": 0.2}
+    assert robustness.scaled({"cube_mass": [0.5, 1.5], "friction": [0.3, 1.3], "action_noise": 0.1,
+                              "action_delay": [1, 3]}, 2) == {
+        "cube_mass": [robustness.POSITIVE_FLOOR, 2.0], "friction": [0.0, pytest.approx(1.6)], "action_noise": 0.2,
+        "action_delay": [2, 6]}
+    assert robustness.scaled({"action_delay": [1, 3], "cube_size": [0.95, 1.05]}, 0) == {
+        "action_delay": [0, 0], "cube_size": [1.0, 1.0]}

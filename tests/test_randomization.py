@@ -1,7 +1,8 @@
 """Domain randomization of the hand tasks (`envs.randomization`): ranges are checked before anything compiles, a draw
 is per environment and per key, zero-width ranges give the unrandomized task bit for bit, randomized fields change
-the physics on both MJX implementations (Warp reading one world's fields per environment), and the C MuJoCo twin
-simulates the same worlds for the same key.
+the physics on both MJX implementations (Warp reading one world's fields per environment), the C MuJoCo twin
+simulates the same worlds for the same key, the cube's size scales its geoms, mass and inertia, and a delayed action
+reaches the physics the drawn number of steps late.
 
 Warp's CPU kernels compile in seconds, so most tests run on Warp; one runs on MJX's JAX implementation."""
 
@@ -17,17 +18,18 @@ from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.cli import main
-from angora_jax.envs.randomization import INFO_KEY
+from angora_jax.envs.eager_batch import EagerBatch
+from angora_jax.envs.randomization import DELAY_KEY, INFO_KEY
 from angora_jax.experiment.evaluation import evaluate
 
 BATCH, STEPS = 3, 6
 # Converged solves, so that Warp and C MuJoCo agree within test_warp.py's tolerance (2e-3 rad).
 WARP = {"impl": "warp", "iterations": 50, "ls_iterations": 50}
 WIDE = {"friction": [0.2, 2.0], "joint_damping": [0.2, 5.0], "armature": [0.5, 2.0], "actuator_gain": [0.3, 3.0],
-        "action_noise": 0.1, "observation_noise": 0.01}
-FIELDS = {k: v for k, v in WIDE.items() if not k.endswith("noise")}
+        "action_delay": [0, 3], "action_noise": 0.1, "observation_noise": 0.01}
+FIELDS = {k: v for k, v in WIDE.items() if not k.endswith(("noise", "delay"))}
 ZERO_WIDTH = {"friction": [1, 1], "joint_damping": [1, 1], "armature": [1, 1], "actuator_gain": [1, 1],
-              "action_noise": 0, "observation_noise": 0}
+              "action_delay": [0, 0], "action_noise": 0, "observation_noise": 0}
 
 
 def rollout(env):
@@ -67,15 +69,21 @@ def warp_runs(inputs):
     ({"cube_mass": [0.5, 1.5]}, "randomization.cube_mass applies to the cube task only"),
     ({"armature": 1.5}, r"randomization.armature is a range of scale factors: give \[lo, hi\]"),
     ({"action_noise": -0.1}, "randomization.action_noise is a standard deviation"),
+    ({"cube_size": [0.9, 1.1]}, "randomization.cube_size applies to the cube task only"),
+    ({"action_delay": [0, 1.5]}, r"randomization.action_delay is a range of policy steps: give integers \[lo, hi\]"),
+    ({"action_delay": [-1, 2]}, "randomization.action_delay is a delay: its minimum must be >= 0, got -1"),
+    ({"action_delay": [3, 1]}, "randomization.action_delay's minimum 3 is above its maximum 1"),
 ])
 def test_bad_ranges_are_refused_before_compiling_with_the_key_named(ranges, message):
     with pytest.raises(ValueError, match=message):
         aj.make("ShadowHandReach", randomization=ranges)
 
 
-def test_the_cube_refuses_a_mass_that_is_not_positive():
-    with pytest.raises(ValueError, match="randomization.cube_mass scales the cube's mass: its minimum must be > 0"):
-        aj.make("ShadowHandCube", randomization={"cube_mass": [0.0, 1.0]})
+@pytest.mark.parametrize("key", ["cube_mass", "cube_size"])
+def test_the_cube_refuses_a_mass_or_size_that_is_not_positive(key):
+    quantity = key.removeprefix("cube_")
+    with pytest.raises(ValueError, match=f"randomization.{key} scales the cube's {quantity}: its minimum must be > 0"):
+        aj.make("ShadowHandCube", randomization={key: [0.0, 1.0]})
 
 
 def test_a_draw_differs_per_environment_and_is_reproducible_per_key(warp_runs, inputs):
@@ -119,8 +127,9 @@ def test_the_cpu_twin_simulates_the_same_worlds_for_the_same_key(warp_runs, inpu
     keys, actions = inputs
     for b in range(BATCH):
         twin = cpu.reset(keys[b])
-        row = jax.tree.map(lambda x, b=b: x[b], first.info[INFO_KEY])
-        jax.tree.map(np.testing.assert_array_equal, row, twin.info[INFO_KEY])
+        for key in (INFO_KEY, DELAY_KEY):
+            row = jax.tree.map(lambda x, b=b: x[b], first.info[key])
+            jax.tree.map(np.testing.assert_array_equal, row, twin.info[key])
         np.testing.assert_allclose(first.obs.proprioception[b], twin.obs.proprioception, atol=1e-5)
         for t in range(STEPS):
             twin = cpu.step(twin, actions[t, b])
@@ -168,7 +177,8 @@ def test_evaluate_runs_a_policy_under_randomization_given_as_an_env_option(tmp_p
                                     "env.options.max_episode_steps=20", "logging.progress=none",
                                     "logging.report=false", "checkpoint.best_metric=null",
                                     f"logging.run_root={tmp_path}", "logging.run_name=reach"]).run_dir
-    option = "randomization={friction: [0.5, 1.5], actuator_gain: [0.2, 0.4], observation_noise: 0.01}"
+    option = ("randomization={friction: [0.5, 1.5], actuator_gain: [0.2, 0.4], observation_noise: 0.01, "
+              "action_delay: [1, 3]}")
     args = ["evaluate", str(run), "--checkpoint", "latest", "--episodes", "2", "--path", "batched"]
     assert main([*args, "--env-option", option]) == 0
     path = Path(capsys.readouterr().out.split("Written: ")[1].split(" and ")[0])
@@ -202,3 +212,101 @@ def test_the_cube_ranges_scale_only_the_cube_and_change_its_motion_on_warp(input
     cube = slice(env.task.cube_qpos, env.task.cube_qpos + 7)
     moved = [rollout(e)(keys, actions)[1].physics.qpos[-1, :, cube] for e in (env, plain)]
     assert float(jnp.abs(moved[0] - moved[1]).max()) > 1e-3
+
+
+def test_an_action_delay_is_drawn_per_environment_and_reaches_the_physics_that_many_steps_late(warp_runs, inputs):
+    """The delay is an integer drawn per environment at reset, the same for the same key; with a delay of 2 the
+    physics of step t receive the control of step t - 2's action (chosen in that step's state) and the first two
+    steps hold the reset's control."""
+    env = warp_runs["wide"][0]
+    many = jax.random.split(jax.random.key(5), 16)
+    reset = jax.jit(jax.vmap(env.sized_for(16).reset))
+    delays = np.asarray(reset(many).info[DELAY_KEY]["delay"])
+    assert delays.dtype == np.int32 and set(delays.tolist()) == {0, 1, 2, 3}
+    np.testing.assert_array_equal(np.asarray(reset(many).info[DELAY_KEY]["delay"]), delays)
+    late = aj.make("ShadowHandReach", physics=WARP, randomization={"action_delay": [2, 2]})
+    keys, actions = inputs
+    first, states = rollout(late)(keys, actions)
+    assert first.info[DELAY_KEY]["pending"].shape == (BATCH, 2, 20)
+    before = [first.physics] + [jax.tree.map(lambda x, t=t: x[t], states.physics) for t in range(STEPS - 1)]
+    control = jax.vmap(late.task.control)
+    for t in range(STEPS):
+        expected = first.physics.ctrl if t < 2 else control(actions[t - 2], late.task.snapshot(before[t - 2]))
+        # Computed outside the step's program: the same up to float32 rounding of a fused operation.
+        np.testing.assert_allclose(states.physics.ctrl[t], expected, rtol=1e-6, atol=1e-7)
+
+
+def test_the_cube_size_scales_its_geoms_mass_and_inertia_on_every_path(inputs):
+    """`cube_size` scales the cube's geoms (sizes, bounding radii and boxes) by s, its mass by s^3 and inertia by s^5
+    (times `cube_mass`'s factor); a larger cube moves otherwise on Warp, and the C MuJoCo twin and an `EagerBatch`
+    slot write the same factors into their models."""
+    ranges = {"cube_size": [1.3, 1.4], "cube_mass": [2.0, 2.0]}
+    env = aj.make("ShadowHandCube", physics={"impl": "warp"}, randomization=ranges)
+    randomizer, model = env.task.randomizer, env.task.model
+    factors = randomizer.draw(jax.random.key(0))
+    size = float(factors["geom_size"][randomizer.cube_geoms[0], 0])
+    assert 1.3 <= size <= 1.4 and len(randomizer.cube_geoms) == 2
+    for field in ("geom_size", "geom_rbound", "geom_aabb"):
+        scaled = np.flatnonzero((np.asarray(factors[field]) != 1).reshape(model.ngeom, -1).any(axis=1))
+        assert scaled.tolist() == randomizer.cube_geoms.tolist(), field
+        assert (np.asarray(factors[field])[randomizer.cube_geoms] == np.float32(size)).all(), field
+    np.testing.assert_allclose(factors["body_mass"][randomizer.cube_body], 2 * size**3, rtol=1e-6)
+    np.testing.assert_allclose(factors["body_inertia"][randomizer.cube_body], 2 * size**5, rtol=1e-6)
+    keys, actions = inputs
+    plain = aj.make("ShadowHandCube", physics={"impl": "warp"})
+    cube = slice(env.task.cube_qpos, env.task.cube_qpos + 7)
+    moved = [rollout(e)(keys, actions)[1].physics.qpos[-1, :, cube] for e in (env, plain)]
+    assert float(jnp.abs(moved[0] - moved[1]).max()) > 1e-3
+    cpu = aj.make("ShadowHandCube", physics={"impl": "warp"}, randomization=ranges, backend="cpu")
+    drawn = cpu.reset(keys[0]).info[INFO_KEY]
+    geoms = randomizer.cube_geoms
+    np.testing.assert_array_equal(cpu.model.geom_size[geoms], model.geom_size[geoms] * np.float64(
+        drawn["geom_size"][geoms]))
+    assert cpu.model.body_mass[randomizer.cube_body] == model.body_mass[randomizer.cube_body] * np.float64(
+        drawn["body_mass"][randomizer.cube_body])
+    # MuJoCo Warp lays the bounding boxes out as (ngeom, 2, 3) (the Warp rollout above scaled them); MJX's JAX
+    # implementation as C MuJoCo does, and builds a box's collision vertices from the scaled geom_size.
+    jax_env = aj.make("ShadowHandCube", physics={"impl": "jax"}, randomization=ranges)
+    applied = jax_env.task.randomizer.apply(jax_env.mjx_model, factors)
+    np.testing.assert_allclose(np.asarray(applied.geom_aabb)[geoms], np.float32(model.geom_aabb[geoms]) * size,
+                               rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(applied.geom_size)[0], np.float32(model.geom_size[0]))
+    with EagerBatch(env, 1) as batch:
+        batch.reset(0, keys[0])
+        np.testing.assert_array_equal(batch.models[0].geom_rbound, cpu.model.geom_rbound)
+        np.testing.assert_array_equal(batch.models[0].geom_aabb, cpu.model.geom_aabb)
+
+
+def test_a_run_trained_under_randomization_resumes_exactly(tmp_path):
+    """Reach under randomization (every kind: fields, delay, noise), 12-step episodes so that auto-resets draw new
+    worlds and delays mid-run: stopped after its first cycle (`minutes`) and resumed, it ends as the run that was not
+    stopped, metrics and the whole state (drawn factors and delay queues in the environments' info included) bit for
+    bit."""
+    ranges = "{friction: [0.5, 1.5], actuator_gain: [0.5, 1.5], action_delay: [0, 2], action_noise: 0.05, " \
+             "observation_noise: 0.01}"
+    overrides = [*TINY_PPO, "ppo.num_cycles=3", "ppo.network.width=16", "env.options.physics={impl: warp}",
+                 f"env.options.randomization={ranges}", "env.options.max_episode_steps=12", "logging.progress=none",
+                 "logging.report=false", "checkpoint.every=100", "checkpoint.snapshot_every=0",
+                 f"logging.run_root={tmp_path}"]
+    whole = aj.train("shadow_reach", [*overrides, "logging.run_name=whole"])
+    first = aj.train("shadow_reach", [*overrides, "logging.run_name=pieces"], minutes=1e-9)
+    assert not first.finished and [r["cycle"] for r in first.history] == [1]
+    rest = aj.resume(first.run_dir)
+    assert rest.finished and [r["cycle"] for r in rest.history] == [2, 3]
+    untimed = {"seconds", "steps_per_second", "compile_seconds", "time", "memory/host_peak_bytes",
+               "compile_cache_hits", "compile_cache_misses"}
+    for a, b in zip(whole.history[1:], rest.history, strict=True):
+        assert {k: v for k, v in a.items() if k not in untimed} == {k: v for k, v in b.items() if k not in untimed}
+    info = whole.state.actor.env_state.info
+    assert len(set(np.asarray(info[INFO_KEY]["geom_friction"][:, 0, 0]).tolist())) == 4, "one world per env"
+    assert info[DELAY_KEY]["pending"].shape == (4, 2, 20)
+    # Except MuJoCo Warp's contact pool field `contact__geomcollisionid` (shared by the batch): its unused entries hold
+    # whatever memory Warp allocated (values like 1912240451), in unrandomized Warp runs too; no step reads them, as
+    # the equal metrics and physics show.
+    differ = []
+    for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(whole.state), jax.tree.leaves(rest.state), strict=True):
+        if jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key):
+            a, b = jax.random.key_data(a), jax.random.key_data(b)
+        if not np.array_equal(a, b):
+            differ.append(jax.tree_util.keystr(path))
+    assert differ in ([], [".actor.env_state.physics._impl.contact__geomcollisionid"]), differ

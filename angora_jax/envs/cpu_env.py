@@ -34,7 +34,8 @@ class CpuEnv(MujocoEnv):
         self._initial_qvel = jax.jit(task.initial_qvel)
         self._begin = jax.jit(self._begin_task)
         self._advance = jax.jit(self._advance_task)
-        self._control = jax.jit(lambda action, key, snap: task.control(self._acted(action, key), snap))
+        self._control = jax.jit(lambda action, key, snap, info: self._delayed(task.control(self._acted(action, key),
+                                                                                           snap), info))
         self._perceive = jax.jit(task.perceive)
         self._draw = None if task.randomizer is None else jax.jit(task.randomizer.draw)
         self._last: State | None = None
@@ -62,7 +63,8 @@ class CpuEnv(MujocoEnv):
         return snap, self.see(obs, self.data, info), info
 
     def _step(self, physics: Snapshot, info: dict[str, jax.Array], action: jax.Array, key: jax.Array):
-        self.data.ctrl[:] = np.asarray(self._control(action, key, physics), np.float64)
+        ctrl, info = self._control(action, key, physics, info)
+        self.data.ctrl[:] = np.asarray(ctrl, np.float64)
         step_physics(self.task, self.data, self.frame_skip, self.model)
         snap = self.task.snapshot(self.data)
         obs, reward, terminated, info, metrics = self._advance(key, physics, snap, info)

@@ -67,9 +67,10 @@ def batch_functions(env: Env) -> tuple[Env, dict[str, Callable[..., Any]]]:
     if isinstance(env, CpuEnv):
         after_physics = _AfterPhysics(env.task, env.frame_skip, env.max_episode_steps)
 
-        def control(state: State, action: jax.Array) -> jax.Array:
+        def control(state: State, action: jax.Array) -> tuple[jax.Array, dict[str, jax.Array]]:
             step_key = step_keys(state.key)[1]  # the key `Env.advance` gives the step (action noise)
-            return env.task.control(env._acted(env.check_action(action), step_key), state.physics)
+            return env._delayed(env.task.control(env._acted(env.check_action(action), step_key), state.physics),
+                                state.info)
 
         def finish(state: State, action: jax.Array, after: Snapshot) -> State:
             return after_physics.advance(state.replace(physics=(state.physics, after)), action)[0]
@@ -144,7 +145,9 @@ class EagerBatch:
         if not self.datas:
             self.states = self._advance(self.states, actions)
             return self.states
-        ctrl = np.asarray(self._control(self.states, actions), np.float64)
+        ctrl, info = self._control(self.states, actions)
+        ctrl = np.asarray(ctrl, np.float64)
+        self.states = self.states.replace(info=info)  # the action delay's state, advanced
         slots = np.flatnonzero(active)
         if self._pool is None:
             self._step_physics(ctrl, slots)

@@ -19,7 +19,7 @@ from flax import struct
 
 from angora_jax.envs.cameras import CameraVision
 from angora_jax.envs.core import ActionSpec, Env, Sensation, State
-from angora_jax.envs.randomization import INFO_KEY, ModelRandomizer
+from angora_jax.envs.randomization import DELAY_KEY, INFO_KEY, ModelRandomizer
 
 MJX_IMPLS = ("jax", "warp")
 # Name of the MJCF custom text that names a model's MJX implementation: the compiled model is what the MJX path and
@@ -190,12 +190,16 @@ class MujocoEnv(Env):
 
     def _begin_task(self, key: jax.Array, task_key: jax.Array, snap: Snapshot,
                     factors: dict[str, jax.Array]) -> tuple[dict[str, jax.Array], Sensation]:
-        """`task.begin(task_key, snap)` of a reset from `key`, randomized: the drawn model `factors` held in the
-        episode's info, observation noise added (pure JAX)."""
+        """`task.begin(task_key, snap)` of a reset from `key`, randomized: the drawn model `factors` and action delay
+        held in the episode's info, observation noise added (pure JAX)."""
         info, obs = self.task.begin(task_key, snap)
-        if self.task.randomizer is None:
+        randomizer = self.task.randomizer
+        if randomizer is None:
             return info, obs
-        return info | {INFO_KEY: factors}, self.task.randomizer.noisy_observation(obs, key)
+        info = info | {INFO_KEY: factors}
+        if randomizer.delays:
+            info[DELAY_KEY] = randomizer.delay_state(key, self.task.initial_control(snap))
+        return info, randomizer.noisy_observation(obs, key)
 
     def _acted(self, action: jax.Array, key: jax.Array) -> jax.Array:
         """The action the physics receive at a step with `key`: with the randomization's action noise (pure JAX)."""
@@ -203,16 +207,24 @@ class MujocoEnv(Env):
             return action
         return self.task.randomizer.noisy_action(action, key, self.action_spec.low, self.action_spec.high)
 
+    def _delayed(self, control: jax.Array, info: dict[str, jax.Array]) -> tuple[jax.Array, dict[str, jax.Array]]:
+        """The control the physics receive when a step's action asks for `control`, and `info` with the action delay's
+        state advanced (both unchanged without a delay; pure JAX)."""
+        if self.task.randomizer is None or not self.task.randomizer.delays:
+            return control, info
+        control, delay = self.task.randomizer.delayed(control, info[DELAY_KEY])
+        return control, info | {DELAY_KEY: delay}
+
     def _advance_task(self, key: jax.Array, prev: Snapshot, snap: Snapshot, info: dict[str, jax.Array]):
-        """`task.advance` of a step with `key`, randomized: the held model factors pass by the task, observation
-        noise is added (pure JAX)."""
+        """`task.advance` of a step with `key`, randomized: the held model factors and delay state pass by the task,
+        observation noise is added (pure JAX)."""
         randomizer = self.task.randomizer
         if randomizer is None:
             return self.task.advance(key, prev, snap, info)
-        task_info = {k: v for k, v in info.items() if k != INFO_KEY}
+        held = {k: v for k, v in info.items() if k in (INFO_KEY, DELAY_KEY)}
+        task_info = {k: v for k, v in info.items() if k not in held}
         obs, reward, terminated, task_info, metrics = self.task.advance(key, prev, snap, task_info)
-        return (randomizer.noisy_observation(obs, key), reward, terminated, task_info | {INFO_KEY: info[INFO_KEY]},
-                metrics)
+        return randomizer.noisy_observation(obs, key), reward, terminated, task_info | held, metrics
 
     def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
         return {"engine": "C MuJoCo (eager)", "device": "host CPU", "timestep_s": float(self.task.model.opt.timestep),

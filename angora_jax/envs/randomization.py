@@ -1,5 +1,5 @@
-"""Domain randomization of the hand tasks: model fields scaled per environment at reset, noise on actions and
-observations at every step.
+"""Domain randomization of the hand tasks: model fields scaled and an action delay drawn per environment at reset,
+noise on actions and observations at every step.
 
 `Randomization` holds the ranges of an env's `randomization` option (validated before anything compiles);
 `ModelRandomizer` resolves them against a compiled model and draws, from a reset key, one environment's factors on
@@ -22,13 +22,20 @@ from angora_jax.envs.core import Sensation
 
 # Key of the drawn factors in an episode's `info`: they are held there for the whole episode.
 INFO_KEY = "randomized_model"
-# Streams folded into the reset and step keys, so that randomization leaves the task's own draws as they were.
+# Key of the action delay's state in an episode's `info` (`ModelRandomizer.delay_state`).
+DELAY_KEY = "delayed_control"
+# Streams folded into the reset and step keys, so that randomization leaves the task's own draws as they were. The
+# cube's size and the delay take streams of their own, so that adding them left the other ranges' draws unchanged.
 _MODEL_STREAM, _ACTION_STREAM, _OBSERVATION_STREAM = 0x4D4F44, 0x414354, 0x4F4253
-SCALES = ("friction", "joint_damping", "armature", "actuator_gain", "cube_mass", "cube_damping")
+_SIZE_STREAM, _DELAY_STREAM = 0x53495A, 0x444C59
+SCALES = ("friction", "joint_damping", "armature", "actuator_gain", "cube_mass", "cube_damping", "cube_size")
 NOISES = ("action_noise", "observation_noise")
-CUBE_KEYS = ("cube_mass", "cube_damping")
-# Scale ranges whose minimum must be > 0 (a cube without mass is no cube); the others' must be >= 0.
-POSITIVE_SCALES = ("cube_mass",)
+DELAYS = ("action_delay",)
+CUBE_KEYS = ("cube_mass", "cube_damping", "cube_size")
+# Scale ranges whose minimum must be > 0 (a cube without mass or size is no cube); the others' must be >= 0.
+POSITIVE_SCALES = ("cube_mass", "cube_size")
+# The cube's geom fields that its size scales: half sizes, bounding radius, bounding box (centre and half sizes).
+CUBE_SIZE_FIELDS = ("geom_size", "geom_rbound", "geom_aabb")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,6 +49,10 @@ class Randomization:
         control), one factor per actuator.
     cube_mass: the cube's mass and inertia (its density), one factor per environment.
     cube_damping: the damping of the cube's free joint, one factor per environment.
+    cube_size: the cube's size s, one factor per environment: its geoms' half sizes, bounding radii and bounding
+        boxes times s, its mass times s^3 and inertia times s^5 (the same density; with `cube_mass` both apply).
+    action_delay: `(lo, hi)` policy steps, an integer k drawn uniformly per environment at reset: the physics receive
+        the control of the action chosen k steps earlier (the first k steps of an episode hold the reset's control).
     action_noise: Gaussian noise added to each policy action component (action units, actions lie in [-1, 1];
         the noisy action is clipped to the action bounds).
     observation_noise: Gaussian noise added to the proprioception and touch modalities, in their own units.
@@ -53,6 +64,8 @@ class Randomization:
     actuator_gain: tuple[float, float] | None = None
     cube_mass: tuple[float, float] | None = None
     cube_damping: tuple[float, float] | None = None
+    cube_size: tuple[float, float] | None = None
+    action_delay: tuple[int, int] | None = None
     action_noise: float = 0.0
     observation_noise: float = 0.0
 
@@ -60,13 +73,15 @@ class Randomization:
     def from_options(cls, options: dict | None, cube: bool) -> Randomization | None:
         """The ranges of an env's `randomization` option (None when it is absent); a ValueError naming the key
         and the fix for an unknown key, a key of the cube on a task without one (`cube` False), a range that is not
-        `[lo, hi]` with `0 <= lo <= hi` (`0 < lo` for the cube's mass) or a negative noise."""
+        `[lo, hi]` with `0 <= lo <= hi` (`0 < lo` for the cube's mass and size; integers for the delay) or a negative
+        noise."""
         if options is None:
             return None
         if not isinstance(options, dict):
-            raise ValueError(f"env.options.randomization must be a mapping of {SCALES + NOISES} to ranges, got "
-                             f"{options!r}.")
-        known = SCALES + NOISES if cube else tuple(k for k in SCALES + NOISES if k not in CUBE_KEYS)
+            raise ValueError(f"env.options.randomization must be a mapping of {SCALES + DELAYS + NOISES} to ranges, "
+                             f"got {options!r}.")
+        every = SCALES + DELAYS + NOISES
+        known = every if cube else tuple(k for k in every if k not in CUBE_KEYS)
         for key in options:
             if key in CUBE_KEYS and not cube:
                 raise ValueError(f"randomization.{key} applies to the cube task only; remove it for this task.")
@@ -80,12 +95,24 @@ class Randomization:
                     raise ValueError(f"{name} is a standard deviation: give a number >= 0, got {value!r}.")
                 values[key] = float(value)
                 continue
+            if key in DELAYS:
+                if not isinstance(value, list | tuple) or len(value) != 2 or not all(
+                        isinstance(v, int) and not isinstance(v, bool) for v in value):
+                    raise ValueError(f"{name} is a range of policy steps: give integers [lo, hi], got {value!r}.")
+                if not value[0] >= 0:
+                    raise ValueError(f"{name} is a delay: its minimum must be >= 0, got {value[0]}.")
+                if value[0] > value[1]:
+                    raise ValueError(f"{name}'s minimum {value[0]} is above its maximum {value[1]}: give [lo, hi] "
+                                     "with lo <= hi.")
+                values[key] = (int(value[0]), int(value[1]))
+                continue
             if not isinstance(value, list | tuple) or len(value) != 2 or not all(
                     isinstance(v, int | float) for v in value):
                 raise ValueError(f"{name} is a range of scale factors: give [lo, hi], got {value!r}.")
             lo, hi = float(value[0]), float(value[1])
             if key in POSITIVE_SCALES and not lo > 0:
-                raise ValueError(f"{name} scales the cube's mass: its minimum must be > 0, got {lo}.")
+                raise ValueError(f"{name} scales the cube's {key.removeprefix('cube_')}: its minimum must be > 0, "
+                                 f"got {lo}.")
             if not lo >= 0:
                 raise ValueError(f"{name} scales a physical quantity: its minimum must be >= 0, got {lo}.")
             if lo > hi:
@@ -108,6 +135,7 @@ class ModelRandomizer:
             cube_dofs = model.dof_bodyid == self.cube_body
         self.hand_dofs = np.flatnonzero(~cube_dofs)
         self.cube_dofs = np.flatnonzero(cube_dofs)
+        self.cube_geoms = np.flatnonzero(model.geom_bodyid == self.cube_body) if cube_body is not None else None
 
     def draw(self, key: jax.Array) -> dict[str, jax.Array]:
         """One environment's factors drawn from a reset key: `MjModel` field name -> float32 array of the field's
@@ -143,16 +171,47 @@ class ModelRandomizer:
             gain = factor(r.actuator_gain, gain_key, (m.nu,))
             factors["actuator_gainprm"] = ones("actuator_gainprm").at[:, 0].set(gain)
             factors["actuator_biasprm"] = ones("actuator_biasprm").at[:, 1].set(gain)
-        if r.cube_mass is not None:
-            density = factor(r.cube_mass, mass_key)
-            factors["body_mass"] = ones("body_mass").at[self.cube_body].set(density)
-            factors["body_inertia"] = ones("body_inertia").at[self.cube_body].set(density)
+        if r.cube_mass is not None or r.cube_size is not None:
+            mass = inertia = jnp.float32(1)
+            if r.cube_mass is not None:
+                density = factor(r.cube_mass, mass_key)
+                mass, inertia = mass * density, inertia * density
+            if r.cube_size is not None:
+                # Mass grows with the volume (s^3), inertia with mass times length squared (s^5).
+                size = factor(r.cube_size, jax.random.fold_in(key, _SIZE_STREAM))
+                mass, inertia = mass * size**3, inertia * size**5
+                for field in CUBE_SIZE_FIELDS:
+                    factors[field] = ones(field).at[self.cube_geoms].set(size)
+            factors["body_mass"] = ones("body_mass").at[self.cube_body].set(mass)
+            factors["body_inertia"] = ones("body_inertia").at[self.cube_body].set(inertia)
         return factors
+
+    @property
+    def delays(self) -> bool:
+        """Whether actions are delayed: a delay range with a maximum above 0."""
+        return self.randomization.action_delay is not None and self.randomization.action_delay[1] > 0
+
+    def delay_state(self, key: jax.Array, control: jax.Array) -> dict[str, jax.Array]:
+        """An episode's action delay, drawn from its reset key (pure JAX): `delay`, int32 policy steps, and `pending`,
+        `(max delay, nu)` the controls of the last steps' actions, newest first, all `control` (the reset's) at the
+        start."""
+        lo, hi = self.randomization.action_delay
+        delay = jax.random.randint(jax.random.fold_in(key, _DELAY_STREAM), (), lo, hi + 1, jnp.int32)
+        return {"delay": delay, "pending": jnp.broadcast_to(control, (hi, *control.shape))}
+
+    @staticmethod
+    def delayed(control: jax.Array, state: dict[str, jax.Array]) -> tuple[jax.Array, dict[str, jax.Array]]:
+        """The control the physics receive when this step's action asks for `control` `(nu,)`: the one asked for
+        `delay` steps ago (this step's at delay 0), and the delay `state` with `control` taken in (pure JAX)."""
+        queue = jnp.concatenate([control[None], state["pending"]])
+        return queue[state["delay"]], {"delay": state["delay"], "pending": queue[:-1]}
 
     def apply(self, mjx_model, factors: dict[str, jax.Array]):
         """`mjx_model` (an `mjx.Model`) scaled by one environment's drawn `factors`; inside a vmapped step they carry
         the batch axis, which MJX's JAX implementation vmaps over and MuJoCo Warp reads as one world each."""
-        return mjx_model.replace(**{name: getattr(mjx_model, name) * f for name, f in factors.items()})
+        # Factors have the `MjModel` field's shape, which MJX may lay out otherwise (`geom_aabb`: (ngeom, 2, 3)).
+        return mjx_model.replace(**{name: getattr(mjx_model, name) * f.reshape(getattr(mjx_model, name).shape)
+                                    for name, f in factors.items()})
 
     def write(self, model: mujoco.MjModel, factors: dict[str, jax.Array]) -> None:
         """Set C MuJoCo `model` (the eager twin's own copy) to `self.model` scaled by one environment's `factors`."""
