@@ -13,8 +13,9 @@ angora-jax doctor                               versions, devices, physics choic
 angora-jax record runs/lstm --out act.nc        every layer's activity with the task variables (xarray, NetCDF)
 angora-jax analyze decode act.nc                ridge R^2 of each variable from each layer, against noise
 angora-jax analyze similarity act.nc --condition metric_goal_distance    RDMs per layer (RSA), compared
-angora-jax analyze dynamics act.nc --run runs/lstm --recurrent network.PMC --inputs network.PMC_in
-                                                PCA per layer; fixed points of a recurrent layer
+angora-jax analyze dynamics act.nc --run runs/cortical --recurrent network.PMC
+                                                PCA per layer; fixed points of a recurrent area (--inputs
+                                                network.PMC_in: the layer feeding a cell outside a graph)
 angora-jax analyze timescales act.nc             activity autocorrelation and timescale per layer
 angora-jax analyze crosscorrelation act.nc       which layer's leading component leads which, over lags
 angora-jax analyze decode act.nc --lags 0 4 8    decode each variable k steps after the activity
@@ -243,7 +244,9 @@ def parser() -> argparse.ArgumentParser:
     dynamics.add_argument("--run", default=None, help="the recorded run (for fixed points)")
     dynamics.add_argument("--checkpoint", default="best", help="the recorded checkpoint (default: best)")
     dynamics.add_argument("--recurrent", default=None, help="recurrent layer, e.g. network.PMC")
-    dynamics.add_argument("--inputs", default=None, help="the layer feeding it, e.g. network.PMC_in")
+    dynamics.add_argument("--inputs", nargs="+", default=None,
+                          help="the recorded layer(s) feeding it, e.g. network.PMC_in (default, for an area of a "
+                               "brain-area graph: its inputs as the graph lists them)")
     scales = analysis("timescales", "activity autocorrelation and intrinsic timescale per layer")
     scales.add_argument("--layers", nargs="*", help="layer names (default: all)")
     scales.add_argument("--max-lag", type=positive_int, default=20, help="policy steps (default: 20)")
@@ -604,8 +607,9 @@ def command_analysis(args: argparse.Namespace) -> int:
         if args.analysis == "sindy":
             return analysis.sindy(data, args.layer, args.components, args.inputs, not args.continuous, args.degree,
                                   args.threshold, args.horizon, args.held_out)
-        if (args.run is None) != (args.recurrent is None) or (args.recurrent is None) != (args.inputs is None):
-            raise ValueError("Fixed points need --run, --recurrent and --inputs together.")
+        if (args.run is None) != (args.recurrent is None) or (args.inputs is not None and args.run is None):
+            raise ValueError("Fixed points need --run and --recurrent together, and --inputs only with them (not "
+                             "needed for a recurrent area of a brain-area graph: its inputs come from the recording).")
         if args.run:
             checkpoint = checkpoint_of(args.checkpoint)
             fixed.update(analysis.agent_fixed_points(load_agent(args.run, checkpoint), data, args.recurrent,

@@ -245,7 +245,7 @@ def test_every_analysis_verb_writes_its_plot_and_numbers(reach, cortical_reach, 
         assert xr.open_dataset(tmp_path / f"reach.{verb[0]}.nc").sizes
     assert "fixed point" in capsys.readouterr().out
     assert main(["analyze", "dynamics", str(path), "--recurrent", "network.PMC"]) == 2
-    assert "need --run, --recurrent and --inputs together" in capsys.readouterr().err
+    assert "need --run and --recurrent together" in capsys.readouterr().err
     out = tmp_path / "ablation.png"
     assert main(["analyze", "ablate", str(cortical_reach.run_dir), "--checkpoint", "latest", "--lesion",
                  "network.SSC_2", "--silence", "goal", "--fraction", "network.M1:0.5", "--episodes", "32",

@@ -1,6 +1,7 @@
 """The analyses on data with known answers: RDMs (symmetric, zero diagonal, the right model RDM wins), fixed points
-of a hand-built linear RNN, timescales of AR(1) units, tuning strength, PCA dimensionality, lagged decoding and
-cross-correlation of a layer that another follows by 3 steps."""
+of a hand-built linear RNN and of Elman areas of brain-area graphs (against fixed-point iteration in numpy),
+timescales of AR(1) units, tuning strength, PCA dimensionality, lagged decoding and cross-correlation of a layer that
+another follows by 3 steps."""
 
 import jax.numpy as jnp
 import numpy as np
@@ -121,3 +122,125 @@ def test_cross_correlation_peaks_where_one_layer_follows_another():
     peak = result["cross_correlation"].sel(layer="lead", other="follow").sel(lag=3 * DT, method="nearest")
     assert abs(float(peak)) > 0.95
     np.testing.assert_allclose(result["cross_correlation"].sel(layer="lead", other="lead").sel(lag=0.0), 1.0, atol=1e-9)
+
+
+def graph_agent(areas):
+    """An untrained CartPole agent (proprioception: 4 features) whose network is the graph of `areas` (area -> spec
+    keyword arguments), read by the policy from the last area; recurrent kernels scaled by 0.5 so that each cell's
+    map contracts (one fixed point, which iterating the map finds), and normaliser statistics that move the inputs."""
+    from dataclasses import replace
+
+    import jax
+
+    from angora_jax.experiment.agent import Agent, acting_parts
+    from angora_jax.experiment.config import load_config
+    from angora_jax.nets import ActorCritic, AreaGraph, AreaSpec, ValueSpec
+    from angora_jax.ppo.normalization import RunningMeanStd
+
+    config = load_config("cartpole", ["ppo.network.name=areas", "ppo.network.width=null"])
+    graph = AreaGraph({name: AreaSpec(**spec) for name, spec in areas.items()}, policy=list(areas)[-1],
+                      value=ValueSpec(inputs=("proprioception",), sizes=(2,)))
+    config = replace(config, ppo=replace(config.ppo, network=replace(config.ppo.network, graph=graph)))
+    env, network, head, template, _ = acting_parts(config)
+    obs = jax.vmap(env.reset)(jax.random.split(jax.random.key(1), 1)).obs
+    params = ActorCritic(network, head).init(jax.random.key(0), network.initial_carry(1), obs)["params"]
+    for name, spec in areas.items():
+        if spec.get("cell"):
+            params["network"][name]["h"]["kernel"] *= 0.5
+    stats = template.obs_stats.replace(proprioception=RunningMeanStd(
+        jnp.asarray([0.5, -1.0, 0.0, 2.0]), jnp.asarray([4.0, 0.25, 1.0, 9.0]), jnp.asarray(10.0)))
+    state = template.replace(params=params, obs_stats=stats, cycle=jnp.asarray(0))
+    return Agent(config, env, network, head, state, 0)
+
+
+def graph_recording(layers, episodes=3, steps=6, seed=0):
+    """A hand-built recording: raw proprioception and each of `layers` (name -> units) random, with a trend over
+    time (so that a mean over steps shifted by one differs from the mean over steps); episode 0 ends after 3 steps."""
+    rng = np.random.default_rng(seed)
+    trend = np.linspace(0.0, 2.0, steps)[None, :, None]
+    alive = np.ones((episodes, steps))
+    alive[0, 3:] = 0
+    data = {"alive": (("episode", "time"), alive),
+            "input_proprioception": (("episode", "time", "proprioception_feature"),
+                                     3 * rng.standard_normal((episodes, steps, 4)))}
+    for name, units in layers.items():
+        data[f"activity_{name}"] = (("episode", "time", f"{name}_unit"),
+                                    (rng.standard_normal((episodes, steps, units)) + trend).astype(np.float32))
+    return xr.Dataset(data, coords={"time": np.arange(steps) * DT}, attrs={"policy_step_s": DT})
+
+
+def elman_fixed_point(params, constant, activation, own=False):
+    """The fixed point of the Elman cell `params` (flax SimpleCell: h' = act(h Wh + x Wi + b)) under the input
+    `constant`, followed by h itself when the cell reads its own output (`own`), by iterating the map (float64)."""
+    wh, wi, b = (np.asarray(a, np.float64) for a in (params["h"]["kernel"], params["i"]["kernel"], params["i"]["bias"]))
+    h = np.zeros(wh.shape[0])
+    for _ in range(2000):
+        x = np.concatenate([constant, h]) if own else constant
+        h = np.asarray(activation(h @ wh + x @ wi + b), np.float64)
+    return h
+
+
+def normalised(recording, alive):
+    raw = recording["input_proprioception"].values
+    mean, var = np.array([0.5, -1.0, 0.0, 2.0]), np.array([4.0, 0.25, 1.0, 9.0])
+    return np.clip((raw - mean) / np.sqrt(var + 1e-8), -10.0, 10.0)[alive].mean(0)
+
+
+def test_fixed_point_of_a_graph_area_reading_two_inputs_with_tanh():
+    """An Elman area reading a dense area and a modality: the inputs come from the recording, in the order the graph
+    lists them (the modality normalised as the network saw it), and the point solves h = tanh(h Wh + x Wi + b)."""
+    from angora_jax.analysis import agent_fixed_points
+
+    agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
+                         "PMC": {"size": 5, "inputs": ("S1", "proprioception"), "cell": "rnn"}})
+    recording = graph_recording({"network.S1": 3, "network.PMC.0": 5, "network.PMC.1": 5})
+    alive = recording["alive"].values > 0
+    x = np.concatenate([recording["activity_network.S1"].values[alive].mean(0), normalised(recording, alive)])
+    found = agent_fixed_points(agent, recording, "network.PMC", starts=4, iterations=300)
+    np.testing.assert_allclose(found["input"], x, rtol=1e-5)
+    expected = elman_fixed_point(agent.params["network"]["PMC"], x, np.tanh)
+    assert found["fixed"].all()
+    np.testing.assert_allclose(found["points"], np.broadcast_to(expected, (4, 5)), atol=1e-4)
+
+
+def test_fixed_point_of_a_lif_graph_area_with_feedback_and_its_own_output():
+    """A LiF Elman area reading a modality, a dense area, a recurrent area that depends on it (feedback: its output
+    of the previous step, 0 at an episode's start) and itself (its state, not a constant): the point solves
+    h = lif(h Wh + [x, h] Wi + b) with x the mean of what the area read."""
+    from angora_jax.analysis import agent_fixed_points
+    from angora_jax.nets.activations import ACTIVATIONS
+
+    agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
+                         "PMC": {"size": 4, "inputs": ("proprioception", "S1", "FB", "PMC"), "cell": "rnn",
+                                 "activation": "lif"},
+                         "FB": {"size": 2, "inputs": ("PMC",), "cell": "rnn"}})
+    recording = graph_recording({"network.S1": 3, "network.PMC.0": 4, "network.PMC.1": 4, "network.FB.1": 2})
+    alive = recording["alive"].values > 0
+    feedback = recording["activity_network.FB.1"].values
+    previous = np.concatenate([np.zeros_like(feedback[:, :1]), feedback[:, :-1]], axis=1)[alive].mean(0)
+    x = np.concatenate([normalised(recording, alive), recording["activity_network.S1"].values[alive].mean(0),
+                        previous])
+    found = agent_fixed_points(agent, recording, "network.PMC", starts=4, iterations=300)
+    np.testing.assert_allclose(found["input"], x, rtol=1e-5)
+    expected = elman_fixed_point(agent.params["network"]["PMC"], x, ACTIVATIONS["lif"], own=True)
+    assert found["fixed"].all()
+    np.testing.assert_allclose(found["points"], np.broadcast_to(expected, (4, 4)), atol=1e-4)
+    with pytest.raises(ValueError, match="'network.S1' is a dense area.*recurrent areas: network.FB, network.PMC"):
+        agent_fixed_points(agent, recording, "network.S1")
+
+
+def test_analyze_dynamics_finds_a_graph_area_s_fixed_points_without_inputs(tmp_path, monkeypatch, capsys):
+    """`angora-jax analyze dynamics --run RUN --recurrent network.PMC`: the area's inputs come from the graph, and
+    the point is the tanh area's (the run is the agent above: loading a run is not under test)."""
+    from angora_jax import cli
+    from angora_jax.analysis import save_activity
+
+    agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
+                         "PMC": {"size": 5, "inputs": ("S1", "proprioception"), "cell": "rnn"}})
+    recording = graph_recording({"network.S1": 3, "network.PMC.0": 5, "network.PMC.1": 5})
+    path = save_activity(recording, tmp_path / "graph.nc")
+    monkeypatch.setattr(cli, "load_agent", lambda run, checkpoint: agent)
+    assert cli.main(["analyze", "dynamics", str(path), "--run", "RUN", "--recurrent", "network.PMC"]) == 0
+    assert "network.PMC: 15 of 15 starts reached a fixed point" in capsys.readouterr().out
+    assert cli.main(["analyze", "dynamics", str(path), "--inputs", "network.S1"]) == 2
+    assert "need --run and --recurrent together, and --inputs only with them" in capsys.readouterr().err

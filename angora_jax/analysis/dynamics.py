@@ -4,7 +4,9 @@ recurrent layer found by optimisation with JAX autodiff (Sussillo and Barak 2013
 Fixed points: for a recurrent update h' = F(h, x) under a constant input x, minimise the speed
 q(h) = 0.5 |F(h, x) - h|^2 from many starting states (states the network visited) with L-BFGS (optax). Points with q
 near 0 are fixed points; small but non-zero q marks slow points. The eigenvalues of the Jacobian dF/dh at a point
-tell its stability (all inside the unit circle: attracting).
+tell its stability (all inside the unit circle: attracting). For a recurrent area of a brain-area graph
+(`network.name: areas`) x is its inputs' mean over a recording, formed as the network forms it (`area_input`), and F
+uses the area's activation.
 """
 
 from __future__ import annotations
@@ -21,8 +23,10 @@ from sklearn.decomposition import PCA
 
 from angora_jax.analysis.decoding import recorded_layers
 from angora_jax.experiment.agent import Agent
+from angora_jax.nets.activations import ACTIVATIONS
+from angora_jax.nets.area_graph import AreaGraph, feedback_inputs
 from angora_jax.nets.components import component
-from angora_jax.nets.models import recurrent_cell
+from angora_jax.nets.models import cell_output, recurrent_cell
 
 
 def principal_components(dataset: xr.Dataset, layers: Sequence[str] | None = None,
@@ -88,19 +92,33 @@ def find_fixed_points(step: Callable[[jax.Array], jax.Array], starts: jax.Array,
             "eigenvalues": np.take_along_axis(eigenvalues, order, axis=-1)}
 
 
-def recurrent_step(agent: Agent, layer: str, inputs: jax.Array) -> tuple[Callable[[jax.Array], jax.Array], int]:
-    """The update of the recurrent layer `layer` of `agent` (e.g. `network.PMC`, `network.policy_cell`) under the
-    constant input `inputs` `(features,)`, as a map of its flattened carry (`(c, h)` for an LSTM) to the next one,
-    and the carry's length."""
+def recurrent_step(agent: Agent, layer: str, inputs: jax.Array | Sequence[jax.Array | None]
+                   ) -> tuple[Callable[[jax.Array], jax.Array], int]:
+    """The update of the recurrent layer `layer` of `agent` (e.g. `network.PMC`, `network.policy_cell`) under a
+    constant input, as a map of its flattened carry (`(c, h)` for an LSTM) to the next one, and the carry's length.
+
+    inputs: the constant input `(features,)`; or its parts in the order the layer reads them, concatenated, each
+    `(features_i,)` or None for the layer's own output (an area of a graph that reads itself: its previous output,
+    which the carry holds, so it is part of the state rather than held constant). The cell's activation is the
+    area's (`network.graph.areas.<name>.activation`) for an area of a brain-area graph, tanh otherwise (the cells of
+    the built-in `Recurrent` networks)."""
     params = component(agent.params, layer)
     kind = _cell_kind(params, layer)
     size = _cell_size(params, kind)
-    cell = recurrent_cell(kind, size, "cell")
+    cell = recurrent_cell(kind, size, "cell", _cell_activation(agent, layer))
     parts = 2 if kind == "lstm" else 1
+    pieces = [inputs] if isinstance(inputs, jax.Array | np.ndarray) else list(inputs)
+    width = sum(size if piece is None else len(piece) for piece in pieces)
+    expected = int(params[{"lstm": "ii", "gru": "ir", "rnn": "i"}[kind]]["kernel"].shape[0])
+    if width != expected:
+        raise ValueError(f"{layer!r} reads {expected} input features; the input given has {width}.")
 
     def step(flat: jax.Array) -> jax.Array:
         carry = tuple(jnp.split(flat[None], parts, axis=-1)) if parts == 2 else flat[None]
-        carry, _ = cell.apply({"params": params}, carry, inputs[None])
+        own = cell_output(kind, carry)
+        x = jnp.concatenate([own if piece is None else jnp.asarray(piece, jnp.float32)[None] for piece in pieces],
+                            axis=-1)
+        carry, _ = cell.apply({"params": params}, carry, x)
         return jnp.concatenate(jax.tree.leaves(carry), axis=-1)[0]
 
     return step, parts * size
@@ -118,21 +136,102 @@ def _cell_size(params: Any, kind: str) -> int:
     return int(params[{"lstm": "hi", "gru": "hr", "rnn": "h"}[kind]]["kernel"].shape[-1])
 
 
-def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: str, starts: int = 64,
-                       iterations: int = 500, seed: int = 0) -> dict[str, np.ndarray]:
-    """Fixed and slow points of `agent`'s recurrent `layer` under its mean input over the recording: `inputs` is
-    the recorded layer that feeds it (e.g. `network.PMC_in`). Starts are `starts` carries the network visited
-    (recorded as `<layer>.0...`). Returns `find_fixed_points`'s arrays plus `input` (the constant input)."""
+def _graph_area(agent: Agent, layer: str) -> tuple[AreaGraph, str] | None:
+    """The brain-area graph of `agent` and the area's name when `layer` is `network.<area>` of one, else None."""
+    graph = getattr(agent.network, "graph", None)
+    name = layer.removeprefix("network.")
+    return (graph, name) if isinstance(graph, AreaGraph) and name in graph.areas else None
+
+
+def _cell_activation(agent: Agent, layer: str) -> Callable[[jax.Array], jax.Array]:
+    area = _graph_area(agent, layer)
+    return jnp.tanh if area is None else ACTIVATIONS[area[0].areas[area[1]].activation]
+
+
+def area_input(agent: Agent, dataset: xr.Dataset, layer: str) -> dict[str, np.ndarray | None]:
+    """The mean input of the recurrent area `layer` (`network.<area>`) of `agent`'s brain-area graph over the alive
+    steps of `dataset`, per source in the order the area reads them (`network.graph.areas.<area>.inputs`; the
+    area's cell reads them concatenated): source -> mean `(features_i,)`, or None for the area itself.
+
+    As `Areas.__call__` forms it: an area's recorded output (`network.<source>`; a recurrent area's
+    `network.<source>.1`), a modality's observation (`input_<modality>`, normalised as the agent normalises it; an
+    empty modality, which the recording leaves out, adds nothing). A feedback input (a recurrent source that depends
+    on this area, `area_graph.feedback_inputs`) is its source's output of the previous step: the recorded output
+    shifted by one step, 0 (the initial carry's) at each episode's first step. Every input is held at its mean, so
+    the fixed points are those of the area with the loop through other areas opened (they follow the area's mean
+    input, not its own state); an area that reads itself reads its own state (None: see `recurrent_step`)."""
+    area = _graph_area(agent, layer)
+    if area is None:
+        raise ValueError(f"{layer!r} is not an area of a brain-area graph (network.name: areas), so its inputs are not "
+                         "known: give the recorded layer(s) that feed it (inputs=..., angora-jax analyze dynamics "
+                         "--inputs), e.g. network.PMC_in.")
+    graph, name = area
+    if graph.areas[name].cell is None:
+        recurrent = [f"network.{n}" for n, spec in graph.areas.items() if spec.cell is not None]
+        raise ValueError(f"{layer!r} is a dense area, without a cell to have fixed points; the graph's recurrent "
+                         f"areas: {', '.join(recurrent) or 'none'}.")
     alive = dataset["alive"].values > 0
-    drive = np.asarray(dataset[f"activity_{inputs}"].values)[alive].mean(0)
+    feedback = feedback_inputs(graph)
+    means: dict[str, np.ndarray | None] = {}
+    for source in graph.areas[name].inputs:
+        if source == name:
+            means[source] = None
+        elif source in graph.areas:
+            recurrent = graph.areas[source].cell is not None
+            values = _recorded(dataset, f"network.{source}" + (".1" if recurrent else ""), layer)
+            if (name, source) in feedback:
+                values = np.concatenate([np.zeros_like(values[:, :1]), values[:, :-1]], axis=1)
+            means[source] = values[alive].mean(0)
+        elif f"input_{source}" in dataset and dataset[f"input_{source}"].ndim == 3:
+            means[source] = _normalised(agent, source, dataset[f"input_{source}"].values)[alive].mean(0)
+        elif dataset.attrs.get("camera_images") and source == "vision":
+            raise ValueError(f"{layer!r} reads vision, which this agent sees as camera images encoded by its visual "
+                             "area: give its inputs explicitly (inputs=...).")
+        else:
+            means[source] = np.zeros(0, np.float32)
+    return means
+
+
+def _recorded(dataset: xr.Dataset, name: str, layer: str) -> np.ndarray:
+    if f"activity_{name}" not in dataset:
+        raise ValueError(f"The recording has no activity_{name}, an input of {layer!r}.")
+    return np.asarray(dataset[f"activity_{name}"].values)
+
+
+def _normalised(agent: Agent, modality: str, raw: np.ndarray) -> np.ndarray:
+    """Raw observations of `modality` `(..., features)` as the network read them (`Agent.apply`)."""
+    norm = agent.config.ppo.normalization
+    if not norm.observations:
+        return np.asarray(raw)
+    stats = getattr(agent.state.obs_stats, modality)
+    return np.asarray(stats.normalize(jnp.asarray(raw, jnp.float32), norm.clip))
+
+
+def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: str | Sequence[str] | None = None,
+                       starts: int = 64, iterations: int = 500, seed: int = 0) -> dict[str, np.ndarray]:
+    """Fixed and slow points of `agent`'s recurrent `layer` under its mean input over the recording's alive steps.
+
+    inputs: the recorded layer(s) that feed it (e.g. `network.PMC_in`), concatenated in the order given; or None
+    for a recurrent area of a brain-area graph (`network.<area>`), whose inputs the graph names (`area_input`:
+    the sources in the order of the area's `inputs`, feedback inputs at their previous step). The cell's activation
+    is the area's (tanh for the built-in `Recurrent` networks). Starts are `starts` carries the network visited
+    (recorded as `<layer>.0...`). Returns `find_fixed_points`'s arrays plus `input` (the constant input, the parts
+    held constant concatenated: an area that reads itself reads its state instead)."""
+    alive = dataset["alive"].values > 0
+    if inputs is None:
+        pieces = list(area_input(agent, dataset, layer).values())
+    else:
+        names = [inputs] if isinstance(inputs, str) else list(inputs)
+        pieces = [_recorded(dataset, name, layer)[alive].mean(0) for name in names]
     carry_names = sorted(n for n in recorded_layers(dataset) if n.startswith(f"{layer}.0"))
     if not carry_names:
         raise ValueError(f"The recording has no carry of {layer!r} (looked for activity_{layer}.0...).")
     visited = np.concatenate([np.asarray(dataset[f"activity_{n}"].values)[alive] for n in carry_names], axis=-1)
     rows = np.random.default_rng(seed).choice(len(visited), size=min(starts, len(visited)), replace=False)
-    step, size = recurrent_step(agent, layer, jnp.asarray(drive))
+    step, size = recurrent_step(agent, layer, pieces)
     if visited.shape[-1] != size:
         raise ValueError(f"Recorded carry of {layer!r} has {visited.shape[-1]} values, the cell {size}.")
+    drive = np.concatenate([np.zeros(0, np.float32), *(piece for piece in pieces if piece is not None)])
     return find_fixed_points(step, visited[rows], iterations) | {"input": drive}
 
 
