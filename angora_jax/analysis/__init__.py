@@ -1,18 +1,24 @@
 """Probing trained agents as a neuroscientist would (AngoraPy's `analysis/investigators`).
 
-Record every layer's activity with the task variables (`record_activity`, an xarray Dataset), then: decode
-variables from layers (`decode`, ridge R^2 against a noise baseline), compare representations (`similarity`, RSA
-with rsatoolbox), reduce dimensionality and find fixed points (`principal_components`, `agent_fixed_points`),
-measure intrinsic timescales (`timescales`), which layer leads which (`cross_correlation`), what a layer tells of the
-future (`decode(..., lags=...)`), tuning (`tuning_curves`), the equations of a layer's dynamics in its leading
-principal components and how well they predict held-out episodes (`sindy`, with pysindy), and lesion units, areas or
-input modalities and measure the task outcome (`ablation`); inside the visual area of an agent that sees camera
-images, first-layer filters, feature maps, gradient saliency and preferred stimuli (`visual_analysis`). Each analysis
-has a `plot_*` and an `angora-jax analyze` verb.
+Record every layer's activity with the task variables (`record_activity`, an xarray Dataset), then: decode variables
+from layers (`decode`, ridge R^2 against a noise baseline), compare representations (`similarity`, RSA with
+rsatoolbox), reduce dimensionality and find fixed points (`principal_components`, `agent_fixed_points`, with a graph
+area's input from `area_input`), measure intrinsic timescales (`timescales`), which layer leads which
+(`cross_correlation`), what a layer tells of the future (`decode(..., lags=...)`), tuning (`tuning_curves`), the
+equations of a layer's dynamics in its leading principal components and how well they predict held-out episodes
+(`sindy`, with pysindy), and lesion units, areas or input modalities and measure the task outcome (`ablation`);
+inside the visual area of an agent that sees camera images, first-layer filters, feature maps, gradient saliency and
+preferred stimuli (`visual_analysis`). Each analysis has a `plot_*` and an `angora-jax analyze` verb.
 """
 
 from angora_jax.analysis.decoding import decode, plot_decoding
-from angora_jax.analysis.dynamics import agent_fixed_points, find_fixed_points, plot_dynamics, principal_components
+from angora_jax.analysis.dynamics import (
+    agent_fixed_points,
+    area_input,
+    find_fixed_points,
+    plot_dynamics,
+    principal_components,
+)
 from angora_jax.analysis.equations import fit_sindy, plot_sindy, sindy
 from angora_jax.analysis.lesion import (
     ablation,
@@ -38,10 +44,10 @@ from angora_jax.analysis.visual import (
     visual_analysis,
 )
 
-__all__ = ["ablation", "agent_fixed_points", "cross_correlation", "decode", "dense_layers", "episode_outcomes",
-           "feature_maps", "find_fixed_points", "first_layer_filters", "fit_sindy", "gradient_saliency", "lesion",
-           "lesion_area", "lesion_fraction", "plot_ablation", "plot_cross_correlation", "plot_decoding",
-           "plot_dynamics", "plot_similarity", "plot_sindy", "plot_timescales", "plot_tuning", "plot_visual",
-           "preferred_stimuli", "principal_components", "record_activity", "replay_activity", "saliency",
-           "save_activity", "silence_modality", "similarity", "sindy", "timescales", "tuning_curves",
+__all__ = ["ablation", "agent_fixed_points", "area_input", "cross_correlation", "decode", "dense_layers",
+           "episode_outcomes", "feature_maps", "find_fixed_points", "first_layer_filters", "fit_sindy",
+           "gradient_saliency", "lesion", "lesion_area", "lesion_fraction", "plot_ablation", "plot_cross_correlation",
+           "plot_decoding", "plot_dynamics", "plot_similarity", "plot_sindy", "plot_timescales", "plot_tuning",
+           "plot_visual", "preferred_stimuli", "principal_components", "record_activity", "replay_activity",
+           "saliency", "save_activity", "silence_modality", "similarity", "sindy", "timescales", "tuning_curves",
            "visual_analysis", "with_random_weights"]
