@@ -229,6 +229,24 @@ def test_fixed_point_of_a_lif_graph_area_with_feedback_and_its_own_output():
         agent_fixed_points(agent, recording, "network.S1")
 
 
+def test_fixed_point_of_a_relu_graph_area_given_its_input_layers_explicitly():
+    """A ReLU Elman area reading two dense areas: naming its input layers (concatenated in the order given) finds the
+    point that the graph's inputs give, the one that solves h = relu(h Wh + x Wi + b)."""
+    from angora_jax.analysis import agent_fixed_points
+
+    agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
+                         "S2": {"size": 2, "inputs": ("proprioception",)},
+                         "PMC": {"size": 4, "inputs": ("S2", "S1"), "cell": "rnn", "activation": "relu"}})
+    recording = graph_recording({"network.S1": 3, "network.S2": 2, "network.PMC.0": 4, "network.PMC.1": 4})
+    alive = recording["alive"].values > 0
+    x = np.concatenate([recording[f"activity_network.{name}"].values[alive].mean(0) for name in ("S2", "S1")])
+    expected = elman_fixed_point(agent.params["network"]["PMC"], x, lambda a: np.maximum(a, 0.0))
+    for inputs in (None, ["network.S2", "network.S1"]):
+        found = agent_fixed_points(agent, recording, "network.PMC", inputs, starts=4, iterations=300)
+        assert found["fixed"].all(), inputs
+        np.testing.assert_allclose(found["points"], np.broadcast_to(expected, (4, 4)), atol=1e-4)
+
+
 def test_analyze_dynamics_finds_a_graph_area_s_fixed_points_without_inputs(tmp_path, monkeypatch, capsys):
     """`angora-jax analyze dynamics --run RUN --recurrent network.PMC`: the area's inputs come from the graph, and
     the point is the tanh area's (the run is the agent above: loading a run is not under test)."""
