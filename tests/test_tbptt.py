@@ -256,8 +256,8 @@ def matmuls(jaxpr) -> int:
 
 # network, its cell, the cells it scans, and the matrix products of one cell's step (flax's GRU: three for the input,
 # three for the state; its optimized LSTM: one for each)
-@pytest.mark.parametrize("name,cell,cells,products", [("cortical", "gru", 1, 6), ("cortical", "lstm", 1, 2),
-                                                       ("lstm", None, 2, 2), ("simple", None, 0, 0)])
+@pytest.mark.parametrize("name,cell,cells,products", [("cortical", "gru", 1, 6), ("lstm", None, 2, 2),
+                                                       ("simple", None, 0, 0)])
 def test_networks_that_run_sequences_match_the_step_scan_with_only_their_cells_scanned(name, cell, cells, products):
     """Training runs a built-in network over a whole chunk (`runs_sequences`): dense layers on all s x B rows, only
     the recurrent cells scanned. Outputs, final carry and gradients equal those of the scan over whole steps, with
