@@ -96,6 +96,7 @@ def main(argv: list[str] | None = None) -> None:
     layers, variables = list(probe.layers), list(probe.variables)
     seconds = {}
     for attempt in ("record_first_with_compile", "record_again"):
+        recording = None  # freed before the next: 480 trained cube episodes of every layer hold tens of GB
         start = time.perf_counter()
         recording = an.record_activity(agent, episodes=args.episodes)
         seconds[attempt] = time.perf_counter() - start

@@ -65,6 +65,23 @@ def test_fixed_point_of_a_linear_rnn_is_found_to_1e_6():
     np.testing.assert_allclose(np.abs(found["eigenvalues"]), 0.5, atol=1e-5)
 
 
+def test_fixed_points_reached_from_several_starts_are_decomposed_once(monkeypatch):
+    """The Jacobian's eigenvalues (the cost on a trained cube: O(n^3) per point) are computed once per distinct
+    point, and every start that reached it gets them."""
+    a = np.diag([0.5, -0.25, 0.1])
+    decomposed, original = [], np.linalg.eigvals
+
+    def eigvals(matrices):
+        decomposed.append(len(matrices))
+        return original(matrices)
+
+    monkeypatch.setattr(np.linalg, "eigvals", eigvals)
+    found = find_fixed_points(lambda h: jnp.asarray(a, jnp.float32) @ h, np.random.default_rng(2).standard_normal(
+        (5, 3)), iterations=50)
+    assert found["fixed"].all() and decomposed == [1]
+    np.testing.assert_allclose(np.abs(found["eigenvalues"]), np.broadcast_to([0.5, 0.25, 0.1], (5, 3)), atol=1e-6)
+
+
 def test_timescales_of_ar1_units_and_white_noise():
     result = timescales(synthetic(episodes=200), layers=["slow", "noise"], max_lag=30)
     expected = -1 / np.log(0.9) * DT  # acf(k) = 0.9^k crosses 1/e at k = -1 / ln 0.9

@@ -380,11 +380,12 @@ def test_mjx_and_cpu_paths_agree_for_2_seconds(rollout):
     assert float(jnp.abs(state.physics.qpos[task.cube_qpos:task.cube_qpos + 3] - start).max()) > 0.005, "cube moved"
 
 
-@pytest.mark.parametrize("name", ["shadow_ihom", "shadow_ihom_paper"])
+@pytest.mark.parametrize("name", ["shadow_ihom", "shadow_ihom_paper", "shadow_ihom_cortical"])
 def test_the_cube_configs_compile_and_train_a_cycle_on_warp(name, quick_compiles):
-    """The shipped cube configs as they are (the paper's: wide LSTM 1024, 11 bins, TBPTT 16, AngoraPy's reward), on
-    MuJoCo Warp as on a GPU, with only the batch made small: two cycles compile and run, the state keeps its shapes,
-    the cube's metrics come out finite where defined and the parameters change."""
+    """The shipped cube configs as they are (the paper's: wide LSTM 1024, 11 bins, TBPTT 16, AngoraPy's reward; the
+    brain-area model's: AngoraPy's areas), on MuJoCo Warp as on a GPU, with only the batch made small: two cycles
+    compile and run, the state keeps its shapes, the cube's metrics come out finite where defined and the parameters
+    change."""
     overrides = ["env.options.physics={impl: warp}", "ppo.num_envs=2", "ppo.rollout_length=16", "ppo.chunk_length=16",
                  "ppo.minibatch_size=32", "ppo.num_epochs=1"]
     config = load_config(name, overrides)
@@ -393,6 +394,9 @@ def test_the_cube_configs_compile_and_train_a_cycle_on_warp(name, quick_compiles
     if name == "shadow_ihom_paper":
         assert state.params["network"]["policy_cell"]["hi"]["kernel"].shape == (1024, 1024)
         assert state.params["policy_head"]["kernel"].shape == (1024, 20 * 11), "11 bins x 20 dimensions"
+    if name == "shadow_ihom_cortical":  # AngoraPy's shadow brain: its areas, PMC a GRU of 512 units
+        assert {"SSC_1", "SSC_2", "SPL", "IPL", "IPS", "MCC", "LPFC", "PMC", "M1"} <= set(state.params["network"])
+        assert state.params["network"]["PMC"]["hr"]["kernel"].shape == (512, 512)
     cycle = jax.jit(cycle)
     after, metrics = cycle(state)
     after, metrics = cycle(after)
