@@ -34,8 +34,7 @@ class CpuEnv(MujocoEnv):
         self._initial_qvel = jax.jit(task.initial_qvel)
         self._begin = jax.jit(self._begin_task)
         self._advance = jax.jit(self._advance_task)
-        self._control = jax.jit(lambda action, key, snap, info: self._delayed(task.control(self._acted(action, key),
-                                                                                           snap), info))
+        self._control = jax.jit(self._control_task)
         self._perceive = jax.jit(task.perceive)
         self._draw = None if task.randomizer is None else jax.jit(task.randomizer.draw)
         self._last: State | None = None

@@ -69,8 +69,7 @@ def batch_functions(env: Env) -> tuple[Env, dict[str, Callable[..., Any]]]:
 
         def control(state: State, action: jax.Array) -> tuple[jax.Array, dict[str, jax.Array]]:
             step_key = step_keys(state.key)[1]  # the key `Env.advance` gives the step (action noise)
-            return env._delayed(env.task.control(env._acted(env.check_action(action), step_key), state.physics),
-                                state.info)
+            return env._control_task(env.check_action(action), step_key, state.physics, state.info)
 
         def finish(state: State, action: jax.Array, after: Snapshot) -> State:
             return after_physics.advance(state.replace(physics=(state.physics, after)), action)[0]

@@ -265,7 +265,7 @@ class MjxEnv(MujocoEnv):
         if randomizer is not None:
             model = randomizer.apply(model, info[INFO_KEY])
         prev = self.task.snapshot(physics)
-        ctrl, info = self._delayed(self.task.control(self._acted(action, key), prev), info)
+        ctrl, info = self._control_task(action, key, prev, info)
         data = physics.replace(ctrl=ctrl)
         data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(model, d), data)
         # C MuJoCo's `step_physics` calls rne_postconstraint after the last physics step: from the state that step's

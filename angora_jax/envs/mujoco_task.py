@@ -201,18 +201,19 @@ class MujocoEnv(Env):
             info[DELAY_KEY] = randomizer.delay_state(key, self.task.initial_control(snap))
         return info, randomizer.noisy_observation(obs, key)
 
-    def _acted(self, action: jax.Array, key: jax.Array) -> jax.Array:
-        """The action the physics receive at a step with `key`: with the randomization's action noise (pure JAX)."""
-        if self.task.randomizer is None:
-            return action
-        return self.task.randomizer.noisy_action(action, key, self.action_spec.low, self.action_spec.high)
-
-    def _delayed(self, control: jax.Array, info: dict[str, jax.Array]) -> tuple[jax.Array, dict[str, jax.Array]]:
-        """The control the physics receive when a step's action asks for `control`, and `info` with the action delay's
-        state advanced (both unchanged without a delay; pure JAX)."""
-        if self.task.randomizer is None or not self.task.randomizer.delays:
+    def _control_task(self, action: jax.Array, key: jax.Array, snap: Snapshot,
+                      info: dict[str, jax.Array]) -> tuple[jax.Array, dict[str, jax.Array]]:
+        """`task.control(action, snap)` of a step with `key`, randomized: the action with the randomization's action
+        noise, the control delayed by the episode's action delay; returns the control the physics receive and `info`
+        with the delay's state advanced (both as the task gives them without randomization; pure JAX)."""
+        randomizer = self.task.randomizer
+        if randomizer is None:
+            return self.task.control(action, snap), info
+        control = self.task.control(randomizer.noisy_action(action, key, self.action_spec.low, self.action_spec.high),
+                                    snap)
+        if not randomizer.delays:
             return control, info
-        control, delay = self.task.randomizer.delayed(control, info[DELAY_KEY])
+        control, delay = randomizer.delayed(control, info[DELAY_KEY])
         return control, info | {DELAY_KEY: delay}
 
     def _advance_task(self, key: jax.Array, prev: Snapshot, snap: Snapshot, info: dict[str, jax.Array]):
