@@ -33,6 +33,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from common import markdown_table, write_results  # noqa: E402
 
 from angora_jax.envs.randomization import CUBE_KEYS, DELAYS, NOISES, POSITIVE_SCALES  # noqa: E402
+from angora_jax.experiment.agent import run_source  # noqa: E402
 from angora_jax.experiment.config import load_config  # noqa: E402
 from angora_jax.experiment.evaluation import evaluate  # noqa: E402
 from angora_jax.experiment.run_dir import read_run_config  # noqa: E402
@@ -71,12 +72,6 @@ def reference_ranges(text: str | None) -> tuple[dict, str]:
     if not isinstance(ranges, dict):
         raise SystemExit(f"--ranges must be a mapping of randomization keys to ranges, got {ranges!r}.")
     return ranges, text
-
-
-def parse_run(spec: str) -> tuple[str, str | int]:
-    """RUN_DIR[:CHECKPOINT] as (run directory, checkpoint: "best", "latest" or a cycle)."""
-    run_dir, _, which = spec.rpartition(":") if not Path(spec).exists() and ":" in spec else (spec, "", "best")
-    return run_dir, int(which) if which.isdigit() else which
 
 
 def plot(rows: list[dict], labels: list[str], metric: str, title: str, path: Path) -> None:
@@ -122,7 +117,7 @@ def main(argv: list[str] | None = None) -> dict:
         parser.error(f"give one --label per run: {len(args.runs)} runs, {len(args.label)} labels.")
     if any(not w >= 0 for w in args.widths):
         parser.error(f"widths must be >= 0, got {args.widths}.")
-    runs = [parse_run(spec) for spec in args.runs]
+    runs = [run_source(spec) for spec in args.runs]
     labels = args.label or [Path(run_dir).name for run_dir, _ in runs]
     configs = [read_run_config(run_dir) for run_dir, _ in runs]
     tasks = {config.env.task for config in configs}

@@ -129,12 +129,19 @@ def saved_policy(source: str | Path) -> PolicyState:
     """The parameters and observation statistics saved in a run, named `RUN_DIR` (its best checkpoint, or its
     latest when it keeps no best), `RUN_DIR:latest` or `RUN_DIR:<cycle>`; FileNotFoundError when there is no such
     run directory."""
-    text = str(source)
-    run_dir, _, which = text.partition(":") if not Path(text).exists() else (text, "", "")
+    run_dir, which = run_source(source)
     if not Path(run_dir).is_dir():
-        raise FileNotFoundError(f"{text!r} names no saved run (no directory {run_dir!r}): give "
+        raise FileNotFoundError(f"{str(source)!r} names no saved run (no directory {run_dir!r}): give "
                                 "RUN_DIR[:best|latest|<cycle>] (network.pretrained also takes a component file).")
-    return load_agent(run_dir, int(which) if which.isdigit() else (which or "best")).state
+    return load_agent(run_dir, which).state
+
+
+def run_source(source: str | Path) -> tuple[str, str | int]:
+    """"RUN_DIR[:best|latest|<cycle>]" as (run directory, checkpoint: "best" when none is named, or a cycle number).
+    A path that exists is a run directory whole, colons and all."""
+    text = str(source)
+    run_dir, _, which = text.rpartition(":") if ":" in text and not Path(text).exists() else (text, "", "")
+    return run_dir, int(which) if which.isdigit() else (which or "best")
 
 
 register_run_reader(saved_policy)
