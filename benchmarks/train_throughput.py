@@ -54,7 +54,8 @@ def config_rows(names: list[str], num_envs: list[int], repeats: int) -> list[dic
         rows.append(row(config.env.task, name, env, config.ppo, getattr(env, "impl", None), raw, trained))
         print(f"{name} @ {envs} envs: {trained['env_steps_per_s']:,.0f} train steps/s", flush=True)
         # MuJoCo Warp's buffers live as long as the environment and the compiled programs that hold it: freed here,
-        # or the next config's buffers do not fit beside them (measured: 16,384 cube envs, two configs, one H100).
+        # because two cube configs at 16,384 envs in one process ran out of an H100's memory (that freeing suffices
+        # is not yet measured on a GPU).
         del env
         jax.clear_caches()
         gc.collect()
