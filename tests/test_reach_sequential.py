@@ -102,8 +102,10 @@ def test_bad_sequence_options_are_refused():
 
 def test_mjx_and_cpu_paths_agree_on_the_sequence():
     """Same keys and actions, a success on every step: targets, goals (drawn anew from the step's key on each advance)
-    and sequence metrics equal, joint positions and rewards within test_envs' tolerances, until the sequence ends."""
-    options = {"sequence_length": LENGTH, "max_episode_steps": 10, "reward": ALWAYS}
+    and sequence metrics equal, joint positions and rewards within test_envs' tolerances, until the sequence ends. With
+    `touch` the 97 touch readings agree too (no finger touches another in these few steps: test_envs.py presses two
+    together, test_warp.py compares readings of contacts)."""
+    options = {"sequence_length": LENGTH, "max_episode_steps": 10, "reward": ALWAYS, "touch": True}
     mjx, cpu = aj.make("ShadowHandReachSequential", **options), aj.make("ShadowHandReachSequential", backend="cpu",
                                                                         **options)
     keys = jax.random.split(jax.random.key(0), BATCH)
@@ -118,6 +120,8 @@ def test_mjx_and_cpu_paths_agree_on_the_sequence():
         state, cpu_state = step(state, actions[t]), cpu.step(cpu_state, actions[t, 0])
         np.testing.assert_allclose(state.final_obs.proprioception[0, :24], cpu_state.physics.qpos, atol=2e-3)
         np.testing.assert_allclose(state.reward[0], cpu_state.reward, atol=1e-4)
+        assert state.final_obs.touch.shape == (BATCH, 97)
+        np.testing.assert_allclose(state.final_obs.touch[0], cpu_state.final_obs.touch, atol=1e-3)
         for name in ("sequence_steps", "sequence_success"):
             assert float(state.metrics[name][0]) == float(cpu_state.metrics[name]), name
         np.testing.assert_array_equal(state.done[0], cpu_state.done)

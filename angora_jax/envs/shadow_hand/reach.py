@@ -61,7 +61,8 @@ REWARD_PRESETS = {"default": ReachReward(), "force_punished": ReachReward(force_
 class Reach(HandTask):
     """Bring all fingertips to goal positions: thumb and target finger meet, the others stay.
 
-    Observation: proprioception (24 joint positions and 24 velocities), goal (15 goal coordinates in m and a
+    Observation: proprioception (24 joint positions and 24 velocities), touch (the model's touch sensor readings in N:
+    97 in a scene with `model.add_touch_sensors`, else none), goal (15 goal coordinates in m and a
     one-hot target finger over 5, all zero for a hold-still goal), asymmetric (15 fingertip coordinates in m).
 
     sequence_length: None for one target per episode; an int >= 1 draws that many target fingers per episode, each
@@ -167,7 +168,7 @@ class Reach(HandTask):
     def observe(self, snap: Snapshot, info: dict[str, jax.Array]) -> Sensation:
         target = jax.nn.one_hot(info["target"], 5) * (1.0 - info["stay"])
         goal = target if self.free else jnp.concatenate([info["goal"].reshape(-1), target])
-        return Sensation.make(proprioception=self.proprioception(snap), goal=goal,
+        return Sensation.make(proprioception=self.proprioception(snap), touch=self.touch(snap), goal=goal,
                               asymmetric=self.fingertips(snap).reshape(-1))
 
     def evaluate(self, key, prev, snap, info):
