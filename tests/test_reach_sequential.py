@@ -8,9 +8,10 @@ import pytest
 from quick_compile import compile_quickly
 
 import angora_jax as aj
+from angora_jax.envs.mujoco_task import start_physics
 from angora_jax.envs.shadow_hand import REACH_PHYSICS
 from angora_jax.envs.shadow_hand.model import load_scene
-from angora_jax.envs.shadow_hand.reach import Reach
+from angora_jax.envs.shadow_hand.reach import THUMB, Reach
 
 LENGTH = 5
 BATCH = 2
@@ -129,3 +130,34 @@ def test_mjx_and_cpu_paths_agree_on_the_sequence():
             assert int(state.info["target"][0]) == int(cpu_state.info["target"])
             np.testing.assert_allclose(state.info["goal"][0], cpu_state.info["goal"], atol=2e-3)
     assert float(cpu_state.done) == 1.0 and float(state.metrics["sequence_success"][0]) == 1.0
+
+
+def start_of(task):
+    """The C MuJoCo snapshot of `task`'s initial pose and the episode's info drawn from key 0."""
+    start = task.snapshot(start_physics(task, np.asarray(task.initial_qpos(None), np.float64)))
+    return start, task.initial_info(jax.random.key(0), start)
+
+
+def placed(task, snap, tips):
+    """`snap` with the five fingertips (FF, MF, RF, LF, thumb) at `tips` (5, 3) m: all that reach's rules read."""
+    return snap.replace(site_xpos=snap.site_xpos.at[task.fingertip_ids].set(jnp.asarray(tips, jnp.float32)))
+
+
+def test_a_free_target_is_reached_only_when_thumb_and_target_meet_alone():
+    """All four fingertips 5 mm from the thumb at once reach no target, however often (the old rule, thumb to target
+    only, counted FF, MF, RF, LF reached in four steps so); the target 5 mm from the thumb counts when every other
+    fingertip is at least `clearance_distance` (4 cm) from it (4.5 cm here), not when one is 3.5 cm from it."""
+    task = Reach(load_scene("reach.xml", physics=REACH_PHYSICS), free=True, sequence_length=4,
+                 sequence_order="fixed")
+    start, info = start_of(task)
+    thumb = np.asarray(start.site_xpos[task.fingertip_ids[THUMB]])
+    directions = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0]], np.float32)
+    bunched = placed(task, start, np.vstack([thumb + 0.005 * directions, thumb]))
+    for _ in range(4):
+        _, done, info, metrics = task.evaluate(jax.random.key(1), bunched, bunched, info)
+        assert float(metrics["success"]) == 0.0 and int(info["sequence_step"]) == 0 and not bool(done)
+    for other, reached in ((0.045, 1.0), (0.035, 0.0)):
+        tips = np.vstack([thumb + 0.005 * directions[:1], thumb + other * directions[1:], thumb])
+        metrics = task.evaluate(jax.random.key(1), start, placed(task, start, tips), info)[3]
+        assert float(metrics["success"]) == reached, other
+

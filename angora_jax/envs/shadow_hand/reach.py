@@ -3,8 +3,9 @@
 Both bring the thumb tip to a target finger's tip (first, middle, ring or little finger, drawn per episode, or one
 fixed finger with `target_finger`, AngoraPy's `force_finger`).
 `reach` asks for all five fingertips at sampled positions (the non-target fingers where they started, thumb and
-target at a meeting point above the palm); `freereach` only asks thumb and target to meet and penalises other
-fingertips that enter a zone around the thumb. With `sequence_length` both become AngoraPy's `ReachSequential` and
+target at a meeting point above the palm); `freereach` only asks thumb and target to meet, with the other fingertips
+away from the thumb (`ReachReward.clearance_distance`), and penalises other fingertips that enter a zone around the
+thumb. With `sequence_length` both become AngoraPy's `ReachSequential` and
 `FreeReachSequential`: a sequence of target fingers is drawn per episode and the goal moves to the next finger as
 soon as the current one is reached. Rewards are a prototype function plus `ReachReward` coefficients,
 so ablations change a config, not code.
@@ -40,6 +41,10 @@ class ReachReward(Coefficients):
 
     success_distance: a reach succeeds when the goal distance is below this.
     success_bonus: reward added on every step that is a success.
+    clearance_distance: freereach only; a target counts as reached (`success`) only while every other fingertip is
+    at least this far from the thumb tip, so that thumb and target meet alone, not all fingertips at once (0: no
+    such check). 0.04 m is twice `success_distance`: the other tips stay about one fingertip spacing (2.2-3.0 cm
+    between neighbours in the initial pose) from the target's.
     force_multiplier: weight of the squared actuator forces (wrist excluded), a metabolic cost.
     auxiliary_zone_radius: freereach only; non-target fingertips closer than this to the thumb are penalised.
     auxiliary_penalty_multiplier: freereach only; penalty per metre of intrusion into that zone.
@@ -48,6 +53,7 @@ class ReachReward(Coefficients):
 
     success_distance: float = 0.02
     success_bonus: float = 0.1
+    clearance_distance: float = 0.04
     force_multiplier: float = 0.0
     auxiliary_zone_radius: float = 0.06015
     auxiliary_penalty_multiplier: float = 0.01
@@ -174,15 +180,18 @@ class Reach(HandTask):
     def evaluate(self, key, prev, snap, info):
         c = self.reward_config
         distance = self.goal_distance(snap, info)
-        success = (distance < c.success_distance).astype(jnp.float32)
+        success = distance < c.success_distance
         force = jnp.sum(snap.actuator_force[2:] ** 2)
-        reward = -distance + c.success_bonus * success - c.force_multiplier * force
+        reward = -distance - c.force_multiplier * force
         if self.free:
             tips = self.fingertips(snap)
             to_thumb = jnp.linalg.norm(tips[:THUMB] - tips[THUMB], axis=-1)
             others = jnp.arange(THUMB) != info["target"]
             intrusion = jnp.maximum(c.auxiliary_zone_radius - to_thumb, 0.0) * others
             reward = reward - c.auxiliary_penalty_multiplier * jnp.sum(intrusion)
+            success = success & jnp.all((to_thumb >= c.clearance_distance) | ~others)
+        success = success.astype(jnp.float32)
+        reward = reward + c.success_bonus * success
         metrics = {"success": success, "goal_distance": distance}
         if self.sequence_length is None:
             return reward, jnp.zeros((), bool), info, metrics
