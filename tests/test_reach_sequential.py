@@ -161,3 +161,22 @@ def test_a_free_target_is_reached_only_when_thumb_and_target_meet_alone():
         metrics = task.evaluate(jax.random.key(1), start, placed(task, start, tips), info)[3]
         assert float(metrics["success"]) == reached, other
 
+
+def test_reaching_a_sequential_reach_target_pays_more_than_hovering_outside_it():
+    """A sequence's reward is the progress towards the current goal, so reaching a target and then holding still
+    (the goal has moved on: 0.10-0.11 m away) pays more over 10 steps than hovering 5 mm outside the success distance.
+    Under minus the goal distance, reaching paid the 0.1 bonus and then about -0.1 per step against -0.025 hovering:
+    the likely reason why ShadowHandReachSequential learned to reach no target."""
+    task = Reach(load_scene("reach.xml", physics=REACH_PHYSICS), sequence_length=4)
+    start, info = start_of(task)
+    goal = np.asarray(info["goal"])
+    outside = goal + (task.reward_config.success_distance + 0.005) / np.sqrt(15)
+    returns = {}
+    for name, tips in (("reached", goal), ("hovering", outside)):
+        at = placed(task, start, tips)
+        reward, _, after, metrics = task.evaluate(jax.random.key(1), start, at, info)
+        assert float(metrics["sequence_steps"]) == (name == "reached")
+        held = [task.evaluate(jax.random.key(2), at, at, after)[0] for _ in range(10)]
+        np.testing.assert_allclose(held, 0.0, atol=1e-6, err_msg="holding still makes no progress")
+        returns[name] = float(reward) + float(np.sum(held))
+    assert returns["reached"] > returns["hovering"] + 0.05, returns

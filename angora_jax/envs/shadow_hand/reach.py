@@ -178,11 +178,18 @@ class Reach(HandTask):
                               asymmetric=self.fingertips(snap).reshape(-1))
 
     def evaluate(self, key, prev, snap, info):
+        """Reward: the approach to the goal, plus `success_bonus` on a success, minus the force cost and (freereach)
+        the other fingertips' intrusion near the thumb. The approach is minus the goal distance (m); in a sequence
+        it is the progress towards the current goal over the step (m, the goal distance before minus after), as
+        AngoraPy's sequential freereach rewards: the goal jumps when a target is reached, and minus the new goal's
+        distance would pay less after reaching a target than hovering just outside `success_distance`, so a policy
+        learned to hover. Progress measured against one goal is not changed by the jump."""
         c = self.reward_config
         distance = self.goal_distance(snap, info)
+        approach = -distance if self.sequence_length is None else self.goal_distance(prev, info) - distance
         success = distance < c.success_distance
         force = jnp.sum(snap.actuator_force[2:] ** 2)
-        reward = -distance - c.force_multiplier * force
+        reward = approach - c.force_multiplier * force
         if self.free:
             tips = self.fingertips(snap)
             to_thumb = jnp.linalg.norm(tips[:THUMB] - tips[THUMB], axis=-1)
