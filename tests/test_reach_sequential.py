@@ -1,5 +1,7 @@
 """The sequential finger-opposition tasks (AngoraPy's ReachSequential and FreeReachSequential): the sequence drawn,
-the goal advancing exactly when the current target is reached, the metrics, bad options, MJX/CPU parity."""
+the goal advancing exactly when the current target is reached, the metrics, bad options, MJX/CPU parity, and the rules
+that keep a sequence honest: a free target counts only when the other fingertips are away from the thumb, and the
+reward does not make reaching a target worse than hovering near it."""
 
 import jax
 import jax.numpy as jnp

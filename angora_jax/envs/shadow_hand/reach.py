@@ -73,9 +73,10 @@ class Reach(HandTask):
 
     sequence_length: None for one target per episode; an int >= 1 draws that many target fingers per episode, each
     differing from the one before (as AngoraPy's sequential tasks draw the next finger), has no hold-still goals, and
-    advances to the next finger on the step the current one is reached (`success`). The episode terminates when the
-    last one is reached. Extra metrics: `sequence_steps` (targets reached so far this episode) and
-    `sequence_success` (1 once all `sequence_length` targets are reached).
+    advances to the next finger on the step the current one is reached (`success`); its reward counts the progress
+    towards the current goal (`evaluate`). The episode terminates when the last one is reached. Extra metrics:
+    `sequence_steps` (targets reached so far this episode) and `sequence_success` (1 once all `sequence_length`
+    targets are reached).
     sequence_order: "random" (the fingers drawn as above, AngoraPy's ReachSequential) or "fixed" (FF, MF, RF, LF,
     FF, ... in every episode, AngoraPy's FreeReachSequential with its default exemplary sequence).
     """
