@@ -336,3 +336,43 @@ def test_a_fixed_target_finger_and_a_frozen_wrist():
     np.testing.assert_array_equal(env.reset(jax.random.key(0)).obs.goal[-5:], [0, 0, 1, 0, 0])
     with pytest.raises(ValueError, match=r"Unknown target_finger 'TH'.*\('FF', 'MF', 'RF', 'LF'\)"):
         aj.make("ShadowHandFreeReach", backend="cpu", target_finger="TH")
+
+
+# Thumb and first finger pressed together: the joint angles (rad) at which their fingertip pads (the touch sites
+# `Tch_fftip`, `Tch_thtip`) coincide, found by least squares on C MuJoCo's kinematics from the initial pose; the distal
+# capsules then overlap by 15 mm. (Where the tip sites `S_*tip` coincide instead, the contact lies outside every
+# touch zone and all sensors read 0.)
+PRESSED_QPOS = {"robot0:FFJ3": 0.2081, "robot0:FFJ2": 0.9017, "robot0:FFJ1": 1.119, "robot0:FFJ0": 0.9021,
+                "robot0:THJ4": 0.3782, "robot0:THJ3": 0.922, "robot0:THJ2": 0.0539, "robot0:THJ1": -0.1919,
+                "robot0:THJ0": -0.7577}
+
+
+def test_reach_touch_reads_thumb_and_finger_pressed_together_and_nothing_in_the_open_hand():
+    """With `touch`, reach observes the cube's 97 touch sensors (N): all zero in the open initial pose; with thumb and
+    first finger pressed together, only sensors on those two fingers read, in C MuJoCo and MJX's JAX implementation
+    alike (the same state, `mjx.forward`); without `touch` there are none."""
+    from mujoco import mjx
+
+    assert aj.make("ShadowHandReach", backend="cpu").reset(jax.random.key(0)).obs.touch.shape == (0,)
+    # The solver runs to convergence: at reach's own caps (2 Newton iterations) MJX stops its unconverged solve of this
+    # deep contact far from C MuJoCo's (12.0 N against 5.0 N on the first sensor).
+    task = aj.make("ShadowHandReach", backend="cpu", touch=True, physics={"iterations": 50, "ls_iterations": 50}).task
+    model = task.model
+    names = [model.sensor(int(i)).name for i in range(model.nsensor)]
+    open_hand = start_physics(task, np.asarray(task.initial_qpos(None), np.float64))
+    info = task.initial_info(jax.random.key(0), task.snapshot(open_hand))
+    np.testing.assert_array_equal(task.observe(task.snapshot(open_hand), info).touch, np.zeros(97))
+    qpos = np.asarray(task.initial_qpos(None), np.float64)
+    for name, angle in PRESSED_QPOS.items():
+        qpos[model.joint(name).qposadr[0]] = angle
+    pressed = start_physics(task, qpos)
+    touch = np.asarray(task.observe(task.snapshot(pressed), info).touch)
+    reading = {names[i] for i in np.flatnonzero(touch)}
+    assert touch.sum() > 1.0 and reading, "pressed together, the fingers push on each other (N)"
+    assert all(("ff" in name or "th" in name) and ("tip" in name or "distal" in name) for name in reading), reading
+    on_mjx = jax.jit(mjx.forward)(mjx.put_model(model), mjx.put_data(model, pressed))
+    mjx_touch = np.asarray(task.observe(task.snapshot(on_mjx), info).touch)
+    # The same sensors read, with forces of one size: the 15 mm overlap is far deeper than any contact in a step, and
+    # its forces differ between the implementations' contact models (measured: 5.0 N in C MuJoCo, 6.8 N in MJX).
+    np.testing.assert_array_equal(np.flatnonzero(mjx_touch), np.flatnonzero(touch))
+    np.testing.assert_allclose(mjx_touch, touch, rtol=0.5)

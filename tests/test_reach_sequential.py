@@ -1,5 +1,7 @@
 """The sequential finger-opposition tasks (AngoraPy's ReachSequential and FreeReachSequential): the sequence drawn,
-the goal advancing exactly when the current target is reached, the metrics, bad options, MJX/CPU parity."""
+the goal advancing exactly when the current target is reached, the metrics, bad options, MJX/CPU parity, and the rules
+that keep a sequence honest: a free target counts only when the other fingertips are away from the thumb, and the
+reward does not make reaching a target worse than hovering near it."""
 
 import jax
 import jax.numpy as jnp
@@ -8,9 +10,10 @@ import pytest
 from quick_compile import compile_quickly
 
 import angora_jax as aj
+from angora_jax.envs.mujoco_task import start_physics
 from angora_jax.envs.shadow_hand import REACH_PHYSICS
 from angora_jax.envs.shadow_hand.model import load_scene
-from angora_jax.envs.shadow_hand.reach import Reach
+from angora_jax.envs.shadow_hand.reach import THUMB, Reach
 
 LENGTH = 5
 BATCH = 2
@@ -102,8 +105,10 @@ def test_bad_sequence_options_are_refused():
 
 def test_mjx_and_cpu_paths_agree_on_the_sequence():
     """Same keys and actions, a success on every step: targets, goals (drawn anew from the step's key on each advance)
-    and sequence metrics equal, joint positions and rewards within test_envs' tolerances, until the sequence ends."""
-    options = {"sequence_length": LENGTH, "max_episode_steps": 10, "reward": ALWAYS}
+    and sequence metrics equal, joint positions and rewards within test_envs' tolerances, until the sequence ends. With
+    `touch` the 97 touch readings agree too (no finger touches another in these few steps: test_envs.py presses two
+    together, test_warp.py compares readings of contacts)."""
+    options = {"sequence_length": LENGTH, "max_episode_steps": 10, "reward": ALWAYS, "touch": True}
     mjx, cpu = aj.make("ShadowHandReachSequential", **options), aj.make("ShadowHandReachSequential", backend="cpu",
                                                                         **options)
     keys = jax.random.split(jax.random.key(0), BATCH)
@@ -118,6 +123,8 @@ def test_mjx_and_cpu_paths_agree_on_the_sequence():
         state, cpu_state = step(state, actions[t]), cpu.step(cpu_state, actions[t, 0])
         np.testing.assert_allclose(state.final_obs.proprioception[0, :24], cpu_state.physics.qpos, atol=2e-3)
         np.testing.assert_allclose(state.reward[0], cpu_state.reward, atol=1e-4)
+        assert state.final_obs.touch.shape == (BATCH, 97)
+        np.testing.assert_allclose(state.final_obs.touch[0], cpu_state.final_obs.touch, atol=1e-3)
         for name in ("sequence_steps", "sequence_success"):
             assert float(state.metrics[name][0]) == float(cpu_state.metrics[name]), name
         np.testing.assert_array_equal(state.done[0], cpu_state.done)
@@ -125,3 +132,53 @@ def test_mjx_and_cpu_paths_agree_on_the_sequence():
             assert int(state.info["target"][0]) == int(cpu_state.info["target"])
             np.testing.assert_allclose(state.info["goal"][0], cpu_state.info["goal"], atol=2e-3)
     assert float(cpu_state.done) == 1.0 and float(state.metrics["sequence_success"][0]) == 1.0
+
+
+def start_of(task):
+    """The C MuJoCo snapshot of `task`'s initial pose and the episode's info drawn from key 0."""
+    start = task.snapshot(start_physics(task, np.asarray(task.initial_qpos(None), np.float64)))
+    return start, task.initial_info(jax.random.key(0), start)
+
+
+def placed(task, snap, tips):
+    """`snap` with the five fingertips (FF, MF, RF, LF, thumb) at `tips` (5, 3) m: all that reach's rules read."""
+    return snap.replace(site_xpos=snap.site_xpos.at[task.fingertip_ids].set(jnp.asarray(tips, jnp.float32)))
+
+
+def test_a_free_target_is_reached_only_when_thumb_and_target_meet_alone():
+    """All four fingertips 5 mm from the thumb at once reach no target, however often (the old rule, thumb to target
+    only, counted FF, MF, RF, LF reached in four steps so); the target 5 mm from the thumb counts when every other
+    fingertip is at least `clearance_distance` (4 cm) from it (4.5 cm here), not when one is 3.5 cm from it."""
+    task = Reach(load_scene("reach.xml", physics=REACH_PHYSICS), free=True, sequence_length=4,
+                 sequence_order="fixed")
+    start, info = start_of(task)
+    thumb = np.asarray(start.site_xpos[task.fingertip_ids[THUMB]])
+    directions = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0]], np.float32)
+    bunched = placed(task, start, np.vstack([thumb + 0.005 * directions, thumb]))
+    for _ in range(4):
+        _, done, info, metrics = task.evaluate(jax.random.key(1), bunched, bunched, info)
+        assert float(metrics["success"]) == 0.0 and int(info["sequence_step"]) == 0 and not bool(done)
+    for other, reached in ((0.045, 1.0), (0.035, 0.0)):
+        tips = np.vstack([thumb + 0.005 * directions[:1], thumb + other * directions[1:], thumb])
+        metrics = task.evaluate(jax.random.key(1), start, placed(task, start, tips), info)[3]
+        assert float(metrics["success"]) == reached, other
+
+
+def test_reaching_a_sequential_reach_target_pays_more_than_hovering_outside_it():
+    """A sequence's reward is the progress towards the current goal, so reaching a target and then holding still
+    (the goal has moved on: 0.10-0.11 m away) pays more over 10 steps than hovering 5 mm outside the success distance.
+    Under minus the goal distance, reaching paid the 0.1 bonus and then about -0.1 per step against -0.025 hovering:
+    the likely reason why ShadowHandReachSequential learned to reach no target."""
+    task = Reach(load_scene("reach.xml", physics=REACH_PHYSICS), sequence_length=4)
+    start, info = start_of(task)
+    goal = np.asarray(info["goal"])
+    outside = goal + (task.reward_config.success_distance + 0.005) / np.sqrt(15)
+    returns = {}
+    for name, tips in (("reached", goal), ("hovering", outside)):
+        at = placed(task, start, tips)
+        reward, _, after, metrics = task.evaluate(jax.random.key(1), start, at, info)
+        assert float(metrics["sequence_steps"]) == (name == "reached")
+        held = [task.evaluate(jax.random.key(2), at, at, after)[0] for _ in range(10)]
+        np.testing.assert_allclose(held, 0.0, atol=1e-6, err_msg="holding still makes no progress")
+        returns[name] = float(reward) + float(np.sum(held))
+    assert returns["reached"] > returns["hovering"] + 0.05, returns

@@ -28,13 +28,14 @@ BATCH, STEPS = 3, 50
 def test_warp_steps_reach_as_c_mujoco_and_mjx_jax_do():
     """The same task logic and physics on Warp as on C MuJoCo, against which reach's MJX JAX path is tested
     (test_envs.py): the same goals, joint angles within 2e-3 rad and rewards within 1e-4 over 50 random-action steps
-    (that test's tolerance), the same ends, with fingers touching in some steps. The solver runs to convergence here:
+    (that test's tolerance), the same ends, with fingers touching in some steps, which the touch sensors (`touch`)
+    read alike (within 5% or 0.05 N). The solver runs to convergence here:
     at reach's own caps (2 Newton, 4 line-search iterations) each implementation stops its unconverged solve
     differently (Warp and MJX's JAX implementation drift up to 0.046 rad apart over the 50 steps; converged they
     agree within 1e-4 rad, measured on the CPU; compiling the JAX side here would cost 21 s of the suite)."""
     physics = {"impl": "warp", "iterations": 50, "ls_iterations": 50}
-    env = aj.make("ShadowHandReach", max_episode_steps=STEPS, physics=physics).sized_for(BATCH)
-    cpu = aj.make("ShadowHandReach", max_episode_steps=STEPS, physics=physics, backend="cpu")
+    env = aj.make("ShadowHandReach", max_episode_steps=STEPS, physics=physics, touch=True).sized_for(BATCH)
+    cpu = aj.make("ShadowHandReach", max_episode_steps=STEPS, physics=physics, touch=True, backend="cpu")
     actions = jnp.asarray(np.random.default_rng(0).uniform(-1, 1, (STEPS, BATCH, 20)), jnp.float32)
     keys = jax.random.split(jax.random.key(0), BATCH)
 
@@ -51,9 +52,11 @@ def test_warp_steps_reach_as_c_mujoco_and_mjx_jax_do():
             twin = cpu.step(twin, actions[t, b])
             np.testing.assert_allclose(warp.final_obs.proprioception[t, b, :24], twin.physics.qpos, atol=2e-3)
             np.testing.assert_allclose(warp.reward[t, b], twin.reward, atol=1e-4)
+            np.testing.assert_allclose(warp.final_obs.touch[t, b], twin.final_obs.touch, rtol=0.05, atol=0.05)
             assert float(warp.done[t, b]) == float(twin.done)
     assert float(jnp.abs(warp.physics.qpos[-1] - warp.physics.qpos[0]).max()) > 0.05, "the hand must move"
     assert int(warp.physics._impl.nacon.max()) > 0, "fingers touch: Warp's contacts are exercised"
+    assert float(warp.final_obs.touch.max()) > 0.1, "and the touch sensors (N) read them"
 
 
 def test_a_warp_environment_sizes_warp_graph_cache_for_its_devices():

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import mujoco
+
 from angora_jax.envs.backends import on_backend
 from angora_jax.envs.cameras import CameraVision
 from angora_jax.envs.core import Env
@@ -14,7 +16,7 @@ from angora_jax.envs.registry import register
 from angora_jax.envs.shadow_hand.cube import CUBE_BODY, CUBE_PHYSICS, load_cube_scene
 from angora_jax.envs.shadow_hand.ihom import REWARD_PRESETS as IHOM_REWARDS
 from angora_jax.envs.shadow_hand.ihom import Ihom, IhomReward, PoseNoise, PoseReader
-from angora_jax.envs.shadow_hand.model import PhysicsSettings, load_scene
+from angora_jax.envs.shadow_hand.model import PhysicsSettings, add_touch_sensors, load_scene
 from angora_jax.envs.shadow_hand.reach import REWARD_PRESETS as REACH_REWARDS
 from angora_jax.envs.shadow_hand.reach import Reach, ReachReward
 
@@ -37,7 +39,7 @@ def make_reach(free: bool = False, reward_preset: str = "default", reward: dict[
                control_dt: float = 0.02, max_episode_steps: int = 100, control: str = "position",
                physics: dict[str, float] | None = None, vision: dict | None = None, target_finger: str | None = None,
                freeze_wrist: bool = False, sequence_length: int | None = None, sequence_order: str = "random",
-               randomization: dict | None = None, backend: str = "mjx") -> Env:
+               randomization: dict | None = None, touch: bool = False, backend: str = "mjx") -> Env:
     """Build a reach task. Defaults follow AngoraPy: 0.02 s per policy step, 100 policy steps per episode,
     joint targets set relative to the joints' positions (`control`: see `HandTask`). physics: `PhysicsSettings`
     fields overriding `REACH_PHYSICS` (the Gym scene's own settings are timestep 0.002, iterations 20,
@@ -50,12 +52,16 @@ def make_reach(free: bool = False, reward_preset: str = "default", reward: dict[
     (AngoraPy's sequential tasks; `reach.Reach`), with metrics `sequence_steps` and `sequence_success`.
     sequence_order: "random" (each target drawn among the three fingers other than the previous) or "fixed" (FF,
     MF, RF, LF, FF, ...). randomization: domain randomization ranges, `randomization.Randomization` fields without
-    the cube's."""
+    the cube's. touch: the hand carries Gym's 97 touch sensors (the cube's, `model.add_touch_sensors`) and
+    `Sensation.touch` holds their readings (N); off by default, as in Gym's HandReach, so that MJX evaluates no
+    sensor."""
     ranges = Randomization.from_options(randomization, cube=False)
     cameras = CameraVision.from_options(vision)
     settings = REACH_PHYSICS.with_options(physics)
     frame_skip = settings.frame_skip(control_dt)
-    scene = load_scene("reach.xml", physics=settings, cameras=cameras.cameras if cameras else ())
+    sensors = (mujoco.mjtSensor.mjSENS_TOUCH,) if touch else ()
+    scene = load_scene("reach.xml", add_touch_sensors if touch else None, settings, sensors=sensors,
+                       cameras=cameras.cameras if cameras else ())
     task = Reach(scene, ReachReward.preset(REACH_REWARDS, reward_preset, reward), free=free, control=control,
                  vision=cameras, target_finger=target_finger, freeze_wrist=freeze_wrist,
                  sequence_length=sequence_length, sequence_order=sequence_order)

@@ -22,9 +22,9 @@ from __future__ import annotations
 
 import mujoco
 
-from angora_jax.envs.shadow_hand.model import PhysicsSettings, load_scene
+from angora_jax.envs.shadow_hand.model import TOUCH_SCENE, PhysicsSettings, load_scene
 
-SCENE = "manipulate_block_touch_sensors.xml"
+SCENE = TOUCH_SCENE
 CUBE_BODY = "object"
 CUBE_JOINT = "object:joint"
 CUBE_HALF_SIZE = 0.025  # m

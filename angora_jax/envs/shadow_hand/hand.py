@@ -82,6 +82,7 @@ class HandTask(MujocoTask):
         self._wrist_actuators = np.array(wrist)
         # Each wrist actuator drives one joint (joint transmission): its target is that joint's initial position.
         self._wrist_hold = np.clip(qpos[model.jnt_qposadr[model.actuator_trnid[wrist, 0]]], low[wrist], high[wrist])
+        self.touch_adr = np.asarray(model.sensor_adr[model.sensor_type == mujoco.mjtSensor.mjSENS_TOUCH])
 
     def initial_qpos(self, key: jax.Array) -> jax.Array:
         return jnp.asarray(self._qpos0)
@@ -98,6 +99,11 @@ class HandTask(MujocoTask):
     def fingertips(self, snap: Snapshot) -> jax.Array:
         """Fingertip positions (m, world frame), shape `(5, 3)` in the order FF, MF, RF, LF, thumb."""
         return snap.site_xpos[self.fingertip_ids]
+
+    def touch(self, snap: Snapshot) -> jax.Array:
+        """The model's touch sensor readings (N, the contact normal forces inside each sensor's zone), in sensor
+        order, shape `(n,)`: 97 with Gym's touch sensors (`model.add_touch_sensors`), 0 without any."""
+        return snap.sensordata[self.touch_adr]
 
     def task_variables(self, snap: Snapshot, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
         """fingertips (15, m, world frame: FF, MF, RF, LF, thumb x xyz) and joint_angles (24, rad)."""

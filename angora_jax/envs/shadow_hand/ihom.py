@@ -314,8 +314,6 @@ class Ihom(HandTask):
         cube = model.joint(CUBE_JOINT)
         self.cube_qpos = int(cube.qposadr[0])
         self.cube_dof = int(cube.dofadr[0])
-        touch = model.sensor_type == mujoco.mjtSensor.mjSENS_TOUCH
-        self.touch_adr = np.asarray(model.sensor_adr[touch])
         self.starts = self.settled_starts(start_pool)
 
     def cube_pose(self, snap: Snapshot) -> jax.Array:
@@ -408,7 +406,7 @@ class Ihom(HandTask):
             privileged = privileged + [pose]
             pose = self.pose_noise.apply(jax.random.wrap_key_data(info["pose_noise_key"]), pose)
             seen_to_goal = rotation_between(pose[3:], info["goal"])
-        return Sensation.make(proprioception=self.proprioception(snap), touch=snap.sensordata[self.touch_adr],
+        return Sensation.make(proprioception=self.proprioception(snap), touch=self.touch(snap),
                               vision=pose, goal=self.goal_input(seen_to_goal, info["goal"]),
                               asymmetric=jnp.concatenate(privileged))
 

@@ -27,6 +27,9 @@ HAND_JOINT_PREFIX = "robot0:"  # every joint of the hand; objects in a scene hav
 # touched anything, yet they are 86 of reach's 106 MJX contacts, and their two box-mesh pairs take 94% of the
 # temporary memory of a reach step (`benchmarks/results/physics_throughput.md`).
 UNTOUCHED_GEOMS = ("robot0:C_forearm", "robot0:V_thbase", "robot0:V_thhub")
+# The Gym scene whose hand carries the touch sensors of its `robot_touch_sensors_92.xml` and
+# `shared_touch_sensors_92.xml` includes (the cube's scene); `add_touch_sensors` gives any hand scene the same ones.
+TOUCH_SCENE = "manipulate_block_touch_sensors.xml"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,6 +115,22 @@ def remove_from_collision(spec: mujoco.MjSpec, names: tuple[str, ...]) -> None:
             raise ValueError(f"No geom {name!r} in the scene.")
         geom.contype = 0
         geom.conaffinity = 0
+
+
+def add_touch_sensors(spec: mujoco.MjSpec) -> None:
+    """Give the hand in `spec` the 97 touch sensors of Gym's touch scenes (`TOUCH_SCENE`), in their order: each reads
+    the normal forces (N) of the contacts inside its site's zone. Sensors and sites the scene already has (the five
+    fingertip sensors of every Gym hand scene) are kept; the others are copied, sites onto the bodies of the same
+    names. Sites carry no mass and collide with nothing, so the dynamics stay those of the scene."""
+    source = mujoco.MjSpec.from_file(os.path.join(asset_dir(), TOUCH_SCENE))
+    for sensor in source.sensors:
+        if sensor.type != mujoco.mjtSensor.mjSENS_TOUCH or spec.sensor(sensor.name) is not None:
+            continue
+        if spec.site(sensor.objname) is None:
+            site = source.site(sensor.objname)
+            spec.body(site.parent.name).add_site(name=site.name, type=site.type, pos=site.pos, quat=site.quat,
+                                                 size=site.size, rgba=site.rgba, group=site.group)
+        spec.add_sensor(name=sensor.name, type=sensor.type, objtype=sensor.objtype, objname=sensor.objname)
 
 
 def load_scene(scene: str = "reach.xml", edit: Callable[[mujoco.MjSpec], None] | None = None,

@@ -3,8 +3,9 @@
 Both bring the thumb tip to a target finger's tip (first, middle, ring or little finger, drawn per episode, or one
 fixed finger with `target_finger`, AngoraPy's `force_finger`).
 `reach` asks for all five fingertips at sampled positions (the non-target fingers where they started, thumb and
-target at a meeting point above the palm); `freereach` only asks thumb and target to meet and penalises other
-fingertips that enter a zone around the thumb. With `sequence_length` both become AngoraPy's `ReachSequential` and
+target at a meeting point above the palm); `freereach` only asks thumb and target to meet, with the other fingertips
+away from the thumb (`ReachReward.clearance_distance`), and penalises other fingertips that enter a zone around the
+thumb. With `sequence_length` both become AngoraPy's `ReachSequential` and
 `FreeReachSequential`: a sequence of target fingers is drawn per episode and the goal moves to the next finger as
 soon as the current one is reached. Rewards are a prototype function plus `ReachReward` coefficients,
 so ablations change a config, not code.
@@ -40,6 +41,10 @@ class ReachReward(Coefficients):
 
     success_distance: a reach succeeds when the goal distance is below this.
     success_bonus: reward added on every step that is a success.
+    clearance_distance: freereach only; a target counts as reached (`success`) only while every other fingertip is
+    at least this far from the thumb tip, so that thumb and target meet alone, not all fingertips at once (0: no
+    such check). 0.04 m is twice `success_distance`: the other tips stay about one fingertip spacing (2.2-3.0 cm
+    between neighbours in the initial pose) from the target's.
     force_multiplier: weight of the squared actuator forces (wrist excluded), a metabolic cost.
     auxiliary_zone_radius: freereach only; non-target fingertips closer than this to the thumb are penalised.
     auxiliary_penalty_multiplier: freereach only; penalty per metre of intrusion into that zone.
@@ -48,6 +53,7 @@ class ReachReward(Coefficients):
 
     success_distance: float = 0.02
     success_bonus: float = 0.1
+    clearance_distance: float = 0.04
     force_multiplier: float = 0.0
     auxiliary_zone_radius: float = 0.06015
     auxiliary_penalty_multiplier: float = 0.01
@@ -61,14 +67,16 @@ REWARD_PRESETS = {"default": ReachReward(), "force_punished": ReachReward(force_
 class Reach(HandTask):
     """Bring all fingertips to goal positions: thumb and target finger meet, the others stay.
 
-    Observation: proprioception (24 joint positions and 24 velocities), goal (15 goal coordinates in m and a
+    Observation: proprioception (24 joint positions and 24 velocities), touch (the model's touch sensor readings in N:
+    97 in a scene with `model.add_touch_sensors`, else none), goal (15 goal coordinates in m and a
     one-hot target finger over 5, all zero for a hold-still goal), asymmetric (15 fingertip coordinates in m).
 
     sequence_length: None for one target per episode; an int >= 1 draws that many target fingers per episode, each
     differing from the one before (as AngoraPy's sequential tasks draw the next finger), has no hold-still goals, and
-    advances to the next finger on the step the current one is reached (`success`). The episode terminates when the
-    last one is reached. Extra metrics: `sequence_steps` (targets reached so far this episode) and
-    `sequence_success` (1 once all `sequence_length` targets are reached).
+    advances to the next finger on the step the current one is reached (`success`); its reward counts the progress
+    towards the current goal (`evaluate`). The episode terminates when the last one is reached. Extra metrics:
+    `sequence_steps` (targets reached so far this episode) and `sequence_success` (1 once all `sequence_length`
+    targets are reached).
     sequence_order: "random" (the fingers drawn as above, AngoraPy's ReachSequential) or "fixed" (FF, MF, RF, LF,
     FF, ... in every episode, AngoraPy's FreeReachSequential with its default exemplary sequence).
     """
@@ -167,21 +175,31 @@ class Reach(HandTask):
     def observe(self, snap: Snapshot, info: dict[str, jax.Array]) -> Sensation:
         target = jax.nn.one_hot(info["target"], 5) * (1.0 - info["stay"])
         goal = target if self.free else jnp.concatenate([info["goal"].reshape(-1), target])
-        return Sensation.make(proprioception=self.proprioception(snap), goal=goal,
+        return Sensation.make(proprioception=self.proprioception(snap), touch=self.touch(snap), goal=goal,
                               asymmetric=self.fingertips(snap).reshape(-1))
 
     def evaluate(self, key, prev, snap, info):
+        """Reward: the approach to the goal, plus `success_bonus` on a success, minus the force cost and (freereach)
+        the other fingertips' intrusion near the thumb. The approach is minus the goal distance (m); in a sequence
+        it is the progress towards the current goal over the step (m, the goal distance before minus after), as
+        AngoraPy's sequential freereach rewards: the goal jumps when a target is reached, and minus the new goal's
+        distance would pay less after reaching a target than hovering just outside `success_distance`, so a policy
+        learned to hover. Progress measured against one goal is not changed by the jump."""
         c = self.reward_config
         distance = self.goal_distance(snap, info)
-        success = (distance < c.success_distance).astype(jnp.float32)
+        approach = -distance if self.sequence_length is None else self.goal_distance(prev, info) - distance
+        success = distance < c.success_distance
         force = jnp.sum(snap.actuator_force[2:] ** 2)
-        reward = -distance + c.success_bonus * success - c.force_multiplier * force
+        reward = approach - c.force_multiplier * force
         if self.free:
             tips = self.fingertips(snap)
             to_thumb = jnp.linalg.norm(tips[:THUMB] - tips[THUMB], axis=-1)
             others = jnp.arange(THUMB) != info["target"]
             intrusion = jnp.maximum(c.auxiliary_zone_radius - to_thumb, 0.0) * others
             reward = reward - c.auxiliary_penalty_multiplier * jnp.sum(intrusion)
+            success = success & jnp.all((to_thumb >= c.clearance_distance) | ~others)
+        success = success.astype(jnp.float32)
+        reward = reward + c.success_bonus * success
         metrics = {"success": success, "goal_distance": distance}
         if self.sequence_length is None:
             return reward, jnp.zeros((), bool), info, metrics
