@@ -2,7 +2,8 @@
 decoding task variables from areas (against noise and against the same network with random weights on the same
 inputs), ablations of areas, unit fractions and input modalities (task outcomes with standard errors), fixed points of
 the recurrent premotor layer, PCA, timescales and, for the cube, RSA against model RDMs. Written for the brain-area
-model (`cortical`) on reach and on the cube; what is decoded and lesioned depends on the task (`PROBES`).
+model (`cortical`) on reach and on the cube; what is decoded and lesioned depends on the task
+(`angora_jax.analysis.PROBES`).
 
     python benchmarks/probe_trained.py runs/reach_cortical --episodes 480     # e.g. after
     angora-jax train shadow_reach_cortical logging.run_name=reach_cortical
@@ -15,8 +16,6 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
 
 import jax
 import numpy as np
@@ -24,58 +23,6 @@ from common import RESULTS, markdown_table, write_results
 
 import angora_jax as aj
 from angora_jax import analysis as an
-from angora_jax.experiment.agent import Agent
-
-
-@dataclass(frozen=True)
-class Probe:
-    """What to probe on a task: the layers to decode from and analyse, the variables to decode, the lesions (name ->
-    lesioned agent), the episode outcomes to compare them by, and the model variables of RSA (none: no RSA), whose
-    conditions are bins of `rsa_condition`."""
-
-    layers: tuple[str, ...]
-    variables: tuple[str, ...]
-    lesions: Callable[[Agent], dict[str, Agent]]
-    outcomes: tuple[str, ...]
-    rsa_variables: tuple[str, ...] = ()
-    rsa_condition: str = "metric_goal_distance"
-
-
-def reach_lesions(agent: Agent) -> dict[str, Agent]:
-    return {"-SSC_2": an.lesion_area(agent, "network.SSC_2"), "-IPS": an.lesion_area(agent, "network.IPS"),
-            "-MCC": an.lesion_area(agent, "network.MCC"), "-50% M1": an.lesion_fraction(agent, "network.M1", 0.5),
-            "-10% M1": an.lesion_fraction(agent, "network.M1", 0.1),
-            "-goal input": an.silence_modality(agent, "goal"),
-            "-proprioception": an.silence_modality(agent, "proprioception"),
-            "-none": an.lesion(agent, "network.M1", [])}
-
-
-def cube_lesions(agent: Agent) -> dict[str, Agent]:
-    return {"-SSC": an.lesion_area(an.lesion_area(agent, "network.SSC_1"), "network.SSC_2"),
-            "-touch input": an.silence_modality(agent, "touch"),
-            "-goal input": an.silence_modality(agent, "goal"),
-            "-10% M1": an.lesion_fraction(agent, "network.M1", 0.1),
-            "-50% M1": an.lesion_fraction(agent, "network.M1", 0.5),
-            "-none": an.lesion(agent, "network.M1", [])}
-
-
-CUBE_LAYERS = ("network.SSC_1", "network.SSC_2", "network.SPL", "network.IPL", "network.IPS", "network.MCC",
-               "network.LPFC", "network.PMC_in", "network.PMC.1", "network.M1")
-PROBES = {
-    "ShadowHandReach": Probe(
-        layers=("network.SSC_2", "network.SPL", "network.IPS", "network.MCC", "network.LPFC", "network.PMC.1",
-                "network.M1"),
-        variables=("input_goal", "input_asymmetric", "input_proprioception", "metric_goal_distance"),
-        lesions=reach_lesions, outcomes=("success", "goal_distance")),
-    # The cube's variables (Env.task_variables): its orientation (quaternion), angular velocity (rad/s, cube frame),
-    # the rotation from it to the goal (quaternion), the fingertips (m) and the touch sensors (N).
-    "ShadowHandCube": Probe(
-        layers=CUBE_LAYERS,
-        variables=("task_cube_orientation", "task_cube_angular_velocity", "task_rotation_to_goal", "task_fingertips",
-                   "input_touch"),
-        lesions=cube_lesions, outcomes=("goals_reached", "dropped"),
-        rsa_variables=("task_cube_orientation", "task_rotation_to_goal", "task_cube_angular_velocity")),
-}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -90,9 +37,9 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     agent = aj.load_agent(args.run_dir, "best")
     task = agent.config.env.task
-    if task not in PROBES:
-        parser.error(f"{task} has no probe here; tasks with one: {sorted(PROBES)}.")
-    probe = PROBES[task]
+    if task not in an.PROBES:
+        parser.error(f"{task} has no probe here; tasks with one: {sorted(an.PROBES)}.")
+    probe = an.PROBES[task]
     layers, variables = list(probe.layers), list(probe.variables)
     seconds = {}
     for attempt in ("record_first_with_compile", "record_again"):

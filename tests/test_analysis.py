@@ -17,6 +17,7 @@ from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.analysis import (
+    PROBES,
     ablation,
     agent_fixed_points,
     decode,
@@ -287,7 +288,7 @@ def test_probe_trained_script_writes_every_part_and_finds_the_reach_policy_needs
     summary = record["config"]["summary"]
     assert record["config"]["episodes"] == 32 and summary["run_cycle"] == 120
     assert all(seconds > 0 for seconds in summary["seconds"].values())
-    probe = probe_trained.PROBES["ShadowHandReach"]
+    probe = PROBES["ShadowHandReach"]
     for key in ("decoding_r2", "decoding_noise_baseline", "decoding_r2_random_weights_same_inputs"):
         assert set(summary[key]) == set(probe.variables), key
         assert all(set(row) == set(probe.layers) for row in summary[key].values()), key

@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from quick_compile import QUICK_SUBPROCESS
+
 
 def run_notebook(name: str, cwd: Path, epilogue: str = "", **env: str) -> subprocess.CompletedProcess:
     """The notebook's code cells, in order, in a fresh interpreter (nbmake/Jupyter are not dependencies: the cells
@@ -75,3 +77,70 @@ def test_probing_notebook_runs_every_analysis_on_the_trained_reach_run(cortical_
     assert 2 * found["fixed_points"][0] >= found["fixed_points"][1], "most starts converge"
     names = ["decoding", "similarity", "dynamics", "timescales", "tuning", "ablation"]
     assert all((tmp_path / f"{name}.png").read_bytes()[:4] == b"\x89PNG" for name in names)
+
+
+# A cube run of the brain-area model as small as it trains: 1 cycle of 4 environments x 8 steps, areas of 16 units, and
+# episodes of one goal with 0.4 s (5 steps) to reach it. The physics run on MuJoCo Warp, whose kernels are compiled
+# once and cached on disk, leaving XLA little to compile: measured on 2 CPU cores with goals of 0.8 s, MJX's JAX
+# implementation took 158 s to train the cycle and 142 s to record 4 episodes, Warp with quick compiles 22 s and 14 s.
+# Goals of 0.4 s instead of 0.8 s halve the 7 ablation runs (18 s to 10 s of the notebook's 90 s to 75 s).
+TINY_CUBE_AREAS = "{SSC_1: 16, SSC_2: 16, SPL: 16, IPL: 16, IPS: 16, MCC: 16, LPFC: 16, PMC_in: 16, PMC: 16, M1: 16}"
+TINY_CUBE = [
+    "env.options.physics={impl: warp}", "env.options.max_goals=1", "env.options.goal_timeout=0.4",
+    "ppo.num_cycles=1", "ppo.num_envs=4", "ppo.rollout_length=8", "ppo.chunk_length=8", "ppo.minibatch_size=32",
+    "ppo.num_epochs=1", "ppo.network.width=16", f"ppo.network.areas={TINY_CUBE_AREAS}",
+    "checkpoint.every=1", "checkpoint.snapshot_every=0", "logging.progress=none", "logging.report=false",
+]
+
+# What the cube notebook found, printed as one JSON line after its cells have run.
+CUBE_FINDINGS = """
+import json
+def labels(result):
+    return [list(map(str, result["layer"].values)), list(map(str, result["variable"].values))]
+values = ablation["outcome_values"]
+print("FINDINGS", json.dumps({
+    "alive": recording["alive"].values.tolist(), "lengths": outcomes["episode_length"].tolist(),
+    "decoding": labels(decoding), "control": labels(control), "learned": labels(learned),
+    "lesions": list(map(str, ablation["lesion"].values)),
+    "none_equals_intact": bool((values.sel(lesion="-none") == values.sel(lesion="intact")).all()),
+    "rsa": list(map(str, rsa["model_similarity"]["variable"].values)),
+}))
+"""
+
+
+def test_cube_probing_notebook_runs_every_analysis_on_a_tiny_cube_run(tmp_path, quick_compiles):
+    """The cube notebook top to bottom on a cube run of the brain-area model trained for one tiny cycle, on 5
+    episodes (decoding's 5 folds need 5): `alive` is 1 through each episode's length as a run without recording
+    counts it and 0 after; decoding (trained and random weights, and their difference) is labelled with the probe's
+    areas x variables; the lesions are the probe's and the empty one equals the intact agent exactly; RSA compares
+    with the two model variables; every figure is a PNG. Every check is gathered first, so a failure names all that
+    failed."""
+    import angora_jax as aj
+    from angora_jax.analysis import PROBES
+
+    run = aj.train("shadow_ihom_cortical", [*TINY_CUBE, f"logging.run_root={tmp_path}", "logging.run_name=cube"])
+    result = run_notebook("probe_a_cube_hand.ipynb", tmp_path, epilogue=CUBE_FINDINGS, ANGORA_RUN=str(run.run_dir),
+                          ANGORA_EPISODES="5", **QUICK_SUBPROCESS)
+    found = json.loads(result.stdout.split("FINDINGS ", 1)[1].splitlines()[0])
+    probe = PROBES["ShadowHandCube"]
+    alive, lengths = found["alive"], found["lengths"]
+    labels = [list(probe.layers), list(probe.variables)]
+    figures = ["decoding", "decoding_random_weights", "decoding_learned", "ablation_goals_reached", "ablation_dropped",
+               "timescales", "dynamics", "similarity"]
+    checks = {
+        "alive is 1 for each episode's length, then 0": all(
+            row == [1.0] * int(length) + [0.0] * (len(row) - int(length)) for row, length in zip(alive, lengths,
+                                                                                              strict=True)),
+        "the recording ends with the longest episode": len(alive[0]) == max(lengths),
+        "decoding is areas x variables": found["decoding"] == labels,
+        "the random-weights control is areas x variables": found["control"] == labels,
+        "trained minus random is areas x variables": found["learned"] == labels,
+        "the lesions are the probe's": found["lesions"] == ["intact", "-SSC", "-touch input", "-goal input",
+                                                            "-10% M1", "-50% M1", "-none"],
+        "the empty lesion equals the intact agent": found["none_equals_intact"],
+        "RSA has the two model variables": found["rsa"] == ["task_cube_orientation", "task_rotation_to_goal"],
+        "every figure is a PNG": all((tmp_path / f"{name}.png").exists()
+                                     and (tmp_path / f"{name}.png").read_bytes()[:4] == b"\x89PNG" for name in figures),
+    }
+    failed = [name for name, holds in checks.items() if not holds]
+    assert not failed, "failed: " + "; ".join(failed) + f"\nfound: {found}"
