@@ -30,10 +30,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import gc
 import itertools
+import json
+import os
+import subprocess
+import sys
+import tempfile
 
-import jax
 from common import env_step_rate, markdown_table, peak_memory_bytes, train_rate, write_results
 
 from angora_jax.envs.registry import make
@@ -42,24 +45,33 @@ from angora_jax.ppo import NetworkConfig, PPOConfig, VisualConfig
 
 
 def config_rows(names: list[str], num_envs: list[int], repeats: int) -> list[dict]:
-    """One row per shipped config (or YAML path) and batch size, each trained as its config says."""
-    rows = []
-    for name, envs in itertools.product(names, num_envs):
-        shipped = load_config(name)
-        share = shipped.ppo.minibatch_size / shipped.ppo.num_envs
-        config = load_config(name, [f"ppo.num_envs={envs}", f"ppo.minibatch_size={round(envs * share)}"])
-        env = validate(config)
-        raw = env_step_rate(env, envs, config.ppo.rollout_length, repeats)
-        trained = train_rate(env, config.ppo, repeats)
-        rows.append(row(config.env.task, name, env, config.ppo, getattr(env, "impl", None), raw, trained))
-        print(f"{name} @ {envs} envs: {trained['env_steps_per_s']:,.0f} train steps/s", flush=True)
-        # MuJoCo Warp's buffers live as long as the environment and the compiled programs that hold it: freed here,
-        # because two cube configs at 16,384 envs in one process ran out of an H100's memory (that freeing suffices
-        # is not yet measured on a GPU).
-        del env
-        jax.clear_caches()
-        gc.collect()
-    return rows
+    """One row per shipped config (or YAML path) and batch size, each trained as its config says; with several, each
+    in a fresh process of this script (`config_row_in_subprocess`)."""
+    combinations = list(itertools.product(names, num_envs))
+    if len(combinations) > 1:
+        return [config_row_in_subprocess(name, envs, repeats) for name, envs in combinations]
+    ((name, envs),) = combinations
+    shipped = load_config(name)
+    share = shipped.ppo.minibatch_size / shipped.ppo.num_envs
+    config = load_config(name, [f"ppo.num_envs={envs}", f"ppo.minibatch_size={round(envs * share)}"])
+    env = validate(config)
+    raw = env_step_rate(env, envs, config.ppo.rollout_length, repeats)
+    trained = train_rate(env, config.ppo, repeats)
+    print(f"{name} @ {envs} envs: {trained['env_steps_per_s']:,.0f} train steps/s", flush=True)
+    return [row(config.env.task, name, env, config.ppo, getattr(env, "impl", None), raw, trained)]
+
+
+def config_row_in_subprocess(name: str, envs: int, repeats: int) -> dict:
+    """`config_rows` of one config and batch size, measured by this script in a fresh process on the same device, as
+    a training run has the device to itself. In one process, MuJoCo Warp could not allocate its buffers for a second
+    cube config at 16,384 envs on an H100 (721 MB, with most of the memory free: three times, also with the first
+    config's environment freed and without XLA's preallocation)."""
+    with tempfile.TemporaryDirectory() as folder:
+        out = os.path.join(folder, "row.json")
+        subprocess.run([sys.executable, os.path.abspath(__file__), "--configs", name, "--num-envs", str(envs),
+                        "--repeats", str(repeats), "--out", out], check=True)
+        with open(out) as f:
+            return json.load(f)["results"][0]
 
 
 def row(task: str, model: str, env, config: PPOConfig, impl: str | None, raw: dict, trained: dict, vision: str = "pose",

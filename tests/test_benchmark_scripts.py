@@ -54,16 +54,19 @@ def test_train_throughput_divides_the_training_rate_by_the_env_rate_of_the_same_
 
 
 def test_train_throughput_trains_shipped_configs_as_they_are(tmp_path):
-    """`--configs`: each config's own network, rollout and minibatch share, at the given batch size."""
+    """`--configs`: each config's own network, rollout and minibatch share, at the given batch size; with several
+    configs or sizes, each measured in its own process, all rows in one file in order."""
     out = tmp_path / "configs.json"
-    train_throughput.main(["--configs", "cartpole", "--num-envs", "4", "--repeats", "1", "--out", str(out)])
-    (row,) = results(out, "train_throughput")["results"]
+    train_throughput.main(["--configs", "cartpole", "--num-envs", "4", "8", "--repeats", "1", "--out", str(out)])
+    rows = results(out, "train_throughput")["results"]
+    assert [(row["task"], row["model"], row["num_envs"]) for row in rows] == [
+        ("CartPole", "cartpole", 4), ("CartPole", "cartpole", 8)]
     shipped = load_config("cartpole").ppo
-    assert (row["task"], row["model"], row["num_envs"]) == ("CartPole", "cartpole", 4)
-    assert row["config"]["network"]["name"] == shipped.network.name
-    assert row["config"]["rollout_length"] == shipped.rollout_length
-    assert row["config"]["minibatch_size"] == 4 * shipped.minibatch_size // shipped.num_envs
-    assert row["train_env_steps_per_s"] > 0 and row["control_dt_s"] == make("CartPole").dt
+    for row, envs in zip(rows, [4, 8], strict=True):
+        assert row["config"]["network"]["name"] == shipped.network.name
+        assert row["config"]["rollout_length"] == shipped.rollout_length
+        assert row["config"]["minibatch_size"] == envs * shipped.minibatch_size // shipped.num_envs
+        assert row["train_env_steps_per_s"] > 0 and row["control_dt_s"] == make("CartPole").dt
 
 
 def test_env_throughput_counts_physics_steps_and_compares_rates_of_the_same_run(tmp_path):
