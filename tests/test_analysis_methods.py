@@ -128,6 +128,10 @@ def test_lagged_decoding_finds_what_a_layer_tells_of_the_future():
     r2 = result["r2"].sel(layer="lead", variable="metric_echo")
     assert r2.sel(lag=3) > 0.95 and r2.sel(lag=0) < 0.2, r2.values  # metric_echo(t + 3) = lead(t)
     assert float(result["baseline"].max()) < 0.1 and result["lag_s"].values.tolist() == [0.0, 3 * DT]
+    assert result.attrs["samples"] == [16 * 60, 16 * 57], "every alive step, those with a step 3 later at lag 3"
+    # A stride over the steps keeps what they tell: a fifth of them finds the same echo.
+    fewer = decode(leader_and_follower(), layers=["lead"], variables=["metric_echo"], lags=[3], max_samples=180)
+    assert fewer.attrs["samples"] == [180] and fewer["r2"].sel(lag=3, layer="lead", variable="metric_echo") > 0.95
     with pytest.raises(ValueError, match="lags must be shorter than the recording's 60 steps"):
         decode(leader_and_follower(), layers=["lead"], variables=["metric_echo"], lags=[60])
 
