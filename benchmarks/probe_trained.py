@@ -33,9 +33,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--name", default="reach_cortical_probe")
     parser.add_argument("--fixed-point-starts", type=int, default=64, help="states the fixed-point search starts from")
     parser.add_argument("--fixed-point-iterations", type=int, default=500, help="optimisation steps of that search")
+    parser.add_argument("--steps", type=int, default=None,
+                        help="policy steps per episode, recorded and lesioned (default: until every episode ends)")
+    parser.add_argument("--env-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="a task option changed from the run's, as for angora-jax evaluate (repeat), e.g. "
+                             "'physics={impl: warp}' on a CPU, where Warp compiles the cube far sooner than MJX's JAX")
     parser.add_argument("--out-dir", default=RESULTS, help="folder of the plots and the JSON (default: results/)")
     args = parser.parse_args(argv)
-    agent = aj.load_agent(args.run_dir, "best")
+    agent = aj.load_agent(args.run_dir, "best", args.env_option)
     task = agent.config.env.task
     if task not in an.PROBES:
         parser.error(f"{task} has no probe here; tasks with one: {sorted(an.PROBES)}.")
@@ -45,7 +50,7 @@ def main(argv: list[str] | None = None) -> None:
     for attempt in ("record_first_with_compile", "record_again"):
         recording = None  # freed before the next: 480 trained cube episodes of every layer hold tens of GB
         start = time.perf_counter()
-        recording = an.record_activity(agent, episodes=args.episodes)
+        recording = an.record_activity(agent, episodes=args.episodes, steps=args.steps)
         seconds[attempt] = time.perf_counter() - start
     part = recording.isel(episode=slice(0, args.decode_episodes))
     start = time.perf_counter()
@@ -53,7 +58,7 @@ def main(argv: list[str] | None = None) -> None:
     control = an.decode(an.replay_activity(an.with_random_weights(agent), part), layers, variables)
     seconds["decode_both"] = time.perf_counter() - start
     start = time.perf_counter()
-    ablation = an.ablation(agent, probe.lesions(agent), episodes=args.episodes)
+    ablation = an.ablation(agent, probe.lesions(agent), episodes=args.episodes, steps=args.steps)
     seconds["ablation"] = time.perf_counter() - start
     start = time.perf_counter()
     points = an.agent_fixed_points(agent, part, "network.PMC", "network.PMC_in", starts=args.fixed_point_starts,
@@ -100,7 +105,8 @@ def main(argv: list[str] | None = None) -> None:
         summary["rsa_condition"] = probe.rsa_condition
         summary["rsa_model_similarity"] = similarity["model_similarity"].to_pandas().round(3).to_dict()
     print({k: v for k, v in summary.items() if not k.startswith("decoding")})
-    config = {"run_dir": args.run_dir, "episodes": args.episodes, "decode_episodes": args.decode_episodes,
+    config = {"run_dir": args.run_dir, "episodes": args.episodes, "steps": args.steps, "env_options": args.env_option,
+              "decode_episodes": args.decode_episodes,
               "fixed_point_starts": args.fixed_point_starts, "fixed_point_iterations": args.fixed_point_iterations,
               "summary": summary}
     print(write_results(args.name, config, rows, f"{out}_{jax.devices()[0].platform}.json"))
