@@ -54,10 +54,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--units", type=int, default=4, help="output features and channels per layer analysed")
     parser.add_argument("--ascent-steps", type=int, default=256, help="gradient steps of activation maximization")
     parser.add_argument("--lags", type=int, nargs="+", default=[0, 1, 2, 4, 8, 16], help="policy steps k")
+    parser.add_argument("--env-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="a task option changed from the run's, as for angora-jax evaluate (repeat), e.g. "
+                             "'physics={impl: warp}' on a CPU, where Warp compiles the cube far sooner than MJX's JAX")
     parser.add_argument("--name", default="pixels_probe")
     parser.add_argument("--out-dir", default=RESULTS, help="folder of the plots and the JSON (default: results/)")
     args = parser.parse_args(argv)
-    agent = aj.load_agent(args.run_dir, args.checkpoint)
+    agent = aj.load_agent(args.run_dir, args.checkpoint, args.env_option)
     task = agent.config.env.task
     variables = list(VARIABLES.get(task.removesuffix("Sequential"), ()))
     if not variables:
@@ -90,8 +93,9 @@ def main(argv: list[str] | None = None) -> None:
                                               ("noise_baseline", decoding, "baseline"))}}
             for k in lags for layer in layers for variable in variables]
     for row in rows:
-        # Above control: the trained layer's 95% interval lies wholly above the random-weights layer's.
-        row["above_random_weights"] = row["r2_low"] > row["random_weights_r2_high"]
+        # Above control: the trained layer's 95% interval lies wholly above the random-weights layer's and above 0
+        # (an R^2 below 0 decodes nothing, however it compares).
+        row["above_random_weights"] = row["r2_low"] > max(row["random_weights_r2_high"], 0.0)
     print(markdown_table(rows, [("lag", "lag", "d"), ("layer", "layer", "s"), ("variable", "variable", "s"),
                                 ("r2", "R^2", ".3f"), ("random_weights_r2", "random weights", ".3f"),
                                 ("noise_baseline", "noise", ".3f"), ("above_random_weights", "above", "")]))
@@ -106,7 +110,8 @@ def main(argv: list[str] | None = None) -> None:
         "future_decoded_above_random_weights": sorted({(row["layer"], row["variable"]) for row in future}),
     }
     print({k: v for k, v in summary.items() if k != "preferred_activation"})
-    config = {"run_dir": args.run_dir, "checkpoint": args.checkpoint, "episodes": args.episodes, "frames": args.frames,
+    config = {"run_dir": args.run_dir, "checkpoint": args.checkpoint, "env_options": args.env_option,
+              "episodes": args.episodes, "frames": args.frames,
               "camera": args.camera, "units": args.units, "ascent_steps": args.ascent_steps, "lags": lags,
               "variables": variables, "layers": layers, "summary": summary}
     print(write_results(args.name, config, rows, f"{out}_{jax.devices()[0].platform}.json"))
