@@ -23,6 +23,7 @@ from common import RESULTS, markdown_table, write_results
 
 import angora_jax as aj
 from angora_jax import analysis as an
+from angora_jax.cli import add_env_option
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -35,9 +36,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--fixed-point-iterations", type=int, default=500, help="optimisation steps of that search")
     parser.add_argument("--steps", type=int, default=None,
                         help="policy steps per episode, recorded and lesioned (default: until every episode ends)")
-    parser.add_argument("--env-option", action="append", default=[], metavar="KEY=VALUE",
-                        help="a task option changed from the run's, as for angora-jax evaluate (repeat), e.g. "
-                             "'physics={impl: warp}' on a CPU, where Warp compiles the cube far sooner than MJX's JAX")
+    add_env_option(parser)  # e.g. 'physics={impl: warp}' on a CPU: Warp compiles the cube far sooner than MJX's JAX
     parser.add_argument("--out-dir", default=RESULTS, help="folder of the plots and the JSON (default: results/)")
     args = parser.parse_args(argv)
     agent = aj.load_agent(args.run_dir, "best", args.env_option)

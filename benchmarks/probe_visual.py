@@ -24,6 +24,7 @@ from common import RESULTS, markdown_table, write_results
 
 import angora_jax as aj
 from angora_jax import analysis as an
+from angora_jax.cli import add_env_option
 
 # What to decode over lags, per task (Env.task_variables): the cube's orientation (quaternion), angular velocity
 # (rad/s) and rotation to the goal; reach's fingertips (m).
@@ -54,9 +55,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--units", type=int, default=4, help="output features and channels per layer analysed")
     parser.add_argument("--ascent-steps", type=int, default=256, help="gradient steps of activation maximization")
     parser.add_argument("--lags", type=int, nargs="+", default=[0, 1, 2, 4, 8, 16], help="policy steps k")
-    parser.add_argument("--env-option", action="append", default=[], metavar="KEY=VALUE",
-                        help="a task option changed from the run's, as for angora-jax evaluate (repeat), e.g. "
-                             "'physics={impl: warp}' on a CPU, where Warp compiles the cube far sooner than MJX's JAX")
+    add_env_option(parser)  # e.g. 'physics={impl: warp}' on a CPU: Warp compiles the cube far sooner than MJX's JAX
     parser.add_argument("--name", default="pixels_probe")
     parser.add_argument("--out-dir", default=RESULTS, help="folder of the plots and the JSON (default: results/)")
     args = parser.parse_args(argv)
