@@ -164,6 +164,15 @@ def train_rate(env: Env, config: PPOConfig, repeats: int = 3,
     return _rate(m, config.num_envs * config.rollout_length)
 
 
+def timed(seconds: dict[str, float], name: str, function: Callable, *args, **kwargs):
+    """`function(*args, **kwargs)`, its wall time (s) stored as `seconds[name]`: one timed part of a benchmark that
+    calls the analyses as a user does (compile included unless the program is already compiled)."""
+    start = time.perf_counter()
+    out = function(*args, **kwargs)
+    seconds[name] = time.perf_counter() - start
+    return out
+
+
 def write_results(name: str, config: dict, rows: list[dict], out: str | None = None) -> str:
     """Write rows with device, versions and config as JSON to `out` (default: results/<name>_<platform>.json)."""
     os.makedirs(RESULTS, exist_ok=True)

@@ -15,11 +15,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 
 import jax
 import numpy as np
-from common import RESULTS, markdown_table, write_results
+from common import RESULTS, markdown_table, timed, write_results
 
 import angora_jax as aj
 from angora_jax import analysis as an
@@ -45,37 +44,26 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"{task} has no probe here; tasks with one: {sorted(an.PROBES)}.")
     probe = an.PROBES[task]
     layers, variables = list(probe.layers), list(probe.variables)
-    seconds = {}
+    seconds: dict[str, float] = {}
     for attempt in ("record_first_with_compile", "record_again"):
         recording = None  # freed before the next: 480 trained cube episodes of every layer hold tens of GB
-        start = time.perf_counter()
-        recording = an.record_activity(agent, episodes=args.episodes, steps=args.steps)
-        seconds[attempt] = time.perf_counter() - start
+        recording = timed(seconds, attempt, an.record_activity, agent, episodes=args.episodes, steps=args.steps)
     part = recording.isel(episode=slice(0, args.decode_episodes))
-    start = time.perf_counter()
-    decoding = an.decode(part, layers, variables)
-    control = an.decode(an.replay_activity(an.with_random_weights(agent), part), layers, variables)
-    seconds["decode_both"] = time.perf_counter() - start
-    start = time.perf_counter()
-    ablation = an.ablation(agent, probe.lesions(agent), episodes=args.episodes, steps=args.steps)
-    seconds["ablation"] = time.perf_counter() - start
-    start = time.perf_counter()
-    points = an.agent_fixed_points(agent, part, "network.PMC", "network.PMC_in", starts=args.fixed_point_starts,
-                                   iterations=args.fixed_point_iterations)
-    seconds["fixed_points"] = time.perf_counter() - start
-    start = time.perf_counter()
-    components = an.principal_components(part, layers)
-    seconds["principal_components"] = time.perf_counter() - start
-    start = time.perf_counter()
-    scales = an.timescales(part, layers)
-    seconds["timescales"] = time.perf_counter() - start
+    decoding, control = timed(seconds, "decode_both", lambda: (
+        an.decode(part, layers, variables),
+        an.decode(an.replay_activity(an.with_random_weights(agent), part), layers, variables)))
+    ablation = timed(seconds, "ablation", an.ablation, agent, probe.lesions(agent), episodes=args.episodes,
+                     steps=args.steps)
+    points = timed(seconds, "fixed_points", an.agent_fixed_points, agent, part, "network.PMC", "network.PMC_in",
+                   starts=args.fixed_point_starts, iterations=args.fixed_point_iterations)
+    components = timed(seconds, "principal_components", an.principal_components, part, layers)
+    scales = timed(seconds, "timescales", an.timescales, part, layers)
     os.makedirs(args.out_dir, exist_ok=True)
     out = os.path.join(args.out_dir, args.name)
     similarity = None
     if probe.rsa_variables:
-        start = time.perf_counter()
-        similarity = an.similarity(part, probe.rsa_condition, layers, probe.rsa_variables)
-        seconds["similarity"] = time.perf_counter() - start
+        similarity = timed(seconds, "similarity", an.similarity, part, probe.rsa_condition, layers,
+                           probe.rsa_variables)
         an.plot_similarity(similarity, f"{out}_similarity.png")
     an.plot_decoding(decoding, f"{out}_decoding.png")
     an.plot_ablation(ablation, probe.outcomes[0], f"{out}_ablation.png")

@@ -17,10 +17,9 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 
 import jax
-from common import RESULTS, markdown_table, write_results
+from common import RESULTS, markdown_table, timed, write_results
 
 import angora_jax as aj
 from angora_jax import analysis as an
@@ -33,14 +32,6 @@ VARIABLES = {
     "ShadowHandReach": ("task_fingertips",),
     "ShadowHandFreeReach": ("task_fingertips",),
 }
-
-
-def timed(seconds: dict[str, float], name: str, function, *args, **kwargs):
-    """`function(*args, **kwargs)`, its wall time stored as `seconds[name]`."""
-    start = time.perf_counter()
-    out = function(*args, **kwargs)
-    seconds[name] = time.perf_counter() - start
-    return out
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -34,9 +34,9 @@ def cross_validated_r2(features: np.ndarray, targets: np.ndarray, groups: np.nda
     """Held-out R^2 of a ridge readout per fold, `(folds,)`. features `(samples, units)`, targets `(samples,
     outputs)` (R^2 weighted by each output's variance), groups `(samples,)`: samples of a group stay together.
     With `spans` (column slices of `targets`, one per variable) R^2 is per span, `(folds, len(spans))`, from one fit
-    per fold for all outputs, each with its own penalty: the fit's cost (the decomposition of the units' covariance and
-    the leave-one-out terms for every penalty) does not grow with the outputs, so decoding every variable at once
-    costs about what one does."""
+    per fold for all outputs, each with its own penalty: the fit's cost (the SVD of the units and the leave-one-out
+    terms for every penalty) hardly grows with the outputs, so decoding every variable at once costs about what one
+    does."""
     columns = [slice(0, targets.shape[1])] if spans is None else list(spans)
     scores = []
     for train, test in GroupKFold(n_splits=folds).split(features, targets, groups):
