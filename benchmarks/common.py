@@ -173,6 +173,27 @@ def timed(seconds: dict[str, float], name: str, function: Callable, *args, **kwa
     return out
 
 
+def lagged_decoding_rows(decoding, control, lags: list[int], layers: list[str],
+                         variables: list[str]) -> tuple[list[dict], list[tuple[str, str, str]]]:
+    """Rows (lag x layer x variable) of a lagged `analysis.decode` of the trained network (`decoding`) beside the same
+    network with random weights on the same inputs (`control`), and the Markdown columns to print them. A row is
+    `above_random_weights` when the trained layer's 95% interval lies wholly above the random-weights layer's and
+    above 0 (an R^2 below 0 decodes nothing, however it compares)."""
+    rows = [{"lag": int(k), "lag_s": float(decoding["lag_s"].sel(lag=k)), "layer": layer, "variable": variable,
+             **{column: float(result[field].sel(lag=k, layer=layer, variable=variable))
+                for column, result, field in (("r2", decoding, "r2"), ("r2_low", decoding, "r2_low"),
+                                              ("random_weights_r2", control, "r2"),
+                                              ("random_weights_r2_high", control, "r2_high"),
+                                              ("noise_baseline", decoding, "baseline"))}}
+            for k in lags for layer in layers for variable in variables]
+    for row in rows:
+        row["above_random_weights"] = row["r2_low"] > max(row["random_weights_r2_high"], 0.0)
+    columns = [("lag", "lag", "d"), ("layer", "layer", "s"), ("variable", "variable", "s"), ("r2", "R^2", ".3f"),
+               ("random_weights_r2", "random weights", ".3f"), ("noise_baseline", "noise", ".3f"),
+               ("above_random_weights", "above", "")]
+    return rows, columns
+
+
 def write_results(name: str, config: dict, rows: list[dict], out: str | None = None) -> str:
     """Write rows with device, versions and config as JSON to `out` (default: results/<name>_<platform>.json)."""
     os.makedirs(RESULTS, exist_ok=True)

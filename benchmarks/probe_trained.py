@@ -1,8 +1,11 @@
-"""Probe a trained run end to end and time each part: recording N episodes of every layer (compile, then again),
+"""Probe a trained run end to end and time each part: recording episodes of every layer (compile, then again),
 decoding task variables from areas (against noise and against the same network with random weights on the same
-inputs), ablations of areas, unit fractions and input modalities (task outcomes with standard errors), fixed points of
-the recurrent premotor layer, PCA, timescales and, for the cube, RSA against model RDMs. Written for the brain-area
-model (`cortical`) on reach and on the cube; what is decoded and lesioned depends on the task
+inputs; with --lags also of the future, and the areas' cross-correlation), ablations of areas, unit fractions and
+input modalities (task outcomes with standard errors), fixed points of the recurrent premotor layer, PCA, timescales
+and, for the cube, RSA against model RDMs. Lesions run --episodes episodes (480, the paper's count, for their
+standard errors); the analyses of activity read --decode-episodes recorded ones (480 whole trained cube episodes of
+every layer would hold over 10 GB on the host). Written for the brain-area model (`cortical`) on reach and on the cube;
+what is decoded and lesioned depends on the task
 (`angora_jax.analysis.PROBES`).
 
     python benchmarks/probe_trained.py runs/reach_cortical --episodes 480     # e.g. after
@@ -18,7 +21,7 @@ import os
 
 import jax
 import numpy as np
-from common import RESULTS, markdown_table, timed, write_results
+from common import RESULTS, lagged_decoding_rows, markdown_table, timed, write_results
 
 import angora_jax as aj
 from angora_jax import analysis as an
@@ -28,13 +31,21 @@ from angora_jax.cli import add_env_option
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("run_dir")
-    parser.add_argument("--episodes", type=int, default=480)
-    parser.add_argument("--decode-episodes", type=int, default=64, help="episodes used for decoding and dynamics")
+    parser.add_argument("--episodes", type=int, default=480, help="episodes of each lesion and of the intact agent")
+    parser.add_argument("--decode-episodes", type=int, default=64,
+                        help="recorded episodes that decoding, dynamics, timescales and RSA read")
+    parser.add_argument("--record-episodes", type=int, default=None,
+                        help="episodes recorded with every layer's activity (default: --decode-episodes; more only "
+                             "times a larger recording)")
     parser.add_argument("--name", default="reach_cortical_probe")
     parser.add_argument("--fixed-point-starts", type=int, default=64, help="states the fixed-point search starts from")
     parser.add_argument("--fixed-point-iterations", type=int, default=500, help="optimisation steps of that search")
     parser.add_argument("--steps", type=int, default=None,
                         help="policy steps per episode, recorded and lesioned (default: until every episode ends)")
+    parser.add_argument("--lags", type=int, nargs="*", default=[],
+                        help="policy steps k: also decode the task's variables at t + k from each area at t (e.g. "
+                             "0 1 2 4 8 16: which areas predict the cube's future rotation), and cross-correlate "
+                             "the areas' leading components")
     add_env_option(parser)  # e.g. 'physics={impl: warp}' on a CPU: Warp compiles the cube far sooner than MJX's JAX
     parser.add_argument("--out-dir", default=RESULTS, help="folder of the plots and the JSON (default: results/)")
     args = parser.parse_args(argv)
@@ -46,8 +57,8 @@ def main(argv: list[str] | None = None) -> None:
     layers, variables = list(probe.layers), list(probe.variables)
     seconds: dict[str, float] = {}
     for attempt in ("record_first_with_compile", "record_again"):
-        recording = None  # freed before the next: 480 trained cube episodes of every layer hold tens of GB
-        recording = timed(seconds, attempt, an.record_activity, agent, episodes=args.episodes, steps=args.steps)
+        recording = timed(seconds, attempt, an.record_activity, agent, episodes=args.record_episodes or
+                          args.decode_episodes, steps=args.steps)
     part = recording.isel(episode=slice(0, args.decode_episodes))
     decoding, control = timed(seconds, "decode_both", lambda: (
         an.decode(part, layers, variables),
@@ -85,18 +96,44 @@ def main(argv: list[str] | None = None) -> None:
                          "largest_eigenvalue_modulus_median": float(np.median(np.abs(points["eigenvalues"][:, 0])))},
         "pca_components_for_90pct": dict(zip(layers, components["dimensionality"].values.tolist(), strict=True)),
         "timescale_median_s": dict(zip(layers, scales["timescale_median"].values.round(4).tolist(), strict=True)),
-        "recorded_steps": int(recording.sizes["time"]),
-        "episode_length_mean_steps": float(recording["alive"].sum("time").mean()),
+        "recorded_steps": int(part.sizes["time"]),
+        "episode_length_mean_steps": float(part["alive"].sum("time").mean()),
     }
     if similarity is not None:
         summary["rsa_condition"] = probe.rsa_condition
         summary["rsa_model_similarity"] = similarity["model_similarity"].to_pandas().round(3).to_dict()
+    if args.lags:
+        summary["future"] = predicted_future(agent, part, layers, variables, args.lags, seconds, out)
     print({k: v for k, v in summary.items() if not k.startswith("decoding")})
     config = {"run_dir": args.run_dir, "episodes": args.episodes, "steps": args.steps, "env_options": args.env_option,
               "decode_episodes": args.decode_episodes,
+              "record_episodes": args.record_episodes or args.decode_episodes, "lags": args.lags,
               "fixed_point_starts": args.fixed_point_starts, "fixed_point_iterations": args.fixed_point_iterations,
               "summary": summary}
     print(write_results(args.name, config, rows, f"{out}_{jax.devices()[0].platform}.json"))
+
+
+def predicted_future(agent, part, layers: list[str], variables: list[str], lags: list[int],
+                     seconds: dict[str, float], out: str) -> dict:
+    """Lagged decoding, from each area, of the probe's variables that are not inputs (what the world does, not what
+    the network is fed), trained against random weights on the same inputs, and the areas' cross-correlation; plots
+    beside `out`. Returns the rows, the (area, variable) pairs that predict the future (lag > 0) above the control,
+    and the lead of each pair of areas (s)."""
+    variables = [name for name in variables if not name.startswith("input_")]
+    lags = [k for k in lags if abs(k) < part.sizes["time"]]
+    decoding = timed(seconds, "lagged_decode", an.decode, part, layers, variables, lags=lags)
+    control = timed(seconds, "lagged_decode_random_weights", an.decode,
+                    an.replay_activity(an.with_random_weights(agent), part), layers, variables, lags=lags)
+    correlation = timed(seconds, "cross_correlation", an.cross_correlation, part, layers)
+    an.plot_decoding(decoding, f"{out}_lagged_decoding.png")
+    an.plot_decoding(control, f"{out}_lagged_decoding_random_weights.png")
+    an.plot_cross_correlation(correlation, f"{out}_cross_correlation.png")
+    rows, columns = lagged_decoding_rows(decoding, control, lags, layers, variables)
+    print(markdown_table(rows, columns))
+    return {"lagged_decoding": rows,
+            "future_decoded_above_random_weights": sorted({(row["layer"], row["variable"]) for row in rows
+                                                            if row["lag"] > 0 and row["above_random_weights"]}),
+            "cross_correlation_peak_lag_s": correlation["peak_lag"].to_pandas().round(3).to_dict()}
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ import argparse
 import os
 
 import jax
-from common import RESULTS, markdown_table, timed, write_results
+from common import RESULTS, lagged_decoding_rows, markdown_table, timed, write_results
 
 import angora_jax as aj
 from angora_jax import analysis as an
@@ -75,20 +75,8 @@ def main(argv: list[str] | None = None) -> None:
     an.plot_visual(visual, f"{out}_visual.png")
     an.plot_decoding(decoding, f"{out}_lagged_decoding.png")
     an.plot_decoding(control, f"{out}_lagged_decoding_random_weights.png")
-    rows = [{"lag": int(k), "lag_s": float(decoding["lag_s"].sel(lag=k)), "layer": layer, "variable": variable,
-             **{column: float(result[field].sel(lag=k, layer=layer, variable=variable))
-                for column, result, field in (("r2", decoding, "r2"), ("r2_low", decoding, "r2_low"),
-                                              ("random_weights_r2", control, "r2"),
-                                              ("random_weights_r2_high", control, "r2_high"),
-                                              ("noise_baseline", decoding, "baseline"))}}
-            for k in lags for layer in layers for variable in variables]
-    for row in rows:
-        # Above control: the trained layer's 95% interval lies wholly above the random-weights layer's and above 0
-        # (an R^2 below 0 decodes nothing, however it compares).
-        row["above_random_weights"] = row["r2_low"] > max(row["random_weights_r2_high"], 0.0)
-    print(markdown_table(rows, [("lag", "lag", "d"), ("layer", "layer", "s"), ("variable", "variable", "s"),
-                                ("r2", "R^2", ".3f"), ("random_weights_r2", "random weights", ".3f"),
-                                ("noise_baseline", "noise", ".3f"), ("above_random_weights", "above", "")]))
+    rows, columns = lagged_decoding_rows(decoding, control, lags, layers, variables)
+    print(markdown_table(rows, columns))
     future = [row for row in rows if row["lag"] > 0 and row["above_random_weights"]]
     summary = {
         "seconds": seconds, "run_cycle": agent.cycle, "task": task, "recording_mb": recording.nbytes / 1e6,

@@ -277,13 +277,13 @@ def test_sindy_of_the_premotor_cell_is_scored_on_held_out_reach_episodes(reach, 
 
 def test_probe_trained_script_writes_every_part_and_finds_the_reach_policy_needs_its_inputs(reach, cortical_reach,
                                                                                            tmp_path):
-    """benchmarks/probe_trained.py end to end, last in this file: at 32 episodes of 30 steps and 8 fixed-point starts
-    of 200 iterations it runs the programs that the tests above compiled in this process (alone, it compiled for
-    about 100 s of its 130 s here); decoding (scikit-learn's ridge, some 280 fits per call) on 6 of the episodes takes
-    5 s instead of 17 s on 32."""
-    probe_trained.main([str(cortical_reach.run_dir), "--episodes", "32", "--decode-episodes", "6",
-                        "--fixed-point-starts", "8", "--fixed-point-iterations", "200", "--name", "probe",
-                        "--out-dir", str(tmp_path)])
+    """benchmarks/probe_trained.py end to end, last in this file: at 32 episodes of 30 steps (recorded and lesioned)
+    and 8 fixed-point starts of 200 iterations it runs the programs that the tests above compiled in this process
+    (alone, it compiled for about 100 s of its 130 s here); decoding reads 6 of the recorded episodes (9 s; 32 took
+    about 50 s)."""
+    probe_trained.main([str(cortical_reach.run_dir), "--episodes", "32", "--record-episodes", "32",
+                        "--decode-episodes", "6", "--fixed-point-starts", "8", "--fixed-point-iterations", "200",
+                        "--name", "probe", "--lags", "0", "4", "--out-dir", str(tmp_path)])
     record = results(tmp_path / "probe_cpu.json", "probe")
     summary = record["config"]["summary"]
     assert record["config"]["episodes"] == 32 and summary["run_cycle"] == 120
@@ -295,7 +295,15 @@ def test_probe_trained_script_writes_every_part_and_finds_the_reach_policy_needs
     assert summary["fixed_points"]["starts"] == 8
     assert set(summary["pca_components_for_90pct"]) == set(probe.layers)
     assert all(seconds > 0 for seconds in summary["timescale_median_s"].values())
-    for plot in ("decoding", "ablation", "dynamics", "timescales"):
+    future = summary["future"]
+    assert {(row["lag"], row["layer"], row["variable"]) for row in future["lagged_decoding"]} == {
+        (lag, layer, "metric_goal_distance") for lag in (0, 4) for layer in probe.layers}
+    for row in future["lagged_decoding"]:
+        if row["lag"] == 0:  # the future at lag 0 is the present: the plain decoding's fit
+            assert row["r2"] == pytest.approx(summary["decoding_r2"][row["variable"]][row["layer"]], abs=1e-3), row
+    peaks = future["cross_correlation_peak_lag_s"]
+    assert all(peaks[layer][layer] == 0.0 for layer in probe.layers), peaks  # an area leads itself by nothing
+    for plot in ("decoding", "ablation", "dynamics", "timescales", "lagged_decoding", "cross_correlation"):
         assert (tmp_path / f"probe_{plot}.png").stat().st_size > 0, plot
     rows = {row["lesion"]: row for row in record["results"]}
     assert list(rows) == ["intact", "-SSC_2", "-IPS", "-MCC", "-50% M1", "-10% M1", "-goal input",

@@ -17,6 +17,7 @@ from angora_jax.analysis import (
     timescales,
     tuning_curves,
 )
+from angora_jax.analysis.timescales import autocorrelation
 
 DT = 0.02
 
@@ -143,6 +144,29 @@ def test_cross_correlation_peaks_where_one_layer_follows_another():
     peak = result["cross_correlation"].sel(layer="lead", other="follow").sel(lag=3 * DT, method="nearest")
     assert abs(float(peak)) > 0.95
     np.testing.assert_allclose(result["cross_correlation"].sel(layer="lead", other="lead").sel(lag=0.0), 1.0, atol=1e-9)
+
+
+
+def test_a_layer_correlates_best_with_itself_at_lag_0_when_its_episodes_start_and_end_at_rest():
+    """A movement-like layer: at rest for each episode's first and last 6 steps, a smooth bump between them, of a
+    different size and sign per episode (a reach from rest to a hold). The pairs at a lag leave out rest steps, so
+    a mean of products scaled once over all steps gave 1.016 at lags 1 and 2 against 1 at 0 (a trained reach agent's
+    M1 peaked at -0.08 s against itself); each lag's correlation is scaled over its own pairs."""
+    rng = np.random.default_rng(2)
+    episodes, steps = 30, 40
+    t = np.arange(steps)
+    bump = np.where((t >= 6) & (t < 34), np.sin(np.pi * (t - 6) / 28) ** 2, 0.0)
+    moving = bump[None, :, None] * rng.standard_normal((episodes, 1, 3)) + 1e-3 * rng.standard_normal((episodes,
+                                                                                                       steps, 3))
+    data = xr.Dataset({"alive": (("episode", "time"), np.ones((episodes, steps))),
+                       "activity_moving": (("episode", "time", "unit"), moving)},
+                      coords={"time": np.arange(steps) * DT}, attrs={"policy_step_s": DT})
+    result = cross_correlation(data, max_lag=8)
+    curve = result["cross_correlation"].sel(layer="moving", other="moving")
+    assert float(np.abs(curve).max()) <= 1 + 1e-9 and float(curve.sel(lag=0.0)) == pytest.approx(1.0)
+    assert float(result["peak_lag"].sel(layer="moving", other="moving")) == 0.0
+    acf = autocorrelation(data, "moving", max_lag=8)
+    assert np.all(np.abs(acf) <= 1 + 1e-9) and np.all(acf[1] < acf[0]), acf[:3]
 
 
 def graph_agent(areas):

@@ -2,8 +2,8 @@
 measured it across cortical areas), and the lag at which it first falls below 1/e as the unit's timescale; and the
 cross-correlation between areas' leading principal components over lags (which area's activity leads which).
 
-The autocorrelation at lag k pools every pair of alive steps (t, t + k) of all episodes, each unit standardised by
-its mean and standard deviation over the alive steps; a constant unit has none (NaN).
+The autocorrelation at lag k is the Pearson correlation over every pair of alive steps (t, t + k) of all episodes;
+a unit constant over those pairs has none (NaN).
 """
 
 from __future__ import annotations
@@ -19,25 +19,27 @@ from angora_jax.analysis.decoding import lagged_steps, recorded_layers
 def autocorrelation(dataset: xr.Dataset, layer: str, max_lag: int = 20) -> np.ndarray:
     """`(max_lag + 1, units)`: the autocorrelation of each unit of `layer` at lags 0..max_lag (policy steps)."""
     alive = dataset["alive"].values > 0
-    z = _standardised(np.asarray(dataset[f"activity_{layer}"].values, np.float64), alive)
+    z = np.asarray(dataset[f"activity_{layer}"].values, np.float64)
     return np.stack([_lagged_correlation(z, z, alive, lag) for lag in range(max_lag + 1)])
 
 
-def _standardised(values: np.ndarray, alive: np.ndarray) -> np.ndarray:
-    """`values` `(episode, time, units)` standardised per unit over the alive steps (NaN for a constant unit)."""
-    mean, std = values[alive].mean(0), values[alive].std(0)
-    return (values - mean) / np.where(std > 0, std, np.nan)
-
-
 def _lagged_correlation(a: np.ndarray, b: np.ndarray, alive: np.ndarray, lag: int) -> np.ndarray:
-    """Per unit, the mean of a(t) * b(t + lag) over the pairs of alive steps of every episode (`lag` may be
-    negative); NaN where no pair is alive."""
+    """Per unit, the Pearson correlation of a(t) with b(t + lag) over the pairs of alive steps of every episode
+    (`lag` may be negative); NaN where no pair is alive or a side is constant over the pairs. Each side is centred
+    and scaled over the pairs themselves, so |r| <= 1 at every lag and a signal correlates best with itself at lag 0
+    (a mean of products, scaled once over all steps, exceeds 1 where the overlap excludes quiet steps)."""
     steps = a.shape[1]
     if abs(lag) >= steps:
         return np.full(a.shape[-1], np.nan)
     now, then = lagged_steps(steps, lag)
     both = alive[:, now] & alive[:, then]
-    return (a[:, now][both] * b[:, then][both]).mean(0) if both.any() else np.full(a.shape[-1], np.nan)
+    if not both.any():
+        return np.full(a.shape[-1], np.nan)
+    x, y = a[:, now][both], b[:, then][both]
+    x, y = x - x.mean(0), y - y.mean(0)
+    scale = np.sqrt((x * x).mean(0) * (y * y).mean(0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(scale > 0, (x * y).mean(0) / scale, np.nan)
 
 
 def cross_correlation(dataset: xr.Dataset, layers: Sequence[str] | None = None, max_lag: int = 20) -> xr.Dataset:
@@ -54,7 +56,7 @@ def cross_correlation(dataset: xr.Dataset, layers: Sequence[str] | None = None, 
         values = np.asarray(dataset[f"activity_{layer}"].values, np.float64)
         component = np.zeros(values.shape[:2] + (1,))
         component[alive] = PCA(1).fit_transform(values[alive])
-        leading[layer] = _standardised(component, alive)
+        leading[layer] = component
     lags = np.arange(-max_lag, max_lag + 1)
     dt = float(dataset.attrs.get("policy_step_s", 1.0))
     curves = np.array([[[_lagged_correlation(leading[a], leading[b], alive, int(k))[0] for k in lags]
