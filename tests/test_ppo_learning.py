@@ -19,9 +19,11 @@ PENDULUM = CARTPOLE.replace(gamma=0.95, num_cycles=150)
 
 CASES = {
     "cartpole-simple-categorical": ("CartPole", CARTPOLE.replace(num_cycles=50), 400.0),
+    # 40 cycles ended at 397.7 on an AMD EPYC (seed 0; 500 with seeds 1 and 2), past 400 on the machines before:
+    # float rounding differs by CPU and 40 cycles left no margin. At 50 cycles seeds 0-2 all end at 500 there.
     "cartpole-lstm-categorical": (
         "CartPole",
-        CARTPOLE.replace(num_cycles=40, network=NetworkConfig(name="lstm")),
+        CARTPOLE.replace(num_cycles=50, network=NetworkConfig(name="lstm")),
         400.0,
     ),
     "acrobot-simple-categorical": ("Acrobot", CARTPOLE.replace(num_cycles=40), -120.0),
