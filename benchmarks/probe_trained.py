@@ -60,9 +60,10 @@ def main(argv: list[str] | None = None) -> None:
         recording = timed(seconds, attempt, an.record_activity, agent, episodes=args.record_episodes or
                           args.decode_episodes, steps=args.steps)
     part = recording.isel(episode=slice(0, args.decode_episodes))
+    # The control: the same network with random weights, replayed once on the recorded inputs for every comparison.
+    random_part = timed(seconds, "replay_random_weights", an.replay_activity, an.with_random_weights(agent), part)
     decoding, control = timed(seconds, "decode_both", lambda: (
-        an.decode(part, layers, variables),
-        an.decode(an.replay_activity(an.with_random_weights(agent), part), layers, variables)))
+        an.decode(part, layers, variables), an.decode(random_part, layers, variables)))
     ablation = timed(seconds, "ablation", an.ablation, agent, probe.lesions(agent), episodes=args.episodes,
                      steps=args.steps)
     points = timed(seconds, "fixed_points", an.agent_fixed_points, agent, part, "network.PMC", "network.PMC_in",
@@ -103,7 +104,7 @@ def main(argv: list[str] | None = None) -> None:
         summary["rsa_condition"] = probe.rsa_condition
         summary["rsa_model_similarity"] = similarity["model_similarity"].to_pandas().round(3).to_dict()
     if args.lags:
-        summary["future"] = predicted_future(agent, part, layers, variables, args.lags, seconds, out)
+        summary["future"] = predicted_future(part, random_part, layers, variables, args.lags, seconds, out)
     print({k: v for k, v in summary.items() if not k.startswith("decoding")})
     config = {"run_dir": args.run_dir, "episodes": args.episodes, "steps": args.steps, "env_options": args.env_option,
               "decode_episodes": args.decode_episodes,
@@ -113,17 +114,16 @@ def main(argv: list[str] | None = None) -> None:
     print(write_results(args.name, config, rows, f"{out}_{jax.devices()[0].platform}.json"))
 
 
-def predicted_future(agent, part, layers: list[str], variables: list[str], lags: list[int],
+def predicted_future(part, random_part, layers: list[str], variables: list[str], lags: list[int],
                      seconds: dict[str, float], out: str) -> dict:
     """Lagged decoding, from each area, of the probe's variables that are not inputs (what the world does, not what
-    the network is fed), trained against random weights on the same inputs, and the areas' cross-correlation; plots
-    beside `out`. Returns the rows, the (area, variable) pairs that predict the future (lag > 0) above the control,
-    and the lead of each pair of areas (s)."""
+    the network is fed), trained (`part`) against random weights on the same inputs (`random_part`), and the areas'
+    cross-correlation; plots beside `out`. Returns the rows, the (area, variable) pairs that predict the future
+    (lag > 0) above the control, and the lead of each pair of areas (s)."""
     variables = [name for name in variables if not name.startswith("input_")]
     lags = [k for k in lags if abs(k) < part.sizes["time"]]
     decoding = timed(seconds, "lagged_decode", an.decode, part, layers, variables, lags=lags)
-    control = timed(seconds, "lagged_decode_random_weights", an.decode,
-                    an.replay_activity(an.with_random_weights(agent), part), layers, variables, lags=lags)
+    control = timed(seconds, "lagged_decode_random_weights", an.decode, random_part, layers, variables, lags=lags)
     correlation = timed(seconds, "cross_correlation", an.cross_correlation, part, layers)
     an.plot_decoding(decoding, f"{out}_lagged_decoding.png")
     an.plot_decoding(control, f"{out}_lagged_decoding_random_weights.png")
