@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> None:
     # The control: the same network with random weights, replayed once on the recorded inputs for every comparison.
     random_part = timed(seconds, "replay_random_weights", an.replay_activity, an.with_random_weights(agent), part)
     decoding, control = timed(seconds, "decode_both", lambda: (
-        an.decode(part, layers, variables), an.decode(random_part, layers, variables)))
+        an.decode(part, layers, variables), an.decode(random_part, layers, variables, baseline=False)))
     ablation = timed(seconds, "ablation", an.ablation, agent, probe.lesions(agent), episodes=args.episodes,
                      steps=args.steps)
     points = timed(seconds, "fixed_points", an.agent_fixed_points, agent, part, "network.PMC", "network.PMC_in",
@@ -123,7 +123,8 @@ def predicted_future(part, random_part, layers: list[str], variables: list[str],
     variables = [name for name in variables if not name.startswith("input_")]
     lags = [k for k in lags if abs(k) < part.sizes["time"]]
     decoding = timed(seconds, "lagged_decode", an.decode, part, layers, variables, lags=lags)
-    control = timed(seconds, "lagged_decode_random_weights", an.decode, random_part, layers, variables, lags=lags)
+    control = timed(seconds, "lagged_decode_random_weights", an.decode, random_part, layers, variables, lags=lags,
+                    baseline=False)
     correlation = timed(seconds, "cross_correlation", an.cross_correlation, part, layers)
     an.plot_decoding(decoding, f"{out}_lagged_decoding.png")
     an.plot_decoding(control, f"{out}_lagged_decoding_random_weights.png")

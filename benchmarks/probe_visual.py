@@ -69,7 +69,8 @@ def main(argv: list[str] | None = None) -> None:
     lags = [k for k in args.lags if abs(k) < recording.sizes["time"]]
     decoding = timed(seconds, "lagged_decode", an.decode, recording, layers, variables, lags=lags)
     random_weights = an.replay_activity(an.with_random_weights(agent), recording)
-    control = timed(seconds, "lagged_decode_random_weights", an.decode, random_weights, layers, variables, lags=lags)
+    control = timed(seconds, "lagged_decode_random_weights", an.decode, random_weights, layers, variables, lags=lags,
+                    baseline=False)
     os.makedirs(args.out_dir, exist_ok=True)
     out = os.path.join(args.out_dir, args.name)
     an.plot_visual(visual, f"{out}_visual.png")

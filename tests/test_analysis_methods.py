@@ -129,7 +129,12 @@ def test_lagged_decoding_finds_what_a_layer_tells_of_the_future():
     r2 = result["r2"].sel(layer="lead", variable="metric_echo")
     assert r2.sel(lag=3) > 0.95 and r2.sel(lag=0) < 0.2, r2.values  # metric_echo(t + 3) = lead(t)
     assert float(result["baseline"].max()) < 0.1 and result["lag_s"].values.tolist() == [0.0, 3 * DT]
-    assert result.attrs["samples"] == [16 * 60, 16 * 57], "every alive step, those with a step 3 later at lag 3"
+    assert result.attrs["samples"] == [16 * 57] * 2, "every lag reads the steps with a step 3 later"
+    # A lag costs one more output of the same readout: the lag-0 column equals a decoding of those steps alone.
+    alone = decode(leader_and_follower().isel(time=slice(0, 57)), layers=["lead"], variables=["metric_echo"])
+    np.testing.assert_allclose(r2.sel(lag=0), alone["r2"].sel(layer="lead", variable="metric_echo"), rtol=1e-9)
+    unmeasured = decode(leader_and_follower(), layers=["lead"], variables=["metric_echo"], lags=[3], baseline=False)
+    assert np.isnan(unmeasured["baseline"]).all() and unmeasured["r2"].equals(result["r2"].sel(lag=[3]))
     # A stride over the steps keeps what they tell: a fifth of them finds the same echo.
     fewer = decode(leader_and_follower(), layers=["lead"], variables=["metric_echo"], lags=[3], max_samples=180)
     assert fewer.attrs["samples"] == [180] and fewer["r2"].sel(lag=3, layer="lead", variable="metric_echo") > 0.95

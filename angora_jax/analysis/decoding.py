@@ -54,18 +54,22 @@ def cross_validated_r2(features: np.ndarray, targets: np.ndarray, groups: np.nda
 
 def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: Sequence[str] | None = None,
            folds: int = 5, seed: int = 0, lags: Sequence[int] | None = None,
-           max_samples: int = MAX_SAMPLES) -> xr.Dataset:
+           max_samples: int = MAX_SAMPLES, baseline: bool = True) -> xr.Dataset:
     """R^2 of every layer x variable, with the noise baseline and 95% intervals, as a Dataset with variables `r2`,
     `r2_low`, `r2_high`, `baseline` (dims layer x variable).
 
     layers: names as in `activity_<name>` (default: all). variables: dataset variables to decode, e.g.
     `input_goal`, `task_cube_angular_velocity`, `metric_goal_distance` (default: every `input_*`, `task_*` and
     `metric_*`). lags: policy steps k; with them, the variable at step t + k is decoded from the activity at step t
-    (k > 0: which areas predict the future; k < 0: which keep the past), at the steps where both are alive, and
-    every result gets a leading `lag` dim (coordinate in steps, `lag_s` in s). max_samples: at most this many of
-    those steps, evenly spaced over them (consecutive steps are strongly correlated, so a stride loses little, and a
-    readout's cost grows with the steps: 64 trained cube episodes hold about 50,000); the attribute `samples` says
-    how many were used, one number per lag.
+    (k > 0: which areas predict the future; k < 0: which keep the past), and every result gets a leading `lag` dim
+    (coordinate in steps, `lag_s` in s). Every lag reads the same steps t: those alive with the variable alive at
+    every t + k, so the lags compare one set of activity, and one readout per layer and fold fits every lag and
+    variable at once (a lag costs hardly more than none). max_samples: at most this many of those steps, evenly
+    spaced over them (consecutive steps are strongly correlated, so a stride loses little, and a readout's cost grows
+    with the steps: 64 trained cube episodes hold about 75,000); the attribute `samples` says how many were used, one
+    number per lag. baseline: False leaves `baseline` NaN and skips its fits (e.g. for a control network's decoding,
+    whose layers have the same widths as the network it controls for, so the same baseline). The noise baseline is
+    one draw per layer width, shared by layers of that width.
     """
     layers = list(layers or recorded_layers(dataset))
     variables = list(variables or [n for n in dataset.data_vars if n.startswith(("input_", "task_", "metric_"))])
@@ -73,54 +77,67 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
     steps = dataset.sizes["time"]
     if lags is not None and any(abs(k) >= steps for k in lags):
         raise ValueError(f"lags must be shorter than the recording's {steps} steps, got {list(lags)}.")
-    rng = np.random.default_rng(seed)
-    results = [_decode_at(dataset, layers, variables, folds, rng, lag, max_samples)
-               for lag in (lags if lags is not None else [0])]
+    result = _decode_lags(dataset, layers, variables, folds, np.random.default_rng(seed),
+                          list(lags) if lags is not None else [0], max_samples, baseline)
     names = ("r2", "r2_low", "r2_high", "baseline")
     coords = {"layer": layers, "variable": variables}
     # The steps each readout was fitted and scored on, at each lag: NetCDF keeps lists of numbers as attributes.
     attrs = {"folds": folds, "description": "held-out ridge R^2 (GroupKFold over episodes)",
-             "samples": [int(r["samples"]) for r in results]}
+             "samples": [int(result["samples"])] * (len(lags) if lags is not None else 1)}
     if lags is None:
-        return xr.Dataset({name: (("layer", "variable"), results[0][name]) for name in names}, coords=coords,
+        return xr.Dataset({name: (("layer", "variable"), result[name][0]) for name in names}, coords=coords,
                           attrs=attrs)
     dt = float(dataset.attrs.get("policy_step_s", 1.0))
-    return xr.Dataset({name: (("lag", "layer", "variable"), np.stack([r[name] for r in results])) for name in names},
+    return xr.Dataset({name: (("lag", "layer", "variable"), result[name]) for name in names},
                       coords={"lag": list(lags), "lag_s": ("lag", np.asarray(lags) * dt, {"units": "s"}), **coords},
                       attrs=attrs)
 
 
-def _decode_at(dataset: xr.Dataset, layers: list[str], variables: list[str], folds: int, rng: np.random.Generator,
-               lag: int, max_samples: int) -> dict[str, np.ndarray]:
-    """`decode`'s arrays (layer x variable) for the variables `lag` steps after the activity."""
+def _decode_lags(dataset: xr.Dataset, layers: list[str], variables: list[str], folds: int, rng: np.random.Generator,
+                 lags: list[int], max_samples: int, baseline: bool) -> dict[str, np.ndarray]:
+    """`decode`'s arrays (lag x layer x variable) and the number of steps used (`samples`)."""
     steps = dataset.sizes["time"]
-    now, then = lagged_steps(steps, lag)
-    alive_values = dataset["alive"].values > 0
-    alive = np.flatnonzero((alive_values[:, now] & alive_values[:, then]).reshape(-1))
-    alive = alive[np.linspace(0, len(alive) - 1, min(len(alive), max_samples)).round().astype(int)]
-    groups = np.repeat(np.arange(dataset.sizes["episode"]), steps - abs(lag))[alive]
-    if len(np.unique(groups)) < folds:
-        raise ValueError(f"Decoding with {folds} folds needs at least {folds} episodes alive at lag {lag}; the "
-                         f"recording has {len(np.unique(groups))}.")
-    shape = (len(layers), len(variables))
+    alive = dataset["alive"].values > 0
+    now = np.arange(max(0, -min(lags)), steps - max(0, max(lags)))
+    keep = alive[:, now]
+    for k in lags:
+        keep = keep & alive[:, now + k]
+    episode, step = np.nonzero(keep)
+    chosen = np.linspace(0, len(episode) - 1, min(len(episode), max_samples)).round().astype(int)
+    episode, step = episode[chosen], now[step[chosen]]
+    if len(np.unique(episode)) < folds:
+        raise ValueError(f"Decoding with {folds} folds needs at least {folds} episodes alive at the lags {lags}; the "
+                         f"recording has {len(np.unique(episode))}.")
+    shape = (len(lags), len(layers), len(variables))
     result = {name: np.full(shape, np.nan) for name in ("r2", "r2_low", "r2_high", "baseline")}
-    result["samples"] = len(alive)
-    targets = [_samples(dataset[variable].isel(time=then))[alive] for variable in variables]
-    # A constant has nothing to decode: its cells stay NaN.
-    varying = [j for j, values in enumerate(targets) if not np.all(values.std(axis=0) == 0)]
-    if not varying:
+    result["samples"] = len(episode)
+    cells, targets = [], []
+    for i, k in enumerate(lags):
+        for j, variable in enumerate(variables):
+            values = _samples(dataset[variable].values[episode, step + k])
+            if not np.all(values.std(axis=0) == 0):  # a constant has nothing to decode: its cells stay NaN
+                cells.append((i, j))
+                targets.append(values)
+    if not cells:
         return result
-    widths = np.cumsum([0] + [targets[j].shape[1] for j in varying])
+    widths = np.cumsum([0] + [t.shape[1] for t in targets])
     spans = [slice(a, b) for a, b in zip(widths[:-1], widths[1:], strict=True)]
-    stacked = np.concatenate([targets[j] for j in varying], axis=1)
+    stacked = np.concatenate(targets, axis=1)
+    where = tuple(np.transpose(cells))
+    chance: dict[int, np.ndarray] = {}
     for i, layer in enumerate(layers):
-        features = _samples(dataset[f"activity_{layer}"].isel(time=now))[alive]
-        scores = cross_validated_r2(features, stacked, groups, folds, spans)
-        baseline = cross_validated_r2(rng.standard_normal(features.shape), stacked, groups, folds, spans).mean(axis=0)
+        features = _samples(dataset[f"activity_{layer}"].values[episode, step])
+        scores = cross_validated_r2(features, stacked, episode, folds, spans)
         half = 1.96 * scores.std(axis=0, ddof=1) / np.sqrt(folds)
         mean = scores.mean(axis=0)
-        result["r2"][i, varying], result["r2_low"][i, varying] = mean, mean - half
-        result["r2_high"][i, varying], result["baseline"][i, varying] = mean + half, baseline
+        for name, value in (("r2", mean), ("r2_low", mean - half), ("r2_high", mean + half)):
+            result[name][where[0], i, where[1]] = value
+        if baseline:
+            width = features.shape[1]
+            if width not in chance:
+                noise = rng.standard_normal(features.shape)
+                chance[width] = cross_validated_r2(noise, stacked, episode, folds, spans).mean(axis=0)
+            result["baseline"][where[0], i, where[1]] = chance[width]
     return result
 
 
@@ -149,10 +166,9 @@ def recorded_layers(dataset: xr.Dataset) -> list[str]:
     return [name.removeprefix("activity_") for name in dataset.data_vars if name.startswith("activity_")]
 
 
-def _samples(array: xr.DataArray) -> np.ndarray:
-    """(episode, time[, features]) -> (episode * time, features)."""
-    values = np.asarray(array.values, np.float64)
-    return values.reshape(values.shape[0] * values.shape[1], -1)
+def _samples(values: np.ndarray) -> np.ndarray:
+    """(samples[, features]) -> (samples, features) float64."""
+    return np.asarray(values, np.float64).reshape(len(values), -1)
 
 
 def plot_decoding(result: xr.Dataset, path: str) -> None:
@@ -187,8 +203,9 @@ def plot_decoding(result: xr.Dataset, path: str) -> None:
     ax.set_xticks(range(r2.shape[1]), result["variable"].values, rotation=45, ha="right")
     ax.set_yticks(range(r2.shape[0]), result["layer"].values)
     for (i, j), value in np.ndenumerate(r2):
-        ax.text(j, i, f"{value:.2f}\n({result['baseline'].values[i, j]:.2f})", ha="center", va="center",
-                fontsize=7, color="white" if value < 0.5 else "black")
+        chance = result["baseline"].values[i, j]
+        ax.text(j, i, f"{value:.2f}" + (f"\n({chance:.2f})" if np.isfinite(chance) else ""), ha="center",
+                va="center", fontsize=7, color="white" if value < 0.5 else "black")
     fig.colorbar(image, ax=ax, label="held-out R^2 (noise baseline)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
