@@ -299,8 +299,10 @@ def test_probe_trained_script_writes_every_part_and_finds_the_reach_policy_needs
     assert {(row["lag"], row["layer"], row["variable"]) for row in future["lagged_decoding"]} == {
         (lag, layer, "metric_goal_distance") for lag in (0, 4) for layer in probe.layers}
     for row in future["lagged_decoding"]:
-        if row["lag"] == 0:  # the future at lag 0 is the present: the plain decoding's fit
-            assert row["r2"] == pytest.approx(summary["decoding_r2"][row["variable"]][row["layer"]], abs=1e-3), row
+        # The present decodes from every area above chance; lag 0 reads fewer steps than the plain decoding, those
+        # with one 4 later (test_analysis_methods checks it against a decoding of those steps alone).
+        if row["lag"] == 0:
+            assert row["r2_low"] > row["noise_baseline"] + 0.1, row
     peaks = future["cross_correlation_peak_lag_s"]
     assert all(peaks[layer][layer] == 0.0 for layer in probe.layers), peaks  # an area leads itself by nothing
     for plot in ("decoding", "ablation", "dynamics", "timescales", "lagged_decoding", "cross_correlation"):
