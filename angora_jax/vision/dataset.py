@@ -122,15 +122,17 @@ def render_poses(hand_qpos: np.ndarray, position: np.ndarray, quaternion: np.nda
         return np.stack([cpu.render(hand_qpos[i], position[i], quaternion[i]) for i in range(len(hand_qpos))])
 
 
-def cube_masks(dataset: PoseDataset, threshold: int = 8) -> np.ndarray:
+def cube_masks(dataset: PoseDataset, threshold: int = 8, without_cube: np.ndarray | None = None) -> np.ndarray:
     """Where the cube is in each of `dataset`'s images: `(N, cameras, height, width)` bool, the pixels whose colour
     (any channel, 0-255) changes by more than `threshold` when the same poses are rendered, with the dataset's own
-    renderer, with the cube moved `CUBE_AWAY` out of every camera's view. The scene's light casts no shadows, so these
-    are the cube's pixels and, with OpenGL's antialiasing, a rim of at most one pixel into which its edges blend."""
-    height, width = dataset.images.shape[2:4]
-    away = render_poses(dataset.hand_qpos, dataset.cube_position + CUBE_AWAY, dataset.cube_quaternion,
-                        dataset.cameras, width, height, dataset.renderer)
-    return np.abs(dataset.images.astype(np.int16) - away).max(axis=-1) > threshold
+    renderer, with the cube moved `CUBE_AWAY` out of every camera's view (`without_cube`: those frames, where they
+    were rendered already). The scene's light casts no shadows, so these are the cube's pixels and, with OpenGL's
+    antialiasing, a rim of at most one pixel into which its edges blend."""
+    if without_cube is None:
+        height, width = dataset.images.shape[2:4]
+        without_cube = render_poses(dataset.hand_qpos, dataset.cube_position + CUBE_AWAY, dataset.cube_quaternion,
+                                    dataset.cameras, width, height, dataset.renderer)
+    return np.abs(dataset.images.astype(np.int16) - without_cube).max(axis=-1) > threshold
 
 
 def _render_warp(model: mujoco.MjModel, qpos: np.ndarray, cameras: int, width: int, height: int,
