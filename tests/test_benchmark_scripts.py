@@ -12,6 +12,8 @@ spread over CI's 2 cores.)"""
 import json
 import sys
 
+import jax
+import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
@@ -23,11 +25,14 @@ from angora_jax.envs.registry import make
 from angora_jax.envs.shadow_hand import REACH_PHYSICS
 from angora_jax.experiment.config import load_config
 from angora_jax.experiment.evaluation import evaluate
+from angora_jax.nets.visual import make_visual_encoder
+from angora_jax.vision import PoseEstimator, PoseNet
 
 sys.path.insert(0, str(BENCHMARKS))
 import env_throughput  # noqa: E402
 import evaluation_speed  # noqa: E402
 import physics_throughput  # noqa: E402
+import probe_estimator  # noqa: E402
 import render_throughput  # noqa: E402
 import robustness  # noqa: E402
 import train_throughput  # noqa: E402
@@ -193,3 +198,33 @@ def test_robustness_scales_the_ranges_by_width_and_width_0_is_the_unrandomized_e
         "action_delay": [2, 6]}
     assert robustness.scaled({"action_delay": [1, 3], "cube_size": [0.95, 1.05]}, 0) == {
         "action_delay": [0, 0], "cube_size": [1.0, 1.0]}
+
+
+def test_probe_estimator_measures_saliency_on_the_cube_against_the_cubes_share_of_pixels(tmp_path):
+    """A tiny estimator with its initial weights (two 32 x 32 cameras) and two poses whose cube is a square: each
+    camera's row per measure holds shares of saliency between 0 and 1, the square's share of pixels as chance, and
+    the figures exist."""
+    options, cameras = {"widths": (4, 4, 4, 4), "features": 6}, ("front", "top")
+    network = PoseNet(make_visual_encoder("cornet_z", **options))
+    params = network.init(jax.random.key(0), jnp.zeros((1, 2, 32, 32, 3), jnp.uint8))["params"]
+    estimator = PoseEstimator(params, "cornet_z", options, "6d", cameras, 32, np.zeros(3), np.ones(3)).save(
+        tmp_path / "tiny.pose.msgpack")
+    no_cube = np.random.default_rng(0).integers(0, 256, (2, 2, 32, 32, 3), dtype=np.uint8)
+    images = no_cube.copy()
+    images[:, :, 8:16, 8:12] = np.where(no_cube[:, :, 8:16, 8:12] < 128, 255, 0)  # an 8 x 4 "cube"
+    np.savez(tmp_path / "frames.npz", images=images, no_cube=no_cube)
+    probe_estimator.main([str(estimator), "--frames", str(tmp_path / "frames.npz"), "--analysis-frames", "1",
+                          "--units", "1", "--ascent-steps", "2", "--name", "tiny", "--out-dir", str(tmp_path)])
+    record = results(tmp_path / "tiny_cpu.json", "tiny")
+    config = record["config"]
+    assert config["estimator_config"]["cameras"] == list(cameras) and config["summary"]["poses"] == 2
+    rows = record["results"]
+    assert [(row["camera"], row["measure"]) for row in rows] == [
+        (camera, measure) for measure in ("orientation saliency", "position saliency", "IT mean map")
+        for camera in cameras]
+    for row in rows:
+        assert row["cube_pixels"] == 32 / 32**2 and row["edge_pixels"] == 20 / 32**2
+        assert 0 < row["edge_share"] < row["cube_share"] < 1
+        assert row["cube_over_chance"] == pytest.approx(row["cube_share"] / row["cube_pixels"])
+    for figure in ("tiny_visual.png", "tiny_saliency.png"):
+        assert (tmp_path / figure).read_bytes()[:4] == b"\x89PNG"

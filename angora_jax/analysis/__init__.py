@@ -7,10 +7,12 @@ area's input from `area_input`), measure intrinsic timescales (`timescales`), wh
 (`cross_correlation`), what a layer tells of the future (`decode(..., lags=...)`), tuning (`tuning_curves`), the
 equations of a layer's dynamics in its leading principal components and how well they predict held-out episodes
 (`sindy`, with pysindy), and lesion units, areas or input modalities and measure the task outcome (`ablation`);
-inside the visual area of an agent that sees camera images, first-layer filters, feature maps, gradient saliency and
-preferred stimuli (`visual_analysis`). Each analysis has a `plot_*` and an `angora-jax analyze` verb. What to probe of
-the brain-area model on each hand task (its areas, the variables to decode, the lesions and the outcomes that measure
-them) is in `PROBES` (task name -> `Probe`; the lesions from `reach_lesions` and `cube_lesions`).
+inside the visual area of an agent that sees camera images or of a cube pose estimator, first-layer filters, feature
+maps, gradient saliency and preferred stimuli (`visual_analysis`), the saliency of the pose an estimator reads
+(`pose_saliency`) and its share on the cube (`saliency_share`). Each analysis has a `plot_*` and an `angora-jax
+analyze` verb. What to probe of the brain-area model on each hand task (its areas, the variables to decode, the
+lesions and the outcomes that measure them) is in `PROBES` (task name -> `Probe`; the lesions from `reach_lesions`
+and `cube_lesions`).
 """
 
 from angora_jax.analysis.decoding import decode, plot_decoding
@@ -41,16 +43,20 @@ from angora_jax.analysis.visual import (
     feature_maps,
     first_layer_filters,
     gradient_saliency,
+    mask_edges,
     plot_visual,
+    pose_saliency,
     preferred_stimuli,
     saliency,
+    saliency_share,
     visual_analysis,
 )
 
 __all__ = ["PROBES", "Probe", "ablation", "agent_fixed_points", "area_input", "cross_correlation", "cube_lesions",
            "decode", "dense_layers", "episode_outcomes", "feature_maps", "find_fixed_points", "first_layer_filters",
-           "fit_sindy", "gradient_saliency", "lesion", "lesion_area", "lesion_fraction", "plot_ablation",
-           "plot_cross_correlation", "plot_decoding", "plot_dynamics", "plot_similarity", "plot_sindy",
-           "plot_timescales", "plot_tuning", "plot_visual", "preferred_stimuli", "principal_components",
-           "reach_lesions", "record_activity", "replay_activity", "saliency", "save_activity", "silence_modality",
-           "similarity", "sindy", "timescales", "tuning_curves", "visual_analysis", "with_random_weights"]
+           "fit_sindy", "gradient_saliency", "lesion", "lesion_area", "lesion_fraction", "mask_edges",
+           "plot_ablation", "plot_cross_correlation", "plot_decoding", "plot_dynamics", "plot_similarity",
+           "plot_sindy", "plot_timescales", "plot_tuning", "plot_visual", "pose_saliency", "preferred_stimuli",
+           "principal_components", "reach_lesions", "record_activity", "replay_activity", "saliency",
+           "saliency_share", "save_activity", "silence_modality", "similarity", "sindy", "timescales",
+           "tuning_curves", "visual_analysis", "with_random_weights"]

@@ -1,75 +1,92 @@
-"""Inside the visual area of an agent that sees camera images (`ppo.network.visual`: `cornet_z` or `impala`):
-what its first layer filters for, what each layer's feature maps show of given frames, which pixels its outputs
-depend on (gradient saliency) and which images its units prefer (activation maximization with jitter and blur, as
-Lucid regularizes it). The question these answer: does the encoder attend to the cube's edges and faces, or to the
-fingers?
+"""Inside the visual area of an agent that sees camera images (`ppo.network.visual`: `cornet_z` or `impala`), or
+of a trained cube `PoseEstimator` (OpenAI's Dactyl route: its encoder, shared by its cameras, is the visual system
+of a policy that reads the estimated pose): what its first layer filters for, what each layer's feature maps show of
+given frames, which pixels its outputs depend on (gradient saliency; for an estimator also of the pose it reads,
+`pose_saliency`) and which images its units prefer (activation maximization with jitter and blur, as Lucid
+regularizes it). The question these answer: does the encoder attend to the cube's edges and faces, or to the
+fingers? `saliency_share` measures it against a cube mask (`angora_jax.vision.cube_masks`, `mask_edges`).
 
     images = recording["input_vision"].values[0, :4, 0]               # (4, height, width, 3) uint8, one camera
     filters = first_layer_filters(agent)                               # (filters, kh, kw, 3)
     maps = feature_maps(agent, images)                                  # layer -> (4, h, w, channels)
     where = saliency(agent, images, unit=3)                             # (4, height, width), |d feature 3 / d pixel|
     found, trace = preferred_stimuli(agent, "V4", units=[0, 1])        # (2, height, width, 3) uint8, (2, steps)
+
+    estimator = PoseEstimator.load("encoder.pose.msgpack")             # each function above takes it for agent
+    where = pose_saliency(estimator, frames, "orientation")           # (N, cameras, H, W, 3) -> (N, cameras, H, W)
+    on_cube = saliency_share(where, masks)                              # (N, cameras); chance: masks' pixel share
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+import scipy.ndimage
 import xarray as xr
 
 from angora_jax.experiment.agent import Agent
-from angora_jax.nets.visual import make_visual_area
+from angora_jax.nets.visual import make_visual_area, make_visual_encoder
+from angora_jax.vision.estimator import PoseEstimator
+
+# What these analyses look inside: an agent with a visual area, or a pose estimator (its encoder).
+Seer = Agent | PoseEstimator
 
 
-def visual_area(agent: Agent) -> tuple[nn.Module, Any]:
-    """The agent's visual area module and its parameters; ValueError for an agent without one."""
-    module = make_visual_area(agent.config.ppo.network.visual)
-    if module is None or "visual" not in agent.params:
-        raise ValueError(f"The agent ({agent.config.env.task}, network {agent.config.ppo.network.name}) has no visual "
-                         "area: these analyses need a run that sees camera images (ppo.network.visual).")
-    return module, agent.params["visual"]
+def _visual_system(seer: Seer) -> tuple[nn.Module, Any, tuple[int, int]]:
+    """The encoder module that `seer` sees with, its parameters and the (height, width) of the camera images it
+    reads (an agent's: 64 x 64 where its config names none); ValueError for an agent without a visual area."""
+    if isinstance(seer, PoseEstimator):
+        return make_visual_encoder(seer.encoder, **seer.encoder_options), seer.params["encoder"], (seer.size,) * 2
+    module = make_visual_area(seer.config.ppo.network.visual)
+    if module is None or "visual" not in seer.params:
+        raise ValueError(f"The agent ({seer.config.env.task}, network {seer.config.ppo.network.name}) has no visual "
+                         "area: these analyses need a run that sees camera images (ppo.network.visual), or a "
+                         "PoseEstimator.")
+    vision = seer.config.env.options.get("vision") or {}
+    return module, seer.params["visual"], (vision.get("height", 64), vision.get("width", 64))
 
 
-def conv_layers(agent: Agent) -> list[str]:
+def visual_area(seer: Seer) -> tuple[nn.Module, Any]:
+    """The visual area module and its parameters: an agent's (`ppo.network.visual`) or a pose estimator's encoder;
+    ValueError for an agent without one."""
+    module, params, _ = _visual_system(seer)
+    return module, params
+
+
+def conv_layers(seer: Seer) -> list[str]:
     """Names of the visual area's convolutions in the order images pass them (e.g. V1, V2, V4, IT for cornet_z)."""
-    return list(_convolutions(agent, jnp.zeros((1, *_camera_size(agent), 3), jnp.uint8)))
+    return list(_convolutions(seer, jnp.zeros((1, *_visual_system(seer)[2], 3), jnp.uint8)))
 
 
-def _convolutions(agent: Agent, images: jax.Array) -> dict[str, jax.Array]:
+def _convolutions(seer: Seer, images: jax.Array) -> dict[str, jax.Array]:
     """Each convolution's output for `images`, in the order of the calls, not of the parameters: a restored
     checkpoint holds them sorted by name (IT before V1). Applied eagerly, since JAX's tree functions would sort the
     captured layers by name too."""
-    module, params = visual_area(agent)
+    module, params = visual_area(seer)
     _, captured = module.apply({"params": params}, images, capture_intermediates=True, mutable=["intermediates"])
     return {name: outputs["__call__"][0] for name, outputs in captured["intermediates"].items()
             if np.ndim(params.get(name, {}).get("kernel", 0)) == 4}
 
 
-def _camera_size(agent: Agent) -> tuple[int, int]:
-    """(height, width) of the agent's camera images (64 x 64 where its config names none)."""
-    vision = agent.config.env.options.get("vision") or {}
-    return vision.get("height", 64), vision.get("width", 64)
-
-
-def first_layer_filters(agent: Agent) -> np.ndarray:
+def first_layer_filters(seer: Seer) -> np.ndarray:
     """The first convolution's kernels as images, `(filters, kh, kw, 3)` float (weights per colour channel)."""
-    _, params = visual_area(agent)
-    kernel = np.asarray(params[conv_layers(agent)[0]]["kernel"])  # (kh, kw, 3, filters)
+    _, params = visual_area(seer)
+    kernel = np.asarray(params[conv_layers(seer)[0]]["kernel"])  # (kh, kw, 3, filters)
     return np.moveaxis(kernel, -1, 0)
 
 
-def feature_maps(agent: Agent, images: np.ndarray) -> dict[str, np.ndarray]:
-    """Each convolution's output (before its ReLU) for `images` `(N, height, width, 3)` uint8: layer ->
-    `(N, h, w, channels)`."""
-    return {name: np.asarray(output) for name, output in _convolutions(agent, jnp.asarray(images)).items()}
+def feature_maps(seer: Seer, images: np.ndarray) -> dict[str, np.ndarray]:
+    """Each convolution's output (before its ReLU) for `images` `(N, height, width, 3)` uint8 (one camera's frames,
+    or any cameras' stacked: the encoder sees each image alone): layer -> `(N, h, w, channels)`."""
+    return {name: np.asarray(output) for name, output in _convolutions(seer, jnp.asarray(images)).items()}
 
 
-def saliency(agent: Agent, images: np.ndarray, unit: int | None = None,
+def saliency(seer: Seer, images: np.ndarray, unit: int | None = None,
              readout: np.ndarray | None = None) -> np.ndarray:
     """Gradient saliency: |d output / d pixel| for `images` `(N, height, width, 3)` uint8, the largest over colour
     channels, `(N, height, width)` per pixel value (0-255). output: feature `unit` of the visual area's output
@@ -77,7 +94,7 @@ def saliency(agent: Agent, images: np.ndarray, unit: int | None = None,
     variable). Give exactly one of them."""
     if (unit is None) == (readout is None):
         raise ValueError("Give exactly one of unit (a feature of the visual area) or readout (a vector over them).")
-    module, params = visual_area(agent)
+    module, params = visual_area(seer)
     features = module.apply({"params": params}, jnp.zeros((1, *np.shape(images)[1:]), jnp.uint8)).shape[-1]
     weights = jax.nn.one_hot(unit, features) if readout is None else jnp.asarray(readout, jnp.float32)
     if weights.shape != (features,) or (unit is not None and not 0 <= unit < features):
@@ -90,13 +107,59 @@ def saliency(agent: Agent, images: np.ndarray, unit: int | None = None,
 
 
 def gradient_saliency(output, images: np.ndarray) -> np.ndarray:
-    """|d output / d pixel|, the largest over colour channels, `(N, height, width)`, for `output(pixels) -> (N,)`
-    (each image's own output) and `images` `(N, height, width, 3)`, differentiated as float pixel values."""
-    gradient = jax.grad(lambda pixels: output(pixels).sum())(jnp.asarray(images, jnp.float32))
-    return np.asarray(jnp.abs(gradient).max(axis=-1))
+    """|d output / d pixel|, the largest over colour channels, `(N, ..., height, width)`, for `images`
+    `(N, ..., height, width, 3)` (e.g. several cameras per sample) differentiated as float pixel values and
+    `output(pixels)` `(N,)`, each sample's own output, or `(N, K)`, K outputs of each sample, of which the largest
+    gradient counts."""
+    pixels = jnp.asarray(images, jnp.float32)
+    # Summed over samples: each sample's outputs depend on its own pixels alone, so one backward pass per output
+    # gives every sample's gradient.
+    gradient = jax.jacrev(lambda pixels: output(pixels).sum(axis=0))(pixels)  # ((K,) N, ..., 3)
+    return np.asarray(jnp.abs(gradient).max(axis=-1).reshape(-1, *pixels.shape[:-1]).max(axis=0))
 
 
-def preferred_stimuli(agent: Agent, layer: str, units: list[int] | np.ndarray, size: tuple[int, int] | None = None,
+def pose_saliency(estimator: PoseEstimator, frames: np.ndarray,
+                  output: Literal["orientation", "position"] = "orientation") -> np.ndarray:
+    """Which pixels the pose an estimator reads depends on: |d output / d pixel| for `frames`
+    `(N, cameras, height, width, 3)` uint8 (its cameras, in its order), the largest over colour channels and over the
+    output's components, `(N, cameras, height, width)` per pixel value (0-255). output "position": the network's 3
+    standardised position outputs (metres over the training set's spread, about 12 mm here). "orientation": the 9
+    entries of the rotation matrix the head's outputs map to, not the outputs themselves: the map normalises them
+    (Gram-Schmidt for "6d", a unit quaternion), so a change of their length, or of the second 3-vector along the
+    first, changes no orientation; the matrix's entries move only with the orientation read, on the same scale (-1
+    to 1) whichever representation the head was trained in."""
+    if output not in ("orientation", "position"):
+        raise ValueError(f"output must be 'orientation' or 'position', got {output!r}.")
+    frames = np.asarray(frames)
+    estimator.check_frames(frames)
+    network, which = estimator.network(), ("position", "orientation").index(output)
+
+    def pose(pixels: jax.Array) -> jax.Array:
+        return network.apply({"params": estimator.params}, pixels)[which].reshape(len(pixels), -1)
+
+    return gradient_saliency(pose, frames)
+
+
+def saliency_share(saliency: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """The share of each image's saliency (or any non-negative map, e.g. a feature map resized to the image) that
+    lies in `mask`: `saliency` `(N, ..., height, width)` and a bool `mask` of the same shape (or one that broadcasts)
+    -> `(N, ...)`, between 0 and 1; NaN for an image without saliency. Chance, for saliency spread evenly, is the
+    mask's share of pixels, `mask.mean(axis=(-2, -1))`."""
+    saliency = np.asarray(saliency, np.float64)
+    total = saliency.sum(axis=(-2, -1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (saliency * mask).sum(axis=(-2, -1)) / total
+
+
+def mask_edges(mask: np.ndarray) -> np.ndarray:
+    """The edge pixels of each image's mask, `(..., height, width)` bool: the mask less its binary erosion (3 x 3)
+    within the image; the image's border is not an edge (a cube cut off by the frame has no edge there)."""
+    mask = np.asarray(mask, bool)
+    structure = np.ones((1,) * (mask.ndim - 2) + (3, 3), bool)
+    return mask & ~scipy.ndimage.binary_erosion(mask, structure, border_value=1)
+
+
+def preferred_stimuli(seer: Seer, layer: str, units: list[int] | np.ndarray, size: tuple[int, int] | None = None,
                       steps: int = 256, learning_rate: float = 0.05, jitter: int = 2, blur: float = 0.5,
                       seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """The image that most activates each of `units` (channels) of convolution `layer` (the channel's mean over
@@ -104,13 +167,13 @@ def preferred_stimuli(agent: Agent, layer: str, units: list[int] | np.ndarray, s
     unconstrained image mapped to 0-255 by a sigmoid, each step seeing it shifted by up to `jitter` pixels and then
     blurred by `blur` (the share of each pixel replaced by its 3 x 3 neighbourhood's mean), the regularizers Lucid
     uses against high-frequency patterns. All units are optimized at once, in one compiled program. size: (height,
-    width), default the agent's camera images. Returns the images `(units, height, width, 3)` uint8 and the
-    activation at each step `(units, steps)`."""
-    module, params = visual_area(agent)
-    if layer != "output" and layer not in conv_layers(agent):
-        raise ValueError(f"No convolution {layer!r} in the visual area; choose one of {conv_layers(agent)} or "
+    width), default that of the camera images `seer` reads. Returns the images `(units, height, width, 3)` uint8 and
+    the activation at each step `(units, steps)`."""
+    module, params, camera = _visual_system(seer)
+    if layer != "output" and layer not in conv_layers(seer):
+        raise ValueError(f"No convolution {layer!r} in the visual area; choose one of {conv_layers(seer)} or "
                          "'output'.")
-    height, width = size or _camera_size(agent)
+    height, width = size or camera
     units = np.asarray(units, int)
 
     def activations(pixels: jax.Array) -> jax.Array:
@@ -147,9 +210,10 @@ def preferred_stimuli(agent: Agent, layer: str, units: list[int] | np.ndarray, s
     return np.asarray(images).round().astype(np.uint8), np.asarray(traces)
 
 
-def visual_analysis(agent: Agent, images: np.ndarray, units: int = 4, steps: int = 256,
+def visual_analysis(seer: Seer, images: np.ndarray, units: int = 4, steps: int = 256,
                     layers: list[str] | None = None) -> xr.Dataset:
-    """All of the above for `images` `(N, height, width, 3)` uint8 as one Dataset: `filters`, the last
+    """All of the above but `pose_saliency` for `images` `(N, height, width, 3)` uint8 (for several cameras, their
+    frames stacked) as one Dataset: `filters`, the last
     convolution's mean feature map per image (`last_map`), the saliency of each of the first `units` output features
     (`saliency`, image x unit x y x x) and the preferred stimulus of each of the first `units` channels of each of
     `layers` (default: every convolution; `preferred`, layer x unit x y x x x rgb) with its final activation
@@ -158,12 +222,12 @@ def visual_analysis(agent: Agent, images: np.ndarray, units: int = 4, steps: int
     if images.ndim != 4 or images.shape[-1] != 3 or images.dtype != np.uint8:
         raise ValueError(f"images must be (N, height, width, 3) uint8 camera frames, got {images.shape} "
                          f"{images.dtype}; take them from a recording made with angora-jax record --images.")
-    convolutions = conv_layers(agent)
+    convolutions = conv_layers(seer)
     layers = list(layers or convolutions)
-    maps = feature_maps(agent, images)
-    filters = first_layer_filters(agent)
-    where = np.stack([saliency(agent, images, unit=u) for u in range(units)], axis=1)
-    preferred = [preferred_stimuli(agent, layer, range(units), images.shape[1:3], steps) for layer in layers]
+    maps = feature_maps(seer, images)
+    filters = first_layer_filters(seer)
+    where = np.stack([saliency(seer, images, unit=u) for u in range(units)], axis=1)
+    preferred = [preferred_stimuli(seer, layer, range(units), images.shape[1:3], steps) for layer in layers]
     last = maps[convolutions[-1]].mean(axis=-1)
     # Images as int16 (values 0-255): NetCDF 3, which `angora-jax analyze` writes, has no unsigned bytes.
     return xr.Dataset(

@@ -1,10 +1,10 @@
-"""Vision: rendered datasets of the hand and cube (`render_pose_dataset`), pretraining of visual encoders to see the
-cube's pose (`pretrain_pose_encoder`) and the trained pose network as a `PoseEstimator` (frames in, pose out); the
-encoders themselves are `angora_jax.nets.visual`."""
+"""Vision: rendered datasets of the hand and cube (`render_pose_dataset`; where the cube is in them: `cube_masks`),
+pretraining of visual encoders to see the cube's pose (`pretrain_pose_encoder`) and the trained pose network as a
+`PoseEstimator` (frames in, pose out); the encoders themselves are `angora_jax.nets.visual`."""
 
-from angora_jax.vision.dataset import PoseDataset, PoseRenderer, render_pose_dataset
+from angora_jax.vision.dataset import PoseDataset, PoseRenderer, cube_masks, render_pose_dataset, render_poses
 from angora_jax.vision.estimator import PoseEstimator, PoseNet, orientation_error_degrees
 from angora_jax.vision.pretrain import PretrainResult, pretrain_pose_encoder
 
-__all__ = ["PoseDataset", "PoseEstimator", "PoseNet", "PoseRenderer", "PretrainResult", "orientation_error_degrees",
-           "pretrain_pose_encoder", "render_pose_dataset"]
+__all__ = ["PoseDataset", "PoseEstimator", "PoseNet", "PoseRenderer", "PretrainResult", "cube_masks",
+           "orientation_error_degrees", "pretrain_pose_encoder", "render_pose_dataset", "render_poses"]

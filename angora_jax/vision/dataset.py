@@ -22,6 +22,7 @@ from angora_jax.envs.shadow_hand.cube import CUBE_JOINT, load_cube_scene
 
 DEFAULT_CAMERAS = ("front", "side", "top")
 CUBE_REST = np.array([1.0, 0.875, 0.165])  # m, world frame: where a settled cube lies on the palm (measured)
+CUBE_AWAY = np.array([0.0, 0.0, 5.0])  # m: a shift that takes the cube out of every camera's view (`cube_masks`)
 
 
 @dataclass(frozen=True)
@@ -92,8 +93,6 @@ def render_pose_dataset(samples: int, cameras: tuple[str, ...] = DEFAULT_CAMERAS
     within the middle `hand_spread` share of its range (1: the whole range, where fingers often hide the cube).
     renderer: "cpu" (`mujoco.Renderer`, one frame at a time) or "warp" (MuJoCo Warp's batched ray tracer on a GPU,
     `batch` poses per call; its lighting differs from OpenGL's, see benchmarks/render_throughput.py)."""
-    if renderer not in ("cpu", "warp"):
-        raise ValueError(f"renderer must be 'cpu' or 'warp', got {renderer!r}.")
     rng = np.random.default_rng(seed)
     model = load_cube_scene(touch=False, cameras=cameras)
     cube = int(model.joint(CUBE_JOINT).qposadr[0])
@@ -102,14 +101,38 @@ def render_pose_dataset(samples: int, cameras: tuple[str, ...] = DEFAULT_CAMERAS
     hand_qpos = rng.uniform(centre - half, centre + half, (samples, cube))
     position = CUBE_REST + rng.uniform(-spread, spread, (samples, 3))
     quaternion = random_quaternions(rng, samples)
-    if renderer == "warp":
-        qpos = np.concatenate([hand_qpos, position, quaternion], axis=1)
-        images = _render_warp(model, qpos, len(cameras), width, height, batch)
-    else:
-        with PoseRenderer(cameras, width, height) as cpu:
-            images = np.stack([cpu.render(hand_qpos[i], position[i], quaternion[i]) for i in range(samples)])
+    images = render_poses(hand_qpos, position, quaternion, cameras, width, height, renderer, batch)
     return PoseDataset(images, position.astype(np.float32), quaternion.astype(np.float32),
                        hand_qpos.astype(np.float32), tuple(cameras), renderer)
+
+
+def render_poses(hand_qpos: np.ndarray, position: np.ndarray, quaternion: np.ndarray,
+                 cameras: tuple[str, ...] = DEFAULT_CAMERAS, width: int = 64, height: int = 64,
+                 renderer: str = "cpu", batch: int = 1024) -> np.ndarray:
+    """Frames `(N, cameras, height, width, 3)` uint8 of given poses: the hand's joint angles `(N, 24)` rad, the cube's
+    position `(N, 3)` m and orientation `(N, 4)` (w, x, y, z) in the world frame; renderer and batch as for
+    `render_pose_dataset`."""
+    if renderer not in ("cpu", "warp"):
+        raise ValueError(f"renderer must be 'cpu' or 'warp', got {renderer!r}.")
+    if renderer == "warp":
+        model = load_cube_scene(touch=False, cameras=cameras)
+        qpos = np.concatenate([hand_qpos, position, quaternion], axis=1)
+        return _render_warp(model, qpos, len(cameras), width, height, batch)
+    with PoseRenderer(cameras, width, height) as cpu:
+        return np.stack([cpu.render(hand_qpos[i], position[i], quaternion[i]) for i in range(len(hand_qpos))])
+
+
+def cube_masks(dataset: PoseDataset, threshold: int = 8, without_cube: np.ndarray | None = None) -> np.ndarray:
+    """Where the cube is in each of `dataset`'s images: `(N, cameras, height, width)` bool, the pixels whose colour
+    (any channel, 0-255) changes by more than `threshold` when the same poses are rendered, with the dataset's own
+    renderer, with the cube moved `CUBE_AWAY` out of every camera's view (`without_cube`: those frames, where they
+    were rendered already). The scene's light casts no shadows, so these are the cube's pixels and, with OpenGL's
+    antialiasing, a rim of at most one pixel into which its edges blend."""
+    if without_cube is None:
+        height, width = dataset.images.shape[2:4]
+        without_cube = render_poses(dataset.hand_qpos, dataset.cube_position + CUBE_AWAY, dataset.cube_quaternion,
+                                    dataset.cameras, width, height, dataset.renderer)
+    return np.abs(dataset.images.astype(np.int16) - without_cube).max(axis=-1) > threshold
 
 
 def _render_warp(model: mujoco.MjModel, qpos: np.ndarray, cameras: int, width: int, height: int,

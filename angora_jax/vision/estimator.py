@@ -103,14 +103,18 @@ class PoseEstimator:
         """`(B, cameras, size, size, 3)` uint8 frames -> the cube's position `(B, 3)` (m, world frame) and
         orientation `(B, 4)` (unit quaternion w, x, y, z with w >= 0). Pure: it may be jitted, or called inside a
         jitted function."""
-        expected = (len(self.cameras), self.size, self.size, 3)
-        if tuple(frames.shape[1:]) != expected:
-            raise ValueError(f"PoseEstimator expects frames (batch, {', '.join(map(str, expected))}) from cameras "
-                             f"{list(self.cameras)}; got {tuple(frames.shape)}. Render what it was trained on.")
+        self.check_frames(frames)
         position, rotation = self.network().apply({"params": self.params}, frames)
         quaternion = quaternions(rotation)
         return position * self.position_spread + self.position_mean, quaternion * jnp.where(
             quaternion[:, :1] < 0, -1.0, 1.0)
+
+    def check_frames(self, frames: jax.Array | np.ndarray) -> None:
+        """ValueError unless `frames` are shaped as the estimator reads them: `(B, cameras, size, size, 3)`."""
+        expected = (len(self.cameras), self.size, self.size, 3)
+        if tuple(frames.shape[1:]) != expected:
+            raise ValueError(f"PoseEstimator expects frames (batch, {', '.join(map(str, expected))}) from cameras "
+                             f"{list(self.cameras)}; got {tuple(frames.shape)}. Render what it was trained on.")
 
     def save(self, file: str | Path) -> Path:
         """Write the estimator to `file` (msgpack); refuses to overwrite."""
