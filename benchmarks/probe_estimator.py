@@ -116,9 +116,9 @@ def main(argv: list[str] | None = None) -> None:
     measures[f"{layer} mean map"] = timed(seconds, "last_map", last_map, estimator, images)
 
     rows = []
+    cube_pixels, edge_pixels = masks.mean(axis=(-2, -1)), edges.mean(axis=(-2, -1))  # chance, whatever the measure
     for measure, where in measures.items():
         on_cube, on_edges = an.saliency_share(where, masks), an.saliency_share(where, edges)
-        cube_pixels, edge_pixels = masks.mean(axis=(-2, -1)), edges.mean(axis=(-2, -1))
         for c, camera in enumerate(estimator.cameras):
             row = {"camera": camera, "measure": measure, "cube_share": float(np.nanmean(on_cube[:, c])),
                    "cube_pixels": float(cube_pixels[:, c].mean()), "edge_share": float(np.nanmean(on_edges[:, c])),
