@@ -221,6 +221,7 @@ def test_reach_premotor_fixed_points_rdms_and_components(reach, cortical_reach):
     agent, recording = reach
     points = agent_fixed_points(agent, recording, "network.PMC", "network.PMC_in", starts=8, iterations=200)
     assert points["points"].shape == (8, 64) and points["fixed"].all()
+    assert np.abs(points["points"]).max() <= 1.0, "a GRU's state stays within tanh's range"
     assert np.all(np.abs(points["eigenvalues"][:, 0]) < 1.0), "the premotor GRU settles under a constant input"
     rsa = similarity(recording, "metric_goal_distance", ["network.SSC_2", "network.M1"], ["metric_goal_distance"])
     rdm = rsa["rdm"].values

@@ -72,15 +72,42 @@ def test_fixed_points_reached_from_several_starts_are_decomposed_once(monkeypatc
     a = np.diag([0.5, -0.25, 0.1])
     decomposed, original = [], np.linalg.eigvals
 
-    def eigvals(matrices):
-        decomposed.append(len(matrices))
-        return original(matrices)
+    def eigvals(matrix):
+        decomposed.append(matrix.shape)
+        return original(matrix)
 
     monkeypatch.setattr(np.linalg, "eigvals", eigvals)
     found = find_fixed_points(lambda h: jnp.asarray(a, jnp.float32) @ h, np.random.default_rng(2).standard_normal(
         (5, 3)), iterations=50)
-    assert found["fixed"].all() and decomposed == [1]
+    assert found["fixed"].all() and decomposed == [(3, 3)]
     np.testing.assert_allclose(np.abs(found["eigenvalues"]), np.broadcast_to([0.5, 0.25, 0.1], (5, 3)), atol=1e-6)
+
+
+def test_fixed_point_search_stays_among_reachable_states():
+    """A point outside the states a cell reaches (h = 0.5 h + 3 has its point at 6) is not reported: within
+    (-1, 1) the search ends on the bound, not fixed; with a lower bound only (a ReLU cell's [0, inf)) a point above
+    it is found; without bounds the search finds 6."""
+    def step(h):
+        return 0.5 * h + 3.0
+
+    starts = np.random.default_rng(3).uniform(-1, 1, (4, 2))
+    free = find_fixed_points(step, starts, iterations=100)
+    np.testing.assert_allclose(free["points"], 6.0, atol=1e-5)
+    boxed = find_fixed_points(step, starts, iterations=100, bounds=(-1.0, 1.0))
+    assert not boxed["fixed"].any()
+    np.testing.assert_allclose(boxed["points"], 1.0)
+    half_open = find_fixed_points(step, starts, iterations=100, bounds=(np.zeros(2), np.full(2, np.inf)))
+    assert half_open["fixed"].all()
+    np.testing.assert_allclose(half_open["points"], 6.0, atol=1e-5)
+
+
+def test_every_activation_has_a_range_for_the_fixed_point_search():
+    from angora_jax.nets.activations import ACTIVATION_RANGES, ACTIVATIONS
+
+    assert set(ACTIVATION_RANGES) == set(ACTIVATIONS)
+    for name, (low, high) in ACTIVATION_RANGES.items():
+        outputs = np.asarray(ACTIVATIONS[name](jnp.linspace(-50.0, 50.0, 1001)))
+        assert low <= min(outputs.min(), 0.0) and max(outputs.max(), 0.0) <= high, name
 
 
 def test_timescales_of_ar1_units_and_white_noise():

@@ -11,7 +11,9 @@ uses the area's activation.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import jax
@@ -20,10 +22,11 @@ import numpy as np
 import optax
 import xarray as xr
 from sklearn.decomposition import PCA
+from threadpoolctl import threadpool_limits
 
 from angora_jax.analysis.decoding import recorded_layers
 from angora_jax.experiment.agent import Agent
-from angora_jax.nets.activations import ACTIVATIONS
+from angora_jax.nets.activations import ACTIVATION_RANGES, ACTIVATIONS
 from angora_jax.nets.area_graph import AreaGraph, feedback_inputs
 from angora_jax.nets.components import component
 from angora_jax.nets.models import cell_output, recurrent_cell
@@ -62,14 +65,23 @@ def principal_components(dataset: xr.Dataset, layers: Sequence[str] | None = Non
 
 
 def find_fixed_points(step: Callable[[jax.Array], jax.Array], starts: jax.Array, iterations: int = 500,
-                      tolerance: float = 1e-6) -> dict[str, np.ndarray]:
+                      tolerance: float = 1e-6, bounds: tuple[np.ndarray, np.ndarray] | None = None
+                      ) -> dict[str, np.ndarray]:
     """Minimise q(h) = 0.5 |step(h) - h|^2 from each row of `starts` `(K, n)` with L-BFGS for `iterations` steps.
     In float32 q bottoms out near 1e-7 for a 256-unit GRU (1e-13 for 64 units; measured), hence the tolerance.
+
+    bounds: `(low, high)`, each `(n,)` or scalar (infinite where open), the states the network can reach. The search
+    stays among them: each step's result is clipped to them (projected L-BFGS), so a coordinate pushed past its bound
+    stops there and may move back inside at a later step.
+    Without them the search leaves the state space wherever the update saturates: a GRU whose update gate is shut
+    keeps any state, so it finds "slow points" at |h| >> 1 that the network never visits.
 
     Returns host arrays: `points` (K, n), `speed` (K,) the final q, `fixed` (K,) whether q <= tolerance, and
     `eigenvalues` (K, n) of the Jacobian of `step` at each point (complex; points equal to 1e-4 share those of the
     first of them), sorted by decreasing modulus.
     """
+    low, high = (-np.inf, np.inf) if bounds is None else (np.asarray(b, np.float32) for b in bounds)
+
     def speed(h):
         return 0.5 * jnp.sum((step(h) - h) ** 2)
 
@@ -81,18 +93,20 @@ def find_fixed_points(step: Callable[[jax.Array], jax.Array], starts: jax.Array,
             h, state = carry
             value, grad = value_and_grad(h, state=state)
             updates, state = optimizer.update(grad, state, h, value=value, grad=grad, value_fn=speed)
-            return optax.apply_updates(h, updates), state
+            return jnp.clip(optax.apply_updates(h, updates), low, high), state
 
         h, _ = jax.lax.fori_loop(0, iterations, body, (h, optimizer.init(h)))
         return h, speed(h)
 
-    points, speeds = jax.jit(jax.vmap(minimise))(jnp.asarray(starts, jnp.float32))
+    points, speeds = jax.jit(jax.vmap(minimise))(jnp.clip(jnp.asarray(starts, jnp.float32), low, high))
     points = np.asarray(points)
-    # The eigen-decomposition, not the search, is the cost (O(n^3) per point: 64 points of a 512-unit GRU took 118 s
-    # on 2 CPU cores, the 50-step search 1.5 s), and starts mostly end on the same few points: decompose each
-    # distinct point (equal to 1e-4) once.
+    # The eigendecomposition is O(n^3) per point: decompose each distinct point (equal to 1e-4) once. LAPACK's
+    # nonsymmetric solver only slows down with several BLAS threads at these sizes (a 512 x 512 Jacobian: 1.1 s with
+    # 2 OpenBLAS threads, 0.33 s with 1, on 2 cores), so each runs on one thread and the points run in parallel.
     _, first, inverse = np.unique(np.round(points, 4), axis=0, return_index=True, return_inverse=True)
-    distinct = np.linalg.eigvals(np.asarray(jax.vmap(jax.jacobian(step))(jnp.asarray(points[first])), np.float64))
+    jacobians = np.asarray(jax.vmap(jax.jacobian(step))(jnp.asarray(points[first])), np.float64)
+    with threadpool_limits(1), ThreadPoolExecutor(os.cpu_count()) as pool:
+        distinct = np.stack(list(pool.map(np.linalg.eigvals, jacobians)))
     eigenvalues = distinct[inverse.reshape(-1)]
     order = np.argsort(-np.abs(eigenvalues), axis=-1)
     return {"points": points, "speed": np.asarray(speeds), "fixed": np.asarray(speeds) <= tolerance,
@@ -112,7 +126,7 @@ def recurrent_step(agent: Agent, layer: str, inputs: jax.Array | Sequence[jax.Ar
     params = component(agent.params, layer)
     kind = _cell_kind(params, layer)
     size = _cell_size(params, kind)
-    cell = recurrent_cell(kind, size, "cell", _cell_activation(agent, layer))
+    cell = recurrent_cell(kind, size, "cell", ACTIVATIONS[_activation(agent, layer)])
     parts = 2 if kind == "lstm" else 1
     pieces = [inputs] if isinstance(inputs, jax.Array | np.ndarray) else list(inputs)
     width = sum(size if piece is None else len(piece) for piece in pieces)
@@ -150,9 +164,21 @@ def _graph_area(agent: Agent, layer: str) -> tuple[AreaGraph, str] | None:
     return (graph, name) if isinstance(graph, AreaGraph) and name in graph.areas else None
 
 
-def _cell_activation(agent: Agent, layer: str) -> Callable[[jax.Array], jax.Array]:
+def _activation(agent: Agent, layer: str) -> str:
     area = _graph_area(agent, layer)
-    return jnp.tanh if area is None else ACTIVATIONS[area[0].areas[area[1]].activation]
+    return "tanh" if area is None else area[0].areas[area[1]].activation
+
+
+def _state_bounds(agent: Agent, layer: str) -> tuple[np.ndarray, np.ndarray]:
+    """`(low, high)` of the states that `layer`'s carry, flattened as `recurrent_step` flattens it, reaches from the
+    zero carry: its output within its activation's range (and 0); an LSTM's cell state c is unbounded."""
+    params = component(agent.params, layer)
+    kind = _cell_kind(params, layer)
+    size = _cell_size(params, kind)
+    low, high = (np.full(size, bound) for bound in ACTIVATION_RANGES[_activation(agent, layer)])
+    if kind == "lstm":
+        return np.concatenate([np.full(size, -np.inf), low]), np.concatenate([np.full(size, np.inf), high])
+    return low, high
 
 
 def area_input(agent: Agent, dataset: xr.Dataset, layer: str) -> dict[str, np.ndarray | None]:
@@ -222,7 +248,8 @@ def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: st
     for a recurrent area of a brain-area graph (`network.<area>`), whose inputs the graph names (`area_input`:
     the sources in the order of the area's `inputs`, feedback inputs at their previous step). The cell's activation
     is the area's (tanh for the built-in `Recurrent` networks). Starts are `starts` carries the network visited
-    (recorded as `<layer>.0...`). Returns `find_fixed_points`'s arrays plus `input` (the constant input, the parts
+    (recorded as `<layer>.0...`); the search stays among the states the cell can reach (its activation's range,
+    `find_fixed_points`' bounds). Returns `find_fixed_points`'s arrays plus `input` (the constant input, the parts
     held constant concatenated: an area that reads itself reads its state instead)."""
     alive = dataset["alive"].values > 0
     if inputs is None:
@@ -239,7 +266,7 @@ def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: st
     if visited.shape[-1] != size:
         raise ValueError(f"Recorded carry of {layer!r} has {visited.shape[-1]} values, the cell {size}.")
     drive = np.concatenate([np.zeros(0, np.float32), *(piece for piece in pieces if piece is not None)])
-    return find_fixed_points(step, visited[rows], iterations) | {"input": drive}
+    return find_fixed_points(step, visited[rows], iterations, bounds=_state_bounds(agent, layer)) | {"input": drive}
 
 
 def plot_dynamics(pcs: xr.Dataset, path: str, fixed_points: dict[str, np.ndarray] | None = None) -> None:

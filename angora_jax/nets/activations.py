@@ -42,3 +42,11 @@ ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
     "relu": jax.nn.relu,
     "lif": lif_fraction,
 }
+
+# The interval (low, high) holding every output of each activation and 0: where the state of a recurrent cell with
+# that activation stays when it starts at 0 (an Elman update, a GRU's mixture of candidate and state, an LSTM's h).
+ACTIVATION_RANGES: dict[str, tuple[float, float]] = {
+    "tanh": (-1.0, 1.0),
+    "relu": (0.0, float("inf")),
+    "lif": (0.0, 1.0),
+}
