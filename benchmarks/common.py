@@ -166,10 +166,12 @@ def train_rate(env: Env, config: PPOConfig, repeats: int = 3,
 
 def timed(seconds: dict[str, float], name: str, function: Callable, *args, **kwargs):
     """`function(*args, **kwargs)`, its wall time (s) stored as `seconds[name]`: one timed part of a benchmark that
-    calls the analyses as a user does (compile included unless the program is already compiled)."""
+    calls the analyses as a user does (compile included unless the program is already compiled). Printed as it ends,
+    so the log of a long run shows how far it got."""
     start = time.perf_counter()
     out = function(*args, **kwargs)
     seconds[name] = time.perf_counter() - start
+    print(f"{name}: {seconds[name]:.1f} s", flush=True)
     return out
 
 
