@@ -33,16 +33,18 @@ import pytest  # noqa: E402  (after the environment above, which must be set bef
 # The order in which `make test`'s two workers take the test files (pytest-xdist gives each file to one worker, the
 # next file to whichever worker runs out first; `--no-loadscope-reorder` keeps this order): the longest first, so that
 # the last files to start are short and both workers end together. test_evaluation comes first because it trains
-# the shared cortical reach run (`cortical_reach` below, about 2 minutes), and the files after it that read that run
-# come late enough for it to be ready, so no worker waits. Measured per file on 2 CPU cores (seconds, `make test`
-# with --junitxml): evaluation 205, vision 179, benchmarks 187, locomotion 145, randomization 140, distributed 135,
-# cli 122, analysis 89, ihom 113, docs 101, ppo_learning 101, warp 92, ..., reach_sequential 35; every file not
-# listed is shorter and follows in name order.
+# the shared cortical reach run (`cortical_reach` below, about 3 minutes in the suite), and the files after it that
+# read that run come late enough for it to be ready, so no worker waits. Per file on 2 CPU cores (seconds, the sum of
+# its tests' times in a 35-minute `make test` with --junitxml; randomization, benchmark_scripts and reach_learning
+# less what their quick compiles saved since): randomization 478, evaluation 286, benchmarks 270, vision 251, ihom
+# 237, analysis 234, distributed 223, ppo_learning 203, notebook 203, locomotion 201, cli 165, benchmark_scripts 155,
+# docs 140, warp 121, checkpoint 115, nets 81, tbptt 76, settings 73, reach_sequential 67, host_env 65,
+# training_video 61, envs 57, config 47, parallel 47; every file not listed is shorter and follows in name order.
 LONGEST_FIRST = (
-    "test_evaluation", "test_vision", "test_benchmarks", "test_locomotion", "test_randomization", "test_distributed",
-    "test_cli", "test_analysis", "test_ihom", "test_docs", "test_ppo_learning", "test_warp", "test_notebook",
-    "test_checkpoint", "test_reach_learning", "test_nets", "test_settings", "test_training_video",
-    "test_benchmark_scripts", "test_reach_sequential",
+    "test_evaluation", "test_randomization", "test_benchmarks", "test_vision", "test_ihom", "test_analysis",
+    "test_distributed", "test_ppo_learning", "test_notebook", "test_locomotion", "test_cli", "test_benchmark_scripts",
+    "test_docs", "test_warp", "test_checkpoint", "test_nets", "test_tbptt", "test_settings", "test_reach_sequential",
+    "test_host_env", "test_training_video", "test_envs", "test_config", "test_parallel",
 )
 
 

@@ -164,7 +164,7 @@ def test_evaluation_speed_gets_the_same_episodes_from_every_batch_and_worker_set
         assert row["env_steps_per_s"] == pytest.approx(row["episodes_per_s"] * config["mean_episode_length"])
 
 
-def test_robustness_scales_the_ranges_by_width_and_width_0_is_the_unrandomized_evaluation(tmp_path):
+def test_robustness_scales_the_ranges_by_width_and_width_0_is_the_unrandomized_evaluation(tmp_path, quick_compiles):
     """A reach run of one tiny cycle (Warp) evaluated at widths 0 and 1 of reference ranges that hold a cube key (left
     out for reach): width 0 gives zero-width ranges and the unrandomized batched evaluation's episodes exactly, width 1
     the reference ranges and other episodes; the JSON names the metric, ranges and runs, and the plot is written."""

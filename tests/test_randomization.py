@@ -167,7 +167,7 @@ def test_randomized_fields_change_mjx_jax_physics_and_ones_give_the_unrandomized
     np.testing.assert_array_equal(ones.reward, unrandomized.reward)
 
 
-def test_evaluate_runs_a_policy_under_randomization_given_as_an_env_option(tmp_path, capsys):
+def test_evaluate_runs_a_policy_under_randomization_given_as_an_env_option(tmp_path, capsys, quick_compiles):
     """A reach run trains under randomization; `angora-jax evaluate --env-option randomization=...` on the batched
     path (Warp) plays its policy in other randomized worlds, recorded as a changed task; the CPU path (C MuJoCo slots,
     each its own world) plays the same episodes: the same lengths, returns within 1% (as test_warp.py's evaluation),

@@ -55,7 +55,7 @@ def baseline(env: Env, key: jax.Array, action_scale: jax.Array) -> dict[str, jax
             "goal_distance": distances[-1].mean(), "start_distance": start.mean()}
 
 
-def test_ppo_reach_beats_random_and_zero_policies(cortical_reach):
+def test_ppo_reach_beats_random_and_zero_policies(cortical_reach, quick_compiles):
     env = aj.make("ShadowHandReach", max_episode_steps=EPISODE)
     key = jax.random.key(123)
     run_baseline = jax.jit(baseline, static_argnums=0)
