@@ -138,7 +138,7 @@ def test_cube_probing_notebook_runs_every_analysis_on_a_tiny_cube_run(tmp_path, 
         "the lesions are the probe's": found["lesions"] == ["intact", "-SSC", "-touch input", "-goal input",
                                                             "-10% M1", "-50% M1", "-none"],
         "the empty lesion equals the intact agent": found["none_equals_intact"],
-        "RSA has the two model variables": found["rsa"] == ["task_cube_orientation", "task_rotation_to_goal"],
+        "RSA has the two model variables": found["rsa"] == ["task_cube_rotation", "task_rotation_to_goal"],
         "every figure is a PNG": all((tmp_path / f"{name}.png").exists()
                                      and (tmp_path / f"{name}.png").read_bytes()[:4] == b"\x89PNG" for name in figures),
     }

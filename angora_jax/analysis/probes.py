@@ -57,13 +57,14 @@ PROBES = {
                 "network.M1"),
         variables=("input_goal", "input_asymmetric", "input_proprioception", "metric_goal_distance"),
         lesions=reach_lesions, outcomes=("success", "goal_distance")),
-    # The cube's variables (Env.task_variables): its orientation (quaternion), angular velocity (rad/s, cube frame),
-    # the rotation from it to the goal (quaternion), the fingertips (m) and the touch sensors (N).
+    # The cube's variables (Env.task_variables): its orientation (rotation matrix: sign-free, unlike the quaternion),
+    # angular velocity (rad/s, cube frame), the rotation from it to the goal (quaternion), the fingertips (m) and the
+    # touch sensors (N).
     "ShadowHandCube": Probe(
         layers=("network.SSC_1", "network.SSC_2", "network.SPL", "network.IPL", "network.IPS", "network.MCC",
                 "network.LPFC", "network.PMC_in", "network.PMC.1", "network.M1"),
-        variables=("task_cube_orientation", "task_cube_angular_velocity", "task_rotation_to_goal", "task_fingertips",
+        variables=("task_cube_rotation", "task_cube_angular_velocity", "task_rotation_to_goal", "task_fingertips",
                    "input_touch"),
         lesions=cube_lesions, outcomes=("goals_reached", "dropped"),
-        rsa_variables=("task_cube_orientation", "task_rotation_to_goal", "task_cube_angular_velocity")),
+        rsa_variables=("task_cube_rotation", "task_rotation_to_goal", "task_cube_angular_velocity")),
 }

@@ -13,8 +13,9 @@ Episodes run batched on the training path (MJX for MuJoCo tasks, one compiled pr
     metric_<name>      (episode, time)                 the task's metrics at the step (e.g. goals_reached)
     task_<name>        (episode, time, <name>_component)  the state's task variables (`Env.task_variables`), seen
                                                        by the policy or not: hand tasks' fingertips (m) and
-                                                       joint_angles (rad); the cube's position, orientation,
-                                                       velocity, angular velocity, goal_orientation, rotation_to_goal
+                                                       joint_angles (rad); the cube's position, orientation
+                                                       (quaternion and, sign-free, rotation matrix), velocity,
+                                                       angular velocity, goal_orientation, rotation_to_goal
     alive              (episode, time)                 1 until the step that ends the episode (inclusive)
     time_in_episode    (episode, time)                 policy steps since the episode started, in s (coord `time`)
 
