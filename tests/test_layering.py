@@ -2,9 +2,9 @@
 envs -> nets -> ppo -> experiment -> vision -> analysis (it looks inside agents and pose estimators) -> the
 package's public API (its `__init__`) -> cli, with angora_jax.registry below all. Where a lower layer needs something
 of a higher one (reading a saved run's policy for `init_from`, reading a pose estimator file for the cube), the higher
-one registers it with the lower
-(`nets.components.register_run_reader`, `envs.shadow_hand.register_pose_estimator_reader`). Imports only for type
-hints (under `if TYPE_CHECKING:`) never run and are not counted."""
+one registers it with the lower (`nets.components.register_run_reader`,
+`envs.shadow_hand.register_pose_estimator_reader`). Imports only for type hints (under `if TYPE_CHECKING:`) never run
+and are not counted."""
 
 import ast
 from pathlib import Path

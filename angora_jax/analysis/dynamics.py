@@ -72,9 +72,9 @@ def find_fixed_points(step: Callable[[jax.Array], jax.Array], starts: jax.Array,
 
     bounds: `(low, high)`, each `(n,)` or scalar (infinite where open), the states the network can reach. The search
     stays among them: each step's result is clipped to them (projected L-BFGS), so a coordinate pushed past its bound
-    stops there and may move back inside at a later step.
-    Without them the search leaves the state space wherever the update saturates: a GRU whose update gate is shut
-    keeps any state, so it finds "slow points" at |h| >> 1 that the network never visits.
+    stops there and may move back inside at a later step. Without them the search leaves the state space wherever the
+    update saturates: a GRU whose update gate is shut keeps any state, so it finds "slow points" at |h| >> 1 that the
+    network never visits.
 
     Returns host arrays: `points` (K, n), `speed` (K,) the final q, `fixed` (K,) whether q <= tolerance, and
     `eigenvalues` (K, n) of the Jacobian of `step` at each point (complex; points equal to 1e-4 share those of the
@@ -123,9 +123,7 @@ def recurrent_step(agent: Agent, layer: str, inputs: jax.Array | Sequence[jax.Ar
     which the carry holds, so it is part of the state rather than held constant). The cell's activation is the
     area's (`network.graph.areas.<name>.activation`) for an area of a brain-area graph, tanh otherwise (the cells of
     the built-in `Recurrent` networks)."""
-    params = component(agent.params, layer)
-    kind = _cell_kind(params, layer)
-    size = _cell_size(params, kind)
+    params, kind, size = _cell(agent, layer)
     cell = recurrent_cell(kind, size, "cell", ACTIVATIONS[_activation(agent, layer)])
     parts = 2 if kind == "lstm" else 1
     pieces = [inputs] if isinstance(inputs, jax.Array | np.ndarray) else list(inputs)
@@ -143,6 +141,13 @@ def recurrent_step(agent: Agent, layer: str, inputs: jax.Array | Sequence[jax.Ar
         return jnp.concatenate(jax.tree.leaves(carry), axis=-1)[0]
 
     return step, parts * size
+
+
+def _cell(agent: Agent, layer: str) -> tuple[Any, str, int]:
+    """The parameters of the recurrent `layer` of `agent`, its kind ("lstm", "gru" or "rnn") and its units."""
+    params = component(agent.params, layer)
+    kind = _cell_kind(params, layer)
+    return params, kind, _cell_size(params, kind)
 
 
 def _cell_kind(params: Any, layer: str) -> str:
@@ -172,9 +177,7 @@ def _activation(agent: Agent, layer: str) -> str:
 def _state_bounds(agent: Agent, layer: str) -> tuple[np.ndarray, np.ndarray]:
     """`(low, high)` of the states that `layer`'s carry, flattened as `recurrent_step` flattens it, reaches from the
     zero carry: its output within its activation's range (and 0); an LSTM's cell state c is unbounded."""
-    params = component(agent.params, layer)
-    kind = _cell_kind(params, layer)
-    size = _cell_size(params, kind)
+    _, kind, size = _cell(agent, layer)
     low, high = (np.full(size, bound) for bound in ACTIVATION_RANGES[_activation(agent, layer)])
     if kind == "lstm":
         return np.concatenate([np.full(size, -np.inf), low]), np.concatenate([np.full(size, np.inf), high])

@@ -434,8 +434,7 @@ class Ihom(HandTask):
         pose, velocity = self.cube_pose(snap), snap.qvel[self.cube_dof:self.cube_dof + 6]
         return super().task_variables(snap, info) | {
             "cube_position": pose[:3], "cube_orientation": pose[3:], "cube_rotation": rotation_matrix(pose[3:]),
-            "cube_velocity": velocity[:3],
-            "cube_angular_velocity": velocity[3:], "goal_orientation": info["goal"],
+            "cube_velocity": velocity[:3], "cube_angular_velocity": velocity[3:], "goal_orientation": info["goal"],
             "rotation_to_goal": rotation_between(pose[3:], info["goal"])}
 
     def evaluate(self, key, prev, snap, info):
