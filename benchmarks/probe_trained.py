@@ -6,7 +6,8 @@ and, for the cube, RSA against model RDMs. Lesions run --episodes episodes (480,
 standard errors); the analyses of activity read --decode-episodes recorded ones (480 whole trained cube episodes of
 every layer would hold over 10 GB on the host). Written for the brain-area model (`cortical`) on reach and on the cube;
 what is decoded and lesioned depends on the task
-(`angora_jax.analysis.PROBES`).
+(`angora_jax.analysis.PROBES`). Each part's plot and the JSON are written as the part ends, so a run cut short keeps
+what it finished (the JSON's `stages_done`).
 
     python benchmarks/probe_trained.py runs/reach_cortical --episodes 480     # e.g. after
     angora-jax train shadow_reach_cortical logging.run_name=reach_cortical
@@ -55,63 +56,77 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"{task} has no probe here; tasks with one: {sorted(an.PROBES)}.")
     probe = an.PROBES[task]
     layers, variables = list(probe.layers), list(probe.variables)
-    seconds: dict[str, float] = {}
-    for attempt in ("record_first_with_compile", "record_again"):
-        recording = timed(seconds, attempt, an.record_activity, agent, episodes=args.record_episodes or
-                          args.decode_episodes, steps=args.steps)
-    part = recording.isel(episode=slice(0, args.decode_episodes))
-    # The control: the same network with random weights, replayed once on the recorded inputs for every comparison.
-    random_part = timed(seconds, "replay_random_weights", an.replay_activity, an.with_random_weights(agent), part)
-    decoding, control = timed(seconds, "decode_both", lambda: (
-        an.decode(part, layers, variables), an.decode(random_part, layers, variables, baseline=False)))
-    ablation = timed(seconds, "ablation", an.ablation, agent, probe.lesions(agent), episodes=args.episodes,
-                     steps=args.steps)
-    points = timed(seconds, "fixed_points", an.agent_fixed_points, agent, part, "network.PMC", "network.PMC_in",
-                   starts=args.fixed_point_starts, iterations=args.fixed_point_iterations)
-    components = timed(seconds, "principal_components", an.principal_components, part, layers)
-    scales = timed(seconds, "timescales", an.timescales, part, layers)
     os.makedirs(args.out_dir, exist_ok=True)
     out = os.path.join(args.out_dir, args.name)
-    similarity = None
-    if probe.rsa_variables:
-        similarity = timed(seconds, "similarity", an.similarity, part, probe.rsa_condition, layers,
-                           probe.rsa_variables)
-        an.plot_similarity(similarity, f"{out}_similarity.png")
-    an.plot_decoding(decoding, f"{out}_decoding.png")
-    an.plot_ablation(ablation, probe.outcomes[0], f"{out}_ablation.png")
-    an.plot_dynamics(components, f"{out}_dynamics.png", points)
-    an.plot_timescales(scales, f"{out}_timescales.png")
-    rows = [{"lesion": str(name), **{f"{o}_{stat}": float(ablation[stat].sel(lesion=name, outcome=o))
-                                     for o in probe.outcomes for stat in ("mean", "sem")}}
-            for name in ablation["lesion"].values]
-    columns = [("lesion", "lesion", "s")]
-    for o in probe.outcomes:
-        columns += [(f"{o}_mean", o, ".3f"), (f"{o}_sem", "s.e.m.", ".3f")]
-    print(markdown_table(rows, columns))
-    summary = {
-        "seconds": seconds, "recording_mb": recording.nbytes / 1e6, "run_cycle": agent.cycle,
-        "decoding_r2": decoding["r2"].to_pandas().round(3).to_dict(),
-        "decoding_noise_baseline": decoding["baseline"].to_pandas().round(3).to_dict(),
-        "decoding_r2_random_weights_same_inputs": control["r2"].to_pandas().round(3).to_dict(),
-        "fixed_points": {"starts": len(points["fixed"]), "max_speed": float(points["speed"].max()),
-                         "largest_eigenvalue_modulus_median": float(np.median(np.abs(points["eigenvalues"][:, 0])))},
-        "pca_components_for_90pct": dict(zip(layers, components["dimensionality"].values.tolist(), strict=True)),
-        "timescale_median_s": dict(zip(layers, scales["timescale_median"].values.round(4).tolist(), strict=True)),
-        "recorded_steps": int(part.sizes["time"]),
-        "episode_length_mean_steps": float(part["alive"].sum("time").mean()),
-    }
-    if similarity is not None:
-        summary["rsa_condition"] = probe.rsa_condition
-        summary["rsa_model_similarity"] = similarity["model_similarity"].to_pandas().round(3).to_dict()
-    if args.lags:
-        summary["future"] = predicted_future(part, random_part, layers, variables, args.lags, seconds, out)
-    print({k: v for k, v in summary.items() if not k.startswith("decoding")})
+    seconds: dict[str, float] = {}
+    summary: dict = {"seconds": seconds, "run_cycle": agent.cycle}
+    rows: list[dict] = []
     config = {"run_dir": args.run_dir, "episodes": args.episodes, "steps": args.steps, "env_options": args.env_option,
               "decode_episodes": args.decode_episodes,
               "record_episodes": args.record_episodes or args.decode_episodes, "lags": args.lags,
               "fixed_point_starts": args.fixed_point_starts, "fixed_point_iterations": args.fixed_point_iterations,
               "summary": summary}
-    print(write_results(args.name, config, rows, f"{out}_{jax.devices()[0].platform}.json"))
+
+    def save(stage: str) -> None:
+        """The JSON after each part, so a run cut short keeps what it finished (`stages_done`)."""
+        summary["stages_done"] = [*summary.get("stages_done", []), stage]
+        write_results(args.name, config, rows, f"{out}_{jax.devices()[0].platform}.json")
+
+    for attempt in ("record_first_with_compile", "record_again"):
+        recording = None  # 480 whole cube episodes of every layer hold about 10 GB: never two at once
+        recording = timed(seconds, attempt, an.record_activity, agent, episodes=args.record_episodes or
+                          args.decode_episodes, steps=args.steps)
+    summary["recording_mb"] = recording.nbytes / 1e6
+    part = recording.isel(episode=slice(0, args.decode_episodes)).copy(deep=True)
+    del recording
+    summary["recorded_steps"] = int(part.sizes["time"])
+    summary["episode_length_mean_steps"] = float(part["alive"].sum("time").mean())
+    save("record")
+    # The control: the same network with random weights, replayed once on the recorded inputs for every comparison.
+    random_part = timed(seconds, "replay_random_weights", an.replay_activity, an.with_random_weights(agent), part)
+    decoding, control = timed(seconds, "decode_both", lambda: (
+        an.decode(part, layers, variables), an.decode(random_part, layers, variables, baseline=False)))
+    an.plot_decoding(decoding, f"{out}_decoding.png")
+    summary["decoding_r2"] = decoding["r2"].to_pandas().round(3).to_dict()
+    summary["decoding_noise_baseline"] = decoding["baseline"].to_pandas().round(3).to_dict()
+    summary["decoding_r2_random_weights_same_inputs"] = control["r2"].to_pandas().round(3).to_dict()
+    save("decode")
+    if args.lags:
+        summary["future"] = predicted_future(part, random_part, layers, variables, args.lags, seconds, out)
+        save("lagged_decode")
+    ablation = timed(seconds, "ablation", an.ablation, agent, probe.lesions(agent), episodes=args.episodes,
+                     steps=args.steps)
+    an.plot_ablation(ablation, probe.outcomes[0], f"{out}_ablation.png")
+    rows += [{"lesion": str(name), **{f"{o}_{stat}": float(ablation[stat].sel(lesion=name, outcome=o))
+                                      for o in probe.outcomes for stat in ("mean", "sem")}}
+             for name in ablation["lesion"].values]
+    columns = [("lesion", "lesion", "s")]
+    for o in probe.outcomes:
+        columns += [(f"{o}_mean", o, ".3f"), (f"{o}_sem", "s.e.m.", ".3f")]
+    print(markdown_table(rows, columns))
+    save("ablation")
+    scales = timed(seconds, "timescales", an.timescales, part, layers)
+    an.plot_timescales(scales, f"{out}_timescales.png")
+    summary["timescale_median_s"] = dict(zip(layers, scales["timescale_median"].values.round(4).tolist(), strict=True))
+    save("timescales")
+    if probe.rsa_variables:
+        similarity = timed(seconds, "similarity", an.similarity, part, probe.rsa_condition, layers,
+                           probe.rsa_variables)
+        an.plot_similarity(similarity, f"{out}_similarity.png")
+        summary["rsa_condition"] = probe.rsa_condition
+        summary["rsa_model_similarity"] = similarity["model_similarity"].to_pandas().round(3).to_dict()
+        save("similarity")
+    components = timed(seconds, "principal_components", an.principal_components, part, layers)
+    summary["pca_components_for_90pct"] = dict(zip(layers, components["dimensionality"].values.tolist(), strict=True))
+    points = timed(seconds, "fixed_points", an.agent_fixed_points, agent, part, "network.PMC", "network.PMC_in",
+                   starts=args.fixed_point_starts, iterations=args.fixed_point_iterations)
+    an.plot_dynamics(components, f"{out}_dynamics.png", points)
+    summary["fixed_points"] = {"starts": len(points["fixed"]), "max_speed": float(points["speed"].max()),
+                               "largest_eigenvalue_modulus_median": float(
+                                   np.median(np.abs(points["eigenvalues"][:, 0])))}
+    save("fixed_points")
+    print({k: v for k, v in summary.items() if not k.startswith("decoding") and k != "future"})
+    print(f"{out}_{jax.devices()[0].platform}.json")
 
 
 def predicted_future(part, random_part, layers: list[str], variables: list[str], lags: list[int],

@@ -288,6 +288,7 @@ def test_probe_trained_script_writes_every_part_and_finds_the_reach_policy_needs
     record = results(tmp_path / "probe_cpu.json", "probe")
     summary = record["config"]["summary"]
     assert record["config"]["episodes"] == 32 and summary["run_cycle"] == 120
+    assert summary["stages_done"] == ["record", "decode", "lagged_decode", "ablation", "timescales", "fixed_points"]
     assert all(seconds > 0 for seconds in summary["seconds"].values())
     probe = PROBES["ShadowHandReach"]
     for key in ("decoding_r2", "decoding_noise_baseline", "decoding_r2_random_weights_same_inputs"):
