@@ -44,6 +44,7 @@ from flax import linen as nn
 from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.nets import ActorCritic
+from angora_jax.ppo.evaluate import make_evaluate
 
 # Policy steps compiled as one program when recording until the episodes end: a recording stops at most this many
 # steps after its longest episode ended (a cube episode lasts 100-5,000 steps).
@@ -96,18 +97,18 @@ def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | 
                              "load_agent(run_dir, env_overrides=...).")
     else:
         agent = load_agent(agent, checkpoint, env_overrides)
-    record = run_episodes(agent, episodes, steps, seed, capture=True)
+    record = _run_episodes(agent, episodes, steps, seed)
     return _dataset(agent, record, agent.env.dt, images).assign_attrs(env_overrides="; ".join(env_overrides))
 
 
-def run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: int = 0,
-                 capture: bool = False) -> dict[str, Any]:
+def _run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: int = 0) -> dict[str, Any]:
     """`episodes` batched episodes of `agent` (the policy's mode) from the resets of `seed`, as host arrays
-    `(time, episode, ...)`: inputs, action, value, reward, metrics, alive, steps, task (variables), and with
-    `capture` every layer's activity ("layers"). `steps` policy steps, or with None until every episode has ended
-    (at most the task's episode length): the time axis then ends with the longest episode's last step. Compiled once
-    per agent kind, episode count and length: parameters and normaliser statistics are arguments, so lesioned
-    variants of an agent reuse the program."""
+    `(time, episode, ...)`: inputs, action, value, reward, metrics, alive, steps, task (variables) and every layer's
+    activity ("layers"). `steps` policy steps, or with None until every episode has ended (at most the task's
+    episode length): the time axis then ends with the longest episode's last step. Compiled once per agent kind,
+    episode count and length: parameters and normaliser statistics are arguments, so variants of an agent (random
+    weights, lesions) reuse the program. Steps run in chunks, each copied to the host as it ends, since a whole
+    cube episode of every layer for hundreds of episodes does not fit in GPU memory."""
     env = agent.env.sized_for(episodes)
     limit = steps or env.max_episode_steps
     chunk = steps or min(RECORDING_CHUNK, limit)
@@ -121,21 +122,16 @@ def run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: in
 
         def step(carry, _):
             state, net_carry, alive = carry
-            if capture:
-                net_carry, action, value, layers = layer_activity(acting, net_carry, state.obs)
-            else:
-                net_carry, action, value = acting.act(net_carry, state.obs)
+            net_carry, action, value, layers = layer_activity(acting, net_carry, state.obs)
             next_state = jax.vmap(env.step)(state, action)
             record = {"inputs": state.obs, "action": action, "value": value, "reward": next_state.reward,
                       "metrics": next_state.metrics, "alive": alive, "steps": state.steps,
-                      "task": jax.vmap(env.task_variables)(state)}
-            if capture:
-                record["layers"] = layers
+                      "task": jax.vmap(env.task_variables)(state), "layers": layers}
             return (next_state, net_carry, alive * (1.0 - next_state.done)), record
 
         return jax.lax.scan(step, carry, None, length=chunk)
 
-    programs = agent.compiled_once(("episodes", episodes, chunk, capture),
+    programs = agent.compiled_once(("episodes", episodes, chunk),
                                    lambda: (jax.jit(start), jax.jit(advance)))
     carry, records, done = programs[0](jax.random.key(seed)), [], 0
     while done < limit:
@@ -152,16 +148,14 @@ def run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: in
 
 def episode_outcomes(agent: Agent, episodes: int = 256, steps: int | None = None,
                      seed: int = 0) -> dict[str, np.ndarray]:
-    """Per episode `(episodes,)`: episode_return (rewards through the episode's last step), episode_length (policy
-    steps) and each task metric at the episode's last step (or at step `steps` when it has not ended by then)."""
-    record = run_episodes(agent, episodes, steps, seed)
-    alive = np.asarray(record["alive"])
-    last = np.maximum(alive.sum(0).astype(int) - 1, 0)
-    columns = np.arange(alive.shape[1])
-    outcomes = {"episode_return": (np.asarray(record["reward"]) * alive).sum(0), "episode_length": alive.sum(0)}
-    for name, values in record["metrics"].items():
-        outcomes[name] = np.asarray(values)[last, columns]
-    return outcomes
+    """Per episode `(episodes,)` of `agent` (the policy's mode) from the starts of `seed`: episode_return (rewards
+    through the episode's last step), episode_length (policy steps) and each task metric at the episode's last step
+    (or at step `steps` when it has not ended by then). Runs the evaluation's program (`ppo.make_evaluate`), compiled
+    once per agent kind, episode count and limit: lesioned variants of an agent share it."""
+    program = agent.compiled_once(("outcomes", episodes, steps), lambda: make_evaluate(
+        agent.env, agent.network, agent.config.ppo, episodes, per_episode=True, steps=steps))
+    totals = jax.device_get(program(agent.state, jax.random.key(seed)))
+    return {name.removeprefix("metric/"): np.asarray(value) for name, value in totals.items()}
 
 
 def _dataset(agent: Agent, record: dict[str, Any], dt: float, images: bool) -> xr.Dataset:

@@ -32,18 +32,22 @@ class PolicyState:
 
 def make_evaluate(
     env: Env, network: nn.Module | None, config: PPOConfig, num_envs: int, deterministic: bool = True,
-    per_episode: bool = False,
+    per_episode: bool = False, steps: int | None = None,
 ) -> Callable[[TrainState, jax.Array], dict[str, jax.Array]]:
     """Build the jitted `evaluate(state, key) -> metrics` for the same env, network and config as training.
 
-    Each of `num_envs` fresh environments runs exactly one episode (up to `env.max_episode_steps` steps), acting with
-    the head's mode (or sampling, when not `deterministic`; step t samples with `fold_in(key, t)`); observation stats
-    are read, never updated. The loop stops as soon as every episode has ended, so long limits (a cube episode may
-    last 5,000 steps) cost only the steps the longest episode takes. Metrics:
-    episode_return and episode_length (means over environments), `metric/<name>` at each episode's end; with
-    `per_episode`, each environment's values (arrays `(num_envs,)`) instead of the means.
+    Each of `num_envs` fresh environments runs exactly one episode (up to `steps` policy steps, default
+    `env.max_episode_steps`), acting with the head's mode (or sampling, when not `deterministic`; step t samples with
+    `fold_in(key, t)`); observation stats are read, never updated. The loop stops as soon as every episode has ended,
+    so long limits (a cube episode may last 5,000 steps) cost only the steps the longest episode takes. Metrics:
+    episode_return and episode_length (means over environments), `metric/<name>` at each episode's end (or at the
+    last step run, for an episode that `steps` cut short); with `per_episode`, each environment's values (arrays
+    `(num_envs,)`) instead of the means. The whole loop is one program call: MuJoCo Warp then replays its captured
+    CUDA graphs on the same buffers, where a host loop over chunks of steps (as `analysis.record_activity` runs) hands
+    it new buffer addresses and so new graphs at every call.
     """
     env = env.sized_for(num_envs)
+    limit = steps or env.max_episode_steps
     network = make_network(config.network) if network is None else network
     head = build_head(env, config)
     model = ActorCritic(network, head, make_visual_area(config.network.visual))
@@ -71,12 +75,13 @@ def make_evaluate(
 
         def unfinished(carry):
             t, _, _, running, _ = carry
-            return jnp.logical_and(t < env.max_episode_steps, jnp.any(running > 0))
+            return jnp.logical_and(t < limit, jnp.any(running > 0))
 
         zeros = jnp.zeros((num_envs,), jnp.float32)
         totals = {"episode_return": zeros, "episode_length": zeros, **{f"metric/{k}": zeros for k in env.metric_names}}
         carry = (jnp.zeros((), jnp.int32), env_state, network.initial_carry(num_envs), jnp.ones_like(zeros), totals)
-        *_, totals = jax.lax.while_loop(unfinished, step, carry)
+        _, env_state, _, running, totals = jax.lax.while_loop(unfinished, step, carry)
+        totals.update({f"metric/{k}": totals[f"metric/{k}"] + running * v for k, v in env_state.metrics.items()})
         return totals if per_episode else {name: value.mean() for name, value in totals.items()}
 
     return jax.jit(evaluate)
