@@ -11,9 +11,7 @@ uses the area's activation.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import jax
@@ -22,9 +20,9 @@ import numpy as np
 import optax
 import xarray as xr
 from sklearn.decomposition import PCA
-from threadpoolctl import threadpool_limits
 
 from angora_jax.analysis.decoding import recorded_layers
+from angora_jax.analysis.parallel import map_in_threads
 from angora_jax.experiment.agent import Agent
 from angora_jax.nets.activations import ACTIVATION_RANGES, ACTIVATIONS
 from angora_jax.nets.area_graph import AreaGraph, feedback_inputs
@@ -100,13 +98,10 @@ def find_fixed_points(step: Callable[[jax.Array], jax.Array], starts: jax.Array,
 
     points, speeds = jax.jit(jax.vmap(minimise))(jnp.clip(jnp.asarray(starts, jnp.float32), low, high))
     points = np.asarray(points)
-    # The eigendecomposition is O(n^3) per point: decompose each distinct point (equal to 1e-4) once. LAPACK's
-    # nonsymmetric solver only slows down with several BLAS threads at these sizes (a 512 x 512 Jacobian: 1.1 s with
-    # 2 OpenBLAS threads, 0.33 s with 1, on 2 cores), so each runs on one thread and the points run in parallel.
+    # The eigendecomposition is O(n^3) per point: decompose each distinct point (equal to 1e-4) once.
     _, first, inverse = np.unique(np.round(points, 4), axis=0, return_index=True, return_inverse=True)
     jacobians = np.asarray(jax.vmap(jax.jacobian(step))(jnp.asarray(points[first])), np.float64)
-    with threadpool_limits(1), ThreadPoolExecutor(os.cpu_count()) as pool:
-        distinct = np.stack(list(pool.map(np.linalg.eigvals, jacobians)))
+    distinct = np.stack(map_in_threads(np.linalg.eigvals, jacobians))
     eigenvalues = distinct[inverse.reshape(-1)]
     order = np.argsort(-np.abs(eigenvalues), axis=-1)
     return {"points": points, "speed": np.asarray(speeds), "fixed": np.asarray(speeds) <= tolerance,
