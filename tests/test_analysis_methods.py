@@ -199,6 +199,11 @@ def test_a_layer_correlates_best_with_itself_at_lag_0_when_its_episodes_start_an
     assert float(result["peak_lag"].sel(layer="moving", other="moving")) == 0.0
     acf = autocorrelation(data, "moving", max_lag=8)
     assert np.all(np.abs(acf) <= 1 + 1e-9) and np.all(acf[1] < acf[0]), acf[:3]
+    # Units that change only at the last step: over the pairs (t, t + k) with k > 0, their earlier side is constant.
+    last_step = np.zeros((episodes, steps, 3)) + [0.7, -3.0, 1e-3]
+    last_step[:, -1] = rng.standard_normal((episodes, 3))
+    acf = autocorrelation(data.assign(activity_moving=(data["activity_moving"].dims, last_step)), "moving", max_lag=4)
+    assert np.isfinite(acf[0]).all() and np.isnan(acf[1:]).all(), acf
 
 
 def graph_agent(areas):

@@ -14,12 +14,14 @@ import numpy as np
 import xarray as xr
 
 from angora_jax.analysis.decoding import lagged_steps, recorded_layers
+from angora_jax.analysis.parallel import map_in_threads
 
 
 def autocorrelation(dataset: xr.Dataset, layer: str, max_lag: int = 20) -> np.ndarray:
     """`(max_lag + 1, units)`: the autocorrelation of each unit of `layer` at lags 0..max_lag (policy steps)."""
     alive = dataset["alive"].values > 0
     z = np.asarray(dataset[f"activity_{layer}"].values, np.float64)
+    z = z - z[alive].mean(0)  # so that the one-pass sums below do not cancel
     return np.stack([_lagged_correlation(z, z, alive, lag) for lag in range(max_lag + 1)])
 
 
@@ -27,19 +29,29 @@ def _lagged_correlation(a: np.ndarray, b: np.ndarray, alive: np.ndarray, lag: in
     """Per unit, the Pearson correlation of a(t) with b(t + lag) over the pairs of alive steps of every episode
     (`lag` may be negative); NaN where no pair is alive or a side is constant over the pairs. Each side is centred
     and scaled over the pairs themselves, so |r| <= 1 at every lag and a signal correlates best with itself at lag 0
-    (a mean of products, scaled once over all steps, exceeds 1 where the overlap excludes quiet steps)."""
+    (a mean of products, scaled once over all steps, exceeds 1 where the overlap excludes quiet steps). Inputs
+    centred near 0 keep the one-pass moments exact to rounding."""
     steps = a.shape[1]
     if abs(lag) >= steps:
         return np.full(a.shape[-1], np.nan)
     now, then = lagged_steps(steps, lag)
-    both = alive[:, now] & alive[:, then]
-    if not both.any():
+    both = (alive[:, now] & alive[:, then]).astype(a.dtype)
+    pairs = both.sum()
+    if not pairs:
         return np.full(a.shape[-1], np.nan)
-    x, y = a[:, now][both], b[:, then][both]
-    x, y = x - x.mean(0), y - y.mean(0)
-    scale = np.sqrt((x * x).mean(0) * (y * y).mean(0))
+    x, y = a[:, now], b[:, then]
+
+    # Moments as weighted sums over the (episode, step) grid: gathering the pairs first copied (pairs x units)
+    # arrays several times per lag, 2.7x slower on a cube recording's size.
+    def moment(*sides: np.ndarray) -> np.ndarray:
+        return np.einsum("et" + ",etu" * len(sides) + "->u", both, *sides) / pairs
+
+    mean_x, mean_y = moment(x), moment(y)
+    var_x, var_y = moment(x, x) - mean_x**2, moment(y, y) - mean_y**2
+    # A side constant over the pairs has a variance of rounding error: none, relative to its square's mean.
+    varying = (var_x > 1e-12 * moment(x, x)) & (var_y > 1e-12 * moment(y, y))
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(scale > 0, (x * y).mean(0) / scale, np.nan)
+        return np.where(varying, (moment(x, y) - mean_x * mean_y) / np.sqrt(var_x * var_y), np.nan)
 
 
 def cross_correlation(dataset: xr.Dataset, layers: Sequence[str] | None = None, max_lag: int = 20) -> xr.Dataset:
@@ -75,8 +87,7 @@ def timescales(dataset: xr.Dataset, layers: Sequence[str] | None = None, max_lag
     layers = list(layers or recorded_layers(dataset))
     dt = float(dataset.attrs.get("policy_step_s", 1.0))
     curves, medians, low, high = [], [], [], []
-    for layer in layers:
-        acf = autocorrelation(dataset, layer, max_lag)
+    for acf in map_in_threads(lambda layer: autocorrelation(dataset, layer, max_lag), layers):
         curves.append(np.nanmean(acf, axis=1) if np.isfinite(acf).any() else np.full(max_lag + 1, np.nan))
         tau = np.array([_crossing(acf[:, unit]) for unit in range(acf.shape[1])]) * dt
         finite = tau[np.isfinite(tau)]
