@@ -114,7 +114,8 @@ def _run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: i
     chunk = steps or min(RECORDING_CHUNK, limit)
 
     def start(key):
-        return jax.vmap(env.reset)(jax.random.split(key, episodes)), agent.initial_carry(episodes), jnp.ones(
+        reset_key, _ = jax.random.split(key)  # as `make_evaluate` does: a seed's episodes start alike in both
+        return jax.vmap(env.reset)(jax.random.split(reset_key, episodes)), agent.initial_carry(episodes), jnp.ones(
             (episodes,), jnp.float32)
 
     def advance(policy_state, carry):
@@ -151,7 +152,8 @@ def episode_outcomes(agent: Agent, episodes: int = 256, steps: int | None = None
     """Per episode `(episodes,)` of `agent` (the policy's mode) from the starts of `seed`: episode_return (rewards
     through the episode's last step), episode_length (policy steps) and each task metric at the episode's last step
     (or at step `steps` when it has not ended by then). Runs the evaluation's program (`ppo.make_evaluate`), compiled
-    once per agent kind, episode count and limit: lesioned variants of an agent share it."""
+    once per agent kind, episode count and limit: lesioned variants of an agent share it. The episodes are those
+    `record_activity` records with the same seed."""
     program = agent.compiled_once(("outcomes", episodes, steps), lambda: make_evaluate(
         agent.env, agent.network, agent.config.ppo, episodes, per_episode=True, steps=steps))
     totals = jax.device_get(program(agent.state, jax.random.key(seed)))
