@@ -80,12 +80,11 @@ def opengl(gl_problem):
 def quick_compiles():
     """For a test that runs every program it compiles only briefly (a cycle or two, a few steps): JAX compiles them
     with XLA's CPU backend at optimisation level 0 and LLVM's expensive passes off (tests/quick_compile.py says what
-    that saves), and back to the default afterwards. The setting is part of the compilation cache's key."""
-    import jax
+    that saves), and back to the default afterwards, leaving no quick program in JAX's in-process caches."""
+    from quick_compile import quick_compilation
 
-    jax.config.update("jax_disable_most_optimizations", True)
-    yield
-    jax.config.update("jax_disable_most_optimizations", False)
+    with quick_compilation():
+        yield
 
 
 # The reach run of the brain-area model (`cortical`) that test_reach_learning checks and that the probing tests and

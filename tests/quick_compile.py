@@ -5,9 +5,27 @@ optimised machine code: measured on 2 CPU cores, Humanoid's batched MJX step com
 reset in 14 s instead of 21 s, while 32 steps take 4.5 s instead of 0.9 s. Programs that run long (training) keep
 the default."""
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 import jax
 
 QUICK = {"xla_backend_optimization_level": 0}
+
+
+@contextmanager
+def quick_compilation() -> Iterator[None]:
+    """Within: JAX compiles every program with XLA's CPU backend at optimisation level 0 and LLVM's expensive passes
+    off (`jax_disable_most_optimizations`). The setting is part of the persistent compilation cache's key but not of
+    JAX's in-process caches, which would hand the quick programs to any later compile of the same program in this
+    process (a later test's training loop, or a test comparing runs bit for bit). So those caches are cleared on
+    leaving."""
+    jax.config.update("jax_disable_most_optimizations", True)
+    try:
+        yield
+    finally:
+        jax.config.update("jax_disable_most_optimizations", False)
+        jax.clear_caches()
 
 
 def compile_quickly(function, *example_args):
