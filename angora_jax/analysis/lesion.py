@@ -116,7 +116,7 @@ def plot_ablation(result: xr.Dataset, outcome: str, path: str) -> None:
     fig, ax = plt.subplots(figsize=(1.5 + 0.8 * len(mean), 3.5))
     ax.bar(range(len(mean)), mean, yerr=sem, capsize=3, color="tab:blue")
     ax.set_xticks(range(len(mean)), result["lesion"].values, rotation=30, ha="right")
-    ax.set_ylabel(f"{outcome} (mean +- s.e.m., {result.attrs['episodes']} episodes)")
+    ax.set_ylabel(f"{outcome}\n(mean +- s.e.m., {result.attrs['episodes']} episodes)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
