@@ -42,9 +42,9 @@ def make_evaluate(
     so long limits (a cube episode may last 5,000 steps) cost only the steps the longest episode takes. Metrics:
     episode_return and episode_length (means over environments), `metric/<name>` at each episode's end (or at the
     last step run, for an episode that `steps` cut short); with `per_episode`, each environment's values (arrays
-    `(num_envs,)`) instead of the means. The whole loop is one program call: MuJoCo Warp then replays its captured
-    CUDA graphs on the same buffers, where a host loop over chunks of steps (as `analysis.record_activity` runs) hands
-    it new buffer addresses and so new graphs at every call.
+    `(num_envs,)`) instead of the means. The whole loop is one program call. A host loop over chunks of steps gives
+    MuJoCo Warp new buffer addresses at each call, so new CUDA graphs; such a loop of 50 calls per lesion segfaulted
+    on an H100 (benchmarks/results/cube_cortical_probe_h100.md), and this program did not.
     """
     env = env.sized_for(num_envs)
     limit = steps or env.max_episode_steps
