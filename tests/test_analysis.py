@@ -22,6 +22,7 @@ from angora_jax.analysis import (
     agent_fixed_points,
     decode,
     dense_layers,
+    episode_outcomes,
     lesion,
     lesion_area,
     lesion_fraction,
@@ -82,6 +83,10 @@ def test_recording_is_labelled_episode_by_time_by_unit(agent, recording):
     alive = recording["alive"].values
     assert np.all(np.diff(alive, axis=1) <= 0) and alive[:, 0].all(), "alive until the first episode ends"
     assert recording.attrs["task"] == "CartPole" and recording["time"].attrs["units"] == "s"
+    # The same seed's episodes run without recording (the lesions' program), cut at the same 40 steps.
+    outcomes = episode_outcomes(agent, episodes=10, steps=40)
+    np.testing.assert_array_equal(outcomes["episode_length"], alive.sum(1))
+    np.testing.assert_allclose(outcomes["episode_return"], (recording["reward"] * recording["alive"]).sum("time"))
     # What the network saw: the layer applied again to the recorded inputs of step 5 gives the recorded activity.
     obs = Sensation.make(proprioception=jax.numpy.asarray(recording["input_proprioception"].values[:, 5]))
     _, _, _, layers = record_layers(agent, obs)
@@ -215,6 +220,9 @@ def test_reach_lesions_of_the_somatosensory_area_and_the_goal_hurt_and_an_empty_
         assert gap > 5 * float(np.hypot(sem.sel(lesion=name), sem.sel(lesion="intact"))), (name, result["mean"])
     values = result["outcome_values"]
     np.testing.assert_array_equal(values.sel(lesion="none").values, values.sel(lesion="intact").values)
+    # The intact episodes are those the fixture recorded (same seed, same 30 steps): their final distances agree.
+    recorded = reach[1]["metric_goal_distance"].values[:, -1]
+    np.testing.assert_allclose(values.sel(lesion="intact", outcome="goal_distance").values, recorded, rtol=1e-5)
     with pytest.raises(ValueError, match="No input modality 'vision'.*goal"):
         silence_modality(agent, "vision")
 
