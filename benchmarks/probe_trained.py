@@ -58,6 +58,7 @@ def main(argv: list[str] | None = None) -> None:
     layers, variables = list(probe.layers), list(probe.variables)
     os.makedirs(args.out_dir, exist_ok=True)
     out = os.path.join(args.out_dir, args.name)
+    path = f"{out}_{jax.devices()[0].platform}.json"
     seconds: dict[str, float] = {}
     summary: dict = {"seconds": seconds, "run_cycle": agent.cycle}
     rows: list[dict] = []
@@ -70,7 +71,7 @@ def main(argv: list[str] | None = None) -> None:
     def save(stage: str) -> None:
         """The JSON after each part, so a run cut short keeps what it finished (`stages_done`)."""
         summary["stages_done"] = [*summary.get("stages_done", []), stage]
-        write_results(args.name, config, rows, f"{out}_{jax.devices()[0].platform}.json")
+        write_results(args.name, config, rows, path)
 
     for attempt in ("record_first_with_compile", "record_again"):
         recording = None  # 480 whole cube episodes of every layer hold about 10 GB: never two at once
@@ -126,7 +127,7 @@ def main(argv: list[str] | None = None) -> None:
                                    np.median(np.abs(points["eigenvalues"][:, 0])))}
     save("fixed_points")
     print({k: v for k, v in summary.items() if not k.startswith("decoding") and k != "future"})
-    print(f"{out}_{jax.devices()[0].platform}.json")
+    print(path)
 
 
 def predicted_future(part, random_part, layers: list[str], variables: list[str], lags: list[int],

@@ -46,10 +46,10 @@ def _lagged_correlation(a: np.ndarray, b: np.ndarray, alive: np.ndarray, lag: in
     def moment(*sides: np.ndarray) -> np.ndarray:
         return np.einsum("et" + ",etu" * len(sides) + "->u", both, *sides) / pairs
 
-    mean_x, mean_y = moment(x), moment(y)
-    var_x, var_y = moment(x, x) - mean_x**2, moment(y, y) - mean_y**2
+    mean_x, mean_y, square_x, square_y = moment(x), moment(y), moment(x, x), moment(y, y)
+    var_x, var_y = square_x - mean_x**2, square_y - mean_y**2
     # A side constant over the pairs has a variance of rounding error: none, relative to its square's mean.
-    varying = (var_x > 1e-12 * moment(x, x)) & (var_y > 1e-12 * moment(y, y))
+    varying = (var_x > 1e-12 * square_x) & (var_y > 1e-12 * square_y)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(varying, (moment(x, y) - mean_x * mean_y) / np.sqrt(var_x * var_y), np.nan)
 
