@@ -75,6 +75,34 @@ def test_a_time_limit_stops_with_a_checkpoint_and_resume_continues_exactly(runs,
         aj.train(config(tmp_path, "no_time"), minutes=0.0)
 
 
+def test_a_second_run_of_the_same_settings_reuses_the_traced_programs_and_its_own_seed(runs, tmp_path):
+    """A run of the same task and PPO settings in the same process (here a second seed, and the same seed again)
+    traces neither `init` nor `cycle` again; the seed still picks the run: the same seed ends as the first run did,
+    another one elsewhere. Settings that change the program (another width) trace it anew."""
+    whole = runs[0]
+    traced = []
+
+    def listen(event, _, fun_name="", **__):
+        if event == "/jax/core/compile/jaxpr_trace_duration":
+            traced.append(fun_name)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        again = aj.train(config(tmp_path, "again"))
+        other_seed = aj.train(aj.load_config("cartpole", [*TINY, "ppo.seed=7", f"logging.run_root={tmp_path}",
+                                                         "logging.run_name=seed7"]))
+        assert not {"init", "cycle"} & set(traced), traced
+        aj.train(aj.load_config("cartpole", [*TINY, "ppo.network.width=8", f"logging.run_root={tmp_path}",
+                                             "logging.run_name=narrow"]))
+        assert {"init", "cycle"} <= set(traced), traced
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    for a, b in zip(whole.history, again.history, strict=True):
+        assert {k: v for k, v in a.items() if k not in UNTIMED} == {k: v for k, v in b.items() if k not in UNTIMED}
+    assert other_seed.history[-1]["loss"] != whole.history[-1]["loss"]
+    assert not np.array_equal(jax.tree.leaves(other_seed.state.params)[0], jax.tree.leaves(whole.state.params)[0])
+
+
 def test_sigterm_saves_a_loadable_checkpoint_and_restores_the_handler(runs):
     _, stopped, at_interrupt, _ = runs
     assert stopped.signum == signal.SIGTERM and stopped.cycle == 2

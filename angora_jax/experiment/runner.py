@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import dataclasses
+import json
 import os
 import shutil
 import signal
@@ -15,6 +16,7 @@ import socket
 import sys
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -167,8 +169,34 @@ def initial_state_shape(config: Config, env: Env) -> TrainState:
     running (and without reading pretrained components or the run it starts from: where initial values come from does
     not change a shape)."""
     network = dataclasses.replace(config.ppo.network, pretrained={})
-    init, _ = make_cycle(env, None, config.ppo.replace(network=network, init_from=None), num_devices(config))
+    init, _ = cycle_programs(dataclasses.replace(config, ppo=config.ppo.replace(network=network, init_from=None)), env)
     return jax.eval_shape(init, jax.random.key(config.ppo.seed))
+
+
+# The programs of the last few distinct runs of this process (see cycle_programs); each holds its compiled code.
+_PROGRAMS_KEPT = 2
+_programs: OrderedDict[str, tuple[Callable, Callable]] = OrderedDict()
+
+
+def cycle_programs(config: Config, env: Env) -> tuple[Callable, Callable]:
+    """The run's jitted `init` and `cycle` (`make_cycle`), the same two functions for every run of this process
+    whose task, PPO settings and devices are the same (the seed aside: it only picks the first key). A run resumed
+    or trained in pieces in one process, or the same config trained again in a notebook, then reuses the traced and
+    compiled programs: JAX's persistent cache saves only the compiling, and never holds MuJoCo Warp's programs (each
+    trace gives them a new call id). Runs that read saved values when they start (`ppo.init_from`, pretrained
+    components) get new functions: their files may have changed since."""
+    ppo = config.ppo
+    if ppo.init_from or ppo.network.pretrained:
+        return make_cycle(env, None, ppo, num_devices(config))
+    settings = to_dict(config)
+    key = json.dumps({"env": settings["env"], "ppo": {**settings["ppo"], "seed": None},
+                      "distribution": settings["distribution"], "devices": num_devices(config)}, sort_keys=True)
+    if key not in _programs:
+        _programs[key] = make_cycle(env, None, ppo, num_devices(config))
+        if len(_programs) > _PROGRAMS_KEPT:
+            _programs.popitem(last=False)
+    _programs.move_to_end(key)
+    return _programs[key]
 
 
 def _run(
@@ -227,7 +255,8 @@ def _run(
             # cycle reduces over all devices, so every process raises it after the same cycle; every other reason to
             # stop is this process's own and goes through agree_to_stop, so that all processes stop together.
             cached_before = compilation_cache.counts()
-            for latest, metrics in training_cycles(config.ppo, env, None, state, num_devices(config)):
+            programs = cycle_programs(config, env)
+            for latest, metrics in training_cycles(config.ppo, env, None, state, num_devices(config), programs):
                 if "compile_seconds" in metrics:  # the programs this session compiled, and those read from the cache
                     cached = compilation_cache.counts()
                     metrics |= {f"compile_cache_{kind}": cached[kind] - cached_before[kind] for kind in cached}

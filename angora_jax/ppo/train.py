@@ -50,6 +50,7 @@ def training_cycles(
     network: nn.Module | None = None,
     state: TrainState | None = None,
     num_devices: int = 1,
+    programs: tuple[Callable, Callable] | None = None,
 ) -> Iterator[tuple[TrainState, dict[str, float]]]:
     """Yield `(state, metrics)` after each cycle, from `state.cycle` (0 for a fresh state) to `config.num_cycles`.
 
@@ -59,9 +60,10 @@ def training_cycles(
     A generator, so that a caller can checkpoint, log or stop between cycles. Besides the cycle's metrics (see
     `make_cycle`), each dict holds cycle, env_steps, seconds (wall time of the cycle) and steps_per_second; the first
     cycle run by this call includes compilation, reported as compile_seconds. Raises TrainingDivergedError when
-    training produces non-finite values.
+    training produces non-finite values. programs: `make_cycle(env, network, config, num_devices)`, made by the
+    caller (to reuse across calls); made here when None.
     """
-    init, cycle = make_cycle(env, network, config, num_devices)
+    init, cycle = make_cycle(env, network, config, num_devices) if programs is None else programs
     if state is None:
         state = init(jax.random.key(config.seed))
     elif not state.has_environments and int(state.cycle) < config.num_cycles:
