@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from angora_jax.envs.core import Env
-from angora_jax.envs.mjx_env import mjx  # through ours, which drops mujoco-mjx's notice that optional Warp is absent
+from angora_jax.envs.mjx_env import mjx_module  # ours drops mujoco-mjx's notice that optional Warp is absent
 from angora_jax.envs.random_rollout import batched_reset, make_random_rollout
 from angora_jax.experiment.doctor import versions as doctor_versions
 from angora_jax.ppo import PPOConfig, make_cycle
@@ -144,7 +144,7 @@ def raw_mjx_rate(env: Env, num_envs: int, steps: int, repeats: int = 3, seed: in
     def policy_step(data, key):
         ctrl = jax.random.uniform(key, (num_envs, task.model.nu), minval=low, maxval=high)
         data = data.replace(ctrl=ctrl)
-        data = jax.lax.fori_loop(0, env.frame_skip, lambda _, d: jax.vmap(mjx.step, (None, 0))(model, d), data)
+        data = jax.lax.fori_loop(0, env.frame_skip, lambda _, d: jax.vmap(mjx_module().step, (None, 0))(model, d), data)
         return data, None
 
     def rollout(data, key):

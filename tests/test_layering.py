@@ -7,6 +7,8 @@ one registers it with the lower (`nets.components.register_run_reader`,
 and are not counted."""
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -84,3 +86,13 @@ def test_lower_layers_read_runs_and_estimators_through_the_readers_the_higher_on
         components.read_saved_run("runs/x:latest")
     with pytest.raises(RuntimeError, match="needs angora_jax.vision, which registers the reader"):
         shadow_hand.read_pose_estimator("estimator.pose.msgpack")
+
+
+def test_the_package_and_the_command_load_mujoco_mjx_only_when_a_task_needs_it():
+    """`mujoco.mjx` (MuJoCo Warp's import with it) is most of the package's import time: the package, the command and
+    a CartPole environment start without it; a hand task loads it."""
+    check = ("import sys, angora_jax as aj, angora_jax.cli; aj.make('CartPole'); print('mujoco.mjx' in sys.modules); "
+             "aj.make('ShadowHandReach'); print('mujoco.mjx' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["False", "True"], done.stdout

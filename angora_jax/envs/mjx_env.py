@@ -13,7 +13,7 @@ import functools
 import importlib.util
 import inspect
 import io
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -25,11 +25,23 @@ from angora_jax.envs.core import Sensation, State
 from angora_jax.envs.mujoco_task import MujocoEnv, MujocoTask, mjx_impl, mjx_impl_why, start_physics
 from angora_jax.envs.randomization import INFO_KEY
 
-# Without the optional warp-lang, importing mujoco-mjx prints "Failed to import warp" (twice): nothing failed for the
-# default JAX implementation, so that output is dropped then (impl="warp" still raises `require_warp`'s error).
-_WARP_ABSENT = importlib.util.find_spec("warp") is None
-with contextlib.redirect_stdout(io.StringIO()) if _WARP_ABSENT else contextlib.nullcontext():
+if TYPE_CHECKING:
     from mujoco import mjx
+
+_WARP_ABSENT = importlib.util.find_spec("warp") is None
+
+
+@functools.cache
+def mjx_module() -> Any:
+    """`mujoco.mjx`, imported when first needed: it is most of `import angora_jax` (about 5 of 7 s on 2 CPU cores,
+    MuJoCo Warp's import included when warp-lang is installed), which tasks without MuJoCo (CartPole, `make run`) and
+    the command's help never need. Without the optional warp-lang it prints "Failed to import warp" (twice): nothing
+    failed for the default JAX implementation, so that output is dropped then (impl="warp" still raises
+    `require_warp`'s error)."""
+    with contextlib.redirect_stdout(io.StringIO()) if _WARP_ABSENT else contextlib.nullcontext():
+        from mujoco import mjx
+    return mjx
+
 
 # MuJoCo Warp keeps one contact buffer for all environments of a batch, sized when the data is made (before the
 # batch size is known): it holds this many environments' worst case. Larger batches can run out of contact slots
@@ -84,7 +96,7 @@ def local_device(impl: str) -> jax.Device:
 def warp_sizes(model: mujoco.MjModel, max_envs: int) -> dict[str, int]:
     """Warp's buffer sizes for `model`: contacts for `max_envs` environments (`naconmax`) and constraint rows per
     environment (`njmax`), each the worst case MJX's JAX implementation allocates (every candidate pair touching)."""
-    data = mjx.make_data(model, device=local_device("jax"), impl="jax")
+    data = mjx_module().make_data(model, device=local_device("jax"), impl="jax")
     return {"naconmax": max(1, data._impl.contact.dist.shape[0]) * max_envs, "njmax": data._impl.efc_J.shape[0]}
 
 
@@ -142,7 +154,7 @@ class MjxEnv(MujocoEnv):
             size_warp_graph_cache()
             sizes = warp_sizes(task.model, warp_max_envs or WARP_MAX_ENVS)
         device = local_device(self.impl)
-        self.mjx_model = mjx.put_model(task.model, device=device, impl=self.impl)
+        self.mjx_model = mjx_module().put_model(task.model, device=device, impl=self.impl)
         if self.impl == "warp":
             self.mjx_model = quiet_iteration_caps(self.mjx_model)
             if task.body_dynamics:  # each step's forward then ends with rne_postconstraint (cfrc_ext), see `_step`
@@ -151,9 +163,9 @@ class MjxEnv(MujocoEnv):
         fixed_qpos = None if task.random_initial_qpos else np.asarray(task.initial_qpos(jax.random.key(0)))
         self._start = None
         if fixed_qpos is not None:
-            self._start = mjx.put_data(task.model, start_physics(task, fixed_qpos), device=device, impl=self.impl,
-                                       **sizes)
-        self._data0 = mjx.make_data(task.model, device=device, impl=self.impl, **sizes)
+            self._start = mjx_module().put_data(task.model, start_physics(task, fixed_qpos), device=device,
+                                                impl=self.impl, **sizes)
+        self._data0 = mjx_module().make_data(task.model, device=device, impl=self.impl, **sizes)
         self._cameras = self._make_cameras()
         self._sized: dict[int, MjxEnv] = {}
 
@@ -250,7 +262,7 @@ class MjxEnv(MujocoEnv):
         if self._start is None:
             qpos, qvel = self.task.initial_qpos(pose_key), self.task.initial_qvel(jax.random.fold_in(pose_key, 1))
             model = self.mjx_model if randomizer is None else randomizer.apply(self.mjx_model, factors)
-            data = mjx.forward(model, self._data0.replace(qpos=qpos, qvel=qvel))
+            data = mjx_module().forward(model, self._data0.replace(qpos=qpos, qvel=qvel))
             # MJX's forward writes free joints' quaternions back normalised, C MuJoCo's (the twin, Gymnasium) does not:
             # the start keeps the drawn qpos as C MuJoCo does (Ant's start draws unnormalised ones).
             data = data.replace(qpos=qpos, ctrl=self.task.initial_control(self.task.snapshot(data)))
@@ -267,11 +279,11 @@ class MjxEnv(MujocoEnv):
         prev = self.task.snapshot(physics)
         ctrl, info = self._control_task(action, key, prev, info)
         data = physics.replace(ctrl=ctrl)
-        data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(model, d), data)
+        data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx_module().step(model, d), data)
         # C MuJoCo's `step_physics` calls rne_postconstraint after the last physics step: from the state that step's
         # forward pass left, which is where Warp computed it (`run_rne_postconstraint`); MJX's JAX step does not.
         if self.task.body_dynamics and self.impl == "jax":
-            data = mjx.rne_postconstraint(model, data)
+            data = mjx_module().rne_postconstraint(model, data)
         obs, reward, terminated, info, metrics = self._advance_task(key, prev, self.task.snapshot(data), info)
         return data, self._unseen(obs), reward, terminated, info, metrics
 
