@@ -174,7 +174,7 @@ def initial_state_shape(config: Config, env: Env) -> TrainState:
 
 
 # The programs of the last few distinct runs of this process (see cycle_programs); each holds its compiled code.
-_PROGRAMS_KEPT = 2
+_PROGRAMS_KEPT = 4
 _programs: OrderedDict[str, tuple[Callable, Callable]] = OrderedDict()
 
 
