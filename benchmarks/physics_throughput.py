@@ -72,7 +72,7 @@ import numpy as np
 from common import markdown_table, peak_memory_bytes, raw_mjx_rate, write_results
 
 from angora_jax.envs.core import Sensation
-from angora_jax.envs.mjx_env import WARP_REQUIREMENT, MjxEnv, mjx
+from angora_jax.envs.mjx_env import WARP_REQUIREMENT, MjxEnv, mjx_module
 from angora_jax.envs.mujoco_task import MujocoTask, set_mjx_impl, start_physics
 from angora_jax.envs.shadow_hand import REACH_PHYSICS
 from angora_jax.envs.shadow_hand.cube import CUBE_PHYSICS, load_cube_scene
@@ -80,6 +80,7 @@ from angora_jax.envs.shadow_hand.ihom import Ihom, angular_distance
 from angora_jax.envs.shadow_hand.model import GYM_PHYSICS, PhysicsSettings, load_scene
 from angora_jax.envs.shadow_hand.reach import Reach
 
+mjx = mjx_module()
 REACH_DT, CUBE_DT = 0.02, 0.08  # s per policy step of the tasks
 CUBE_HORIZON = 25  # policy steps of the cube fidelity checks (2 s)
 MENAGERIE_SCENE = os.path.join(os.path.dirname(mjx.__file__), "test_data", "shadow_hand", "scene_right.xml")
