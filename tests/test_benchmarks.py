@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from benchmark_results import BENCHMARKS, results
 from brax.envs.wrappers import training as brax_training
 from quick_compile import QUICK_SUBPROCESS
 from scipy import stats
@@ -428,3 +429,31 @@ def test_snapshot_evaluations_set_each_snapshot_beside_the_training_mean_since_t
     (run / "evaluation" / "b.json").unlink()
     with pytest.raises(SystemExit, match="no evaluations"):
         snapshot_evaluations.read_run(run)
+
+
+def test_suite_profile_accounts_every_test_its_compiles_and_its_subprocesses(tmp_path):
+    """suite_profile.py on two small test files (one jits GAE, one starts subprocesses), with a compilation cache of
+    its own: a row for each test pytest itself reports (its JUnit XML), the XLA compiles found where the test jits and
+    the subprocesses' CPU time where it waits for them, and files and suite that add up their tests."""
+    import xml.etree.ElementTree as ElementTree
+
+    out, junit = tmp_path / "profile.json", tmp_path / "junit.xml"
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}  # not this suite's, read warm
+    subprocess.run([sys.executable, str(BENCHMARKS / "suite_profile.py"), "--out", str(out), "tests/test_gae.py",
+                    "tests/test_layering.py", "-n", "0", "-q", "--junitxml", str(junit)], check=True, env=env)
+    record = results(out, "suite_profile")
+    assert record["config"]["pytest_args"][:2] == ["tests/test_gae.py", "tests/test_layering.py"]
+    rows = {(row["scope"], row["name"]): row for row in record["results"]}
+    reported = {f"tests/{case.get('classname').split('.')[-1]}.py::{case.get('name')}"
+                for case in ElementTree.parse(junit).iter("testcase")}
+    assert {name for scope, name in rows if scope == "test"} == reported and len(reported) >= 5
+    gae = rows["test", "tests/test_gae.py::test_gae_matches_reference_loop_with_terminations_and_truncations"]
+    assert gae["compiles"] > 0 and gae["compile_s"] > 0 and gae["cpu_s"] > 0 and gae["subprocess_cpu_s"] == 0
+    layering = "tests/test_layering.py::test_the_package_and_the_command_load_mujoco_mjx_only_when_a_task_needs_it"
+    mjx = rows["test", layering]
+    assert mjx["subprocess_cpu_s"] > 1.0, "it starts Python with angora_jax imported, twice"
+    suite = rows["suite", "all"]
+    for measure in ("wall_s", "cpu_s", "subprocess_cpu_s", "compile_s", "compiles"):
+        files = sum(row[measure] for (scope, _), row in rows.items() if scope == "file")
+        assert suite[measure] == pytest.approx(files, abs=0.05), measure
+    assert suite["tests"] == len(reported) and suite["pytest_cpu_s"] >= suite["cpu_s"] + suite["subprocess_cpu_s"]
