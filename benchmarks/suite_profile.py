@@ -57,8 +57,7 @@ def _now() -> dict[str, float]:
             "subprocess_cpu_s": children.ru_utime + children.ru_stime, **_totals}
 
 
-@pytest.hookimpl(hookwrapper=True)
-def pytest_runtest_protocol(item, nextitem):
+def _record(item, phase: str):
     folder = os.environ.get(FOLDER)
     if not folder:
         yield
@@ -69,19 +68,12 @@ def pytest_runtest_protocol(item, nextitem):
 
         jax.monitoring.register_event_duration_secs_listener(_on_event)
         _listening = True
+    before = _now()
     yield
-
-
-def _record(item, phase: str):
-    folder = os.environ.get(FOLDER)
-    before = _now() if folder else None
-    yield
-    if folder:
-        after = _now()
-        row = {"test": item.nodeid, "phase": phase, **{k: round(after[k] - before[k], 3) for k in MEASURES}}
-        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
-        with open(Path(folder) / f"{worker}.jsonl", "a") as f:
-            f.write(json.dumps(row) + "\n")
+    after = _now()
+    row = {"test": item.nodeid, "phase": phase, **{k: round(after[k] - before[k], 3) for k in MEASURES}}
+    with open(Path(folder) / f"{os.environ.get('PYTEST_XDIST_WORKER', 'main')}.jsonl", "a") as f:
+        f.write(json.dumps(row) + "\n")
 
 
 @pytest.hookimpl(hookwrapper=True)
