@@ -1,6 +1,7 @@
 """Checkpoints: a run stopped by SIGTERM saves a loadable checkpoint, and `resume` continues bit-for-bit like
 an uninterrupted run; best and snapshot checkpoints are kept; run directories are never overwritten."""
 
+import contextlib
 import json
 import os
 import shutil
@@ -55,8 +56,25 @@ def runs(tmp_path_factory):
         aj.train(config(root, "split"), on_cycle=terminate_after_cycle_2)
     split_dir = root / "split"
     at_interrupt = Checkpoints(split_dir / CHECKPOINTS, config(root, "split").checkpoint).steps("latest")
-    resumed = resume(split_dir)
-    return whole, stopped.value, at_interrupt, resumed
+    with compiles() as compiled:
+        resumed = resume(split_dir)
+    return whole, stopped.value, at_interrupt, resumed, compiled
+
+
+@contextlib.contextmanager
+def compiles():
+    """Within: the names of the programs JAX compiles (or reads from the persistent cache), in a list."""
+    compiled = []
+
+    def listen(event, _, fun_name="", **__):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(fun_name)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        yield compiled
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
 
 
 def test_a_time_limit_stops_with_a_checkpoint_and_resume_continues_exactly(runs, tmp_path):
@@ -104,7 +122,7 @@ def test_a_second_run_of_the_same_settings_reuses_the_traced_programs_and_its_ow
 
 
 def test_sigterm_saves_a_loadable_checkpoint_and_restores_the_handler(runs):
-    _, stopped, at_interrupt, _ = runs
+    _, stopped, at_interrupt, *_ = runs
     assert stopped.signum == signal.SIGTERM and stopped.cycle == 2
     assert at_interrupt == [2]  # checkpoint.every=100: only the interruption made it save
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
@@ -113,7 +131,10 @@ def test_sigterm_saves_a_loadable_checkpoint_and_restores_the_handler(runs):
 
 
 def test_resume_equals_uninterrupted(runs):
-    whole, _, _, resumed = runs
+    """The resumed run ends as the uninterrupted one, and its state, read from the checkpoint, ran the programs that
+    the same process compiled for the fresh run (the state's placement on the device is part of a program's key)."""
+    whole, _, _, resumed, compiled = runs
+    assert not {"jit(init)", "jit(cycle)"} & set(compiled), compiled
     assert [r["cycle"] for r in resumed.history] == [3, 4]
     for a, b in zip(whole.history[2:], resumed.history, strict=True):
         assert {k: v for k, v in a.items() if k not in UNTIMED} == {k: v for k, v in b.items() if k not in UNTIMED}

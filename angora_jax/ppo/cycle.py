@@ -282,7 +282,12 @@ def make_cycle(
         return new_state, metrics
 
     if num_devices == 1:
-        init_fn, cycle_fn = jax.jit(init), jax.jit(cycle)
+        # The state's placement is part of what a jitted function is compiled for: a fresh state is uncommitted, one
+        # restored from a checkpoint is committed to the device (and the cycle's outputs then too), and each would
+        # compile the cycle anew (a resume compiled it twice). Fixed shardings give every state one program.
+        device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+        init_fn = jax.jit(init, out_shardings=device)
+        cycle_fn = jax.jit(cycle, in_shardings=device, out_shardings=device)
     else:
         specs = partition_specs()
         init_fn = data_parallel(init, P(), specs, num_devices)
