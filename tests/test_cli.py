@@ -306,20 +306,24 @@ def test_progress_is_a_live_line_on_a_terminal_and_log_lines_elsewhere():
 
 def test_a_second_run_reads_every_program_from_the_compilation_cache(tmp_path, monkeypatch):
     """`train` keeps compiled programs in ANGORA_JAX_CACHE: the same config run again compiles nothing (counted by
-    JAX's cache events in the first cycle's record); ANGORA_JAX_CACHE=off, or several processes without a directory
+    JAX's cache events in the first cycle's record), and neither does `resume` in a new process (its state, read from
+    a checkpoint, runs the fresh run's programs); ANGORA_JAX_CACHE=off, or several processes without a directory
     named, leave it off."""
     environment = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}  # conftest's own cache
     cache = tmp_path / "cache"
-    for name in ("first", "second"):
-        subprocess.run([sys.executable, "-m", "angora_jax.cli", "train", "cartpole", *TINY, "ppo.num_cycles=2",
-                        f"logging.run_root={tmp_path}", f"logging.run_name={name}"],
-                       env=environment | {"ANGORA_JAX_CACHE": str(cache)}, check=True, capture_output=True,
-                       timeout=300)
-    first, second = (read_metrics(tmp_path / name)[0] for name in ("first", "second"))
+    commands = {"first": ["train", "cartpole", *TINY, "ppo.num_cycles=3", f"logging.run_root={tmp_path}",
+                          "logging.run_name=first"]}
+    commands["second"] = [*commands["first"][:-1], "logging.run_name=second", "--minutes", "1e-9"]
+    commands["resumed"] = ["resume", str(tmp_path / "second")]
+    for command in commands.values():
+        subprocess.run([sys.executable, "-m", "angora_jax.cli", *command], env=environment | {"ANGORA_JAX_CACHE": str(
+            cache)}, check=True, capture_output=True, timeout=300)
+    first, second, resumed = read_metrics(tmp_path / "first")[0], *read_metrics(tmp_path / "second")[:2]
     assert first["compile_cache_hits"] == 0 and first["compile_cache_misses"] >= 2, "init and the cycle at least"
     assert second["compile_cache_misses"] == 0 and second["compile_cache_hits"] == first["compile_cache_misses"]
+    assert resumed["cycle"] == 2 and resumed["compile_cache_misses"] == 0 and resumed["compile_cache_hits"] >= 1
     assert any(cache.iterdir())
-    assert "compile_cache_hits" not in read_metrics(tmp_path / "second")[1], "the first cycle of a session only"
+    assert "compile_cache_hits" not in read_metrics(tmp_path / "second")[2], "the first cycle of a session only"
     ours = jax.config.jax_compilation_cache_dir  # this test process's (conftest's), which enable() would keep
     jax.config.update("jax_compilation_cache_dir", None)
     try:
