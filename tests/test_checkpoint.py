@@ -56,23 +56,23 @@ def runs(tmp_path_factory):
         aj.train(config(root, "split"), on_cycle=terminate_after_cycle_2)
     split_dir = root / "split"
     at_interrupt = Checkpoints(split_dir / CHECKPOINTS, config(root, "split").checkpoint).steps("latest")
-    with compiles() as compiled:
+    with jax_events("backend_compile_duration") as compiled:  # compiled or read from the persistent cache
         resumed = resume(split_dir)
     return whole, stopped.value, at_interrupt, resumed, compiled
 
 
 @contextlib.contextmanager
-def compiles():
-    """Within: the names of the programs JAX compiles (or reads from the persistent cache), in a list."""
-    compiled = []
+def jax_events(event: str):
+    """Within: the names of the functions for which JAX reports `/jax/core/compile/<event>`, in a list."""
+    names = []
 
-    def listen(event, _, fun_name="", **__):
-        if event == "/jax/core/compile/backend_compile_duration":
-            compiled.append(fun_name)
+    def listen(name, _, fun_name="", **__):
+        if name == f"/jax/core/compile/{event}":
+            names.append(fun_name)
 
     jax.monitoring.register_event_duration_secs_listener(listen)
     try:
-        yield compiled
+        yield names
     finally:
         jax.monitoring.unregister_event_duration_listener(listen)
 
@@ -98,14 +98,7 @@ def test_a_second_run_of_the_same_settings_reuses_the_traced_programs_and_its_ow
     traces neither `init` nor `cycle` again; the seed still picks the run: the same seed ends as the first run did,
     another one elsewhere. Settings that change the program (another width) trace it anew."""
     whole = runs[0]
-    traced = []
-
-    def listen(event, _, fun_name="", **__):
-        if event == "/jax/core/compile/jaxpr_trace_duration":
-            traced.append(fun_name)
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
+    with jax_events("jaxpr_trace_duration") as traced:
         again = aj.train(config(tmp_path, "again"))
         other_seed = aj.train(aj.load_config("cartpole", [*TINY, "ppo.seed=7", f"logging.run_root={tmp_path}",
                                                          "logging.run_name=seed7"]))
@@ -113,8 +106,6 @@ def test_a_second_run_of_the_same_settings_reuses_the_traced_programs_and_its_ow
         aj.train(aj.load_config("cartpole", [*TINY, "ppo.network.width=8", f"logging.run_root={tmp_path}",
                                              "logging.run_name=narrow"]))
         assert {"init", "cycle"} <= set(traced), traced
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
     for a, b in zip(whole.history, again.history, strict=True):
         assert {k: v for k, v in a.items() if k not in UNTIMED} == {k: v for k, v in b.items() if k not in UNTIMED}
     assert other_seed.history[-1]["loss"] != whole.history[-1]["loss"]
