@@ -1,7 +1,6 @@
 """Checkpoints: a run stopped by SIGTERM saves a loadable checkpoint, and `resume` continues bit-for-bit like
 an uninterrupted run; best and snapshot checkpoints are kept; run directories are never overwritten."""
 
-import contextlib
 import json
 import os
 import shutil
@@ -12,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import yaml
+from jax_events import jax_events
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -59,22 +59,6 @@ def runs(tmp_path_factory):
     with jax_events("backend_compile_duration") as compiled:  # compiled or read from the persistent cache
         resumed = resume(split_dir)
     return whole, stopped.value, at_interrupt, resumed, compiled
-
-
-@contextlib.contextmanager
-def jax_events(event: str):
-    """Within: the names of the functions for which JAX reports `/jax/core/compile/<event>`, in a list."""
-    names = []
-
-    def listen(name, _, fun_name="", **__):
-        if name == f"/jax/core/compile/{event}":
-            names.append(fun_name)
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
-        yield names
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
 
 
 def test_a_time_limit_stops_with_a_checkpoint_and_resume_continues_exactly(runs, tmp_path):

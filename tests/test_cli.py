@@ -311,19 +311,17 @@ def test_a_second_run_reads_every_program_from_the_compilation_cache(tmp_path, m
     named, leave it off."""
     environment = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}  # conftest's own cache
     cache = tmp_path / "cache"
-    commands = {"first": ["train", "cartpole", *TINY, "ppo.num_cycles=3", f"logging.run_root={tmp_path}",
-                          "logging.run_name=first"]}
-    commands["second"] = [*commands["first"][:-1], "logging.run_name=second", "--minutes", "1e-9"]
-    commands["resumed"] = ["resume", str(tmp_path / "second")]
-    for command in commands.values():
+    train = ["train", "cartpole", *TINY, "ppo.num_cycles=3", f"logging.run_root={tmp_path}"]
+    for command in ([*train, "logging.run_name=first"], [*train, "logging.run_name=second", "--minutes", "1e-9"],
+                    ["resume", str(tmp_path / "second")]):
         subprocess.run([sys.executable, "-m", "angora_jax.cli", *command], env=environment | {"ANGORA_JAX_CACHE": str(
             cache)}, check=True, capture_output=True, timeout=300)
-    first, second, resumed = read_metrics(tmp_path / "first")[0], *read_metrics(tmp_path / "second")[:2]
+    first, (second, resumed, after) = read_metrics(tmp_path / "first")[0], read_metrics(tmp_path / "second")
     assert first["compile_cache_hits"] == 0 and first["compile_cache_misses"] >= 2, "init and the cycle at least"
     assert second["compile_cache_misses"] == 0 and second["compile_cache_hits"] == first["compile_cache_misses"]
     assert resumed["cycle"] == 2 and resumed["compile_cache_misses"] == 0 and resumed["compile_cache_hits"] >= 1
     assert any(cache.iterdir())
-    assert "compile_cache_hits" not in read_metrics(tmp_path / "second")[2], "the first cycle of a session only"
+    assert "compile_cache_hits" not in after, "the first cycle of a session only"
     ours = jax.config.jax_compilation_cache_dir  # this test process's (conftest's), which enable() would keep
     jax.config.update("jax_compilation_cache_dir", None)
     try:

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from jax._src import monitoring  # the public module registers listeners but cannot remove them
+from jax_events import jax_events
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -80,20 +80,13 @@ def test_evaluating_again_compiles_nothing(run_dir):
     """Another call (another checkpoint, seed or path) reuses the compiled policy, task logic and batched program."""
     for path in evaluation.PATHS:
         evaluate(run_dir, "latest", episodes=4, save=False, path=path)
-    compiles = []
-
-    def count(event, duration, **kwargs):
-        if event == "/jax/core/compile/backend_compile_duration":
-            compiles.append(duration)
-
-    jax.monitoring.register_event_duration_secs_listener(count)
     # Off: the suite's persistent compilation cache would turn a repeated compile into a read that this misses.
     jax.config.update("jax_enable_compilation_cache", False)
     try:
-        for path in evaluation.PATHS:
-            assert evaluate(run_dir, "best", episodes=4, seed=3, save=False, path=path).meta["episodes"] == 4
+        with jax_events("backend_compile_duration") as compiles:
+            for path in evaluation.PATHS:
+                assert evaluate(run_dir, "best", episodes=4, seed=3, save=False, path=path).meta["episodes"] == 4
     finally:
-        monitoring.unregister_event_duration_listener(count)
         jax.config.update("jax_enable_compilation_cache", True)
     assert compiles == []
 
