@@ -236,16 +236,16 @@ def inner_jaxprs(eqn) -> list:
     return found
 
 
-def scan_bodies(jaxpr) -> list:
-    """The body of every scan in `jaxpr`, nested programs searched."""
-    bodies = []
+def scans(jaxpr) -> list:
+    """Every scan equation in `jaxpr`, nested programs searched (its body: `eqn.params["jaxpr"].jaxpr`)."""
+    found = []
     for eqn in jaxpr.eqns:
         if eqn.primitive.name == "scan":
-            bodies.append(eqn.params["jaxpr"].jaxpr)
+            found.append(eqn)
         else:
             for inner in inner_jaxprs(eqn):
-                bodies.extend(scan_bodies(inner))
-    return bodies
+                found.extend(scans(inner))
+    return found
 
 
 def matmuls(jaxpr) -> int:
@@ -254,15 +254,23 @@ def matmuls(jaxpr) -> int:
                for eqn in jaxpr.eqns)
 
 
-# network, its cell, the cells it scans, and the matrix products of one cell's step (flax's GRU: three for the input,
-# three for the state; its optimized LSTM: one for each)
-@pytest.mark.parametrize("name,cell,cells,products", [("cortical", "gru", 1, 6), ("lstm", None, 2, 2),
-                                                       ("simple", None, 0, 0)])
-def test_networks_that_run_sequences_match_the_step_scan_with_only_their_cells_scanned(name, cell, cells, products):
+# network, its cell, the cells it scans, the matrix products of one cell's step (flax's GRU: three for the input,
+# three for the state; its optimized LSTM: one for each), and whether the cells' scans are unrolled as on a GPU
+@pytest.mark.parametrize("name,cell,cells,products,gpu_unroll", [
+    ("cortical", "gru", 1, 6, False), ("lstm", None, 2, 2, False), ("lstm", None, 2, 2, True),
+    ("simple", None, 0, 0, False)], ids=["cortical-gru", "lstm", "lstm-unrolled-as-on-gpu", "simple"])
+def test_networks_that_run_sequences_match_the_step_scan_with_only_their_cells_scanned(name, cell, cells, products,
+                                                                                      gpu_unroll, monkeypatch):
     """Training runs a built-in network over a whole chunk (`runs_sequences`): dense layers on all s x B rows, only
     the recurrent cells scanned. Outputs, final carry and gradients equal those of the scan over whole steps, with
-    the carry reset at episode starts, and the scanned body holds only the cell's matrix products."""
+    the carry reset at episode starts, and the scanned body holds only the cell's matrix products. On a CPU the
+    cells' scans loop step by step; on a GPU they unroll the whole chunk, which `gpu_unroll` runs here on the CPU."""
+    from angora_jax.nets import models
     from angora_jax.nets.cortical import AREA_SIZES
+
+    assert models.unrolled_steps(T) == 1, "a CPU loops"
+    if gpu_unroll:
+        monkeypatch.setattr(models, "unrolled_steps", lambda length: length)
 
     config = NetworkConfig(name=name, width=8, cell_size=8, cell=cell,
                            areas={area: 6 for area in AREA_SIZES} if name == "cortical" else {})
@@ -288,9 +296,12 @@ def test_networks_that_run_sequences_match_the_step_scan_with_only_their_cells_s
     np.testing.assert_allclose(whole, stepped, rtol=1e-5)
     for a, b in zip(jax.tree.leaves((carry, grads)), jax.tree.leaves((stepped_carry, stepped_grads)), strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
-    bodies = scan_bodies(jax.make_jaxpr(lambda p: loss(p, True)[0])(params).jaxpr)
-    stepped_bodies = scan_bodies(jax.make_jaxpr(lambda p: loss(p, False)[0])(params).jaxpr)
+    cell_scans = scans(jax.make_jaxpr(lambda p: loss(p, True)[0])(params).jaxpr)
+    bodies = [eqn.params["jaxpr"].jaxpr for eqn in cell_scans]
+    stepped_scans = scans(jax.make_jaxpr(lambda p: loss(p, False)[0])(params).jaxpr)
+    stepped_bodies = [eqn.params["jaxpr"].jaxpr for eqn in stepped_scans]
     assert len(bodies) == cells  # the plain LSTM's value pathway has a cell of its own
+    assert [eqn.params["unroll"] for eqn in cell_scans] == [T if gpu_unroll else 1] * cells
     assert sum(matmuls(body) for body in bodies) == cells * products
     if cells:
         assert sum(matmuls(body) for body in stepped_bodies) > cells * products
