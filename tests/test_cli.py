@@ -14,6 +14,7 @@ from pathlib import Path
 import jax
 import mujoco
 import pytest
+from quick_compile import QUICK_SUBPROCESS
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -337,10 +338,10 @@ def test_a_second_run_reads_every_program_from_the_compilation_cache(tmp_path, m
 def test_one_process_per_device_through_the_command_and_the_host_launcher(tmp_path):
     """examples/multi_gpu_host.sh starts `angora-jax train ... --distributed --coordinator --num-processes
     --process-id --local-devices` once per device (here 2 CPU processes for 2 "GPUs"): one run directory, logged by
-    process 0, trained over both."""
+    process 0, trained over both. Two cycles: the processes compile quickly (tests/quick_compile.py)."""
     script = Path(__file__).resolve().parents[1] / "examples" / "multi_gpu_host.sh"
-    environment = os.environ | {"PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}", "GPUS": "2",
-                                "RUN_NAME": "two", "PORT": str(free_port())}
+    environment = os.environ | QUICK_SUBPROCESS | {"PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}",
+                                                   "GPUS": "2", "RUN_NAME": "two", "PORT": str(free_port())}
     tiny = [*TINY, "ppo.num_envs=8", "ppo.num_cycles=2", f"logging.run_root={tmp_path}"]
     done = subprocess.run(["bash", str(script), "cartpole", *tiny], env=environment, capture_output=True, text=True,
                           timeout=300)

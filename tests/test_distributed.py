@@ -29,7 +29,8 @@ BENCHMARKS = TESTS.parent / "benchmarks"
 
 @pytest.mark.parametrize("variant, devices_per_process", [("cartpole", 2), ("warp", 1)])
 def test_two_processes_with_jax_distributed_stop_together_train_in_sync_and_resume_in_one(tmp_path, variant,
-                                                                                         devices_per_process):
+                                                                                         devices_per_process,
+                                                                                         quick_compiles):
     """CartPole on 2 devices per process, and reach on MuJoCo Warp on one device per process (the cluster layout)."""
     with socket.socket() as probe:  # a free port for the coordinator
         probe.bind(("localhost", 0))

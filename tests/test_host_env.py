@@ -31,7 +31,7 @@ def test_gymnasium_cartpole_learns_on_the_host_path(run):
     assert (run.run_dir / "sessions.jsonl").read_text().count("Gymnasium") >= 1, "the physics line names the host"
 
 
-def test_a_host_run_evaluates_and_a_stopped_one_resumes(run, tmp_path):
+def test_a_host_run_evaluates_and_a_stopped_one_resumes(run, tmp_path, quick_compiles):
     result = aj.evaluate(run.run_dir, "latest", episodes=8, save=False)
     assert result.meta["path"] == "batched" and result.summary["episode_return"]["mean"] > BAR
     stopped = aj.train("cartpole", ["env.task=gym:CartPole-v1", "ppo.num_cycles=3", f"logging.run_root={tmp_path}",
@@ -99,7 +99,7 @@ def test_dict_discrete_and_multidiscrete_observations_are_encoded_as_gymnasium_f
     assert states.done.tolist() == [1.0, 1.0]
 
 
-def test_a_task_with_discrete_observations_trains_on_the_host_path(tmp_path):
+def test_a_task_with_discrete_observations_trains_on_the_host_path(tmp_path, quick_compiles):
     run = aj.train("cartpole", ["env.task=gym:Blackjack-v1", "ppo.num_envs=4", "ppo.rollout_length=16",
                                 "ppo.chunk_length=8", "ppo.minibatch_size=32", "ppo.num_epochs=1", "ppo.num_cycles=2",
                                 f"logging.run_root={tmp_path}", "logging.run_name=b", "logging.progress=none",

@@ -256,7 +256,7 @@ class TinyUserNet(nn.Module):
         return carry, features, nn.Dense(1)(features)[..., 0]
 
 
-def test_user_module_and_registered_builder_run_in_the_compiled_cycle():
+def test_user_module_and_registered_builder_run_in_the_compiled_cycle(quick_compiles):
     register_network("test_tiny_user_net", lambda config: TinyUserNet())
     config = PPOConfig(
         num_envs=4,

@@ -286,7 +286,7 @@ def test_the_cube_size_scales_its_geoms_mass_and_inertia_on_every_path(inputs, p
         np.testing.assert_array_equal(batch.models[0].geom_aabb, cpu.model.geom_aabb)
 
 
-def test_a_run_trained_under_randomization_resumes_exactly(tmp_path):
+def test_a_run_trained_under_randomization_resumes_exactly(tmp_path, quick_compiles):
     """Reach under randomization (every kind: fields, delay, noise), 12-step episodes so that auto-resets draw new
     worlds and delays mid-run: stopped after its first cycle (`minutes`) and resumed, it ends as the run that was not
     stopped, metrics and the whole state (drawn factors and delay queues in the environments' info included) bit for

@@ -9,6 +9,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from quick_compile import compile_quickly
 from tensorboardX.proto import event_pb2
 from tiny import TINY_PPO
 
@@ -18,9 +19,13 @@ from angora_jax.ppo.cycle import make_cycle
 
 
 def one_cycle(overrides: list[str]):
+    """The parameters after one cycle, its programs compiled quickly (tests/quick_compile.py): every setting makes
+    programs of its own, each run once."""
     config = load_config("cartpole", [*TINY_PPO, *overrides])
     init, cycle = make_cycle(validate(config), None, config.ppo)
-    state, _ = jax.jit(cycle)(jax.jit(init)(jax.random.key(0)))
+    key = jax.random.key(0)
+    state = compile_quickly(init, key)(key)
+    state, _ = compile_quickly(cycle, state)(state)
     return state.params
 
 

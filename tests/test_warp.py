@@ -71,7 +71,7 @@ def test_a_warp_environment_sizes_warp_graph_cache_for_its_devices():
     assert bound == 32 * len(jax.local_devices())
 
 
-def test_a_warp_run_evaluates_on_the_batched_path_as_on_c_mujoco(two_devices):
+def test_a_warp_run_evaluates_on_the_batched_path_as_on_c_mujoco(two_devices, quick_compiles):
     """`angora-jax evaluate --path batched` steps the saved policy's episodes on Warp (the one-device reach run of
     warp_parallel.py), sized for the episodes at once; the C MuJoCo path plays the same episodes (same reset keys,
     mode actions): the same lengths, returns within 1%."""
