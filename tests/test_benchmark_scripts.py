@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 import pytest
 from benchmark_results import BENCHMARKS, results
+from quick_compile import QUICK_SUBPROCESS
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -29,6 +30,7 @@ from angora_jax.nets.visual import make_visual_encoder
 from angora_jax.vision import PoseEstimator, PoseNet
 
 sys.path.insert(0, str(BENCHMARKS))
+import cell_unroll  # noqa: E402
 import env_throughput  # noqa: E402
 import evaluation_speed  # noqa: E402
 import physics_throughput  # noqa: E402
@@ -58,9 +60,31 @@ def test_train_throughput_divides_the_training_rate_by_the_env_rate_of_the_same_
     assert row["train_frames_per_s"] == 0, "no cameras"
 
 
-def test_train_throughput_trains_shipped_configs_as_they_are(tmp_path):
+def test_cell_unroll_times_one_recurrent_config_looped_and_unrolled(tmp_path, quick_compiles):
+    """Both ways of running a tiny GRU's cell over its 8-step chunks, the CPU's (the loop) marked as this device's,
+    the rates and ratios as the table says."""
+    out = tmp_path / "unroll.json"
+    cell_unroll.main(["cartpole", *TINY_PPO, "ppo.network.name=gru", "ppo.network.width=8", "ppo.network.cell_size=8",
+                      "--repeats", "1", "--out", str(out)])
+    record = results(out, "cell_unroll")
+    loop, unrolled = record["results"]
+    assert (loop["way"], loop["this_device_runs"], unrolled["way"], unrolled["this_device_runs"]) == (
+        "loop", True, "unrolled", False)
+    assert record["config"]["resolved"]["ppo"]["network"]["name"] == "gru"
+    dt = make("CartPole").dt
+    for row in (loop, unrolled):
+        assert row["compile_s"] > 0 and row["env_steps_per_s"] == pytest.approx(4 * 16 / row["cycle_s"])
+        assert row["sim_s_per_s"] == pytest.approx(row["env_steps_per_s"] * dt)
+    for name in ("compile_s", "cycle_s"):
+        assert unrolled[f"{name}_over_loop"] == pytest.approx(unrolled[name] / loop[name])
+
+
+def test_train_throughput_trains_shipped_configs_as_they_are(tmp_path, monkeypatch):
     """`--configs`: each config's own network, rollout and minibatch share, at the given batch size; with several
-    configs or sizes, each measured in its own process, all rows in one file in order."""
+    configs or sizes, each measured in its own process, all rows in one file in order. Those processes time one
+    cycle each, so they compile quickly (tests/quick_compile.py)."""
+    for name, value in QUICK_SUBPROCESS.items():
+        monkeypatch.setenv(name, value)
     out = tmp_path / "configs.json"
     train_throughput.main(["--configs", "cartpole", "--num-envs", "4", "8", "--repeats", "1", "--out", str(out)])
     rows = results(out, "train_throughput")["results"]
