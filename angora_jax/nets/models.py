@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from angora_jax.envs.core import Sensation
+from angora_jax.envs.mjx_env import on_gpu
 
 POLICY_MODALITIES = ("proprioception", "touch", "vision", "goal")
 
@@ -138,8 +139,7 @@ def unrolled_steps(length: int) -> int:
     same steps are computed. Measured by benchmarks/cell_unroll.py: on one H100 at 8,192 envs, unrolled cycles of
     the cube's brain-area config take 0.93 of the loop's time and the paper's 1024-unit LSTM's 0.80; on 2 CPU cores
     the test suite's brain-area reach cycle takes 0.63 s looped against 0.70 s unrolled."""
-    on_gpu = any(device.platform == "gpu" for device in jax.local_devices())
-    return length if on_gpu and length <= MAX_UNROLLED_STEPS else 1
+    return length if on_gpu() and length <= MAX_UNROLLED_STEPS else 1
 
 
 def reset_carry(carry: Any, initial: Any, reset: jax.Array) -> Any:
