@@ -126,7 +126,8 @@ def test_episodes_start_with_the_cube_resting_on_the_palm(cpu, start):
     np.testing.assert_allclose(np.concatenate([named["cube_position"], named["cube_orientation"]]), obs.vision)
     np.testing.assert_allclose(named["cube_rotation"], rotation_matrix(-named["cube_orientation"]), atol=1e-6)
     np.testing.assert_allclose(named["fingertips"], obs.asymmetric[:15])
-    np.testing.assert_allclose(named["rotation_to_goal"], obs.asymmetric[15:19])
+    np.testing.assert_allclose(named["quaternion_to_goal"], obs.asymmetric[15:19])
+    np.testing.assert_allclose(named["rotation_to_goal"], obs.goal[4:])
     np.testing.assert_allclose(np.concatenate([named["cube_velocity"], named["cube_angular_velocity"]]),
                                obs.asymmetric[19:25])
     np.testing.assert_allclose(named["goal_orientation"], info["goal"])

@@ -15,7 +15,8 @@ Episodes run batched on the training path (MJX for MuJoCo tasks, one compiled pr
                                                        by the policy or not: hand tasks' fingertips (m) and
                                                        joint_angles (rad); the cube's position, orientation
                                                        (quaternion and, sign-free, rotation matrix), velocity,
-                                                       angular velocity, goal_orientation, rotation_to_goal
+                                                       angular velocity, goal_orientation, rotation to the
+                                                       goal (quaternion_to_goal; rotation_to_goal, its matrix)
     alive              (episode, time)                 1 until the step that ends the episode (inclusive)
     time_in_episode    (episode, time)                 policy steps since the episode started, in s (coord `time`)
 

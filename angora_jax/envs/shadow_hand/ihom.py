@@ -427,15 +427,18 @@ class Ihom(HandTask):
     def task_variables(self, snap: Snapshot, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
         """The hand's (`HandTask.task_variables`) and the cube's: cube_position (3, m, world), cube_orientation (4,
         quaternion w x y z), cube_rotation (9, its rotation matrix row by row), cube_velocity (3, m/s, world),
-        cube_angular_velocity (3, rad/s, cube frame), goal_orientation (4, quaternion) and rotation_to_goal (4,
-        quaternion from the cube's orientation to the goal), whether the policy sees them or camera images. Decode
-        the orientation as cube_rotation: q and -q are one rotation, so a network that reads a quaternion of the
-        other sign (a pose estimator's) holds the orientation while no linear readout gives the simulator's q."""
+        cube_angular_velocity (3, rad/s, cube frame), goal_orientation (4, quaternion), quaternion_to_goal (4, the
+        rotation from the cube's orientation to the goal, w >= 0, as the value function reads it) and
+        rotation_to_goal (9, its rotation matrix row by row, as the policy's relative goal gives it), whether the
+        policy sees them or camera images. Decode rotations as matrices: q and -q are one rotation, so a network
+        that reads a quaternion of the other sign (a pose estimator's) holds the orientation while no linear readout
+        gives the simulator's q, and the canonical w >= 0 flips x, y and z at half a turn from the goal."""
         pose, velocity = self.cube_pose(snap), snap.qvel[self.cube_dof:self.cube_dof + 6]
+        to_goal = rotation_between(pose[3:], info["goal"])
         return super().task_variables(snap, info) | {
             "cube_position": pose[:3], "cube_orientation": pose[3:], "cube_rotation": rotation_matrix(pose[3:]),
             "cube_velocity": velocity[:3], "cube_angular_velocity": velocity[3:], "goal_orientation": info["goal"],
-            "rotation_to_goal": rotation_between(pose[3:], info["goal"])}
+            "quaternion_to_goal": to_goal, "rotation_to_goal": rotation_matrix(to_goal)}
 
     def evaluate(self, key, prev, snap, info):
         c = self.reward_config
