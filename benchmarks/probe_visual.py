@@ -26,7 +26,7 @@ from angora_jax import analysis as an
 from angora_jax.cli import add_env_option
 
 # What to decode over lags, per task (Env.task_variables): the cube's orientation (rotation matrix, sign-free),
-# angular velocity (rad/s) and rotation to the goal; reach's fingertips (m).
+# angular velocity (rad/s) and rotation to the goal (matrix); reach's fingertips (m).
 VARIABLES = {
     "ShadowHandCube": ("task_cube_rotation", "task_cube_angular_velocity", "task_rotation_to_goal"),
     "ShadowHandReach": ("task_fingertips",),

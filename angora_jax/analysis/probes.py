@@ -58,8 +58,8 @@ PROBES = {
         variables=("input_goal", "input_asymmetric", "input_proprioception", "metric_goal_distance"),
         lesions=reach_lesions, outcomes=("success", "goal_distance")),
     # The cube's variables (Env.task_variables): its orientation (rotation matrix: sign-free, unlike the quaternion),
-    # angular velocity (rad/s, cube frame), the rotation from it to the goal (quaternion), the fingertips (m) and the
-    # touch sensors (N).
+    # angular velocity (rad/s, cube frame), the rotation from it to the goal (rotation matrix), the fingertips (m) and
+    # the touch sensors (N).
     "ShadowHandCube": Probe(
         layers=("network.SSC_1", "network.SSC_2", "network.SPL", "network.IPL", "network.IPS", "network.MCC",
                 "network.LPFC", "network.PMC_in", "network.PMC.1", "network.M1"),
