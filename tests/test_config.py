@@ -2,6 +2,8 @@
 a message that names the key and what is allowed."""
 
 import dataclasses
+import time
+import tracemalloc
 from pathlib import Path
 
 import pytest
@@ -238,3 +240,64 @@ def test_a_field_missing_from_its_docstring_has_no_description():
 
     assert field_descriptions(Section) == {"first": "described.", "second": "also described, over two lines."}
     assert [key.description for key in config_keys(Section)][2] == ""
+
+
+def _alias_bomb(levels: int = 9) -> str:
+    """YAML whose aliases expand to 10**levels strings ("billion laughs") in a few hundred bytes."""
+    lines = ["l0: &l0 [lol, lol, lol, lol, lol, lol, lol, lol, lol, lol]"]
+    lines += [f"l{i}: &l{i} [{', '.join([f'*l{i - 1}'] * 10)}]" for i in range(1, levels)]
+    return "\n".join(lines)
+
+
+def test_an_alias_bomb_is_refused_at_once_in_a_file_and_in_an_override(tmp_path: Path):
+    """A few hundred bytes of nested aliases expand to a billion values; reading them must not hang or eat memory."""
+    bomb = _alias_bomb()
+    (tmp_path / "bomb.yaml").write_text(f"env:\n  options:\n    {bomb.replace(chr(10), chr(10) + '    ')}\n")
+    override = "env.options.junk={" + bomb.replace("\n", ", ") + "}"
+    for source, overrides, where in [(tmp_path / "bomb.yaml", [], r"bomb.yaml"), ("cartpole", [override], "Override")]:
+        tracemalloc.start()
+        started = time.perf_counter()
+        with pytest.raises(ConfigError, match=rf"{where}.* expands to more than 10,000 values .*aliases"):
+            load_config(source, overrides)
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        assert time.perf_counter() - started < 5 and peak < 50e6
+
+
+def test_plain_anchors_and_aliases_still_work(tmp_path: Path):
+    (tmp_path / "run.yaml").write_text(
+        "extends: cartpole\n"
+        "evaluation: {every: &every 5}\n"
+        "checkpoint: {every: *every, snapshot_every: *every}\n"
+        "ppo:\n  <<: &sizes {num_envs: 32, minibatch_size: 512}\n  network: {frozen: &modules [network.a]}\n"
+    )
+    config = load_config(tmp_path / "run.yaml", ["ppo.network.pretrained={x: &p run, y: *p}"])
+    assert (config.checkpoint.every, config.checkpoint.snapshot_every, config.evaluation.every) == (5, 5, 5)
+    assert (config.ppo.num_envs, config.ppo.network.frozen) == (32, ("network.a",))
+    assert config.ppo.network.pretrained == {"x": "run", "y": "run"}
+
+
+@pytest.mark.parametrize("text, message", [
+    ("x: &a [*a]\n", r"alias \*a \(line 1\) refers to itself"),
+    ("x: " + "[" * 500 + "]" * 500 + "\n", r"nested more than 50 levels deep"),
+])
+def test_self_referring_and_deeply_nested_yaml_is_refused(tmp_path: Path, text, message):
+    (tmp_path / "run.yaml").write_text(text)
+    with pytest.raises(ConfigError, match=rf"run.yaml.*{message}"):
+        load_config(tmp_path / "run.yaml")
+    with pytest.raises(ConfigError, match=rf"Override 'env.options.x=.*{message}"):
+        load_config("cartpole", [f"env.options.x={text.removeprefix('x: ').strip()}"])
+
+
+@pytest.mark.parametrize("text, key, lines", [
+    ("ppo: {num_cycles: 3}\nenv: {task: CartPole}\nppo: {gamma: 0.9}\n", "ppo", (1, 3)),
+    ("ppo:\n  num_cycles: 3\n  gamma: 0.9\n  num_cycles: 4\n", "num_cycles", (2, 4)),
+    ("env:\n  options: {1: a, true: b}\n", "True", (2, 2)),
+])
+def test_a_key_given_twice_is_refused_with_both_lines(tmp_path: Path, text, key, lines):
+    (tmp_path / "run.yaml").write_text(text)
+    with pytest.raises(ConfigError, match=rf"run.yaml: key '?{key}'? appears twice in one mapping, on line {lines[0]} "
+                                          rf"and line {lines[1]}"):
+        load_config(tmp_path / "run.yaml")
+    with pytest.raises(ConfigError, match=r"Override 'ppo={gamma: 0.9, gamma: 0.8}': key 'gamma' appears twice"):
+        load_config("cartpole", ["ppo={gamma: 0.9, gamma: 0.8}"])

@@ -15,6 +15,7 @@ import importlib.util
 import itertools
 import math
 import re
+import reprlib
 import types
 import typing
 from dataclasses import dataclass, field
@@ -43,6 +44,75 @@ EXTENDS = "extends"
 
 class ConfigError(ValueError):
     """A config that cannot run; the message names the key, what is allowed and how to fix it."""
+
+
+# Far above any real config (the largest shipped one has under 200 YAML nodes and nests 7 levels deep), far below what
+# hangs: a few hundred bytes of aliases of aliases ("billion laughs") expand to 10**9 values, which copying, checking
+# or printing the config would each walk.
+MAX_YAML_VALUES = 10_000
+MAX_YAML_DEPTH = 50
+MERGE_TAG = "tag:yaml.org,2002:merge"
+
+
+class YAMLRefused(yaml.YAMLError):
+    """YAML that parses but that no config may hold (an alias bomb, a key given twice); the message says where."""
+
+
+class ConfigLoader(yaml.SafeLoader):
+    """`yaml.SafeLoader` for configs and override values: refuses a key given twice in one mapping (YAML would keep
+    the last silently), an alias that refers to a node that holds it, nesting deeper than `MAX_YAML_DEPTH` and a
+    document that expands to more than `MAX_YAML_VALUES` nodes once aliases are expanded. Sizes are counted per node
+    as it is composed (an alias adds its node's count without walking it again), so a bomb is refused in linear time."""
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self._open_anchors: list[str | None] = []
+        self._sizes: dict[int, int] = {}
+
+    def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node:
+        """The next node, checked for self-reference, depth and expanded size."""
+        event = self.peek_event()
+        if isinstance(event, yaml.AliasEvent) and event.anchor in self._open_anchors:
+            raise YAMLRefused(f"alias *{event.anchor} (line {event.start_mark.line + 1}) refers to itself (it is "
+                              f"inside the value anchored &{event.anchor}), which makes an endless value; write the "
+                              "value out instead.")
+        if len(self._open_anchors) >= MAX_YAML_DEPTH:
+            raise YAMLRefused(f"values are nested more than {MAX_YAML_DEPTH} levels deep (line "
+                              f"{event.start_mark.line + 1}); no config nests more than a few levels.")
+        self._open_anchors.append(getattr(event, "anchor", None))
+        try:
+            node = super().compose_node(parent, index)
+        finally:
+            self._open_anchors.pop()
+        if id(node) not in self._sizes:
+            children = node.value if isinstance(node, yaml.SequenceNode) else (
+                [item for pair in node.value for item in pair] if isinstance(node, yaml.MappingNode) else [])
+            self._sizes[id(node)] = 1 + sum(self._sizes[id(child)] for child in children)
+        if self._sizes[id(node)] > MAX_YAML_VALUES:
+            raise YAMLRefused(f"expands to more than {MAX_YAML_VALUES:,} values when its aliases (*name) are expanded "
+                              f"(line {event.start_mark.line + 1}), far more than any config holds: an alias bomb? "
+                              "Repeat fewer aliases, or write the values out.")
+        return node
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        """The mapping of `node`, refusing a key given twice (keys merged in with `<<` may be overridden)."""
+        lines: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            key = None if key_node.tag == MERGE_TAG else self.construct_object(key_node)
+            if key is None or not isinstance(key, typing.Hashable):
+                continue
+            line = key_node.start_mark.line + 1
+            if key in lines:
+                raise YAMLRefused(f"key {key!r} appears twice in one mapping, on line {lines[key]} and line {line}; "
+                                  "YAML would keep only the second. Keep one of them (put all the keys of a section "
+                                  "under one heading).")
+            lines[key] = line
+        return super().construct_mapping(node, deep=deep)
+
+
+def load_yaml(text: str) -> Any:
+    """`text` parsed as YAML by `ConfigLoader`; raises `YAMLRefused` or another `yaml.YAMLError`."""
+    return yaml.load(text, Loader=ConfigLoader)
 
 
 @dataclass(frozen=True)
@@ -333,7 +403,9 @@ def _read(source: str | Path | dict | None, chain: tuple[Path, ...] = ()) -> dic
         raise ConfigError(f"{path} is a directory; give a config's YAML file (to continue a run: angora-jax resume "
                           f"{path}).")
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = load_yaml(path.read_text(encoding="utf-8"))
+    except YAMLRefused as error:
+        raise ConfigError(f"{path}: {error}") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{path} is not a text file (not UTF-8): a config is a YAML file such as "
                           f"{CONFIGS / 'cartpole.yaml'}, or the name of a shipped config (angora-jax list-configs)."
@@ -381,7 +453,9 @@ def _apply_override(data: dict[str, Any], override: str) -> None:
     if not sep or not key or any(not part for part in key.split(".")):
         raise ConfigError(f"Override {override!r} must look like key.sub=value, e.g. ppo.num_cycles=20.")
     try:
-        value = yaml.safe_load(text)
+        value = load_yaml(text)
+    except YAMLRefused as error:
+        raise ConfigError(f"Override {_shorten(override)}: {error}") from None
     except yaml.YAMLError as error:
         raise ConfigError(f"Override {override!r}: the value is not valid YAML ({error}).") from None
     *sections, leaf = key.split(".")
@@ -453,6 +527,15 @@ def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
     allowed = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(kind, str(kind))
     allowed += " or null" if nullable else ""
     raise ConfigError(f"{key} must be {allowed}, got {value!r} ({type(value).__name__}).")
+
+
+# Values quoted in messages are cut short: a message is one paragraph however long or deep the value given.
+_QUOTE = reprlib.Repr()
+_QUOTE.maxstring = _QUOTE.maxother = 80
+
+
+def _shorten(value: Any) -> str:
+    return _QUOTE.repr(value)
 
 
 def _unknown(key: str, value: Any, allowed: typing.Iterable[str], plural: str) -> str:
