@@ -10,6 +10,7 @@ A component is addressed by its module path with dots, as in recordings and lesi
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,10 @@ import jax
 import numpy as np
 import optax
 from flax import serialization
+
+# How a component file is written, for messages about files that are not one.
+WRITE_COMPONENTS = ("write components with angora_jax.nets.components.save_component(agent.params, PATH, FILE) or "
+                    "`angora-jax pretrain-vision --out FILE`")
 
 # What reads a saved run's policy (an object with `params` and `obs_stats`) from "RUN_DIR[:best|latest|<cycle>]":
 # run directories belong to the experiment layer, which builds on nets and ppo, so it registers its reader here
@@ -60,7 +65,10 @@ def component(params: Any, path: str) -> Any:
     tree = params
     for key in path.split("."):
         if not isinstance(tree, Mapping) or key not in tree:
-            raise ValueError(f"No module {path!r} in the parameters; modules: {', '.join(module_paths(params))}.")
+            modules = module_paths(params)
+            close = difflib.get_close_matches(path, modules, n=1)
+            guess = f"; did you mean {close[0]!r}?" if close else ""
+            raise ValueError(f"No module {path!r} in the parameters{guess} Modules: {', '.join(modules)}.")
         tree = tree[key]
     if not isinstance(tree, Mapping):
         raise ValueError(f"{path!r} is a parameter, not a module; give its module, e.g. {path.rsplit('.', 1)[0]!r}.")
@@ -70,10 +78,9 @@ def component(params: Any, path: str) -> Any:
 def with_component(params: Any, path: str, values: Any) -> Any:
     """`params` with the module at `path` replaced by `values` (same structure and shapes; ValueError otherwise)."""
     current = component(params, path)
-    expected = jax.tree.map(np.shape, current)
-    given = jax.tree.map(np.shape, dict(values))
-    if jax.tree.structure(expected) != jax.tree.structure(given) or expected != given:
-        raise ValueError(f"The values for {path!r} do not fit: the network has {expected}, the source has {given}.")
+    differing = shape_misfits(current, values)
+    if differing:
+        raise ValueError(f"The values for {path!r} do not fit this network's ({'; '.join(differing[:4])}).")
     keys = path.split(".")
 
     def replace(tree: Any, depth: int) -> Any:
@@ -82,6 +89,18 @@ def with_component(params: Any, path: str, values: Any) -> Any:
         return {**tree, keys[depth]: replace(tree[keys[depth]], depth + 1)}
 
     return replace(params, 0)
+
+
+def shape_misfits(current: Any, given: Any) -> list[str]:
+    """The leaves whose shapes differ between the trees `current` (this network's) and `given` (a source's), each
+    as "['a']['kernel']: (4, 8) here, (4, 64) in the source" ("none" where a tree lacks the leaf); empty when the
+    trees fit."""
+    def shapes(tree: Any) -> dict[str, tuple[int, ...]]:
+        return {jax.tree_util.keystr(path): np.shape(leaf) for path, leaf in jax.tree_util.tree_leaves_with_path(tree)}
+
+    ours, theirs = shapes(current), shapes(given)
+    return [f"{name}: {ours.get(name, 'none')} here, {theirs.get(name, 'none')} in the source"
+            for name in sorted(ours.keys() | theirs.keys()) if ours.get(name) != theirs.get(name)]
 
 
 def save_component(params: Any, path: str, file: str | Path) -> Path:
@@ -98,8 +117,24 @@ def load_component(source: str | Path, path: str) -> Any:
     """The module `path` from `source`: a file of `save_component`, or a run directory (`RUN_DIR`, its best
     checkpoint, or `RUN_DIR:latest` / `RUN_DIR:<cycle>`), from whose parameters the same path is taken."""
     if Path(source).is_file():
-        return serialization.msgpack_restore(Path(source).read_bytes())
+        return read_component_file(source)
     return component(read_saved_run(source).params, path)
+
+
+def read_component_file(file: str | Path) -> dict[str, Any]:
+    """The module saved in `file` by `save_component`; ValueError naming the file and how to write one when it holds
+    none (damaged, cut short or another kind of file)."""
+    try:
+        values = serialization.msgpack_restore(Path(file).read_bytes())
+    except (ValueError, TypeError) as error:  # what msgpack (ExtraData, FormatError, ...) and flax raise on bad bytes
+        values, cause = None, f"{type(error).__name__}: {error}"
+    else:
+        cause = ("it holds no parameters" if isinstance(values, dict)
+                 else f"it holds a {type(values).__name__}, not a module's parameters")
+    if not isinstance(values, dict) or not values:
+        raise ValueError(f"{file} is not a component file ({cause}): it is damaged, cut short or another kind of "
+                         f"file; {WRITE_COMPONENTS}, or give a run directory.")
+    return values
 
 
 def with_pretrained(params: Any, pretrained: Mapping[str, str | Path]) -> Any:

@@ -6,6 +6,7 @@ With `num_devices=D > 1` the same cycle runs data-parallel on D devices (see `an
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any
 
@@ -19,9 +20,11 @@ from jax.sharding import PartitionSpec as P
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.nets import ActorCritic, make_network
 from angora_jax.nets.components import (
+    component,
     frozen_optimizer,
     load_component,
     read_saved_run,
+    shape_misfits,
     stop_frozen_gradients,
     with_component,
 )
@@ -328,18 +331,56 @@ def _with_saved_values(init: Callable[[jax.Array], TrainState], pretrained: dict
     return init_with_saved_values
 
 
-def _fitting(current: Any, saved: Any, what: str, source: str) -> Any:
-    """`saved` as `current`'s dtypes, when it has `current`'s leaves and shapes; a ValueError naming those that
-    differ otherwise."""
-    def shapes(tree: Any) -> dict[str, tuple[int, ...]]:
-        return {jax.tree_util.keystr(path): jnp.shape(leaf) for path, leaf in jax.tree_util.tree_leaves_with_path(tree)}
+class SavedRunMisfit(ValueError):
+    """The network parameters or observation statistics of the run `ppo.init_from` names do not fit this run's."""
 
-    ours, theirs = shapes(current), shapes(saved)
-    if ours != theirs:
-        differing = sorted(name for name in ours.keys() | theirs.keys() if ours.get(name) != theirs.get(name))
-        raise ValueError(f"ppo.init_from {source!r}: its {what} do not fit this run's ({', '.join(differing[:4])} "
-                         "differ); give the saved run's network settings, on a task with its observation shapes.")
+
+def _fitting(current: Any, saved: Any, what: str, source: str) -> Any:
+    """`saved` as `current`'s dtypes, when it has `current`'s leaves and shapes; a SavedRunMisfit naming those that
+    differ otherwise."""
+    differing = shape_misfits(current, saved)
+    if differing:
+        raise SavedRunMisfit(f"ppo.init_from {source!r}: its {what} do not fit this run's ({'; '.join(differing[:4])})"
+                             "; give the saved run's network settings, on a task with its observation shapes.")
     return jax.tree.map(lambda old, new: jnp.asarray(new, dtype=old.dtype), current, saved)
+
+
+def check_saved_values(env: Env, config: PPOConfig) -> None:
+    """Check what `make_cycle`'s `init` will load and what training will freeze, without compiling or running
+    anything: every module path of `network.frozen` and `network.pretrained` names a module of the run's parameters,
+    and every source (`init_from`, `network.pretrained`) can be read and fits them. ValueError (SavedRunMisfit for a
+    saved run that does not fit; any error reading a source, OSError included, as a ValueError) naming the key, the
+    module or source, and the fix."""
+    network = dataclasses.replace(config.network, frozen=(), pretrained={})
+    init, _ = make_cycle(env, None, config.replace(network=network, init_from=None))
+    shapes = jax.eval_shape(init, jax.random.key(0))
+    for key, paths in (("frozen", config.network.frozen), ("pretrained", config.network.pretrained)):
+        for path in paths:
+            try:
+                component(shapes.params, path)
+            except ValueError as error:
+                raise ValueError(f"ppo.network.{key} names {path!r}: {error} Name modules by their dotted paths, as "
+                                 "recordings name layers.") from None
+    if config.init_from:
+        saved = _read_source("ppo.init_from", config.init_from, read_saved_run, config.init_from)
+        _fitting(shapes.params, saved.params, "network parameters", config.init_from)
+        _fitting(shapes.obs_stats, saved.obs_stats, "observation statistics", config.init_from)
+    for path, source in config.network.pretrained.items():
+        values = _read_source(f"ppo.network.pretrained[{path!r}]", source, load_component, source, path)
+        differing = shape_misfits(component(shapes.params, path), values)
+        if differing:
+            raise ValueError(f"ppo.network.pretrained[{path!r}]: the values in {source!r} do not fit this network's "
+                             f"module ({'; '.join(differing[:4])}); give the network the sizes the component was "
+                             "trained with, or a component saved from a network of this run's sizes.")
+
+
+def _read_source(key: str, source: str, read: Callable[..., Any], *args: Any) -> Any:
+    """`read(*args)`, any error reading the source (a file or run that is missing, damaged or not one) as a ValueError
+    that starts with `key` and `source`."""
+    try:
+        return read(*args)
+    except (ValueError, OSError) as error:
+        raise ValueError(f"{key}={source!r}: {error}") from None
 
 
 def variance(x: jax.Array, axis: str | None = None) -> jax.Array:

@@ -1,0 +1,110 @@
+"""What a run loads when it starts (`ppo.init_from`, `ppo.network.pretrained`) and what it freezes
+(`ppo.network.frozen`), named wrongly: `angora-jax train` exits 2 with the key, the offending module, file or run,
+and the fix, before it compiles anything or makes a run directory; never a traceback."""
+
+import shutil
+from pathlib import Path
+
+import pytest
+from flax import serialization
+from quick_compile import quick_compilation
+from tiny import TINY_PPO
+
+import angora_jax as aj
+from angora_jax.cli import main
+from angora_jax.experiment import validate
+from angora_jax.experiment.sources import check_sources
+from angora_jax.nets.components import save_component
+
+TINY = [*TINY_PPO, "ppo.num_cycles=1", "logging.report=false", "logging.progress=none"]
+
+
+@pytest.fixture(scope="module")
+def source_run(tmp_path_factory) -> Path:
+    """A CartPole run of the default width (64) with one checkpoint: what other runs start from or take parts of."""
+    root = tmp_path_factory.mktemp("source")
+    with quick_compilation():
+        return aj.train("cartpole", [*TINY, f"logging.run_root={root}", "logging.run_name=source"]).run_dir
+
+
+def refused(capsys, tmp_path: Path, *overrides: str) -> str:
+    """stderr of `angora-jax train cartpole` with `overrides`, which must exit 2 without a traceback and leave no run
+    directory."""
+    runs = tmp_path / "runs"
+    code = main(["train", "cartpole", *TINY, f"logging.run_root={runs}", "logging.run_name=new", *overrides])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "Traceback" not in err
+    assert not (runs / "new").exists(), "nothing is left behind"
+    return err
+
+
+@pytest.mark.parametrize("key", ["frozen", "pretrained"])
+def test_a_module_path_that_names_no_module_is_refused_with_the_modules_there_are(key, capsys, tmp_path):
+    value = "[network.policy_trunc]" if key == "frozen" else f"{{network.policy_trunc: {tmp_path / 'x.msgpack'}}}"
+    err = refused(capsys, tmp_path, f"ppo.network.{key}={value}")
+    assert f"ppo.network.{key}" in err and "'network.policy_trunc'" in err
+    assert "did you mean 'network.policy_trunk'" in err and "network.value_trunk" in err, "the modules there are"
+
+
+def test_a_parameter_is_not_a_module(capsys, tmp_path):
+    err = refused(capsys, tmp_path, "ppo.network.frozen=[network.value.kernel]")
+    assert "ppo.network.frozen" in err and "'network.value.kernel' is a parameter" in err and "'network.value'" in err
+
+
+@pytest.mark.parametrize("damage", ["truncated", "text", "empty", "list"])
+def test_a_damaged_component_file_is_refused_naming_the_file_and_how_to_write_one(damage, source_run, capsys,
+                                                                                 tmp_path):
+    saved = save_component(aj.load_agent(source_run).params, "network", tmp_path / "whole.msgpack").read_bytes()
+    file = tmp_path / "component.msgpack"
+    contents = {"truncated": saved[: len(saved) // 2], "text": b"network: not msgpack", "empty": b"",
+                "list": serialization.msgpack_serialize([1, 2])}
+    file.write_bytes(contents[damage])
+    err = refused(capsys, tmp_path, f"ppo.network.pretrained={{network: {file}}}")
+    assert "ppo.network.pretrained" in err and str(file) in err and "not a component file" in err
+    assert "save_component" in err and "pretrain-vision" in err, "how to write one"
+
+
+def test_a_component_of_another_size_is_refused_naming_the_shapes(source_run, capsys, tmp_path):
+    file = save_component(aj.load_agent(source_run).params, "network", tmp_path / "wide.msgpack")
+    err = refused(capsys, tmp_path, f"ppo.network.pretrained={{network: {file}}}", "ppo.network.width=8")
+    assert "ppo.network.pretrained" in err and str(file) in err and "do not fit" in err
+    assert "['policy_trunk']['Dense_0']['kernel']: (4, 8) here, (4, 64) in the source" in err
+
+
+def test_a_run_of_another_width_is_refused_naming_the_setting_that_differs(source_run, capsys, tmp_path):
+    err = refused(capsys, tmp_path, f"ppo.init_from={source_run}", "ppo.network.width=8")
+    assert "ppo.init_from" in err and str(source_run) in err and "do not fit" in err
+    assert "(4, 8) here, (4, 64) in the source" in err
+    assert "ppo.network.width=64" in err, "the saved run's setting that makes the difference"
+
+
+@pytest.mark.parametrize("key", ["ppo.init_from", "ppo.network.pretrained"])
+@pytest.mark.parametrize("problem", ["no checkpoint", "damaged checkpoint", "no config", "missing"])
+def test_a_source_run_that_cannot_be_read_is_refused_naming_the_key_and_the_cause(problem, key, source_run, capsys,
+                                                                                  tmp_path):
+    run = tmp_path / "source"
+    if problem != "missing":
+        shutil.copytree(source_run, run)
+    if problem == "no checkpoint":
+        shutil.rmtree(run / "checkpoints")
+    elif problem == "damaged checkpoint":
+        for file in (run / "checkpoints").rglob("*"):
+            if file.is_file() and file.parent.name == "d":  # the arrays' data files of Orbax's OCDBT store
+                file.write_bytes(file.read_bytes()[:20])
+    elif problem == "no config":
+        (run / "config.yaml").unlink()
+    value = str(run) if key == "ppo.init_from" else f"{{network: {run}}}"
+    err = refused(capsys, tmp_path, f"{key}={value}")
+    assert f"{key}" in err and str(run) in err
+    cause = {"no checkpoint": "No checkpoints", "damaged checkpoint": "checkpoint", "no config": "no config.yaml",
+             "missing": "names no saved run"}[problem]
+    assert cause in err
+
+
+def test_sources_that_fit_pass_the_check(source_run, tmp_path):
+    """The check refuses nothing that loads: a run from the saved run, with a component of it loaded and frozen."""
+    file = save_component(aj.load_agent(source_run).params, "network.value", tmp_path / "value.msgpack")
+    config = aj.load_config("cartpole", [*TINY, f"ppo.init_from={source_run}", "ppo.network.frozen=[network.value]",
+                                         f"ppo.network.pretrained={{network.value: {file}}}"])
+    check_sources(config, validate(config))
