@@ -4,13 +4,16 @@ a message that names the key and what is allowed."""
 import dataclasses
 import time
 import tracemalloc
+import typing
 from pathlib import Path
 
 import pytest
 
+from angora_jax.envs.randomization import Randomization
 from angora_jax.experiment.config import Config, ConfigError, flatten, list_configs, load_config, to_dict, validate
 from angora_jax.experiment.config_reference import config_keys, field_descriptions, reference_markdown
 from angora_jax.ppo import PPOConfig
+from angora_jax.ppo.config import check_bounds, field_bounds
 
 
 def test_named_config_loads_with_typed_overrides():
@@ -59,7 +62,7 @@ BAD = {
         r"checkpoint.best_metric.*episode_return",
     ),
     "more devices than present": (["distribution.num_devices=64"], r"distribution.num_devices=64 but JAX sees only"),
-    "device count not positive": (["distribution.num_devices=0"], r"distribution.num_devices must be a positive"),
+    "device count not positive": (["distribution.num_devices=0"], r"distribution.num_devices must be >= 1, got 0"),
     "device count a word": (["distribution.num_devices=some"], r"distribution.num_devices must be a positive"),
     "not a finite number": (["ppo.learning_rate=nan"], r"ppo.learning_rate must be a finite number, got 'nan'"),
     "infinite": (["ppo.gamma=.inf"], r"ppo.gamma must be a finite number"),
@@ -75,6 +78,33 @@ BAD = {
                                         r"ppo.stop_at.metric.*episode_return"),
     "stop at an unknown mode": (["ppo.stop_at={value: 30, mode: above}"], r"ppo.stop_at.mode must be 'max' or 'min'"),
     "negative evaluation interval": (["evaluation.every=-1"], r"evaluation.every must be >= 0"),
+    "huge integer for a number": (["ppo.gamma=1" + "0" * 400], r"ppo.gamma must be a finite number, got a 401-digit"),
+    "integer too long to read": (["ppo.seed=1" + "0" * 5000], r"Override 'ppo.seed=10.*the integer on line 1 has 5,001 "
+                                                              r"digits"),
+    "negative seed": (["ppo.seed=-1"], r"ppo.seed must be >= 0, got -1 \(allowed: integers from 0 to 4,294,967,295"),
+    "seed beyond 32 bits": (["ppo.seed=100000000000000000000000"],
+                            r"ppo.seed must be <= 4,294,967,295, got 100000000000000000000000 .*low 32 bits"),
+    "evaluation seed beyond 32 bits": (["evaluation.seed=4294967296"], r"evaluation.seed must be <= 4,294,967,295"),
+    "count beyond int32": (["ppo.num_cycles=2147483648"], r"ppo.num_cycles must be <= 2,147,483,647, got 2147483648"),
+    "negative width": (["ppo.network.width=-3"], r"ppo.network.width must be >= 1, got -3"),
+    "negative area size": (["ppo.network.name=cortical", "ppo.network.areas={PMC: -2}"],
+                           r"ppo.network.areas must be >= 1, got -2"),
+    "number beyond float32": (["ppo.learning_rate=1.0e39"], r"ppo.learning_rate must be <= 3.4028.*e\+38, got 1e\+39"),
+    "huge initial log std": (["ppo.init_log_std=1000.0"], r"ppo.init_log_std must be <= 20, got 1000.0"),
+    "zero clip": (["ppo.normalization.clip=0"], r"ppo.normalization.clip must be > 0, got 0"),
+    "stop value beyond a float": (["ppo.stop_at={value: 1.0e400}"], r"ppo.stop_at.value must be a finite number"),
+    "NUL in a path": (['ppo.init_from="run\\0x"'], r"ppo.init_from='run\\x00x' holds a NUL character"),
+    "lone surrogate in a path": (['ppo.init_from="run\\ud800"'], r"ppo.init_from='run\\ud800' is not valid Unicode"),
+    "non-string key in a section": (["ppo={1: x}"], r"Key 1 \(int\) of ppo is not a name"),
+    "null key in a section": (["ppo={null: y}"], r"Key None \(NoneType\) of ppo is not a name"),
+    "negative episode limit": (["env.options.max_episode_steps=-3"],
+                               r"env.options do not fit task 'CartPole': max_episode_steps must be a whole number from "
+                               r"1 to 2,147,483,647 \(policy steps per episode\), got -3"),
+    "fractional episode limit": (["env.options.max_episode_steps=1.5"], r"max_episode_steps must be a whole number"),
+    "infinite episode limit": (["env.options.max_episode_steps=.inf"],
+                               r"env.options.max_episode_steps must be a finite number, got inf"),
+    "option beyond int32": (["env.options.max_episode_steps=2147483648"],
+                            r"max_episode_steps must be a whole number from 1 to 2,147,483,647"),
     "best by an evaluation that never runs": (
         ["checkpoint.best_metric=eval/episode_return"],
         r"checkpoint.best_metric='eval/episode_return' names a held-out .* set evaluation.every=N",
@@ -120,7 +150,8 @@ BAD_GRAPHS = {
                            r"network.graph.areas.S1.activation='sigmoid' is unknown; use one of tanh, relu, lif"),
     "unknown cell": ([f"{AREA}.S1.cell=lsmt"], r"network.graph.areas.S1.cell='lsmt' is unknown \(did you mean 'lstm'"),
     "size not positive": ([f"{AREA}.S1.size=0"],
-                          r"network.graph.areas.S1.size must be a positive integer \(the area's units\), got 0"),
+                          r"network.graph.areas.S1.size must be >= 1, got 0 \(allowed: integers from 1 to "
+                          r"2,147,483,647: the area's units\)"),
     "size missing": ([f"{AREA}.S1={{inputs: [proprioception]}}"], r"ppo.network.graph.areas.S1 needs size"),
     "no inputs": ([f"{AREA}.S1.inputs=[]"], r"network.graph.areas.S1.inputs is empty"),
     "input listed twice": ([f"{AREA}.M1.inputs=[S1, goal, S1]"], r"network.graph.areas.M1.inputs lists S1 more than"),
@@ -301,3 +332,52 @@ def test_a_key_given_twice_is_refused_with_both_lines(tmp_path: Path, text, key,
         load_config(tmp_path / "run.yaml")
     with pytest.raises(ConfigError, match=r"Override 'ppo={gamma: 0.9, gamma: 0.8}': key 'gamma' appears twice"):
         load_config("cartpole", ["ppo={gamma: 0.9, gamma: 0.8}"])
+
+
+@pytest.mark.parametrize("text, message", [
+    ("1: x\n", r"Key 1 \(int\) of the config is not a name: keys are words such as 'env'"),
+    ("null: y\n", r"Key None \(NoneType\) of the config is not a name"),
+    ("ppo: {network: {2.5: x}}\n", r"Key 2.5 \(float\) of ppo.network is not a name"),
+])
+def test_a_key_that_is_not_a_string_is_refused_by_name(tmp_path: Path, text, message):
+    (tmp_path / "run.yaml").write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_config(tmp_path / "run.yaml")
+
+
+@pytest.mark.parametrize("ranges, message", [
+    ({"friction": [float("inf"), float("inf")]}, r"randomization.friction is a range of scale factors: give \[lo, hi\] "
+                                                 r"of finite numbers, got \[inf, inf\]"),
+    ({"joint_damping": [0.5, float("nan")]}, r"randomization.joint_damping .* of finite numbers"),
+    ({"armature": [0.5, 10**400]}, r"randomization.armature .* of finite numbers"),
+    ({"action_noise": float("inf")}, r"randomization.action_noise is a standard deviation: give a finite number >= 0"),
+    ({"action_delay": [0, 2**40]}, r"randomization.action_delay's maximum must be <= 1,000 policy steps, got "
+                                   r"1099511627776"),
+])
+def test_randomization_ranges_must_be_finite(ranges, message):
+    with pytest.raises(ValueError, match=message):
+        Randomization.from_options(ranges, cube=True)
+
+
+def _numeric_fields(cls: type, prefix: str = "") -> typing.Iterator[tuple[type, str, str]]:
+    """(class, field, key) of every field of config dataclass `cls`, and of the dataclasses it holds, typed with a
+    number (int or float, alone or in a union, tuple or mapping)."""
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        kinds, key = [hints[f.name]], f"{prefix}{f.name}"
+        while kinds:
+            kind = kinds.pop()
+            if dataclasses.is_dataclass(kind):
+                yield from _numeric_fields(kind, f"{key}.")
+            elif kind in (int, float):
+                yield cls, f.name, key
+            kinds += typing.get_args(kind)
+
+
+def test_every_numeric_key_declares_its_range():
+    numeric = {key: field_bounds(cls, name) for cls, name, key in _numeric_fields(Config)}
+    assert {"ppo.seed", "ppo.network.graph.areas.size", "evaluation.video.width", "distribution.num_devices",
+            "ppo.stop_at.value", "checkpoint.snapshot_every"} <= set(numeric)
+    assert not [key for key, bounds in numeric.items() if bounds is None], "numeric keys without a declared range"
+    # The defaults lie in their ranges.
+    check_bounds(Config(), "")

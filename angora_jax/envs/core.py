@@ -9,6 +9,7 @@ episode's end is kept in `State.final_obs` for value bootstrapping on truncation
 from __future__ import annotations
 
 import abc
+import numbers
 from typing import Any
 
 import jax
@@ -249,6 +250,21 @@ class Env(abc.ABC):
     def observation_shapes(self) -> Sensation:
         """Shapes and dtypes of one observation, as a Sensation of `jax.ShapeDtypeStruct`, without simulating."""
         return jax.eval_shape(self.reset, jax.random.key(0)).obs
+
+
+# The steps of an episode count in int32 (`State.steps`), so a time limit must fit one.
+MAX_EPISODE_STEPS = 2**31 - 1
+
+
+def episode_limit(max_episode_steps: Any) -> int:
+    """A task's `max_episode_steps` option checked: a ValueError naming the option and its range unless it is a whole
+    number from 1 to `MAX_EPISODE_STEPS`."""
+    if (isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, numbers.Integral)
+            or not 1 <= max_episode_steps <= MAX_EPISODE_STEPS):
+        raise ValueError(f"max_episode_steps must be a whole number from 1 to {MAX_EPISODE_STEPS:,} (policy steps per "
+                         f"episode), got {max_episode_steps!r}: e.g. max_episode_steps: 500, or leave it out for the "
+                         "task's own.")
+    return int(max_episode_steps)
 
 
 def step_keys(key: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:

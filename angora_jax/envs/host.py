@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from angora_jax.envs.core import ActionSpec, Env, Sensation, State
+from angora_jax.envs.core import ActionSpec, Env, Sensation, State, episode_limit
 
 PREFIX = "gym:"
 
@@ -43,6 +43,8 @@ class GymnasiumHost(Env):
     on_host = True
 
     def __init__(self, env_id: str, max_episode_steps: int | None = None, num_envs: int = 1, **kwargs: Any):
+        if max_episode_steps is not None:
+            episode_limit(max_episode_steps)
         try:
             probe = gymnasium.make(env_id, max_episode_steps=max_episode_steps, **kwargs)
         except gymnasium.error.Error as error:

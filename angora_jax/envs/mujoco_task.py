@@ -18,7 +18,7 @@ import numpy as np
 from flax import struct
 
 from angora_jax.envs.cameras import CameraVision
-from angora_jax.envs.core import ActionSpec, Env, Sensation, State
+from angora_jax.envs.core import ActionSpec, Env, Sensation, State, episode_limit
 from angora_jax.envs.randomization import DELAY_KEY, INFO_KEY, ModelRandomizer
 
 MJX_IMPLS = ("jax", "warp")
@@ -178,11 +178,11 @@ class MujocoEnv(Env):
     `task.model.opt.timestep` s per policy step; actions are float32, shape `(nu,)`, within `task.action_bounds()`."""
 
     def __init__(self, task: MujocoTask, frame_skip: int, max_episode_steps: int):
-        if frame_skip < 1 or max_episode_steps < 1:
-            raise ValueError(f"frame_skip and max_episode_steps must be >= 1, got {frame_skip}, {max_episode_steps}.")
+        if frame_skip < 1:
+            raise ValueError(f"frame_skip must be >= 1, got {frame_skip}.")
         self.task = task
         self.frame_skip = frame_skip
-        self.max_episode_steps = max_episode_steps
+        self.max_episode_steps = episode_limit(max_episode_steps)
         self.dt = float(task.model.opt.timestep) * frame_skip
         self.metric_names = task.metric_names
         low, high = task.action_bounds()

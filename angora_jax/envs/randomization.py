@@ -12,6 +12,8 @@ simulate the same worlds for the same key.
 from __future__ import annotations
 
 import dataclasses
+import math
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -34,6 +36,9 @@ DELAYS = ("action_delay",)
 CUBE_KEYS = ("cube_mass", "cube_damping", "cube_size")
 # Scale ranges whose minimum must be > 0 (a cube without mass or size is no cube); the others' must be >= 0.
 POSITIVE_SCALES = ("cube_mass", "cube_size")
+# An action delay holds the controls of its last steps per environment: (delay, nu) floats each. More than about an
+# episode (20 s at the hand's 0.02 s control step) is no delay a hand lives with, and only fills memory.
+MAX_DELAY = 1000
 # The cube's geom fields that its size scales: half sizes, bounding radius, bounding box (centre and half sizes).
 CUBE_SIZE_FIELDS = ("geom_size", "geom_rbound", "geom_aabb")
 
@@ -91,8 +96,8 @@ class Randomization:
         for key, value in options.items():
             name = f"randomization.{key}"
             if key in NOISES:
-                if not isinstance(value, int | float) or not value >= 0:
-                    raise ValueError(f"{name} is a standard deviation: give a number >= 0, got {value!r}.")
+                if not isinstance(value, int | float) or not 0 <= value < math.inf:
+                    raise ValueError(f"{name} is a standard deviation: give a finite number >= 0, got {value!r}.")
                 values[key] = float(value)
                 continue
             if key in DELAYS:
@@ -104,11 +109,13 @@ class Randomization:
                 if value[0] > value[1]:
                     raise ValueError(f"{name}'s minimum {value[0]} is above its maximum {value[1]}: give [lo, hi] "
                                      "with lo <= hi.")
+                if value[1] > MAX_DELAY:
+                    raise ValueError(f"{name}'s maximum must be <= {MAX_DELAY:,} policy steps, got {value[1]}.")
                 values[key] = (int(value[0]), int(value[1]))
                 continue
             if not isinstance(value, list | tuple) or len(value) != 2 or not all(
-                    isinstance(v, int | float) for v in value):
-                raise ValueError(f"{name} is a range of scale factors: give [lo, hi], got {value!r}.")
+                    isinstance(v, int | float) and abs(v) <= sys.float_info.max for v in value):  # NaN fails too
+                raise ValueError(f"{name} is a range of scale factors: give [lo, hi] of finite numbers, got {value!r}.")
             lo, hi = float(value[0]), float(value[1])
             if key in POSITIVE_SCALES and not lo > 0:
                 raise ValueError(f"{name} scales the cube's {key.removeprefix('cube_')}: its minimum must be > 0, "

@@ -31,7 +31,16 @@ from angora_jax.envs.registry import is_gymnasium, list_tasks, make
 from angora_jax.envs.rendering import CAMERAS, RenderError, SceneRenderer
 from angora_jax.experiment.wandb_logging import WANDB_INSTALL, WANDB_MODES, WandbConfig
 from angora_jax.nets.registry import list_networks
-from angora_jax.ppo.config import PPOConfig
+from angora_jax.ppo.config import (
+    INT64_MAX,
+    SEED_MAX,
+    PPOConfig,
+    bounded,
+    check_bounds,
+    count_field,
+    field_bounds,
+    quote_number,
+)
 from angora_jax.ppo.memory import estimate_memory
 from angora_jax.ppo.parallel import per_device, resolve_num_devices
 
@@ -109,6 +118,18 @@ class ConfigLoader(yaml.SafeLoader):
             lines[key] = line
         return super().construct_mapping(node, deep=deep)
 
+    def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
+        """The integer of `node`, refused when Python will not read it (over 4,300 digits: no setting takes one)."""
+        try:
+            return super().construct_yaml_int(node)
+        except ValueError:
+            raise YAMLRefused(f"the integer on line {node.start_mark.line + 1} has "
+                              f"{sum(c.isdigit() for c in node.value):,} digits, more than any setting takes: give "
+                              "a number in the key's range.") from None
+
+
+ConfigLoader.add_constructor("tag:yaml.org,2002:int", ConfigLoader.construct_yaml_int)
+
 
 def load_yaml(text: str) -> Any:
     """`text` parsed as YAML by `ConfigLoader`; raises `YAMLRefused` or another `yaml.YAMLError`."""
@@ -164,10 +185,10 @@ class CheckpointConfig:
     stopped (`angora-jax resume --exact` refuses it).
     """
 
-    every: int = 10
+    every: int = count_field(10, why="cycles between latest checkpoints")
     best_metric: str | None = "episode_return"
     best_mode: str = "max"
-    snapshot_every: int = 0
+    snapshot_every: int = count_field(0, low=0, why="cycles between snapshots; 0: none")
     lean: tuple[str, ...] = ("snapshots",)
 
 
@@ -183,11 +204,12 @@ class VideoConfig:
     (`angora_jax.envs.rendering.CAMERAS`). width: the frames' width in pixels. height: their height in pixels.
     """
 
-    every: int = 50
-    steps: int = 200
+    every: int = count_field(50, why="cycles between videos")
+    steps: int = count_field(200, why="policy steps of the episode")
     camera: str = "front"
-    width: int = 320
-    height: int = 240
+    # MuJoCo renders off screen into one OpenGL framebuffer, which GPUs and Mesa allow up to 16,384 pixels a side.
+    width: int = bounded(320, 1, 16_384, why="pixels")
+    height: int = bounded(240, 1, 16_384, why="pixels")
 
 
 @dataclass(frozen=True)
@@ -206,9 +228,9 @@ class EvaluationConfig:
     whether or not `every` does.
     """
 
-    every: int = 0
-    episodes: int = 64
-    seed: int = 1
+    every: int = count_field(0, low=0, why="cycles between evaluations; 0: never")
+    episodes: int = count_field(64, why="held-out episodes")
+    seed: int = bounded(1, 0, SEED_MAX, why="JAX keeps a seed's low 32 bits, so other seeds repeat these")
     video: VideoConfig | None = None
 
 
@@ -218,7 +240,7 @@ class DistributionConfig:
     single-device cycle. `ppo.num_envs` and `ppo.minibatch_size` are run totals, divided over the devices, so they
     must be multiples of the device count (see `angora_jax.ppo.parallel`)."""
 
-    num_devices: int | str = 1
+    num_devices: int | str = count_field(1, why='devices, or "all"')
 
 
 @dataclass(frozen=True)
@@ -284,9 +306,6 @@ def _check_video(video: VideoConfig, env: Env) -> None:
     if not isinstance(env, MujocoEnv):
         raise ConfigError(f"evaluation.video needs a MuJoCo task (one with a scene to render); {type(env).__name__} "
                           "has none: set evaluation.video=null.")
-    for key in ("every", "steps", "width", "height"):
-        if getattr(video, key) < 1:
-            raise ConfigError(f"evaluation.video.{key} must be >= 1, got {getattr(video, key)}.")
     if video.camera not in CAMERAS:
         raise ConfigError(_unknown("evaluation.video.camera", video.camera, sorted(CAMERAS), "cameras"))
     try:  # an OpenGL context now, rather than a failed video after hours of training
@@ -307,9 +326,14 @@ def validate(config: Config) -> Env:
 
     Raises ConfigError naming the key (e.g. `ppo.minibatch_size`), the allowed values and the fix.
     """
+    try:  # load_config checks these too; a Config made in Python comes here unchecked
+        check_bounds(config, "")
+    except ValueError as error:
+        raise ConfigError(str(error)) from None
     if config.env.task not in list_tasks() and not is_gymnasium(config.env.task):
         raise ConfigError(_unknown("env.task", config.env.task, list_tasks(), "tasks") +
                           " Any Gymnasium environment: gym:<id>, e.g. gym:LunarLander-v3.")
+    _check_options(config.env.options, "env.options")
     try:
         env = make(config.env.task, **config.env.options)
     except (TypeError, ValueError) as error:
@@ -340,18 +364,11 @@ def validate(config: Config) -> Env:
         if importlib.util.find_spec("wandb") is None:
             raise ConfigError(f"logging.wandb needs the wandb package: {WANDB_INSTALL}; or set logging.wandb=null "
                               "(metrics.jsonl is always written).")
-    if checkpoint.every < 1:
-        raise ConfigError(f"checkpoint.every must be >= 1 (cycles between latest checkpoints), got {checkpoint.every}.")
-    if checkpoint.snapshot_every < 0:
-        raise ConfigError(f"checkpoint.snapshot_every must be >= 0 (0: no snapshots), got {checkpoint.snapshot_every}.")
     for kind in checkpoint.lean:
         if kind not in CHECKPOINT_KINDS:
             raise ConfigError(_unknown("checkpoint.lean", kind, CHECKPOINT_KINDS, "kinds of checkpoint"))
     if checkpoint.best_mode not in ("max", "min"):
         raise ConfigError(_unknown("checkpoint.best_mode", checkpoint.best_mode, ("max", "min"), "modes"))
-    if config.evaluation.every < 0 or config.evaluation.episodes < 1:
-        raise ConfigError(f"evaluation.every must be >= 0 (0: never) and evaluation.episodes >= 1, got "
-                          f"{config.evaluation.every} and {config.evaluation.episodes}.")
     if config.evaluation.video is not None:
         _check_video(config.evaluation.video, env)
     choices = best_metric_choices(env, config.evaluation)
@@ -470,9 +487,12 @@ def _apply_override(data: dict[str, Any], override: str) -> None:
 def _build(cls: type, data: Any, path: str) -> Any:
     where = path or "the config"
     if not isinstance(data, dict):
-        raise ConfigError(f"{where} must be a mapping of keys to values, got {data!r}.")
+        raise ConfigError(f"{where} must be a mapping of keys to values, got {_shorten(data)}.")
     names = [f.name for f in dataclasses.fields(cls)]
     for key in data:
+        if not isinstance(key, str):
+            raise ConfigError(f"Key {_shorten(key)} ({type(key).__name__}) of {where} is not a name: keys are words "
+                              f"such as {names[0]!r} (keys of {where}: {', '.join(names)}); quote it if it is one.")
         if key not in names:
             close = difflib.get_close_matches(str(key), names, n=1)
             hint = f" Did you mean {close[0]!r}?" if close else ""
@@ -483,7 +503,17 @@ def _build(cls: type, data: Any, path: str) -> Any:
     if required:
         raise ConfigError(f"{where} needs {', '.join(required)} (keys of {where}: {', '.join(names)}).")
     hints = typing.get_type_hints(cls)
-    return cls(**{key: _convert(hints[key], value, f"{path}.{key}" if path else key) for key, value in data.items()})
+    values = {}
+    for key, value in data.items():
+        full = f"{path}.{key}" if path else key
+        values[key] = _convert(hints[key], value, full)
+        bounds = field_bounds(cls, key)
+        if bounds is not None:
+            try:
+                bounds.check(full, values[key])
+            except ValueError as error:
+                raise ConfigError(str(error)) from None
+    return cls(**values)
 
 
 def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
@@ -501,12 +531,14 @@ def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
         return value
     if typing.get_origin(kind) is tuple:
         if not isinstance(value, list | tuple):
-            raise ConfigError(f"{key} must be a list, got {value!r}.")
+            raise ConfigError(f"{key} must be a list, got {_shorten(value)}.")
         item = typing.get_args(kind)[0]
         return tuple(_convert(item, entry, f"{key}[{i}]") for i, entry in enumerate(value))
     if typing.get_origin(kind) is dict:
         if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
-            raise ConfigError(f"{key} must be a mapping with string keys, got {value!r}.")
+            raise ConfigError(f"{key} must be a mapping with string keys, got {_shorten(value)}.")
+        for name in value:
+            _check_text(f"{key} key", name)
         item = typing.get_args(kind)[1]
         return {name: _convert(item, entry, f"{key}.{name}") for name, entry in value.items()}
     if kind is bool and isinstance(value, bool):
@@ -518,15 +550,53 @@ def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
             number = float(value)
         except ValueError:
             number = None
+        except OverflowError:  # an integer beyond any float
+            number = math.inf
         if number is not None and not math.isfinite(number):
-            raise ConfigError(f"{key} must be a finite number, got {value!r}.")
+            shown = _shorten(value) if isinstance(value, str) else quote_number(value)
+            raise ConfigError(f"{key} must be a finite number, got {shown}.")
         if number is not None:
             return number
     if kind is str and isinstance(value, str):
-        return value
+        return _check_text(key, value)
     allowed = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(kind, str(kind))
     allowed += " or null" if nullable else ""
-    raise ConfigError(f"{key} must be {allowed}, got {value!r} ({type(value).__name__}).")
+    shown = quote_number(value) if isinstance(value, int) else _shorten(value)
+    raise ConfigError(f"{key} must be {allowed}, got {shown} ({type(value).__name__}).")
+
+
+def _check_options(value: Any, key: str) -> None:
+    """Refuse in the task's options (any structure) what no option can mean: a number that is not finite or that no
+    64-bit integer holds, a key that is not a name, text that no name or path holds. Each task checks its own."""
+    if isinstance(value, dict):
+        for name, item in value.items():
+            if not isinstance(name, str):
+                raise ConfigError(f"Key {_shorten(name)} ({type(name).__name__}) of {key} is not a name: options are "
+                                  "keyword arguments of the task; quote it if it is one.")
+            _check_options(item, f"{key}.{_check_text(f'{key} key', name)}")
+    elif isinstance(value, list):
+        for index, item in enumerate(value):
+            _check_options(item, f"{key}[{index}]")
+    elif isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"{key} must be a finite number, got {value}.")
+    elif isinstance(value, int) and not isinstance(value, bool) and abs(value) > INT64_MAX:
+        raise ConfigError(f"{key} must be an integer of at most {INT64_MAX:,} in size (what numpy and JAX hold), "
+                          f"got {quote_number(value)}.")
+    elif isinstance(value, str):
+        _check_text(key, value)
+
+
+def _check_text(key: str, text: str) -> str:
+    """`text`, refused when no name or path could hold it: a NUL character, or a lone surrogate (not Unicode)."""
+    if "\0" in text:
+        raise ConfigError(f"{key}={_shorten(text)} holds a NUL character (\\0), which no name or path may hold: "
+                          "remove it.")
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as error:
+        raise ConfigError(f"{key}={_shorten(text)} is not valid Unicode text ({error.reason}: "
+                          f"{text[error.start:error.end]!r}): remove the escape.") from None
+    return text
 
 
 # Values quoted in messages are cut short: a message is one paragraph however long or deep the value given.

@@ -12,11 +12,101 @@ import math
 from dataclasses import dataclass, field
 
 from angora_jax.envs.core import Env
-from angora_jax.nets.area_graph import AreaGraph, check_graph
+from angora_jax.nets.area_graph import AreaGraph, AreaSpec, ValueSpec, check_graph
 from angora_jax.nets.cortical import area_sizes
 from angora_jax.nets.models import RECURRENT_CELLS
 from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.distributions import list_heads
+
+# Counts (cycles, environments, steps, units) become int32 in JAX's arrays and loops (x64 is off), so they must fit.
+INT32_MAX = 2**31 - 1
+# What numpy's integers hold; the run's sizes are products of such counts, computed in Python's integers.
+INT64_MAX = 2**63 - 1
+# jax.random.key keeps a seed's low 32 bits (x64 off): key(2**32) is key(0) and key(-1) is key(2**32 - 1).
+SEED_MAX = 2**32 - 1
+# Settings are computed in float32: a larger number is inf there.
+FLOAT32_MAX = 3.4028234663852886e38
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """The valid range of a numeric config field, declared beside it (`bounded`): `low <= value <= high` (`low <
+    value` when `open_low`), finite; a tuple's or mapping's numbers each. why: what the number is, for messages."""
+
+    low: float
+    high: float
+    open_low: bool = False
+    why: str = ""
+
+    def check(self, key: str, value: object) -> None:
+        """Raise a ValueError naming `key`, the value and the range when a number of `value` lies outside; values of
+        other types are left to the type check."""
+        numbers = value.values() if isinstance(value, dict) else value if isinstance(value, tuple | list) else (value,)
+        for number in numbers:
+            if isinstance(number, bool) or not isinstance(number, int | float):
+                continue
+            if not math.isfinite(number):
+                raise ValueError(f"{key} must be a finite number, got {number}{self._allowed(number)}.")
+            if number < self.low or (self.open_low and number == self.low):
+                raise ValueError(f"{key} must be {'>' if self.open_low else '>='} {_show(self.low)}, got "
+                                 f"{quote_number(number)}{self._allowed(number)}.")
+            if number > self.high:
+                raise ValueError(f"{key} must be <= {_show(self.high)}, got {quote_number(number)}"
+                                 f"{self._allowed(number)}.")
+
+    def _allowed(self, number: float) -> str:
+        kind = "integers" if isinstance(number, int) else "numbers"
+        span = (f"{kind} above {_show(self.low)} up to {_show(self.high)}" if self.open_low
+                else f"{kind} from {_show(self.low)} to {_show(self.high)}")
+        return f" (allowed: {span}{f': {self.why}' if self.why else ''})"
+
+
+def bounded(default: object = dataclasses.MISSING, low: float = -FLOAT32_MAX, high: float = FLOAT32_MAX, *,
+            open_low: bool = False, why: str = "", factory: object = dataclasses.MISSING) -> object:
+    """A dataclass field (default `default`, or `factory()`) whose numbers must lie in `Bounds(low, high, ...)`."""
+    return field(default=default, default_factory=factory, metadata={"bounds": Bounds(low, high, open_low, why)})
+
+
+def count_field(default: object, low: int = 1, why: str = "") -> object:
+    """A field of whole numbers from `low` to `INT32_MAX` (a count: cycles, steps, units)."""
+    return bounded(default, low, INT32_MAX, why=why)
+
+
+# The ranges of numeric fields of config sections declared in other modules, which `bounded` cannot annotate there.
+OTHER_BOUNDS: dict[tuple[type, str], Bounds] = {
+    (AreaSpec, "size"): Bounds(1, INT32_MAX, why="the area's units"),
+    (ValueSpec, "sizes"): Bounds(1, INT32_MAX, why="units of each layer of the value net"),
+}
+
+
+def field_bounds(cls: type, name: str) -> Bounds | None:
+    """The declared range of field `name` of config dataclass `cls` (`bounded` or `OTHER_BOUNDS`); None if none."""
+    declared = next(f for f in dataclasses.fields(cls) if f.name == name).metadata.get("bounds")
+    return declared or OTHER_BOUNDS.get((cls, name))
+
+
+def check_bounds(config: object, prefix: str) -> None:
+    """Check each number of dataclass `config`, and of the dataclasses it holds, against its field's declared range;
+    a ValueError naming the key (`prefix.<field>`, or `<field>` when `prefix` is empty) for the first outside it."""
+    for f in dataclasses.fields(config):
+        value, key = getattr(config, f.name), f"{prefix}.{f.name}" if prefix else f.name
+        bounds = field_bounds(type(config), f.name)
+        if bounds is not None:
+            bounds.check(key, value)
+        for name, item in value.items() if isinstance(value, dict) else [(None, value)]:
+            if dataclasses.is_dataclass(item) and not isinstance(item, type):
+                check_bounds(item, key if name is None else f"{key}.{name}")
+
+
+def _show(bound: float) -> str:
+    return f"{bound:,}" if isinstance(bound, int) else f"{bound:g}"
+
+
+def quote_number(number: float) -> str:
+    """`number` for a message: a huge integer by its length (Python prints none of over 4,300 digits)."""
+    if isinstance(number, int) and abs(number) >= 10**30:
+        return f"a {int(math.log10(abs(number))) + 1:,}-digit integer"
+    return repr(number)
 
 
 @dataclass(frozen=True)
@@ -29,8 +119,8 @@ class VisualConfig:
     """
 
     encoder: str = "cornet_z"
-    widths: tuple[int, ...] = ()
-    features: int = 64
+    widths: tuple[int, ...] = count_field((), why="channels of each stage")
+    features: int = count_field(64, why="features per camera")
 
 
 @dataclass(frozen=True)
@@ -58,11 +148,11 @@ class NetworkConfig:
     """
 
     name: str = "simple"
-    width: int | None = None
-    cell_size: int | None = None
+    width: int | None = count_field(None, why="units of the dense layers")
+    cell_size: int | None = count_field(None, why="units of the recurrent cell")
     shared_trunk: bool = False
     cell: str | None = None
-    areas: dict[str, int] = field(default_factory=dict)
+    areas: dict[str, int] = bounded(low=1, high=INT32_MAX, why="units of each area", factory=dict)
     graph: AreaGraph | None = None
     frozen: tuple[str, ...] = ()
     pretrained: dict[str, str] = field(default_factory=dict)
@@ -112,7 +202,7 @@ class NormalizationConfig:
 
     observations: bool = True
     rewards: bool = True
-    clip: float = 10.0
+    clip: float = bounded(10.0, 0, open_low=True, why="standard deviations")
 
 
 @dataclass(frozen=True)
@@ -126,7 +216,7 @@ class StopAt:
     """
 
     metric: str = "episode_return"
-    value: float = 0.0
+    value: float = bounded(0.0, why="the metric's units")
     mode: str = "max"
 
     def validate(self) -> StopAt:
@@ -180,27 +270,28 @@ class PPOConfig:
         shapes; the optimizer, reward statistics and counters start afresh. `network.pretrained` loads over it.
     """
 
-    seed: int = 0
-    num_cycles: int = 100
-    num_envs: int = 16
-    rollout_length: int = 128
-    chunk_length: int = 16
-    num_epochs: int = 3
-    minibatch_size: int = 512
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
-    clip_epsilon: float = 0.2
+    seed: int = bounded(0, 0, SEED_MAX, why="JAX keeps a seed's low 32 bits, so other seeds repeat these")
+    num_cycles: int = count_field(100, why="cycles to train")
+    # The memory estimate (validate) refuses far fewer environments than this with the largest that fits.
+    num_envs: int = bounded(16, 1, INT64_MAX, why="environments in parallel")
+    rollout_length: int = count_field(128, why="policy steps per cycle")
+    chunk_length: int = count_field(16, why="policy steps per BPTT chunk")
+    num_epochs: int = count_field(3, why="passes over each cycle's transitions")
+    minibatch_size: int = count_field(512, why="transitions per minibatch")
+    gamma: float = bounded(0.99, 0, 1, why="a discount factor")
+    gae_lambda: float = bounded(0.95, 0, 1, why="GAE's lambda")
+    clip_epsilon: float = bounded(0.2, 0, open_low=True, why="PPO's clip range")
     value_clip: bool = True
-    value_coef: float = 1.0
-    entropy_coef: float = 0.01
-    learning_rate: float = 1e-3
+    value_coef: float = bounded(1.0, 0, why="a loss weight")
+    entropy_coef: float = bounded(0.01, 0, why="a loss weight")
+    learning_rate: float = bounded(1e-3, 0, open_low=True, why="Adam's step size")
     lr_decay: bool = False
     init_from: str | None = None
-    max_grad_norm: float = 0.5
+    max_grad_norm: float = bounded(0.5, 0, open_low=True, why="the gradient norm clipped to")
     normalize_advantages: bool = True
     head: str = "auto"
-    bins: int = 11
-    init_log_std: float = 0.0
+    bins: int = count_field(11, low=2, why="bins per action dimension")
+    init_log_std: float = bounded(0.0, -20, 20, why="the log of the Gaussian head's std; exp(20) is 5e8")
     network: NetworkConfig = field(default_factory=NetworkConfig)
     normalization: NormalizationConfig = field(default_factory=NormalizationConfig)
     stop_at: StopAt | None = None
@@ -211,33 +302,15 @@ class PPOConfig:
 
     def validate(self) -> PPOConfig:
         """Raise a ValueError naming the field when a setting is out of range or inconsistent; return self."""
+        check_bounds(self, "PPOConfig")
         self.network.validate()
         if self.stop_at is not None:
             self.stop_at.validate()
-        settings = [*vars(self).items(), *((f"normalization.{k}", v) for k, v in vars(self.normalization).items())]
-        for name, value in settings:
-            if isinstance(value, float) and not math.isfinite(value):  # NaN passes every comparison below
-                raise ValueError(f"PPOConfig.{name} must be a finite number, got {value}.")
-        positive = ("num_cycles", "num_envs", "rollout_length", "chunk_length", "num_epochs", "minibatch_size")
-        for name in positive:
-            if getattr(self, name) < 1:
-                raise ValueError(f"PPOConfig.{name} must be >= 1, got {getattr(self, name)}.")
-        for name in ("gamma", "gae_lambda"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"PPOConfig.{name} must lie in [0, 1], got {getattr(self, name)}.")
-        for name in ("clip_epsilon", "learning_rate", "max_grad_norm"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"PPOConfig.{name} must be > 0, got {getattr(self, name)}.")
-        for name in ("value_coef", "entropy_coef"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"PPOConfig.{name} must be >= 0, got {getattr(self, name)}.")
         if self.head != "auto" and self.head not in list_heads():
             raise ValueError(f"PPOConfig.head must be 'auto' or one of {list_heads()}, got {self.head!r}.")
         if self.init_from is not None and (not isinstance(self.init_from, str) or not self.init_from):
             raise ValueError(f"PPOConfig.init_from names a saved run, RUN_DIR[:best|latest|<cycle>]; got "
                              f"{self.init_from!r}.")
-        if self.bins < 2:
-            raise ValueError(f"PPOConfig.bins must be >= 2, got {self.bins}.")
         if self.rollout_length % self.chunk_length:
             raise ValueError(
                 f"PPOConfig.chunk_length ({self.chunk_length}) must divide rollout_length ({self.rollout_length})."
@@ -255,8 +328,6 @@ class PPOConfig:
                 "chunks per trajectory; pick a minibatch_size of (divisor of num_envs) * (divisor of chunks) * "
                 "chunk_length."
             )
-        if self.normalization.clip <= 0:
-            raise ValueError(f"PPOConfig.normalization.clip must be > 0, got {self.normalization.clip}.")
         return self
 
     def validate_for(self, env: Env) -> PPOConfig:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from angora_jax.envs.core import ActionSpec, Env, Sensation
+from angora_jax.envs.core import ActionSpec, Env, Sensation, episode_limit
 
 
 class Acrobot(Env):
@@ -29,7 +29,7 @@ class Acrobot(Env):
 
     def __init__(self, max_episode_steps: int = 500):
         self.action_spec = ActionSpec(low=jnp.zeros((0,)), high=jnp.zeros((0,)), num_actions=3)
-        self.max_episode_steps = max_episode_steps
+        self.max_episode_steps = episode_limit(max_episode_steps)
         self.dt = 0.2
 
     @staticmethod

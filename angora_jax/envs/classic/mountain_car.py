@@ -6,7 +6,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from angora_jax.envs.core import ActionSpec, Env, Sensation
+from angora_jax.envs.core import ActionSpec, Env, Sensation, episode_limit
 
 
 class MountainCar(Env):
@@ -29,7 +29,8 @@ class MountainCar(Env):
         else:
             self.action_spec = ActionSpec(low=jnp.zeros((0,)), high=jnp.zeros((0,)), num_actions=3)
         self.goal_position = 0.45 if continuous else 0.5
-        self.max_episode_steps = max_episode_steps or (999 if continuous else 200)
+        self.max_episode_steps = episode_limit((999 if continuous else 200) if max_episode_steps is None
+                                               else max_episode_steps)
         self.dt = 1.0  # the dynamics are per step; gymnasium gives no time unit
 
     def _reset(self, key: jax.Array):

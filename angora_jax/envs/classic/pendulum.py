@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from angora_jax.envs.core import ActionSpec, Env, Sensation
+from angora_jax.envs.core import ActionSpec, Env, Sensation, episode_limit
 
 
 class Pendulum(Env):
@@ -24,7 +24,7 @@ class Pendulum(Env):
 
     def __init__(self, max_episode_steps: int = 200):
         self.action_spec = ActionSpec(low=jnp.full((1,), -self.max_torque), high=jnp.full((1,), self.max_torque))
-        self.max_episode_steps = max_episode_steps
+        self.max_episode_steps = episode_limit(max_episode_steps)
         self.dt = 0.05
 
     @staticmethod

@@ -34,7 +34,8 @@ def make_locomotion(name: str, max_episode_steps: int | None = None, impl: str =
     if solver == "pgs" and backend == "mjx":
         raise ValueError("MJX has no PGS solver (it has Newton and CG): solver='pgs' runs with backend='cpu' only.")
     task: GymnasiumTask = Locomotion(GAITS[name], impl, solver) if name in GAITS else OTHERS[name](impl)
-    return on_backend(backend, task, task.frame_skip, max_episode_steps or EPISODE_STEPS.get(name, 1000))
+    steps = EPISODE_STEPS.get(name, 1000) if max_episode_steps is None else max_episode_steps
+    return on_backend(backend, task, task.frame_skip, steps)
 
 
 for _name in [*GAITS, *OTHERS]:
