@@ -73,6 +73,20 @@ BAD = {
     "progress mode": (["logging.progress=fancy"], r"logging.progress.*auto, bar, lines, none"),
     "run name leaves run_root": (["logging.run_name=../escape"], r"run_name='../escape' must be a plain folder"),
     "run name with a folder": (["logging.run_name=a/b"], r"logging.run_name='a/b' must be a plain folder name"),
+    "run name too long": (["logging.run_name=" + "a" * 300], r"logging.run_name='aaa.*' must be a plain folder name: "
+                                                             r"at most 100 characters .*got 300"),
+    "run name with a space": (["logging.run_name='my run'"], r"logging.run_name='my run' must be a plain folder name: "
+                                                            r".*letters, digits, '.', '_', '-', '\+' and '='"),
+    "run name like an option": (["logging.run_name=-x"], r"logging.run_name='-x' must be a plain folder name.*not "
+                                                         r"starting with '.' or '-'"),
+    "hidden run name": (["logging.run_name=.x"], r"logging.run_name='.x' must be a plain folder name"),
+    "run name with NUL": (['logging.run_name="a\\0b"'], r"logging.run_name='a\\x00b' holds a NUL character"),
+    "run root with NUL": (['logging.run_root="runs\\0"'], r"logging.run_root='runs\\x00' holds a NUL character"),
+    "run root folder name too long": (["logging.run_root=runs/" + "b" * 256 + "/x"],
+                                      r"logging.run_root='runs/bbb.*' has a folder name of 256 bytes \('bbb.*'\); "
+                                      r"file systems allow 255"),
+    "run root too long": (["logging.run_root=" + "/abc" * 1100], r"logging.run_root=.* is 4,400 bytes long; file "
+                                                                 r"systems allow paths of 4,095"),
     "override without =": (["ppo.num_cycles"], r"must look like key.sub=value"),
     "stop at a metric the task lacks": (["ppo.stop_at={metric: metric/goals_reached, value: 30}"],
                                         r"ppo.stop_at.metric.*episode_return"),

@@ -14,6 +14,7 @@ import difflib
 import importlib.util
 import itertools
 import math
+import os
 import re
 import reprlib
 import types
@@ -166,6 +167,12 @@ class LoggingConfig:
 
 
 PROGRESS_MODES = ("auto", "bar", "lines", "none")
+# A run name is a folder name that every file system, shell and URL takes as it is (W&B and TensorBoard show it).
+RUN_NAME = re.compile(r"[A-Za-z0-9_+=][A-Za-z0-9._+=-]*")
+MAX_RUN_NAME = 100
+# The longest folder name and path Linux takes (NAME_MAX, PATH_MAX less the terminating NUL); longer ones end in
+# "File name too long" when the run directory is made.
+MAX_NAME_BYTES, MAX_PATH_BYTES = 255, 4095
 CHECKPOINT_KINDS = ("latest", "best", "snapshots")
 
 
@@ -348,11 +355,14 @@ def validate(config: Config) -> Env:
     if logging.progress not in PROGRESS_MODES:
         raise ConfigError(_unknown("logging.progress", logging.progress, PROGRESS_MODES, "modes"))
     name = logging.run_name
-    if name is not None and (name in ("", ".", "..") or "/" in name or "\\" in name):
+    if name is not None and (len(name) > MAX_RUN_NAME or not RUN_NAME.fullmatch(name)):
         raise ConfigError(
-            f"logging.run_name={name!r} must be a plain folder name (no '/', '\\' or '..'): the run directory is made "
-            f"inside logging.run_root ({logging.run_root!r}); to write elsewhere, change logging.run_root."
+            f"logging.run_name={_shorten(name)} must be a plain folder name: at most {MAX_RUN_NAME} characters (got "
+            f"{len(name)}) of letters, digits, '.', '_', '-', '+' and '=', not starting with '.' or '-' (so no '/', "
+            f"'\\' or '..'): the run directory is made inside logging.run_root ({_shorten(logging.run_root)}); to "
+            "write elsewhere, change logging.run_root."
         )
+    _check_folder("logging.run_root", logging.run_root)
     if logging.tensorboard and importlib.util.find_spec("tensorboardX") is None:
         raise ConfigError(
             "logging.tensorboard=true needs the tensorboardX package: pip install 'angora-jax[tensorboard]', or set "
@@ -584,6 +594,18 @@ def _check_options(value: Any, key: str) -> None:
                           f"got {quote_number(value)}.")
     elif isinstance(value, str):
         _check_text(key, value)
+
+
+def _check_folder(key: str, path: str) -> None:
+    """Refuse a folder path that no directory can be made at: too long, or with a name too long (in bytes)."""
+    size = len(os.fsencode(path))
+    if size > MAX_PATH_BYTES:
+        raise ConfigError(f"{key}={_shorten(path)} is {size:,} bytes long; file systems allow paths of "
+                          f"{MAX_PATH_BYTES:,}: choose a shorter folder.")
+    for part in Path(path).parts:
+        if len(os.fsencode(part)) > MAX_NAME_BYTES:
+            raise ConfigError(f"{key}={_shorten(path)} has a folder name of {len(os.fsencode(part)):,} bytes "
+                              f"({_shorten(part)}); file systems allow {MAX_NAME_BYTES}: shorten it.")
 
 
 def _check_text(key: str, text: str) -> str:
