@@ -713,10 +713,13 @@ def command_ablate(args: argparse.Namespace) -> int:
 
 def command_pretrain_vision(args: argparse.Namespace) -> int:
     import json
+    import os
 
     from angora_jax.nets.components import save_component
     from angora_jax.nets.visual import VISUAL_ENCODERS
     from angora_jax.vision import pretrain_pose_encoder, render_pose_dataset
+    from angora_jax.vision.dataset import check_pose_renders
+    from angora_jax.vision.pretrain import pose_network
 
     out = Path(args.out)
     estimator_out = out.with_suffix(".pose.msgpack")
@@ -727,11 +730,37 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
         print(f"angora-jax pretrain-vision: unknown encoder {args.encoder!r}; choose one of {sorted(VISUAL_ENCODERS)}.",
               file=sys.stderr)
         return EXIT_USAGE
-    start = time.perf_counter()
-    dataset = render_pose_dataset(args.samples, tuple(args.cameras), args.size, args.size, seed=args.seed,
-                                  renderer=args.renderer)
-    rendered = time.perf_counter() - start
+    # The outputs are written after hours of rendering and training: their folder is checked first (the folders
+    # missing under the nearest existing one are made then).
+    folder = next(parent for parent in out.absolute().parents if parent.exists())
+    if not folder.is_dir() or not os.access(folder, os.W_OK):
+        why = "is not writable" if folder.is_dir() else "is a file"
+        print(f"angora-jax pretrain-vision: --out {out}: {folder} {why}; give a file in a folder you can write to.",
+              file=sys.stderr)
+        return EXIT_USAGE
     options = {"features": args.features} | ({"widths": tuple(args.widths)} if args.widths else {})
+    try:
+        if args.samples < 2:
+            raise ValueError(f"--samples must be at least 2 (a tenth, at least one, is held out to measure the "
+                             f"encoder on), got {args.samples}.")
+        if args.batch > args.samples:
+            raise ValueError(f"--batch ({args.batch}) must be at most --samples ({args.samples}).")
+        if args.seed < 0:
+            raise ValueError(f"--seed must be >= 0, got {args.seed}.")
+        check_pose_renders(args.samples, tuple(args.cameras), args.size, args.size, args.renderer)
+        pose_network(args.encoder, options, args.orientation, (len(args.cameras), args.size, args.size, 3))
+    except (ValueError, ModuleNotFoundError) as error:
+        print(f"angora-jax pretrain-vision: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    start = time.perf_counter()
+    try:
+        dataset = render_pose_dataset(args.samples, tuple(args.cameras), args.size, args.size, seed=args.seed,
+                                      renderer=args.renderer)
+    except RenderError as error:
+        print(f"angora-jax pretrain-vision: {error} Or render with MuJoCo Warp on a GPU: --renderer warp.",
+              file=sys.stderr)
+        return EXIT_USAGE
+    rendered = time.perf_counter() - start
     train, test = dataset.split(0.1)
     result = pretrain_pose_encoder(train, test, args.encoder, options, args.steps, args.batch, seed=args.seed,
                                    orientation=args.orientation)

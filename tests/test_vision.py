@@ -345,3 +345,68 @@ def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_vis
     assert out.read_bytes()[:4] == b"\x89PNG"
     assert main(["analyze", "visual", str(kept), "--run", str(run.run_dir), "--camera", "2"]) == 2
     assert main(["analyze", "visual", str(lean), "--run", str(run.run_dir)]) == 2, "no images kept"
+
+
+# pretrain-vision's usage errors: refused with exit 2, the cause and the fix, before anything is rendered or written.
+def never_renders(*args, **kwargs):
+    raise AssertionError("rendered, although the arguments were refusable before")
+
+
+def pretrain_vision_refused(tmp_path, capsys, *options: str) -> str:
+    """stderr of `angora-jax pretrain-vision` with `options` into `tmp_path`, which must exit 2 without a traceback
+    and leave `tmp_path` as it was."""
+    before = sorted(tmp_path.rglob("*"))
+    argv = ["pretrain-vision", "--out", str(tmp_path / "encoder.msgpack"), "--samples", "20", "--cameras", "top",
+            "--steps", "2", "--batch", "4", *options]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and sorted(tmp_path.rglob("*")) == before, "nothing written"
+    return err
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--size", "100000"], "do not fit the cube scene's offscreen framebuffer of 640 x 480"),
+    (["--size", "481"], "render at most 480 pixels square (--size), or with MuJoCo Warp on a GPU (--renderer warp)"),
+    (["--samples", "1000000", "--size", "480"], "more than this machine's"),
+    (["--samples", "1"], "--samples must be at least 2"),
+    (["--batch", "21"], "--batch (21) must be at most --samples (20)"),
+    (["--seed", "-1"], "--seed must be >= 0"),
+    (["--widths", "8", "8"], "cornet_z does not take features 256 and widths (8, 8)"),
+    (["--widths", "8", "8"], "its default widths are (32, 64, 128, 256)"),
+    (["--encoder", "resnet"], "unknown encoder 'resnet'"),
+    (["--features", "10000000000"], "GB, four times that with their gradients and Adam's moments, more than"),
+])
+def test_pretrain_vision_refuses_what_it_cannot_do_before_rendering(options, message, tmp_path, capsys, monkeypatch):
+    import angora_jax.vision
+
+    monkeypatch.setattr(angora_jax.vision, "render_pose_dataset", never_renders)
+    assert message in pretrain_vision_refused(tmp_path, capsys, *options)
+
+
+def test_pretrain_vision_refuses_an_out_it_cannot_write_before_rendering(tmp_path, capsys, monkeypatch):
+    import angora_jax.vision
+
+    monkeypatch.setattr(angora_jax.vision, "render_pose_dataset", never_renders)
+    (tmp_path / "notes").write_text("a file, not a folder")
+    err = pretrain_vision_refused(tmp_path, capsys, "--out", str(tmp_path / "notes" / "encoder.msgpack"))
+    assert f"--out {tmp_path / 'notes' / 'encoder.msgpack'}" in err and f"{tmp_path / 'notes'} is a file" in err
+
+
+def test_pretrain_vision_without_opengl_or_warp_exits_2_naming_what_to_install(tmp_path, capsys, monkeypatch):
+    """No OpenGL context (simulated: MuJoCo's renderer refuses, as it does without EGL), or --renderer warp without
+    MuJoCo Warp: the cause and what to install, no traceback."""
+    from angora_jax.envs.rendering import GL_HINT, RenderError
+    from angora_jax.vision import dataset
+
+    def no_opengl(*args, **kwargs):
+        raise RenderError(f"MuJoCo cannot render with MUJOCO_GL=egl: no EGL display. {GL_HINT}")
+
+    def no_warp():
+        raise ModuleNotFoundError("physics impl 'warp' needs NVIDIA Warp: pip install warp-lang")
+
+    monkeypatch.setattr(dataset, "SceneRenderer", no_opengl)
+    err = pretrain_vision_refused(tmp_path, capsys, "--size", "32")
+    assert "libegl1 libegl-mesa0" in err and "MUJOCO_GL=egl" in err and "--renderer warp" in err
+    monkeypatch.setattr(dataset, "require_warp", no_warp)
+    monkeypatch.setattr(dataset, "_render_warp", never_renders)
+    assert "pip install warp-lang" in pretrain_vision_refused(tmp_path, capsys, "--renderer", "warp")

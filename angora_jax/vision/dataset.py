@@ -14,11 +14,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import jax
 import mujoco
 import numpy as np
 
+from angora_jax.envs.mjx_env import require_warp
 from angora_jax.envs.rendering import VISION_PREFIX, SceneRenderer
 from angora_jax.envs.shadow_hand.cube import CUBE_JOINT, load_cube_scene
+from angora_jax.ppo.memory import device_memory
 
 DEFAULT_CAMERAS = ("front", "side", "top")
 CUBE_REST = np.array([1.0, 0.875, 0.165])  # m, world frame: where a settled cube lies on the palm (measured)
@@ -106,14 +109,38 @@ def render_pose_dataset(samples: int, cameras: tuple[str, ...] = DEFAULT_CAMERAS
                        hand_qpos.astype(np.float32), tuple(cameras), renderer)
 
 
+def check_pose_renders(samples: int, cameras: tuple[str, ...], width: int, height: int, renderer: str = "cpu") -> None:
+    """Refuse, before rendering anything, `samples` frames of each of `cameras` at `width` x `height` pixels that
+    `renderer` cannot draw here: ValueError naming the cause and the fix for an unknown renderer, frames larger than
+    the cube scene's offscreen framebuffer (which OpenGL draws into; MuJoCo Warp has none), or images that do not fit
+    in this machine's memory; ModuleNotFoundError naming the package when MuJoCo Warp is missing."""
+    if renderer not in ("cpu", "warp"):
+        raise ValueError(f"renderer must be 'cpu' or 'warp', got {renderer!r}.")
+    if renderer == "warp":
+        require_warp()
+    else:
+        framebuffer = load_cube_scene(touch=False, cameras=cameras).vis.global_
+        if width > framebuffer.offwidth or height > framebuffer.offheight:
+            raise ValueError(f"Frames of {width} x {height} pixels do not fit the cube scene's offscreen framebuffer "
+                             f"of {framebuffer.offwidth} x {framebuffer.offheight}, which OpenGL draws into: render "
+                             f"at most {min(framebuffer.offwidth, framebuffer.offheight)} pixels square (--size), or "
+                             "with MuJoCo Warp on a GPU (--renderer warp).")
+    images = samples * len(cameras) * width * height * 3
+    memory = device_memory(jax.devices("cpu")[0])
+    if memory is not None and 2 * images > memory:  # the frames, and the array they are stacked into at the end
+        raise ValueError(f"{samples:,} samples x {len(cameras)} cameras x {width} x {height} pixels take "
+                         f"{images / 1e9:,.1f} GB, twice that while rendering, more than this machine's "
+                         f"{memory / 1e9:,.0f} GB of memory: render fewer samples (--samples) or smaller frames "
+                         "(--size).")
+
+
 def render_poses(hand_qpos: np.ndarray, position: np.ndarray, quaternion: np.ndarray,
                  cameras: tuple[str, ...] = DEFAULT_CAMERAS, width: int = 64, height: int = 64,
                  renderer: str = "cpu", batch: int = 1024) -> np.ndarray:
     """Frames `(N, cameras, height, width, 3)` uint8 of given poses: the hand's joint angles `(N, 24)` rad, the cube's
     position `(N, 3)` m and orientation `(N, 4)` (w, x, y, z) in the world frame; renderer and batch as for
-    `render_pose_dataset`."""
-    if renderer not in ("cpu", "warp"):
-        raise ValueError(f"renderer must be 'cpu' or 'warp', got {renderer!r}.")
+    `render_pose_dataset`; `check_pose_renders` says what it refuses."""
+    check_pose_renders(len(hand_qpos), cameras, width, height, renderer)
     if renderer == "warp":
         model = load_cube_scene(touch=False, cameras=cameras)
         qpos = np.concatenate([hand_qpos, position, quaternion], axis=1)
@@ -138,13 +165,11 @@ def cube_masks(dataset: PoseDataset, threshold: int = 8, without_cube: np.ndarra
 def _render_warp(model: mujoco.MjModel, qpos: np.ndarray, cameras: int, width: int, height: int,
                  batch: int) -> np.ndarray:
     """Frames `(N, cameras, height, width, 3)` uint8 of the poses `qpos` `(N, nq)`, `batch` at a time on Warp."""
-    import jax
     import jax.numpy as jnp
     from mujoco import mjx
 
-    from angora_jax.envs.mjx_env import quiet_iteration_caps, require_warp, warp_sizes
+    from angora_jax.envs.mjx_env import quiet_iteration_caps, warp_sizes
 
-    require_warp()
     mx = quiet_iteration_caps(mjx.put_model(model, impl="warp"))
     start = mjx.make_data(model, impl="warp", **warp_sizes(model, batch))
     context = mjx.create_render_context(mjm=model, nworld=batch, cam_res=(width, height), use_textures=True,

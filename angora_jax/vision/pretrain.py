@@ -24,7 +24,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from angora_jax.nets.visual import make_visual_encoder
+from angora_jax.nets.visual import VISUAL_ENCODERS, make_visual_encoder
+from angora_jax.ppo.memory import device_memory
 from angora_jax.vision.dataset import PoseDataset
 from angora_jax.vision.estimator import (
     ORIENTATIONS,
@@ -53,6 +54,33 @@ class PretrainResult:
         return self.estimator.params
 
 
+def pose_network(encoder: str = "cornet_z", encoder_options: dict | None = None, orientation: str = "6d",
+                 frames: tuple[int, ...] = (1, 64, 64, 3)) -> PoseNet:
+    """The `PoseNet` of `encoder` with `encoder_options` (widths, features) and `orientation`, checked on a sample's
+    `frames` (cameras, height, width, 3) by tracing its initialisation (nothing is computed): ValueError naming the
+    encoder, the options, its defaults and the fix when they do not fit it."""
+    if orientation not in ORIENTATIONS:
+        raise ValueError(f"Unknown orientation {orientation!r}; choose one of {tuple(ORIENTATIONS)}.")
+    options = encoder_options or {}
+    model = PoseNet(make_visual_encoder(encoder, **options), orientation=orientation)
+    try:
+        shapes = jax.eval_shape(model.init, jax.random.key(0), jax.ShapeDtypeStruct((1, *frames), jnp.uint8))
+    except (TypeError, ValueError) as error:
+        defaults = VISUAL_ENCODERS[encoder]
+        given = " and ".join(f"{name} {value}" for name, value in options.items())
+        raise ValueError(f"The visual encoder {encoder} does not take {given} ({error}): its default widths are "
+                         f"{defaults.widths} (channels of each stage, one number per stage; --widths) and its "
+                         f"features {defaults.features} (--features).") from None
+    size = sum(leaf.size * leaf.dtype.itemsize for leaf in jax.tree.leaves(shapes))
+    device = jax.devices()[0]
+    memory = device_memory(device)
+    if memory is not None and 4 * size > memory:  # parameters, gradients and Adam's two moments
+        raise ValueError(f"The pose network's parameters take {size / 1e9:,.1f} GB, four times that with their "
+                         f"gradients and Adam's moments, more than the {device.platform} device's "
+                         f"{memory / 1e9:,.0f} GB: give fewer features (--features) or smaller widths (--widths).")
+    return model
+
+
 def pretrain_pose_encoder(train: PoseDataset, test: PoseDataset, encoder: str = "cornet_z",
                           encoder_options: dict | None = None, steps: int = 2000, batch_size: int = 64,
                           learning_rate: float = 1e-3, seed: int = 0, log_every: int = 100,
@@ -60,9 +88,7 @@ def pretrain_pose_encoder(train: PoseDataset, test: PoseDataset, encoder: str = 
     """Train `PoseNet(make_visual_encoder(encoder, **encoder_options), orientation=orientation)` on `train` for
     `steps` Adam steps of `batch_size` samples and measure it on `test` (module docstring). decay: the learning
     rate falls from `learning_rate` to zero on a cosine (False: it stays constant)."""
-    if orientation not in ORIENTATIONS:
-        raise ValueError(f"Unknown orientation {orientation!r}; choose one of {tuple(ORIENTATIONS)}.")
-    model = PoseNet(make_visual_encoder(encoder, **(encoder_options or {})), orientation=orientation)
+    model = pose_network(encoder, encoder_options, orientation, train.images.shape[1:])
     mean, spread = train.cube_position.mean(0), train.cube_position.std(0) + 1e-6
     # The images stay on the host and each step sends its batch: a data set of more than 2^31 pixels (e.g. 54,000
     # samples of three 96 x 96 views) fails as one device array inside a gather (CUDA_ERROR_INVALID_VALUE, measured).
