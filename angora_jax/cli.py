@@ -3,6 +3,7 @@
 angora-jax train cartpole                       train configs/cartpole.yaml into runs/<name>/
 angora-jax train cartpole ppo.network.name=lstm logging.run_name=lstm
 angora-jax resume runs/lstm                     continue from the latest checkpoint, exactly
+angora-jax check runs/lstm                      is the run intact (checkpoints, metrics), what would resume do
 angora-jax evaluate runs/lstm                   episode statistics of the best checkpoint (CPU path), JSON + PNG
 angora-jax render runs/lstm --out lstm.mp4      a video of an episode (MuJoCo tasks)
 angora-jax export runs/lstm --out lstm.msgpack  the policy in one file, for aj.load_policy without the run
@@ -30,6 +31,7 @@ angora-jax pretrain-vision --out encoder.msgpack    a visual encoder that sees t
 from __future__ import annotations
 
 import argparse
+import errno
 import math
 import sys
 import time
@@ -58,6 +60,7 @@ from angora_jax.experiment import (
 from angora_jax.experiment.config import load_config, to_dict, validate
 from angora_jax.experiment.config_reference import reference_markdown
 from angora_jax.experiment.distributed import ProcessFailed, initialize, is_main_process
+from angora_jax.experiment.run_check import check_run
 from angora_jax.experiment.runner import signals_exit_while_preparing
 from angora_jax.nets import list_networks
 from angora_jax.ppo import TrainingDivergedError, list_heads
@@ -120,12 +123,38 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, RunDirError, FileNotFoundError) as error:
         print(f"angora-jax {args.command}: {error}", file=sys.stderr)
         return EXIT_USAGE
+    except OSError as error:  # a full disk, a read-only or lost mount, permissions: the machine's, not a bug
+        print(f"angora-jax {args.command}: {os_error_message(error)}", file=sys.stderr)
+        return EXIT_USAGE
     except TrainingInterrupted as stop:
         print(f"angora-jax {args.command}: {stop}", file=sys.stderr)
         return 128 + stop.signum
     except (TrainingDivergedError, ProcessFailed) as error:
         print(f"angora-jax {args.command}: {error}", file=sys.stderr)
         return EXIT_FAILED
+
+
+# What to do about the errors the operating system reports, by errno.
+OS_ERROR_FIXES = {
+    errno.ENOSPC: "free space on that disk (or move the run root to a larger one)",
+    errno.EDQUOT: "free space within your disk quota (or move the run root)",
+    errno.EROFS: "the file system is read-only: choose a writable place (logging.run_root, --out)",
+    errno.EACCES: "you may not write or read there: choose another place or fix its permissions",
+    errno.EPERM: "you may not write or read there: choose another place or fix its permissions",
+    errno.ENAMETOOLONG: "shorten the path or name",
+    errno.EIO: "the disk or network file system failed: check the mount, then retry",
+    errno.ENOTDIR: "a part of the path is a file, not a folder: fix the path",
+    errno.EISDIR: "the path is a folder: give a file",
+}
+
+
+def os_error_message(error: OSError) -> str:
+    """An OSError as one sentence: what failed, on which file, and the fix; a run interrupted this way keeps what it
+    saved before (`angora-jax check RUN_DIR`, then `resume`)."""
+    where = f" ({error.filename})" if error.filename else ""
+    fix = OS_ERROR_FIXES.get(error.errno, "fix the cause and retry")
+    return (f"{error.strerror or error}{where}: {fix}. A run stopped by it keeps every checkpoint saved before: "
+            "`angora-jax check RUN_DIR` shows them, `angora-jax resume RUN_DIR` continues.")
 
 
 def parser() -> argparse.ArgumentParser:
@@ -145,9 +174,27 @@ def parser() -> argparse.ArgumentParser:
         "--exact", action="store_true",
         help="refuse to continue unless bit for bit: a lean latest checkpoint (checkpoint.lean), or one saved on "
              "another device count with MuJoCo Warp, otherwise continues with fresh environments")
+    resume.add_argument(
+        "--from", dest="start_from", default="latest", metavar="CHECKPOINT",
+        help="continue from this checkpoint instead of the latest: best or a cycle number (the records and "
+             "checkpoints after it are moved aside, never deleted); for a damaged or missing latest checkpoint")
+    resume.add_argument(
+        "--from-scratch", action="store_true",
+        help="train the run again from cycle 0 with its config; the earlier metrics, checkpoints and report move to "
+             "RUN_DIR/previous-N/")
+    resume.add_argument(
+        "--force", action="store_true",
+        help="take over the run's writer lock even when it is held on another host: only when that process is "
+             "certainly gone (its job ended)")
     add_time_limit(resume)
     add_distributed_flags(resume)
     resume.set_defaults(handler=command_resume)
+
+    check = commands.add_parser(
+        "check", help="verify a run directory (checkpoints against their manifests, metrics.jsonl, config, lock) and "
+                      "say what resume would do; exit 2 when something is damaged")
+    check.add_argument("run_dir")
+    check.set_defaults(handler=command_check)
 
     evaluate = commands.add_parser(
         "evaluate", help="episode statistics of a trained policy (eager CPU path or batched); JSON + box plot"
@@ -418,10 +465,17 @@ def command_train(args: argparse.Namespace) -> int:
 def command_resume(args: argparse.Namespace) -> int:
     start_distributed(args)
     with signals_exit_while_preparing():
-        run = resume(args.run_dir, minutes=args.minutes, exact=args.exact)
+        run = resume(args.run_dir, minutes=args.minutes, exact=args.exact, start_from=checkpoint_of(args.start_from),
+                     from_scratch=args.from_scratch, force=args.force)
     if is_main_process():
         print_finished(run)
     return EXIT_OK
+
+
+def command_check(args: argparse.Namespace) -> int:
+    found = check_run(args.run_dir)
+    print(f"{args.run_dir}:\n" + found.format())
+    return EXIT_USAGE if found.problems else EXIT_OK
 
 
 def print_finished(run: TrainingRun) -> None:

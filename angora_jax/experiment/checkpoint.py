@@ -4,7 +4,8 @@ Each checkpoint holds the whole `TrainState` (params, optimizer state, normalise
 recurrent carries, PRNG keys, cycle counter) plus JSON metadata (cycle, env steps, the cycle's metrics, the resolved
 config and whether it holds the environments), so that a resumed run continues bit-for-bit; the kinds named in
 `checkpoint.lean` leave the environments' part out (`TrainState.without_environments`).
-Layout: `checkpoints/{latest,best,snapshots}/<cycle>/`.
+Layout: `checkpoints/{latest,best,snapshots}/<cycle>/`. Each checkpoint's folder ends with a manifest (`manifest`):
+loading checks it first, so a damaged file is named before Orbax reads it.
 Each leaf is stored under its own path (`to_storable`), so a sub-tree (e.g. only params and normaliser statistics for
 acting) can be read without the rest (`Checkpoints.restore(..., partial=True)`): the environment states' layout may
 have changed since saving.
@@ -12,7 +13,13 @@ have changed since saving.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import math
+import shutil
+import sys
+import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,7 +30,9 @@ import orbax.checkpoint as ocp
 
 from angora_jax.experiment.config import CHECKPOINT_KINDS as KINDS
 from angora_jax.experiment.config import CheckpointConfig
-from angora_jax.experiment.run_dir import RunDirError
+from angora_jax.experiment.distributed import is_main_process
+from angora_jax.experiment.manifest import MANIFEST_FILE, verify, write_manifest
+from angora_jax.experiment.run_dir import DiskFullError, RunDirError, is_disk_full
 
 
 def to_storable(state: Any) -> dict[str, jax.Array]:
@@ -100,7 +109,10 @@ class Checkpoints:
             for kind in KINDS
         }
         best = self._managers["best"].latest_step()
-        self.best_value = None if best is None else self._read_meta("best", best)["metrics"].get(config.best_metric)
+        try:
+            self.best_value = None if best is None else self._read_meta("best", best)["metrics"].get(config.best_metric)
+        except CheckpointError:  # a damaged best checkpoint: the next improvement saves a new one
+            self.best_value = None
 
     def steps(self, kind: str) -> list[int]:
         """Cycles at which checkpoints of `kind` ("latest", "best", "snapshots") exist, ascending."""
@@ -124,12 +136,48 @@ class Checkpoints:
             if is_due and cycle not in self._managers[kind].all_steps():
                 lean = kind in self.config.lean
                 storable = to_storable(state.without_environments() if lean else state)
-                self._managers[kind].save(cycle, args=ocp.args.Composite(
-                    state=ocp.args.PyTreeSave(storable), meta=ocp.args.JsonSave(meta | {"environments": not lean})))
+                try:
+                    with _echoes_dropped():
+                        self._managers[kind].save(cycle, args=ocp.args.Composite(
+                            state=ocp.args.PyTreeSave(storable),
+                            meta=ocp.args.JsonSave(meta | {"environments": not lean})))
+                except Exception as error:
+                    if not is_disk_full(error):
+                        raise
+                    raise self._disk_full(kind, cycle, error) from None
+                if is_main_process():  # Orbax's save has waited for every process's shards
+                    try:
+                        write_manifest(self._directory / kind / str(cycle))
+                    except OSError as error:
+                        if not is_disk_full(error):
+                            raise
+                        raise self._disk_full(kind, cycle, error, saved=True) from None
                 saved.append(kind)
         if "best" in saved:
             self.best_value = metrics[self.config.best_metric]
         return saved
+
+    def _disk_full(self, kind: str, cycle: int, error: BaseException, saved: bool = False) -> DiskFullError:
+        """Remove what the failed save left (Orbax's temporary folder; the manifest's draft when only the manifest
+        failed, `saved`) and say what is intact."""
+        if saved:
+            (self._directory / kind / str(cycle) / f"{MANIFEST_FILE}.tmp").unlink(missing_ok=True)
+        else:
+            for leftover in (self._directory / kind).glob(f"{cycle}.*"):  # Orbax's <cycle>.orbax-checkpoint-tmp*
+                shutil.rmtree(leftover, ignore_errors=True)
+            self._managers[kind].reload()
+        kept = {k: self.steps(k) for k in KINDS if self.steps(k)}
+        free = shutil.disk_usage(self._directory).free
+        what = (f"the {kind} checkpoint of cycle {cycle} was saved, but not its manifest (it reads as unverifiable)"
+                if saved else f"the {kind} checkpoint of cycle {cycle} could not be saved")
+        run_dir = self._directory.parent
+        then = (f"The checkpoints saved before are intact ({kept}). Free space (or move the run to a larger disk), "
+                f"then continue with `angora-jax resume {run_dir}`" if kept else
+                "No checkpoint was saved before, so the run cannot continue: free space, then train it again with "
+                f"`angora-jax resume {run_dir} --from-scratch` (the cycles logged so far are kept aside)")
+        return DiskFullError(
+            f"The disk is full: {what} in {self._directory} ({free / 2**20:.1f} MiB free; {type(error).__name__}). "
+            f"{then}.")
 
     def restore(self, template: Any, which: str | int = "latest", partial: bool = False) -> Restored:
         """Read a state shaped like `template` (a TrainState, any tree of arrays, or its `jax.eval_shape`).
@@ -140,7 +188,7 @@ class Checkpoints:
         `template`'s leaves. Raises FileNotFoundError listing what exists when there is no such checkpoint, and
         CheckpointError when it cannot be read or a leaf read differs in shape or dtype from `template`'s.
         """
-        kind, cycle = self._locate(which)
+        kind, cycle = self.locate(which)
         # Whole arrays onto this process's first device, whatever devices saved them (several devices or hosts):
         # training lays the state out again for the devices it runs on.
         device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
@@ -148,6 +196,7 @@ class Checkpoints:
             lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=device), jax.eval_shape(to_storable, template)
         )
         manager = self._managers[kind]
+        self.check_intact(kind, cycle)
         try:
             stored = manager.item_metadata(cycle)["state"].tree
             _check_fits(self._directory / kind / str(cycle), stored, abstract, partial)
@@ -174,21 +223,24 @@ class Checkpoints:
     def holds_environments(self, which: str | int = "latest") -> bool:
         """Whether checkpoint `which` holds the environments' states (not `checkpoint.lean`), so that resuming from
         it continues exactly; FileNotFoundError as `restore` when there is no such checkpoint."""
-        return self._read_meta(*self._locate(which)).get("environments", True)
+        return self._read_meta(*self.locate(which)).get("environments", True)
 
     def close(self) -> None:
         for manager in self._managers.values():
             manager.close()
 
-    def _locate(self, which: str | int) -> tuple[str, int]:
+    def locate(self, which: str | int) -> tuple[str, int]:
+        """The kind and cycle of checkpoint `which` ("latest", "best" or a cycle: of the kinds that hold it, the first
+        not found damaged); FileNotFoundError listing what exists when there is none."""
         if which in ("latest", "best"):
             step = self._managers[which].latest_step()
             if step is not None:
                 return which, step
         elif isinstance(which, int):
-            for kind in KINDS:
-                if which in self._managers[kind].all_steps():
-                    return kind, which
+            holding = [kind for kind in KINDS if which in self._managers[kind].all_steps()]
+            sound = [kind for kind in holding if self.damage(kind, which) in (None, "no manifest")]
+            if holding:
+                return (sound or holding)[0], which
         existing = {kind: self.steps(kind) for kind in KINDS}
         if not any(existing.values()):
             raise FileNotFoundError(
@@ -199,8 +251,41 @@ class Checkpoints:
             f"No checkpoint {which!r}. Saved cycles: {existing}; ask for 'latest', 'best' or one of them."
         )
 
+    def damage(self, kind: str, cycle: int) -> str | None:
+        """What is wrong with checkpoint `kind`/`cycle` by its manifest (`manifest.verify`), None when intact; "no
+        manifest" when it cannot be checked (saved before manifests were written)."""
+        return verify(self._directory / kind / str(cycle))
+
+    def check_intact(self, kind: str, cycle: int) -> None:
+        """Raise CheckpointError naming the damaged file and the newest intact checkpoint, unless the manifest of
+        checkpoint `kind`/`cycle` holds (or it has none)."""
+        problem = self.damage(kind, cycle)
+        if problem in (None, "no manifest"):
+            return
+        intact = self.newest_intact(below=None, skip=(kind, cycle))
+        named = intact and (intact[0] if intact[0] != kind and intact[0] in ("latest", "best") else intact[1])
+        fallback = (f"The newest intact checkpoint is {intact[0]} of cycle {intact[1]}: read it with --checkpoint "
+                    f"{named} (resume: --from {named})" if intact else "No other intact checkpoint is left")
+        raise CheckpointError(f"Checkpoint {self._directory / kind / str(cycle)} is damaged: {problem}. {fallback}; "
+                              "or restore the folder from a copy. `angora-jax check RUN_DIR` lists every checkpoint.")
+
+    def newest_intact(self, below: int | None = None, skip: tuple[str, int] | None = None) -> tuple[str, int] | None:
+        """The kind and cycle of the newest checkpoint not found damaged (its manifest holds, or it has none to check;
+        cycles below `below` only, when given; `skip` left out), or None."""
+        found = [(cycle, kind) for kind in KINDS for cycle in self.steps(kind)
+                 if (kind, cycle) != skip and (below is None or cycle < below)
+                 and self.damage(kind, cycle) in (None, "no manifest")]
+        return (max(found)[1], max(found)[0]) if found else None
+
     def _read_meta(self, kind: str, cycle: int) -> dict[str, Any]:
-        return dict(self._managers[kind].restore(cycle, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"])
+        self.check_intact(kind, cycle)
+        try:
+            restored = self._managers[kind].restore(cycle, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))
+            return dict(restored["meta"])
+        except Exception as error:  # as in `restore`: every unreadable file means the same to the user
+            raise CheckpointError(
+                f"Checkpoint {self._directory / kind / str(cycle)} cannot be read ({type(error).__name__}: {error}). "
+                "It is corrupt or incomplete; `angora-jax check RUN_DIR` lists the intact checkpoints.") from error
 
     def _improves(self, metrics: dict[str, float]) -> bool:
         name = self.config.best_metric
@@ -210,6 +295,55 @@ class Checkpoints:
         if self.best_value is None:
             return True
         return value > self.best_value if self.config.best_mode == "max" else value < self.best_value
+
+
+# What Orbax's and TensorStore's writer threads print when a save fails, each thread for itself and some after the save
+# has raised (their callbacks find the save's event loop closed): the failure, which the save raises once anyway.
+_ECHOES = ("No space left on device", "Disk quota exceeded", "Event loop is closed", "RESOURCE_EXHAUSTED")
+
+
+def _is_echo(text: str) -> bool:
+    return any(echo in text for echo in _ECHOES)
+
+
+class _EchoFilter(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not _is_echo(record.getMessage())
+
+
+@contextlib.contextmanager
+def _echoes_dropped() -> Iterator[None]:
+    """Around a save: drop the writer threads' reports of its failure (asyncio's and absl's log records, and the
+    tracebacks that callbacks print through sys.excepthook or sys.unraisablehook); the save's own error says it once.
+    After a full disk they go on after the save, so the hooks then stay for the rest of the process."""
+    unraisable, excepthook = sys.unraisablehook, sys.excepthook
+    echo = _EchoFilter()
+    loggers = [logging.getLogger(name) for name in ("asyncio", "absl")]
+
+    def quiet_unraisable(report) -> None:
+        if not _is_echo(f"{report.exc_value!r} {report.err_msg}"):
+            unraisable(report)
+
+    def quiet_excepthook(kind, error, traceback) -> None:
+        if not _is_echo(repr(error)):
+            excepthook(kind, error, traceback)
+
+    sys.unraisablehook, sys.excepthook = quiet_unraisable, quiet_excepthook
+    for logger in loggers:
+        logger.addFilter(echo)
+    disk_full = False
+    try:
+        yield
+    except BaseException as error:
+        disk_full = is_disk_full(error)
+        raise
+    finally:
+        if disk_full:  # and the writes it had scheduled are dropped unawaited
+            warnings.filterwarnings("ignore", "coroutine .* was never awaited", RuntimeWarning)
+        else:
+            sys.unraisablehook, sys.excepthook = unraisable, excepthook
+            for logger in loggers:
+                logger.removeFilter(echo)
 
 
 def _check_fits(where: Path, stored: dict[str, Any], abstract: dict[str, jax.ShapeDtypeStruct], partial: bool) -> None:

@@ -18,6 +18,7 @@ import numpy as np
 from jax.experimental import multihost_utils
 
 from angora_jax.experiment.config import Config, ConfigError
+from angora_jax.experiment.run_dir import RunDirError
 
 
 def initialize(
@@ -55,8 +56,14 @@ def shared_run_dir(config: Config, create: Callable[[Config], Path]) -> Path:
             f"A run over {jax.process_count()} processes needs logging.run_name (all processes write one run "
             "directory), e.g. logging.run_name=$SLURM_JOB_ID."
         )
-    path = create(config) if is_main_process() else Path(config.logging.run_root) / config.logging.run_name
-    multihost_utils.sync_global_devices("angora_jax run directory")
+    path, failure = Path(config.logging.run_root) / config.logging.run_name, None
+    if is_main_process():
+        try:
+            path = create(config)
+        except Exception as error:  # raised below on every process: the others would wait for it in the first cycle
+            failure = error
+    if agree_to_stop(None, failure is not None).failed:
+        raise failure or RunDirError(f"Process 0 could not create the run directory {path}; its output says why.")
     return path
 
 

@@ -10,8 +10,11 @@ compile_cache_hits and compile_cache_misses), normaliser statistics (`norm/...`)
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import math
+import os
 import resource
 import sys
 import time
@@ -21,7 +24,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from angora_jax.experiment.run_dir import METRICS_FILE
+from angora_jax.experiment.run_dir import METRICS_FILE, DiskFullError, RunDirError, is_disk_full
 from angora_jax.experiment.wandb_logging import WandbConfig, WandbLog
 from angora_jax.ppo.cycle import TrainState
 from angora_jax.ppo.parallel import host_copy
@@ -61,7 +64,8 @@ class Monitor:
     def __init__(self, run_dir: Path, tensorboard: bool = False, wandb: WandbConfig | None = None,
                  config: dict[str, Any] | None = None):
         self.path = Path(run_dir) / METRICS_FILE
-        self._file = self.path.open("a")
+        # Unbuffered: a record is written whole or, when the disk is full, cut back to the previous one (`record`).
+        self._file = self.path.open("ab", buffering=0)
         self._writer = None
         if tensorboard:
             from tensorboardX import SummaryWriter  # optional dependency, checked by config.validate
@@ -72,8 +76,18 @@ class Monitor:
     def record(self, metrics: dict[str, float], state: TrainState) -> dict[str, Any]:
         """Write the cycle's record (metrics plus normaliser and memory statistics) and return it."""
         record = {**metrics, **normalizer_summary(state), **memory_summary(), "time": time.time()}
-        self._file.write(json.dumps({k: _json_value(v) for k, v in record.items()}) + "\n")
-        self._file.flush()
+        line = (json.dumps({k: _json_value(v) for k, v in record.items()}) + "\n").encode()
+        end = os.fstat(self._file.fileno()).st_size
+        try:
+            if self._file.write(line) != len(line):
+                raise OSError(errno.ENOSPC, "the record was written in part")
+        except OSError as error:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._file.fileno(), end)  # no half line for the next write to follow
+            cause = DiskFullError if is_disk_full(error) else RunDirError
+            raise cause(f"Cannot write the record of cycle {record.get('cycle')} to {self.path}: "
+                        f"{error.strerror or error}. The records and checkpoints written before are intact; fix the "
+                        f"cause (free space); `angora-jax check {self.path.parent}` says how to continue.") from None
         if self._writer is not None:
             step = int(metrics["env_steps"])
             for key, value in record.items():
@@ -93,16 +107,52 @@ class Monitor:
 
 
 def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
-    """The records of `run_dir/metrics.jsonl` in order, nulls read back as NaN."""
-    path = Path(run_dir) / METRICS_FILE
-    if not path.exists():
-        return []
-    text = path.read_text()
+    """The records of `run_dir/metrics.jsonl` in order, nulls read back as NaN. A damaged line (an edit, a copy cut
+    short) is skipped with a warning naming it (`angora-jax check` lists them)."""
+    rows, damaged = _parse_metrics(Path(run_dir) / METRICS_FILE)
+    if damaged:
+        print(f"Warning: {Path(run_dir) / METRICS_FILE}: line(s) {', '.join(map(str, damaged[:5]))} are not records "
+              "of a cycle and are skipped (angora-jax check RUN_DIR).", file=sys.stderr)
+    return [{k: math.nan if v is None else v for k, v in row.items()} for _, row in rows]
+
+
+def logged_cycles(run_dir: str | Path) -> list[int]:
+    """The cycle numbers of the records in `run_dir/metrics.jsonl`, in file order (damaged lines left out)."""
+    return [row["cycle"] for _, row in _parse_metrics(Path(run_dir) / METRICS_FILE)[0]]
+
+
+def damaged_metric_lines(run_dir: str | Path) -> list[int]:
+    """The line numbers (from 1) of metrics.jsonl that hold no cycle's record."""
+    return _parse_metrics(Path(run_dir) / METRICS_FILE)[1]
+
+
+def _parse_metrics(path: Path) -> tuple[list[tuple[str, dict[str, Any]]], list[int]]:
+    """(line text, record) of each whole record line, and the numbers of the damaged lines. A last line without its
+    newline is being written right now (a live report reads while the run trains) and is neither."""
+    try:
+        text = path.read_text(errors="replace")
+    except FileNotFoundError:
+        return [], []
     lines = text.splitlines()
     if lines and not text.endswith("\n"):
-        lines.pop()  # a line being written right now (a live report reads while the run trains)
-    rows = [json.loads(line) for line in lines if line.strip()]
-    return [{k: math.nan if v is None else v for k, v in row.items()} for row in rows]
+        lines.pop()
+    rows, damaged = [], []
+    for number, line in enumerate(lines, 1):
+        row = _record(line)
+        if row is not None:
+            rows.append((line, row))
+        elif line.strip():
+            damaged.append(number)
+    return rows, damaged
+
+
+def _record(line: str) -> dict[str, Any] | None:
+    """The cycle's record a line of metrics.jsonl holds, or None when it holds none."""
+    try:
+        row = json.loads(line)
+    except ValueError:
+        return None
+    return row if isinstance(row, dict) and isinstance(row.get("cycle"), int) else None
 
 
 def set_aside_after(run_dir: str | Path, cycle: int) -> Path | None:
@@ -112,8 +162,13 @@ def set_aside_after(run_dir: str | Path, cycle: int) -> Path | None:
     path = Path(run_dir) / METRICS_FILE
     if not path.exists():
         return None
-    lines = [line for line in path.read_text().splitlines() if line.strip()]
-    later = [line for line in lines if json.loads(line)["cycle"] > cycle]
+    kept_lines, later = [], []
+    for line in path.read_text(errors="replace").splitlines():
+        row = _record(line)
+        if row is not None and row["cycle"] <= cycle:
+            kept_lines.append(line)
+        elif line.strip():  # a later record, or a damaged line (which the log keeps no more than a later one)
+            later.append(line)
     if not later:
         return None
     side = path.with_name(f"metrics.after-cycle-{cycle}.jsonl")
@@ -123,7 +178,7 @@ def set_aside_after(run_dir: str | Path, cycle: int) -> Path | None:
         side = path.with_name(f"metrics.after-cycle-{cycle}-{index}.jsonl")
     side.write_text("\n".join(later) + "\n")
     kept = path.with_name(METRICS_FILE + ".tmp")
-    kept.write_text("".join(line + "\n" for line in lines if json.loads(line)["cycle"] <= cycle))
+    kept.write_text("".join(line + "\n" for line in kept_lines))
     kept.replace(path)
     return side
 

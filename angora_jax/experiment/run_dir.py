@@ -16,9 +16,11 @@ A new run never reuses an existing directory.
 
 from __future__ import annotations
 
+import errno
 import json
+import shutil
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import yaml
@@ -37,11 +39,29 @@ class RunDirError(ValueError):
     """A run directory that cannot be used as asked (exists already, or is not a run directory)."""
 
 
-def create_run_dir(config: Config) -> Path:
+class DiskFullError(RunDirError):
+    """A run's file could not be written for want of space; what was saved before is intact."""
+
+
+def is_disk_full(error: BaseException) -> bool:
+    """Whether `error`, or an error it was raised from, says the disk (or the user's quota) is full: Orbax and
+    TensorStore wrap the OSError in their own types, some only in the message."""
+    while error is not None:
+        if isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT):
+            return True
+        if "No space left on device" in str(error) or "Disk quota exceeded" in str(error):
+            return True
+        error = error.__cause__ or error.__context__
+    return False
+
+
+def create_run_dir(config: Config, claim: Callable[[Path], None] | None = None) -> Path:
     """Make a new run directory under `config.logging.run_root` and save the resolved config in it.
 
-    The name is `logging.run_name`, or task-network-date-time (with a -2, -3, ... suffix when taken). Raises
-    RunDirError when a named run directory exists already: nothing in it is touched.
+    The name is `logging.run_name`, or task-network-date-time (with a -2, -3, ... suffix when taken). claim: called
+    with the new, empty directory before the config is written (the writer lock: a directory with a config is a run
+    that `resume` may continue). Raises RunDirError when a named run directory exists already: nothing in it is
+    touched. A directory that cannot be completed (a full disk) is removed again.
     """
     root = Path(config.logging.run_root)
     root.mkdir(parents=True, exist_ok=True)
@@ -64,9 +84,15 @@ def create_run_dir(config: Config) -> Path:
             except FileExistsError:
                 suffix += 1
                 path = root / f"{stem}-{suffix}"
-    resolved = to_dict(config)
-    (path / CONFIG_FILE).write_text(yaml.safe_dump(resolved, sort_keys=False))
-    (path / HYPERPARAMETERS_FILE).write_text(json.dumps(flatten(resolved), indent=1))
+    try:
+        if claim is not None:
+            claim(path)
+        resolved = to_dict(config)
+        (path / CONFIG_FILE).write_text(yaml.safe_dump(resolved, sort_keys=False))
+        (path / HYPERPARAMETERS_FILE).write_text(json.dumps(flatten(resolved), indent=1))
+    except BaseException:
+        shutil.rmtree(path, ignore_errors=True)
+        raise
     return path
 
 

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+from jax.experimental import multihost_utils
 
 from angora_jax.envs.core import Env
 from angora_jax.envs.mjx_env import on_gpu
@@ -33,9 +34,12 @@ from angora_jax.experiment.cpu_sizing import cpu_note
 from angora_jax.experiment.distributed import ProcessFailed, agree_to_stop, is_main_process, shared_run_dir
 from angora_jax.experiment.doctor import devices, versions
 from angora_jax.experiment.held_out import held_out_evaluation
-from angora_jax.experiment.monitor import Monitor, read_metrics, set_aside_after
+from angora_jax.experiment.monitor import Monitor, logged_cycles, set_aside_after
 from angora_jax.experiment.progress import Progress
+from angora_jax.experiment.resume_plan import plan_resume, set_aside_checkpoints_after, set_aside_outputs
 from angora_jax.experiment.run_dir import CHECKPOINTS, create_run_dir, read_run_config, record_session
+from angora_jax.experiment.run_lock import RunLock, RunLockedError, release_own_lock
+from angora_jax.experiment.sources import check_sources
 from angora_jax.ppo.cycle import TrainState, make_cycle
 from angora_jax.ppo.parallel import per_device
 from angora_jax.ppo.train import training_cycles
@@ -92,72 +96,134 @@ def train(
     elif overrides:
         raise ValueError("Overrides apply to a config loaded from a file or dict; change a Config with replace().")
     env = validate(config)
-    run_dir = shared_run_dir(config, create_run_dir)
+    check_sources(config, env)
+    lock = None
+
+    def claim(path: Path) -> None:
+        nonlocal lock
+        lock = RunLock(path)
+        lock.acquire()
+
+    run_dir = shared_run_dir(config, lambda config: create_run_dir(config, claim))
     try:
         return _run(config, env, run_dir, state=None, on_cycle=on_cycle, minutes=minutes, new=True)
     except BaseException:
         # A run that failed before its first cycle was recorded holds only its config: leave no half-made directory.
-        if is_main_process() and not read_metrics(run_dir):
+        if is_main_process() and not logged_cycles(run_dir):
             shutil.rmtree(run_dir, ignore_errors=True)
+            print(f"The new run directory {run_dir} was removed: no cycle was finished in it.", file=sys.stderr)
         raise
+    finally:
+        if lock is not None:
+            lock.release()
 
 
 def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | None = None,
-           minutes: float | None = None, exact: bool = False) -> TrainingRun:
+           minutes: float | None = None, exact: bool = False, start_from: str | int = "latest",
+           from_scratch: bool = False, force: bool = False) -> TrainingRun:
     """Continue `run_dir` from its latest checkpoint up to the config's `ppo.num_cycles`, exactly as if it had
-    not stopped (same device count assumed). Without a checkpoint (killed before the first) the run starts over from
-    cycle 0, which gives the same result. A run that has already finished is returned as it is. minutes: this
+    not stopped (same device count assumed). A run that has already finished is returned as it is. minutes: this
     call's wall-clock limit, as for `train`.
 
-    A latest checkpoint without the environments' states (`checkpoint.lean`), or whose environments do not fit this
-    run (another `distribution.num_devices`: MuJoCo Warp's state holds a contact pool per device), continues with
-    its parameters, optimizer, normalisers and key, and environments made afresh: not bit for bit, as a printed note
-    says. exact: refuse that instead (CheckpointError naming the cause)."""
+    Nothing saved is lost or silently replaced (`resume_plan`): the process takes the run's writer lock (`run_lock`;
+    RunLockedError naming the holder when another process trains it; `force` takes over a lock held on another host);
+    a run that logged cycles but has no loadable latest checkpoint is refused (RunDirError naming the choices)
+    rather than started over; a damaged checkpoint is refused (CheckpointError naming the newest intact one).
+    start_from: "latest", "best" or a cycle with a checkpoint: continue from that one, with the later records of
+    metrics.jsonl and later checkpoints moved aside. from_scratch: train again from cycle 0, with the earlier
+    outputs moved to `RUN_DIR/previous-N/`. Records logged after the checkpoint continued from always move to a side
+    file (`metrics.after-cycle-N.jsonl`).
+
+    A checkpoint without the environments' states (`checkpoint.lean`; best and snapshots often are), or whose
+    environments do not fit this run (another `distribution.num_devices`: MuJoCo Warp's state holds a contact pool
+    per device), continues with its parameters, optimizer, normalisers and key, and environments made afresh: not bit
+    for bit, as a printed note says. exact: refuse that instead (CheckpointError naming the cause)."""
     compilation_cache.enable()
     run_dir = Path(run_dir)
     config = read_run_config(run_dir)
     env = validate(config)
-    checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint)
+    lock = _lock_together(run_dir, force)
     try:
+        plan = plan_resume(run_dir, config, start_from, from_scratch)
         state = None
-        if checkpoints.steps("latest"):
-            state = _restore_to_continue(checkpoints, initial_state_shape(config, env), exact, run_dir,
-                                         config.ppo.num_cycles)
+        if plan.cycle is not None:
+            checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)
+            try:
+                state = _restore_to_continue(checkpoints, plan.cycle, initial_state_shape(config, env), exact, run_dir,
+                                             config.ppo.num_cycles)
+            finally:
+                checkpoints.close()
+        if is_main_process():
+            if plan.fresh_start:
+                print(f"Training {run_dir} again from cycle 0; the earlier outputs are kept in "
+                      f"{set_aside_outputs(run_dir)}.", file=sys.stderr, flush=True)
+            elif plan.cycle is None:
+                print(f"Resuming {run_dir} from cycle 0: {plan.describe}.", file=sys.stderr, flush=True)
+            else:
+                moved = set_aside_checkpoints_after(run_dir, plan.cycle)
+                if moved is not None:
+                    print(f"Checkpoints after cycle {plan.cycle} are kept in {moved}.", file=sys.stderr, flush=True)
+                side = set_aside_after(run_dir, plan.cycle)
+                if side is not None:
+                    print(f"Records after cycle {plan.cycle} are kept in {side}.", file=sys.stderr, flush=True)
+        _together(f"angora_jax resume {run_dir}")
+        return _run(config, env, run_dir, state=state, on_cycle=on_cycle, minutes=minutes)
     finally:
-        checkpoints.close()
+        if lock is not None:
+            lock.release()
+
+
+def _lock_together(run_dir: Path, force: bool) -> RunLock | None:
+    """Process 0 takes the run's writer lock for all processes; all raise RunLockedError when it cannot (the others
+    would otherwise wait for it in the first cycle). Returns the lock held by this process, if any."""
+    lock, refusal = None, None
     if is_main_process():
-        set_aside_after(run_dir, 0 if state is None else int(state.cycle))
-    return _run(config, env, run_dir, state=state, on_cycle=on_cycle, minutes=minutes)
-
-
-def _restore_to_continue(checkpoints: Checkpoints, template: TrainState, exact: bool, run_dir: Path,
-                         num_cycles: int) -> TrainState:
-    """The latest checkpoint's state, whole where it can be; else without its environments (see `resume`). A finished
-    run's needs none: nothing continues."""
-    cycle = checkpoints.steps("latest")[-1]
-    lean = template.without_environments()
-    if cycle >= num_cycles and not checkpoints.holds_environments("latest"):
-        return checkpoints.restore(lean, "latest", partial=True).state
-    if checkpoints.holds_environments("latest"):
+        lock = RunLock(run_dir)
         try:
-            return checkpoints.restore(template, "latest").state
+            lock.acquire(force)
+        except RunLockedError as error:
+            lock, refusal = None, error
+    agreed = agree_to_stop(None, refusal is not None)
+    if refusal is not None:
+        raise refusal
+    if agreed.failed:
+        raise RunLockedError(f"Process 0 could not take the writer lock of {run_dir}; its output says why.")
+    return lock
+
+
+def _together(what: str) -> None:
+    """Wait until every process of a multi-process run gets here (process 0 may be moving files the others read)."""
+    if jax.process_count() > 1:
+        multihost_utils.sync_global_devices(what)
+
+
+def _restore_to_continue(checkpoints: Checkpoints, cycle: int, template: TrainState, exact: bool, run_dir: Path,
+                         num_cycles: int) -> TrainState:
+    """The state of the checkpoint of `cycle`, whole where it can be; else without its environments (see `resume`). A
+    finished run's needs none: nothing continues."""
+    lean = template.without_environments()
+    if cycle >= num_cycles and not checkpoints.holds_environments(cycle):
+        return checkpoints.restore(lean, cycle, partial=True).state
+    if checkpoints.holds_environments(cycle):
+        try:
+            return checkpoints.restore(template, cycle).state
         except CheckpointError as error:
             if exact or error.misfits is None:  # asked to be exact, or unreadable rather than of another layout
                 raise
             try:  # the parameters still fit, the environments' layout does not (another device count)
-                state = checkpoints.restore(lean, "latest", partial=True).state
+                state = checkpoints.restore(lean, cycle, partial=True).state
             except CheckpointError:
                 raise error from None
             reason = (f"its environments' states do not fit this run ({error.misfits}): saved on another device "
                       "count (MuJoCo Warp keeps a contact pool per device) or by another version of the task")
     else:
-        reason = "it is lean (checkpoint.lean names 'latest'): it holds no environment states"
+        reason = "it is lean (checkpoint.lean): it holds no environment states"
         if exact:
             raise CheckpointError(
                 f"Cannot resume {run_dir} exactly from cycle {cycle}: {reason}, so the run cannot continue bit for "
                 "bit. Resume without --exact (its environments are then made afresh), or keep environments in "
-                "future checkpoints with checkpoint.lean=[snapshots].")
-        state = checkpoints.restore(lean, "latest", partial=True).state
+                "future latest checkpoints with checkpoint.lean=[snapshots].")
+        state = checkpoints.restore(lean, cycle, partial=True).state
     if is_main_process():
         print(f"Resuming {run_dir} from cycle {cycle} with fresh environments, not bit for bit: {reason}.",
               file=sys.stderr, flush=True)
@@ -355,6 +421,7 @@ def _exit_while_preparing(signum: signal.Signals, run_dir: Path, new: bool) -> N
         shutil.rmtree(run_dir, ignore_errors=True)
         outcome = f"nothing was trained yet, so the new run directory {run_dir} was removed"
     else:
+        release_own_lock(run_dir)
         outcome = f"the run directory {run_dir} keeps its checkpoints; continue with: angora-jax resume {run_dir}"
     print(f"\nInterrupted by {signum.name} before the first cycle ended (while compiling or running it): {outcome}.",
           file=sys.stderr, flush=True)

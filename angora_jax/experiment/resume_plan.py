@@ -1,0 +1,107 @@
+"""What `resume` does with a run directory, decided before anything is changed: `resume` carries the plan out, and
+`angora-jax check` prints it.
+
+A resume never starts over by itself: a run that logged cycles but has no loadable latest checkpoint is refused with
+the choices (`--from best` or a cycle, `--from-scratch`), and whatever a choice replaces is moved aside, never deleted.
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+from angora_jax.experiment.checkpoint import KINDS, Checkpoints
+from angora_jax.experiment.config import Config
+from angora_jax.experiment.manifest import verify
+from angora_jax.experiment.monitor import logged_cycles
+from angora_jax.experiment.run_dir import CHECKPOINTS, METRICS_FILE, RunDirError, numbered_paths
+
+# What a fresh start moves aside (into RUN_DIR/previous-N/): everything the earlier training wrote but its config and
+# the session log, which goes on.
+TRAINING_OUTPUTS = (METRICS_FILE, CHECKPOINTS, "tensorboard", "videos", "report", "wandb")
+
+
+@dataclass(frozen=True)
+class ResumePlan:
+    """kind and cycle: the checkpoint to continue from (None and None: train from cycle 0). fresh_start: the earlier
+    outputs move aside first (`--from-scratch`). describe: the plan in words."""
+
+    kind: str | None
+    cycle: int | None
+    fresh_start: bool
+    describe: str
+
+
+def plan_resume(run_dir: Path, config: Config, start_from: str | int = "latest", from_scratch: bool = False
+                ) -> ResumePlan:
+    """Decide where `resume` continues `run_dir` from; raise RunDirError (CheckpointError for a damaged checkpoint)
+    naming what is missing and the choices when it cannot continue as asked. Reads only."""
+    if from_scratch:
+        if start_from != "latest":
+            raise RunDirError("--from-scratch trains again from cycle 0: it cannot be combined with --from.")
+        return ResumePlan(None, None, True, f"train again from cycle 0; the earlier {', '.join(TRAINING_OUTPUTS)} "
+                                            f"move to {run_dir}/previous-N/")
+    logged = logged_cycles(run_dir)
+    checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)
+    try:
+        if start_from == "latest":
+            latest = checkpoints.steps("latest")
+            if latest:
+                checkpoints.check_intact("latest", latest[-1])
+                return ResumePlan("latest", latest[-1], False,
+                                  f"continue from the latest checkpoint, cycle {latest[-1]}")
+            saved = {kind: checkpoints.steps(kind) for kind in KINDS if checkpoints.steps(kind)}
+            if logged or saved:
+                older = checkpoints.newest_intact()
+                choice = (f"`--from {older[1]}` continues from the newest intact checkpoint ({older[0]}, cycle "
+                          f"{older[1]}), or " if older else "")
+                raise RunDirError(
+                    f"{run_dir} has no latest checkpoint to resume from (checkpoints/latest is empty or missing), "
+                    f"but it logged {len(logged)} cycles (up to cycle {max(logged, default=0)}) in {METRICS_FILE}"
+                    f"{f' and keeps {saved}' if saved else ''}. Resuming now would start over and lose that curve, "
+                    f"so nothing was changed. Choose: {choice}`--from-scratch` trains again from cycle 0 with the "
+                    f"earlier files moved to {run_dir}/previous-N/. `angora-jax check {run_dir}` shows what the run "
+                    "holds.")
+            return ResumePlan(None, None, False, "train from cycle 0: nothing was logged or saved before it stopped")
+        try:
+            kind, cycle = checkpoints.locate(start_from)
+        except FileNotFoundError as error:
+            raise RunDirError(f"--from {start_from}: {error}") from None
+        checkpoints.check_intact(kind, cycle)
+        later = [c for c in logged if c > cycle]
+        return ResumePlan(kind, cycle, False,
+                          f"continue from the {kind} checkpoint of cycle {cycle}" +
+                          (f"; the {len(later)} cycles logged after it, and later checkpoints, are set aside"
+                           if later else ""))
+    finally:
+        checkpoints.close()
+
+
+def set_aside_checkpoints_after(run_dir: Path, cycle: int) -> Path | None:
+    """Move the checkpoints of cycles after `cycle` (a resume from an earlier checkpoint recomputes those cycles), and
+    damaged ones, into `RUN_DIR/set-aside/resumed-from-cycle-<cycle>[-n]/`; returns that folder, or None when there were
+    none."""
+    later = [path for kind in KINDS for path in (run_dir / CHECKPOINTS / kind).glob("*")
+             if path.name.isdigit() and (int(path.name) > cycle or verify(path) not in (None, "no manifest"))]
+    if not later:
+        return None
+    target = next(path for path in numbered_paths(run_dir / "set-aside", f"resumed-from-cycle-{cycle}", "")
+                  if not path.exists())
+    for path in later:
+        destination = target / CHECKPOINTS / path.parent.name / path.name
+        destination.parent.mkdir(parents=True, exist_ok=True)
+        shutil.move(path, destination)
+    return target
+
+
+def set_aside_outputs(run_dir: Path) -> Path:
+    """Move the run's training outputs (`TRAINING_OUTPUTS`) into a new `RUN_DIR/previous-N/` and return it."""
+    target = next(path for path in (run_dir / f"previous-{n}" for n in range(1, 10_000)) if not path.exists())
+    target.mkdir()
+    for name in TRAINING_OUTPUTS:
+        if (run_dir / name).exists():
+            shutil.move(run_dir / name, target / name)
+    for side in run_dir.glob("metrics.after-cycle-*.jsonl"):
+        shutil.move(side, target / side.name)
+    return target

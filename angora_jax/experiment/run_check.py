@@ -1,0 +1,105 @@
+"""`angora-jax check RUN_DIR`: what a run directory holds, whether it is intact, and what `resume` would do with it.
+
+Reads only: the config (does it load and fit this version), the writer lock, metrics.jsonl (damaged lines, and each
+cycle logged once and in order), every checkpoint against its manifest, and the resume plan (`resume_plan`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from angora_jax.experiment.checkpoint import KINDS, Checkpoints
+from angora_jax.experiment.config import ConfigError, validate
+from angora_jax.experiment.monitor import damaged_metric_lines, logged_cycles
+from angora_jax.experiment.resume_plan import plan_resume
+from angora_jax.experiment.run_dir import CHECKPOINTS, METRICS_FILE, RunDirError, read_run_config
+from angora_jax.experiment.run_lock import RunLock
+
+
+@dataclass
+class RunCheck:
+    """findings: what was found, one line each. problems: what is damaged or inconsistent, with the fix (empty for
+    a sound run). resume: what `angora-jax resume` would do, or why it would refuse."""
+
+    findings: list[str] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+    resume: str = ""
+
+    def format(self) -> str:
+        lines = [*self.findings, f"resume: {self.resume}"]
+        lines += [f"PROBLEM: {problem}" for problem in self.problems] or ["OK: nothing is damaged or missing."]
+        return "\n".join(lines)
+
+
+def check_run(run_dir: str | Path) -> RunCheck:
+    """Check `run_dir` (see the module docstring); RunDirError when it is no run directory at all."""
+    run_dir = Path(run_dir)
+    result = RunCheck()
+    config = read_run_config(run_dir)  # RunDirError: not a run directory, or a config this version cannot read
+    try:
+        validate(config)
+        result.findings.append(f"config: {config.env.task}, {config.ppo.network.name} network, "
+                               f"{config.ppo.num_cycles} cycles")
+    except ConfigError as error:
+        result.problems.append(f"config.yaml does not run with this version of angora_jax: {error}")
+
+    holder = RunLock(run_dir).holder()
+    if holder is None:
+        result.findings.append("writer: none (no process trains it now)")
+    else:
+        state = "ended, so resume takes the lock over" if holder.is_gone() else "running, or on another host"
+        result.findings.append(f"writer: {holder.describe()} ({state})")
+
+    cycles = logged_cycles(run_dir)
+    result.findings.append(f"{METRICS_FILE}: {len(cycles)} cycles logged"
+                           + (f", {cycles[0]} to {cycles[-1]}" if cycles else ""))
+    damaged = damaged_metric_lines(run_dir)
+    if damaged:
+        result.problems.append(f"{METRICS_FILE} lines {', '.join(map(str, damaged[:10]))} hold no cycle's record "
+                               "(edited or cut short); resume moves them to a side file")
+    expected = list(range(cycles[0], cycles[0] + len(cycles))) if cycles else []
+    if cycles and (cycles != expected or cycles[0] != 1):
+        result.problems.append(f"{METRICS_FILE} does not log each cycle once and in order from cycle 1 "
+                               f"({_runs(cycles)}): records were lost or two processes wrote the run")
+    sides = sorted(p.name for p in run_dir.glob("metrics.after-cycle-*.jsonl"))
+    if sides:
+        result.findings.append(f"set aside by earlier resumes: {', '.join(sides)}")
+
+    checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)
+    try:
+        for kind in KINDS:
+            verdicts = {cycle: checkpoints.damage(kind, cycle) for cycle in checkpoints.steps(kind)}
+            intact = [cycle for cycle, damage in verdicts.items() if damage is None]
+            unverified = [cycle for cycle, damage in verdicts.items() if damage == "no manifest"]
+            kept = [f"intact: cycle {_runs(intact, every=True)}"] * bool(intact)
+            kept += [f"without a manifest, unverifiable: cycle {_runs(unverified, every=True)}"] * bool(unverified)
+            result.findings.append(f"checkpoints/{kind}: {'; '.join(kept) or 'none'}")
+            result.problems += [f"checkpoint {kind}/{cycle} is damaged: {damage}" for cycle, damage in verdicts.items()
+                                if damage not in (None, "no manifest")]
+        latest = checkpoints.steps("latest")
+    finally:
+        checkpoints.close()
+    if latest and cycles and latest[-1] > cycles[-1]:
+        result.problems.append(f"the latest checkpoint (cycle {latest[-1]}) is newer than the last cycle logged "
+                               f"({cycles[-1]}): records were lost")
+
+    try:
+        result.resume = plan_resume(run_dir, config).describe
+    except RunDirError as refusal:
+        result.resume = f"refuses: {refusal}"
+        result.problems.append("resume cannot continue as it is: see above")
+    return result
+
+
+def _runs(cycles: list[int], every: bool = False) -> str:
+    """Cycles as ranges in order, e.g. "1-5, 3-8"; every: a range may step by the first difference (snapshots:
+    "20-380 every 20")."""
+    step = cycles[1] - cycles[0] if every and len(cycles) > 1 and cycles[1] > cycles[0] else 1
+    spans, start = [], 0
+    for i in range(1, len(cycles) + 1):
+        if i == len(cycles) or cycles[i] != cycles[i - 1] + step:
+            first, last = cycles[start], cycles[i - 1]
+            spans.append(str(first) if first == last else f"{first}-{last}" + (f" every {step}" if step > 1 else ""))
+            start = i
+    return ", ".join(spans[:8]) + (", ..." if len(spans) > 8 else "")

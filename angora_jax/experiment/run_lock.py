@@ -1,0 +1,146 @@
+"""One writer per run: `RUN_DIR/writer.lock` names the process that trains the run (host, process id, its start).
+
+`train` and `resume` hold the lock while they write the run's training files (metrics.jsonl, checkpoints/,
+sessions.jsonl); in a multi-process job, process 0 holds it for all. Readers (`evaluate`, `report`, `monitor`,
+`record`, `check`) take no lock. A second writer is refused with `RunLockedError`, which names the holder. A lock
+whose holder is gone (same host, process ended: killed, or the machine rebooted) is taken over with a message; a
+lock held on another host is never broken without `force`, since this host cannot see whether that process lives.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import socket
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from angora_jax.experiment.run_dir import RunDirError
+
+LOCK_FILE = "writer.lock"
+
+
+class RunLockedError(RunDirError):
+    """Another process holds (or may hold) the run's writer lock."""
+
+
+@dataclass(frozen=True)
+class LockHolder:
+    """Who holds a run's lock: host name, process id, the process's start on that host (clock ticks since boot, from
+    /proc; None elsewhere) and when it took the lock (Unix seconds)."""
+
+    host: str
+    pid: int
+    process_start: int | None
+    since: float
+
+    def describe(self) -> str:
+        since = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(self.since))
+        return f"process {self.pid} on host {self.host}, since {since}"
+
+    def is_gone(self) -> bool:
+        """True when this host can tell the holder has ended (it runs here, and no such process lives)."""
+        if self.host != socket.gethostname():
+            return False
+        try:
+            os.kill(self.pid, 0)
+        except ProcessLookupError:
+            return True
+        except PermissionError:  # a process of another user: alive
+            return False
+        # The id may have been given to another process since (after a reboot, or a long time): compare starts.
+        return self.process_start is not None and _process_start(self.pid) != self.process_start
+
+
+def _process_start(pid: int) -> int | None:
+    """The process's start time in clock ticks since boot (Linux), which tells a process from a later one that got
+    the same id; None where /proc does not say."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return int(stat.rpartition(")")[2].split()[19])  # field 22; the name before ')' may hold spaces
+
+
+class RunLock:
+    """The writer lock of one run directory; use as a context manager, or `acquire` and `release`."""
+
+    def __init__(self, run_dir: str | Path):
+        self.path = Path(run_dir) / LOCK_FILE
+        self._held = False
+
+    def holder(self) -> LockHolder | None:
+        """The lock's holder, or None when nobody holds it; an unreadable lock file reads as a holder unknown."""
+        try:
+            data = json.loads(self.path.read_text())
+            return LockHolder(str(data["host"]), int(data["pid"]), data.get("process_start"), float(data["since"]))
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError, KeyError, TypeError):
+            return LockHolder("an unknown host (the lock file is unreadable)", -1, None, self.path.stat().st_mtime)
+
+    def acquire(self, force: bool = False) -> None:
+        """Take the lock, or raise RunLockedError naming its holder and the fix. A holder that is gone (see module
+        docstring) is replaced with a message on stderr; `force` also replaces a holder this host cannot check."""
+        me = {"host": socket.gethostname(), "pid": os.getpid(), "process_start": _process_start(os.getpid()),
+              "since": time.time()}
+        # Written whole beside the lock, then linked into place: the link fails if the lock exists, so two processes
+        # cannot both take it, and nobody reads a half-written lock.
+        draft = self.path.with_name(f"{LOCK_FILE}.{me['pid']}.{me['host']}.tmp")
+        draft.write_text(json.dumps(me) + "\n")
+        try:
+            for _ in range(2):
+                with contextlib.suppress(FileExistsError):
+                    os.link(draft, self.path)
+                    self._held = True
+                    return
+                holder = self.holder()
+                if holder is None:
+                    continue  # released in between
+                if holder.pid == os.getpid() and holder.host == me["host"]:
+                    raise RunLockedError(f"{self.path.parent} is already being written by this process (a second "
+                                         "train or resume of the same run in one notebook?).")
+                gone = holder.is_gone()
+                if not (gone or force):
+                    raise RunLockedError(self._refusal(holder))
+                reason = "its process has ended" if gone else "forced (--force)"
+                print(f"Taking over the writer lock of {self.path.parent} from {holder.describe()}: {reason}.",
+                      file=sys.stderr, flush=True)
+                self.path.unlink(missing_ok=True)
+            raise RunLockedError(f"{self.path.parent}: another process took the writer lock at the same moment. Try "
+                                 "again, or see who holds it in its lock file " f"{self.path}.")
+        finally:
+            draft.unlink(missing_ok=True)
+
+    def _refusal(self, holder: LockHolder) -> str:
+        here = holder.host == socket.gethostname()
+        fix = ("wait for it to finish or stop it (Ctrl-C or kill " f"{holder.pid}; it saves a checkpoint), then resume"
+               if here else "if that process is certainly gone (its job ended, the machine is down), resume with "
+                            "--force to take the lock over")
+        return (f"{self.path.parent} is being trained by {holder.describe()} (lock file {self.path}). Two writers "
+                f"would mix their checkpoints and metrics. To continue it, {fix}. Evaluating, recording and reports "
+                "need no lock: they can run now.")
+
+    def release(self) -> None:
+        """Give the lock up if this object holds it (and the file is still ours)."""
+        if not self._held:
+            return
+        self._held = False
+        release_own_lock(self.path.parent)
+
+    def __enter__(self) -> RunLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+def release_own_lock(run_dir: str | Path) -> None:
+    """Remove the run's lock if this process holds it: for a process about to end without unwinding (`os._exit`)."""
+    holder = RunLock(run_dir).holder()
+    if holder is not None and holder.pid == os.getpid() and holder.host == socket.gethostname():
+        (Path(run_dir) / LOCK_FILE).unlink(missing_ok=True)
