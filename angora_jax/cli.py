@@ -776,9 +776,13 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
     from angora_jax.vision.pretrain import pose_network
 
     out = Path(args.out)
-    estimator_out = out.with_suffix(".pose.msgpack")
-    if refused_existing("pretrain-vision", out, "components") or refused_existing("pretrain-vision", estimator_out,
-                                                                                     "pose estimators"):
+    estimator_out, numbers_out = out.with_suffix(".pose.msgpack"), out.with_suffix(".json")
+    outputs = ((out, "components"), (estimator_out, "pose estimators"), (numbers_out, "numbers"))
+    if any(refused_existing("pretrain-vision", file, what) for file, what in outputs):
+        return EXIT_USAGE
+    if numbers_out == out:
+        print(f"angora-jax pretrain-vision: --out {out}: the numbers (.json) would overwrite the encoder there; give "
+              "an --out ending in .msgpack.", file=sys.stderr)
         return EXIT_USAGE
     if args.encoder not in VISUAL_ENCODERS:
         print(f"angora-jax pretrain-vision: unknown encoder {args.encoder!r}; choose one of {sorted(VISUAL_ENCODERS)}.",
@@ -826,14 +830,14 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
               "orientation": args.orientation, "batch": args.batch, "learning_rate": result.learning_rate,
               **result.errors,
               "loss": result.history}
-    out.with_suffix(".json").write_text(json.dumps(report, indent=1))
+    numbers_out.write_text(json.dumps(report, indent=1))
     errors = result.errors
     print(f"Rendered {len(dataset)} samples x {len(args.cameras)} cameras in {rendered:.0f} s; trained {args.steps} "
           f"steps in {result.seconds:.0f} s. Held-out ({errors['test_samples']}): position "
           f"{errors['position_mm_median']:.1f} mm median ({errors['position_mm_p90']:.1f} p90), orientation "
           f"{errors['orientation_deg_median']:.1f} deg median ({errors['orientation_deg_p90']:.1f} p90).")
     print(f"Encoder: {out} (load with network.pretrained); the whole pose network: {estimator_out} "
-          f"(angora_jax.vision.PoseEstimator.load); numbers: {out.with_suffix('.json')}")
+          f"(angora_jax.vision.PoseEstimator.load); numbers: {numbers_out}")
     return EXIT_OK
 
 

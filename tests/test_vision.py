@@ -392,6 +392,16 @@ def test_pretrain_vision_refuses_an_out_it_cannot_write_before_rendering(tmp_pat
     assert f"--out {tmp_path / 'notes' / 'encoder.msgpack'}" in err and f"{tmp_path / 'notes'} is a file" in err
 
 
+def test_pretrain_vision_overwrites_none_of_its_three_outputs(tmp_path, capsys, monkeypatch):
+    import angora_jax.vision
+
+    monkeypatch.setattr(angora_jax.vision, "render_pose_dataset", never_renders)
+    (tmp_path / "encoder.json").write_text("{}")
+    assert "encoder.json exists; numbers are never overwritten" in pretrain_vision_refused(tmp_path, capsys)
+    err = pretrain_vision_refused(tmp_path, capsys, "--out", str(tmp_path / "encoder.pose.json"))
+    assert "the numbers (.json) would overwrite the encoder" in err and "--out ending in .msgpack" in err
+
+
 def test_pretrain_vision_without_opengl_or_warp_exits_2_naming_what_to_install(tmp_path, capsys, monkeypatch):
     """No OpenGL context (simulated: MuJoCo's renderer refuses, as it does without EGL), or --renderer warp without
     MuJoCo Warp: the cause and what to install, no traceback."""
