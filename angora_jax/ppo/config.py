@@ -45,7 +45,7 @@ class Bounds:
         for number in numbers:
             if isinstance(number, bool) or not isinstance(number, int | float):
                 continue
-            if not math.isfinite(number):
+            if isinstance(number, float) and not math.isfinite(number):  # an int may be too large for isfinite
                 raise ValueError(f"{key} must be a finite number, got {number}{self._allowed(number)}.")
             if number < self.low or (self.open_low and number == self.low):
                 raise ValueError(f"{key} must be {'>' if self.open_low else '>='} {_show(self.low)}, got "
