@@ -74,7 +74,7 @@ BAD = {
     "run name leaves run_root": (["logging.run_name=../escape"], r"run_name='../escape' must be a plain folder"),
     "run name with a folder": (["logging.run_name=a/b"], r"logging.run_name='a/b' must be a plain folder name"),
     "run name too long": (["logging.run_name=" + "a" * 300], r"logging.run_name='aaa.*' must be a plain folder name: "
-                                                             r"at most 100 characters .*got 300"),
+                                                             r"at most 100 characters \(it has 300\) of letters"),
     "run name with a space": (["logging.run_name='my run'"], r"logging.run_name='my run' must be a plain folder name: "
                                                             r".*letters, digits, '.', '_', '-', '\+' and '='"),
     "run name like an option": (["logging.run_name=-x"], r"logging.run_name='-x' must be a plain folder name.*not "

@@ -357,10 +357,10 @@ def validate(config: Config) -> Env:
     name = logging.run_name
     if name is not None and (len(name) > MAX_RUN_NAME or not RUN_NAME.fullmatch(name)):
         raise ConfigError(
-            f"logging.run_name={_shorten(name)} must be a plain folder name: at most {MAX_RUN_NAME} characters (got "
-            f"{len(name)}) of letters, digits, '.', '_', '-', '+' and '=', not starting with '.' or '-' (so no '/', "
-            f"'\\' or '..'): the run directory is made inside logging.run_root ({_shorten(logging.run_root)}); to "
-            "write elsewhere, change logging.run_root."
+            f"logging.run_name={_shorten(name)} must be a plain folder name: at most {MAX_RUN_NAME} characters"
+            f"{f' (it has {len(name)})' if len(name) > MAX_RUN_NAME else ''} of letters, digits, '.', '_', '-', '+' "
+            "and '=', not starting with '.' or '-' (so no '/', '\\' or '..'): the run directory is made inside "
+            f"logging.run_root ({_shorten(logging.run_root)}); to write elsewhere, change logging.run_root."
         )
     _check_folder("logging.run_root", logging.run_root)
     if logging.tensorboard and importlib.util.find_spec("tensorboardX") is None:
