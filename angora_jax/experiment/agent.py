@@ -174,7 +174,7 @@ def _acting_parts(config_json: str) -> tuple[Env, nn.Module, PolicyHead, PolicyS
     JSON text, hashable): made once per process, so that loading agents of one kind again builds and compiles
     nothing again."""
     config = load_config(json.loads(config_json))
-    env = validate(config)
+    env = validate(config, new_run=False)
     shape = initial_state_shape(config, env)
     template = PolicyState(params=shape.params, obs_stats=shape.obs_stats, cycle=shape.cycle)
     return env, make_network(config.ppo.network), build_head(env, config.ppo), template, {}

@@ -328,9 +328,11 @@ def best_metric_choices(env: Env, evaluation: EvaluationConfig | None = None) ->
     return names + [f"eval/{name}" for name in names] if evaluation is not None and evaluation.every else names
 
 
-def validate(config: Config) -> Env:
+def validate(config: Config, new_run: bool = True) -> Env:
     """Check the whole config, the task included, without compiling anything; return the task's environment.
 
+    new_run: also check where a new run directory would be made (`check_run_location`); False for the config of a
+    run that exists (resuming or reading it), whose directory was made under the rules of its time.
     Raises ConfigError naming the key (e.g. `ppo.minibatch_size`), the allowed values and the fix.
     """
     try:  # load_config checks these too; a Config made in Python comes here unchecked
@@ -354,15 +356,8 @@ def validate(config: Config) -> Env:
     logging, checkpoint = config.logging, config.checkpoint
     if logging.progress not in PROGRESS_MODES:
         raise ConfigError(_unknown("logging.progress", logging.progress, PROGRESS_MODES, "modes"))
-    name = logging.run_name
-    if name is not None and (len(name) > MAX_RUN_NAME or not RUN_NAME.fullmatch(name)):
-        raise ConfigError(
-            f"logging.run_name={_shorten(name)} must be a plain folder name: at most {MAX_RUN_NAME} characters"
-            f"{f' (it has {len(name)})' if len(name) > MAX_RUN_NAME else ''} of letters, digits, '.', '_', '-', '+' "
-            "and '=', not starting with '.' or '-' (so no '/', '\\' or '..'): the run directory is made inside "
-            f"logging.run_root ({_shorten(logging.run_root)}); to write elsewhere, change logging.run_root."
-        )
-    _check_folder("logging.run_root", logging.run_root)
+    if new_run:
+        check_run_location(logging)
     if logging.tensorboard and importlib.util.find_spec("tensorboardX") is None:
         raise ConfigError(
             "logging.tensorboard=true needs the tensorboardX package: pip install 'angora-jax[tensorboard]', or set "
@@ -403,6 +398,20 @@ def validate(config: Config) -> Env:
             "shorter rollout, or more devices with distribution.num_devices)."
         )
     return env
+
+
+def check_run_location(logging: LoggingConfig) -> None:
+    """ConfigError unless `logging.run_name` is a portable folder name and `logging.run_root` a path a folder can be
+    made at."""
+    name = logging.run_name
+    if name is not None and (len(name) > MAX_RUN_NAME or not RUN_NAME.fullmatch(name)):
+        raise ConfigError(
+            f"logging.run_name={_shorten(name)} must be a plain folder name: at most {MAX_RUN_NAME} characters"
+            f"{f' (it has {len(name)})' if len(name) > MAX_RUN_NAME else ''} of letters, digits, '.', '_', '-', '+' "
+            "and '=', not starting with '.' or '-' (so no '/', '\\' or '..'): the run directory is made inside "
+            f"logging.run_root ({_shorten(logging.run_root)}); to write elsewhere, change logging.run_root."
+        )
+    _check_folder("logging.run_root", logging.run_root)
 
 
 def num_devices(config: Config) -> int:

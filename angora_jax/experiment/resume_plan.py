@@ -18,8 +18,9 @@ from angora_jax.experiment.monitor import logged_cycles
 from angora_jax.experiment.run_dir import CHECKPOINTS, METRICS_FILE, RunDirError, numbered_paths
 
 # What a fresh start moves aside (into RUN_DIR/previous-N/): everything the earlier training wrote but its config and
-# the session log, which goes on.
-TRAINING_OUTPUTS = (METRICS_FILE, CHECKPOINTS, "tensorboard", "videos", "report", "wandb")
+# the session log, which goes on. Checkpoints first: a start over killed halfway then leaves records without
+# checkpoints, which resume refuses, rather than checkpoints without the records before them.
+TRAINING_OUTPUTS = (CHECKPOINTS, METRICS_FILE, "tensorboard", "videos", "report", "wandb")
 
 
 @dataclass(frozen=True)

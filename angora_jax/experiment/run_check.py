@@ -38,7 +38,7 @@ def check_run(run_dir: str | Path) -> RunCheck:
     result = RunCheck()
     config = read_run_config(run_dir)  # RunDirError: not a run directory, or a config this version cannot read
     try:
-        validate(config)
+        validate(config, new_run=False)
         result.findings.append(f"config: {config.env.task}, {config.ppo.network.name} network, "
                                f"{config.ppo.num_cycles} cycles")
     except ConfigError as error:

@@ -141,10 +141,12 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     compilation_cache.enable()
     run_dir = Path(run_dir)
     config = read_run_config(run_dir)
-    env = validate(config)
+    env = validate(config, new_run=False)
     lock = _lock_together(run_dir, force)
     try:
         plan = plan_resume(run_dir, config, start_from, from_scratch)
+        if plan.cycle is None:  # a start from cycle 0 reads its saved starting values (ppo.init_from, pretrained)
+            check_sources(config, env)
         state = None
         if plan.cycle is not None:
             checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)

@@ -1,0 +1,304 @@
+"""A run directory is never lost, overwritten or silently restarted: one writer per run, resume that refuses to start
+over, checkpoints checked against their manifests, a full disk, and runs killed at random points and resumed."""
+
+import json
+import os
+import random
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+import orbax.checkpoint as ocp
+import pytest
+from tiny import TINY_PPO
+
+import angora_jax as aj
+from angora_jax.cli import main
+from angora_jax.experiment import read_metrics, resume
+from angora_jax.experiment.manifest import MANIFEST_FILE
+from angora_jax.experiment.run_check import check_run
+from angora_jax.experiment.run_dir import CHECKPOINTS, DiskFullError
+from angora_jax.experiment.run_lock import LOCK_FILE, RunLock, RunLockedError
+
+# A recurrent network, so that a resumed run must restore carries and environments mid-episode.
+TINY = [*TINY_PPO, "ppo.network.name=gru", "ppo.network.width=8", "ppo.network.cell_size=8",
+        "logging.progress=none", "logging.report=false", "checkpoint.every=2", "checkpoint.snapshot_every=3"]
+CYCLES = 6
+# Wall-clock, memory and compilation-cache readings differ between any two runs; everything else must match exactly.
+UNTIMED = {"seconds", "steps_per_second", "compile_seconds", "time", "memory/host_peak_bytes", "compile_cache_hits",
+           "compile_cache_misses"}
+
+
+def settings(root: Path, name: str, cycles: int = CYCLES) -> list[str]:
+    return [*TINY, f"ppo.num_cycles={cycles}", f"logging.run_root={root}", f"logging.run_name={name}"]
+
+
+@pytest.fixture(scope="module")
+def whole(tmp_path_factory):
+    """An uninterrupted run; tests copy it to damage the copy."""
+    return aj.train("cartpole", settings(tmp_path_factory.mktemp("whole"), "whole"))
+
+
+def copy_of(run, tmp_path: Path, name: str = "copy") -> Path:
+    target = tmp_path / name
+    shutil.copytree(run.run_dir, target)
+    return target
+
+
+def exits_2(argv: list[str], capsys) -> str:
+    """Run the command; assert exit code 2 and no traceback; return what it printed on stderr."""
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err, err
+    return err
+
+
+def untimed(records):
+    return [{k: v for k, v in r.items() if k not in UNTIMED} for r in records]
+
+
+def test_every_checkpoint_has_a_manifest_and_check_reports_a_sound_run(whole, capsys):
+    for kind, cycles in {"latest": [6], "best": None, "snapshots": [3, 6]}.items():
+        saved = sorted(int(p.name) for p in (whole.run_dir / CHECKPOINTS / kind).iterdir())
+        assert saved and (cycles is None or saved == cycles)
+        for cycle in saved:
+            listed = json.loads((whole.run_dir / CHECKPOINTS / kind / str(cycle) / MANIFEST_FILE).read_text())
+            assert any(name.startswith("state/") for name in listed["files"]), listed
+    assert main(["check", str(whole.run_dir)]) == 0
+    out = capsys.readouterr().out
+    assert "continue from the latest checkpoint, cycle 6" in out and "OK: nothing is damaged" in out
+    assert "checkpoints/snapshots: intact: cycle 3-6 every 3" in out
+
+
+@pytest.mark.parametrize("damage", ["truncate", "flip", "delete", "meta"])
+def test_a_damaged_checkpoint_is_named_with_the_newest_intact_one_by_every_verb(damage, whole, tmp_path, capsys):
+    run = copy_of(whole, tmp_path)
+    folder = run / CHECKPOINTS / "latest" / "6"
+    victim = max((p for p in (folder / "state").rglob("*") if p.is_file()), key=lambda p: p.stat().st_size)
+    if damage == "truncate":
+        victim.write_bytes(victim.read_bytes()[:10])
+    elif damage == "flip":
+        data = bytearray(victim.read_bytes())
+        data[len(data) // 2] ^= 0xFF
+        victim.write_bytes(bytes(data))
+    elif damage == "delete":
+        victim.unlink()
+    else:
+        victim = folder / "meta" / "metadata"
+        victim.write_text(victim.read_text()[:7])
+    before = sorted(p.relative_to(run) for p in run.rglob("*"))
+    for argv in (["resume", str(run)], ["evaluate", str(run), "--checkpoint", "latest", "--episodes", "1"],
+                 ["export", str(run), "--checkpoint", "latest", "--out", str(tmp_path / "p.msgpack")],
+                 ["record", str(run), "--checkpoint", "latest", "--episodes", "1", "--out", str(tmp_path / "a.nc")]):
+        err = exits_2(argv, capsys)
+        assert f"Checkpoint {folder} is damaged: {victim}" in err, err
+        assert "The newest intact checkpoint is snapshots of cycle 6: read it with --checkpoint 6" in err, err
+    assert sorted(p.relative_to(run) for p in run.rglob("*")) == before, "a refused command changed the run"
+    assert main(["check", str(run)]) == 2
+    assert f"PROBLEM: checkpoint latest/6 is damaged: {victim}" in capsys.readouterr().out
+    # Told to, resume falls back to the intact checkpoint and keeps the damaged one aside.
+    assert main(["resume", str(run), "--from", "6"]) == 0
+    assert (run / "set-aside" / "resumed-from-cycle-6" / CHECKPOINTS / "latest" / "6").is_dir()
+    assert main(["export", str(run), "--checkpoint", "6", "--out", str(tmp_path / "p.msgpack")]) == 0
+
+
+def test_resume_never_starts_over_by_itself(whole, tmp_path, capsys):
+    run = copy_of(whole, tmp_path)
+    shutil.rmtree(run / CHECKPOINTS / "latest")
+    metrics = (run / "metrics.jsonl").read_text()
+    err = exits_2(["resume", str(run)], capsys)
+    assert "has no latest checkpoint to resume from" in err and f"logged {CYCLES} cycles" in err
+    assert "`--from 6` continues from the newest intact checkpoint" in err and "`--from-scratch`" in err
+    assert (run / "metrics.jsonl").read_text() == metrics
+    shutil.rmtree(run / CHECKPOINTS)  # no checkpoint at all: the same
+    assert "has no latest checkpoint" in exits_2(["resume", str(run)], capsys)
+    assert check_run(run).resume.startswith("refuses: ")
+    # Asked to, it trains again from cycle 0 and keeps the earlier files aside.
+    fresh = resume(run, from_scratch=True)
+    assert (run / "previous-1" / "metrics.jsonl").read_text() == metrics
+    assert untimed(read_metrics(run)) == untimed(whole.history) and fresh.finished
+
+
+def test_records_after_the_checkpoint_continued_from_move_to_a_side_file_with_damaged_lines(whole, tmp_path):
+    run = copy_of(whole, tmp_path)
+    with (run / "metrics.jsonl").open("a") as log:
+        log.write('{"cycle": 7, "episode_ret')  # a record cut short by a crash, then another process's line
+        log.write("\n" + json.dumps({"cycle": 8}) + "\n")
+    assert "metrics.jsonl lines 7 hold no cycle's record" in check_run(run).format()
+    resume(run, start_from=3)
+    assert [r["cycle"] for r in read_metrics(run)] == list(range(1, CYCLES + 1))
+    side = (run / "metrics.after-cycle-3.jsonl").read_text().splitlines()
+    assert [json.loads(line)["cycle"] for line in side[:3]] == [4, 5, 6] and side[3].startswith('{"cycle": 7, "ep')
+    assert sorted(p.name for p in (run / "set-aside" / "resumed-from-cycle-3" / CHECKPOINTS / "latest").iterdir()) \
+        == ["6"]
+
+
+def test_a_second_writer_is_refused_and_a_dead_holder_is_taken_over(whole, tmp_path, capsys):
+    run = copy_of(whole, tmp_path)
+    alive = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        lock = {"host": socket.gethostname(), "pid": alive.pid, "process_start": None, "since": time.time()}
+        (run / LOCK_FILE).write_text(json.dumps(lock))
+        for argv in (["resume", str(run)], ["resume", str(run), "--from-scratch"]):
+            err = exits_2(argv, capsys)
+            assert f"is being trained by process {alive.pid} on host {socket.gethostname()}" in err
+            assert f"kill {alive.pid}" in err
+        assert main(["evaluate", str(run), "--episodes", "1"]) == 0, "readers take no lock"
+        assert json.loads((run / LOCK_FILE).read_text())["pid"] == alive.pid
+    finally:
+        alive.kill()
+        alive.wait()
+    capsys.readouterr()
+    assert main(["resume", str(run)]) == 0
+    assert f"lock of {run} from process {alive.pid} on host {socket.gethostname()}" in capsys.readouterr().err
+    assert not (run / LOCK_FILE).exists(), "released at the end"
+    # Held on another host: never broken without --force.
+    (run / LOCK_FILE).write_text(json.dumps({**lock, "host": "elsewhere"}))
+    assert "resume with --force" in exits_2(["resume", str(run)], capsys)
+    assert main(["resume", str(run), "--force"]) == 0
+    assert "forced (--force)" in capsys.readouterr().err
+
+
+def test_the_lock_is_taken_by_one_of_two_processes_at_once(tmp_path):
+    first, second = RunLock(tmp_path), RunLock(tmp_path)
+    first.acquire()
+    with pytest.raises(RunLockedError, match="already being written by this process"):
+        second.acquire()
+    first.release()
+    second.acquire()
+    assert RunLock(tmp_path).holder().pid == os.getpid()
+    second.release()
+    assert RunLock(tmp_path).holder() is None
+
+
+def test_a_full_disk_keeps_the_previous_checkpoint_and_says_so(whole, tmp_path, monkeypatch):
+    """A save that fails for want of space (injected from the fourth save on: Orbax's temporary folder written in part,
+    then TensorStore's error) leaves the checkpoints saved before; with space 'freed', the run resumes and ends as
+    the uninterrupted run. The real thing is below, on a small tmpfs."""
+    real_save = ocp.CheckpointManager.save
+    saves = []
+
+    def save_until_full(self, step, *args, **kwargs):
+        saves.append(step)
+        if len(saves) <= 3:
+            return real_save(self, step, *args, **kwargs)
+        partial = Path(self.directory) / f"{step}.orbax-checkpoint-tmp-1" / "state"
+        partial.mkdir(parents=True)
+        (partial / "d").write_bytes(b"written in part")
+        raise ValueError("RESOURCE_EXHAUSTED: Error writing ...: Failed to write 1016 bytes to file 17: No space "
+                         "left on device [os_error_code='28']")
+
+    root = tmp_path / "runs"
+    monkeypatch.setattr(ocp.CheckpointManager, "save", save_until_full)
+    with pytest.raises(DiskFullError) as full:
+        aj.train("cartpole", settings(root, "full"))
+    monkeypatch.undo()
+    message = str(full.value)
+    assert "The disk is full:" in message and "The checkpoints saved before are intact" in message, message
+    assert f"continue with `angora-jax resume {root / 'full'}`" in message
+    assert not list((root / "full" / CHECKPOINTS).rglob("*orbax-checkpoint-tmp*")), "the failed save left its folder"
+    assert check_run(root / "full").problems == []
+    resumed = resume(root / "full")
+    assert untimed(read_metrics(root / "full")) == untimed(whole.history) and resumed.finished
+
+
+def test_a_record_cut_short_by_a_full_disk_is_removed(whole, tmp_path):
+    from angora_jax.experiment import monitor
+
+    run = copy_of(whole, tmp_path)
+    before = (run / "metrics.jsonl").read_bytes()
+    log = monitor.Monitor(run)
+    real_write = log._file.write
+    log._file.write = lambda data: real_write(data[:20])  # the disk filled after 20 bytes
+    with pytest.raises(DiskFullError, match="Cannot write the record of cycle 7 .* records and checkpoints written"):
+        log.record({"cycle": 7, "env_steps": 1.0}, whole.state)
+    log.close()
+    assert (run / "metrics.jsonl").read_bytes() == before
+
+
+def mounted_tmpfs(path: Path, size: str) -> bool:
+    path.mkdir()
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)], capture_output=True)
+    return done.returncode == 0
+
+
+@pytest.mark.parametrize("size", ["16k", "2500k"])
+def test_a_real_full_disk_ends_in_one_message_and_leaves_no_half_made_run(size, tmp_path):
+    """On a small tmpfs (where this machine lets the test mount one; the injected test above runs everywhere)."""
+    disk = tmp_path / "disk"
+    if not mounted_tmpfs(disk, size):
+        pytest.skip("cannot mount a tmpfs here (not root, or no mount namespace)")
+    try:
+        argv = ["train", "cartpole", *settings(disk, "full", 100_000), "checkpoint.snapshot_every=1"]
+        done = subprocess.run([sys.executable, "-m", "angora_jax.cli", *argv], capture_output=True, text=True,
+                              timeout=300)
+        assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr[-3000:]
+        assert len(done.stderr.strip().splitlines()) <= 2, done.stderr[-3000:]
+        if size == "16k":  # full before the first record: at the config, or at the first cycle's record
+            assert "No space left on device" in done.stderr and not (disk / "full").exists(), done.stderr
+        else:
+            assert "The disk is full:" in done.stderr and "are intact" in done.stderr, done.stderr
+            assert "OK: nothing is damaged" in check_run(disk / "full").format()
+    finally:
+        subprocess.run(["umount", str(disk)], check=False)
+
+
+def continuing(run: Path) -> tuple[list[str], bool]:
+    """How a user continues a stopped run, by what `check` says resume would do: the resume arguments, and whether
+    it starts over (a run killed before its first latest checkpoint is refused until told --from-scratch)."""
+    plan = check_run(run).resume
+    assert plan.startswith("continue from the latest checkpoint") or "has no latest checkpoint" in plan, plan
+    fresh = plan.startswith("refuses")
+    return ["resume", str(run), *["--from-scratch"] * fresh], fresh
+
+
+def kill_at_random(root: Path, name: str, rng: random.Random) -> None:
+    """Train NAME (or continue it) in a process of its own and SIGKILL it at a random point: after a random number of
+    logged cycles and a random fraction of a cycle more (while it trains, saves, or writes its records)."""
+    run, logged, fresh = root / name, 0, False
+    if run.exists():
+        argv, fresh = continuing(run)
+        logged = 0 if fresh else len(read_metrics(run))
+    else:
+        argv = ["train", "cartpole", *settings(root, name)]
+    earlier = len(list(run.glob("previous-*")))
+    process = subprocess.Popen([sys.executable, "-m", "angora_jax.cli", *argv], stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE, text=True)
+    target = rng.randint(logged + 1, CYCLES - 1)
+    deadline = time.monotonic() + 120
+    while len(read_metrics(run)) < target or (fresh and len(list(run.glob("previous-*"))) == earlier):
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+        time.sleep(0.01)
+    time.sleep(rng.uniform(0.0, 0.2))
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_run_killed_at_random_points_resumes_to_the_uninterrupted_result(seed, whole, tmp_path):
+    rng = random.Random(seed)
+    kill_at_random(tmp_path, "killed", rng)
+    if rng.random() < 0.5 and len(read_metrics(tmp_path / "killed")) < CYCLES - 2:
+        kill_at_random(tmp_path, "killed", rng)  # the resumed process killed too
+    _, fresh = continuing(tmp_path / "killed")
+    resumed = resume(tmp_path / "killed", from_scratch=fresh)
+    assert resumed.finished
+    assert untimed(read_metrics(tmp_path / "killed")) == untimed(whole.history)
+    for a, b in zip(jax.tree.leaves(whole.state.params), jax.tree.leaves(resumed.state.params), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert check_run(tmp_path / "killed").problems == []
+
+
+def test_a_run_made_under_older_name_rules_is_still_read_and_resumed(whole, tmp_path, capsys):
+    """New runs get portable names; a run directory made before that rule keeps working."""
+    run = copy_of(whole, tmp_path, "my old run")
+    config = run / "config.yaml"
+    config.write_text(config.read_text().replace("run_name: whole", "run_name: my old run"))
+    assert main(["check", str(run)]) == 0, capsys.readouterr()
+    assert main(["resume", str(run)]) == 0 and main(["evaluate", str(run), "--episodes", "1"]) == 0
