@@ -100,6 +100,13 @@ def run_random(task: str, num_envs: int, num_steps: int, seed: int) -> dict[str,
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
 
+def seed(text: str) -> int:
+    """An argparse type: a seed, a whole number from 0 to 2**32 - 1 (what jax.random.key distinguishes)."""
+    if not text.isdigit() or int(text) >= 2**32:
+        raise argparse.ArgumentTypeError(f"must be a whole number from 0 to {2**32 - 1:,}, got {text[:40]!r}")
+    return int(text)
+
+
 def positive_int(text: str) -> int:
     """An argparse type: a whole number >= 1 (argparse then exits with code 2 and names the option)."""
     if not text.isdigit() or int(text) < 1:
@@ -121,7 +128,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.handler(args)
     except (ConfigError, RunDirError, FileNotFoundError) as error:
-        print(f"angora-jax {args.command}: {error}", file=sys.stderr)
+        # The system's own FileNotFoundError names a path and an errno; ours carry their whole message.
+        system = isinstance(error, FileNotFoundError) and error.errno is not None
+        print(f"angora-jax {args.command}: {os_error_message(error) if system else error}", file=sys.stderr)
         return EXIT_USAGE
     except OSError as error:  # a full disk, a read-only or lost mount, permissions: the machine's, not a bug
         print(f"angora-jax {args.command}: {os_error_message(error)}", file=sys.stderr)
@@ -145,6 +154,8 @@ OS_ERROR_FIXES = {
     errno.EIO: "the disk or network file system failed: check the mount, then retry",
     errno.ENOTDIR: "a part of the path is a file, not a folder: fix the path",
     errno.EISDIR: "the path is a folder: give a file",
+    errno.EEXIST: "a file is in the way where a folder must be made: choose another path (logging.run_root, --out)",
+    errno.ENOENT: "a folder on the way does not exist or cannot be made there: check the path",
 }
 
 
@@ -153,8 +164,10 @@ def os_error_message(error: OSError) -> str:
     saved before (`angora-jax check RUN_DIR`, then `resume`)."""
     where = f" ({error.filename})" if error.filename else ""
     fix = OS_ERROR_FIXES.get(error.errno, "fix the cause and retry")
-    return (f"{error.strerror or error}{where}: {fix}. A run stopped by it keeps every checkpoint saved before: "
-            "`angora-jax check RUN_DIR` shows them, `angora-jax resume RUN_DIR` continues.")
+    during_a_run = error.errno in (errno.ENOSPC, errno.EDQUOT, errno.EIO)
+    return f"{error.strerror or error}{where}: {fix}." + (
+        " A run stopped by it keeps every checkpoint saved before: `angora-jax check RUN_DIR` shows them, "
+        "`angora-jax resume RUN_DIR` continues." if during_a_run else "")
 
 
 def parser() -> argparse.ArgumentParser:
@@ -205,7 +218,7 @@ def parser() -> argparse.ArgumentParser:
                                "to follow its policy over training (default: best)")
     evaluate.add_argument("--episodes", "--num-envs", type=positive_int, default=480,
                           help="episodes to run (default: 480)")
-    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--seed", type=seed, default=0)
     evaluate.add_argument(
         "--stochastic", "--sample", action="store_true", help="sample actions instead of taking the mode"
     )
@@ -226,9 +239,9 @@ def parser() -> argparse.ArgumentParser:
     render.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
     render.add_argument("--episodes", type=positive_int, default=1)
     render.add_argument("--camera", default="front", choices=sorted(CAMERAS), help="view of the hand (default: front)")
-    render.add_argument("--width", type=int, default=320)
-    render.add_argument("--height", type=int, default=240)
-    render.add_argument("--seed", type=int, default=0)
+    render.add_argument("--width", type=positive_int, default=320)
+    render.add_argument("--height", type=positive_int, default=240)
+    render.add_argument("--seed", type=seed, default=0)
     render.add_argument("--stochastic", action="store_true", help="sample actions instead of taking the mode")
     render.set_defaults(handler=command_render)
 
@@ -253,7 +266,7 @@ def parser() -> argparse.ArgumentParser:
     record.add_argument("--steps", type=positive_int, default=None,
                         help="policy steps (default: until every episode has ended, at most the episode length)")
     record.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
-    record.add_argument("--seed", type=int, default=0)
+    record.add_argument("--seed", type=seed, default=0)
     add_env_option(record)
     record.add_argument("--images", action="store_true", help="keep the camera images of a task that sees through "
                         "cameras (large; needed to replay the recording through another network)")
@@ -365,7 +378,7 @@ def parser() -> argparse.ArgumentParser:
     vision.add_argument("--batch", type=positive_int, default=64)
     vision.add_argument("--orientation", default="6d", choices=list(ORIENTATIONS),
                         help="how the pose head outputs the cube's orientation (default: 6d, continuous)")
-    vision.add_argument("--seed", type=int, default=0)
+    vision.add_argument("--seed", type=seed, default=0)
     vision.set_defaults(handler=command_pretrain_vision)
 
     config = commands.add_parser("config", help="show the config a run would use, every key resolved")
@@ -391,9 +404,9 @@ def parser() -> argparse.ArgumentParser:
 
     run = commands.add_parser("run", help="roll out a random policy in a batch of environments (smoke test)")
     run.add_argument("--task", default="ShadowHandReach", help="task name (see list-tasks)")
-    run.add_argument("--num-envs", type=int, default=8)
-    run.add_argument("--steps", type=int, default=100, help="policy steps per environment")
-    run.add_argument("--seed", type=int, default=0)
+    run.add_argument("--num-envs", type=positive_int, default=8)
+    run.add_argument("--steps", type=positive_int, default=100, help="policy steps per environment")
+    run.add_argument("--seed", type=seed, default=0)
     run.set_defaults(handler=command_run)
     return top
 
@@ -608,8 +621,14 @@ def command_record(args: argparse.Namespace) -> int:
     if refused_existing("record", out, "recordings"):
         return EXIT_USAGE
     checkpoint = checkpoint_of(args.checkpoint)
-    dataset = record_activity(args.run_dir, args.episodes, args.steps, args.seed, checkpoint, args.images,
-                              args.env_option)
+    try:
+        dataset = record_activity(args.run_dir, args.episodes, args.steps, args.seed, checkpoint, args.images,
+                                  args.env_option)
+    except ValueError as error:
+        if isinstance(error, ConfigError | RunDirError):
+            raise
+        print(f"angora-jax record: {error}", file=sys.stderr)
+        return EXIT_USAGE
     save_activity(dataset, out)
     layers = [n.removeprefix("activity_") for n in dataset.data_vars if n.startswith("activity_")]
     print(f"Recorded {dataset.sizes['episode']} episodes x {dataset.sizes['time']} steps of {len(layers)} layers "
@@ -722,7 +741,14 @@ def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None 
         raise FileNotFoundError(f"No recording {recording}; make one with angora-jax record RUN_DIR --out FILE.")
     out = Path(args.out) if args.out else recording.with_suffix(f".{stem or args.analysis}.png")
     try:
-        result = compute(xr.load_dataset(recording))
+        data = xr.load_dataset(recording)
+    except (ValueError, OSError, TypeError) as error:  # xarray's and its readers' ways to say "not NetCDF"
+        print(f"angora-jax analyze {args.analysis}: {recording} is not a recording that this machine can read (a "
+              f"NetCDF file from angora-jax record): {type(error).__name__}: {str(error).splitlines()[0]}. Make one "
+              "with angora-jax record RUN_DIR --out FILE.nc.", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        result = compute(data)
     except ValueError as error:
         print(f"angora-jax analyze {args.analysis}: {error}", file=sys.stderr)
         return EXIT_USAGE

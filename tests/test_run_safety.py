@@ -20,7 +20,8 @@ from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.cli import main
-from angora_jax.experiment import read_metrics, resume
+from angora_jax.experiment import read_metrics, resume, runner
+from angora_jax.experiment.checkpoint import disk_needed
 from angora_jax.experiment.manifest import MANIFEST_FILE
 from angora_jax.experiment.run_check import check_run
 from angora_jax.experiment.run_dir import CHECKPOINTS, DiskFullError
@@ -302,3 +303,13 @@ def test_a_run_made_under_older_name_rules_is_still_read_and_resumed(whole, tmp_
     config.write_text(config.read_text().replace("run_name: whole", "run_name: my old run"))
     assert main(["check", str(run)]) == 0, capsys.readouterr()
     assert main(["resume", str(run)]) == 0 and main(["evaluate", str(run), "--episodes", "1"]) == 0
+
+
+def test_a_run_whose_checkpoints_will_not_fit_says_so_before_training(whole, tmp_path, monkeypatch, capsys):
+    run = copy_of(whole, tmp_path)
+    monkeypatch.setattr(runner.shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(1 << 30, 1 << 30, 1 << 10))
+    resume(run, start_from=3)
+    needed = disk_needed(aj.load_config("cartpole", TINY).checkpoint, whole.state, CYCLES - 3)
+    assert needed > 1 << 10
+    err = capsys.readouterr().err
+    assert f"Warning: the checkpoints of this run need up to {needed / 2**10:.1f} KiB" in err and "1.0 KiB free" in err

@@ -111,6 +111,9 @@ def _run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: i
     weights, lesions) reuse the program. Steps run in chunks, each copied to the host as it ends, since a whole
     cube episode of every layer for hundreds of episodes does not fit in GPU memory."""
     env = agent.env.sized_for(episodes)
+    if steps is not None and steps > env.max_episode_steps:
+        raise ValueError(f"steps={steps:,} is more than the task's episode length ({env.max_episode_steps:,} policy "
+                         "steps): every episode has ended by then. Give at most that, or leave it out.")
     limit = steps or env.max_episode_steps
     chunk = steps or min(RECORDING_CHUNK, limit)
 

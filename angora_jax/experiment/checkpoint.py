@@ -346,6 +346,20 @@ def _echoes_dropped() -> Iterator[None]:
                 logger.removeFilter(echo)
 
 
+def disk_needed(config: CheckpointConfig, state: Any, cycles_left: int) -> int:
+    """Bytes the checkpoints of `cycles_left` more cycles take at most, for a state shaped like `state` (arrays or
+    `jax.ShapeDtypeStruct`s): latest and best twice each (a new one is written before the old one goes) and every
+    snapshot due, each full or lean as `config.lean` says."""
+
+    def size(kind: str) -> int:
+        kept = state.without_environments() if kind in config.lean else state
+        return sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(kept))
+
+    snapshots = cycles_left // config.snapshot_every if config.snapshot_every else 0
+    best = 2 * size("best") if config.best_metric is not None else 0
+    return 2 * size("latest") + best + snapshots * size("snapshots")
+
+
 def _check_fits(where: Path, stored: dict[str, Any], abstract: dict[str, jax.ShapeDtypeStruct], partial: bool) -> None:
     """Raise CheckpointError naming the leaves of `abstract` that the checkpoint lacks or stores with another shape or
     dtype (and, unless `partial`, the stored leaves `abstract` lacks), with the likely cause and its fix."""

@@ -70,7 +70,14 @@ def load_run(run_dir: str | Path) -> RunRecord:
     path = Path(run_dir)
     if not (path / CONFIG_FILE).is_file():
         raise RunDirError(f"{run_dir} is not a run directory: it has no {CONFIG_FILE}.")
-    return RunRecord(path.resolve().name, path, yaml.safe_load((path / CONFIG_FILE).read_text()), read_metrics(path))
+    try:
+        config = yaml.safe_load((path / CONFIG_FILE).read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as error:
+        raise RunDirError(f"{path / CONFIG_FILE} is damaged ({type(error).__name__}): restore it from a copy, or "
+                          "leave the run out of the report.") from None
+    if not isinstance(config, dict):
+        raise RunDirError(f"{path / CONFIG_FILE} holds no config (a {type(config).__name__}): restore it from a copy.")
+    return RunRecord(path.resolve().name, path, config, read_metrics(path))
 
 
 def curve_names(runs: list[RunRecord]) -> list[str]:

@@ -48,7 +48,9 @@ def check_run(run_dir: str | Path) -> RunCheck:
     if holder is None:
         result.findings.append("writer: none (no process trains it now)")
     else:
-        state = "ended, so resume takes the lock over" if holder.is_gone() else "running, or on another host"
+        state = ("ended, so resume takes the lock over" if holder.is_gone() else
+                 "cannot tell whether it runs: resume --force takes the lock over" if holder.pid < 0 else
+                 "running, or on another host")
         result.findings.append(f"writer: {holder.describe()} ({state})")
 
     cycles = logged_cycles(run_dir)

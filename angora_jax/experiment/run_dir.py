@@ -16,6 +16,7 @@ A new run never reuses an existing directory.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import shutil
@@ -116,9 +117,16 @@ def record_session(run_dir: str | Path, entry: dict) -> None:
 
 
 def read_sessions(run_dir: str | Path) -> list[dict]:
-    """The session records of `run_dir`, oldest first ([] for a run made before they were written)."""
+    """The session records of `run_dir`, oldest first ([] for a run made before they were written); damaged lines
+    are left out."""
     path = Path(run_dir) / SESSIONS_FILE
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
+    records = []
+    for line in path.read_text(errors="replace").splitlines() if path.exists() else []:
+        with contextlib.suppress(ValueError):
+            record = json.loads(line)
+            if isinstance(record, dict) and isinstance(record.get("time"), int | float):
+                records.append(record)
+    return records
 
 
 def latest_video(run_dir: str | Path) -> Path | None:

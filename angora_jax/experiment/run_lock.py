@@ -39,6 +39,8 @@ class LockHolder:
 
     def describe(self) -> str:
         since = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(self.since))
+        if self.pid < 0:
+            return f"an unknown process (the lock file is unreadable: edited or damaged; written {since})"
         return f"process {self.pid} on host {self.host}, since {since}"
 
     def is_gone(self) -> bool:
@@ -80,7 +82,7 @@ class RunLock:
         except FileNotFoundError:
             return None
         except (OSError, ValueError, KeyError, TypeError):
-            return LockHolder("an unknown host (the lock file is unreadable)", -1, None, self.path.stat().st_mtime)
+            return LockHolder("", -1, None, self.path.stat().st_mtime)
 
     def acquire(self, force: bool = False) -> None:
         """Take the lock, or raise RunLockedError naming its holder and the fix. A holder that is gone (see module
@@ -116,10 +118,13 @@ class RunLock:
             draft.unlink(missing_ok=True)
 
     def _refusal(self, holder: LockHolder) -> str:
-        here = holder.host == socket.gethostname()
-        fix = ("wait for it to finish or stop it (Ctrl-C or kill " f"{holder.pid}; it saves a checkpoint), then resume"
-               if here else "if that process is certainly gone (its job ended, the machine is down), resume with "
-                            "--force to take the lock over")
+        if holder.pid < 0:
+            fix = "if no process trains it now, resume with --force to take the lock over"
+        elif holder.host == socket.gethostname():
+            fix = f"wait for it to finish or stop it (Ctrl-C or kill {holder.pid}; it saves a checkpoint), then resume"
+        else:
+            fix = ("if that process is certainly gone (its job ended, the machine is down), resume with --force to "
+                   "take the lock over")
         return (f"{self.path.parent} is being trained by {holder.describe()} (lock file {self.path}). Two writers "
                 f"would mix their checkpoints and metrics. To continue it, {fix}. Evaluating, recording and reports "
                 "need no lock: they can run now.")

@@ -28,7 +28,7 @@ from jax.experimental import multihost_utils
 from angora_jax.envs.core import Env
 from angora_jax.envs.mjx_env import on_gpu
 from angora_jax.experiment import compilation_cache
-from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints
+from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, disk_needed
 from angora_jax.experiment.config import Config, load_config, num_devices, to_dict, validate
 from angora_jax.experiment.cpu_sizing import cpu_note
 from angora_jax.experiment.distributed import ProcessFailed, agree_to_stop, is_main_process, shared_run_dir
@@ -324,6 +324,9 @@ def _run(
             # stop is this process's own and goes through agree_to_stop, so that all processes stop together.
             cached_before = compilation_cache.counts()
             programs = cycle_programs(config, env)
+            if main:
+                shape = jax.eval_shape(programs[0], jax.random.key(config.ppo.seed))  # with environments
+                _warn_if_disk_is_small(run_dir, config, shape, config.ppo.num_cycles - start)
             for latest, metrics in training_cycles(config.ppo, env, None, state, num_devices(config), programs):
                 if "compile_seconds" in metrics:  # the programs this session compiled, and those read from the cache
                     cached = compilation_cache.counts()
@@ -445,6 +448,24 @@ def _save_together(checkpoints: Checkpoints, state: TrainState, record: dict[str
         raise ProcessFailed(saved.failed, int(record["cycle"]), run_dir)
     if error is not None:
         raise error
+
+
+def _warn_if_disk_is_small(run_dir: Path, config: Config, state: TrainState, cycles_left: int) -> None:
+    """Say before training when the checkpoints the run will save need more space than its disk has free."""
+    needed, free = disk_needed(config.checkpoint, state, cycles_left), shutil.disk_usage(run_dir).free
+    if needed > free:
+        print(f"Warning: the checkpoints of this run need up to {_size(needed)} (latest and best, each written "
+              f"before the last is removed, and the snapshots due), but {run_dir}'s disk has {_size(free)} free. A "
+              "save that finds the disk full stops the run, keeping the checkpoints saved before; free space now, or "
+              "keep fewer (checkpoint.snapshot_every, checkpoint.lean).",
+              file=sys.stderr, flush=True)
+
+
+def _size(count: int) -> str:
+    for unit, scale in (("GiB", 2**30), ("MiB", 2**20)):
+        if count >= scale:
+            return f"{count / scale:.1f} {unit}"
+    return f"{count / 2**10:.1f} KiB"
 
 
 def describe_physics(physics: dict[str, Any]) -> str:
