@@ -116,8 +116,8 @@ def positive_int(text: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command; exit codes: 0 done, 1 training diverged or another process of the run failed, 2 bad usage
-    or config (nothing was run or changed), 128 + signal number (130 Ctrl-C, 143 SIGTERM) when training was
-    interrupted after saving a checkpoint."""
+    or config, a second writer, a damaged file or a full disk (nothing saved before is changed), 128 + signal number
+    (130 Ctrl-C, 143 SIGTERM) when training was interrupted after saving a checkpoint."""
     cli = parser()
     args, extra = cli.parse_known_args(argv)
     if extra:

@@ -38,12 +38,12 @@ import pytest  # noqa: E402  (after the environment above, which must be set bef
 # its tests' times in a 35-minute `make test` with --junitxml; randomization, benchmark_scripts and reach_learning
 # less what their quick compiles saved since): randomization 478, evaluation 286, benchmarks 270, vision 251, ihom
 # 237, analysis 234, distributed 223, ppo_learning 203, notebook 203, locomotion 201, cli 165, benchmark_scripts 155,
-# docs 140, warp 121, checkpoint 115, nets 81, tbptt 76, settings 73, reach_sequential 67, host_env 65,
+# docs 140, warp 121, checkpoint 115, run_safety 100, nets 81, tbptt 76, settings 73, reach_sequential 67, host_env 65,
 # training_video 61, envs 57, config 47, parallel 47; every file not listed is shorter and follows in name order.
 LONGEST_FIRST = (
     "test_evaluation", "test_randomization", "test_benchmarks", "test_vision", "test_ihom", "test_analysis",
     "test_distributed", "test_ppo_learning", "test_notebook", "test_locomotion", "test_cli", "test_benchmark_scripts",
-    "test_docs", "test_warp", "test_checkpoint", "test_nets", "test_tbptt", "test_settings", "test_reach_sequential",
+    "test_docs", "test_warp", "test_checkpoint", "test_run_safety", "test_nets", "test_tbptt", "test_settings", "test_reach_sequential",
     "test_host_env", "test_training_video", "test_envs", "test_config", "test_parallel",
 )
 

@@ -5,13 +5,16 @@
     RUN_DIR/metrics.jsonl         one JSON object per cycle (see `monitor`)
     RUN_DIR/sessions.jsonl        one JSON object per train/resume call: start time and cycle, host, package
                                   versions, devices, and the physics it ran on (engine, MJX implementation and why)
-    RUN_DIR/checkpoints/          Orbax checkpoints (see `checkpoint`)
+    RUN_DIR/checkpoints/          Orbax checkpoints, each with its manifest (see `checkpoint`)
+    RUN_DIR/writer.lock           the process that trains the run now (see `run_lock`)
+    RUN_DIR/metrics.after-cycle-N.jsonl, RUN_DIR/set-aside/, RUN_DIR/previous-N/
+                                  what a resume moved aside rather than overwrite (see `resume_plan`)
     RUN_DIR/tensorboard/          TensorBoard event files, when logging.tensorboard is on
     RUN_DIR/wandb/                Weights & Biases' files and the W&B run id, when logging.wandb is on
     RUN_DIR/report/               PNG learning curves and index.html (see `report`)
     RUN_DIR/videos/               cycle_NNNNNN.gif, the policy during training, when evaluation.video is on
 
-A new run never reuses an existing directory.
+A new run never reuses an existing directory, and nothing in one is overwritten or deleted.
 """
 
 from __future__ import annotations
