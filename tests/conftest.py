@@ -43,8 +43,8 @@ import pytest  # noqa: E402  (after the environment above, which must be set bef
 LONGEST_FIRST = (
     "test_evaluation", "test_randomization", "test_benchmarks", "test_vision", "test_ihom", "test_analysis",
     "test_distributed", "test_ppo_learning", "test_notebook", "test_locomotion", "test_cli", "test_benchmark_scripts",
-    "test_docs", "test_warp", "test_checkpoint", "test_run_safety", "test_nets", "test_tbptt", "test_settings", "test_reach_sequential",
-    "test_host_env", "test_training_video", "test_envs", "test_config", "test_parallel",
+    "test_docs", "test_warp", "test_checkpoint", "test_run_safety", "test_nets", "test_tbptt", "test_settings",
+    "test_reach_sequential", "test_host_env", "test_training_video", "test_envs", "test_config", "test_parallel",
 )
 
 
