@@ -829,8 +829,6 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
                              f"encoder on), got {args.samples}.")
         if args.batch > args.samples:
             raise ValueError(f"--batch ({args.batch}) must be at most --samples ({args.samples}).")
-        if args.seed < 0:
-            raise ValueError(f"--seed must be >= 0, got {args.seed}.")
         check_pose_renders(args.samples, tuple(args.cameras), args.size, args.size, args.renderer)
         pose_network(args.encoder, options, args.orientation, (len(args.cameras), args.size, args.size, 3))
     except (ValueError, ModuleNotFoundError) as error:

@@ -241,7 +241,8 @@ def test_missing_and_corrupt_checkpoints_exit_2_naming_cause_and_fix(run_dir, tm
             path.write_bytes(b"not a checkpoint")
     assert main(["evaluate", str(corrupt), "--checkpoint", "latest", "--episodes", "1"]) == 2
     err = capsys.readouterr().err
-    assert "cannot be read" in err and "corrupt" in err and "--checkpoint" in err
+    assert f"Checkpoint {corrupt / 'checkpoints' / 'latest'}" in err and "is damaged: " in err, err
+    assert "The newest intact checkpoint is" in err and "--checkpoint" in err, err
     assert not (corrupt / "evaluation").exists()
     shutil.rmtree(corrupt / "checkpoints")
     assert main(["evaluate", str(corrupt), "--episodes", "1"]) == 2

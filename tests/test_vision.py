@@ -370,7 +370,6 @@ def pretrain_vision_refused(tmp_path, capsys, *options: str) -> str:
     (["--samples", "1000000", "--size", "480"], "more than this machine's"),
     (["--samples", "1"], "--samples must be at least 2"),
     (["--batch", "21"], "--batch (21) must be at most --samples (20)"),
-    (["--seed", "-1"], "--seed must be >= 0"),
     (["--widths", "8", "8"], "cornet_z does not take features 256 and widths (8, 8)"),
     (["--widths", "8", "8"], "its default widths are (32, 64, 128, 256)"),
     (["--encoder", "resnet"], "unknown encoder 'resnet'"),

@@ -31,6 +31,7 @@ next episode and are kept for completeness, masked by the analyses).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -111,11 +112,8 @@ def _run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: i
     weights, lesions) reuse the program. Steps run in chunks, each copied to the host as it ends, since a whole
     cube episode of every layer for hundreds of episodes does not fit in GPU memory."""
     env = agent.env.sized_for(episodes)
-    if steps is not None and steps > env.max_episode_steps:
-        raise ValueError(f"steps={steps:,} is more than the task's episode length ({env.max_episode_steps:,} policy "
-                         "steps): every episode has ended by then. Give at most that, or leave it out.")
     limit = steps or env.max_episode_steps
-    chunk = steps or min(RECORDING_CHUNK, limit)
+    chunk = min(RECORDING_CHUNK, limit)
 
     def start(key):
         reset_key, _ = jax.random.split(key)  # as `make_evaluate` does: a seed's episodes start alike in both
@@ -143,12 +141,24 @@ def _run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: i
         carry, record = programs[1](agent.state, carry)
         records.append(jax.device_get(record))
         done += chunk
+        if len(records) == 1:
+            _check_fits_in_memory(records[0], episodes, chunk, limit)
         if steps is None and not np.any(np.asarray(carry[2])):
             break
     record = jax.tree.map(lambda *parts: np.concatenate(parts)[:limit], *records)
     if steps is None:  # end with the longest episode's last step
         record = jax.tree.map(lambda x: x[:int(np.asarray(record["alive"]).sum(0).max())], record)
     return record
+
+
+def _check_fits_in_memory(first: dict[str, Any], episodes: int, chunk: int, limit: int) -> None:
+    """ValueError before recording on when `limit` steps, at the size of the `chunk` steps recorded first, would take
+    more than this machine's memory (the recording is gathered on the host)."""
+    needed = sum(x.nbytes for x in jax.tree.leaves(first)) * -(-limit // chunk)
+    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    if needed > memory:
+        raise ValueError(f"Recording {episodes:,} episodes x {limit:,} steps takes {needed / 2**30:,.1f} GiB, more "
+                         f"than this machine's {memory / 2**30:,.1f} GiB of memory: record fewer episodes or steps.")
 
 
 def episode_outcomes(agent: Agent, episodes: int = 256, steps: int | None = None,

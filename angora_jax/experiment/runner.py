@@ -325,8 +325,7 @@ def _run(
             cached_before = compilation_cache.counts()
             programs = cycle_programs(config, env)
             if main:
-                shape = jax.eval_shape(programs[0], jax.random.key(config.ppo.seed))  # with environments
-                _warn_if_disk_is_small(run_dir, config, shape, config.ppo.num_cycles - start)
+                _warn_if_disk_is_small(run_dir, config, initial_state_shape(config, env), config.ppo.num_cycles - start)
             for latest, metrics in training_cycles(config.ppo, env, None, state, num_devices(config), programs):
                 if "compile_seconds" in metrics:  # the programs this session compiled, and those read from the cache
                     cached = compilation_cache.counts()

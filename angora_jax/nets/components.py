@@ -93,7 +93,7 @@ def with_component(params: Any, path: str, values: Any) -> Any:
 
 def shape_misfits(current: Any, given: Any) -> list[str]:
     """The leaves whose shapes differ between the trees `current` (this network's) and `given` (a source's), each
-    as "['a']['kernel']: (4, 8) here, (4, 64) in the source" ("none" where a tree lacks the leaf); empty when the
+    as `['a']['kernel']: (4, 8) here, (4, 64) in the source` ("none" where a tree lacks the leaf); empty when the
     trees fit."""
     def shapes(tree: Any) -> dict[str, tuple[int, ...]]:
         return {jax.tree_util.keystr(path): np.shape(leaf) for path, leaf in jax.tree_util.tree_leaves_with_path(tree)}
