@@ -108,6 +108,9 @@ class Checkpoints:
             )
             for kind in KINDS
         }
+        # Each checkpoint's verification (checksums of all its files, gigabytes for the cube) is done once per object:
+        # resuming asks about the same checkpoint when planning, locating, reading its metadata and restoring it.
+        self._damage: dict[tuple[str, int], str | None] = {}
         best = self._managers["best"].latest_step()
         try:
             self.best_value = None if best is None else self._read_meta("best", best)["metrics"].get(config.best_metric)
@@ -254,7 +257,9 @@ class Checkpoints:
     def damage(self, kind: str, cycle: int) -> str | None:
         """What is wrong with checkpoint `kind`/`cycle` by its manifest (`manifest.verify`), None when intact; "no
         manifest" when it cannot be checked (saved before manifests were written)."""
-        return verify(self._directory / kind / str(cycle))
+        if (kind, cycle) not in self._damage:
+            self._damage[kind, cycle] = verify(self._directory / kind / str(cycle))
+        return self._damage[kind, cycle]
 
     def check_intact(self, kind: str, cycle: int) -> None:
         """Raise CheckpointError naming the damaged file and the newest intact checkpoint, unless the manifest of
@@ -262,19 +267,18 @@ class Checkpoints:
         problem = self.damage(kind, cycle)
         if problem in (None, "no manifest"):
             return
-        intact = self.newest_intact(below=None, skip=(kind, cycle))
+        intact = self.newest_intact(skip=(kind, cycle))
         named = intact and (intact[0] if intact[0] != kind and intact[0] in ("latest", "best") else intact[1])
         fallback = (f"The newest intact checkpoint is {intact[0]} of cycle {intact[1]}: read it with --checkpoint "
                     f"{named} (resume: --from {named})" if intact else "No other intact checkpoint is left")
         raise CheckpointError(f"Checkpoint {self._directory / kind / str(cycle)} is damaged: {problem}. {fallback}; "
                               "or restore the folder from a copy. `angora-jax check RUN_DIR` lists every checkpoint.")
 
-    def newest_intact(self, below: int | None = None, skip: tuple[str, int] | None = None) -> tuple[str, int] | None:
+    def newest_intact(self, skip: tuple[str, int] | None = None) -> tuple[str, int] | None:
         """The kind and cycle of the newest checkpoint not found damaged (its manifest holds, or it has none to check;
-        cycles below `below` only, when given; `skip` left out), or None."""
+        `skip` left out), or None."""
         found = [(cycle, kind) for kind in KINDS for cycle in self.steps(kind)
-                 if (kind, cycle) != skip and (below is None or cycle < below)
-                 and self.damage(kind, cycle) in (None, "no manifest")]
+                 if (kind, cycle) != skip and self.damage(kind, cycle) in (None, "no manifest")]
         return (max(found)[1], max(found)[0]) if found else None
 
     def _read_meta(self, kind: str, cycle: int) -> dict[str, Any]:
