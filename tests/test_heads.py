@@ -49,6 +49,18 @@ def test_multicategorical_log_prob_sums_per_dimension_log_softmax_and_maps_bins_
     np.testing.assert_allclose(extremes, np.stack([LOW, HIGH, (LOW + HIGH) / 2]), rtol=1e-6, atol=1e-6)
 
 
+def test_multicategorical_entropy_is_the_sum_over_dimensions_of_each_dimensions_entropy():
+    head = make_head("multicategorical", BOX, bins=7)
+    params = random_params(head, seed=2)
+    p = special.softmax(np.asarray(params, np.float64).reshape(BATCH, 3, 7), axis=-1)
+    per_dimension = -(p * np.log(p)).sum(-1)
+    np.testing.assert_allclose(head.entropy(params), per_dimension.sum(-1), rtol=1e-5, atol=1e-5)
+    # The joint log-probability, too, adds the dimensions' log-probabilities of the action's bins.
+    actions = head.sample(params, jax.random.key(3))
+    chosen = np.take_along_axis(np.log(p), np.asarray(actions)[..., None], -1)[..., 0]
+    np.testing.assert_allclose(head.log_prob(params, actions), chosen.sum(-1), rtol=1e-5, atol=1e-5)
+
+
 def test_gaussian_log_prob_matches_scipy_and_std_is_state_independent():
     head = make_head("gaussian", BOX)
     params = random_params(head)
