@@ -134,6 +134,16 @@ def test_episodes_start_with_the_cube_resting_on_the_palm(cpu, start):
     np.testing.assert_allclose(named["joint_angles"], obs.proprioception[:24])
 
 
+def test_the_value_function_sees_the_goal_timer_left_and_the_share_of_the_goal_cap_reached(cpu, start):
+    """The last two asymmetric inputs part way through an episode (at its start they are 1 and 0 whatever their
+    denominators): 1 - goal_steps / steps_per_goal and goals_reached / max_goals."""
+    snap, info = start
+    task = cpu.task
+    obs = task.observe(snap, dict(info, goal_steps=jnp.int32(30), goals_reached=jnp.int32(7)))
+    assert (task.steps_per_goal, task.max_goals) == (100, 50)
+    np.testing.assert_allclose(obs.asymmetric[-2:], [1.0 - 30 / 100, 7 / 50], rtol=1e-6)
+
+
 @pytest.mark.parametrize("control", ["absolute", "target", "position"])
 def test_a_zero_action_policy_keeps_the_cube_for_2_seconds(control):
     """AngoraPy's reset lets the cube settle on the palm. From there, doing nothing keeps it on the palm for 2 s (25
