@@ -24,7 +24,7 @@ from angora_jax.envs.mjx_env import resolve_impl
 from angora_jax.envs.mujoco_task import Snapshot, mjx_impl, start_physics
 from angora_jax.envs.shadow_hand import REACH_PHYSICS
 from angora_jax.envs.shadow_hand.model import UNTOUCHED_GEOMS, load_scene
-from angora_jax.envs.shadow_hand.reach import Reach, ReachReward
+from angora_jax.envs.shadow_hand.reach import THUMB, Reach, ReachReward
 from angora_jax.ppo import PPOConfig, make_cycle, make_evaluate
 
 BATCH = 3
@@ -156,6 +156,27 @@ def test_freereach_goal_is_the_target_finger_one_hot(env, rollout):
     info = task.initial_info(jax.random.key(7), snap)
     goal = np.asarray(task.observe(snap, info).goal)
     assert goal.shape == (5,) and goal.sum() == 1.0 and goal[int(info["target"])] == 1.0 and goal[4] == 0.0
+
+
+def test_freereach_penalises_the_other_fingertips_near_the_thumb_not_the_target():
+    """Freereach: each non-target fingertip inside `auxiliary_zone_radius` (6.015 cm) of the thumb tip costs
+    `auxiliary_penalty_multiplier` per metre it intrudes; the target, which has to come to the thumb, costs nothing.
+    Fingertips on a line from the thumb: FF 3 cm, MF 5 mm, RF 5 cm, LF 10 cm; a near non-target also bars success."""
+    task = aj.make("ShadowHandFreeReach", backend="cpu").task
+    c = task.reward_config
+    start = task.snapshot(start_physics(task, np.asarray(task.initial_qpos(None), np.float64)))
+    thumb = np.asarray(start.site_xpos[task.fingertip_ids[THUMB]])
+    away = np.array([0.03, 0.005, 0.05, 0.10])
+    tips = np.vstack([thumb + away[:, None] * np.array([1.0, 0.0, 0.0]), thumb])
+    placed = start.replace(site_xpos=start.site_xpos.at[task.fingertip_ids].set(jnp.asarray(tips, jnp.float32)))
+    for target in (1, 0):  # MF, then FF
+        info = dict(task.initial_info(jax.random.key(0), start), target=jnp.int32(target))
+        reward, _, _, metrics = task.evaluate(jax.random.key(1), start, placed, info)
+        others = np.delete(away, target)
+        intrusion = np.maximum(c.auxiliary_zone_radius - others, 0.0).sum()
+        assert float(metrics["goal_distance"]) == pytest.approx(away[target], abs=1e-6)
+        assert float(reward) == pytest.approx(-away[target] - c.auxiliary_penalty_multiplier * intrusion, abs=1e-6)
+        assert float(metrics["success"]) == 0.0
 
 
 def test_mjx_and_cpu_paths_agree_for_50_steps(rollout):
