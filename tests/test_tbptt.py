@@ -170,6 +170,19 @@ def test_minibatch_indices_partition_the_grid_every_epoch():
     assert orders == {(0, 1), (1, 0)}
 
 
+def test_minibatches_take_the_chunk_positions_in_a_new_random_grouping_every_epoch():
+    """Chunk positions are shuffled before they are cut into groups of m: each epoch uses every chunk once, but which
+    chunks share a minibatch, and which come first, changes with the key (not always the rollout's early chunks
+    together, in the first update)."""
+    epochs = [np.asarray(minibatch_indices(jax.random.key(k), 2, 6, (2, 2))[1]) for k in range(8)]
+    for chunk_index in epochs:
+        assert chunk_index.shape == (3, 2)
+        np.testing.assert_array_equal(np.sort(chunk_index.ravel()), np.arange(6))
+    groupings = {frozenset(frozenset(row) for row in chunk_index.tolist()) for chunk_index in epochs}
+    assert len(groupings) > 1, "the same chunks share a minibatch in every epoch"
+    assert len({tuple(chunk_index[0]) for chunk_index in epochs}) > 1, "the first minibatch always takes one group"
+
+
 def test_device_shares_of_a_tile_make_up_the_single_device_tile():
     # vmap with an axis name stands in for 4 devices: collectives and axis_index work the same way.
     key, num_envs, num_chunks, tile, devices = jax.random.key(3), 16, 4, (8, 2), 4
