@@ -1,5 +1,6 @@
 """The PPO loss against a hand-computed minibatch: both sides of the ratio clip, the clipped and unclipped value
-loss, the entropy bonus, the coefficients, and advantage normalisation."""
+loss, the entropy bonus, the coefficients, and advantage normalisation; and the cycle's logged statistics of a
+rollout (explained variance, the means over ended episodes) against their formulas."""
 
 import jax
 import jax.numpy as jnp
@@ -8,6 +9,7 @@ import pytest
 
 from angora_jax.envs.core import ActionSpec
 from angora_jax.ppo import make_head
+from angora_jax.ppo.cycle import episode_metrics, explained_variance
 from angora_jax.ppo.losses import LossInputs, advantage_moments, normalized_advantages, ppo_loss
 
 HEAD = make_head("categorical", ActionSpec(low=jnp.zeros((0,)), high=jnp.zeros((0,)), num_actions=3))
@@ -73,3 +75,34 @@ def test_advantages_are_normalised_per_minibatch_and_a_constant_one_stays_finite
     first = normalized_advantages(advantages[0], mean[0], std[0])
     np.testing.assert_allclose(first, (np.array([1, 3, 5, 7]) - 4) / np.sqrt(5), rtol=1e-5)
     np.testing.assert_array_equal(normalized_advantages(advantages[1], mean[1], std[1]), np.zeros(4))
+
+
+def test_explained_variance_is_one_minus_the_residual_over_the_targets_variance():
+    targets = np.array([[2.0, 1.0], [4.0, 6.0], [0.5, -1.0]])  # (T, N)
+    values = np.array([[1.0, 2.0], [3.0, 4.0], [0.0, 0.5]])
+    expected = 1.0 - np.var(targets - values) / np.var(targets)  # 0.73 here; over var(values) it would be 0.26
+    assert float(explained_variance(jnp.asarray(targets), jnp.asarray(values))) == pytest.approx(expected, abs=1e-5)
+    assert float(explained_variance(jnp.asarray(targets), jnp.asarray(targets))) == pytest.approx(1.0, abs=1e-6)
+    assert float(explained_variance(jnp.asarray(targets), jnp.full((3, 2), 9.0))) == pytest.approx(0.0, abs=1e-5)
+    # Pooled over devices: vmap with an axis name stands in for 3 devices holding a step each.
+    pooled = jax.vmap(lambda t, v: explained_variance(t, v, "devices"), axis_name="devices")(targets, values)
+    np.testing.assert_allclose(pooled, expected, atol=1e-5)
+
+
+def test_task_metrics_are_means_over_the_episodes_that_ended_not_over_all_steps():
+    # Two environments, four steps; episodes end at step 1 and 3 of the first, step 2 of the second.
+    dones = np.array([[0, 0], [1, 0], [0, 1], [1, 0]], np.float32)
+    returns = np.array([[0, 0], [5, 0], [0, 2], [3, 0]], np.float32)  # 0 except where an episode ended
+    lengths = np.array([[0, 0], [2, 0], [0, 3], [2, 0]], np.float32)
+    success = np.array([[1, 1], [1, 1], [1, 0], [0, 1]], np.float32)  # the task's, every step: 1 at the first end
+    metrics = episode_metrics(*map(jnp.asarray, (dones, returns, lengths)), {"success": jnp.asarray(success)})
+    assert float(metrics["episodes"]) == 3.0
+    assert float(metrics["episode_return"]) == pytest.approx(10 / 3)
+    assert float(metrics["episode_length"]) == pytest.approx(7 / 3)
+    assert float(metrics["metric/success"]) == pytest.approx(1 / 3), "over all steps it would be 6 / 8"
+    pooled = jax.vmap(lambda *x: episode_metrics(*x[:3], {"success": x[3]}, "devices"), in_axes=1,
+                      axis_name="devices")(dones, returns, lengths, success)  # one environment per device
+    np.testing.assert_allclose(pooled["metric/success"], [1 / 3, 1 / 3], rtol=1e-6)
+    none_ended = episode_metrics(*map(jnp.zeros_like, map(jnp.asarray, (dones, returns, lengths))),
+                                 {"success": jnp.asarray(success)})
+    assert all(np.isnan(float(none_ended[k])) for k in ("episode_return", "episode_length", "metric/success"))

@@ -267,7 +267,7 @@ def make_cycle(
             )
         metrics = {name: pmean(value.mean(), axis) for name, value in parts.items()}
         metrics |= episode_metrics(traj.dones, traj.episode_return, traj.episode_length, traj.metrics, axis)
-        metrics["explained_variance"] = 1.0 - variance(targets - values, axis) / (variance(targets, axis) + 1e-8)
+        metrics["explained_variance"] = explained_variance(targets, values, axis)
         metrics["learning_rate"] = jnp.asarray(schedule(state.cycle * updates_per_cycle), jnp.float32)
         params_finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(p)) for p in jax.tree.leaves(params)]))
         finite = (jnp.all(jnp.isfinite(parts["loss"])) & params_finite).astype(jnp.float32)
@@ -389,6 +389,12 @@ def variance(x: jax.Array, axis: str | None = None) -> jax.Array:
         return jnp.var(x)
     mean = pmean(x.mean(), axis)
     return pmean(((x - mean) ** 2).mean(), axis)
+
+
+def explained_variance(targets: jax.Array, values: jax.Array, axis: str | None = None) -> jax.Array:
+    """The share of the value targets' variance that the values explain, 1 - var(targets - values) / var(targets),
+    pooled over the devices on `axis`: 1 for exact values, 0 for a constant."""
+    return 1.0 - variance(targets - values, axis) / (variance(targets, axis) + 1e-8)
 
 
 def episode_metrics(
