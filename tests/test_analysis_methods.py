@@ -1,7 +1,7 @@
 """The analyses on data with known answers: RDMs (symmetric, zero diagonal, the right model RDM wins), fixed points
 of a hand-built linear RNN and of Elman areas of brain-area graphs (against fixed-point iteration in numpy),
-timescales of AR(1) units, tuning strength, PCA dimensionality, lagged decoding and cross-correlation of a layer that
-another follows by 3 steps."""
+timescales of AR(1) units (only from alive steps), tuning strength, PCA dimensionality, held-out decoding of noise
+and of a code, lagged decoding and cross-correlation of a layer that another follows by 3 steps."""
 
 import jax.numpy as jnp
 import numpy as np
@@ -17,26 +17,23 @@ from angora_jax.analysis import (
     timescales,
     tuning_curves,
 )
+from angora_jax.analysis.decoding import cross_validated_r2
 from angora_jax.analysis.timescales import autocorrelation
 
 DT = 0.02
 
 
 def synthetic(episodes=20, steps=50, seed=0):
-    """A recording with a variable x per step, a layer `code` whose 6 units are linear in x, a layer `noise` of pure
-    noise and a layer `slow` of AR(1) units with coefficient 0.9 (timescale -1/ln 0.9 steps)."""
+    """A recording with a variable x per step, a layer `code` whose 6 units are linear in x and a layer `noise` of
+    pure noise."""
     rng = np.random.default_rng(seed)
     x = rng.uniform(-1, 1, (episodes, steps))
     code = x[..., None] * rng.standard_normal(6) + 0.01 * rng.standard_normal((episodes, steps, 6))
-    slow = np.zeros((episodes, steps, 4))
-    for t in range(1, steps):
-        slow[:, t] = 0.9 * slow[:, t - 1] + rng.standard_normal((episodes, 4))
     alive = np.ones((episodes, steps))
     alive[0, 40:] = 0  # one episode ends early: its last steps are masked
     data = {"metric_x": (("episode", "time"), x), "alive": (("episode", "time"), alive),
             "activity_code": (("episode", "time", "code_unit"), code),
-            "activity_noise": (("episode", "time", "noise_unit"), rng.standard_normal((episodes, steps, 5))),
-            "activity_slow": (("episode", "time", "slow_unit"), slow)}
+            "activity_noise": (("episode", "time", "noise_unit"), rng.standard_normal((episodes, steps, 5)))}
     return xr.Dataset(data, coords={"time": np.arange(steps) * DT}, attrs={"policy_step_s": DT})
 
 
@@ -110,12 +107,69 @@ def test_every_activation_has_a_range_for_the_fixed_point_search():
         assert low <= min(outputs.min(), 0.0) and max(outputs.max(), 0.0) <= high, name
 
 
+def ar1_recording(coefficient, episodes=400, steps=100, units=8, seed=0):
+    """A recording whose layer `unit` holds AR(1) units x(t + 1) = coefficient x(t) + noise, stationary from the
+    first step (so that the autocorrelation at lag k is coefficient^k at every step)."""
+    rng = np.random.default_rng(seed)
+    x = np.zeros((episodes, steps, units))
+    x[:, 0] = rng.standard_normal((episodes, units)) / np.sqrt(1 - coefficient**2)
+    for t in range(1, steps):
+        x[:, t] = coefficient * x[:, t - 1] + rng.standard_normal((episodes, units))
+    return xr.Dataset({"alive": (("episode", "time"), np.ones((episodes, steps))),
+                       "activity_unit": (("episode", "time", "unit"), x)},
+                      coords={"time": np.arange(steps) * DT}, attrs={"policy_step_s": DT})
+
+
 def test_timescales_of_ar1_units_and_white_noise():
-    result = timescales(synthetic(episodes=200), layers=["slow", "noise"], max_lag=30)
-    expected = -1 / np.log(0.9) * DT  # acf(k) = 0.9^k crosses 1/e at k = -1 / ln 0.9
-    assert result["timescale_median"].sel(layer="slow") == pytest.approx(expected, rel=0.15)
-    assert result["timescale_median"].sel(layer="noise") < DT  # uncorrelated: below 1/e at the first lag
-    np.testing.assert_allclose(result["autocorrelation"].sel(layer="slow").values[:4], 0.9 ** np.arange(4), atol=0.05)
+    result = timescales(ar1_recording(0.8), max_lag=30)
+    # acf(k) = 0.8^k: 0.8^4 > 1/e > 0.8^5, so the crossing interpolated between lags 4 and 5 is at 4.509 steps. 40,000
+    # steps per unit put the median within 0.06 steps of it (5 seeds); a lag off by one is 1 step away.
+    expected = 4 + (0.8**4 - 1 / np.e) / (0.8**4 - 0.8**5)
+    assert float(result["timescale_median"].item()) / DT == pytest.approx(expected, abs=0.2)
+    assert expected - 0.3 < result["timescale_iqr_low"].item() / DT < result["timescale_iqr_high"].item() / DT < (
+        expected + 0.3)
+    np.testing.assert_allclose(result["autocorrelation"].values[0, :8], 0.8 ** np.arange(8), atol=0.02)
+    # White noise: acf(1) is about 0, so the crossing is (1 - 1/e) / (1 - acf(1)) of a step.
+    noise = timescales(ar1_recording(0.0), max_lag=30)
+    assert float(noise["timescale_median"].item()) / DT == pytest.approx(1 - 1 / np.e, abs=0.03)
+
+
+def test_timescales_read_only_the_alive_steps():
+    """After its episode ends a unit holds a different process (a random walk a thousand times larger); the dead
+    steps must change nothing: every episode dying after 40 steps gives the timescales of its first 40 steps alone,
+    and with episodes dying at different steps, zeros in the dead steps give the same as the random walk."""
+    recording = ar1_recording(0.8, episodes=100, steps=60, units=4, seed=1)
+    units = recording["activity_unit"]
+    rng = np.random.default_rng(2)
+    walk = 1e3 * np.cumsum(rng.standard_normal(units.shape), axis=1)
+    expected = 4 + (0.8**4 - 1 / np.e) / (0.8**4 - 0.8**5)  # steps, as for the AR(1) units above
+
+    def ending(dead, after_death):
+        return recording.assign(alive=(("episode", "time"), (~dead).astype(float)),
+                                activity_unit=(units.dims, np.where(dead[..., None], after_death, units.values)))
+
+    first_40 = timescales(recording.isel(time=slice(0, 40)), max_lag=20)
+    assert float(first_40["timescale_median"].item()) / DT == pytest.approx(expected, abs=0.3)
+    at_40 = np.broadcast_to(np.arange(60) >= 40, (100, 60))
+    xr.testing.assert_allclose(timescales(ending(at_40, walk), max_lag=20), first_40, rtol=1e-9)
+
+    varied = np.arange(60) >= rng.integers(20, 61, 100)[:, None]
+    on_walk, on_zeros = (timescales(ending(varied, after_death), max_lag=20) for after_death in (walk, 0.0))
+    xr.testing.assert_allclose(on_walk, on_zeros, rtol=1e-9)
+    assert float(on_walk["timescale_median"].item()) / DT == pytest.approx(expected, abs=0.3)
+
+
+def test_held_out_r2_of_noise_is_chance_even_with_more_units_than_samples():
+    """A readout of 400 units of noise explains about half the variance of noise targets on its own 48 training
+    samples; held out, it explains none. A code carried by as many units is read out held out almost perfectly."""
+    rng = np.random.default_rng(0)
+    samples, units = 60, 400
+    groups = np.repeat(np.arange(12), 5)
+    noise = cross_validated_r2(rng.standard_normal((samples, units)), rng.standard_normal((samples, 1)), groups)
+    assert noise.shape == (5,) and noise.mean() <= 0.05, noise
+    signal = rng.standard_normal(samples)
+    code = signal[:, None] * rng.standard_normal(units) + rng.standard_normal((samples, units))
+    assert cross_validated_r2(code, signal[:, None], groups).min() > 0.95
 
 
 def test_tuning_strength_separates_a_tuned_layer_from_noise():
