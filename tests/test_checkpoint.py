@@ -16,11 +16,12 @@ from quick_compile import quick_compilation
 from tiny import TINY_PPO
 
 import angora_jax as aj
-from angora_jax.experiment import Checkpoints, RunDirError, TrainingInterrupted, read_metrics, resume
+from angora_jax.experiment import Checkpoints, RunDirError, TrainingInterrupted, read_metrics, resume, validate
 from angora_jax.experiment.checkpoint import CheckpointError
 from angora_jax.experiment.config import CheckpointConfig
 from angora_jax.experiment.monitor import set_aside_after
 from angora_jax.experiment.run_dir import CHECKPOINTS
+from angora_jax.experiment.runner import cycle_programs
 
 # A recurrent network, so that resuming must restore carries and env states mid-episode, not just parameters.
 TINY = [
@@ -96,6 +97,22 @@ def test_a_second_run_of_the_same_settings_reuses_the_traced_programs_and_its_ow
         assert {k: v for k, v in a.items() if k not in UNTIMED} == {k: v for k, v in b.items() if k not in UNTIMED}
     assert other_seed.history[-1]["loss"] != whole.history[-1]["loss"]
     assert not np.array_equal(jax.tree.leaves(other_seed.state.params)[0], jax.tree.leaves(whole.state.params)[0])
+
+
+def test_other_env_options_get_programs_of_their_own():
+    """The programs a process keeps for reuse (`cycle_programs`) belong to the task's settings as well as the PPO
+    settings: the traced step closes over the environment, so the same PPO settings on CartPole with another
+    `env.options` value (the episode limit) must be traced anew, while the same options with another seed reuse them.
+    Nothing is traced or compiled here: `make_cycle` only wraps the functions."""
+
+    def programs(*overrides):
+        config = aj.load_config("cartpole", [*TINY, *overrides])
+        return cycle_programs(config, validate(config, new_run=False))
+
+    short = programs("env.options.max_episode_steps=50")
+    assert programs("env.options.max_episode_steps=50", "ppo.seed=3") is short
+    longer = programs("env.options.max_episode_steps=80")
+    assert longer[0] is not short[0] and longer[1] is not short[1]
 
 
 def test_sigterm_saves_a_loadable_checkpoint_and_restores_the_handler(runs):
