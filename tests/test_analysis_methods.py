@@ -51,6 +51,21 @@ def test_rdms_are_symmetric_with_zero_diagonal_and_match_the_encoded_variable():
         similarity(synthetic(), "metric_y")
 
 
+def test_condition_bins_split_only_the_alive_steps_into_equal_parts():
+    """The quantiles that bound the bins are those of the alive steps: steps after an episode ended belong to the
+    next episode, whose values (here all 0, below every alive value) would otherwise pull the lower bounds down and
+    merge bins. Alive values 1..40 in 4 bins: 1-10, 11-20, 21-30, 31-40."""
+    from angora_jax.analysis.similarity import condition_labels
+
+    values = np.zeros((4, 15))
+    values[:, :10] = np.arange(1, 41).reshape(4, 10)
+    alive = (values > 0).astype(float)
+    data = xr.Dataset({"metric_x": (("episode", "time"), values), "alive": (("episode", "time"), alive)})
+    labels = condition_labels(data, "metric_x", bins=4)
+    np.testing.assert_array_equal(labels[:, :10], np.arange(40).reshape(4, 10) // 10)
+    assert (labels[:, 10:] == -1).all()
+
+
 def test_fixed_point_of_a_linear_rnn_is_found_to_1e_6():
     rng = np.random.default_rng(1)
     a = 0.5 * np.linalg.qr(rng.standard_normal((6, 6)))[0]  # contracting: eigenvalue moduli 0.5
