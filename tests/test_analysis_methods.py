@@ -195,6 +195,20 @@ def test_tuning_strength_separates_a_tuned_layer_from_noise():
     assert np.all(np.diff(tuned["center"].values) > 0), "bins ordered by the variable"
 
 
+def test_tuning_strength_is_eta_squared_of_each_unit_whatever_its_offset():
+    """Variable 1..40 in 2 bins; unit 0 is 10 in the first bin and 12 in the second, unit 1 is -3 throughout, both
+    plus alternating +-1. Unit 0: between-bin sum of squares 40 x 1^2, within 40 x 1^2, so eta squared 0.5; unit 1:
+    0. Each unit's variance is about its own mean: the units' different offsets (10 and -3) change nothing."""
+    x = np.arange(1.0, 41.0).reshape(1, 40)
+    jitter = np.where(np.arange(40) % 2, 1.0, -1.0)
+    code = np.stack([10.0 + 2.0 * (x[0] > 20) + jitter, -3.0 + jitter], axis=-1)[None]
+    data = xr.Dataset({"metric_x": (("episode", "time"), x), "alive": (("episode", "time"), np.ones((1, 40))),
+                       "activity_code": (("episode", "time", "code_unit"), code)})
+    result = tuning_curves(data, "code", "metric_x", bins=2)
+    np.testing.assert_allclose(result["response"].values, [[10.0, -3.0], [12.0, -3.0]], atol=1e-12)
+    np.testing.assert_allclose(result["strength"].values, [0.5, 0.0], atol=1e-12)
+
+
 def test_pca_finds_one_dimension_in_a_rank_one_code():
     result = principal_components(synthetic(), layers=["code", "noise"], components=4)
     assert result["explained"].sel(layer="code", component=0) > 0.99
