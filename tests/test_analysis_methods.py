@@ -218,6 +218,21 @@ def test_pca_finds_one_dimension_in_a_rank_one_code():
     assert np.isnan(trajectory[0, 45]).all() and np.isfinite(trajectory[1]).all(), "dead steps are not projected"
 
 
+def test_participation_ratio_and_dimensionality_of_a_known_spectrum():
+    """Three units over mutually orthogonal zero-mean +-1 patterns with standard deviations 2, 1, 1: the covariance's
+    eigenvalues are in the ratio 4 : 1 : 1, so the participation ratio (4 + 1 + 1)^2 / (16 + 1 + 1) is 2 and 90% of
+    the variance (4/6, 5/6, 6/6 cumulated) takes all 3 components."""
+    patterns = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float) * [2.0, 1.0, 1.0]
+    activity = np.tile(patterns, (2, 1))[None]
+    data = xr.Dataset({"alive": (("episode", "time"), np.ones((1, 8))),
+                       "activity_code": (("episode", "time", "code_unit"), activity)},
+                      coords={"time": np.arange(8) * DT})
+    result = principal_components(data, layers=["code"], components=3)
+    np.testing.assert_allclose(result["explained"].sel(layer="code").values, [4 / 6, 1 / 6, 1 / 6], atol=1e-12)
+    assert float(result["participation_ratio"].sel(layer="code")) == pytest.approx(2.0, rel=1e-12)
+    assert int(result["dimensionality"].sel(layer="code")) == 3
+
+
 def leader_and_follower(episodes=16, steps=60, delay=3, seed=0):
     """A layer `lead` whose units carry one white-noise signal, a layer `follow` that repeats it `delay` steps later
     (mixed, plus a little noise), and `metric_echo`, lead's first unit `delay` steps later: the variable at t + delay
