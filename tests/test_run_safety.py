@@ -25,7 +25,7 @@ from angora_jax.experiment.checkpoint import disk_needed
 from angora_jax.experiment.manifest import MANIFEST_FILE
 from angora_jax.experiment.run_check import check_run
 from angora_jax.experiment.run_dir import CHECKPOINTS, DiskFullError
-from angora_jax.experiment.run_lock import LOCK_FILE, RunLock, RunLockedError
+from angora_jax.experiment.run_lock import LOCK_FILE, RunLock, RunLockedError, _process_start
 
 # A recurrent network, so that a resumed run must restore carries and environments mid-episode.
 TINY = [*TINY_PPO, "ppo.network.name=gru", "ppo.network.width=8", "ppo.network.cell_size=8",
@@ -176,6 +176,32 @@ def test_the_lock_is_taken_by_one_of_two_processes_at_once(tmp_path):
     assert RunLock(tmp_path).holder().pid == os.getpid()
     second.release()
     assert RunLock(tmp_path).holder() is None
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="process starts are read from Linux's /proc")
+def test_a_live_holder_is_told_from_a_later_process_with_its_id_by_its_start(tmp_path):
+    """The lock records its holder's start (field 22 of /proc/<pid>/stat, clock ticks since boot), so that a process
+    given the same id later is not taken for the holder. The start read is the process's own: a child started just
+    now started within a minute of the machine's uptime (a neighbouring field, such as the memory it uses, is not);
+    a live holder with that start is refused, and a lock whose recorded start differs (the id was reused) is taken
+    over."""
+    alive = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        start = _process_start(alive.pid)
+        uptime = float(Path("/proc/uptime").read_text().split()[0])
+        assert 0 <= uptime - start / os.sysconf("SC_CLK_TCK") < 60, (start, uptime)
+        lock = {"host": socket.gethostname(), "pid": alive.pid, "process_start": start, "since": time.time()}
+        (tmp_path / LOCK_FILE).write_text(json.dumps(lock))
+        with pytest.raises(RunLockedError, match=f"is being trained by process {alive.pid} on host"):
+            RunLock(tmp_path).acquire()
+        (tmp_path / LOCK_FILE).write_text(json.dumps({**lock, "process_start": start - 1}))
+        taker = RunLock(tmp_path)
+        taker.acquire()
+        assert RunLock(tmp_path).holder().pid == os.getpid()
+        taker.release()
+    finally:
+        alive.kill()
+        alive.wait()
 
 
 def test_a_full_disk_keeps_the_previous_checkpoint_and_says_so(whole, tmp_path, monkeypatch):
