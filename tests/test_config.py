@@ -133,6 +133,22 @@ def test_bad_config_fails_naming_the_key(case):
         validate(load_config("cartpole", overrides))
 
 
+@pytest.mark.parametrize("rollout_length", [16, 32])
+def test_the_memory_bound_counts_every_stored_transition_of_a_cycle(rollout_length):
+    """CartPole stores per transition 4 observation floats, one action slot and 9 scalars (log-probability, value,
+    reward, done, truncated, final value, reset, episode return and length): 56 bytes, `rollout_length` of them per
+    environment per cycle, besides one environment state each; 8 environments on 2 devices hold 4 each."""
+    from angora_jax.envs.registry import make
+    from angora_jax.ppo.memory import estimate_memory
+
+    config = PPOConfig(num_envs=8, rollout_length=rollout_length, chunk_length=8, minibatch_size=32)
+    memory = estimate_memory(config, make("CartPole"), num_devices=2)
+    assert (memory.transition, memory.num_envs) == ((4 + 1 + 9) * 4, 4)
+    assert memory.total - 4 * memory.env_state == 4 * rollout_length * 56
+    if memory.available is not None:
+        assert memory.max_envs == memory.available // (memory.env_state + rollout_length * 56)
+
+
 # A small valid graph on CartPole (proprioception only; goal is empty there), which each bad case below changes; the
 # cartpole config's width does not apply to it.
 GRAPH = ["ppo.network.name=areas", "ppo.network.width=null",
