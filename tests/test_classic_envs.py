@@ -114,6 +114,20 @@ def test_one_step_from_the_same_state_matches_gymnasium(task):
     np.testing.assert_allclose(starts.max(0), gym_starts.max(0), atol=0.02)
 
 
+@pytest.mark.parametrize("task, coast", [("MountainCar", 1), ("MountainCarContinuous", [0.0])])
+def test_the_mountain_cars_left_wall_stops_the_car(task, coast):
+    """Gymnasium's left wall is inelastic: a car driven past position -1.2 stops there (velocity 0), and the slope
+    then rolls it back right. From -1.19 at -0.05 per step without a push, the car would reach
+    -1.19 - 0.05 + 0.0025 cos(3.57) = -1.238; random states reach the wall too rarely for the parity test to see it."""
+    env = make(task)
+    state = env.reset(jax.random.key(0))
+    state = state.replace(physics=jnp.array([-1.19, -0.05], jnp.float32))
+    state, _ = env.advance(state, jnp.asarray(coast))
+    np.testing.assert_allclose(state.obs.proprioception, [-1.2, 0.0], atol=1e-7)
+    state, _ = env.advance(state, jnp.asarray(coast))
+    assert float(state.obs.proprioception[1]) == pytest.approx(-0.0025 * np.cos(-3.6), rel=1e-5)
+
+
 def test_new_classic_tasks_are_registered_with_gymnasium_episode_lengths():
     assert isinstance(make("Acrobot"), Acrobot) and make("Acrobot").max_episode_steps == 500
     assert make("MountainCar").max_episode_steps == 200 and make("MountainCar").action_spec.num_actions == 3
