@@ -359,6 +359,24 @@ def test_a_fixed_target_finger_and_a_frozen_wrist():
         aj.make("ShadowHandFreeReach", backend="cpu", target_finger="TH")
 
 
+@pytest.mark.parametrize("control", ["absolute", "position", "target"])
+def test_each_control_mode_maps_actions_onto_the_actuators_ranges(control):
+    """Under "absolute" (the cube presets' control) -1, 0 and 1 are each actuator's low end, the middle of its range
+    and its high end; "position" centres the step on where each actuator is (its length) and "target" on the last
+    targets, a step of 1 moving half the range from there, within the range."""
+    env = aj.make("ShadowHandReach", backend="cpu", control=control)
+    snap = env.reset(jax.random.key(0)).physics
+    low, high = (np.asarray(bound, np.float64) for bound in env.task.model.actuator_ctrlrange.T)
+    centre = {"absolute": (low + high) / 2, "position": np.asarray(snap.actuator_length, np.float64),
+              "target": np.asarray(snap.ctrl, np.float64)}[control]
+    for action in (-1.0, 0.0, 1.0):
+        targets = np.asarray(env.task.control(jnp.full(20, action, jnp.float32), snap))
+        np.testing.assert_allclose(targets, np.clip(centre + action * (high - low) / 2, low, high), atol=1e-6)
+    if control == "absolute":
+        np.testing.assert_allclose(env.task.control(-jnp.ones(20), snap), low, atol=1e-6)
+        np.testing.assert_allclose(env.task.control(jnp.ones(20), snap), high, atol=1e-6)
+
+
 # Thumb and first finger pressed together: the joint angles (rad) at which their fingertip pads (the touch sites
 # `Tch_fftip`, `Tch_thtip`) coincide, found by least squares on C MuJoCo's kinematics from the initial pose; the distal
 # capsules then overlap by 15 mm. (Where the tip sites `S_*tip` coincide instead, the contact lies outside every
