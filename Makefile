@@ -1,4 +1,5 @@
 # Two entry points (see README): `make run` and `make test`. Both create .venv with pinned versions when missing.
+# `make test-fast` is the loop to run while working: the suite less its slow tier (tests/README.md).
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -14,7 +15,7 @@ $(BIN)/.installed-cuda: $(BIN)/.installed
 	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test,cuda]"
 	touch $@
 
-.PHONY: run test lint gpu
+.PHONY: run test test-fast lint gpu
 gpu: $(BIN)/.installed-cuda
 	$(BIN)/angora-jax doctor
 run: $(BIN)/.installed
@@ -23,6 +24,10 @@ run: $(BIN)/.installed
 test: $(BIN)/.installed
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q -rs -n auto --dist loadfile --no-loadscope-reorder --durations=15
+
+test-fast: $(BIN)/.installed
+	$(BIN)/ruff check .
+	$(BIN)/python -m pytest -q -rs -n auto --dist loadfile --no-loadscope-reorder -m "not slow" --durations=10
 
 lint: $(BIN)/.installed
 	$(BIN)/ruff check .

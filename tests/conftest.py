@@ -48,8 +48,18 @@ LONGEST_FIRST = (
 )
 
 
+# Fixtures that train an agent for minutes: a test that asks for one is in the slow tier (`make test-fast` leaves it
+# out) without saying so itself. Other slow tests carry `@pytest.mark.slow` (tests/README.md lists the tiers).
+TRAINING_FIXTURES = {"cortical_reach"}
+
+
+@pytest.hookimpl(tryfirst=True)  # before pytest's own hook deselects by marker (`-m "not slow"`)
 def pytest_collection_modifyitems(items):
-    """Order the collected tests by their file's place in `LONGEST_FIRST` (stable within a file)."""
+    """Mark the tests that use a training fixture as slow, and order the collected tests by their file's place in
+    `LONGEST_FIRST` (stable within a file)."""
+    for item in items:
+        if TRAINING_FIXTURES & set(item.fixturenames):
+            item.add_marker(pytest.mark.slow)
     rank = {name: place for place, name in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda item: (rank.get(item.path.stem, len(rank)), str(item.path)))
 

@@ -60,6 +60,7 @@ def recording(agent):
     return record_activity(agent, episodes=10, steps=40)
 
 
+@pytest.mark.slow
 def test_a_recording_without_steps_ends_with_its_longest_episode(agent, monkeypatch):
     monkeypatch.setattr(recording_module, "RECORDING_CHUNK", 7)  # several chunks for CartPole's short episodes
     # Seed 2's first 5 episodes all end before CartPole's 500-step limit (84-277 steps); most seeds' include one that
@@ -157,6 +158,7 @@ def test_a_recurrent_cell_records_its_activity_not_its_gates(agent, cell):
     assert not [name for name in layers if name.split(".")[:2][-1].isdigit()], sorted(layers)
 
 
+@pytest.mark.slow
 def test_a_graph_area_is_recorded_and_lesioned_by_its_name(agent):
     """An `areas` network's areas are layers by name, as the cortical model's: a dense area's output, a recurrent
     area's carry and output; lesioning a dense area silences it."""
@@ -242,6 +244,7 @@ def test_reach_premotor_fixed_points_rdms_and_components(reach, cortical_reach):
                                   agent.params["network"]["SSC_1"]["kernel"])
 
 
+@pytest.mark.slow
 def test_every_analysis_verb_writes_its_plot_and_numbers(reach, cortical_reach, tmp_path, capsys):
     _, recording = reach
     path = save_activity(recording, tmp_path / "reach.nc")
@@ -289,6 +292,7 @@ def test_sindy_of_the_premotor_cell_is_scored_on_held_out_reach_episodes(reach, 
     assert "module network.PMC records network.PMC.0, network.PMC.1" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_probe_trained_script_writes_every_part_and_finds_the_reach_policy_needs_its_inputs(reach, cortical_reach,
                                                                                            tmp_path):
     """benchmarks/probe_trained.py end to end, last in this file: at 32 episodes of 30 steps (recorded and lesioned)

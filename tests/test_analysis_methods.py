@@ -95,6 +95,7 @@ def test_fixed_points_reached_from_several_starts_are_decomposed_once(monkeypatc
     np.testing.assert_allclose(np.abs(found["eigenvalues"]), np.broadcast_to([0.5, 0.25, 0.1], (5, 3)), atol=1e-6)
 
 
+@pytest.mark.slow
 def test_fixed_point_search_stays_among_reachable_states():
     """A point outside the states a cell reaches (h = 0.5 h + 3 has its point at 6) is not reported: within
     (-1, 1) the search ends on the bound, not fixed; with a lower bound only (a ReLU cell's [0, inf)) a point above
@@ -366,6 +367,7 @@ def normalised(recording, alive):
     return np.clip((raw - mean) / np.sqrt(var + 1e-8), -10.0, 10.0)[alive].mean(0)
 
 
+@pytest.mark.slow
 def test_fixed_point_of_a_graph_area_reading_two_inputs_with_tanh():
     """An Elman area reading a dense area and a modality: the inputs come from the recording, in the order the graph
     lists them (the modality normalised as the network saw it), and the point solves h = tanh(h Wh + x Wi + b)."""
@@ -383,6 +385,7 @@ def test_fixed_point_of_a_graph_area_reading_two_inputs_with_tanh():
     np.testing.assert_allclose(found["points"], np.broadcast_to(expected, (4, 5)), atol=1e-4)
 
 
+@pytest.mark.slow
 def test_fixed_point_of_a_lif_graph_area_with_feedback_and_its_own_output():
     """A LiF Elman area reading a modality, a dense area, a recurrent area that depends on it (feedback: its output
     of the previous step, 0 at an episode's start) and itself (its state, not a constant): the point solves

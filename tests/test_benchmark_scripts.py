@@ -43,6 +43,7 @@ WARP = '{"physics": {"impl": "warp"}}'
 REACH_FRAME_SKIP = 4  # 0.02 s per policy step of 5 ms physics steps
 
 
+@pytest.mark.slow
 def test_train_throughput_divides_the_training_rate_by_the_env_rate_of_the_same_batch(tmp_path):
     out = tmp_path / "train.json"
     train_throughput.main(["--task", "CartPole", "--num-envs", "4", "--model", "simple", "--rollout-length", "4",
@@ -60,6 +61,7 @@ def test_train_throughput_divides_the_training_rate_by_the_env_rate_of_the_same_
     assert row["train_frames_per_s"] == 0, "no cameras"
 
 
+@pytest.mark.slow
 def test_cell_unroll_times_one_recurrent_config_looped_and_unrolled(tmp_path, quick_compiles):
     """Both ways of running a tiny GRU's cell over its 8-step chunks, the CPU's (the loop) marked as this device's,
     the rates and ratios as the table says."""
@@ -79,6 +81,7 @@ def test_cell_unroll_times_one_recurrent_config_looped_and_unrolled(tmp_path, qu
         assert unrolled[f"{name}_over_loop"] == pytest.approx(unrolled[name] / loop[name])
 
 
+@pytest.mark.slow
 def test_train_throughput_trains_shipped_configs_as_they_are(tmp_path, monkeypatch):
     """`--configs`: each config's own network, rollout and minibatch share, at the given batch size; with several
     configs or sizes, each measured in its own process, all rows in one file in order. Those processes time one
@@ -98,6 +101,7 @@ def test_train_throughput_trains_shipped_configs_as_they_are(tmp_path, monkeypat
         assert row["train_env_steps_per_s"] > 0 and row["control_dt_s"] == make("CartPole").dt
 
 
+@pytest.mark.slow
 def test_env_throughput_counts_physics_steps_and_compares_rates_of_the_same_run(tmp_path):
     out = tmp_path / "env.json"
     env_throughput.main(["--task", "ShadowHandReach", "--options", WARP, "--batch-sizes", "2", "--steps", "2",
@@ -118,6 +122,7 @@ def test_env_throughput_counts_physics_steps_and_compares_rates_of_the_same_run(
         row["physics_steps_per_s"] / config["c_mujoco_physics_steps_per_s"])
 
 
+@pytest.mark.slow
 def test_physics_throughput_measures_in_a_worker_and_checks_the_tuned_scene_against_the_stock_one(tmp_path):
     out = tmp_path / "physics.json"
     physics_throughput.main(["--configs", "reach-tuned", "--impls", "warp", "--warp-configs", "reach-tuned",
@@ -137,6 +142,7 @@ def test_physics_throughput_measures_in_a_worker_and_checks_the_tuned_scene_agai
     assert 0 < row["tip_error_mean_mm"] <= row["tip_error_max_mm"] < 50
 
 
+@pytest.mark.slow
 def test_render_throughput_renders_every_camera_and_compares_the_frames_with_mujocos_renderer(tmp_path, opengl):
     out, saved = tmp_path / "render.json", tmp_path / "frames.npz"
     cameras = ("front", "top")
@@ -188,6 +194,7 @@ def test_evaluation_speed_gets_the_same_episodes_from_every_batch_and_worker_set
         assert row["env_steps_per_s"] == pytest.approx(row["episodes_per_s"] * config["mean_episode_length"])
 
 
+@pytest.mark.slow
 def test_robustness_scales_the_ranges_by_width_and_width_0_is_the_unrandomized_evaluation(tmp_path, quick_compiles):
     """A reach run of one tiny cycle (Warp) evaluated at widths 0 and 1 of reference ranges that hold a cube key (left
     out for reach): width 0 gives zero-width ranges and the unrandomized batched evaluation's episodes exactly, width 1
@@ -224,6 +231,7 @@ def test_robustness_scales_the_ranges_by_width_and_width_0_is_the_unrandomized_e
         "action_delay": [0, 0], "cube_size": [1.0, 1.0]}
 
 
+@pytest.mark.slow
 def test_probe_estimator_measures_saliency_on_the_cube_against_the_cubes_share_of_pixels(tmp_path):
     """A tiny estimator with its initial weights (two 32 x 32 cameras) and two poses whose cube is a square: each
     camera's row per measure holds shares of saliency between 0 and 1, the square's share of pixels as chance, and

@@ -64,6 +64,7 @@ def test_discrete_tasks_are_refused_by_name():
         side.BraxAdapter(make("CartPole"))
 
 
+@pytest.mark.slow
 def test_side_by_side_trains_both_for_the_same_env_steps(pendulum):
     settings = side.Settings(num_envs=8, rollout_length=4, minibatches=2, epochs=1, width=16, learning_rate=3e-4,
                              entropy_coef=0.01, init_log_std=-1.0, gamma=0.99, cycles_per_snapshot=1, snapshots=2,
@@ -84,6 +85,7 @@ def test_side_by_side_trains_both_for_the_same_env_steps(pendulum):
     assert ours["speed_over_brax"] == pytest.approx(ours["env_steps_per_s"] / brax["env_steps_per_s"])
 
 
+@pytest.mark.slow
 def test_own_recipes_train_ours_from_its_config_and_brax_from_its_recipe(pendulum):
     """`--recipes own`: our side as a config says, Brax's with a recipe of its own (here a tiny one: Brax publishes
     none for Pendulum), each to about the same env steps; a target neither reached is reported as None."""
@@ -110,6 +112,7 @@ def test_own_recipes_train_ours_from_its_config_and_brax_from_its_recipe(pendulu
         side.brax_changes(["ppo.num_envs=16"])
 
 
+@pytest.mark.slow
 def test_ladder_measures_each_rung_in_its_own_process_and_reports_failures():
     settings = {"options": {}, "steps": 2, "rollout_length": 4, "chunk_length": 4, "minibatches": 2, "epochs": 1,
                 "model": "simple", "repeats": 1}
@@ -135,6 +138,7 @@ def test_angorapy_ratio_divides_our_measured_rate_by_the_papers():
         angorapy_ratio.ratios(record)
 
 
+@pytest.mark.slow
 def test_time_to_solve_reports_each_seed_and_their_spread(tmp_path):
     out = tmp_path / "tts.json"
     script = os.path.join(os.path.dirname(side.__file__), "time_to_solve.py")
@@ -154,6 +158,7 @@ def test_time_to_solve_reports_each_seed_and_their_spread(tmp_path):
     assert all(r["wall_seconds"] > 0 and r["env_steps"] <= r["steps_run"] for r in solved)
 
 
+@pytest.mark.slow
 def test_profile_splits_a_cycles_device_time_by_phase(tmp_path):
     out = tmp_path / "profile.json"
     script = os.path.join(os.path.dirname(side.__file__), "profile_cycle.py")
@@ -214,6 +219,7 @@ def test_ihom_curve_joins_pieces_by_cycle_and_finds_the_milestones(tmp_path, mon
         ihom_curve.main([pieces, "--before", "run=soon", "--device", "cpu", "--name", "t3"])
 
 
+@pytest.mark.slow
 def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(tmp_path):
     script = os.path.join(os.path.dirname(side.__file__), "paper_figures.py")
     # Smoke runs of two cycles: compiling is nearly all of their time, so XLA compiles them quickly (QUICK_SUBPROCESS).
@@ -380,6 +386,7 @@ def test_paper_figures_compares_heads_at_equal_env_steps_and_times_the_target():
     assert paper_figures.tail_mean([None, float("nan")]) is None
 
 
+@pytest.mark.slow
 def test_head_sampling_times_every_head_and_counts_betas_rejection_loops(tmp_path):
     path = head_sampling.main(["--task", "Pendulum", "--num-envs", "8", "--rollout-length", "2", "--repeats", "1",
                                "--out", str(tmp_path / "heads.json")])
@@ -431,6 +438,7 @@ def test_snapshot_evaluations_set_each_snapshot_beside_the_training_mean_since_t
         snapshot_evaluations.read_run(run)
 
 
+@pytest.mark.slow
 def test_suite_profile_accounts_every_test_its_compiles_and_its_subprocesses(tmp_path):
     """suite_profile.py on two small test files (one jits GAE, one starts subprocesses), with a compilation cache of
     its own: a row for each test pytest itself reports (its JUnit XML), the XLA compiles found where the test jits and

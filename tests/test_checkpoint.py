@@ -63,6 +63,7 @@ def runs(tmp_path_factory):
     return whole, stopped.value, at_interrupt, resumed, compiled
 
 
+@pytest.mark.slow
 def test_a_time_limit_stops_with_a_checkpoint_and_resume_continues_exactly(runs, tmp_path):
     """Training in pieces (`--minutes`): a call past its limit stops after the cycle it is in, saves, and reports the
     run unfinished; resume (with its own limit) goes on, and the pieces end where the uninterrupted run does."""
@@ -79,6 +80,7 @@ def test_a_time_limit_stops_with_a_checkpoint_and_resume_continues_exactly(runs,
         aj.train(config(tmp_path, "no_time"), minutes=0.0)
 
 
+@pytest.mark.slow
 def test_a_second_run_of_the_same_settings_reuses_the_traced_programs_and_its_own_seed(runs, tmp_path):
     """A run of the same task and PPO settings in the same process (here a second seed, and the same seed again)
     traces neither `init` nor `cycle` again; the seed still picks the run: the same seed ends as the first run did,
@@ -115,6 +117,7 @@ def test_other_env_options_get_programs_of_their_own():
     assert longer[0] is not short[0] and longer[1] is not short[1]
 
 
+@pytest.mark.slow
 def test_sigterm_saves_a_loadable_checkpoint_and_restores_the_handler(runs):
     _, stopped, at_interrupt, *_ = runs
     assert stopped.signum == signal.SIGTERM and stopped.cycle == 2
@@ -141,6 +144,7 @@ def test_resume_equals_uninterrupted(runs):
     assert [r["cycle"] for r in read_metrics(resumed.run_dir)] == [1, 2, 3, 4]
 
 
+@pytest.mark.slow
 def test_acting_reads_only_parameters_and_statistics(runs, tmp_path, capsys):
     """A checkpoint whose stored environment states no longer fit the task (as reach's did after its scene dropped
     contacts) still loads for acting, with the same parameters and actions; resuming it exactly, or loading it under a

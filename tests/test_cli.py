@@ -146,6 +146,7 @@ def test_train_then_evaluate_exit_0(capsys, tmp_path):
     assert "already exists" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_minutes_stop_training_with_the_command_to_continue(capsys, tmp_path):
     argv = ["train", "cartpole", *TINY, "ppo.num_cycles=3", f"logging.run_root={tmp_path}", "logging.run_name=p"]
     assert main([*argv, "--minutes", "1e-9"]) == 0
@@ -305,6 +306,7 @@ def test_progress_is_a_live_line_on_a_terminal_and_log_lines_elsewhere():
 
 
 
+@pytest.mark.slow
 def test_a_second_run_reads_every_program_from_the_compilation_cache(tmp_path, monkeypatch):
     """`train` keeps compiled programs in ANGORA_JAX_CACHE: the same config run again compiles nothing (counted by
     JAX's cache events in the first cycle's record), and neither does `resume` in a new process (its state, read from
@@ -335,6 +337,7 @@ def test_a_second_run_reads_every_program_from_the_compilation_cache(tmp_path, m
         jax.config.update("jax_compilation_cache_dir", ours)
 
 
+@pytest.mark.slow
 def test_one_process_per_device_through_the_command_and_the_host_launcher(tmp_path):
     """examples/multi_gpu_host.sh starts `angora-jax train ... --distributed --coordinator --num-processes
     --process-id --local-devices` once per device (here 2 CPU processes for 2 "GPUs"): one run directory, logged by
@@ -358,6 +361,7 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_a_gpu_sized_config_started_without_a_gpu_says_so_before_compiling(capsys, tmp_path, monkeypatch):
     """`angora-jax train shadow_ihom` on a CPU: before anything compiles, the note gives the env steps per cycle, the
     time per cycle at the CPU rate measured for the cube, and an override that makes a valid CPU-sized run."""

@@ -38,7 +38,9 @@ def test_resolved_config_round_trips_through_a_dict():
     assert load_config(to_dict(config)) == config
 
 
-@pytest.mark.parametrize("name", list_configs())
+# The cube's variants trace the cube's physics once each; `make test-fast` checks one of them.
+@pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.slow) if name.startswith("shadow_ihom_")
+                                  else name for name in list_configs()])
 def test_shipped_configs_are_valid(name):
     validate(load_config(name))
 

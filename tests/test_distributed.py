@@ -27,6 +27,7 @@ TESTS = Path(__file__).resolve().parent
 BENCHMARKS = TESTS.parent / "benchmarks"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("variant, devices_per_process", [("cartpole", 2), ("warp", 1)])
 def test_two_processes_with_jax_distributed_stop_together_train_in_sync_and_resume_in_one(tmp_path, variant,
                                                                                          devices_per_process,
@@ -95,6 +96,7 @@ def test_a_failure_in_another_process_stops_this_one_after_the_same_cycle(tmp_pa
 
 
 # Weak scaling in one process and strong scaling with one process per device cover both sizings and both launches.
+@pytest.mark.slow
 @pytest.mark.parametrize("weak, processes", [(True, False), (False, True)], ids=["weak", "strong-processes"])
 def test_scaling_benchmark_runs_one_and_two_devices_at_smoke_size(tmp_path, weak, processes):
     """Two devices of one process, or (processes) two processes of one CPU device each joined by jax.distributed."""

@@ -52,6 +52,18 @@ def code_env() -> dict[str, str]:
 
 
 @pytest.mark.parametrize("page", EXECUTED_PAGES)
+def test_executed_pages_parse(page):
+    """The fast tier's check of the executed pages (`make test-fast` leaves out running them): their blocks parse."""
+    language, script = marked_blocks(page)
+    if language == "python":
+        compile(script, page, "exec")
+    else:
+        done = subprocess.run(["bash", "-n", "-c", script], capture_output=True, text=True)
+        assert done.returncode == 0, f"{page}'s blocks are not valid bash: {done.stderr}"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("page", EXECUTED_PAGES)
 def test_executed_pages_run(page, tmp_path):
     language, script = marked_blocks(page)
     command = [sys.executable, "-c", script] if language == "python" else ["bash", "-euo", "pipefail", "-c", script]

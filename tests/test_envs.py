@@ -386,6 +386,7 @@ PRESSED_QPOS = {"robot0:FFJ3": 0.2081, "robot0:FFJ2": 0.9017, "robot0:FFJ1": 1.1
                 "robot0:THJ0": -0.7577}
 
 
+@pytest.mark.slow
 def test_reach_touch_reads_thumb_and_finger_pressed_together_and_nothing_in_the_open_hand(quick_compiles):
     """With `touch`, reach observes the cube's 97 touch sensors (N): all zero in the open initial pose; with thumb and
     first finger pressed together, only sensors on those two fingers read, in C MuJoCo and MJX's JAX implementation

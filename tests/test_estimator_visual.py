@@ -38,6 +38,7 @@ def frames() -> np.ndarray:
     return np.random.default_rng(0).integers(0, 256, (2, len(CAMERAS), SIZE, SIZE, 3), dtype=np.uint8)
 
 
+@pytest.mark.slow
 def test_the_visual_analyses_read_an_estimators_encoder_as_an_agents_visual_area(estimator, frames):
     """An agent whose visual area holds the estimator's encoder parameters gives the same filters, maps and saliency."""
     config = aj.load_config("shadow_reach", [
@@ -66,6 +67,7 @@ def test_the_saliency_of_several_linear_outputs_is_their_largest_weight():
     np.testing.assert_allclose(found, np.broadcast_to(expected, (3, 2, SIZE, SIZE)), rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_pose_saliency_is_the_largest_gradient_of_the_pose_read(estimator, frames):
     """Position: the largest of its 3 outputs' single-output saliencies. Orientation: zero on a camera that the head
     does not read, and the rotation matrix, not the head's raw outputs, is differentiated."""

@@ -57,6 +57,7 @@ def run_dir(tmp_path_factory):
     return moved
 
 
+@pytest.mark.slow
 def test_evaluate_writes_statistics_json_and_box_plot_without_overwriting(run_dir):
     result = aj.evaluate(run_dir, "latest", episodes=6)
     record = json.loads(result.json_path.read_text())
@@ -286,6 +287,7 @@ def test_evaluation_in_a_changed_task_records_the_change(run_dir, tmp_path, caps
     assert recording["alive"].values[:, 20:].sum() == 0, "no episode outlives its changed limit"
 
 
+@pytest.mark.slow
 def test_a_new_run_fine_tunes_a_saved_policy_in_a_changed_task(run_dir, tmp_path, quick_compiles):
     """`ppo.init_from`: a run that starts from a saved run's network and observation statistics (e.g. the cube's
     pose-input policy, fine-tuned reading a pose estimator; here CartPole's with shorter episodes) and trains on; a

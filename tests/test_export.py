@@ -64,6 +64,7 @@ def test_export_never_overwrites_and_load_policy_refuses_other_files(lstm_run, t
         aj.load_policy(tmp_path / "missing.msgpack")
 
 
+@pytest.mark.slow
 def test_the_exported_policy_benchmark_reproduces_evaluates_episodes_in_a_loop_of_its_own(lstm_run, tmp_path):
     policy_file = tmp_path / "policy.msgpack"
     export_policy(lstm_run, policy_file)

@@ -24,6 +24,7 @@ def run(tmp_path_factory):
                                  "logging.run_name=gym", "logging.progress=none", "logging.report=false"])
 
 
+@pytest.mark.slow
 def test_gymnasium_cartpole_learns_on_the_host_path(run):
     returns = [m["episode_return"] for m in run.history]
     assert np.nanmean(returns[:4]) < 100, "it starts near random play (about 22)"
@@ -31,6 +32,7 @@ def test_gymnasium_cartpole_learns_on_the_host_path(run):
     assert (run.run_dir / "sessions.jsonl").read_text().count("Gymnasium") >= 1, "the physics line names the host"
 
 
+@pytest.mark.slow
 def test_a_host_run_evaluates_and_a_stopped_one_resumes(run, tmp_path, quick_compiles):
     result = aj.evaluate(run.run_dir, "latest", episodes=8, save=False)
     assert result.meta["path"] == "batched" and result.summary["episode_return"]["mean"] > BAR
@@ -99,6 +101,7 @@ def test_dict_discrete_and_multidiscrete_observations_are_encoded_as_gymnasium_f
     assert states.done.tolist() == [1.0, 1.0]
 
 
+@pytest.mark.slow
 def test_a_task_with_discrete_observations_trains_on_the_host_path(tmp_path, quick_compiles):
     run = aj.train("cartpole", ["env.task=gym:Blackjack-v1", "ppo.num_envs=4", "ppo.rollout_length=16",
                                 "ppo.chunk_length=8", "ppo.minibatch_size=32", "ppo.num_epochs=1", "ppo.num_cycles=2",

@@ -346,6 +346,7 @@ def rollout():
     return first, states, actions
 
 
+@pytest.mark.slow
 def test_batched_shapes_dtypes_and_finite_values(rollout):
     first, states, _ = rollout
     for name, size in SIZES.items():
@@ -358,6 +359,7 @@ def test_batched_shapes_dtypes_and_finite_values(rollout):
     assert np.abs(np.asarray(states.obs.touch)).max() > 0, "the cube lands on the hand's touch sensors"
 
 
+@pytest.mark.slow
 def test_mjx_and_cpu_paths_agree_for_2_seconds(rollout):
     """Same key and policy: the MJX rollout (float32) and the C MuJoCo twin (float64) agree over 25 policy steps
     (2 s) with the cube in the hand: hand joints within 5e-3 rad, cube position within 5 mm, cube orientation within
@@ -392,6 +394,7 @@ def test_mjx_and_cpu_paths_agree_for_2_seconds(rollout):
     assert float(jnp.abs(state.physics.qpos[task.cube_qpos:task.cube_qpos + 3] - start).max()) > 0.005, "cube moved"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["shadow_ihom", "shadow_ihom_paper", "shadow_ihom_cortical"])
 def test_the_cube_configs_compile_and_train_a_cycle_on_warp(name, quick_compiles):
     """The shipped cube configs as they are (the paper's: wide LSTM 1024, 11 bins, TBPTT 16, AngoraPy's reward; the

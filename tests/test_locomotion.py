@@ -89,6 +89,7 @@ def test_starts_follow_gymnasium_distribution(name):
         assert np.all(np.linalg.norm(qpos[:, -2:], axis=1) < 0.2) and np.all(qvel[:, -2:] == 0)
 
 
+@pytest.mark.slow
 def test_mjx_path_tracks_the_c_mujoco_twin():
     """Swimmer (no termination, no contacts: the quickest to compile) batched on MJX's JAX implementation against C
     MuJoCo from the same key and actions: MJX computes in float32, so the states drift apart slowly; within 1e-2
@@ -122,6 +123,7 @@ def humanoid_on_mjx(request):
     return env, aj.make("Humanoid", backend="cpu"), reset, compile_quickly(jax.vmap(env.step), reset(keys), actions)
 
 
+@pytest.mark.slow
 def test_mjx_path_computes_humanoids_body_dynamics_as_the_c_mujoco_twin(humanoid_on_mjx):
     """Humanoid batched on MJX (float32) against C MuJoCo (float64) from the same keys and random actions until each
     episode ends (29 and 24 steps: it falls): the start within 1e-5 + 1e-5 x |value| (its drawn quaternion is not

@@ -199,6 +199,7 @@ def test_lif_is_angorapys_soft_leaky_integrate_and_fire_rate():
     np.testing.assert_allclose(lif_fraction(x), lif(x) / 250.0, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_frozen_component_keeps_its_pretrained_values_through_updates(tmp_path, quick_compiles):
     areas = {name: 8 for name in AREA_SIZES}
     network = NetworkConfig(name="cortical", cell="gru", width=8, areas=areas)
@@ -256,6 +257,7 @@ class TinyUserNet(nn.Module):
         return carry, features, nn.Dense(1)(features)[..., 0]
 
 
+@pytest.mark.slow
 def test_user_module_and_registered_builder_run_in_the_compiled_cycle(quick_compiles):
     register_network("test_tiny_user_net", lambda config: TinyUserNet())
     config = PPOConfig(

@@ -6,7 +6,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from quick_compile import QUICK_SUBPROCESS
+
+# Each notebook trains and probes an agent: all of them are in the slow tier.
+pytestmark = pytest.mark.slow
 
 
 def run_notebook(name: str, cwd: Path, epilogue: str = "", **env: str) -> subprocess.CompletedProcess:

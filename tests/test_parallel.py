@@ -36,11 +36,13 @@ def four_devices(tmp_path_factory):
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_replicated_state_is_identical_on_every_device(four_devices):
     assert four_devices["device_count"] == 4
     assert all(four_devices["in_sync"]) and len(four_devices["in_sync"]) == 8
 
 
+@pytest.mark.slow
 def test_the_per_device_body_takes_only_the_state_its_constants_stay_inside(four_devices):
     # CartPole's cycle closes over one array; passed in as a shard_map operand instead, constants reach the GPU
     # compiler as loop-carried values it does not fold (angora_jax/ppo/parallel.py, data_parallel).

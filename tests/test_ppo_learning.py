@@ -43,6 +43,7 @@ def final_return(history: list[dict[str, float]]) -> float:
     return float(np.nanmean([m["episode_return"] for m in tail]))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", CASES)
 def test_ppo_solves_classic_task(case):
     task, config, bar = CASES[case]

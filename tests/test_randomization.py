@@ -87,6 +87,7 @@ def test_the_cube_refuses_a_mass_or_size_that_is_not_positive(key):
         aj.make("ShadowHandCube", randomization={key: [0.0, 1.0]})
 
 
+@pytest.mark.slow
 def test_a_draw_differs_per_environment_and_is_reproducible_per_key(warp_runs, inputs):
     env, first, _ = warp_runs["wide"]
     draws = first.info[INFO_KEY]
@@ -99,6 +100,7 @@ def test_a_draw_differs_per_environment_and_is_reproducible_per_key(warp_runs, i
     assert all(bool((factors == 1).all()) for factors in jax.tree.leaves(zero)), "zero width at 1 draws exactly 1"
 
 
+@pytest.mark.slow
 def test_zero_width_ranges_give_the_unrandomized_task_bit_for_bit_on_warp(warp_runs):
     _, plain_first, plain = warp_runs["plain"]
     _, zero_first, zero = warp_runs["zero"]
@@ -109,6 +111,7 @@ def test_zero_width_ranges_give_the_unrandomized_task_bit_for_bit_on_warp(warp_r
         np.testing.assert_array_equal(a.reward, b.reward)
 
 
+@pytest.mark.slow
 def test_warp_simulates_each_environment_with_its_own_fields(warp_runs, inputs):
     """Randomized fields change the trajectory, and each environment of a Warp batch reads its own world's fields:
     with the keys' order reversed every environment's trajectory is the same, only in reversed place (had Warp read
@@ -140,6 +143,7 @@ def test_the_cpu_twin_simulates_the_same_worlds_for_the_same_key(warp_runs, inpu
         assert float(jnp.abs(plain.physics.qpos[-1, b] - twin.physics.qpos).max()) > 0.02, "the twin is randomized"
 
 
+@pytest.mark.slow
 def test_randomized_fields_change_mjx_jax_physics_and_ones_give_the_unrandomized_task_bit_for_bit(inputs):
     """On MJX's JAX implementation (compiled once for the randomized task, once for the plain one): the drawn factors
     change the trajectory, and factors of exactly 1 (what zero-width ranges draw) give the plain task's states."""
@@ -170,6 +174,7 @@ def test_randomized_fields_change_mjx_jax_physics_and_ones_give_the_unrandomized
     np.testing.assert_array_equal(ones.reward, unrandomized.reward)
 
 
+@pytest.mark.slow
 def test_evaluate_runs_a_policy_under_randomization_given_as_an_env_option(tmp_path, capsys, quick_compiles):
     """A reach run trains under randomization; `angora-jax evaluate --env-option randomization=...` on the batched
     path (Warp) plays its policy in other randomized worlds, recorded as a changed task; the CPU path (C MuJoCo slots,
@@ -211,6 +216,7 @@ def plain_cube_pose(inputs):
     return cube_pose(aj.make("ShadowHandCube", physics={"impl": "warp"}), inputs)
 
 
+@pytest.mark.slow
 def test_the_cube_ranges_scale_only_the_cube_and_change_its_motion_on_warp(inputs, plain_cube_pose):
     """On the cube, `cube_mass` scales the cube's mass and inertia only, `cube_damping` its free joint's 6 dofs only and
     `joint_damping` the hand's joints only; a heavier, more damped cube moves otherwise on Warp."""
@@ -226,6 +232,7 @@ def test_the_cube_ranges_scale_only_the_cube_and_change_its_motion_on_warp(input
     assert float(jnp.abs(cube_pose(env, inputs) - plain_cube_pose).max()) > 1e-3
 
 
+@pytest.mark.slow
 def test_an_action_delay_is_drawn_per_environment_and_reaches_the_physics_that_many_steps_late(warp_runs, inputs):
     """The delay is an integer drawn per environment at reset, the same for the same key; with a delay of 2 the
     physics of step t receive the control of step t - 2's action (chosen in that step's state) and the first two
@@ -248,6 +255,7 @@ def test_an_action_delay_is_drawn_per_environment_and_reaches_the_physics_that_m
         np.testing.assert_allclose(states.physics.ctrl[t], expected, rtol=1e-6, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_the_cube_size_scales_its_geoms_mass_and_inertia_on_every_path(inputs, plain_cube_pose):
     """`cube_size` scales the cube's geoms (sizes, bounding radii and boxes) by s, its mass by s^3 and inertia by s^5
     (times `cube_mass`'s factor); a larger cube moves otherwise on Warp, and the C MuJoCo twin and an `EagerBatch`
@@ -286,6 +294,7 @@ def test_the_cube_size_scales_its_geoms_mass_and_inertia_on_every_path(inputs, p
         np.testing.assert_array_equal(batch.models[0].geom_aabb, cpu.model.geom_aabb)
 
 
+@pytest.mark.slow
 def test_a_run_trained_under_randomization_resumes_exactly(tmp_path, quick_compiles):
     """Reach under randomization (every kind: fields, delay, noise), 12-step episodes so that auto-resets draw new
     worlds and delays mid-run: stopped after its first cycle (`minutes`) and resumed, it ends as the run that was not

@@ -103,6 +103,7 @@ def test_bad_sequence_options_are_refused():
         aj.make("ShadowHandReach", backend="cpu", sequence_order="fixed")
 
 
+@pytest.mark.slow
 def test_mjx_and_cpu_paths_agree_on_the_sequence():
     """Same keys and actions, a success on every step: targets, goals (drawn anew from the step's key on each advance)
     and sequence metrics equal, joint positions and rewards within test_envs' tolerances, until the sequence ends. With

@@ -119,6 +119,7 @@ def fetch(url: str) -> bytes:
         return response.read()
 
 
+@pytest.mark.slow
 def test_monitor_serves_the_report_as_a_run_trains(runs, tmp_path):
     """A copy of a run that has done 1 of its 3 cycles, then the other two arrive while the page is served."""
     live_run = tmp_path / "live"

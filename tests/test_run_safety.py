@@ -255,7 +255,7 @@ def mounted_tmpfs(path: Path, size: str) -> bool:
     return done.returncode == 0
 
 
-@pytest.mark.parametrize("size", ["16k", "2500k"])
+@pytest.mark.parametrize("size", ["16k", pytest.param("2500k", marks=pytest.mark.slow)])
 def test_a_real_full_disk_ends_in_one_message_and_leaves_no_half_made_run(size, tmp_path):
     """On a small tmpfs (where this machine lets the test mount one; the injected test above runs everywhere)."""
     disk = tmp_path / "disk"
@@ -308,7 +308,7 @@ def kill_at_random(root: Path, name: str, rng: random.Random) -> None:
     process.wait()
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("seed", [0, *(pytest.param(seed, marks=pytest.mark.slow) for seed in (1, 2))])
 def test_a_run_killed_at_random_points_resumes_to_the_uninterrupted_result(seed, whole, tmp_path):
     rng = random.Random(seed)
     kill_at_random(tmp_path, "killed", rng)

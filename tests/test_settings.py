@@ -15,6 +15,7 @@ from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.experiment.config import load_config, validate
+from angora_jax.experiment.held_out import is_due
 from angora_jax.ppo.cycle import make_cycle
 
 
@@ -34,6 +35,7 @@ def default_params():
     return one_cycle([])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("setting", [
     "ppo.normalize_advantages=false", "ppo.max_grad_norm=0.001", "ppo.value_coef=0.1", "ppo.gae_lambda=0.5",
     "ppo.normalization.clip=0.5",
@@ -87,6 +89,13 @@ def test_stop_at_ends_the_run_with_a_checkpoint_after_the_first_cycle_that_reach
     assert [r["episode_return"] for r in run.history] == returns[:first], "the same run, cut short"
     assert aj.experiment.Checkpoints(run.run_dir / "checkpoints", load_config("cartpole").checkpoint,
                                      create=False).steps("latest") == [first]
+
+
+def test_held_out_work_is_due_every_n_cycles_and_after_the_last():
+    """Evaluations and videos run on every `every`-th cycle and after the run's last, a multiple or not (the fast
+    tier's check: the run below ends on a multiple, and only the slow training-video test ends off one)."""
+    assert [cycle for cycle in range(1, 8) if is_due(cycle, 3, 7)] == [3, 6, 7]
+    assert [cycle for cycle in range(1, 7) if is_due(cycle, 3, 6)] == [3, 6]
 
 
 def test_held_out_evaluations_are_logged_on_their_cycles_and_can_choose_the_best(tmp_path):

@@ -61,6 +61,7 @@ def as_chunks(x, s):
 RESETS = jnp.zeros((T, B)).at[3, 1].set(1.0).at[6, 2].set(1.0)
 
 
+@pytest.mark.slow
 def test_chunk_gradients_equal_full_bptt_when_chunk_is_the_rollout(setup):
     network, _, obs, params, _ = setup
     data = jax.tree.map(lambda x: as_chunks(x, T), (obs, RESETS))
@@ -75,6 +76,7 @@ def test_chunk_gradients_equal_full_bptt_when_chunk_is_the_rollout(setup):
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_shorter_chunks_replay_the_same_forward_pass_but_cut_gradients(setup):
     network, _, obs, params, _ = setup
     s = T // 2
@@ -269,6 +271,7 @@ def matmuls(jaxpr) -> int:
 
 # network, its cell, the cells it scans, the matrix products of one cell's step (flax's GRU: three for the input,
 # three for the state; its optimized LSTM: one for each), and whether the cells' scans are unrolled as on a GPU
+@pytest.mark.slow
 @pytest.mark.parametrize("name,cell,cells,products,gpu_unroll", [
     ("cortical", "gru", 1, 6, False), ("lstm", None, 2, 2, False), ("lstm", None, 2, 2, True),
     ("simple", None, 0, 0, False)], ids=["cortical-gru", "lstm", "lstm-unrolled-as-on-gpu", "simple"])

@@ -11,6 +11,7 @@ from angora_jax.experiment.config import ConfigError, validate
 from angora_jax.experiment.run_dir import latest_video
 
 
+@pytest.mark.slow
 def test_a_run_writes_a_video_on_each_due_cycle_and_its_report_shows_the_latest(tmp_path, opengl, quick_compiles):
     """InvertedPendulum on MJX (the cheapest MuJoCo scene to compile), 3 cycles, a video every 2: cycles 2 and 3
     (the last) get one, each the reset frame plus `steps` frames (the pole stands that long); the last one is the

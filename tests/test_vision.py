@@ -39,6 +39,7 @@ def test_renders_are_uint8_deterministic_and_the_cube_pixels_follow_the_cube(ope
     assert np.linalg.norm(here.mean(0) - there.mean(0)) > 2.0, "2 cm along x moves the blob by pixels"
 
 
+@pytest.mark.slow
 def test_every_visual_encoder_maps_uint8_images_to_features():
     for name in VISUAL_ENCODERS:
         encoder = make_visual_encoder(name, widths=(8, 8, 8, 8)[: 4 if name == "cornet_z" else 3], features=12)
@@ -71,6 +72,7 @@ def test_random_quaternions_are_unit_with_nonnegative_w():
     assert (q[:, 0] >= 0).all() and abs(q[:, 1:].mean()) < 0.05
 
 
+@pytest.mark.slow
 def test_pose_pretraining_lowers_its_loss_and_saves_an_encoder_component(tmp_path, capsys, opengl):
     data = render_pose_dataset(48, cameras=("top",), width=32, height=32, seed=1)
     assert data.images.shape == (48, 1, 32, 32, 3) and data.cube_quaternion.shape == (48, 4)
@@ -152,6 +154,7 @@ def seeing_cube(opengl):
     return aj.make("ShadowHandCube", vision=PIXELS, relative_goal=False, start_pool=8)
 
 
+@pytest.mark.slow
 def test_camera_vision_fills_the_sensation_with_uint8_frames_that_both_paths_agree_on(seeing_cube):
     """The cube's vision replaces its pose; the MJX and eager paths draw the same frames of the same state (shown on
     reach, whose MJX reset compiles in a fraction of the cube's time on the CPU) and the frames follow the hand."""
@@ -196,6 +199,7 @@ def test_camera_vision_options_and_the_networks_that_see_them_are_checked(seeing
                   network=NetworkConfig(visual=VisualConfig())).validate_for(aj.make("CartPole"))
 
 
+@pytest.mark.slow
 def test_a_pose_estimator_gives_the_policy_the_pose_it_reads_from_the_cameras(tmp_path, opengl, quick_compiles):
     """Dactyl's way to the cube from pixels: `pose_estimator` renders the estimator's cameras and puts the pose it
     reads from them (and the relative goal from its orientation) where the pose-input policy reads the true
@@ -241,6 +245,7 @@ def test_a_pose_estimator_gives_the_policy_the_pose_it_reads_from_the_cameras(tm
     np.testing.assert_allclose(batched.obs.goal, twin.obs.goal, atol=1e-5)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(importlib.util.find_spec("warp") is None, reason="MuJoCo Warp needs warp-lang")
 def test_warp_frames_are_each_envs_own_and_outlive_the_sized_env_that_compiled_them():
     """On MuJoCo Warp (run where warp-lang is installed, a GPU or the CPU): a fixed start (reach's) reaches Warp
@@ -266,6 +271,7 @@ def test_warp_frames_are_each_envs_own_and_outlive_the_sized_env_that_compiled_t
     assert stepped.obs.vision.shape == (3, 2, 16, 16, 3) and np.any(stepped.obs.vision != state.obs.vision)
 
 
+@pytest.mark.slow
 def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_visual_area(tmp_path, opengl,
                                                                                         quick_compiles):
     """The brain-area model (`cortical`, whose parietal areas read the visual area's features) on reach seeing its hand

@@ -25,6 +25,7 @@ TESTS = Path(__file__).resolve().parent
 BATCH, STEPS = 3, 50
 
 
+@pytest.mark.slow
 def test_warp_steps_reach_as_c_mujoco_and_mjx_jax_do():
     """The same task logic and physics on Warp as on C MuJoCo, against which reach's MJX JAX path is tested
     (test_envs.py): the same goals, joint angles within 2e-3 rad and rewards within 1e-4 over 50 random-action steps
@@ -71,6 +72,7 @@ def test_a_warp_environment_sizes_warp_graph_cache_for_its_devices():
     assert bound == 32 * len(jax.local_devices())
 
 
+@pytest.mark.slow
 def test_a_warp_run_evaluates_on_the_batched_path_as_on_c_mujoco(two_devices, quick_compiles):
     """`angora-jax evaluate --path batched` steps the saved policy's episodes on Warp (the one-device reach run of
     warp_parallel.py), sized for the episodes at once; the C MuJoCo path plays the same episodes (same reset keys,
@@ -100,6 +102,7 @@ def two_devices(tmp_path_factory):
     return json.loads(done.stdout.strip().splitlines()[-1]) | {"stderr": done.stderr, "root": str(root)}
 
 
+@pytest.mark.slow
 def test_two_devices_train_on_warp_what_one_device_trains(two_devices):
     """The same totals on 2 devices as on 1: every metric within 1e-5, parameters within 1e-5 (observed 1.8e-6 of a
     largest parameter of 1.0 after 3 cycles), physics within 1e-4. Each device owns a contact pool with its own
@@ -117,12 +120,14 @@ def test_two_devices_train_on_warp_what_one_device_trains(two_devices):
     assert physics["impl"] == "warp" and physics["warp_max_envs"] == 4 and physics["num_devices"] == 2
 
 
+@pytest.mark.slow
 def test_resuming_warp_on_another_device_count_goes_on_with_fresh_environments(two_devices):
     assert two_devices["continued_cycle"] == 3
     assert ("from cycle 3 with fresh environments, not bit for bit: its environments' states do not fit this run "
             "(actor.env_state.physics._impl.nacon: stored (2,) int32, expected (1,) int32") in two_devices["stderr"]
 
 
+@pytest.mark.slow
 def test_checkpoint_size_benchmark_saves_whole_and_lean_at_smoke_size(tmp_path):
     """benchmarks/checkpoint_size.py on Warp reach at 2,048 envs with a 16-wide network, so that the environments are
     most of the state: the lean checkpoint (no environments) takes a fraction of the whole one's disk (measured 0.107:
