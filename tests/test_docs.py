@@ -71,6 +71,7 @@ def test_executed_pages_run(page, tmp_path):
     assert done.returncode == 0, f"{page}'s blocks failed:\n{done.stdout[-3000:]}\n{done.stderr[-5000:]}"
 
 
+@pytest.mark.slow
 def test_site_builds_strictly(tmp_path):
     """`mkdocs build --strict`: every page in the nav, every link and anchor resolves, the API reference renders from
     the docstrings, every result a page cites exists."""

@@ -305,6 +305,7 @@ assert placed == {jax.local_devices()[0]}, placed
 """
 
 
+@pytest.mark.slow
 def test_mjx_model_and_data_live_on_this_processs_device():
     """MJX places models on `jax.devices()[0]` by default, which under jax.distributed belongs to process 0; on any
     other process jit then refuses the model ("Closing over jax.Array that spans non-addressable devices")."""

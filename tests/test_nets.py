@@ -160,6 +160,7 @@ def test_the_shipped_cortical_graph_is_the_builtin_cortical_model(quick_compiles
     assert outputs[0][0]["params"]["value_net"]["Dense_1"]["kernel"].shape == (6, 6)
 
 
+@pytest.mark.slow
 def test_a_shipped_graph_with_feedback_and_lif_unrolls_and_resets(quick_compiles):
     """AngoraPy's shadowv2 wiring (shipped), tiny, with M1 firing as LiF units and a feedback input (LPFC reads the
     premotor cell, which reads LPFC): LPFC takes PMC's previous output. Over a sequence an environment whose episode

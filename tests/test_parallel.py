@@ -50,10 +50,12 @@ def test_the_per_device_body_takes_only_the_state_its_constants_stay_inside(four
     assert operands == state_leaves
 
 
+@pytest.mark.slow
 def test_normaliser_merge_over_devices_equals_one_merge_of_the_whole_batch(four_devices):
     assert four_devices["pooled_stats_error"] < 1e-5
 
 
+@pytest.mark.slow
 def test_four_devices_compute_the_single_device_run_up_to_float_rounding(four_devices):
     # Same random numbers per environment and the same global minibatches on any device count, so the runs differ
     # only in summation order. Observed on CartPole, 8 cycles of 16 envs x 32 steps: parameters (largest |p| 0.59)
@@ -69,6 +71,7 @@ def test_four_devices_compute_the_single_device_run_up_to_float_rounding(four_de
     assert all(m["finite"] == 1.0 for m in single)
 
 
+@pytest.mark.slow
 def test_resumed_four_device_run_equals_uninterrupted(four_devices):
     assert four_devices["resumed_equals_whole"]
 

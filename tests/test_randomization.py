@@ -124,6 +124,7 @@ def test_warp_simulates_each_environment_with_its_own_fields(warp_runs, inputs):
     np.testing.assert_allclose(reversed_run.physics.qpos[:, ::-1], fields.physics.qpos, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_the_cpu_twin_simulates_the_same_worlds_for_the_same_key(warp_runs, inputs):
     _, first, wide = warp_runs["wide"]
     _, _, plain = warp_runs["plain"]

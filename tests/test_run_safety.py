@@ -308,7 +308,8 @@ def kill_at_random(root: Path, name: str, rng: random.Random) -> None:
     process.wait()
 
 
-@pytest.mark.parametrize("seed", [0, *(pytest.param(seed, marks=pytest.mark.slow) for seed in (1, 2))])
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_run_killed_at_random_points_resumes_to_the_uninterrupted_result(seed, whole, tmp_path):
     rng = random.Random(seed)
     kill_at_random(tmp_path, "killed", rng)
