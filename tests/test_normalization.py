@@ -27,6 +27,20 @@ def test_parallel_merge_equals_statistics_of_all_data():
     np.testing.assert_allclose(stats.count, len(everything), rtol=1e-5)
 
 
+def test_a_merge_over_a_device_axis_equals_one_merge_of_the_whole_batch():
+    """The fast tier's check of the pooled merge (tests/test_parallel.py checks it on four devices): shares of a
+    batch on a vmapped axis merge as the whole batch does, count included, from a start that has seen data."""
+    rng = np.random.default_rng(1)
+    start = RunningMeanStd.create((3,)).update(jnp.asarray(rng.normal(-1.0, 0.5, (8, 3)), jnp.float32))
+    shares = jnp.asarray(rng.normal(2.0, 3.0, (4, 10, 3)), jnp.float32)
+    pooled = jax.vmap(lambda share: start.update(share, axis_name="devices"), axis_name="devices")(shares)
+    whole = start.update(shares.reshape(40, 3))
+    for device in range(4):
+        np.testing.assert_allclose(pooled.count[device], whole.count, rtol=1e-6)
+        np.testing.assert_allclose(pooled.mean[device], whole.mean, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(pooled.var[device], whole.var, rtol=1e-5)
+
+
 def test_update_treats_all_leading_axes_as_samples():
     x = jax.random.normal(jax.random.key(0), (6, 7, 3)) * 4.0 + 1.0
     a = RunningMeanStd.create((3,)).update(x)
