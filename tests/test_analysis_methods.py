@@ -412,6 +412,7 @@ def test_fixed_point_of_a_lif_graph_area_with_feedback_and_its_own_output():
         agent_fixed_points(agent, recording, "network.S1")
 
 
+@pytest.mark.slow
 def test_fixed_point_of_a_relu_graph_area_given_its_input_layers_explicitly():
     """A ReLU Elman area reading two dense areas: naming its input layers (concatenated in the order given) finds the
     point that the graph's inputs give, the one that solves h = relu(h Wh + x Wi + b)."""

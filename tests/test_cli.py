@@ -235,7 +235,8 @@ def start_training(argv: list[str]) -> tuple[subprocess.Popen, str]:
     return process, line
 
 
-@pytest.mark.parametrize("signum", [pytest.param(signal.SIGTERM, marks=pytest.mark.slow), signal.SIGINT])
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
 def test_a_signal_while_compiling_stops_at_once_and_removes_the_new_run_dir(signum, tmp_path):
     """Reach compiles for a minute on 2 CPU cores: the command must not wait for it, nor leave a run directory."""
     argv = ["train", "shadow_reach", *TINY, f"logging.run_root={tmp_path}", "logging.run_name=new"]

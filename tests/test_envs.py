@@ -84,6 +84,7 @@ def test_wrong_action_shape_names_the_expected_shape(env):
         env.step(None, jnp.zeros((4, 20)))
 
 
+@pytest.mark.slow
 def test_batched_shapes_dtypes_and_finite_values(rollout):
     rollout, _ = rollout
     sizes = {"proprioception": 48, "touch": 0, "vision": 0, "goal": 20, "asymmetric": 15}
@@ -101,6 +102,7 @@ def test_batched_shapes_dtypes_and_finite_values(rollout):
     assert np.ptp(rewards) > 0, "random actions should change the reward"
 
 
+@pytest.mark.slow
 def test_auto_reset_at_time_limit_keeps_final_observation(rollout):
     rollout, _ = rollout
     before, at_limit, after = rollout[EPISODE - 1], rollout[EPISODE], rollout[EPISODE + 1]
@@ -114,6 +116,7 @@ def test_auto_reset_at_time_limit_keeps_final_observation(rollout):
     assert not np.array_equal(np.asarray(at_limit.info["goal"]), np.asarray(before.info["goal"]))
 
 
+@pytest.mark.slow
 def test_goal_sampling_puts_thumb_and_target_at_meeting_point(rollout):
     state = rollout[0][0]
     goal = np.asarray(state.info["goal"])
@@ -130,6 +133,7 @@ def test_goal_sampling_puts_thumb_and_target_at_meeting_point(rollout):
         np.testing.assert_allclose(goal[b, others], tips[b, others], atol=1e-6)
 
 
+@pytest.mark.slow
 def test_reward_coefficients_change_the_reward(env, rollout):
     prev, state = rollout[0][4], rollout[0][5]
     one = jax.tree.map(lambda x: x[0], (prev, state))
@@ -150,6 +154,7 @@ def test_reward_coefficients_change_the_reward(env, rollout):
     assert reward(True, auxiliary_zone_radius=1.0, auxiliary_penalty_multiplier=0.0) == pytest.approx(free_base)
 
 
+@pytest.mark.slow
 def test_freereach_goal_is_the_target_finger_one_hot(env, rollout):
     task = Reach(env.task.model, free=True)
     snap = Snapshot.of(jax.tree.map(lambda x: x[0], rollout[0][0].physics))
@@ -179,6 +184,7 @@ def test_freereach_penalises_the_other_fingertips_near_the_thumb_not_the_target(
         assert float(metrics["success"]) == 0.0
 
 
+@pytest.mark.slow
 def test_mjx_and_cpu_paths_agree_for_50_steps(rollout):
     """Same key and actions: joint positions within 2e-3 rad and rewards within 1e-4 over 50 policy steps.
 

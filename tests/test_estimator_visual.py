@@ -109,6 +109,7 @@ def test_saliency_share_and_mask_edges_match_a_hand_count():
     assert not edges[0, 2:4, 2:4].any() and not edges[1, 0, 0]
 
 
+@pytest.mark.slow
 def test_cube_masks_mark_the_cube_and_the_rim_its_edges_blend_into(opengl):
     """The mask holds every pixel that MuJoCo's segmentation gives the cube and nothing beyond a one-pixel rim around
     them (OpenGL's antialiasing blends the cube's edges into its neighbours)."""

@@ -121,6 +121,7 @@ def in_batches(fn, size, *rows):
     return jax.tree.map(lambda *part: np.concatenate(part), *parts)
 
 
+@pytest.mark.slow
 def test_policy_and_env_rows_are_bit_identical_for_any_batch_size(run_dir):
     # Random carries, observations and states rather than whole episodes: a difference in the last bit shows at once,
     # where an episode changes only once it flips an action.
@@ -181,6 +182,7 @@ def test_batched_evaluation_writes_the_same_record_as_the_cpu_path(run_dir, caps
         evaluate(run_dir, "latest", episodes=2, save=False, path="gpu")
 
 
+@pytest.mark.slow
 def test_cpu_and_batched_paths_agree_by_the_path_agreement_tool(run_dir, tmp_path, capsys):
     out = tmp_path / "agreement.json"
     assert path_agreement.main([str(run_dir), "--episodes", "16", "--batch", "5", "--out", str(out)]) == 0
@@ -194,6 +196,7 @@ def test_cpu_and_batched_paths_agree_by_the_path_agreement_tool(run_dir, tmp_pat
     assert rows["episode_return"]["cpu_stderr"] > 0 and rows["episode_return"]["mjx_stderr"] > 0
 
 
+@pytest.mark.slow
 def test_c_mujoco_batch_matches_its_twin_whatever_the_batch_and_threads():
     env = aj.make("ShadowHandReach", max_episode_steps=4)
     twin = CpuEnv(env.task, env.frame_skip, env.max_episode_steps)  # shared, so its functions compile once

@@ -79,6 +79,7 @@ class NaNRewardCartPole(CartPole):
         return physics, obs, jnp.float32(jnp.nan), terminated, info, metrics
 
 
+@pytest.mark.slow
 def test_divergence_raises_a_clear_error(quick_compiles):
     config = CARTPOLE.replace(num_envs=4, rollout_length=16, minibatch_size=64, num_cycles=3)
     with pytest.raises(TrainingDivergedError, match="cycle 1.*Lower learning_rate"):

@@ -255,7 +255,8 @@ def mounted_tmpfs(path: Path, size: str) -> bool:
     return done.returncode == 0
 
 
-@pytest.mark.parametrize("size", ["16k", pytest.param("2500k", marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("size", ["16k", "2500k"])
 def test_a_real_full_disk_ends_in_one_message_and_leaves_no_half_made_run(size, tmp_path):
     """On a small tmpfs (where this machine lets the test mount one; the injected test above runs everywhere)."""
     disk = tmp_path / "disk"

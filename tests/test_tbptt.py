@@ -208,6 +208,7 @@ def test_tile_shape_prefers_the_most_trajectories():
     assert tile(5, 4, 8) is None
 
 
+@pytest.mark.slow
 def test_feed_forward_unroll_runs_the_chunk_as_one_batch_with_the_same_outputs_and_gradients():
     """A network without recurrent state skips the scan; its outputs and gradients are those of a step-by-step
     loop."""

@@ -39,6 +39,7 @@ def test_the_saliency_of_a_linear_map_is_its_weights():
     np.testing.assert_allclose(found, np.broadcast_to(np.abs(weights).max(axis=-1), (3, SIZE, SIZE)), rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_saliency_of_a_unit_is_that_of_its_one_hot_readout_and_bad_outputs_are_refused(agent, images):
     unit = visual.saliency(agent, images, unit=2)
     assert unit.shape == (2, SIZE, SIZE) and unit.max() > 0
@@ -48,6 +49,7 @@ def test_saliency_of_a_unit_is_that_of_its_one_hot_readout_and_bad_outputs_are_r
             visual.saliency(agent, images, **bad)
 
 
+@pytest.mark.slow
 def test_activation_maximization_raises_each_units_activation(agent, images):
     """Each unit's preferred image (as the uint8 image returned) drives it well above what random frames do, and the
     optimization's trace rose."""
@@ -63,6 +65,7 @@ def test_activation_maximization_raises_each_units_activation(agent, images):
         visual.preferred_stimuli(agent, "V1", [4])
 
 
+@pytest.mark.slow
 def test_filters_maps_and_the_whole_analysis_fit_together(agent, images, tmp_path):
     # A restored checkpoint holds the layers sorted by name: the order is still the one images pass them.
     restored = SimpleNamespace(config=agent.config, params={"visual": dict(sorted(agent.params["visual"].items()))})
