@@ -431,6 +431,7 @@ def test_fixed_point_of_a_relu_graph_area_given_its_input_layers_explicitly():
         np.testing.assert_allclose(found["points"], np.broadcast_to(expected, (4, 4)), atol=1e-4)
 
 
+@pytest.mark.slow
 def test_analyze_dynamics_finds_a_graph_area_s_fixed_points_without_inputs(tmp_path, monkeypatch, capsys):
     """`angora-jax analyze dynamics --run RUN --recurrent network.PMC`: the area's inputs come from the graph, and
     the point is the tanh area's (the run is the agent above: loading a run is not under test)."""
