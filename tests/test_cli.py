@@ -385,6 +385,7 @@ def test_a_gpu_sized_config_started_without_a_gpu_says_so_before_compiling(capsy
     assert cpu_note(load_config("cartpole", ["ppo.num_envs=100000"]), {"engine": "pure JAX"}, False) is None
 
 
+@pytest.mark.slow
 def test_config_show_prints_the_resolved_config_a_run_would_use(capsys, tmp_path):
     """`config show` prints every key of the resolved config as YAML that trains the same run when saved, and a bad
     override gets the same exit 2 and message as `train`."""

@@ -45,7 +45,9 @@ def test_registry_has_the_required_models():
 
 
 @pytest.mark.parametrize("shared", [False, True], ids=["separate", "shared"])
-@pytest.mark.parametrize("name", ["simple", "deeper", "rnn", "lstm", "gru", "wide", "cortical"])
+# The brain-area model compiles in 11 s; `make test-fast` checks its areas and its graph below.
+@pytest.mark.parametrize("name", ["simple", "deeper", "rnn", "lstm", "gru", "wide",
+                                  pytest.param("cortical", marks=pytest.mark.slow)])
 def test_network_contract_shapes_and_asymmetric_reaches_only_the_value(name, shared):
     model = ActorCritic(make_network(small(name, shared)), HEAD)
     obs = hand_like_obs(jax.random.key(0))

@@ -9,6 +9,7 @@ from tiny import TINY_PPO
 import angora_jax as aj
 from angora_jax.experiment.config import ConfigError, validate
 from angora_jax.experiment.run_dir import latest_video
+from angora_jax.experiment.training_video import training_videos
 
 
 @pytest.mark.slow
@@ -17,8 +18,6 @@ def test_a_run_writes_a_video_on_each_due_cycle_and_its_report_shows_the_latest(
     (the last) get one, each the reset frame plus `steps` frames (the pole stands that long); the last one is the
     episode that `render_frames` plays from the run's checkpoint of that cycle; a cycle's second video (a resumed
     run repeats the cycles after its checkpoint) is written beside the first and is then the latest."""
-    from angora_jax.experiment.training_video import training_videos
-
     video = "{every: 2, steps: 3, camera: side, width: 32, height: 24}"
     overrides = [*TINY_PPO, "env.task=InvertedPendulum", "ppo.num_cycles=3", f"evaluation.video={video}",
                  "evaluation.seed=5", "checkpoint.every=1", f"logging.run_root={tmp_path}", "logging.run_name=pole",
@@ -46,6 +45,12 @@ def test_a_run_writes_a_video_on_each_due_cycle_and_its_report_shows_the_latest(
 def test_a_bad_video_section_is_refused_naming_the_key(setting, message):
     with pytest.raises(ConfigError, match=message):
         validate(aj.load_config("locomotion", ["env.task=InvertedPendulum", f"evaluation.video={setting}"]))
+
+
+def test_a_run_without_a_video_section_renders_nothing(tmp_path):
+    """The fast tier's check of the training videos (the run above is in the slow tier): no section, no renderer."""
+    assert training_videos(aj.load_config("locomotion", ["env.task=InvertedPendulum"]), tmp_path) is None
+    assert not (tmp_path / "videos").exists()
 
 
 def test_a_task_without_a_scene_gets_no_video_and_is_told_so():
