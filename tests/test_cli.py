@@ -251,6 +251,7 @@ def test_a_signal_while_compiling_stops_at_once_and_removes_the_new_run_dir(sign
     assert not (tmp_path / "new").exists()
 
 
+@pytest.mark.slow
 def test_sigterm_stops_the_command_with_a_checkpoint(tmp_path):
     command = [sys.executable, "-m", "angora_jax.cli", "train", "cartpole", *TINY]
     command += ["ppo.num_cycles=100000", f"logging.run_root={tmp_path}", "logging.run_name=long"]

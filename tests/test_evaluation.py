@@ -322,6 +322,7 @@ def test_render_frames_of_random_actions_differ(opengl):
     assert not np.array_equal(frames[0], frames[-1])
 
 
+@pytest.mark.slow
 def test_cli_render_writes_a_video_and_refuses_to_overwrite(run_dir, tmp_path, capsys, opengl):
     out = tmp_path / "reach.mp4"
     assert main(["render", "--task", "ShadowHandReach", "--out", str(out), "--width", "160", "--height", "120"]) == 0

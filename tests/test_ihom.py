@@ -434,6 +434,7 @@ def test_the_tasks_page_lists_every_reward_preset_with_its_coefficients():
             assert f"| {task} | `{name}` | {values} |" in page, f"docs/tasks.md lacks or misstates {task} {name}"
 
 
+@pytest.mark.slow
 def test_pose_noise_as_angorapys_noisy_cube():
     """The policy sees the cube 3.71 mm off in a random direction and turned by a random small rotation, drawn anew
     every step from the step's key; the value function also sees the true pose; goals stay those of the clean task."""

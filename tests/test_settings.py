@@ -75,6 +75,7 @@ def test_best_mode_min_keeps_the_lowest_cycle_and_tensorboard_gets_every_cycles_
     assert {"loss", "entropy", "norm/reward_std"} <= set(scalars)
 
 
+@pytest.mark.slow
 def test_stop_at_ends_the_run_with_a_checkpoint_after_the_first_cycle_that_reaches_the_value(tmp_path):
     common = [*TINY_PPO, "ppo.num_cycles=8", "logging.progress=none", "logging.report=false",
               f"logging.run_root={tmp_path}"]

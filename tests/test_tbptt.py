@@ -108,6 +108,7 @@ def test_shorter_chunks_replay_the_same_forward_pass_but_cut_gradients(setup):
     assert not np.allclose(kernel, expected["network"]["policy_cell"]["hi"]["kernel"], rtol=1e-3)
 
 
+@pytest.mark.slow
 def test_carry_resets_where_an_episode_starts(setup):
     network, model, obs, params, _ = setup
     k = 4
