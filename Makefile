@@ -3,6 +3,8 @@
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
+# pytest-xdist gives each test file to one worker per core, in the order tests/conftest.py sets.
+PYTEST := $(BIN)/python -m pytest -q -rs -n auto --dist loadfile --no-loadscope-reorder
 
 $(BIN)/.installed: pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -23,11 +25,11 @@ run: $(BIN)/.installed
 
 test: $(BIN)/.installed
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q -rs -n auto --dist loadfile --no-loadscope-reorder --durations=15
+	$(PYTEST) --durations=15
 
 test-fast: $(BIN)/.installed
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q -rs -n auto --dist loadfile --no-loadscope-reorder -m "not slow" --durations=10
+	$(PYTEST) -m "not slow" --durations=10
 
 lint: $(BIN)/.installed
 	$(BIN)/ruff check .
