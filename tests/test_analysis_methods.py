@@ -123,6 +123,11 @@ def test_every_activation_has_a_range_for_the_fixed_point_search():
         assert low <= min(outputs.min(), 0.0) and max(outputs.max(), 0.0) <= high, name
 
 
+# The timescale (steps) of AR(1) units of coefficient 0.8: acf(k) = 0.8^k, and 0.8^4 > 1/e > 0.8^5, so the crossing
+# interpolated between lags 4 and 5 is at 4.509 steps.
+AR1_CROSSING = 4 + (0.8**4 - 1 / np.e) / (0.8**4 - 0.8**5)
+
+
 def ar1_recording(coefficient, episodes=400, steps=100, units=8, seed=0):
     """A recording whose layer `unit` holds AR(1) units x(t + 1) = coefficient x(t) + noise, stationary from the
     first step (so that the autocorrelation at lag k is coefficient^k at every step)."""
@@ -138,9 +143,8 @@ def ar1_recording(coefficient, episodes=400, steps=100, units=8, seed=0):
 
 def test_timescales_of_ar1_units_and_white_noise():
     result = timescales(ar1_recording(0.8), max_lag=30)
-    # acf(k) = 0.8^k: 0.8^4 > 1/e > 0.8^5, so the crossing interpolated between lags 4 and 5 is at 4.509 steps. 40,000
-    # steps per unit put the median within 0.06 steps of it (5 seeds); a lag off by one is 1 step away.
-    expected = 4 + (0.8**4 - 1 / np.e) / (0.8**4 - 0.8**5)
+    # 40,000 steps per unit put the median within 0.06 steps of the crossing (5 seeds); a lag off by one is 1 step away.
+    expected = AR1_CROSSING
     assert float(result["timescale_median"].item()) / DT == pytest.approx(expected, abs=0.2)
     assert expected - 0.3 < result["timescale_iqr_low"].item() / DT < result["timescale_iqr_high"].item() / DT < (
         expected + 0.3)
@@ -158,7 +162,7 @@ def test_timescales_read_only_the_alive_steps():
     units = recording["activity_unit"]
     rng = np.random.default_rng(2)
     walk = 1e3 * np.cumsum(rng.standard_normal(units.shape), axis=1)
-    expected = 4 + (0.8**4 - 1 / np.e) / (0.8**4 - 0.8**5)  # steps, as for the AR(1) units above
+    expected = AR1_CROSSING
 
     def ending(dead, after_death):
         return recording.assign(alive=(("episode", "time"), (~dead).astype(float)),
