@@ -263,6 +263,15 @@ class PPOConfig:
         "auto" (categorical for discrete tasks, gaussian for continuous ones), or a head added with `register_head`.
     value_clip: clip the value update to +-`clip_epsilon` around the rollout's values.
     lr_decay: decay the learning rate linearly to 0 over `num_cycles`.
+    target_kl: None keeps the learning rate as `learning_rate` and `lr_decay` set it; a number adapts it to the
+        policy's step instead (as rsl_rl and rl_games do): after each minibatch whose approximate KL to the rollout
+        policy exceeds 2 * target_kl the rate is divided by 1.5, after one below target_kl / 2 it is multiplied by 1.5,
+        kept within [`lr_min`, `lr_max`]. Starts at `learning_rate`; the rate is part of the optimizer state, so it
+        is checkpointed and a resume continues with it.
+    lr_min: the lowest rate the KL-adaptive rule may set.
+    lr_max: the highest rate the KL-adaptive rule may set.
+    entropy_coef_final: None keeps `entropy_coef` constant; a number anneals it linearly from `entropy_coef` at the
+        first cycle to this at the last (`num_cycles`).
     stop_at: end the run early once a per-cycle metric reaches a value (`StopAt`); None trains all `num_cycles`.
     init_from: a saved run, `RUN_DIR` (its best checkpoint) or `RUN_DIR:latest` / `RUN_DIR:<cycle>`, whose network
         parameters and observation statistics this run starts from, to fine-tune a trained policy on a changed task
@@ -286,6 +295,10 @@ class PPOConfig:
     entropy_coef: float = bounded(0.01, 0, why="a loss weight")
     learning_rate: float = bounded(1e-3, 0, open_low=True, why="Adam's step size")
     lr_decay: bool = False
+    target_kl: float | None = bounded(None, 0, open_low=True, why="an approximate KL per minibatch")
+    lr_min: float = bounded(1e-5, 0, open_low=True, why="the KL-adaptive rate's floor")
+    lr_max: float = bounded(1e-2, 0, open_low=True, why="the KL-adaptive rate's ceiling")
+    entropy_coef_final: float | None = bounded(None, 0, why="a loss weight")
     init_from: str | None = None
     max_grad_norm: float = bounded(0.5, 0, open_low=True, why="the gradient norm clipped to")
     normalize_advantages: bool = True
@@ -311,6 +324,12 @@ class PPOConfig:
         if self.init_from is not None and (not isinstance(self.init_from, str) or not self.init_from):
             raise ValueError(f"PPOConfig.init_from names a saved run, RUN_DIR[:best|latest|<cycle>]; got "
                              f"{self.init_from!r}.")
+        if self.target_kl is not None and self.lr_decay:
+            raise ValueError("PPOConfig.target_kl adapts the learning rate and lr_decay decays it: set one of them "
+                             "(lr_decay: false, or target_kl: null).")
+        if self.target_kl is not None and not self.lr_min <= self.learning_rate <= self.lr_max:
+            raise ValueError(f"PPOConfig.learning_rate ({self.learning_rate}) is where the KL-adaptive rate starts: "
+                             f"it must lie within [lr_min, lr_max] = [{self.lr_min}, {self.lr_max}].")
         if self.rollout_length % self.chunk_length:
             raise ValueError(
                 f"PPOConfig.chunk_length ({self.chunk_length}) must divide rollout_length ({self.rollout_length})."
