@@ -18,7 +18,7 @@ from common import markdown_table, write_results
 import angora_jax as aj
 from angora_jax.envs.eager_batch import EagerBatch
 from angora_jax.experiment.agent import Agent
-from angora_jax.experiment.evaluation import agent_policy, episode_keys, on_host, run_episodes
+from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
 
 
 def timed(agent: Agent, batch: int, workers: int, episodes: int, seed: int,

@@ -20,8 +20,8 @@ from angora_jax.experiment import Checkpoints, RunDirError, TrainingInterrupted,
 from angora_jax.experiment.checkpoint import CheckpointError
 from angora_jax.experiment.config import CheckpointConfig
 from angora_jax.experiment.monitor import set_aside_after
+from angora_jax.experiment.programs import cycle_programs
 from angora_jax.experiment.run_dir import CHECKPOINTS
-from angora_jax.experiment.runner import cycle_programs
 
 # A recurrent network, so that resuming must restore carries and env states mid-episode, not just parameters.
 TINY = [

@@ -25,16 +25,8 @@ from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch
 from angora_jax.envs.rendering import RenderError
 from angora_jax.experiment import evaluation, snapshot_cycles
-from angora_jax.experiment.evaluation import (
-    EVALUATION_DIR,
-    agent_policy,
-    agreement,
-    episode_keys,
-    evaluate,
-    on_host,
-    random_policy,
-    run_episodes,
-)
+from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
+from angora_jax.experiment.evaluation import EVALUATION_DIR, agreement, evaluate
 from angora_jax.ppo.cycle import make_cycle
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))

@@ -16,8 +16,8 @@ import jax
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.experiment.checkpoint import Checkpoints
 from angora_jax.experiment.config import Config, DistributionConfig, load_config, to_dict, validate
-from angora_jax.experiment.run_dir import CHECKPOINTS, read_run_config, read_sessions
-from angora_jax.experiment.runner import initial_state_shape
+from angora_jax.experiment.programs import initial_state_shape
+from angora_jax.experiment.run_dir import CHECKPOINTS, read_run_config, read_sessions, run_source
 from angora_jax.nets import ActorCritic, make_network
 from angora_jax.nets.components import register_run_reader
 from angora_jax.nets.visual import make_visual_area
@@ -134,14 +134,6 @@ def saved_policy(source: str | Path) -> PolicyState:
         raise FileNotFoundError(f"{str(source)!r} names no saved run (no directory {run_dir!r}): give "
                                 "RUN_DIR[:best|latest|<cycle>] (network.pretrained also takes a component file).")
     return load_agent(run_dir, which).state
-
-
-def run_source(source: str | Path) -> tuple[str, str | int]:
-    """"RUN_DIR[:best|latest|<cycle>]" as (run directory, checkpoint: "best" when none is named, or a cycle number).
-    A path that exists is a run directory whole, colons and all."""
-    text = str(source)
-    run_dir, _, which = text.rpartition(":") if ":" in text and not Path(text).exists() else (text, "", "")
-    return run_dir, int(which) if which.isdigit() else (which or "best")
 
 
 register_run_reader(saved_policy)

@@ -100,6 +100,14 @@ def create_run_dir(config: Config, claim: Callable[[Path], None] | None = None) 
     return path
 
 
+def run_source(source: str | Path) -> tuple[str, str | int]:
+    """"RUN_DIR[:best|latest|<cycle>]" as (run directory, checkpoint: "best" when none is named, or a cycle number).
+    A path that exists is a run directory whole, colons and all."""
+    text = str(source)
+    run_dir, _, which = text.rpartition(":") if ":" in text and not Path(text).exists() else (text, "", "")
+    return run_dir, int(which) if which.isdigit() else (which or "best")
+
+
 def read_run_config(run_dir: str | Path) -> Config:
     """The config saved in `run_dir`; RunDirError when `run_dir` is not a run directory."""
     path = Path(run_dir) / CONFIG_FILE

@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
-import dataclasses
-import json
 import os
 import shutil
 import signal
@@ -16,7 +14,6 @@ import socket
 import sys
 import threading
 import time
-from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,12 +32,13 @@ from angora_jax.experiment.distributed import ProcessFailed, agree_to_stop, is_m
 from angora_jax.experiment.doctor import devices, versions
 from angora_jax.experiment.held_out import held_out_evaluation
 from angora_jax.experiment.monitor import Monitor, logged_cycles, set_aside_after
+from angora_jax.experiment.programs import cycle_programs, initial_state_shape
 from angora_jax.experiment.progress import Progress
 from angora_jax.experiment.resume_plan import plan_resume, set_aside_checkpoints_after, set_aside_outputs
 from angora_jax.experiment.run_dir import CHECKPOINTS, create_run_dir, read_run_config, record_session
 from angora_jax.experiment.run_lock import RunLock, RunLockedError, release_own_lock
 from angora_jax.experiment.sources import check_sources
-from angora_jax.ppo.cycle import TrainState, make_cycle
+from angora_jax.ppo.cycle import TrainState
 from angora_jax.ppo.parallel import per_device
 from angora_jax.ppo.train import training_cycles
 
@@ -230,41 +228,6 @@ def _restore_to_continue(checkpoints: Checkpoints, cycle: int, template: TrainSt
         print(f"Resuming {run_dir} from cycle {cycle} with fresh environments, not bit for bit: {reason}.",
               file=sys.stderr, flush=True)
     return state
-
-
-def initial_state_shape(config: Config, env: Env) -> TrainState:
-    """Shapes and dtypes of the run's TrainState on its devices (a tree of `jax.ShapeDtypeStruct`), computed without
-    running (and without reading pretrained components or the run it starts from: where initial values come from does
-    not change a shape)."""
-    network = dataclasses.replace(config.ppo.network, pretrained={})
-    init, _ = cycle_programs(dataclasses.replace(config, ppo=config.ppo.replace(network=network, init_from=None)), env)
-    return jax.eval_shape(init, jax.random.key(config.ppo.seed))
-
-
-# The programs of the last few distinct runs of this process (see cycle_programs); each holds its compiled code.
-_PROGRAMS_KEPT = 4
-_programs: OrderedDict[str, tuple[Callable, Callable]] = OrderedDict()
-
-
-def cycle_programs(config: Config, env: Env) -> tuple[Callable, Callable]:
-    """The run's jitted `init` and `cycle` (`make_cycle`), the same two functions for every run of this process
-    whose task, PPO settings and devices are the same (the seed aside: it only picks the first key). A run resumed
-    or trained in pieces in one process, or the same config trained again in a notebook, then reuses the traced and
-    compiled programs: JAX's persistent cache saves only the compiling, and never holds MuJoCo Warp's programs (each
-    trace gives them a new call id). Runs that read saved values when they start (`ppo.init_from`, pretrained
-    components) get new functions: their files may have changed since."""
-    ppo = config.ppo
-    if ppo.init_from or ppo.network.pretrained:
-        return make_cycle(env, None, ppo, num_devices(config))
-    settings = to_dict(config)
-    key = json.dumps({"env": settings["env"], "ppo": {**settings["ppo"], "seed": None},
-                      "distribution": settings["distribution"], "devices": num_devices(config)}, sort_keys=True)
-    if key not in _programs:
-        _programs[key] = make_cycle(env, None, ppo, num_devices(config))
-        if len(_programs) > _PROGRAMS_KEPT:
-            _programs.popitem(last=False)
-    _programs.move_to_end(key)
-    return _programs[key]
 
 
 def _run(

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from angora_jax.envs.core import Env
 from angora_jax.experiment.config import Config, ConfigError, flatten, to_dict
-from angora_jax.experiment.run_dir import read_run_config
+from angora_jax.experiment.run_dir import read_run_config, run_source
 from angora_jax.ppo.cycle import SavedRunMisfit, check_saved_values
 
 
@@ -30,8 +30,6 @@ def check_sources(config: Config, env: Env) -> None:
 def _trained_otherwise(config: Config) -> str:
     """What the run `ppo.init_from` names was trained with that `config` sets otherwise: its network settings, or
     where those are the same, its task (whose observations then differ in shape)."""
-    from angora_jax.experiment.agent import run_source  # here: agent imports the runner, which calls check_sources
-
     saved = read_run_config(run_source(config.ppo.init_from)[0])
     ours, theirs = flatten(to_dict(config)), flatten(to_dict(saved))
     network = [key for key in sorted(ours.keys() | theirs.keys()) if key.startswith("ppo.network.")
