@@ -446,7 +446,7 @@ def test_analyze_dynamics_finds_a_graph_area_s_fixed_points_without_inputs(tmp_p
                          "PMC": {"size": 5, "inputs": ("S1", "proprioception"), "cell": "rnn"}})
     recording = graph_recording({"network.S1": 3, "network.PMC.0": 5, "network.PMC.1": 5})
     path = save_activity(recording, tmp_path / "graph.nc")
-    monkeypatch.setattr(cli, "load_agent", lambda run, checkpoint: agent)
+    monkeypatch.setattr(cli.analysis, "load_agent", lambda run, checkpoint: agent)
     assert cli.main(["analyze", "dynamics", str(path), "--run", "RUN", "--recurrent", "network.PMC"]) == 0
     assert "network.PMC: 15 of 15 starts reached a fixed point" in capsys.readouterr().out
     assert cli.main(["analyze", "dynamics", str(path), "--inputs", "network.S1"]) == 2

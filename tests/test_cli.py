@@ -103,7 +103,7 @@ def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys
     def fail(config, overrides, minutes=None):
         raise ProcessFailed((1,), 3, tmp_path / "run")
 
-    monkeypatch.setattr(cli, "train", fail)
+    monkeypatch.setattr(cli.training, "train", fail)
     assert main(["train", "cartpole"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("angora-jax train: Process(es) 1 of this run failed after cycle 3")
@@ -112,8 +112,9 @@ def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys
 
 def test_overrides_may_follow_the_options_and_other_strays_are_usage_errors(capsys, monkeypatch):
     seen = []
-    monkeypatch.setattr(cli, "train", lambda config, overrides, minutes: seen.append((config, overrides)) or "run")
-    monkeypatch.setattr(cli, "print_finished", lambda run: None)
+    monkeypatch.setattr(cli.training, "train",
+                        lambda config, overrides, minutes: seen.append((config, overrides)) or "run")
+    monkeypatch.setattr(cli.training, "print_finished", lambda run: None)
     assert main(["train", "cartpole", "ppo.seed=1", "--minutes", "5", "ppo.num_envs=8"]) == 0
     assert seen == [("cartpole", ["ppo.seed=1", "ppo.num_envs=8"])]
     with pytest.raises(SystemExit) as stop:

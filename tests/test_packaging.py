@@ -20,5 +20,5 @@ def test_the_wheel_ships_every_config(tmp_path):
     (wheel,) = tmp_path.glob("angora_jax-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
     assert {f"angora_jax/configs/{name}.yaml" for name in list_configs()} <= names
-    assert "angora_jax/cli.py" in names and "angora_jax/envs/shadow_hand/ihom.py" in names
+    assert "angora_jax/cli/__init__.py" in names and "angora_jax/envs/shadow_hand/ihom.py" in names
     assert not any(name.startswith("configs/") for name in names)

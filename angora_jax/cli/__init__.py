@@ -1,0 +1,85 @@
+"""The `angora-jax` command: train, resume, evaluate and compare runs.
+
+angora-jax train cartpole                       train configs/cartpole.yaml into runs/<name>/
+angora-jax train cartpole ppo.network.name=lstm logging.run_name=lstm
+angora-jax resume runs/lstm                     continue from the latest checkpoint, exactly
+angora-jax check runs/lstm                      is the run intact (checkpoints, metrics), what would resume do
+angora-jax evaluate runs/lstm                   episode statistics of the best checkpoint (CPU path), JSON + PNG
+angora-jax render runs/lstm --out lstm.mp4      a video of an episode (MuJoCo tasks)
+angora-jax export runs/lstm --out lstm.msgpack  the policy in one file, for aj.load_policy without the run
+angora-jax report runs/lstm runs/other          PNG curves + index.html comparing runs
+angora-jax monitor runs/lstm runs/other         the same page while runs train, served on http://127.0.0.1:8000
+angora-jax list-configs                         the shipped configs (train one by name from any directory)
+angora-jax doctor                               versions, devices, physics choice, rendering: what to install
+angora-jax record runs/lstm --out act.nc        every layer's activity with the task variables (xarray, NetCDF)
+angora-jax analyze decode act.nc                ridge R^2 of each variable from each layer, against noise
+angora-jax analyze similarity act.nc --condition metric_goal_distance    RDMs per layer (RSA), compared
+angora-jax analyze dynamics act.nc --run runs/cortical --recurrent network.PMC
+                                                PCA per layer; fixed points of a recurrent area (--inputs
+                                                network.PMC_in: the layer feeding a cell outside a graph)
+angora-jax analyze timescales act.nc             activity autocorrelation and timescale per layer
+angora-jax analyze crosscorrelation act.nc       which layer's leading component leads which, over lags
+angora-jax analyze decode act.nc --lags 0 4 8    decode each variable k steps after the activity
+angora-jax analyze tuning act.nc --layer network.SSC_2 --variable metric_goal_distance
+angora-jax analyze sindy act.nc --layer network.PMC.1 --inputs network.PMC_in
+                                                equations of a layer's dynamics in its leading components
+angora-jax analyze ablate runs/lstm --lesion network.SSC_2 --silence goal    task outcomes under lesions
+angora-jax analyze visual act.nc --run runs/pixels   a pixel agent's visual area: filters, saliency, preferred stimuli
+angora-jax pretrain-vision --out encoder.msgpack    a visual encoder that sees the cube's pose, from renders
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from angora_jax.cli import analysis, configs, evaluation, reports, training, vision
+from angora_jax.cli.arguments import EXIT_FAILED, EXIT_USAGE
+from angora_jax.cli.errors import os_error_message
+from angora_jax.experiment import ConfigError, RunDirError, TrainingInterrupted
+from angora_jax.experiment.distributed import ProcessFailed
+from angora_jax.ppo import TrainingDivergedError
+
+# The verbs in the order `angora-jax --help` lists them, each added by the module of its group.
+VERBS = (training.add_train, training.add_resume, training.add_check, evaluation.add_evaluate, evaluation.add_render,
+         evaluation.add_export, reports.add_report, evaluation.add_record, analysis.add_analyze, reports.add_monitor,
+         vision.add_pretrain_vision, configs.add_config, configs.add_list_configs, configs.add_doctor,
+         configs.add_list_tasks, configs.add_list_models, configs.add_run)
+
+
+def parser() -> argparse.ArgumentParser:
+    """The whole command line: `angora-jax` and each verb's parser, its handler set as `handler`."""
+    top = argparse.ArgumentParser(prog="angora-jax", description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    commands = top.add_subparsers(dest="command", required=True)
+    for add_verb in VERBS:
+        add_verb(commands)
+    return top
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command; exit codes: 0 done, 1 training diverged or another process of the run failed, 2 bad usage
+    or config, a second writer, a damaged file or a full disk (nothing saved before is changed), 128 + signal number
+    (130 Ctrl-C, 143 SIGTERM) when training was interrupted after saving a checkpoint."""
+    cli = parser()
+    args, extra = cli.parse_known_args(argv)
+    if extra:
+        if hasattr(args, "overrides") and all("=" in item and not item.startswith("-") for item in extra):
+            args.overrides = [*args.overrides, *extra]  # overrides after the options: `train CFG --distributed a=1`
+        else:
+            cli.error(f"unrecognized arguments: {' '.join(extra)}")
+    try:
+        return args.handler(args)
+    except (ConfigError, RunDirError, FileNotFoundError) as error:
+        # The system's own FileNotFoundError names a path and an errno; ours carry their whole message.
+        system = isinstance(error, FileNotFoundError) and error.errno is not None
+        print(f"angora-jax {args.command}: {os_error_message(error) if system else error}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as error:  # a full disk, a read-only or lost mount, permissions: the machine's, not a bug
+        print(f"angora-jax {args.command}: {os_error_message(error)}", file=sys.stderr)
+        return EXIT_USAGE
+    except TrainingInterrupted as stop:
+        print(f"angora-jax {args.command}: {stop}", file=sys.stderr)
+        return 128 + stop.signum
+    except (TrainingDivergedError, ProcessFailed) as error:
+        print(f"angora-jax {args.command}: {error}", file=sys.stderr)
+        return EXIT_FAILED

@@ -1,0 +1,251 @@
+"""`analyze`: analyses of a recording (`angora-jax record`) and lesions of a run, one sub-verb each."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, add_env_option, checkpoint_of, positive_int
+from angora_jax.experiment import load_agent
+
+
+def add_analyze(commands: argparse._SubParsersAction) -> None:
+    """The `analyze` verb: its arguments and its handler."""
+    analyze = commands.add_parser("analyze", help="analyses of a recording (see angora-jax record)")
+    analyses = analyze.add_subparsers(dest="analysis", required=True)
+    decoding = analyses.add_parser("decode", help="ridge R^2 of each variable from each layer vs a noise baseline")
+    decoding.add_argument("recording", help="a NetCDF file from angora-jax record")
+    decoding.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    decoding.add_argument("--variables", nargs="*", help="variables (default: every input_*, task_* and metric_*)")
+    decoding.add_argument("--folds", type=positive_int, default=5)
+    decoding.add_argument("--lags", nargs="*", type=int, default=None,
+                          help="policy steps k: decode the variable k steps after the activity (k < 0: before), "
+                               "e.g. --lags -4 0 4 8 16")
+    decoding.add_argument("--out", default=None, help="heat map PNG (default: beside the recording)")
+    decoding.set_defaults(handler=command_decode)
+
+    def analysis(name: str, help: str) -> argparse.ArgumentParser:
+        parser = analyses.add_parser(name, help=help)
+        parser.add_argument("recording", help="a NetCDF file from angora-jax record")
+        parser.add_argument("--out", default=None, help=f"PNG (default: beside the recording, *.{name}.png)")
+        parser.set_defaults(handler=command_analysis)
+        return parser
+
+    similar = analysis("similarity", "representational similarity (RSA): RDMs per layer over bins of a variable")
+    similar.add_argument("--condition", required=True, help="variable whose quantile bins are the conditions")
+    similar.add_argument("--feature", type=int, default=None, help="component of a vector condition variable")
+    similar.add_argument("--bins", type=positive_int, default=8)
+    similar.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    similar.add_argument("--variables", nargs="*", default=[], help="variables to compare with as model RDMs")
+    dynamics = analysis("dynamics", "PCA per layer; with --run, fixed points of a recurrent layer")
+    dynamics.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    dynamics.add_argument("--components", type=positive_int, default=10)
+    dynamics.add_argument("--run", default=None, help="the recorded run (for fixed points)")
+    dynamics.add_argument("--checkpoint", default="best", help="the recorded checkpoint (default: best)")
+    dynamics.add_argument("--recurrent", default=None, help="recurrent layer, e.g. network.PMC")
+    dynamics.add_argument("--inputs", nargs="+", default=None,
+                          help="the recorded layer(s) feeding it, e.g. network.PMC_in (default, for an area of a "
+                               "brain-area graph: its inputs as the graph lists them)")
+    scales = analysis("timescales", "activity autocorrelation and intrinsic timescale per layer")
+    scales.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    scales.add_argument("--max-lag", type=positive_int, default=20, help="policy steps (default: 20)")
+    crosscorrelation = analysis("crosscorrelation", "correlation of layers' leading components over lags")
+    crosscorrelation.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    crosscorrelation.add_argument("--max-lag", type=positive_int, default=20, help="policy steps (default: 20)")
+    seeing = analysis("visual", "inside the visual area: filters, feature maps, saliency, preferred stimuli")
+    seeing.add_argument("--run", required=True, help="the recorded run (one that sees camera images)")
+    seeing.add_argument("--checkpoint", default="best", help="the recorded checkpoint (default: best)")
+    seeing.add_argument("--frames", type=positive_int, default=4, help="frames of the first episode (default: 4)")
+    seeing.add_argument("--camera", type=int, default=0, help="which camera's frames (default: 0, the first)")
+    seeing.add_argument("--units", type=positive_int, default=4, help="units per layer to show (default: 4)")
+    seeing.add_argument("--steps", type=positive_int, default=256, help="steps of activation maximization")
+    add_env_option(seeing)
+    tuning = analysis("tuning", "unit responses as functions of a task variable")
+    tuning.add_argument("--layer", required=True)
+    tuning.add_argument("--variable", required=True)
+    tuning.add_argument("--feature", type=int, default=None, help="component of a vector variable")
+    tuning.add_argument("--bins", type=positive_int, default=10)
+    equations = analysis("sindy", "equations of a layer's dynamics in its leading principal components (SINDy), "
+                                  "scored on held-out episodes against next = current")
+    equations.add_argument("--layer", required=True, help="e.g. network.PMC.1, the premotor cell's output")
+    equations.add_argument("--components", type=positive_int, default=3, help="principal components (default: 3)")
+    equations.add_argument("--inputs", default=None,
+                           help="the layer feeding it, e.g. network.PMC_in: its leading components become terms")
+    equations.add_argument("--degree", type=positive_int, default=2, help="polynomial library degree (default: 2)")
+    equations.add_argument("--threshold", type=float, default=0.05,
+                           help="smallest coefficient kept, in PC1 standard deviations per step (per s with "
+                                "--continuous; default: 0.05)")
+    equations.add_argument("--continuous", action="store_true",
+                           help="fit dPC/dt (1/s) instead of the map from one policy step to the next")
+    equations.add_argument("--horizon", type=positive_int, default=10,
+                           help="policy steps of the held-out simulation (default: 10)")
+    equations.add_argument("--held-out", type=float, default=0.25, help="fraction of episodes held out (default: 0.25)")
+    ablate = analyses.add_parser("ablate", help="task outcomes of a run with areas, modalities or units silenced")
+    ablate.add_argument("run_dir")
+    ablate.add_argument("--lesion", nargs="*", default=[], metavar="AREA", help="dense layers or areas to silence")
+    ablate.add_argument("--silence", nargs="*", default=[], metavar="MODALITY", help="input modalities to silence")
+    ablate.add_argument("--fraction", nargs="*", default=[], metavar="AREA:F",
+                        help="silence a random fraction F of an area's units, e.g. network.M1:0.5")
+    ablate.add_argument("--episodes", type=positive_int, default=256)
+    ablate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
+    ablate.add_argument("--out", default=None, help="PNG and NetCDF (default: RUN_DIR/ablation.png)")
+    ablate.set_defaults(handler=command_ablate)
+
+
+def command_decode(args: argparse.Namespace) -> int:
+    from angora_jax.analysis import decode, plot_decoding
+
+    def summary(result):
+        for lag in (result["lag"].values if "lag" in result.dims else [None]):
+            at = result if lag is None else result.sel(lag=lag)
+            for layer in result["layer"].values:
+                yield ("" if lag is None else f"lag {lag}: ") + f"{layer}: " + ", ".join(
+                    f"{v} {at['r2'].sel(layer=layer, variable=v).item():.2f} "
+                    f"(noise {at['baseline'].sel(layer=layer, variable=v).item():.2f})"
+                    for v in result["variable"].values)
+
+    return _analyze(args, lambda data: decode(data, args.layers, args.variables, args.folds, lags=args.lags),
+                    plot_decoding, summary, stem="decoding")
+
+
+def command_analysis(args: argparse.Namespace) -> int:
+    """similarity, dynamics, timescales, crosscorrelation, tuning and sindy of a recording."""
+    from angora_jax import analysis
+
+    fixed = {}
+
+    def compute(data):
+        if args.analysis == "similarity":
+            return analysis.similarity(data, args.condition, args.layers, args.variables, args.bins, args.feature)
+        if args.analysis == "timescales":
+            return analysis.timescales(data, args.layers, args.max_lag)
+        if args.analysis == "crosscorrelation":
+            return analysis.cross_correlation(data, args.layers, args.max_lag)
+        if args.analysis == "tuning":
+            return analysis.tuning_curves(data, args.layer, args.variable, args.bins, args.feature)
+        if args.analysis == "visual":
+            if "input_vision" not in data:
+                raise ValueError("The recording kept no camera images: record it with angora-jax record RUN_DIR "
+                                 "--images.")
+            cameras = data["input_vision"].sizes["camera"]
+            if not 0 <= args.camera < cameras:
+                raise ValueError(f"--camera must be in [0, {cameras}): the recording has {cameras} cameras.")
+            images = data["input_vision"].values[0, : args.frames, args.camera]
+            agent = load_agent(args.run, checkpoint_of(args.checkpoint), args.env_option)
+            return analysis.visual_analysis(agent, images, args.units, args.steps)
+        if args.analysis == "sindy":
+            return analysis.sindy(data, args.layer, args.components, args.inputs, not args.continuous, args.degree,
+                                  args.threshold, args.horizon, args.held_out)
+        if (args.run is None) != (args.recurrent is None) or (args.inputs is not None and args.run is None):
+            raise ValueError("Fixed points need --run and --recurrent together, and --inputs only with them (not "
+                             "needed for a recurrent area of a brain-area graph: its inputs come from the recording).")
+        if args.run:
+            checkpoint = checkpoint_of(args.checkpoint)
+            fixed.update(analysis.agent_fixed_points(load_agent(args.run, checkpoint), data, args.recurrent,
+                                                     args.inputs))
+        return analysis.principal_components(data, args.layers, args.components)
+
+    def plot(result, path):
+        if args.analysis == "dynamics":
+            analysis.plot_dynamics(result, path, fixed or None)
+        else:
+            {"similarity": analysis.plot_similarity, "timescales": analysis.plot_timescales,
+             "crosscorrelation": analysis.plot_cross_correlation, "visual": analysis.plot_visual,
+             "tuning": analysis.plot_tuning, "sindy": analysis.plot_sindy}[args.analysis](result, path)
+
+    def summary(result):
+        if args.analysis == "similarity":
+            yield f"Layer x layer RDM similarity (Spearman):\n{result['layer_similarity'].to_pandas().round(2)}"
+            if "model_similarity" in result:
+                yield f"Layer x variable (Spearman):\n{result['model_similarity'].to_pandas().round(2)}"
+        elif args.analysis == "crosscorrelation":
+            yield f"Lag of the peak |correlation| (s; > 0: the row leads):\n{result['peak_lag'].to_pandas().round(3)}"
+        elif args.analysis == "timescales":
+            yield from (f"{layer}: timescale median {result['timescale_median'].sel(layer=layer).item():.3g} s"
+                        for layer in result["layer"].values)
+        elif args.analysis == "visual":
+            yield from (f"{layer}: preferred stimuli drive units 0-{len(result['unit']) - 1} to " + ", ".join(
+                f"{a:.3g}" for a in result["preferred_activation"].sel(layer=layer).values)
+                for layer in result["layer"].values)
+        elif args.analysis == "tuning":
+            strength = result["strength"].values
+            yield f"eta^2 of {args.variable} per unit: median {np.median(strength):.2f}, max {strength.max():.2f}"
+        elif args.analysis == "sindy":
+            yield from result["equation"].values
+            error, baseline = result["simulation_error"].values[-1], result["baseline_error"].values[-1]
+            yield (f"Held out ({result.attrs['held_out_episodes']} episodes): one-step R^2 "
+                   f"{float(result['r2_one_step']):.3f} (next = current {float(result['baseline_r2_one_step']):.3f}); "
+                   f"RMSE after {args.horizon} steps {error:.3g} (next = current {baseline:.3g}) PC1 std")
+        else:
+            yield from (f"{layer}: {result['dimensionality'].sel(layer=layer).item()} components for 90% of the "
+                        f"variance, participation ratio {result['participation_ratio'].sel(layer=layer).item():.1f}"
+                        for layer in result["layer"].values)
+            if fixed:
+                yield (f"{args.recurrent}: {int(fixed['fixed'].sum())} of {len(fixed['fixed'])} starts reached a "
+                       f"fixed point; largest |eigenvalue| median {np.median(np.abs(fixed['eigenvalues'][:, 0])):.3f}")
+
+    return _analyze(args, compute, plot, summary)
+
+
+def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None = None) -> int:
+    """Read the recording, compute, write `<out>.png` and `<out>.nc` (default: `<recording>.<stem or the
+    analysis>.png`), print the summary; usage errors exit 2."""
+    import xarray as xr
+
+    recording = Path(args.recording)
+    if not recording.is_file():
+        raise FileNotFoundError(f"No recording {recording}; make one with angora-jax record RUN_DIR --out FILE.")
+    out = Path(args.out) if args.out else recording.with_suffix(f".{stem or args.analysis}.png")
+    try:
+        data = xr.load_dataset(recording)
+    except (ValueError, OSError, TypeError) as error:  # xarray's and its readers' ways to say "not NetCDF"
+        print(f"angora-jax analyze {args.analysis}: {recording} is not a recording that this machine can read (a "
+              f"NetCDF file from angora-jax record): {type(error).__name__}: {str(error).splitlines()[0]}. Make one "
+              "with angora-jax record RUN_DIR --out FILE.nc.", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        result = compute(data)
+    except ValueError as error:
+        print(f"angora-jax analyze {args.analysis}: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    plot(result, str(out))
+    result.to_netcdf(out.with_suffix(".nc"), engine="scipy")
+    for line in summary(result):
+        print(line)
+    print(f"Plot: {out}; numbers: {out.with_suffix('.nc')}")
+    return EXIT_OK
+
+
+def command_ablate(args: argparse.Namespace) -> int:
+    from angora_jax.analysis import ablation, lesion_area, lesion_fraction, plot_ablation, silence_modality
+
+    checkpoint = checkpoint_of(args.checkpoint)
+    agent = load_agent(args.run_dir, checkpoint)
+    try:
+        lesions = {f"-{area}": lesion_area(agent, area) for area in args.lesion}
+        lesions |= {f"-{modality} input": silence_modality(agent, modality) for modality in args.silence}
+        for spec in args.fraction:
+            area, _, text = spec.rpartition(":")
+            fraction = float(text) if text.replace(".", "", 1).isdigit() else -1.0
+            if not area or not 0.0 <= fraction <= 1.0:
+                raise ValueError(f"--fraction takes AREA:F with F in [0, 1], e.g. network.M1:0.5, got {spec!r}.")
+            lesions[f"-{fraction:.0%} {area}"] = lesion_fraction(agent, area, fraction)
+    except ValueError as error:
+        print(f"angora-jax analyze ablate: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    result = ablation(agent, lesions, args.episodes)
+    out = Path(args.out) if args.out else Path(args.run_dir) / "ablation.png"
+    best = (agent.config.checkpoint.best_metric or "").removeprefix("metric/")
+    outcome = best if best in result["outcome"] else "episode_return"  # the run's own measure of success
+    plot_ablation(result, outcome, str(out))
+    result.to_netcdf(out.with_suffix(".nc"), engine="scipy")
+    for name in result["lesion"].values:
+        print(f"{name:>24}: " + ", ".join(f"{o} {result['mean'].sel(lesion=name, outcome=o).item():.3g} +- "
+                                          f"{result['sem'].sel(lesion=name, outcome=o).item():.2g}"
+                                          for o in result["outcome"].values))
+    print(f"Plot ({outcome}): {out}; numbers: {out.with_suffix('.nc')}")
+    return EXIT_OK
+

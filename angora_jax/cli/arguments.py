@@ -1,0 +1,87 @@
+"""What the commands share: exit codes, argparse value types and the option groups several verbs take (each one
+function that adds it to a verb's parser), and the small readings of arguments the handlers share."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+
+def seed(text: str) -> int:
+    """An argparse type: a seed, a whole number from 0 to 2**32 - 1 (what jax.random.key distinguishes)."""
+    if not text.isdigit() or int(text) >= 2**32:
+        raise argparse.ArgumentTypeError(f"must be a whole number from 0 to {2**32 - 1:,}, got {text[:40]!r}")
+    return int(text)
+
+
+def positive_int(text: str) -> int:
+    """An argparse type: a whole number >= 1 (argparse then exits with code 2 and names the option)."""
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
+    return int(text)
+
+
+
+def positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+
+def non_negative_int(text: str) -> int:
+    """An argparse type: a whole number >= 0."""
+    if not text.isdigit():
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}")
+    return int(text)
+
+
+def device_ids(text: str) -> list[int]:
+    """An argparse type: comma-separated device indices, e.g. "0" or "2,3"."""
+    return [non_negative_int(part.strip()) for part in text.split(",")]
+
+
+
+def add_env_option(command: argparse.ArgumentParser) -> None:
+    command.add_argument("--env-option", action="append", default=[], metavar="KEY=VALUE",
+                         help="a task option that differs from the run's (repeatable; the network must still fit "
+                              "the observations), e.g. pose_estimator=encoder.pose.msgpack for the cube")
+
+
+def add_time_limit(command: argparse.ArgumentParser) -> None:
+    command.add_argument(
+        "--minutes", type=positive_float,
+        help="stop after the first cycle that ends past this wall time (compile included), with a checkpoint; "
+             "'angora-jax resume RUN_DIR' continues exactly (train in pieces shorter than a job's time limit)")
+
+
+def add_distributed_flags(command: argparse.ArgumentParser) -> None:
+    """--distributed and its optional settings (left out, they come from the cluster, e.g. SLURM)."""
+    command.add_argument(
+        "--distributed", action="store_true",
+        help="join a jax.distributed job, one process per GPU (under SLURM each takes the GPU of its local rank; "
+             "elsewhere give --local-devices); see examples/slurm_train.sh")
+    command.add_argument("--coordinator", help="host:port of process 0 (default: from the cluster environment)")
+    command.add_argument("--num-processes", type=positive_int,
+                         help="processes in the job (default: from the cluster)")
+    command.add_argument("--process-id", type=non_negative_int, help="this process's index (default: from the cluster)")
+    command.add_argument("--local-devices", type=device_ids, metavar="IDS",
+                         help="this process's GPUs on its host, e.g. 0 or 2,3 (default: from the cluster, else all)")
+
+
+
+def checkpoint_of(text: str) -> str | int:
+    """A --checkpoint argument: "best", "latest" or a cycle number."""
+    return int(text) if text.isdigit() else text
+
+
+def refused_existing(command: str, out: Path, what: str) -> bool:
+    """True (after saying so on stderr) when `out` exists: outputs are never overwritten."""
+    if out.exists():
+        print(f"angora-jax {command}: {out} exists; {what} are never overwritten: give another --out.", file=sys.stderr)
+    return out.exists()
+

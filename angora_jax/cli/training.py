@@ -1,0 +1,115 @@
+"""Training verbs: `train` a new run, `resume` one, `check` that one is intact."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from angora_jax.cli.arguments import (
+    EXIT_OK,
+    EXIT_USAGE,
+    add_distributed_flags,
+    add_time_limit,
+    checkpoint_of,
+)
+from angora_jax.experiment import ConfigError, TrainingRun, read_metrics, resume, train
+from angora_jax.experiment.distributed import initialize, is_main_process
+from angora_jax.experiment.run_check import check_run
+from angora_jax.experiment.runner import signals_exit_while_preparing
+
+
+def add_train(commands: argparse._SubParsersAction) -> None:
+    """The `train` verb: its arguments and its handler."""
+    train = commands.add_parser("train", help="train a new run from a YAML config (see list-configs)")
+    train.add_argument("config", help="YAML path or the name of a shipped config (e.g. cartpole; see list-configs)")
+    train.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. ppo.num_cycles=20 ppo.network.name=lstm")
+    add_time_limit(train)
+    add_distributed_flags(train)
+    train.set_defaults(handler=command_train)
+
+
+def add_resume(commands: argparse._SubParsersAction) -> None:
+    """The `resume` verb: its arguments and its handler."""
+    resume = commands.add_parser("resume", help="continue a run from its latest checkpoint, exactly")
+    resume.add_argument("run_dir")
+    resume.add_argument(
+        "--exact", action="store_true",
+        help="refuse to continue unless bit for bit: a lean latest checkpoint (checkpoint.lean), or one saved on "
+             "another device count with MuJoCo Warp, otherwise continues with fresh environments")
+    resume.add_argument(
+        "--from", dest="start_from", default="latest", metavar="CHECKPOINT",
+        help="continue from this checkpoint instead of the latest: best or a cycle number (the records and "
+             "checkpoints after it are moved aside, never deleted); for a damaged or missing latest checkpoint")
+    resume.add_argument(
+        "--from-scratch", action="store_true",
+        help="train the run again from cycle 0 with its config; the earlier metrics, checkpoints and report move to "
+             "RUN_DIR/previous-N/")
+    resume.add_argument(
+        "--force", action="store_true",
+        help="take over the run's writer lock even when it is held on another host: only when that process is "
+             "certainly gone (its job ended)")
+    add_time_limit(resume)
+    add_distributed_flags(resume)
+    resume.set_defaults(handler=command_resume)
+
+
+def add_check(commands: argparse._SubParsersAction) -> None:
+    """The `check` verb: its arguments and its handler."""
+    check = commands.add_parser(
+        "check", help="verify a run directory (checkpoints against their manifests, metrics.jsonl, config, lock) and "
+                      "say what resume would do; exit 2 when something is damaged")
+    check.add_argument("run_dir")
+    check.set_defaults(handler=command_check)
+
+
+def start_distributed(args: argparse.Namespace) -> None:
+    if args.distributed:
+        initialize(args.coordinator, args.num_processes, args.process_id, args.local_devices)
+    elif any(value is not None for value in (args.coordinator, args.num_processes, args.process_id,
+                                             args.local_devices)):
+        raise ConfigError("--coordinator, --num-processes, --process-id and --local-devices set up a jax.distributed "
+                          "job: add --distributed (or leave them out for a single process).")
+
+
+def command_train(args: argparse.Namespace) -> int:
+    start_distributed(args)
+    with signals_exit_while_preparing():
+        run = train(args.config, args.overrides, minutes=args.minutes)
+    if is_main_process():
+        print_finished(run)
+    return EXIT_OK
+
+
+def command_resume(args: argparse.Namespace) -> int:
+    start_distributed(args)
+    with signals_exit_while_preparing():
+        run = resume(args.run_dir, minutes=args.minutes, exact=args.exact, start_from=checkpoint_of(args.start_from),
+                     from_scratch=args.from_scratch, force=args.force)
+    if is_main_process():
+        print_finished(run)
+    return EXIT_OK
+
+
+def command_check(args: argparse.Namespace) -> int:
+    found = check_run(args.run_dir)
+    print(f"{args.run_dir}:\n" + found.format())
+    return EXIT_USAGE if found.problems else EXIT_OK
+
+
+def print_finished(run: TrainingRun) -> None:
+    cycle = int(run.state.cycle)
+    print(f"Run {run.run_dir}: {cycle} cycles done ({len(run.history)} in this session).")
+    if run.stopped_at is not None:
+        print(f"Stopped early at cycle {cycle}, as ppo.stop_at asks: {run.stopped_at}.")
+    if not run.finished:
+        print(f"Stopped at the time limit (--minutes) with a checkpoint of cycle {cycle}; continue with: "
+              f"angora-jax resume {run.run_dir}")
+    returns = [r["episode_return"] for r in read_metrics(run.run_dir) if math.isfinite(r["episode_return"])]
+    if len(returns) >= 2:
+        tenth = max(1, len(returns) // 10)
+        first, last = sum(returns[:tenth]) / tenth, sum(returns[-tenth:]) / tenth
+        print(f"Episode return: {first:.1f} in the first tenth of cycles, {last:.1f} in the last tenth.")
+    report = run.run_dir / "report" / "index.html"
+    if report.exists():
+        print(f"Report: {report}")
+    print(f"Next: angora-jax evaluate {run.run_dir}   |   from angora_jax import load_agent")
