@@ -4,7 +4,7 @@ AngoraPy (Weidler, Goebel and Senden, 2023) reports training in-hand object mani
 billion samples in 96 hours on 384 CPU cores and 32 P100 GPUs. A sample is one environment (policy) step; both
 control the hand every 0.08 s, so samples/s compare directly, and sim-s/s = samples/s x 0.08 s.
 
-    python benchmarks/angorapy_ratio.py                      # reads results/train_throughput_ShadowHandCube_gpu.json
+    python benchmarks/angorapy_ratio.py                      # reads results/env_train_throughput/train_throughput_ShadowHandCube_gpu.json
     python benchmarks/angorapy_ratio.py --results PATH.json  # any train_throughput JSON of the cube task
 """
 

@@ -5,7 +5,7 @@
 # its node is SLURM_LOCALID. So launch one task per GPU, each task seeing all of its node's GPUs (no per-task GPU
 # binding such as --gpus-per-task, which would renumber them): with one task per node JAX would use only GPU 0 of
 # each node. One process per GPU is also the faster layout: two H200s trained reach 1.79-1.81x one GPU's rate this
-# way, 1.76x with one process driving both (benchmarks/results/scaling_ShadowHandReach_weak*_gpu.json).
+# way, 1.76x with one process driving both (benchmarks/results/scaling/scaling_ShadowHandReach_weak*_gpu.json).
 # Only process 0 logs; every process takes part in writing checkpoints, so logging.run_root must be on a filesystem
 # all nodes share. ppo.num_envs and ppo.minibatch_size are run totals: multiples of the total GPU count.
 # A SIGTERM to any process (here from --signal, 10 minutes before the time limit: time for the current cycle and a

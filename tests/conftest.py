@@ -102,7 +102,7 @@ def quick_compiles():
 # transitions, gamma 0.95, no entropy bonus, 30-step episodes (0.6 s), areas a quarter of AngoraPy's or less and a
 # GRU premotor layer. Measured on 2 CPU cores: 75 s, final goal distance 0.044 m (test_reach_learning's bar 0.056).
 # Of a cycle's run time, 91% is MJX's physics of the 32 hands, so smaller areas would not shorten the run
-# (benchmarks/results/profile_cycle_reach_cortical_tests_cpu.json).
+# (benchmarks/results/env_train_throughput/profile_cycle_reach_cortical_tests_cpu.json).
 CORTICAL_AREAS = "{SSC_1: 64, SSC_2: 32, SPL: 32, IPL: 32, IPS: 32, MCC: 32, LPFC: 32, PMC_in: 64, PMC: 64, M1: 64}"
 CORTICAL_REACH = [
     "env.options.max_episode_steps=30",

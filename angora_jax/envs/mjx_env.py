@@ -119,12 +119,12 @@ def size_warp_graph_cache() -> None:
     Why: Warp replays a captured graph for each (device, call, buffer addresses) it has seen, and each graph holds
     the memory its call allocated while it was captured (the cube's contact pass: 38 MB for 16,384 envs). One
     process driving several GPUs needs a set per GPU: on 4 H100s the cube's two Warp calls held 16 graphs each for
-    4 GPUs on top of a 1-GPU run's 4 and 9 (benchmarks/results/scaling_ShadowHandCube_weak_one_4xh100.json). A
+    4 GPUs on top of a 1-GPU run's 4 and 9 (benchmarks/results/scaling/scaling_ShadowHandCube_weak_one_4xh100.json). A
     benchmark process that had run 1 and 2 GPUs before 4, by these counts past 32 for one call and so evicting
     graphs, hung after 3 cycles on 4 GPUs. No bound is no cure where XLA keeps placing buffers at new addresses (as
     it did while the checkpointer held a best cycle's arrays for a later save): 4 processes of one GPU each then ran
     out of GPU memory inside Warp after 58 cycles of the fast cube and 28 of the paper's setup
-    (benchmarks/results/ihom_4gpu_warp_graphs_4xh100.md). So the bound scales with the devices, and one process per
+    (benchmarks/results/cube_multi_gpu/ihom_4gpu_warp_graphs_4xh100.md). So the bound scales with the devices, and one process per
     GPU keeps Warp's default. MJX creates its Warp calls with warp-lang's default bound, so the default is changed
     here (warp-lang 1.18's `jax_callable`; a version without the setting is left as it is)."""
     from warp._src.jax import ffi  # importable only with warp-lang installed

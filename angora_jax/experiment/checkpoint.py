@@ -89,7 +89,7 @@ class Checkpoints:
     every cycle (0.5 s for a lean save on 4 H100s beside 1.25 s cycles): holding the best cycle's device arrays
     until a later save made XLA place each cycle's buffers at new addresses, MuJoCo Warp captured a CUDA graph for
     each new set, and 4 processes of one H100 each ran out of GPU memory inside Warp after 58 and 108 cycles of the
-    fast cube (benchmarks/results/ihom_4gpu_warp_graphs_4xh100.md).
+    fast cube (benchmarks/results/cube_multi_gpu/ihom_4gpu_warp_graphs_4xh100.md).
     """
 
     def __init__(self, directory: Path, config: CheckpointConfig, create: bool = True):

@@ -44,7 +44,7 @@ def make_evaluate(
     last step run, for an episode that `steps` cut short); with `per_episode`, each environment's values (arrays
     `(num_envs,)`) instead of the means. The whole loop is one program call. A host loop over chunks of steps gives
     MuJoCo Warp new buffer addresses at each call, so new CUDA graphs; such a loop of 50 calls per lesion segfaulted
-    on an H100 (benchmarks/results/cube_cortical_probe_h100.md), and this program did not.
+    on an H100 (benchmarks/results/probing/cube_cortical_probe_h100.md), and this program did not.
     """
     env = env.sized_for(num_envs)
     limit = steps or env.max_episode_steps

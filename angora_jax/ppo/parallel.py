@@ -43,9 +43,9 @@ MuJoCo Warp on 4 H100s (the fast cube, weak scaling, 16,384 envs per GPU): one p
 on 4; one process driving all GPUs 1.87x on 2 and 3.87x on 4 (10 cycles). That layout once hung after 3 cycles on 4
 GPUs, when Warp's cache of captured CUDA graphs, 32 per call by default, began evicting (one process needs a set per
 GPU; `mjx_env.size_warp_graph_cache` keeps 32 per device;
-benchmarks/results/scaling_ShadowHandCube_weak_one_4xh100.json).
+benchmarks/results/scaling/scaling_ShadowHandCube_weak_one_4xh100.json).
 Only one process per GPU is measured over whole runs, so it is the layout to use there.
-Measured on two H200s (reach, weak scaling, 4,096 envs per GPU; benchmarks/results/scaling_*): 1.76x one GPU's rate
+Measured on two H200s (reach, weak scaling, 4,096 envs per GPU; benchmarks/results/scaling/scaling_*): 1.76x one GPU's rate
 with one process driving both, 1.81x with one process per GPU. Communication is not what is lost: the same program
 on one GPU (this `shard_map` over a one-device mesh) runs at 0.91 of the plain `jax.jit` cycle, and two GPUs run it
 at 1.97x that. Under the Shardy partitioner it runs at 0.96 on one GPU, but Shardy cannot compile it for two (see

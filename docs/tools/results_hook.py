@@ -1,10 +1,11 @@
 """MkDocs hook: the site shows `benchmarks/results/` as `results/`, and a page cites a result with a marker.
 
-`<!-- result: NAME -->` (NAME a file in benchmarks/results) becomes, for a picture, the picture and a caption; for
-any other file, a source line. Both say where the numbers were measured, read from the result itself (device,
-package versions, date) or from `<!-- result: NAME.png from OTHER.json -->`: the caption is never typed by hand, so
-it cannot drift from the file, and a result that does not record its device, versions or date says so. A marker
-naming a missing file stops the build.
+Results sit in one folder per study (`benchmarks/results/<study>/`, each with a README.md that says which files are
+current). `<!-- result: STUDY/NAME -->` (a file in benchmarks/results) becomes, for a picture, the picture and a
+caption; for any other file, a source line. Both say where the numbers were measured, read from the result itself
+(device, package versions, date) or from `<!-- result: STUDY/NAME.png from STUDY/OTHER.json -->`: the caption is
+never typed by hand, so it cannot drift from the file, and a result that does not record its device, versions or
+date says so. A marker naming a missing file stops the build.
 """
 
 from __future__ import annotations
@@ -18,16 +19,18 @@ from mkdocs.structure.files import File, Files
 
 RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
 SITE_FOLDER = "results"
-MARKER = re.compile(r"<!--\s*result:\s*(?P<name>[\w.\-]+)(?:\s+from\s+(?P<meta>[\w.\-]+))?\s*-->")
+MARKER = re.compile(r"<!--\s*result:\s*(?P<name>[\w.\-/]+)(?:\s+from\s+(?P<meta>[\w.\-/]+))?\s*-->")
 # The packages whose versions decide the numbers; others a result records are on its file.
 KEY_PACKAGES = ("jax", "mujoco", "mujoco-mjx", "warp-lang", "brax")
 
 
 def on_files(files: Files, config: Any) -> Files:
-    """Publish every file of benchmarks/results under results/, so pages link to the evidence itself."""
-    for path in sorted(RESULTS.iterdir()):
+    """Publish every file of benchmarks/results under results/ (study folders kept), so pages link to the evidence
+    itself; a study's README.md becomes that folder's page."""
+    for path in sorted(RESULTS.rglob("*")):
         if path.is_file():
-            files.append(File.generated(config, f"{SITE_FOLDER}/{path.name}", abs_src_path=str(path)))
+            site_path = f"{SITE_FOLDER}/{path.relative_to(RESULTS).as_posix()}"
+            files.append(File.generated(config, site_path, abs_src_path=str(path)))
     return files
 
 
@@ -41,7 +44,7 @@ def cite(name: str, meta: str | None, prefix: str) -> str:
     """The Markdown for one marker: picture and caption, or a source line."""
     if not (RESULTS / name).is_file():
         raise FileNotFoundError(f"<!-- result: {name} --> names no file in {RESULTS}")
-    meta = meta or (Path(name).with_suffix(".json").name if Path(name).suffix != ".json" else name)
+    meta = meta or (Path(name).with_suffix(".json").as_posix() if Path(name).suffix != ".json" else name)
     facts = provenance(RESULTS / meta) if (RESULTS / meta).is_file() else "no device, versions or date recorded"
     source = f"[`{meta}`]({prefix}/{meta})" if (RESULTS / meta).is_file() else f"[`{name}`]({prefix}/{name})"
     line = f"<small>Measured: {facts}. Source: {source}.</small>"

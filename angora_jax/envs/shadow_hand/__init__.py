@@ -31,7 +31,7 @@ def build(backend: str, task: MujocoTask, frame_skip: int, max_episode_steps: in
 
 
 # Newton 2 / line search 4 at 5 ms: 7.2x the Gym settings' sim-s/s on an H100 with fingertips within 2.5 mm of them
-# over 50 open-loop policy steps (benchmarks/results/physics_throughput_gpu.json).
+# over 50 open-loop policy steps (benchmarks/results/physics_throughput/physics_throughput_gpu.json).
 REACH_PHYSICS = PhysicsSettings(timestep=0.005, iterations=2, ls_iterations=4)
 
 

@@ -11,11 +11,11 @@ a letter and colour per face, so every face is distinguishable). Our changes, ea
   already dropped below the palm, which ends the episode; the thumb-base boxes `V_thbase`/`V_thhub` under the palm
   and the thumb's proximal capsule; box-box and box-mesh pairs are the most expensive in MJX). Under random actions
   from the episode start, C MuJoCo saw cube contacts only with palm, little-finger metacarpal and finger/thumb
-  phalanges (see `benchmarks/results/ihom_solver_settings.md`).
+  phalanges (see `benchmarks/results/physics_throughput/ihom_solver_settings.md`).
 - Sensors: only the 97 touch sensors (from Gym's `*_touch_sensors_92` files) are kept, and only with `touch=True`;
   the Gym scene's joint-position sensors duplicate `qpos`, and MJX evaluates every sensor at every physics step.
 - Solver and timestep (`PhysicsSettings`): the defaults were chosen from measured dynamics error against the Gym
-  scene's settings and measured speed; the evidence is in `benchmarks/results/ihom_solver_settings.md`.
+  scene's settings and measured speed; the evidence is in `benchmarks/results/physics_throughput/ihom_solver_settings.md`.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ SCENE = TOUCH_SCENE
 CUBE_BODY = "object"
 CUBE_JOINT = "object:joint"
 CUBE_HALF_SIZE = 0.025  # m
-# Chosen from the dynamics error against the Gym settings and the speed (benchmarks/results/ihom_solver_settings.md).
+# Chosen from the dynamics error against the Gym settings and the speed (benchmarks/results/physics_throughput/ihom_solver_settings.md).
 CUBE_PHYSICS = PhysicsSettings(timestep=0.008, iterations=4, ls_iterations=8)
 
 

@@ -25,7 +25,7 @@ HAND_JOINT_PREFIX = "robot0:"  # every joint of the hand; objects in a scene hav
 # 455-vertex convex mesh collides only with them (and with a cube that has already dropped below the palm, which
 # ends a cube episode). Under random actions (C MuJoCo: 20,000 physics steps of reach, 20 cube episodes) none of them
 # touched anything, yet they are 86 of reach's 106 MJX contacts, and their two box-mesh pairs take 94% of the
-# temporary memory of a reach step (`benchmarks/results/physics_throughput.md`).
+# temporary memory of a reach step (`benchmarks/results/physics_throughput/physics_throughput.md`).
 UNTOUCHED_GEOMS = ("robot0:C_forearm", "robot0:V_thbase", "robot0:V_thhub")
 # The Gym scene whose hand carries the touch sensors of its `robot_touch_sensors_92.xml` and
 # `shared_touch_sensors_92.xml` includes (the cube's scene); `add_touch_sensors` gives any hand scene the same ones.
