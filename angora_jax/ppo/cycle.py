@@ -21,7 +21,6 @@ from angora_jax.envs.core import Env, Sensation
 from angora_jax.nets import ActorCritic, make_network
 from angora_jax.nets.components import (
     component,
-    frozen_optimizer,
     load_component,
     read_saved_run,
     shape_misfits,
@@ -45,6 +44,7 @@ from angora_jax.ppo.parallel import (
     psum,
 )
 from angora_jax.ppo.rollout import ActorState, make_rollout
+from angora_jax.ppo.step_size import adapt_learning_rate, entropy_coef, learning_rate, make_optimizer
 from angora_jax.ppo.tbptt import gather_carries, gather_sequences, minibatch_indices, unroll
 
 
@@ -134,14 +134,7 @@ def make_cycle(
     tile = tile_shape(config)  # the run's minibatch tile; each device takes 1/D of its trajectories
     minibatch_rows = tile[0] // num_devices * tile[1]
     updates_per_cycle = config.num_epochs * (config.num_envs * config.rollout_length // config.minibatch_size)
-    if config.lr_decay:
-        schedule = optax.linear_schedule(config.learning_rate, 0.0, config.num_cycles * updates_per_cycle)
-    else:
-        schedule = optax.constant_schedule(config.learning_rate)
-    optimizer = frozen_optimizer(
-        optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(schedule, eps=1e-5)),
-        config.network.frozen,
-    )
+    optimizer = make_optimizer(config, updates_per_cycle, config.network.frozen)
     norm = config.normalization
 
     def apply_fn(params, carry, obs):
@@ -184,7 +177,7 @@ def make_cycle(
             cycle=jnp.zeros((), jnp.int32),
         )
 
-    def loss_fn(params, sequences: Batch, start_carry):
+    def loss_fn(params, sequences: Batch, start_carry, entropy_weight):
         params = stop_frozen_gradients(params, config.network.frozen)
         # Camera images of all s steps are encoded as one batch, not step by step inside the recurrent scan.
         obs = model.apply({"params": params}, sequences.obs, method=ActorCritic.perceive)
@@ -203,11 +196,11 @@ def make_cycle(
             sequences.loss,
             config.clip_epsilon,
             config.value_coef,
-            config.entropy_coef,
+            entropy_weight,
             config.value_clip,
         )
 
-    def update_minibatch(batch: Batch, start_carries, train, minibatch):
+    def update_minibatch(batch: Batch, start_carries, entropy_weight, train, minibatch):
         params, opt_state = train
         (env_index, chunk_index), moments = minibatch
         sequences = gather_sequences(batch, chunk_index, env_index)
@@ -216,19 +209,23 @@ def make_cycle(
             advantages = normalized_advantages(loss_inputs.advantages, *moments)
             sequences = sequences.replace(loss=loss_inputs.replace(advantages=advantages))
         start_carry = gather_carries(start_carries, chunk_index, env_index)
-        grads, parts = jax.grad(loss_fn, has_aux=True)(params, sequences, start_carry)
+        grads, parts = jax.grad(loss_fn, has_aux=True)(params, sequences, start_carry, entropy_weight)
         grads = average_gradients(grads, axis)
         parts["grad_norm"] = optax.tree.norm(grads)
+        if config.target_kl is not None:
+            # The minibatch's KL before this update, over all devices, so that every device sets the same rate.
+            opt_state = adapt_learning_rate(opt_state, pmean(parts["approx_kl"], axis), config)
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), parts
 
-    def update_epoch(batch: Batch, start_carries, train, key):
+    def update_epoch(batch: Batch, start_carries, entropy_weight, train, key):
         indices = minibatch_indices(key, config.num_envs, num_chunks, tile, axis)
         moments = None
         if config.normalize_advantages:
             per_minibatch = jax.vmap(lambda e, c: gather_sequences(batch.loss.advantages, c, e))(*indices)
             moments = advantage_moments(per_minibatch, axis)
-        return jax.lax.scan(lambda t, x: update_minibatch(batch, start_carries, t, x), train, (indices, moments))
+        return jax.lax.scan(lambda t, x: update_minibatch(batch, start_carries, entropy_weight, t, x), train,
+                            (indices, moments))
 
     def cycle(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
         key, rollout_key, update_key = jax.random.split(state.key, 3)
@@ -259,16 +256,19 @@ def make_cycle(
             resets=traj.resets,
             loss=LossInputs(traj.actions, traj.log_probs, traj.values, chunked(advantages), chunked(targets)),
         )
+        entropy_weight = entropy_coef(config, state.cycle)
         with jax.named_scope("update"):
             (params, opt_state), parts = jax.lax.scan(
-                lambda t, k: update_epoch(batch, start_carries, t, k),
+                lambda t, k: update_epoch(batch, start_carries, entropy_weight, t, k),
                 (state.params, state.opt_state),
                 jax.random.split(update_key, config.num_epochs),
             )
         metrics = {name: pmean(value.mean(), axis) for name, value in parts.items()}
         metrics |= episode_metrics(traj.dones, traj.episode_return, traj.episode_length, traj.metrics, axis)
         metrics["explained_variance"] = explained_variance(targets, values, axis)
-        metrics["learning_rate"] = jnp.asarray(schedule(state.cycle * updates_per_cycle), jnp.float32)
+        # The rate this cycle's first update used (the schedule's), or the one the KL rule left after its last.
+        metrics["learning_rate"] = learning_rate(opt_state, config, state.cycle * updates_per_cycle, updates_per_cycle)
+        metrics["entropy_coef"] = entropy_weight
         params_finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(p)) for p in jax.tree.leaves(params)]))
         finite = (jnp.all(jnp.isfinite(parts["loss"])) & params_finite).astype(jnp.float32)
         metrics["finite"] = jnp.floor(pmean(finite, axis))  # 1 only where every device is finite

@@ -22,7 +22,9 @@ from angora_jax.ppo.config import PPOConfig
 ADAPT_FACTOR = 1.5
 
 
-def make_optimizer(config: PPOConfig, updates_per_cycle: int, frozen: Sequence[str] = ()) -> optax.GradientTransformation:
+def make_optimizer(
+    config: PPOConfig, updates_per_cycle: int, frozen: Sequence[str] = ()
+) -> optax.GradientTransformation:
     """Gradient clipping and Adam at the config's learning rate, with zero updates for the `frozen` modules.
 
     With `target_kl` the rate is a hyperparameter held in the optimizer state (`optax.inject_hyperparams`), where
@@ -57,7 +59,9 @@ def adapt_learning_rate(opt_state: optax.OptState, approx_kl: jax.Array, config:
     return opt_state._replace(hyperparams=opt_state.hyperparams | {"learning_rate": rate})
 
 
-def learning_rate(opt_state: optax.OptState, config: PPOConfig, updates: jax.Array, updates_per_cycle: int) -> jax.Array:
+def learning_rate(
+    opt_state: optax.OptState, config: PPOConfig, updates: jax.Array, updates_per_cycle: int
+) -> jax.Array:
     """The rate the next update uses (float32 scalar): the adapted one held in `opt_state`, or the schedule's after
     `updates` updates."""
     if config.target_kl is not None:
