@@ -3,7 +3,8 @@ envs -> nets -> ppo -> experiment -> vision -> analysis (it looks inside agents 
 package's public API (its `__init__`) -> cli, with angora_jax.registry below all. Where a lower layer needs something
 of a higher one (reading a saved run's policy for `init_from`, reading a pose estimator file for the cube), the higher
 one registers it with the lower (`nets.components.register_run_reader`,
-`envs.shadow_hand.register_pose_estimator_reader`). Imports only for type hints (under `if TYPE_CHECKING:`) never run
+`envs.shadow_hand.register_pose_estimator_reader`). Inside a layer, no modules import each other in a circle (what two
+need of each other goes into a module below both). Imports only for type hints (under `if TYPE_CHECKING:`) never run
 and are not counted."""
 
 import ast
@@ -21,8 +22,9 @@ LAYERS = {"registry": 0, "envs": 1, "nets": 2, "ppo": 3, "experiment": 4, "visio
 PACKAGE = Path(angora_jax.__file__).parent
 
 
-def runtime_imports(tree: ast.AST) -> list[tuple[int, str]]:
-    """(line, module) of every `angora_jax...` import in `tree` outside `if TYPE_CHECKING:` blocks."""
+def runtime_imports(tree: ast.AST) -> list[tuple[int, str, tuple[str, ...]]]:
+    """(line, module, names) of every `angora_jax...` import in `tree` outside `if TYPE_CHECKING:` blocks, at the top
+    or inside a function; names: what `from module import ...` takes (empty for `import module`)."""
     found = []
 
     def visit(node: ast.AST) -> None:
@@ -31,14 +33,14 @@ def runtime_imports(tree: ast.AST) -> list[tuple[int, str]]:
                 visit(child)
             return
         if isinstance(node, ast.Import):
-            found.extend((node.lineno, alias.name) for alias in node.names)
+            found.extend((node.lineno, alias.name, ()) for alias in node.names)
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            found.append((node.lineno, node.module))
+            found.append((node.lineno, node.module, tuple(alias.name for alias in node.names)))
         for child in ast.iter_child_nodes(node):
             visit(child)
 
     visit(tree)
-    return [(line, module) for line, module in found if module.split(".")[0] == "angora_jax"]
+    return [found_import for found_import in found if found_import[1].split(".")[0] == "angora_jax"]
 
 
 def layer_of(module: str) -> str:
@@ -57,7 +59,7 @@ def test_every_package_imports_only_its_own_and_lower_layers():
             continue
         source = relative.parts[0].removesuffix(".py")
         assert source in LAYERS, f"{relative}: a new package; give it a layer in LAYERS"
-        for line, module in runtime_imports(ast.parse(file.read_text(), str(file))):
+        for line, module, _ in runtime_imports(ast.parse(file.read_text(), str(file))):
             target = layer_of(module)
             assert target in LAYERS, f"{relative}:{line} imports {module}, outside every layer"
             if target != source and LAYERS[target] >= LAYERS[source]:
@@ -69,8 +71,83 @@ def test_the_check_sees_upward_imports_in_functions_and_ignores_type_hints():
     tree = ast.parse("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from angora_jax.ppo import config\n"
                      "def f():\n    from angora_jax.experiment.agent import saved_policy\n"
                      "import angora_jax.envs.core\n")
-    assert runtime_imports(tree) == [(5, "angora_jax.experiment.agent"), (6, "angora_jax.envs.core")]
+    assert runtime_imports(tree) == [(5, "angora_jax.experiment.agent", ("saved_policy",)),
+                                     (6, "angora_jax.envs.core", ())]
     assert layer_of("angora_jax.registry") == "registry" and layer_of("angora_jax") == "api"
+
+
+def module_name(file: Path) -> str:
+    """The dotted name of a file of the package: `angora_jax.experiment.agent`; a package's `__init__` is the
+    package."""
+    parts = file.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph(trees: dict[str, ast.AST]) -> dict[str, set[str]]:
+    """module -> the modules of `trees` it imports at run time (`runtime_imports`). `from package import name` imports
+    the module `package.name` where there is one, else the package (its `__init__`)."""
+    graph = {}
+    for module, tree in trees.items():
+        imported = set()
+        for _, target, names in runtime_imports(tree):
+            submodules = {f"{target}.{name}" for name in names} & trees.keys()
+            imported |= submodules or ({target} & trees.keys())
+            if len(submodules) < len(names):  # some names are the package's (or module's) own
+                imported |= {target} & trees.keys()
+        graph[module] = imported - {module}
+    return graph
+
+
+def find_circle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One circle of `graph` as `[a, b, ..., a]` (a imports b, ..., which imports a), or None when there is none:
+    a depth-first search that stops at the first import back into the path it is on."""
+    done: set[str] = set()
+
+    def search(module: str, path: list[str]) -> list[str] | None:
+        for target in sorted(graph[module]):
+            if target in path:
+                return [*path[path.index(target):], target]
+            if target not in done:
+                circle = search(target, [*path, target])
+                if circle:
+                    return circle
+        done.add(module)
+        return None
+
+    for module in sorted(graph):
+        circle = None if module in done else search(module, [module])
+        if circle:
+            return circle
+    return None
+
+
+def test_no_modules_import_each_other_in_a_circle():
+    trees = {module_name(file): ast.parse(file.read_text(), str(file)) for file in sorted(PACKAGE.rglob("*.py"))}
+    graph = import_graph(trees)
+    assert "angora_jax.experiment.programs" in graph["angora_jax.experiment.agent"]
+    circle = find_circle(graph)
+    assert circle is None, ("modules import each other in a circle (move what they need of each other into a module "
+                            "below them): " + " -> ".join(circle or []))
+
+
+def test_the_circle_check_sees_function_level_imports_and_ignores_type_hints():
+    sources = {
+        "angora_jax.p": "",
+        "angora_jax.p.a": "from angora_jax.p import b\n",
+        "angora_jax.p.b": "def f():\n    from angora_jax.p.c import g\n",
+        "angora_jax.p.c": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from angora_jax.p.a import h\n",
+    }
+    trees = {module: ast.parse(source) for module, source in sources.items()}
+    graph = import_graph(trees)
+    assert graph == {"angora_jax.p": set(), "angora_jax.p.a": {"angora_jax.p.b"}, "angora_jax.p.b": {"angora_jax.p.c"},
+                     "angora_jax.p.c": set()}
+    assert find_circle(graph) is None
+    trees["angora_jax.p.c"] = ast.parse("import angora_jax.p.a\n")
+    assert find_circle(import_graph(trees)) == ["angora_jax.p.a", "angora_jax.p.b", "angora_jax.p.c", "angora_jax.p.a"]
+    trees["angora_jax.p.c"] = ast.parse("from angora_jax.p import X\n")  # a name the package's __init__ holds
+    trees["angora_jax.p"] = ast.parse("from angora_jax.p.a import X\n")
+    assert find_circle(import_graph(trees)) == ["angora_jax.p", "angora_jax.p.a", "angora_jax.p.b", "angora_jax.p.c",
+                                                "angora_jax.p"]
 
 
 def test_lower_layers_read_runs_and_estimators_through_the_readers_the_higher_ones_registered(monkeypatch):

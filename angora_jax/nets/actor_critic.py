@@ -2,15 +2,21 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import flax.linen as nn
 import jax
 
 from angora_jax.envs.core import Sensation, is_image
 
-if TYPE_CHECKING:  # nets must not import ppo at runtime: ppo imports nets
-    from angora_jax.ppo.distributions import PolicyHead
+
+class HeadLayer(Protocol):
+    """What the network needs of a policy head (`angora_jax.ppo.PolicyHead` is one): the layer that maps its
+    features to the distribution's parameters. Declared here since ppo, which holds the heads, builds on nets."""
+
+    def module(self) -> nn.Module:
+        """Flax layer from trunk features `(..., F)` to distribution parameters `(..., P)`."""
+        ...
 
 
 class ActorCritic(nn.Module):
@@ -21,7 +27,7 @@ class ActorCritic(nn.Module):
     """
 
     network: nn.Module
-    head: PolicyHead
+    head: HeadLayer
     visual: nn.Module | None = None
 
     def initial_carry(self, batch_size: int) -> Any:
