@@ -7,6 +7,7 @@ drift from the code. mkdocs is the `docs` extra, which `make test` installs: wit
 
 from __future__ import annotations
 
+import html
 import os
 import re
 import subprocess
@@ -26,6 +27,17 @@ SHRINK = {
                        "angora-jax train cartpole logging.run_name=quickstart ppo.num_cycles=2")],
 }
 EXECUTED_PAGES = ["quickstart.md", "tutorials/custom-task.md", "tutorials/custom-model.md"]
+# The site's pages: docs/, and the study notes that docs/tools/results_hook.py publishes from benchmarks/results.
+PAGE_SOURCES = [*sorted(DOCS.rglob("*.md")), *sorted((ROOT / "benchmarks" / "results").rglob("*.md"))]
+LIST_ITEM = re.compile(r"^\s*(?:[-*+]|\d+\.)\s")
+FENCE = re.compile(r"^\s*(?:```|~~~)")
+# A page's text in the built site, and within it the paragraphs; a line of a paragraph that starts like a list item
+# is a list that Markdown did not see (it needs a blank line before it), shown as inline " - " text.
+ARTICLE = re.compile(r"<article\b[^>]*>(?P<body>.*?)</article>", re.DOTALL)
+PARAGRAPH = re.compile(r"<p\b[^>]*>(?P<text>.*?)</p>", re.DOTALL)
+UNRENDERED_ITEM = re.compile(r"\n\s*(?:[-*+]|\d+\.) \S")
+TAG = re.compile(r"<[^>]+>")
+MIN_PAGE_LINES = 20
 
 
 def marked_blocks(page: str) -> tuple[str, str]:
@@ -78,6 +90,56 @@ def test_site_builds_strictly(tmp_path):
     done = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")],
                           cwd=ROOT, env=code_env(), capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, f"mkdocs build --strict failed:\n{done.stdout[-3000:]}\n{done.stderr[-5000:]}"
+    assert built_site_problems(tmp_path / "site") == []
+
+
+def built_site_problems(site: Path) -> list[str]:
+    """What renders wrong on the built site's pages, one line each: a literal `\\|` (a table cell's escaped bar
+    shown as typed), a list whose items run on inside a paragraph, a page with fewer than MIN_PAGE_LINES lines of
+    text (a stub)."""
+    problems = []
+    for page in sorted(site.rglob("index.html")):
+        found = ARTICLE.search(page.read_text())
+        if found is None:  # the theme's own pages (search) have no article
+            continue
+        name, body = page.parent.relative_to(site).as_posix() or "home", found["body"]
+        text = html.unescape(TAG.sub("", body))
+        if "\\|" in text:
+            problems.append(f"{name}: a literal \\| {text.count(chr(92) + '|')} times")
+        run_on = [html.unescape(TAG.sub("", p["text"])) for p in PARAGRAPH.finditer(body)
+                  if UNRENDERED_ITEM.search(p["text"])]
+        if run_on:
+            problems.append(f"{name}: list items run on in {len(run_on)} paragraphs, e.g. {run_on[0][:120]!r}")
+        lines = [line for line in text.splitlines() if line.strip()]
+        if len(lines) < MIN_PAGE_LINES:
+            problems.append(f"{name}: {len(lines)} lines of text")
+    return problems
+
+
+def unseparated_lists(markdown: str) -> list[int]:
+    """Line numbers (from 1) of list items that follow a paragraph's line with no blank line between: Markdown then
+    reads them as the paragraph's text. Code blocks, headings, tables, HTML, admonitions and indented lines (a
+    list item's continuation) are not paragraphs."""
+    found, paragraph, fenced = [], [], False
+    for number, line in enumerate(markdown.splitlines(), 1):
+        if FENCE.match(line):
+            fenced, paragraph = not fenced, []
+        elif fenced or not line.strip() or line.startswith("#"):
+            paragraph = []
+        else:
+            starts_paragraph = paragraph and not paragraph[0].startswith(("|", "<", "!!!", "???", " ", "\t"))
+            if LIST_ITEM.match(line) and starts_paragraph and not any(LIST_ITEM.match(p) for p in paragraph):
+                found.append(number)
+            paragraph.append(line)
+    return found
+
+
+def test_lists_follow_a_blank_line():
+    """The fast tier's counterpart of the built-site check for lists: no list item directly after a paragraph's
+    line in the site's Markdown (pages, and study notes published from benchmarks/results)."""
+    assert unseparated_lists("Text:\n- a\n- b\n\nText:\n\n- a\n\n```\nx\n- y\n```\n- a\n  b\n- c\n") == [2]
+    found = {path.relative_to(ROOT).as_posix(): unseparated_lists(path.read_text()) for path in PAGE_SOURCES}
+    assert {path: lines for path, lines in found.items() if lines} == {}
 
 
 def test_readme_is_a_front_door_whose_links_resolve():
