@@ -8,6 +8,7 @@ drift from the code. mkdocs is the `docs` extra, which `make test` installs: wit
 from __future__ import annotations
 
 import html
+import importlib.util
 import os
 import re
 import subprocess
@@ -140,6 +141,20 @@ def test_lists_follow_a_blank_line():
     assert unseparated_lists("Text:\n- a\n- b\n\nText:\n\n- a\n\n```\nx\n- y\n```\n- a\n  b\n- c\n") == [2]
     found = {path.relative_to(ROOT).as_posix(): unseparated_lists(path.read_text()) for path in PAGE_SOURCES}
     assert {path: lines for path, lines in found.items() if lines} == {}
+
+
+def test_model_diagrams_draw_their_graphs():
+    """The Models page's diagrams are SVGs drawn once from the shipped graphs (docs/tools/model_diagrams.py) and
+    committed: each still draws its graph's edges, all and only those, so a changed graph fails here until they are
+    drawn again."""
+    spec = importlib.util.spec_from_file_location("model_diagrams", DOCS / "tools" / "model_diagrams.py")
+    diagrams = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(diagrams)
+    for name, graph in diagrams.GRAPHS.items():
+        svg = (diagrams.OUTPUT / f"{name}.svg").read_text()
+        titles = re.findall(r'class="edge">\s*<title>(.*?)</title>', svg)  # Graphviz titles an edge "A->B"
+        drawn = {tuple(html.unescape(title).split("->")) for title in titles}
+        assert drawn == diagrams.edges(graph()), f"docs/assets/models/{name}.svg: run docs/tools/model_diagrams.py"
 
 
 def test_readme_is_a_front_door_whose_links_resolve():
