@@ -157,6 +157,18 @@ def test_model_diagrams_draw_their_graphs():
         assert drawn == diagrams.edges(graph()), f"docs/assets/models/{name}.svg: run docs/tools/model_diagrams.py"
 
 
+def test_home_page_shows_the_readmes_headline_results():
+    """The site's home page and the README show the same headline table (the site links results/, where
+    docs/tools/results_hook.py publishes benchmarks/results), and the same animation."""
+
+    def headline(text: str) -> str:
+        return text.split("## Headline results", 1)[1].split("\n\n", 2)[1]
+
+    readme, home = (ROOT / "README.md").read_text(), (DOCS / "index.md").read_text()
+    assert headline(home) == headline(readme).replace("](benchmarks/results/", "](results/")
+    assert "](docs/assets/cube.gif)" in readme and "](assets/cube.gif)" in home
+
+
 def test_readme_is_a_front_door_whose_links_resolve():
     """At most 150 lines, opening with the two set-up commands, and every page and result it links to exists (the
     cube animation it shows is rendered from a trained GPU run and committed apart, so pictures are not checked)."""
