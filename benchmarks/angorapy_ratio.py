@@ -4,7 +4,8 @@ AngoraPy (Weidler, Goebel and Senden, 2023) reports training in-hand object mani
 billion samples in 96 hours on 384 CPU cores and 32 P100 GPUs. A sample is one environment (policy) step; both
 control the hand every 0.08 s, so samples/s compare directly, and sim-s/s = samples/s x 0.08 s.
 
-    python benchmarks/angorapy_ratio.py                      # reads results/env_train_throughput/train_throughput_ShadowHandCube_gpu.json
+    python benchmarks/angorapy_ratio.py                      # reads results/env_train_throughput/
+                                                             # train_throughput_ShadowHandCube_gpu.json
     python benchmarks/angorapy_ratio.py --results PATH.json  # any train_throughput JSON of the cube task
 """
 
@@ -17,7 +18,7 @@ import os
 ANGORAPY_SAMPLES = 1.19e9
 ANGORAPY_HOURS = 96.0
 ANGORAPY_HARDWARE = "384 CPU cores + 32 P100 GPUs"
-DEFAULT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
+DEFAULT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "env_train_throughput",
                        "train_throughput_ShadowHandCube_gpu.json")
 
 

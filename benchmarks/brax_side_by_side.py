@@ -52,7 +52,7 @@ from brax.envs.base import State as BraxState
 from brax.envs.wrappers import training as brax_training
 from brax.training.agents.ppo import networks as brax_networks
 from brax.training.agents.ppo import train as brax_ppo
-from common import RESULTS, TARGETS, env_step_rate, markdown_table, measure_compiled, write_results
+from common import TARGETS, env_step_rate, markdown_table, measure_compiled, study_folder, write_results
 from flax import linen
 
 from angora_jax.envs.core import Env, Sensation
@@ -470,7 +470,8 @@ def main() -> None:
     parser.add_argument("--env-alone", action="store_true",
                         help="also time each side's env stepping alone (two more compiles)")
     parser.add_argument("--out", default=None,
-                        help="JSON path (default: results/brax_side_by_side_<task>_<platform>[_own].json)")
+                        help="JSON path (default: results/brax_side_by_side/brax_side_by_side_<task>_<platform>[_own]"
+                             ".json)")
     parser.add_argument("overrides", nargs="*", help="key.sub=value overrides of --config (--recipes own)")
     args = parser.parse_args()
 
@@ -506,8 +507,9 @@ def main() -> None:
               "brax": {k: v for k, v in plan.brax.items() if k != "network_factory"}, "target": target,
               "curves": result["curves"]}
     suffix = "_own" if args.recipes == "own" else ""
-    out = args.out or os.path.join(RESULTS, f"brax_side_by_side_{args.task}_{jax.devices()[0].platform}{suffix}.json")
-    path = write_results("brax_side_by_side", config, rows, out)
+    name = f"brax_side_by_side_{args.task}_{jax.devices()[0].platform}{suffix}.json"
+    out = args.out or os.path.join(study_folder("brax_side_by_side"), name)
+    path = write_results("brax_side_by_side", config, rows, out, study="brax_side_by_side")
     metric_columns = [(k, k.removeprefix("final_metric/"), ".3f") for k in rows[0] if k.startswith("final_metric/")]
     print(markdown_table(rows, [
         ("trainer", "trainer", "s"), ("env_steps_per_s", "env steps/s (no compile)", ",.0f"),

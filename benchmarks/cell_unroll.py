@@ -5,8 +5,9 @@ one config's PPO cycle compiled and timed both ways in one process, everything e
     python benchmarks/cell_unroll.py shadow_ihom_cortical ppo.num_envs=4096 ppo.minibatch_size=4096  # GPU
 
 `angora_jax.nets.models.unrolled_steps` chooses per device; this script sets each way in turn. Prints a Markdown
-table and writes JSON under benchmarks/results/ (device, versions, config): compile seconds, seconds per cycle, env
-steps/s and simulated seconds per wall second of each way, and the unrolled way's ratios to the loop's.
+table and writes JSON under benchmarks/results/cube_cortical/ (device, versions, config): compile seconds, seconds
+per cycle, env steps/s and simulated seconds per wall second of each way, and the unrolled way's ratios to the
+loop's.
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ WAYS = {"loop": lambda length: 1, "unrolled": lambda length: length}
 def main(argv: list[str] | None = None) -> None:
     parser = config_parser(__doc__)
     parser.add_argument("--repeats", type=int, default=3, help="timed cycles per way")
-    parser.add_argument("--out", default=None, help="JSON path (default: results/cell_unroll_<platform>.json)")
+    parser.add_argument("--out", default=None,
+                        help="JSON path (default: results/cube_cortical/cell_unroll_<platform>.json)")
     args = parser.parse_args(argv)
     config = load_config(args.config, args.overrides)
     env = validate(config)
@@ -48,7 +50,7 @@ def main(argv: list[str] | None = None) -> None:
         ("env_steps_per_s", "env steps/s", ",.0f"), ("sim_s_per_s", "sim s/s", ",.1f"),
         ("compile_s_over_loop", "compile / loop's", ".2f"), ("cycle_s_over_loop", "cycle / loop's", ".2f")]))
     path = write_results("cell_unroll", {"config": args.config, "overrides": args.overrides, "repeats": args.repeats,
-                                         "resolved": to_dict(config)}, rows, args.out)
+                                         "resolved": to_dict(config)}, rows, args.out, study="cube_cortical")
     print(f"wrote {path}")
 
 

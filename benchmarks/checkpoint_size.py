@@ -7,7 +7,7 @@ environments' states), through the run's own `Checkpoints`, with the bytes of ea
     python benchmarks/checkpoint_size.py shadow_reach ppo.num_envs=8 ppo.minibatch_size=64
 
 Prints a Markdown table and writes JSON (device, versions, config, rows) to
-benchmarks/results/checkpoint_size_<task>_<platform>.json or --out.
+benchmarks/results/evaluation_and_checkpoints/checkpoint_size_<task>_<platform>.json or --out.
 """
 
 from __future__ import annotations
@@ -34,7 +34,8 @@ def tree_bytes(tree) -> int:
 def main() -> None:
     parser = config_parser(__doc__)
     parser.add_argument("--out", default=None,
-                        help="JSON path (default: results/checkpoint_size_<task>_<platform>.json)")
+                        help="JSON path (default: results/evaluation_and_checkpoints/checkpoint_size_<task>_<platform>"
+                             ".json)")
     args = parser.parse_intermixed_args()
     config = load_config(args.config, args.overrides)
     env = validate(config)
@@ -59,7 +60,7 @@ def main() -> None:
     for name, size in parts.items():
         print(f"  {name}: {size / 1e6:,.1f} MB in memory")
     path = write_results(f"checkpoint_size_{config.env.task}", {"config": to_dict(config), "state_mb": {
-        name: size / 1e6 for name, size in parts.items()}}, rows, args.out)
+        name: size / 1e6 for name, size in parts.items()}}, rows, args.out, study="evaluation_and_checkpoints")
     print(f"wrote {path}")
 
 

@@ -24,6 +24,8 @@ from angora_jax.envs.random_rollout import batched_reset, make_random_rollout
 from angora_jax.experiment.doctor import versions as doctor_versions
 from angora_jax.ppo import PPOConfig, make_cycle
 
+# One folder per study (the question a set of results answers), each with a README.md that names its files and says
+# which are current; tests/test_results_layout.py holds every file to that.
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 # Returns to reach (issue 18's bars): PPO's after 1M env steps in Schulman et al. 2017 (Fig. 3) for Hopper, Walker2d
 # and HalfCheetah, of the order of the paper's Fig. 9; for Ant, which Schulman et al. did not run, PPO's best average
@@ -196,10 +198,17 @@ def lagged_decoding_rows(decoding, control, lags: list[int], layers: list[str],
     return rows, columns
 
 
-def write_results(name: str, config: dict, rows: list[dict], out: str | None = None) -> str:
-    """Write rows with device, versions and config as JSON to `out` (default: results/<name>_<platform>.json)."""
-    os.makedirs(RESULTS, exist_ok=True)
-    path = out or os.path.join(RESULTS, f"{name}_{jax.devices()[0].platform}.json")
+def study_folder(study: str) -> str:
+    """benchmarks/results/<study>/, made if missing: where a script of that study writes unless told otherwise."""
+    path = os.path.join(RESULTS, study)
+    os.makedirs(path, exist_ok=True)
+    return path
+
+
+def write_results(name: str, config: dict, rows: list[dict], out: str | None = None, *, study: str) -> str:
+    """Write rows with device, versions and config as JSON to `out` (default:
+    results/<study>/<name>_<platform>.json)."""
+    path = out or os.path.join(study_folder(study), f"{name}_{jax.devices()[0].platform}.json")
     record = {"benchmark": name, "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
               "device": device(), "versions": versions(), "config": config, "results": rows}
     with open(path, "w") as f:

@@ -60,7 +60,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=int, default=3, help="timed runs after compiling; the best counts")
     parser.add_argument("--c-seconds", type=float, default=2.0,
                         help="seconds of C MuJoCo and of the eager CPU twin, each, on one thread")
-    parser.add_argument("--out", default=None, help="JSON path (default: results/env_throughput_<platform>.json)")
+    parser.add_argument("--out", default=None,
+                        help="JSON path (default: results/env_train_throughput/env_throughput_<platform>.json)")
     args = parser.parse_args(argv)
 
     options = json.loads(args.options)
@@ -89,7 +90,7 @@ def main(argv: list[str] | None = None) -> None:
     config = {"task": args.task, "options": options, "steps": args.steps, "frame_skip": env.frame_skip,
               "timestep_s": timestep, "control_dt_s": env.dt, "solver_iterations": int(env.task.model.opt.iterations),
               "ls_iterations": int(env.task.model.opt.ls_iterations), **single}
-    path = write_results("env_throughput", config, rows, args.out)
+    path = write_results("env_throughput", config, rows, args.out, study="env_train_throughput")
     print(markdown_table(rows, [
         ("batch", "envs", "d"), ("env_steps_per_s", "env steps/s", ",.0f"),
         ("physics_steps_per_s", "physics steps/s", ",.0f"), ("sim_s_per_s", "sim-s/s", ",.1f"),

@@ -45,7 +45,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--settings", nargs="+", default=["1x1", "16x1", "16x2"], metavar="BATCHxWORKERS")
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per setting; the best counts")
     parser.add_argument("--out", default=None,
-                        help="JSON path (default: results/evaluation_speed_<task>_<platform>.json)")
+                        help="JSON path (default: results/evaluation_and_checkpoints/evaluation_speed_<task>_<platform>"
+                             ".json)")
     args = parser.parse_args(argv)
     agent = aj.load_agent(args.run_dir, int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint)
     rows, first = [], None
@@ -60,7 +61,8 @@ def main(argv: list[str] | None = None) -> None:
     config = {"task": agent.config.env.task, "network": agent.config.ppo.network.name, "episodes": args.episodes,
               "mean_episode_length": float(first[1]["episode_length"].mean()), "actions": "mode",
               "timing": f"best of {args.repeats} runs, compilation excluded (one batch of other episodes runs first)"}
-    path = write_results(f"evaluation_speed_{agent.config.env.task}", config, rows, args.out)
+    path = write_results(f"evaluation_speed_{agent.config.env.task}", config, rows, args.out,
+                         study="evaluation_and_checkpoints")
     print(markdown_table(rows, [("batch", "batch", "d"), ("workers", "workers", "d"), ("seconds", "seconds", ".2f"),
                                 ("episodes_per_s", "episodes/s", ".2f"), ("env_steps_per_s", "env steps/s", ".0f"),
                                 ("speedup", "speed-up", ".2f"), ("identical", "same episodes", "")]))

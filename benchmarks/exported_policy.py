@@ -56,7 +56,9 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("policy", help="a file written by angora-jax export")
     parser.add_argument("evaluation", help="the JSON of angora-jax evaluate --path batched of the same checkpoint")
-    parser.add_argument("--out", help="result JSON (default: results/exported_policy_<platform>.json)")
+    parser.add_argument("--out",
+                        help="result JSON (default: results/evaluation_and_checkpoints/exported_policy_<platform>"
+                             ".json)")
     args = parser.parse_args(argv)
     with open(args.evaluation) as file:
         reference = json.load(file)
@@ -78,7 +80,7 @@ def main(argv: list[str] | None = None) -> None:
     config = {"policy": args.policy, "evaluation": args.evaluation, "cycle": reference["cycle"],
               "task": reference["task"], "episodes": reference["episodes"], "seed": reference["seed"],
               "wall_seconds": wall}
-    print("wrote", write_results("exported_policy", config, rows, args.out))
+    print("wrote", write_results("exported_policy", config, rows, args.out, study="evaluation_and_checkpoints"))
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ import argparse
 
 import jax
 import jax.numpy as jnp
-from common import RESULTS, markdown_table, measure_compiled, write_results
+from common import markdown_table, measure_compiled, write_results
 
 from angora_jax.envs.registry import make
 from angora_jax.ppo.distributions import PolicyHead, make_head
@@ -69,12 +69,13 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--num-envs", type=int, default=8192)
     parser.add_argument("--rollout-length", type=int, default=16)
     parser.add_argument("--repeats", type=int, default=20)
-    parser.add_argument("--out", default=None, help=f"JSON path (default: {RESULTS}/head_sampling_<platform>.json)")
+    parser.add_argument("--out", default=None,
+                        help="JSON path (default: results/env_train_throughput/head_sampling_<platform>.json)")
     args = parser.parse_args(argv)
     rows = measure(args.task, args.num_envs, args.rollout_length, args.repeats)
     path = write_results("head_sampling", {"task": args.task, "num_envs": args.num_envs,
                                            "rollout_length": args.rollout_length, "repeats": args.repeats},
-                         rows, args.out)
+                         rows, args.out, study="env_train_throughput")
     print(markdown_table(rows, [("head", "head", ""), ("seconds", "s per rollout's draws", ".5f"),
                                 ("over_gaussian", "x Gaussian's", ".2f"), ("draws_per_s", "draws/s", ",.0f"),
                                 ("while_loops", "while loops per draw", "d"), ("compile_s", "compile s", ".2f")]))

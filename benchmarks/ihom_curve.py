@@ -35,7 +35,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from common import RESULTS, markdown_table  # noqa: E402
+from common import markdown_table, study_folder  # noqa: E402
 
 CGR = "metric/goals_reached"
 MILESTONES = (1, 5, 10, 20, 30)
@@ -119,7 +119,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("runs", nargs="+", metavar="LABEL=PATH[,PATH...]",
                         help="a run's label and its metrics files or run directories, in the order written")
     parser.add_argument("--device", required=True, help="the device the runs trained on, e.g. 'NVIDIA H100 80GB HBM3'")
-    parser.add_argument("--name", default="ShadowHandCube", help="results/ihom_curve_<name>.json and .png")
+    parser.add_argument("--name", default="ShadowHandCube", help="results/<study>/ihom_curve_<name>.json and .png")
+    parser.add_argument("--study", default="cube_one_gpu",
+                        help="the results folder the curve belongs to (cube_one_gpu, cube_multi_gpu, cube_paper, "
+                             "cube_cortical, cube_pixels; default: %(default)s)")
     parser.add_argument("--continues", action="append", default=[], metavar="LABEL=BASE",
                         help="run LABEL started from run BASE's last policy: its steps and times follow BASE's")
     parser.add_argument("--before", action="append", default=[], metavar="LABEL=MINUTES",
@@ -151,8 +154,7 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(f"--before {spec}: {label!r} is not a label of the runs given ({', '.join(runs)}).")
         runs[label] = [{**r, "wall_seconds": r["wall_seconds"] + 60.0 * before[label]} for r in runs[label]]
     summary = {label: milestones(rows) for label, rows in runs.items()}
-    os.makedirs(RESULTS, exist_ok=True)
-    stem = os.path.join(RESULTS, f"ihom_curve_{args.name}")
+    stem = os.path.join(study_folder(args.study), f"ihom_curve_{args.name}")
     record = {"benchmark": "ihom_curve", "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
               "training_device": args.device, "note": args.note, "continues": continues, "before_minutes": before,
               "paper": PAPER,

@@ -24,7 +24,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from common import RESULTS, markdown_table, write_results  # noqa: E402
+from common import markdown_table, write_results  # noqa: E402
 
 from angora_jax.envs import make  # noqa: E402
 from angora_jax.experiment import compilation_cache  # noqa: E402
@@ -104,7 +104,7 @@ def main() -> None:
         reached = target_name is not None and metrics.get(target_name, float("nan")) >= target_value
         if reached and "solved" not in settings:
             settings["solved"] = {"cycle": len(rows), "env_steps": metrics["env_steps"], "wall_seconds": now}
-        path = write_results(f"learning_curve_{args.task}", settings, rows, args.out)
+        path = write_results(f"learning_curve_{args.task}", settings, rows, args.out, study="reach")
         if now - plotted > 30:
             plot(rows, title, os.path.splitext(path)[0] + ".png")
             plotted = now
@@ -121,7 +121,7 @@ def main() -> None:
     columns += [(k, k.removeprefix("metric/"), ".3f") for k in sorted(rows[0]) if k.startswith("metric/")]
     shown = rows[:: max(1, len(rows) // 12)]
     print(markdown_table(shown if shown[-1] is rows[-1] else [*shown, rows[-1]], columns))
-    print(f"wrote {path} and {png} (results folder: {RESULTS})")
+    print(f"wrote {path} and {png}")
 
 
 if __name__ == "__main__":

@@ -394,7 +394,8 @@ def main() -> None:
                              "one after another in this process)")
     parser.add_argument("--smoke", action="store_true", help="tiny sizes, for a CPU check of the script")
     parser.add_argument("--name", default=None, help="results name (default: paper_fig<N>_<platform>)")
-    parser.add_argument("--out", default=RESULTS, help="folder for the PNG and JSON (default: benchmarks/results)")
+    parser.add_argument("--out", default=os.path.join(RESULTS, "paper_figures"),
+                        help="folder for the PNG and JSON (default: benchmarks/results/paper_figures)")
     parser.add_argument("--merge", nargs="+", metavar="JSON",
                         help="train nothing: combine the runs of these earlier outputs into one figure")
     parser.add_argument("--replace", action="store_true",

@@ -37,7 +37,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--bound", type=float, default=3.0, help="PASS below this many standard errors (default 3)")
     parser.add_argument("--batch", type=int, default=DEFAULT_BATCH, help="CPU path: episodes at a time")
     parser.add_argument("--workers", type=int, default=1, help="CPU path: threads stepping C MuJoCo physics")
-    parser.add_argument("--out", default=None, help="JSON path (default: results/path_agreement_<task>_<platform>)")
+    parser.add_argument("--out", default=None,
+                        help="JSON path (default: results/path_agreement/path_agreement_<task>_<platform>)")
     args = parser.parse_args(argv)
     checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
 
@@ -64,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
               "mjx_device": str(jax.devices()[0]), "mjx_seconds_with_compile": mjx_s,
               "cpu_batch": cpu.meta["batch"], "cpu_workers": cpu.meta["workers"],
               "cpu_seconds_with_compile": cpu.meta["wall_seconds"]}
-    path = write_results(f"path_agreement_{agent.config.env.task}", config, rows, args.out)
+    path = write_results(f"path_agreement_{agent.config.env.task}", config, rows, args.out, study="path_agreement")
     print(markdown_table(rows, [("quantity", "quantity", ""), ("mjx_mean", "MJX mean", ".5g"),
                                 ("mjx_stderr", "MJX stderr", ".3g"), ("cpu_mean", "CPU mean", ".5g"),
                                 ("cpu_stderr", "CPU stderr", ".3g"), ("diff_in_stderr", "diff / stderr", ".3f"),

@@ -475,7 +475,7 @@ def main(argv: list[str] | None = None) -> None:
     # The arguments first: the names measured (with --physics's) replace --configs's text, which may be empty.
     config = {**vars(args), "configs": [c.name for c in configs], "scenes": {c.name: c.task for c in configs},
               "menagerie_scene": MENAGERIE_SCENE}
-    path = write_results("physics_throughput", config, rows, args.out)
+    path = write_results("physics_throughput", config, rows, args.out, study="physics_throughput")
     print(markdown_table(rows, [
         ("config", "configuration", "s"), ("impl", "MJX", "s"), ("batch", "envs", "d"),
         ("timestep_ms", "dt ms", "g"), ("physics_steps_per_s", "physics steps/s", ",.0f"),

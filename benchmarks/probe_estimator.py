@@ -96,7 +96,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--ascent-steps", type=int, default=256, help="gradient steps of activation maximization")
     parser.add_argument("--note", default="", help="recorded in the JSON's config")
     parser.add_argument("--name", default="estimator_visual")
-    parser.add_argument("--out-dir", default=RESULTS, help="folder of the plots and the JSON (default: results/)")
+    parser.add_argument("--out-dir", default=os.path.join(RESULTS, "probing"),
+                        help="folder of the plots and the JSON (default: results/probing/)")
     args = parser.parse_args(argv)
     estimator = PoseEstimator.load(args.estimator)
     seconds: dict[str, float] = {}
@@ -149,7 +150,7 @@ def main(argv: list[str] | None = None) -> None:
                                    "orientation": estimator.orientation, "cameras": list(estimator.cameras),
                                    "size": estimator.size, "renderer": estimator.renderer},
               "summary": summary}
-    print(write_results(args.name, config, rows, f"{out}_{jax.devices()[0].platform}.json"))
+    print(write_results(args.name, config, rows, f"{out}_{jax.devices()[0].platform}.json", study="probing"))
 
 
 if __name__ == "__main__":

@@ -48,7 +48,8 @@ def main(argv: list[str] | None = None) -> None:
                              "0 1 2 4 8 16: which areas predict the cube's future rotation), and cross-correlate "
                              "the areas' leading components")
     add_env_option(parser)  # e.g. 'physics={impl: warp}' on a CPU: Warp compiles the cube far sooner than MJX's JAX
-    parser.add_argument("--out-dir", default=RESULTS, help="folder of the plots and the JSON (default: results/)")
+    parser.add_argument("--out-dir", default=os.path.join(RESULTS, "probing"),
+                        help="folder of the plots and the JSON (default: results/probing/)")
     args = parser.parse_args(argv)
     agent = aj.load_agent(args.run_dir, "best", args.env_option)
     task = agent.config.env.task
@@ -71,7 +72,7 @@ def main(argv: list[str] | None = None) -> None:
     def save(stage: str) -> None:
         """The JSON after each part, so a run cut short keeps what it finished (`stages_done`)."""
         summary["stages_done"] = [*summary.get("stages_done", []), stage]
-        write_results(args.name, config, rows, path)
+        write_results(args.name, config, rows, path, study="probing")
 
     for attempt in ("record_first_with_compile", "record_again"):
         recording = None  # 480 whole cube episodes of every layer hold about 10 GB: never two at once

@@ -48,7 +48,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--lags", type=int, nargs="+", default=[0, 1, 2, 4, 8, 16], help="policy steps k")
     add_env_option(parser)  # e.g. 'physics={impl: warp}' on a CPU: Warp compiles the cube far sooner than MJX's JAX
     parser.add_argument("--name", default="pixels_probe")
-    parser.add_argument("--out-dir", default=RESULTS, help="folder of the plots and the JSON (default: results/)")
+    parser.add_argument("--out-dir", default=os.path.join(RESULTS, "probing"),
+                        help="folder of the plots and the JSON (default: results/probing/)")
     args = parser.parse_args(argv)
     agent = aj.load_agent(args.run_dir, args.checkpoint, args.env_option)
     task = agent.config.env.task
@@ -93,7 +94,7 @@ def main(argv: list[str] | None = None) -> None:
               "episodes": args.episodes, "frames": args.frames,
               "camera": args.camera, "units": args.units, "ascent_steps": args.ascent_steps, "lags": lags,
               "variables": variables, "layers": layers, "summary": summary}
-    print(write_results(args.name, config, rows, f"{out}_{jax.devices()[0].platform}.json"))
+    print(write_results(args.name, config, rows, f"{out}_{jax.devices()[0].platform}.json", study="probing"))
 
 
 if __name__ == "__main__":

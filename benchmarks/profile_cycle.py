@@ -19,7 +19,7 @@ much of the cycle the device spends idle between kernels (launch and loop overhe
 
 The raw trace (open `perfetto_trace.json.gz` in https://ui.perfetto.dev) and the compiled HLO (`cycle.hlo.txt`) stay
 under --trace-dir. Prints Markdown tables and writes JSON (device, versions, config, numbers) to
-benchmarks/results/profile_cycle_<task>_<platform>.json or --out.
+benchmarks/results/env_train_throughput/profile_cycle_<task>_<platform>.json or --out.
 """
 
 from __future__ import annotations
@@ -155,7 +155,8 @@ def main() -> None:
     parser.add_argument("--cycles", type=int, default=3, help="cycles timed and then traced, after two warm-ups")
     parser.add_argument("--top", type=int, default=15, help="kernels listed")
     parser.add_argument("--trace-dir", default=None, help="where the raw trace goes (default: a temporary folder)")
-    parser.add_argument("--out", default=None, help="JSON path (default: results/profile_cycle_<task>_<platform>.json)")
+    parser.add_argument("--out", default=None,
+                        help="JSON path (default: results/env_train_throughput/profile_cycle_<task>_<platform>.json)")
     args = parser.parse_intermixed_args()
     if args.cycles < 1:
         parser.error(f"--cycles must be at least 1, got {args.cycles}")
@@ -221,7 +222,8 @@ def main() -> None:
                "env_steps_per_cycle": steps, "env_steps_per_s": steps / wall, "top_kernels": kernels,
                "trace": trace_path}
     path = write_results(f"profile_cycle_{config.env.task}", {"args": vars(args), "config": to_dict(config),
-                                                              "summary": summary}, rows, args.out)
+                                                              "summary": summary}, rows, args.out,
+                         study="env_train_throughput")
     print(f"trace: {trace_path}\nwrote {path}")
 
 

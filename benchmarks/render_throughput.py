@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--name", default="render_throughput")
     parser.add_argument("--save-frames", default=None,
                         help="an .npz of the first 8 worlds' qpos and frames at each size, to compare elsewhere")
-    parser.add_argument("--out", default=None, help="JSON path (default: results/<name>_<platform>.json)")
+    parser.add_argument("--out", default=None, help="JSON path (default: results/cube_pixels/<name>_<platform>.json)")
     args = parser.parse_args(argv)
     cameras = tuple(args.cameras)
     model = load_cube_scene(touch=False, cameras=cameras)
@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.save_frames:
         np.savez_compressed(args.save_frames, **saved)
     print(write_results(args.name, {"cameras": cameras, "steps": args.steps, "frame_skip": frame_skip,
-                                    "timestep": model.opt.timestep}, rows, args.out))
+                                    "timestep": model.opt.timestep}, rows, args.out, study="cube_pixels"))
 
 
 if __name__ == "__main__":

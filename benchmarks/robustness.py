@@ -15,8 +15,8 @@ one.
 
 The metric (default: the cube's `metric/goals_reached`, CGR; reach's `metric/success`; else the episode return) is
 tabled per run and width as mean, median and standard error over episodes. Writes JSON with the device, versions and
-configuration (`results/robustness_<task>_<platform>.json` unless `--out`), and a PNG beside it: the metric's mean
-against the width, one line per run, with a band of one standard error.
+configuration (`results/robustness/robustness_<task>_<platform>.json` unless `--out`), and a PNG beside it: the
+metric's mean against the width, one line per run, with a band of one standard error.
 """
 
 from __future__ import annotations
@@ -111,7 +111,8 @@ def main(argv: list[str] | None = None) -> dict:
                         help=f"per-episode quantity to compare (default: the first of {METRICS} the task has, else "
                              "episode_return)")
     parser.add_argument("--out", default=None,
-                        help="JSON path (default: results/robustness_<task>_<platform>.json); the PNG goes beside it")
+                        help="JSON path (default: results/robustness/robustness_<task>_<platform>.json); the PNG goes "
+                             "beside it")
     args = parser.parse_args(argv)
     if args.label and len(args.label) != len(args.runs):
         parser.error(f"give one --label per run: {len(args.runs)} runs, {len(args.label)} labels.")
@@ -159,7 +160,7 @@ def main(argv: list[str] | None = None) -> dict:
                          f"{list(POSITIVE_SCALES)}); noise s -> w s; delay [lo, hi] -> [round(w lo), round(w hi)]",
               "runs": [{"label": label, "run_dir": str(run_dir), "checkpoint": checkpoint}
                        for (run_dir, checkpoint), label in zip(runs, labels, strict=True)]}
-    path = Path(write_results(f"robustness_{task}", config, rows, args.out))
+    path = Path(write_results(f"robustness_{task}", config, rows, args.out, study="robustness"))
     print(markdown_table(rows, [("run", "run", "s"), ("width", "width", "g"), ("mean", f"{metric} mean", ".3f"),
                                 ("median", "median", ".3g"), ("stderr", "s.e.", ".3f"),
                                 ("return_mean", "return mean", ".4g")]))

@@ -28,8 +28,8 @@ strong scaling the runs compute the same training up to float rounding, so their
 printed side by side: on CPU they agree to about 1e-6; on GPUs contact-rich physics can amplify rounding over many
 steps. Prints a
 Markdown table and writes JSON (device, versions, config, rows) to
-benchmarks/results/scaling_<task>[_weak][_processes]_<platform>.json or --out (`_processes` when that is the only
-layout).
+benchmarks/results/scaling/scaling_<task>[_weak][_processes]_<platform>.json or --out (`_processes` when that is
+the only layout).
 """
 
 from __future__ import annotations
@@ -140,7 +140,7 @@ def main() -> None:
     parser.add_argument("--child", help=argparse.SUPPRESS)  # rank,processes,coordinator,params path
     parser.add_argument("--scale", type=int, default=1, help=argparse.SUPPRESS)
     parser.add_argument("--out", default=None,
-                        help="JSON path (default: results/scaling_<task>[_weak][_processes]_<platform>.json)")
+                        help="JSON path (default: results/scaling/scaling_<task>[_weak][_processes]_<platform>.json)")
     args = parser.parse_intermixed_args()
     if args.child:
         return child(args)
@@ -184,7 +184,7 @@ def main() -> None:
                   f"({row['layout']}) vs 1: {row['max_param_difference']:.3g}")
     only_processes = args.layouts == ["processes"]
     name = f"scaling_{single['task']}{'_weak' if args.weak else ''}{'_processes' if only_processes else ''}"
-    path = write_results(name, {"args": vars(args), "config": resolved}, rows, args.out)
+    path = write_results(name, {"args": vars(args), "config": resolved}, rows, args.out, study="scaling")
     print(f"wrote {path}")
 
 

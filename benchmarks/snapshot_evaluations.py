@@ -92,8 +92,9 @@ def plot(runs: dict[str, tuple[list[dict], list[dict]]], title: str, path: str) 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", metavar="LABEL=RUN_DIR")
-    parser.add_argument("--name", required=True, help="results name: results/snapshot_evaluations_<name>.{json,png}")
-    parser.add_argument("--out", default=RESULTS)
+    parser.add_argument("--name", required=True,
+                        help="results name: results/snapshot_evaluations/snapshot_evaluations_<name>.{json,png}")
+    parser.add_argument("--out", default=os.path.join(RESULTS, "snapshot_evaluations"))
     args = parser.parse_args(argv)
     runs, run_dirs, sessions, tasks, table = {}, {}, {}, set(), []
     for spec in args.runs:

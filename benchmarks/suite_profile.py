@@ -9,7 +9,7 @@ the suite cannot end sooner than its CPU time over 2, so that total is the numbe
 Runs pytest with this module as a plugin (every pytest-xdist worker records its own phases; loaded without
 ANGORA_SUITE_PROFILE_DIR set, the plugin records nothing), prints the totals and the files and tests that take
 longest, and writes JSON (device, versions, pytest's arguments, one row for the suite, each file and each test) to
-benchmarks/results/suite_profile_<platform>.json or --out. Exits with pytest's status.
+benchmarks/results/suite_profile/suite_profile_<platform>.json or --out. Exits with pytest's status.
 """
 
 from __future__ import annotations
@@ -111,7 +111,8 @@ def summarize(phases: list[dict], wall_s: float, cpu_s: float) -> list[dict]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", default=None, help="JSON path (default: results/suite_profile_<platform>.json)")
+    parser.add_argument("--out", default=None,
+                        help="JSON path (default: results/suite_profile/suite_profile_<platform>.json)")
     parser.add_argument("--top", type=int, default=15, help="files and tests to print (default 15)")
     args, pytest_args = parser.parse_known_args()
     pytest_args = pytest_args or MAKE_TEST
@@ -143,7 +144,8 @@ def main() -> None:
     for scope in ("file", "test"):
         print(f"\nLongest {scope}s:\n")
         print(markdown_table([r for r in rows if r["scope"] == scope][:args.top], columns))
-    path = write_results("suite_profile", {"pytest_args": pytest_args, "host_cpus": os.cpu_count()}, rows, args.out)
+    path = write_results("suite_profile", {"pytest_args": pytest_args, "host_cpus": os.cpu_count()}, rows, args.out,
+                         study="suite_profile")
     print(f"\nwrote {path}")
     sys.exit(status)
 

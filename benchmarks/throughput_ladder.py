@@ -152,7 +152,8 @@ def main() -> None:
     parser.add_argument("--model", default="simple")
     parser.add_argument("--repeats", type=int, default=1, help="timed runs after the warm-up")
     parser.add_argument("--jobs", type=int, default=1, help="processes at once (compile in parallel, time alone)")
-    parser.add_argument("--out", default=None, help="JSON path (default: results/throughput_ladder_<platform>.json)")
+    parser.add_argument("--out", default=None,
+                        help="JSON path (default: results/env_train_throughput/throughput_ladder_<platform>.json)")
     parser.add_argument("--rung", help=argparse.SUPPRESS)  # internal: run one measurement (a JSON spec)
     parser.add_argument("--result", help=argparse.SUPPRESS)  # internal: where that measurement goes
     args = parser.parse_args()
@@ -174,8 +175,8 @@ def main() -> None:
     # device's memory to the measuring processes.
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
     rows = ladder(tasks, sizes, settings, args.jobs, on_row=lambda done: write_results(
-        "throughput_ladder", config, done, args.out))
-    path = write_results("throughput_ladder", config, rows, args.out)
+        "throughput_ladder", config, done, args.out, study="env_train_throughput"))
+    path = write_results("throughput_ladder", config, rows, args.out, study="env_train_throughput")
     print(markdown_table(rows, COLUMNS))
     print(f"wrote {path}")
 

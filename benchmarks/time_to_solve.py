@@ -52,7 +52,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--target", required=True, help="NAME=VALUE, e.g. metric/success=0.8")
     parser.add_argument("--minutes", type=float, default=5.0, help="give up on a seed after this much wall time")
-    parser.add_argument("--out", default=None, help="JSON path (default: benchmarks/results/)")
+    parser.add_argument("--out", default=None, help="JSON path (default: benchmarks/results/reach/)")
     parser.add_argument("--curves", default=None, help="folder to keep each seed's curve (JSON + PNG) in")
     args, extra = parser.parse_known_args()
     extra = [a for a in extra if a != "--"]
@@ -73,7 +73,7 @@ def main() -> None:
     settings = {"target": args.target, "minutes_per_seed": args.minutes, "learning_curve_args": extra,
                 "run_config": {k: v for k, v in runs[0].items() if k not in ("seed", "solved", "final_env_steps")},
                 "summary": summary}
-    path = write_results(f"time_to_solve_{task}", settings, rows, args.out)
+    path = write_results(f"time_to_solve_{task}", settings, rows, args.out, study="reach")
     print(markdown_table(rows, [("seed", "seed", "d"), ("solved", "solved", ""), ("env_steps", "env steps", ",d"),
                                 ("wall_seconds", "wall s (incl. compile)", ".0f"), ("steps_run", "steps run", ",d")]))
     steps, wall = summary["env_steps"], summary["wall_seconds"]

@@ -22,8 +22,9 @@ does; on a GPU, Warp renders inside the compiled step, at every step and every a
 
     python benchmarks/train_throughput.py --configs shadow_ihom shadow_ihom_cortical --num-envs 16384   # GPU
 
-Prints a Markdown table and writes JSON (device, versions, config, numbers) under benchmarks/results/. Compile time
-is measured separately (ahead-of-time lowering and compilation) and excluded from the rates.
+Prints a Markdown table and writes JSON (device, versions, config, numbers) under
+benchmarks/results/env_train_throughput/. Compile time is measured separately (ahead-of-time lowering and
+compilation) and excluded from the rates.
 """
 
 from __future__ import annotations
@@ -111,7 +112,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="with --vision-sizes: train the visual area, or keep it frozen (no backward pass)")
     parser.add_argument("--configs", nargs="+", default=None,
                         help="train these configs as they are (configs/ names or YAML) instead of --task/--model")
-    parser.add_argument("--out", default=None, help="JSON path (default: results/train_throughput_<platform>.json)")
+    parser.add_argument("--out", default=None,
+                        help="JSON path (default: results/env_train_throughput/train_throughput_<platform>.json)")
     args = parser.parse_args(argv)
 
     impls = args.impls.split(",") if args.impls else [None]
@@ -154,7 +156,7 @@ def main(argv: list[str] | None = None) -> None:
         ("peak_memory_gib", "peak GiB", ".2f"),
     ]))
     path = write_results("train_throughput", {"args": vars(args), "control_dt_s": rows[-1]["control_dt_s"]}, rows,
-                         args.out)
+                         args.out, study="env_train_throughput")
     print(f"wrote {path}")
 
 

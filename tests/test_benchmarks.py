@@ -200,7 +200,7 @@ def test_ihom_curve_joins_pieces_by_cycle_and_finds_the_milestones(tmp_path, mon
     found = {m["cgr"]: m for m in ihom_curve.milestones(rows)}
     assert found[1]["cycle"] == 2 and found[5]["cycle"] == 3 and found[10]["env_steps"] == 400
     assert found[20]["cycle"] is None and found[30]["cycle"] is None
-    monkeypatch.setattr(ihom_curve, "RESULTS", str(tmp_path))
+    monkeypatch.setattr(ihom_curve, "study_folder", lambda study: str(tmp_path))
     pieces = f"run={tmp_path / 'a.jsonl'},{tmp_path / 'b.jsonl'}"
     assert ihom_curve.main([pieces, "--device", "cpu", "--name", "t"]) == 0
     record = json.loads((tmp_path / "ihom_curve_t.json").read_text())

@@ -1,9 +1,9 @@
 """MkDocs hook: the site shows `benchmarks/results/` as `results/`, and a page cites a result with a marker.
 
 Results sit in one folder per study (`benchmarks/results/<study>/`, each with a README.md that says which files are
-current). `<!-- result: STUDY/NAME -->` (a file in benchmarks/results) becomes, for a picture, the picture and a
+current). `<!-- result: <study>/<name> -->` (a file in benchmarks/results) becomes, for a picture, the picture and a
 caption; for any other file, a source line. Both say where the numbers were measured, read from the result itself
-(device, package versions, date) or from `<!-- result: STUDY/NAME.png from STUDY/OTHER.json -->`: the caption is
+(device, package versions, date) or from `<!-- result: <study>/<name>.png from <study>/<other>.json -->`: the caption is
 never typed by hand, so it cannot drift from the file, and a result that does not record its device, versions or
 date says so. A marker naming a missing file stops the build.
 """
