@@ -133,7 +133,7 @@ def tiny_sizes(config: str) -> list[str]:
 
 def every_modality(key: jax.Array, batch: int = BATCH) -> Sensation:
     """Every modality present (none empty), random, `(batch, size)`: each kernel row of every input is used."""
-    sizes = {"proprioception": 7, "touch": 3, "vision": 4, "goal": 2, "asymmetric": 3}
+    sizes = {"proprioception": 7, "touch": 3, "muscle": 5, "vision": 4, "goal": 2, "asymmetric": 3}
     keys = jax.random.split(key, len(sizes))
     return Sensation.make(**{name: jax.random.normal(k, (batch, size))
                              for k, (name, size) in zip(keys, sizes.items(), strict=True)})

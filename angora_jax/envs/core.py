@@ -16,6 +16,9 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+# The fields of a `Sensation`, in their order.
+MODALITIES = ("proprioception", "touch", "muscle", "vision", "goal", "asymmetric")
+
 
 @struct.dataclass
 class Sensation:
@@ -24,10 +27,13 @@ class Sensation:
 
     A modality that a task does not provide is an empty array of shape `(..., 0)`, never None, so that all
     tasks share one pytree structure. `asymmetric` holds privileged inputs that only the value function reads.
+    `muscle` is the muscle sense of muscle-driven bodies (the MyoHand): per muscle its length, velocity and force, as
+    muscle spindles and Golgi tendon organs report them (`envs.myohand`); tasks driven by motors leave it empty.
     """
 
     proprioception: jax.Array
     touch: jax.Array
+    muscle: jax.Array
     vision: jax.Array
     goal: jax.Array
     asymmetric: jax.Array
@@ -35,13 +41,12 @@ class Sensation:
     @classmethod
     def make(cls, **modalities: jax.Array) -> Sensation:
         """Build a Sensation from the given modalities; missing ones become empty float32 arrays."""
-        fields = ("proprioception", "touch", "vision", "goal", "asymmetric")
-        unknown = set(modalities) - set(fields)
+        unknown = set(modalities) - set(MODALITIES)
         if unknown:
-            raise ValueError(f"Unknown modalities {sorted(unknown)}; a Sensation has {fields}.")
+            raise ValueError(f"Unknown modalities {sorted(unknown)}; a Sensation has {MODALITIES}.")
         batch = next(iter(modalities.values())).shape[:-1] if modalities else ()
         empty = jnp.zeros(batch + (0,), jnp.float32)
-        return cls(**{f: as_modality(modalities.get(f, empty)) for f in fields})
+        return cls(**{f: as_modality(modalities.get(f, empty)) for f in MODALITIES})
 
     def sizes(self) -> dict[str, int]:
         """Feature size of each modality (the last axis; the channels of images)."""

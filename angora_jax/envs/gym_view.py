@@ -14,13 +14,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from angora_jax.envs.core import Env, State, is_image
+from angora_jax.envs.core import MODALITIES, Env, State, is_image
 from angora_jax.envs.cpu_env import CpuEnv, eager, single_env_functions
 from angora_jax.envs.registry import list_tasks, make
 from angora_jax.envs.rendering import SceneRenderer, camera_named
 
 NAMESPACE = "AngoraJax"
-MODALITIES = ("proprioception", "touch", "vision", "goal", "asymmetric")
 
 
 class GymEnv(gymnasium.Env):

@@ -31,6 +31,9 @@ SNAPSHOT_FIELDS = ("time", "qpos", "qvel", "ctrl", "actuator_length", "actuator_
 # What only tasks with `MujocoTask.body_dynamics` read (Gymnasium's Ant and Humanoid): a snapshot holds them only then,
 # so the eager path of other tasks copies nothing more per step.
 DYNAMICS_FIELDS = ("xipos", "cinert", "cvel", "qfrc_actuator", "cfrc_ext")
+# What only muscle-driven tasks read (`MujocoTask.muscle_sense`, the MyoHand): actuator velocities (the muscles'
+# lengthening rates) and activations, in snapshots only then.
+MUSCLE_FIELDS = ("actuator_velocity", "act")
 # Fields that `mjx.Data` keeps in its implementation's part (`data._impl`) rather than among its own.
 _MJX_IMPL_FIELDS = ("cinert", "cfrc_ext")
 
@@ -43,7 +46,8 @@ class Snapshot:
     `(nbody, 3)` m), `cinert` (`(nbody, 10)` inertias and masses), `cvel` (`(nbody, 6)` velocities, rotation then
     translation) and `cfrc_ext` (`(nbody, 6)` external forces on each body, contacts included, torque then force, as
     `mj_rnePostConstraint` computes them; zero where it did not run), all three in MuJoCo's centre-of-mass frames,
-    and `qfrc_actuator` (`(nv,)`)."""
+    and `qfrc_actuator` (`(nv,)`). The `MUSCLE_FIELDS` are None unless taken: `actuator_velocity` (`(nu,)`, m/s for
+    tendon actuators such as muscles) and `act` (`(na,)`, muscle activations in [0, 1])."""
 
     time: jax.Array
     qpos: jax.Array
@@ -62,6 +66,8 @@ class Snapshot:
     cvel: jax.Array | None = None
     qfrc_actuator: jax.Array | None = None
     cfrc_ext: jax.Array | None = None
+    actuator_velocity: jax.Array | None = None
+    act: jax.Array | None = None
 
     @classmethod
     def of(cls, data: Any, fields: tuple[str, ...] = SNAPSHOT_FIELDS) -> Snapshot:
@@ -103,11 +109,14 @@ class MujocoTask(abc.ABC):
     # Domain randomization (`envs.randomization`): model fields drawn per environment at reset, action and observation
     # noise per step; both physics paths apply it. None: the task as its model says.
     randomizer: ModelRandomizer | None = None
+    # Whether the task reads `MUSCLE_FIELDS` (muscle velocities and activations): its snapshots then hold them.
+    muscle_sense: bool = False
 
     @property
     def snapshot_fields(self) -> tuple[str, ...]:
         """The `Snapshot` fields the task reads."""
-        return SNAPSHOT_FIELDS + DYNAMICS_FIELDS if self.body_dynamics else SNAPSHOT_FIELDS
+        return (SNAPSHOT_FIELDS + (DYNAMICS_FIELDS if self.body_dynamics else ())
+                + (MUSCLE_FIELDS if self.muscle_sense else ()))
 
     def snapshot(self, data: Any) -> Snapshot:
         """`Snapshot.of(data)` with the fields the task reads."""

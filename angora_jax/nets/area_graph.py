@@ -13,9 +13,9 @@ area and the fix.
           policy: M1               # the area the policy head reads
           value: {inputs: [proprioception, touch, vision, goal, asymmetric], sizes: [512, 512]}
 
-An area's inputs are other areas and the policy's input modalities (proprioception, touch, vision, goal); only the
-value function may read `asymmetric` (privileged information such as the object's true pose). A dense area is one
-dense layer and its activation; a recurrent area (`cell`) is an rnn, lstm or gru cell over its inputs.
+An area's inputs are other areas and the policy's input modalities (proprioception, touch, muscle, vision, goal);
+only the value function may read `asymmetric` (privileged information such as the object's true pose). A dense area
+is one dense layer and its activation; a recurrent area (`cell`) is an rnn, lstm or gru cell over its inputs.
 
 Recurrence closes loops. An area that reads a recurrent area which itself depends on it (a feedback input: above,
 S1 reads PMC and PMC reads S1) reads that area's output of the previous step, from the carry; every other input is
@@ -42,10 +42,10 @@ class AreaSpec:
     """One area of a graph.
 
     size: its units (a recurrent area's: its cell's). inputs: what it reads, concatenated in this order: other
-    areas and the modalities proprioception, touch, vision and goal. activation: "tanh", "relu" or "lif" (AngoraPy's
-    leaky integrate-and-fire rate, as a fraction of its maximum: `angora_jax.nets.activations`); a recurrent area's
-    cell uses it for its update. cell: null for a dense area (one dense layer, then the activation), or "rnn"
-    (Elman), "lstm" or "gru" for a recurrent one.
+    areas and the modalities proprioception, touch, muscle, vision and goal. activation: "tanh", "relu" or "lif"
+    (AngoraPy's leaky integrate-and-fire rate, as a fraction of its maximum: `angora_jax.nets.activations`); a
+    recurrent area's cell uses it for its update. cell: null for a dense area (one dense layer, then the
+    activation), or "rnn" (Elman), "lstm" or "gru" for a recurrent one.
     """
 
     size: int

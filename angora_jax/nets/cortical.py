@@ -2,7 +2,7 @@
 a fixed brain-area graph (`cortical_graph`), built by `angora_jax.nets.areas.Areas` like any `areas` network. Its
 areas are named after the cortical areas of a sensorimotor hierarchy:
 
-    SSC_1, SSC_2  somatosensory cortex   <- proprioception, touch
+    SSC_1, SSC_2  somatosensory cortex   <- proprioception, touch, muscle
     SPL           superior parietal      <- vision, SSC
     IPL           inferior parietal      <- SPL
     IPS           intraparietal sulcus   <- IPL, SSC
@@ -32,8 +32,9 @@ AREA_SIZES = {"SSC_1": 128, "SSC_2": 64, "SPL": 256, "IPL": 256, "IPS": 128, "MC
               "PMC_in": 512, "PMC": 512, "M1": 256}
 VALUE_SIZES = (512, 512)
 # Each area's inputs in the order they are concatenated (the order of its kernel's rows).
-WIRING = {"SSC_1": ("proprioception", "touch"), "SSC_2": ("SSC_1",), "SPL": ("vision", "SSC_2"), "IPL": ("SPL",),
-          "IPS": ("IPL", "SSC_2"), "MCC": ("goal", "SSC_2"), "LPFC": ("MCC", "goal", "vision"),
+# SSC_1 reads the muscle sense as area 3a of S1 receives muscle spindle afferents.
+WIRING = {"SSC_1": ("proprioception", "touch", "muscle"), "SSC_2": ("SSC_1",), "SPL": ("vision", "SSC_2"),
+          "IPL": ("SPL",), "IPS": ("IPL", "SSC_2"), "MCC": ("goal", "SSC_2"), "LPFC": ("MCC", "goal", "vision"),
           "PMC_in": ("LPFC", "IPL"), "PMC": ("PMC_in",), "M1": ("PMC", "MCC", "LPFC", "SSC_2", "IPS")}
 SHARED_VALUE_INPUTS = ("PMC", "MCC", "IPS", "LPFC", "SSC_2", "asymmetric")
 

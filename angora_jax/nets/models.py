@@ -1,7 +1,7 @@
 """Built-in networks. Each follows the network contract (see `angora_jax.nets`): one time step for a batch,
 `__call__(carry, obs) -> (carry, policy_features, value)`, plus `initial_carry(batch_size)`.
 
-Policy inputs are the modalities proprioception, touch, vision and goal; `asymmetric` reaches only the value
+Policy inputs are the modalities proprioception, touch, muscle, vision and goal; `asymmetric` reaches only the value
 function. Empty modalities (size 0) are skipped, so no model assumes any particular one is present.
 """
 
@@ -18,7 +18,7 @@ import numpy as np
 from angora_jax.envs.core import Sensation
 from angora_jax.envs.mjx_env import on_gpu
 
-POLICY_MODALITIES = ("proprioception", "touch", "vision", "goal")
+POLICY_MODALITIES = ("proprioception", "touch", "muscle", "vision", "goal")
 
 HIDDEN_INIT = nn.initializers.orthogonal(np.sqrt(2.0))
 _VALUE_INIT = nn.initializers.orthogonal(1.0)

@@ -1,0 +1,34 @@
+"""MyoHand tasks (MyoSuite's muscle-driven hand, from the optional `myo-sim` package), registered as `MyoHandPose`.
+
+The hand is built only when a task is made, so that `import angora_jax` needs no `myo-sim`; making a task without it
+raises a ModuleNotFoundError naming the install command.
+"""
+
+from __future__ import annotations
+
+from angora_jax.envs.backends import on_backend
+from angora_jax.envs.core import Env
+from angora_jax.envs.myohand.model import MYOHAND_PHYSICS, load_hand
+from angora_jax.envs.myohand.pose import POSE_THRESHOLD, SUCCESS_STEPS, MyoHandPose, PoseReward
+from angora_jax.envs.registry import register
+
+
+def make_pose(reward: dict[str, float] | None = None, pose_threshold: float = POSE_THRESHOLD,
+              success_steps: int = SUCCESS_STEPS, control_dt: float = 0.02, max_episode_steps: int = 100,
+              physics: dict[str, float | str] | None = None, backend: str = "mjx") -> Env:
+    """Build `MyoHandPose` (`pose.MyoHandPose`; MyoSuite's myoHandPoseRandom-v0 defaults). Times in s, angles in rad.
+
+    reward: `pose.PoseReward` coefficients overriding MyoSuite's weights (e.g. `{effort: 0}`). pose_threshold,
+    success_steps: a step is solved below `pose_threshold`, an episode a success when solved on more than
+    `success_steps` steps. control_dt: simulated time per policy step, a whole multiple of the timestep (the frame
+    skip is control_dt / timestep: 0.02 / 0.002 = 10). physics: `PhysicsSettings` fields overriding the model's own
+    settings (`model.MYOHAND_PHYSICS`: 2 ms, Newton, 100 iterations, 50 line-search steps). backend: "mjx" (batched,
+    training) or "cpu" (the C MuJoCo twin)."""
+    settings = MYOHAND_PHYSICS.with_options(physics)
+    frame_skip = settings.frame_skip(control_dt)
+    task = MyoHandPose(load_hand(settings), PoseReward.from_dict(reward), pose_threshold=pose_threshold,
+                       success_steps=success_steps)
+    return on_backend(backend, task, frame_skip, max_episode_steps, settings.warp_max_envs)
+
+
+register("MyoHandPose", make_pose)

@@ -1,0 +1,40 @@
+"""The MyoHand model: MyoSuite's muscle-driven right hand as `myo-sim` builds it, compiled for MJX.
+
+`myo-sim` (0.2.3, Apache-2.0, the `myo` extra) holds MyoSuite's musculoskeletal models. Its MyoHand has 23 joints
+(forearm rotation, wrist, thumb and fingers), 39 muscle actuators (MuJoCo's muscle activation dynamics, gain and
+bias) pulling on 39 tendons that wrap over 315 spheres, cylinders and sites, and collision geoms that collide with
+nothing (contype 1, conaffinity 0): the hand alone makes no contacts. MJX accepts it as built, with both
+implementations; we change only the settings of `PhysicsSettings`.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+
+import mujoco
+
+from angora_jax.envs.shadow_hand.model import PhysicsSettings
+
+# The model's own solver settings (myo-sim 0.2.3): 2 ms, Newton with up to 100 iterations and 50 line-search steps.
+MYOHAND_PHYSICS = PhysicsSettings(timestep=0.002, iterations=100, ls_iterations=50)
+MUSCLES = 39
+JOINTS = 23
+INSTALL_HINT = 'pip install -c constraints.txt -e ".[myo]" (or pip install myo-sim==0.2.3)'
+
+
+def require_myo_sim() -> None:
+    """Raise a ModuleNotFoundError naming the fix when the `myo-sim` package (the MyoHand's files) is missing."""
+    if importlib.util.find_spec("myo_sim") is None:
+        raise ModuleNotFoundError(f"The MyoHand tasks build the hand from the 'myo-sim' package: {INSTALL_HINT}.")
+
+
+def load_hand(physics: PhysicsSettings = MYOHAND_PHYSICS) -> mujoco.MjModel:
+    """Compile the MyoHand with `physics` (timestep, solver iterations, MJX implementation). Its joints are
+    `JOINTS` hinges (rad), its actuators `MUSCLES` muscles whose `ctrl` is the excitation in [0, 1]
+    (`actuator_ctrlrange`) and whose `act` is the activation, one state per muscle (`na` = `nu`)."""
+    require_myo_sim()
+    from myo_sim.build.compose import build_right_hand_from_arm_spec
+
+    spec = build_right_hand_from_arm_spec()
+    physics.apply(spec)
+    return spec.compile()

@@ -1,0 +1,154 @@
+"""`MyoHandPose`: bring the muscle-driven MyoHand to a drawn posture, after MyoSuite's `myoHandPoseRandom-v0`.
+
+What is MyoSuite's (myosuite 3.0.0, `envs/myo/tasks/basic/arm/pose.py` and its registration): each episode starts
+from joint angles drawn uniformly within the joints' ranges and draws a target posture uniformly per joint between
+the smallest and the largest angle that joint takes in MyoSuite's ten American Sign Language digit postures
+(`TARGET_RANGES`; the forearm rotation, the wrist and two abductions are 0 in all ten, so their targets are 0). The
+pose error is the Euclidean norm of target minus joint angles over all 23 joints (rad). A step is `solved` when the
+error is below 0.7 rad (MyoSuite's `pose_thd` for the hand); an episode is a `success` when it is solved on more than
+5 of its steps (MyoSuite's `evaluate_success`, `successful_steps=5`). Episodes last 100 steps of 20 ms (10 physics
+steps of 2 ms), and the reward's terms and weights are MyoSuite's: pose (minus the error), bonus (1 below the
+threshold, 1 more below 1.5 times it) and penalty (-1 beyond 2 pi rad, which ends the episode).
+
+What differs: the effort cost is the mean squared activation over the 39 muscles (MyoSuite's generic `act_reg` term
+in `terms/base_reward.py`); MyoSuite's pose task itself charges the norm of the activations divided by their number.
+Actions are the muscles' excitations in [0, 1] (`ctrl`), where MyoSuite maps actions in [-1, 1] through a sigmoid.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from angora_jax.envs.coefficients import Coefficients
+from angora_jax.envs.core import Sensation
+from angora_jax.envs.mujoco_task import MujocoTask, Snapshot
+
+# Per joint (in the model's joint order), the lowest and highest angle (rad) over MyoSuite's ten ASL digit postures
+# (`ASL_qpos` in myosuite 3.0.0 `envs/myo/tasks/basic/__init__.py`, for the hand that myo-sim composes).
+TARGET_RANGES = (
+    (0.0, 0.0), (0.0, 0.0), (0.0, 0.0),  # pro_sup, deviation, flexion (forearm and wrist)
+    (-0.147495, 0.28272), (0.0248, 0.6392), (-0.7854, 0.01569), (-1.309, -0.0262045),  # thumb: cmc, mp, ip
+    (0.366605, 1.30045), (-0.006982, 0.010473), (0.128305, 1.45492), (0.111722, 0.998897),  # index
+    (0.39275, 1.48459), (0.0, 0.0), (0.18852, 1.45318), (0.117825, 1.44532),  # middle
+    (0.306345, 1.571), (-0.204204, -0.010472), (0.0, 1.52387), (0.06284, 1.45318),  # ring
+    (0.21994, 1.48459), (-0.2618, -0.068068), (0.18852, 1.571), (0.01571, 1.571),  # little
+)
+# MyoSuite's hand pose threshold (`pose_thd`, rad) and its success rule: solved on more than this many steps.
+POSE_THRESHOLD = 0.7
+SUCCESS_STEPS = 5
+
+
+@dataclasses.dataclass(frozen=True)
+class PoseReward(Coefficients):
+    """Weights of the reward's terms (MyoSuite's `DEFAULT_RWD_KEYS_AND_WEIGHTS` for pose), errors in rad.
+
+    pose: weight of minus the pose error. bonus: weight of the bonus, 1 while the error is below the threshold and 1
+    more below 1.5 times it. effort: weight of minus the mean squared muscle activation. penalty: weight of minus 1
+    when the error exceeds `far_error`, which also ends the episode.
+    """
+
+    pose: float = 1.0
+    bonus: float = 4.0
+    effort: float = 1.0
+    penalty: float = 50.0
+    far_error: float = 2 * math.pi
+
+
+class MyoHandPose(MujocoTask):
+    """Reach a drawn posture of the 23 joints with 39 muscles (the module docstring gives MyoSuite's definitions).
+
+    Observation: proprioception (23 joint angles in rad, 23 velocities in rad/s), muscle (per muscle, in actuator
+    order: 39 lengths in m, 39 lengthening velocities in m/s and 39 forces in N, negative when pulling: what muscle
+    spindles and Golgi tendon organs sense), goal (the 23 target angles and the 23 errors target minus angle, rad).
+    Actions: 39 excitations in [0, 1], written to `ctrl`; values outside are clipped, as MuJoCo clamps the muscles'
+    limited `ctrl` and MyoSuite clips actions to its action space. Muscle activations follow the excitations with
+    MuJoCo's activation dynamics, from 0 at an episode's start.
+    Metrics: `success` (solved on more than `success_steps` steps of the episode so far; its value at an episode's
+    end is MyoSuite's success), `solved` (this step's error below `pose_threshold`), `pose_error` (rad) and `effort`
+    (mean squared activation).
+    """
+
+    metric_names = ("success", "solved", "pose_error", "effort")
+    random_initial_qpos = True
+    muscle_sense = True
+
+    def __init__(self, model: mujoco.MjModel, reward: PoseReward = PoseReward(),
+                 pose_threshold: float = POSE_THRESHOLD, success_steps: int = SUCCESS_STEPS):
+        if model.nu != model.na or not np.all(model.actuator_dyntype == mujoco.mjtDyn.mjDYN_MUSCLE):
+            raise ValueError("MyoHandPose drives muscles: every actuator must have muscle dynamics (one activation "
+                             f"each), got nu={model.nu}, na={model.na}.")
+        if len(TARGET_RANGES) != model.njnt:
+            raise ValueError(f"TARGET_RANGES holds {len(TARGET_RANGES)} joints, the model {model.njnt}: build the "
+                             "model with envs.myohand.model.load_hand (myo-sim 0.2.3).")
+        if pose_threshold <= 0:
+            raise ValueError(f"pose_threshold must be > 0 (rad), got {pose_threshold}.")
+        if isinstance(success_steps, bool) or not isinstance(success_steps, int) or success_steps < 0:
+            raise ValueError(f"success_steps must be a whole number >= 0, got {success_steps!r}.")
+        self.model = model
+        self.reward_config = reward
+        self.pose_threshold = float(pose_threshold)
+        self.success_steps = success_steps
+        self._joint_low, self._joint_high = model.jnt_range.T.astype(np.float32)
+        self._target_low, self._target_high = np.asarray(TARGET_RANGES, np.float32).T
+        self._ctrl_low, self._ctrl_high = model.actuator_ctrlrange.T.astype(np.float32)
+
+    def initial_qpos(self, key: jax.Array) -> jax.Array:
+        """Angles drawn uniformly within the joints' ranges (MyoSuite's `reset_type="random"`)."""
+        return jax.random.uniform(key, (self.model.nq,), minval=self._joint_low, maxval=self._joint_high)
+
+    def initial_control(self, snap: Snapshot) -> jax.Array:
+        """No excitation: every muscle at rest."""
+        return jnp.zeros(self.model.nu, jnp.float32)
+
+    def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The muscles' excitation range, [0, 1] each."""
+        return self._ctrl_low, self._ctrl_high
+
+    def control(self, action: jax.Array, snap: Snapshot) -> jax.Array:
+        return jnp.clip(action, self._ctrl_low, self._ctrl_high)
+
+    def draw_target(self, key: jax.Array) -> jax.Array:
+        """A target posture `(23,)` in rad, uniform per joint within `TARGET_RANGES`."""
+        return jax.random.uniform(key, self._target_low.shape, minval=self._target_low, maxval=self._target_high)
+
+    def initial_info(self, key: jax.Array, snap: Snapshot) -> dict[str, jax.Array]:
+        return {"target": self.draw_target(key), "solved_steps": jnp.zeros((), jnp.int32)}
+
+    def muscles(self, snap: Snapshot) -> jax.Array:
+        """The muscle sense `(3 * 39,)`: lengths (m), lengthening velocities (m/s), forces (N), in actuator order."""
+        return jnp.concatenate([snap.actuator_length, snap.actuator_velocity, snap.actuator_force])
+
+    def observe(self, snap: Snapshot, info: dict[str, jax.Array]) -> Sensation:
+        goal = jnp.concatenate([info["target"], info["target"] - snap.qpos])
+        return Sensation.make(proprioception=jnp.concatenate([snap.qpos, snap.qvel]), muscle=self.muscles(snap),
+                              goal=goal)
+
+    def pose_error(self, snap: Snapshot, info: dict[str, jax.Array]) -> jax.Array:
+        """Euclidean norm of target minus joint angles over all joints (rad), MyoSuite's pose distance."""
+        return jnp.linalg.norm(info["target"] - snap.qpos)
+
+    def evaluate(self, key, prev, snap, info):
+        """Reward, termination and metrics of a step, as the class docstring and `PoseReward` say."""
+        c = self.reward_config
+        error = self.pose_error(snap, info)
+        solved = error < self.pose_threshold
+        bonus = solved.astype(jnp.float32) + (error < 1.5 * self.pose_threshold)
+        far = error > c.far_error
+        effort = jnp.mean(snap.act ** 2)
+        reward = -c.pose * error + c.bonus * bonus - c.effort * effort - c.penalty * far
+        solved_steps = info["solved_steps"] + solved.astype(jnp.int32)
+        metrics = {"success": (solved_steps > self.success_steps).astype(jnp.float32),
+                   "solved": solved.astype(jnp.float32), "pose_error": error, "effort": effort}
+        return reward, far, {**info, "solved_steps": solved_steps}, metrics
+
+    def task_variables(self, snap: Snapshot, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
+        """joint_angles (23, rad), target (23, rad), muscle_force (39, N) and muscle_activation (39, in [0, 1]): what
+        the muscles-or-movements analyses decode from a network's layers."""
+        return {"joint_angles": snap.qpos, "target": info["target"], "muscle_force": snap.actuator_force,
+                "muscle_activation": snap.act}

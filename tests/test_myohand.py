@@ -1,0 +1,189 @@
+"""The MyoHand pose task (issue 62): the model, its observations and muscle sense, MyoSuite's success rule, the action
+range, and the C MuJoCo twin against MJX.
+
+The C MuJoCo twin runs the task's functions jitted for one environment (a few seconds of compiles), so the fast tests
+use it. MJX's compile of the muscle hand takes about 30 s of CPU (the batched reset about 10 s and the step about
+19 s at XLA's quick settings, 2 cores): the MJX comparison and the training smoke test are in the slow tier and share
+one compiled program through module-scoped fixtures.
+"""
+
+import importlib.util
+import math
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from quick_compile import compile_quickly
+
+import angora_jax as aj
+from angora_jax.envs.myohand.model import JOINTS, MUSCLES, load_hand
+from angora_jax.envs.myohand.pose import POSE_THRESHOLD, TARGET_RANGES, MyoHandPose, PoseReward
+
+BATCH = 2
+STEPS = 10
+
+
+@pytest.fixture(scope="module")
+def model() -> mujoco.MjModel:
+    return load_hand()
+
+
+@pytest.fixture(scope="module")
+def cpu():
+    """The C MuJoCo twin of MyoHandPose and its first state (key 0)."""
+    env = aj.make("MyoHandPose", backend="cpu")
+    return env, env.reset(jax.random.key(0))
+
+
+def test_the_hand_has_23_joints_and_39_muscles_on_39_wrapping_tendons(model):
+    assert (model.njnt, model.nq, model.nv) == (JOINTS, JOINTS, JOINTS)
+    assert model.nu == model.na == model.ntendon == MUSCLES
+    assert model.nwrap == 315
+    assert np.all(model.actuator_dyntype == mujoco.mjtDyn.mjDYN_MUSCLE)
+    np.testing.assert_array_equal(model.actuator_ctrlrange, np.tile([0.0, 1.0], (MUSCLES, 1)))
+    assert model.opt.timestep == 0.002
+
+
+def test_observations_hold_joints_the_muscle_sense_and_the_goal(cpu):
+    env, state = cpu
+    sizes = {name: int(value.shape[-1]) for name, value in state.obs.__dict__.items()}
+    assert sizes == {"proprioception": 2 * JOINTS, "touch": 0, "muscle": 3 * MUSCLES, "vision": 0,
+                     "goal": 2 * JOINTS, "asymmetric": 0}
+    state = env.step(state, jnp.full(MUSCLES, 0.3))
+    data = env.data
+    # The muscle sense reads the C MuJoCo data: lengths, lengthening velocities, forces, each in actuator order.
+    np.testing.assert_allclose(state.obs.muscle, np.concatenate(
+        [data.actuator_length, data.actuator_velocity, data.actuator_force]), rtol=1e-6, atol=1e-6)
+    assert np.all(data.actuator_force <= 0) and np.any(data.actuator_force < -1.0), "excited muscles pull"
+    np.testing.assert_allclose(state.obs.proprioception, np.concatenate([data.qpos, data.qvel]), rtol=1e-6,
+                               atol=1e-6)
+    target = state.info["target"]
+    np.testing.assert_allclose(state.obs.goal, np.concatenate([target, target - data.qpos]), atol=1e-6)
+    assert env.task_variables(state)["muscle_force"].shape == (MUSCLES,)
+
+
+def test_starts_and_targets_are_drawn_within_their_ranges(model):
+    task = MyoHandPose(model)
+    keys = jax.random.split(jax.random.key(1), 200)
+    starts = jax.vmap(task.initial_qpos)(keys)
+    targets = jax.vmap(task.draw_target)(keys)
+    low, high = np.asarray(TARGET_RANGES).T
+    assert np.all(starts >= model.jnt_range[:, 0] - 1e-6) and np.all(starts <= model.jnt_range[:, 1] + 1e-6)
+    assert np.all(targets >= low - 1e-6) and np.all(targets <= high + 1e-6)
+    wide = high - low > 0.1
+    assert np.all(np.ptp(targets, axis=0)[wide] > 0.5 * (high - low)[wide]), "targets spread over their ranges"
+
+
+def snapshot(model: mujoco.MjModel, qpos: np.ndarray, act: float = 0.0):
+    """A C MuJoCo snapshot of the hand at rest at `qpos`, every muscle at activation `act`."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    data.act[:] = act
+    mujoco.mj_forward(model, data)
+    return MyoHandPose(model).snapshot(data)
+
+
+def test_a_step_is_solved_below_0_7_rad_and_an_episode_succeeds_after_more_than_5_solved_steps(model):
+    """MyoSuite's definitions: the Euclidean joint error over the 23 joints below `pose_thd` 0.7 rad is solved; an
+    episode solved on more than 5 steps is a success. Reward: minus the error, 4 x the bonus (1 below 0.7 rad, 1 more
+    below 1.05), minus the mean squared activation."""
+    task = MyoHandPose(model)
+    target = np.asarray(TARGET_RANGES).mean(axis=1)
+    info = {"target": jnp.asarray(target, jnp.float32), "solved_steps": jnp.zeros((), jnp.int32)}
+    direction = np.ones(JOINTS) / math.sqrt(JOINTS)
+    near, far = (snapshot(model, target + error * direction) for error in (0.69, 0.71))
+    reward, terminated, after, metrics = task.evaluate(None, near, near, info)
+    assert float(metrics["solved"]) == 1.0 and not bool(terminated)
+    np.testing.assert_allclose(metrics["pose_error"], 0.69, atol=1e-5)
+    np.testing.assert_allclose(reward, -0.69 + 4 * 2, atol=1e-5)
+    reward, _, _, metrics = task.evaluate(None, far, far, info)
+    assert float(metrics["solved"]) == 0.0
+    np.testing.assert_allclose(reward, -0.71 + 4 * 1, atol=1e-5)
+    successes = []
+    for _ in range(7):
+        _, _, info, metrics = task.evaluate(None, near, near, info)
+        successes.append(float(metrics["success"]))
+    assert successes == [0, 0, 0, 0, 0, 1, 1], "a success after the sixth solved step"
+    _, _, info, metrics = task.evaluate(None, far, far, info)
+    assert float(metrics["success"]) == 1.0 and int(info["solved_steps"]) == 7, "an unsolved step keeps the success"
+    assert POSE_THRESHOLD == 0.7
+
+
+def test_the_effort_cost_is_the_mean_squared_activation(model):
+    task = MyoHandPose(model)
+    target = np.asarray(TARGET_RANGES).mean(axis=1)
+    info = {"target": jnp.asarray(target, jnp.float32), "solved_steps": jnp.zeros((), jnp.int32)}
+    rest, excited = snapshot(model, target, 0.0), snapshot(model, target, 0.5)
+    rest_reward, _, _, _ = task.evaluate(None, rest, rest, info)
+    reward, _, _, metrics = task.evaluate(None, excited, excited, info)
+    np.testing.assert_allclose(metrics["effort"], 0.25, atol=1e-6)
+    np.testing.assert_allclose(rest_reward - reward, 0.25, atol=1e-5)
+    free = MyoHandPose(model, PoseReward(effort=0.0))
+    np.testing.assert_allclose(free.evaluate(None, excited, excited, info)[0], rest_reward, atol=1e-5)
+
+
+def test_excitations_outside_0_1_are_clipped_as_muscles_clamp_them(model):
+    task = MyoHandPose(model)
+    lows, highs = task.action_bounds()
+    np.testing.assert_array_equal(lows, np.zeros(MUSCLES))
+    np.testing.assert_array_equal(highs, np.ones(MUSCLES))
+    action = jnp.linspace(-0.5, 1.5, MUSCLES)
+    np.testing.assert_allclose(task.control(action, None), np.clip(np.asarray(action), 0.0, 1.0))
+    twins = []
+    for excitation in (1.0, 3.0):
+        env = aj.make("MyoHandPose", backend="cpu")
+        state = env.reset(jax.random.key(2))
+        twins.append(env.step(state, jnp.full(MUSCLES, excitation)).obs.proprioception)
+    np.testing.assert_array_equal(twins[0], twins[1])
+
+
+def test_options_are_checked_and_a_missing_myo_sim_names_the_install(monkeypatch):
+    with pytest.raises(ValueError, match="Unknown reward coefficients"):
+        aj.make("MyoHandPose", reward={"efort": 1.0}, backend="cpu")
+    with pytest.raises(ValueError, match="whole multiple of the timestep"):
+        aj.make("MyoHandPose", control_dt=0.003, backend="cpu")
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "myo_sim" else real(name, *a))
+    with pytest.raises(ModuleNotFoundError, match=r'pip install -c constraints.txt -e "\.\[myo\]"'):
+        aj.make("MyoHandPose", backend="cpu")
+
+
+@pytest.fixture(scope="module")
+def mjx_rollout():
+    """A batch of MJX (JAX implementation) environments stepped `STEPS` times with random excitations, from the keys
+    the C MuJoCo twin is reset with: the states and the excitations."""
+    env = aj.make("MyoHandPose", physics={"impl": "jax"})
+    keys = jax.random.split(jax.random.key(3), BATCH)
+    reset = compile_quickly(jax.vmap(env.reset), keys)
+    state = reset(keys)
+    actions = jnp.asarray(np.random.default_rng(0).uniform(0, 1, (STEPS, BATCH, MUSCLES)), jnp.float32)
+    step = compile_quickly(jax.vmap(env.step), state, actions[0])
+    states = [state]
+    for action in actions:
+        states.append(step(states[-1], action))
+    return keys, states, actions
+
+
+@pytest.mark.slow
+def test_mjx_and_the_c_mujoco_twin_agree_for_10_steps(mjx_rollout):
+    """Same keys and excitations: joint angles within 1e-3 rad, muscle forces within 1e-2 of the largest force, and
+    rewards within 1e-3 over 10 policy steps (100 physics steps). float32 MJX against float64 C MuJoCo; the measured
+    differences are in benchmarks/results/myohand/."""
+    keys, states, actions = mjx_rollout
+    cpu = aj.make("MyoHandPose", backend="cpu")
+    for b in range(BATCH):
+        state = cpu.reset(keys[b])
+        np.testing.assert_allclose(states[0].info["target"][b], state.info["target"], atol=1e-6)
+        for t in range(STEPS):
+            state = cpu.step(state, actions[t, b])
+            mjx = states[t + 1]
+            np.testing.assert_allclose(mjx.obs.proprioception[b, :JOINTS], state.obs.proprioception[:JOINTS],
+                                       atol=1e-3)
+            forces = state.obs.muscle[2 * MUSCLES:]
+            np.testing.assert_allclose(mjx.obs.muscle[b, 2 * MUSCLES:], forces,
+                                       atol=1e-2 * float(jnp.abs(forces).max()))
+            np.testing.assert_allclose(mjx.reward[b], state.reward, atol=1e-3)
+        moved = jnp.abs(state.obs.proprioception[:JOINTS] - states[0].obs.proprioception[b, :JOINTS]).max()
+        assert float(moved) > 0.05, "the hand must move"
