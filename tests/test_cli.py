@@ -100,7 +100,7 @@ def test_bad_input_exits_2_with_the_cause(argv, message, capsys, tmp_path, monke
 
 
 def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys, tmp_path, monkeypatch):
-    def fail(config, overrides, minutes=None):
+    def fail(config, minutes=None):
         raise ProcessFailed((1,), 3, tmp_path / "run")
 
     monkeypatch.setattr(cli.training, "train", fail)
@@ -112,11 +112,10 @@ def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys
 
 def test_overrides_may_follow_the_options_and_other_strays_are_usage_errors(capsys, monkeypatch):
     seen = []
-    monkeypatch.setattr(cli.training, "train",
-                        lambda config, overrides, minutes: seen.append((config, overrides)) or "run")
+    monkeypatch.setattr(cli.training, "train", lambda config, minutes: seen.append(config) or "run")
     monkeypatch.setattr(cli.training, "print_finished", lambda run: None)
     assert main(["train", "cartpole", "ppo.seed=1", "--minutes", "5", "ppo.num_envs=8"]) == 0
-    assert seen == [("cartpole", ["ppo.seed=1", "ppo.num_envs=8"])]
+    assert [(config.ppo.seed, config.ppo.num_envs) for config in seen] == [(1, 8)]
     with pytest.raises(SystemExit) as stop:
         main(["train", "cartpole", "--minutes", "5", "stray"])
     assert stop.value.code == 2 and "unrecognized arguments: stray" in capsys.readouterr().err

@@ -34,11 +34,12 @@ import argparse
 import sys
 
 from angora_jax.cli import analysis, configs, evaluation, reports, training, vision
-from angora_jax.cli.arguments import EXIT_FAILED, EXIT_USAGE
+from angora_jax.cli.arguments import EXIT_FAILED, EXIT_USAGE, add_import_option
 from angora_jax.cli.errors import os_error_message
 from angora_jax.experiment import ConfigError, RunDirError, TrainingInterrupted
 from angora_jax.experiment.distributed import ProcessFailed
 from angora_jax.ppo import TrainingDivergedError
+from angora_jax.registry.plugins import UserCodeError, import_modules
 
 # The verbs in the order `angora-jax --help` lists them, each added by the module of its group.
 VERBS = (training.add_train, training.add_resume, training.add_check, evaluation.add_evaluate, evaluation.add_render,
@@ -53,7 +54,17 @@ def parser() -> argparse.ArgumentParser:
     commands = top.add_subparsers(dest="command", required=True)
     for add_verb in VERBS:
         add_verb(commands)
+    for verb in leaf_parsers(top):
+        add_import_option(verb)
     return top
+
+
+def leaf_parsers(command: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
+    """The parsers that run a handler: `command`'s subcommands, and theirs (`analyze decode`, `config show`)."""
+    groups = [action for action in command._actions if isinstance(action, argparse._SubParsersAction)]
+    if not groups:
+        return [command]
+    return [leaf for group in groups for sub in group.choices.values() for leaf in leaf_parsers(sub)]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -68,7 +79,11 @@ def main(argv: list[str] | None = None) -> int:
         else:
             cli.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
+        import_modules(args.imports, "--import")
         return args.handler(args)
+    except UserCodeError as error:
+        print(f"angora-jax {args.command}: {error}", file=sys.stderr)
+        return EXIT_USAGE
     except (ConfigError, RunDirError, FileNotFoundError) as error:
         # The system's own FileNotFoundError names a path and an errno; ours carry their whole message.
         system = isinstance(error, FileNotFoundError) and error.errno is not None

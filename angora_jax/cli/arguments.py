@@ -4,8 +4,11 @@ function that adds it to a verb's parser), and the small readings of arguments t
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
+
+from angora_jax.experiment.config import Config, load_config
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
@@ -85,3 +88,18 @@ def refused_existing(command: str, out: Path, what: str) -> bool:
         print(f"angora-jax {command}: {out} exists; {what} are never overwritten: give another --out.", file=sys.stderr)
     return out.exists()
 
+
+
+def add_import_option(command: argparse.ArgumentParser) -> None:
+    """--import MODULE (repeatable), which every verb takes: user code imported before the verb runs."""
+    command.add_argument(
+        "--import", dest="imports", action="append", default=[], metavar="MODULE",
+        help="import this Python module first (its folder on PYTHONPATH, or installed), so that the tasks and models "
+             "it registers can be named; repeatable; train records it in the run (the config's imports)")
+
+
+def config_with_imports(args: argparse.Namespace) -> Config:
+    """The config that `train` would use: `args.config` with `args.overrides`, and the --import modules added to its
+    `imports` (after the config's own, each once), so that the run records them."""
+    config = load_config(args.config, args.overrides)
+    return dataclasses.replace(config, imports=tuple(dict.fromkeys([*config.imports, *args.imports])))

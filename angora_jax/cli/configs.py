@@ -11,11 +11,11 @@ import jax
 import numpy as np
 import yaml
 
-from angora_jax.cli.arguments import EXIT_FAILED, EXIT_OK, EXIT_USAGE, positive_int, seed
+from angora_jax.cli.arguments import EXIT_FAILED, EXIT_OK, EXIT_USAGE, config_with_imports, positive_int, seed
 from angora_jax.envs import list_tasks, make
 from angora_jax.envs.random_rollout import batched_reset, episode_mean, make_random_rollout
 from angora_jax.experiment import list_configs
-from angora_jax.experiment.config import load_config, to_dict, validate
+from angora_jax.experiment.config import to_dict, validate
 from angora_jax.experiment.config_reference import reference_markdown
 from angora_jax.nets import list_networks
 from angora_jax.ppo import list_heads
@@ -71,7 +71,7 @@ def add_run(commands: argparse._SubParsersAction) -> None:
 
 
 def command_config_show(args: argparse.Namespace) -> int:
-    config = load_config(args.config, args.overrides)
+    config = config_with_imports(args)
     validate(config)
     print(f"# {args.config} {' '.join(args.overrides)}".rstrip() + ": what `angora-jax train` would use")
     print(yaml.safe_dump(to_dict(config), sort_keys=False), end="")

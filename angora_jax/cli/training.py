@@ -11,6 +11,7 @@ from angora_jax.cli.arguments import (
     add_distributed_flags,
     add_time_limit,
     checkpoint_of,
+    config_with_imports,
 )
 from angora_jax.experiment import ConfigError, TrainingRun, read_metrics, resume, train
 from angora_jax.experiment.distributed import initialize, is_main_process
@@ -74,7 +75,7 @@ def start_distributed(args: argparse.Namespace) -> None:
 def command_train(args: argparse.Namespace) -> int:
     start_distributed(args)
     with signals_exit_while_preparing():
-        run = train(args.config, args.overrides, minutes=args.minutes)
+        run = train(config_with_imports(args), minutes=args.minutes)
     if is_main_process():
         print_finished(run)
     return EXIT_OK

@@ -44,12 +44,18 @@ from angora_jax.ppo.config import (
 )
 from angora_jax.ppo.memory import estimate_memory
 from angora_jax.ppo.parallel import per_device, resolve_num_devices
+from angora_jax.registry.plugins import UserCodeError, import_modules
 
 # Named configs (`load_config("cartpole")`) ship inside the package (the repository's configs/ links here), so a
 # name is found from any working directory and in an installed wheel.
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 # A config file may start from another: `extends: shadow_ihom` (a shipped name, or a path relative to the file).
 EXTENDS = "extends"
+
+
+# The end of the message for a task or network name that no registry knows.
+YOUR_OWN = (" One of your own: list the module that registers it under imports (e.g. imports: [my_tasks]), or install "
+            "it as a plugin.")
 
 
 class ConfigError(ValueError):
@@ -257,6 +263,10 @@ class Config:
     env: the task and its options. ppo: the PPO run and its network. logging: where the run is written and what is
     shown. checkpoint: which checkpoints are kept. distribution: the devices of a data-parallel run. evaluation:
     held-out evaluations during training.
+    imports: Python modules imported before anything is built, by dotted name (e.g. `[my_tasks]`), so that the
+    tasks, networks, heads and components they register can be named in the config; each must be importable (its
+    folder on PYTHONPATH, or installed). The run records them, and every command that reads it imports them again.
+    Installed plugins (entry-point group `angora_jax.plugins`) load without being listed.
     """
 
     env: EnvConfig = field(default_factory=EnvConfig)
@@ -265,6 +275,7 @@ class Config:
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
     distribution: DistributionConfig = field(default_factory=DistributionConfig)
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
+    imports: tuple[str, ...] = ()
 
 
 def load_config(source: str | Path | dict | None = None, overrides: typing.Iterable[str] = ()) -> Config:
@@ -335,20 +346,25 @@ def validate(config: Config, new_run: bool = True) -> Env:
     run that exists (resuming or reading it), whose directory was made under the rules of its time.
     Raises ConfigError naming the key (e.g. `ppo.minibatch_size`), the allowed values and the fix.
     """
+    try:  # first: the user's modules register the tasks and networks that the checks below look up
+        import_modules(config.imports, "listed under imports in the config; a run's config.yaml lists those it "
+                                        "trained with")
+    except UserCodeError as error:
+        raise ConfigError(str(error)) from None
     try:  # load_config checks these too; a Config made in Python comes here unchecked
         check_bounds(config, "")
     except ValueError as error:
         raise ConfigError(str(error)) from None
     if config.env.task not in list_tasks() and not is_gymnasium(config.env.task):
         raise ConfigError(_unknown("env.task", config.env.task, list_tasks(), "tasks") +
-                          " Any Gymnasium environment: gym:<id>, e.g. gym:LunarLander-v3.")
+                          " Any Gymnasium environment: gym:<id>, e.g. gym:LunarLander-v3." + YOUR_OWN)
     _check_options(config.env.options, "env.options")
     try:
         env = make(config.env.task, **config.env.options)
     except (TypeError, ValueError) as error:
         raise ConfigError(f"env.options do not fit task {config.env.task!r}: {error}") from None
     if config.ppo.network.name not in list_networks():
-        raise ConfigError(_unknown("ppo.network.name", config.ppo.network.name, list_networks(), "networks"))
+        raise ConfigError(_unknown("ppo.network.name", config.ppo.network.name, list_networks(), "networks") + YOUR_OWN)
     try:
         config.ppo.validate_for(env)
     except ValueError as error:

@@ -1,9 +1,13 @@
-"""`Registry`: named factories with one behaviour for tasks, networks and policy heads."""
+"""`Registry`: named factories with one behaviour for tasks, networks and policy heads. Listing a registry, or asking
+it for a name it does not know, first loads the installed plugins (`angora_jax.registry.plugins`), so that their
+names are there."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from typing import Generic, TypeVar
+
+from angora_jax.registry.plugins import load_plugins
 
 F = TypeVar("F", bound=Callable)
 
@@ -22,11 +26,15 @@ class Registry(Generic[F]):
         self._factories[name] = factory
 
     def names(self) -> list[str]:
-        """Registered names, sorted."""
+        """Registered names (the installed plugins' included), sorted."""
+        load_plugins()
         return sorted(self._factories)
 
     def get(self, name: str) -> F:
-        """The factory registered as `name`; a ValueError lists the known names otherwise."""
+        """The factory registered as `name`, perhaps by an installed plugin; a ValueError lists the known names
+        otherwise."""
+        if name not in self._factories:
+            load_plugins()
         try:
             return self._factories[name]
         except KeyError:

@@ -1,0 +1,75 @@
+"""User code that registers tasks, networks, heads and components: modules named by a config's `imports` or the
+command's `--import`, and installed plugins, the packages that list a module or a callable under the entry-point
+group `angora_jax.plugins`, e.g. in their pyproject.toml:
+
+    [project.entry-points."angora_jax.plugins"]
+    thumbs_up = "thumbs_up"                # a module: importing it registers what it defines
+    hand_models = "hand_models:register"   # a callable: called once, with no arguments
+
+Plugins load the first time any registry is listed or asked for a name it does not know (`Registry`), not when
+angora_jax is imported: reading the installed packages' entry points costs tens of milliseconds, and importing a
+plugin may import JAX models or MuJoCo scenes, which `import angora_jax` and a command such as `angora-jax doctor`
+must not pay for; every path that builds a task or network from a name (training, resuming, loading a run or an
+exported policy, `aj.make`) asks a registry first, so each sees the plugins without being told."""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+import types
+from collections.abc import Iterable
+
+GROUP = "angora_jax.plugins"
+_loaded = False
+
+
+class UserCodeError(ValueError):
+    """A module or plugin that cannot be imported or raised while importing; the message names it, where it was
+    named (a config key, an option, an installed package) and the fix."""
+
+
+def import_modules(names: Iterable[str], source: str) -> None:
+    """Import each module of `names` (dotted names, e.g. "mytasks.hand"), so that what it defines registers.
+
+    source: where the names came from, for the message (e.g. "the config's imports"). Raises UserCodeError for a
+    name that is not a module name, a module that is not found (put its folder on PYTHONPATH or install it), or a
+    module that raises while importing (its error, named)."""
+    for name in names:
+        if not all(part.isidentifier() for part in name.split(".")):
+            raise UserCodeError(f"{name!r} ({source}) is not a module name: give the dotted name Python imports "
+                                "(e.g. my_tasks or lab.hand_tasks, not a file path), with its folder on PYTHONPATH.")
+        try:
+            importlib.import_module(name)
+        except ModuleNotFoundError as error:
+            if error.name is None or not (name == error.name or name.startswith(error.name + ".")):
+                raise _raised(name, source, error) from error  # the module imports something missing
+            raise UserCodeError(
+                f"Module {name!r} ({source}) is not found. Put the folder that holds it on PYTHONPATH (e.g. "
+                f"PYTHONPATH=/path/to/folder angora-jax ...; the current folder is not searched by the command) or "
+                f"pip install the package that provides it.") from None
+        except Exception as error:  # user code may raise anything while importing; each one is named
+            raise _raised(name, source, error) from error
+
+
+def load_plugins() -> None:
+    """Load every installed plugin (entry-point group `angora_jax.plugins`) once per process: import each module, or
+    call each callable. Raises UserCodeError naming the plugin and its package when one fails."""
+    global _loaded
+    if _loaded:
+        return
+    _loaded = True  # before loading: a plugin that lists a registry while it is imported must not load plugins again
+    for entry in importlib.metadata.entry_points(group=GROUP):
+        package = entry.dist.name if entry.dist is not None else "an installed package"
+        source = f"plugin {entry.name!r} of {package}, entry point {GROUP}"
+        try:
+            loaded = entry.load()
+            if callable(loaded) and not isinstance(loaded, types.ModuleType):
+                loaded()
+        except Exception as error:  # as for import_modules: whatever the plugin raised, named
+            raise UserCodeError(f"{_raised(entry.value, source, error)} Or uninstall it: pip uninstall {package}.") \
+                from error
+
+
+def _raised(name: str, source: str, error: Exception) -> UserCodeError:
+    return UserCodeError(f"Importing {name!r} ({source}) failed: {type(error).__name__}: {error}. Fix that module "
+                         "(python -c 'import " + name.split(":")[0] + "' shows where it fails).")

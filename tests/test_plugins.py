@@ -1,0 +1,176 @@
+"""User code from the command line and from installed packages: a config's `imports`, the `--import` option, plugins
+of the entry-point group `angora_jax.plugins`, and a run that records its imports so that later commands import them
+again; a module that cannot be imported exits 2 naming it and the fix."""
+
+from __future__ import annotations
+
+import importlib.metadata
+import os
+import subprocess
+import sys
+import textwrap
+import venv
+from pathlib import Path
+
+import pytest
+from tiny import TINY_PPO
+
+import angora_jax as aj
+from angora_jax.cli import main
+from angora_jax.envs.registry import TASKS
+from angora_jax.experiment.run_dir import read_run_config
+from angora_jax.nets.registry import NETWORKS
+from angora_jax.ppo.distributions import HEADS
+from angora_jax.registry import plugins
+
+ROOT = Path(__file__).resolve().parents[1]
+# A task of the user's: CartPole under another name, so that nothing new compiles.
+USER_TASK = """
+from angora_jax.envs import make, register
+
+register("UserCartPole", lambda **options: make("CartPole", **options))
+"""
+# A network of the user's: the `simple` model's builder under another name (the programs are the shipped config's).
+USER_NETWORK = """
+from angora_jax.nets import register_network
+from angora_jax.nets.registry import NETWORKS
+
+register_network("user_simple", NETWORKS.get("simple"))
+"""
+
+
+@pytest.fixture
+def user_code(tmp_path, monkeypatch):
+    """A folder on sys.path for the test's modules (`user_code(name, source)` writes one); the registries, the
+    plugins' loaded flag and sys.modules are as before the test afterwards."""
+    for registry in (TASKS, NETWORKS, HEADS):
+        monkeypatch.setattr(registry, "_factories", dict(registry._factories))
+    monkeypatch.setattr(plugins, "_loaded", False)
+    folder = tmp_path / "user_code"
+    folder.mkdir()
+    monkeypatch.syspath_prepend(str(folder))
+    written = []
+
+    def write(name: str, source: str) -> str:
+        (folder / f"{name}.py").write_text(textwrap.dedent(source))
+        written.append(name)
+        return name
+
+    yield write
+    for name in written:
+        sys.modules.pop(name, None)
+
+
+def forget(module: str, network: str) -> None:
+    """What a new process would not have: the module imported and the network it registered."""
+    sys.modules.pop(module)
+    NETWORKS._factories.pop(network)
+
+
+def test_the_config_key_and_the_option_import_user_code_and_config_show_lists_both(user_code, tmp_path, capsys):
+    task, network = user_code("user_task_a", USER_TASK), user_code("user_net_a", USER_NETWORK)
+    config = tmp_path / "user.yaml"
+    config.write_text(f"imports: [{task}]\nenv: {{task: UserCartPole}}\nppo: {{network: {{name: user_simple}}}}\n")
+    assert main(["config", "show", str(config), "--import", network, "--import", task]) == 0
+    shown = capsys.readouterr().out
+    assert "  task: UserCartPole\n" in shown and shown.endswith(f"imports:\n- {task}\n- {network}\n"), "each once"
+    assert "user_simple" in NETWORKS.names() and "UserCartPole" in aj.list_tasks()
+
+
+def test_a_run_records_its_imports_and_resume_and_evaluate_import_them_again(user_code, tmp_path, capsys):
+    module = user_code("user_net_b", USER_NETWORK)
+    run_dir = tmp_path / "r"
+    assert main(["train", "cartpole", *TINY_PPO, "ppo.num_cycles=1", "ppo.network.name=user_simple",
+                 f"logging.run_root={tmp_path}", "logging.run_name=r", "logging.report=false",
+                 "logging.progress=none", "--import", module]) == 0
+    assert read_run_config(run_dir).imports == (module,)
+    forget(module, "user_simple")
+    assert main(["resume", str(run_dir)]) == 0, "a finished run, loaded with its network"
+    forget(module, "user_simple")
+    assert main(["evaluate", str(run_dir), "--episodes", "2"]) == 0
+    assert "episode_return" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("where", ["config", "option"])
+@pytest.mark.parametrize("problem, message", [
+    ("missing", "Module 'user_missing' ({source}) is not found. Put the folder that holds it on PYTHONPATH"),
+    ("raises", "Importing 'user_raises' ({source}) failed: RuntimeError: no GPU here"),
+    ("needs", "Importing 'user_needs' ({source}) failed: ModuleNotFoundError: No module named 'not_installed_x'"),
+    ("path", "'user_code/mine.py' ({source}) is not a module name"),
+])
+def test_a_module_that_cannot_be_imported_exits_2_naming_it_where_it_came_from_and_the_fix(
+        where, problem, message, user_code, tmp_path, capsys):
+    user_code("user_raises", "raise RuntimeError('no GPU here')\n")
+    user_code("user_needs", "import not_installed_x\n")
+    module = {"missing": "user_missing", "path": "user_code/mine.py"}.get(problem, f"user_{problem}")
+    config = tmp_path / "c.yaml"
+    config.write_text(f"extends: cartpole\nimports: ['{module}']\n" if where == "config" else "extends: cartpole\n")
+    argv = ["train", str(config), f"logging.run_root={tmp_path}"] + (["--import", module] if where == "option" else [])
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    source = ("listed under imports in the config; a run's config.yaml lists those it trained with" if where == "config"
+              else "--import")
+    assert err.startswith("angora-jax train: ") and message.format(source=source) in err and "Traceback" not in err
+    assert not (tmp_path / "runs").exists() and not any(tmp_path.glob("CartPole-*"))
+
+
+def test_installed_plugins_load_at_the_first_registry_lookup_and_a_broken_one_is_named(user_code, monkeypatch):
+    user_code("user_plugin", "from angora_jax.envs import make, register\n\ndef setup():\n"
+                             "    register('PluginCartPole', lambda **options: make('CartPole', **options))\n")
+    user_code("user_broken_plugin", "raise ImportError('needs libfoo')\n")
+    installed = [importlib.metadata.EntryPoint("cartpole_again", "user_plugin:setup", plugins.GROUP)]
+    monkeypatch.setattr(importlib.metadata, "entry_points", lambda group: installed if group == plugins.GROUP else [])
+    assert "PluginCartPole" not in TASKS._factories
+    assert type(aj.make("PluginCartPole")) is type(aj.make("CartPole"))
+    assert plugins._loaded
+    installed[:] = [importlib.metadata.EntryPoint("broken", "user_broken_plugin", plugins.GROUP)]
+    monkeypatch.setattr(plugins, "_loaded", False)
+    with pytest.raises(plugins.UserCodeError, match=r"Importing 'user_broken_plugin' \(plugin 'broken' of an "
+                                                    r"installed package.*ImportError: needs libfoo.*pip uninstall"):
+        aj.list_tasks()
+
+
+@pytest.mark.slow
+def test_a_plugin_package_installed_in_a_fresh_venv_trains_and_evaluates_from_the_command(tmp_path):
+    """The whole way a lab uses it: a package that lists its module under `angora_jax.plugins` in pyproject.toml,
+    pip-installed (no network: the project's packages are seen through a .pth file, the plugin installs without
+    dependencies or build isolation) into a new venv, whose `angora-jax` trains a run of its task and network and
+    evaluates it with nothing imported by hand. About 25 s of CPU (venv, pip, two command processes)."""
+    package = tmp_path / "thumbs"
+    (package / "lab_plugin").mkdir(parents=True)
+    (package / "pyproject.toml").write_text(textwrap.dedent("""
+        [build-system]
+        requires = ["setuptools"]
+        build-backend = "setuptools.build_meta"
+
+        [project]
+        name = "lab-plugin"
+        version = "0.1"
+
+        [project.entry-points."angora_jax.plugins"]
+        lab = "lab_plugin"
+    """))
+    (package / "lab_plugin" / "__init__.py").write_text(USER_TASK + USER_NETWORK)
+    env_dir = tmp_path / "venv"
+    venv.create(env_dir, with_pip=True)
+    python = env_dir / "bin" / "python"
+    site = subprocess.run([python, "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
+                          capture_output=True, text=True, check=True).stdout.strip()
+    project_site = subprocess.run([sys.executable, "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
+                                  capture_output=True, text=True, check=True).stdout.strip()
+    (Path(site) / "project.pth").write_text(f"{ROOT}\n{project_site}\n")
+    pip = [python, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--no-index", str(package)]
+    done = subprocess.run(pip, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    environment = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
+    command = [python, "-m", "angora_jax.cli"]
+    train = [*command, "train", "cartpole", *TINY_PPO, "ppo.num_cycles=1", "env.task=UserCartPole",
+             "ppo.network.name=user_simple", f"logging.run_root={tmp_path}", "logging.run_name=lab",
+             "logging.report=false", "logging.progress=none"]
+    for argv in (train, [*command, "evaluate", str(tmp_path / "lab"), "--episodes", "2"]):
+        done = subprocess.run(argv, capture_output=True, text=True, timeout=300, env=environment, cwd=tmp_path)
+        assert done.returncode == 0, done.stderr[-3000:]
+    assert "episode_return" in done.stdout and read_run_config(tmp_path / "lab").imports == ()
+    check = "import angora_jax, angora_jax.registry.plugins as p; print(p._loaded)"
+    done = subprocess.run([python, "-c", check], capture_output=True, text=True, env=environment)
+    assert done.stdout.split() == ["False"], "import angora_jax loads no plugin"
