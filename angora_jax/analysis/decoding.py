@@ -72,18 +72,21 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
     """R^2 of every layer x variable, with the noise baseline and 95% intervals, as a Dataset with variables `r2`,
     `r2_low`, `r2_high`, `baseline` (dims layer x variable).
 
-    layers: names as in `activity_<name>` (default: all). variables: dataset variables to decode, e.g.
-    `input_goal`, `task_cube_angular_velocity`, `metric_goal_distance` (default: every `input_*`, `task_*` and
-    `metric_*`). lags: policy steps k; with them, the variable at step t + k is decoded from the activity at step t
-    (k > 0: which areas predict the future; k < 0: which keep the past), and every result gets a leading `lag` dim
-    (coordinate in steps, `lag_s` in s). Every lag reads the same steps t: those alive with the variable alive at
-    every t + k, so the lags compare one set of activity, and one readout per layer and fold fits every lag and
-    variable at once (a lag costs hardly more than none). max_samples: at most this many of those steps, evenly
-    spaced over them (consecutive steps are strongly correlated, so a stride loses little, and a readout's cost grows
-    with the steps: 64 trained cube episodes hold about 75,000); the attribute `samples` says how many were used, one
-    number per lag. baseline: False leaves `baseline` NaN and skips its fits (e.g. for a control network's decoding,
-    whose layers have the same widths as the network it controls for, so the same baseline). The noise baseline is
-    one draw per layer width, shared by layers of that width.
+    Args:
+        layers: names as in `activity_<name>` (default: all).
+        variables: dataset variables to decode, e.g. `input_goal`, `task_cube_angular_velocity`, `metric_goal_distance`
+            (default: every `input_*`, `task_*` and `metric_*`).
+        lags: policy steps k; with them, the variable at step t + k is decoded from the activity at step t (k > 0: which
+            areas predict the future; k < 0: which keep the past), and every result gets a leading `lag` dim (coordinate
+            in steps, `lag_s` in s). Every lag reads the same steps t: those alive with the variable alive at every t +
+            k, so the lags compare one set of activity, and one readout per layer and fold fits every lag and variable
+            at once (a lag costs hardly more than none).
+        max_samples: at most this many of those steps, evenly spaced over them (consecutive steps are strongly
+            correlated, so a stride loses little, and a readout's cost grows with the steps: 64 trained cube episodes
+            hold about 75,000); the attribute `samples` says how many were used, one number per lag.
+        baseline: False leaves `baseline` NaN and skips its fits (e.g. for a control network's decoding, whose layers
+            have the same widths as the network it controls for, so the same baseline). The noise baseline is one draw
+            per layer width, shared by layers of that width.
     """
     layers = list(layers or recorded_layers(dataset))
     variables = list(variables or [n for n in dataset.data_vars if n.startswith(("input_", "task_", "metric_"))])

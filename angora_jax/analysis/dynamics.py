@@ -68,15 +68,21 @@ def find_fixed_points(step: Callable[[jax.Array], jax.Array], starts: jax.Array,
     """Minimise q(h) = 0.5 |step(h) - h|^2 from each row of `starts` `(K, n)` with L-BFGS for `iterations` steps.
     In float32 q bottoms out near 1e-7 for a 256-unit GRU (1e-13 for 64 units; measured), hence the tolerance.
 
-    bounds: `(low, high)`, each `(n,)` or scalar (infinite where open), the states the network can reach. The search
-    stays among them: each step's result is clipped to them (projected L-BFGS), so a coordinate pushed past its bound
-    stops there and may move back inside at a later step. Without them the search leaves the state space wherever the
-    update saturates: a GRU whose update gate is shut keeps any state, so it finds "slow points" at |h| >> 1 that the
-    network never visits.
+    Args:
+        step: the recurrent update, a map of a state `(n,)` to the next one.
+        starts: the states the searches start from, `(K, n)`.
+        iterations: L-BFGS steps of each search.
+        tolerance: a point with q at most this is fixed.
+        bounds: `(low, high)`, each `(n,)` or scalar (infinite where open), the states the network can reach. The
+            search stays among them: each step's result is clipped to them (projected L-BFGS), so a coordinate pushed
+            past its bound stops there and may move back inside at a later step. Without them the search leaves the
+            state space wherever the update saturates: a GRU whose update gate is shut keeps any state, so it finds
+            "slow points" at |h| >> 1 that the network never visits.
 
-    Returns host arrays: `points` (K, n), `speed` (K,) the final q, `fixed` (K,) whether q <= tolerance, and
-    `eigenvalues` (K, n) of the Jacobian of `step` at each point (complex; points equal to 1e-4 share those of the
-    first of them), sorted by decreasing modulus.
+    Returns:
+        Host arrays: `points` (K, n), `speed` (K,) the final q, `fixed` (K,) whether q <= tolerance, and
+        `eigenvalues` (K, n) of the Jacobian of `step` at each point (complex; points equal to 1e-4 share those of
+        the first of them), sorted by decreasing modulus.
     """
     low, high = (-np.inf, np.inf) if bounds is None else (np.asarray(b, np.float32) for b in bounds)
 
@@ -113,11 +119,13 @@ def recurrent_step(agent: Agent, layer: str, inputs: jax.Array | Sequence[jax.Ar
     """The update of the recurrent layer `layer` of `agent` (e.g. `network.PMC`, `network.policy_cell`) under a
     constant input, as a map of its flattened carry (`(c, h)` for an LSTM) to the next one, and the carry's length.
 
-    inputs: the constant input `(features,)`; or its parts in the order the layer reads them, concatenated, each
-    `(features_i,)` or None for the layer's own output (an area of a graph that reads itself: its previous output,
-    which the carry holds, so it is part of the state rather than held constant). The cell's activation is the
-    area's (`network.graph.areas.<name>.activation`) for an area of a brain-area graph, tanh otherwise (the cells of
-    the built-in `Recurrent` networks)."""
+    Args:
+        inputs: the constant input `(features,)`; or its parts in the order the layer reads them, concatenated, each
+            `(features_i,)` or None for the layer's own output (an area of a graph that reads itself: its previous
+            output, which the carry holds, so it is part of the state rather than held constant). The cell's activation
+            is the area's (`network.graph.areas.<name>.activation`) for an area of a brain-area graph, tanh otherwise
+            (the cells of the built-in `Recurrent` networks).
+    """
     params, kind, size = _cell(agent, layer)
     cell = recurrent_cell(kind, size, "cell", ACTIVATIONS[_activation(agent, layer)])
     parts = 2 if kind == "lstm" else 1
@@ -242,13 +250,24 @@ def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: st
                        starts: int = 64, iterations: int = 500, seed: int = 0) -> dict[str, np.ndarray]:
     """Fixed and slow points of `agent`'s recurrent `layer` under its mean input over the recording's alive steps.
 
-    inputs: the recorded layer(s) that feed it (e.g. `network.PMC_in`), concatenated in the order given; or None
-    for a recurrent area of a brain-area graph (`network.<area>`), whose inputs the graph names (`area_input`:
-    the sources in the order of the area's `inputs`, feedback inputs at their previous step). The cell's activation
-    is the area's (tanh for the built-in `Recurrent` networks). Starts are `starts` carries the network visited
-    (recorded as `<layer>.0...`); the search stays among the states the cell can reach (its activation's range,
-    `find_fixed_points`' bounds). Returns `find_fixed_points`'s arrays plus `input` (the constant input, the parts
-    held constant concatenated: an area that reads itself reads its state instead)."""
+    The cell's activation is the area's (tanh for the built-in `Recurrent` networks). The search stays among the
+    states the cell can reach (its activation's range, `find_fixed_points`' bounds).
+
+    Args:
+        agent: the trained agent.
+        dataset: its recording (`analysis.recording`).
+        layer: the recurrent layer, e.g. `network.PMC`.
+        inputs: the recorded layer(s) that feed it (e.g. `network.PMC_in`), concatenated in the order given; or None
+            for a recurrent area of a brain-area graph (`network.<area>`), whose inputs the graph names (`area_input`:
+            the sources in the order of the area's `inputs`, feedback inputs at their previous step).
+        starts: the number of carries the network visited (recorded as `<layer>.0...`) that the searches start from.
+        iterations: L-BFGS steps of each search.
+        seed: picks the starting carries.
+
+    Returns:
+        `find_fixed_points`'s arrays plus `input` (the constant input, the parts held constant concatenated: an area
+        that reads itself reads its state instead).
+    """
     alive = dataset["alive"].values > 0
     if inputs is None:
         pieces = list(area_input(agent, dataset, layer).values())

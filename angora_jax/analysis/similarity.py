@@ -41,7 +41,11 @@ def condition_labels(dataset: xr.Dataset, variable: str, bins: int = 8, feature:
 def layer_rdms(dataset: xr.Dataset, labels: np.ndarray, layers: Sequence[str] | None = None,
                method: str = "correlation") -> RDMs:
     """One RDM per layer over the conditions in `labels` (from `condition_labels`), as rsatoolbox RDMs with the
-    descriptor `layer`. method: any of rsatoolbox's `calc_rdm` methods ("correlation", "euclidean", ...)."""
+    descriptor `layer`.
+
+    Args:
+        method: any of rsatoolbox's `calc_rdm` methods ("correlation", "euclidean", ...).
+    """
     layers = list(layers or recorded_layers(dataset))
     alive = labels.reshape(-1) >= 0
     rdms = [calc_rdm(_patterns(dataset[f"activity_{layer}"], labels, alive), method=method, descriptor="condition")

@@ -166,9 +166,14 @@ def preferred_stimuli(seer: Seer, layer: str, units: list[int] | np.ndarray, siz
     positions), or of the visual area's output when `layer` is "output": gradient ascent from faint noise on an
     unconstrained image mapped to 0-255 by a sigmoid, each step seeing it shifted by up to `jitter` pixels and then
     blurred by `blur` (the share of each pixel replaced by its 3 x 3 neighbourhood's mean), the regularizers Lucid
-    uses against high-frequency patterns. All units are optimized at once, in one compiled program. size: (height,
-    width), default that of the camera images `seer` reads. Returns the images `(units, height, width, 3)` uint8 and
-    the activation at each step `(units, steps)`."""
+    uses against high-frequency patterns. All units are optimized at once, in one compiled program.
+
+    Args:
+        size: (height, width), default that of the camera images `seer` reads.
+
+    Returns:
+        The images `(units, height, width, 3)` uint8 and the activation at each step `(units, steps)`.
+    """
     module, params, camera = _visual_system(seer)
     if layer != "output" and layer not in conv_layers(seer):
         raise ValueError(f"No convolution {layer!r} in the visual area; choose one of {conv_layers(seer)} or "

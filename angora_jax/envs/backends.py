@@ -14,7 +14,10 @@ BACKENDS = ("mjx", "cpu")
 def on_backend(backend: str, task: MujocoTask, frame_skip: int, max_episode_steps: int,
                warp_max_envs: int | None = None) -> Env:
     """`task` with `frame_skip` physics steps per policy step on `backend`; ValueError naming the choices otherwise.
-    warp_max_envs: the batch MuJoCo Warp's buffers hold (None: sized by the trainer, `Env.sized_for`)."""
+
+    Args:
+        warp_max_envs: the batch MuJoCo Warp's buffers hold (None: sized by the trainer, `Env.sized_for`).
+    """
     if backend not in BACKENDS:
         raise ValueError(f"Unknown backend {backend!r}; choose one of {BACKENDS}.")
     if backend == "cpu":

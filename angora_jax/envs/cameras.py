@@ -41,11 +41,16 @@ RENDERERS = {"cpu": "OpenGL (mujoco.Renderer)", "warp": "MuJoCo Warp"}
 class CameraVision:
     """Which cameras a task sees through and how: the task option `vision`.
 
-    cameras: names from `rendering.CAMERAS` ("front", "side", "top", "wide"); width, height: pixels; rgb, depth:
-    the channels to render (at least one); depth_range: m, the depth that maps to 255. renderer: the renderer whose
-    images what reads the frames was trained on, "cpu" (OpenGL, `mujoco.Renderer`) or "warp" (MuJoCo Warp), or None
-    (any): the two draw the same views differently (Warp has no skybox and no textures), so a path that renders with
-    the other refuses to run.
+    Attributes:
+        cameras: names from `rendering.CAMERAS` ("front", "side", "top", "wide").
+        width: image width in pixels.
+        height: image height in pixels.
+        rgb: render the colour channels.
+        depth: render the depth channel (at least one of rgb and depth).
+        depth_range: m, the depth that maps to 255.
+        renderer: the renderer whose images what reads the frames was trained on, "cpu" (OpenGL, `mujoco.Renderer`) or
+            "warp" (MuJoCo Warp), or None (any): the two draw the same views differently (Warp has no skybox and no
+            textures), so a path that renders with the other refuses to run.
     """
 
     cameras: tuple[str, ...] = ("front",)

@@ -136,8 +136,12 @@ class EagerBatch:
     def step(self, actions: jax.Array, active: np.ndarray) -> State:
         """Advance every slot by one policy step with `actions` (`(size, *action_shape)`) and return the new `states`.
 
-        active: `(size,)` bool; the physics of inactive slots (finished, nothing left to run) are not stepped and
-        their new states are meaningless. Slots that end (`done == 1`) stay ended until `reset`.
+        Slots that end (`done == 1`) stay ended until `reset`.
+
+        Args:
+            actions: one action per slot, `(size, *action_shape)`.
+            active: `(size,)` bool; the physics of inactive slots (finished, nothing left to run) are not stepped and
+                their new states are meaningless.
         """
         if self.states is None:
             raise RuntimeError("EagerBatch.step called before reset: start an episode in every slot first.")

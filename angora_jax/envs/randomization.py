@@ -48,19 +48,22 @@ class Randomization:
     """Ranges of domain randomization; a scale range `(lo, hi)` multiplies the model's value by a factor drawn
     uniformly from it at every reset (None: not randomized). Noise is a standard deviation, drawn at every step.
 
-    friction: sliding friction of every geom, one factor per environment.
-    joint_damping, armature: damping and armature of each hand joint, one factor per joint.
-    actuator_gain: each position actuator's stiffness kp (gain and bias together, so it still targets its
-        control), one factor per actuator.
-    cube_mass: the cube's mass and inertia (its density), one factor per environment.
-    cube_damping: the damping of the cube's free joint, one factor per environment.
-    cube_size: the cube's size s, one factor per environment: its geoms' half sizes, bounding radii and bounding
-        boxes times s, its mass times s^3 and inertia times s^5 (the same density; with `cube_mass` both apply).
-    action_delay: `(lo, hi)` policy steps, an integer k drawn uniformly per environment at reset: the physics receive
-        the control of the action chosen k steps earlier (the first k steps of an episode hold the reset's control).
-    action_noise: Gaussian noise added to each policy action component (action units, actions lie in [-1, 1];
-        the noisy action is clipped to the action bounds).
-    observation_noise: Gaussian noise added to the proprioception and touch modalities, in their own units.
+    Attributes:
+        friction: sliding friction of every geom, one factor per environment.
+        joint_damping: damping of each hand joint, one factor per joint.
+        armature: armature of each hand joint, one factor per joint.
+        actuator_gain: each position actuator's stiffness kp (gain and bias together, so it still targets its control),
+            one factor per actuator.
+        cube_mass: the cube's mass and inertia (its density), one factor per environment.
+        cube_damping: the damping of the cube's free joint, one factor per environment.
+        cube_size: the cube's size s, one factor per environment: its geoms' half sizes, bounding radii and bounding
+            boxes times s, its mass times s^3 and inertia times s^5 (the same density; with `cube_mass` both apply).
+        action_delay: `(lo, hi)` policy steps, an integer k drawn uniformly per environment at reset: the physics
+            receive the control of the action chosen k steps earlier (the first k steps of an episode hold the reset's
+            control).
+        action_noise: Gaussian noise added to each policy action component (action units, actions lie in [-1, 1]; the
+            noisy action is clipped to the action bounds).
+        observation_noise: Gaussian noise added to the proprioception and touch modalities, in their own units.
     """
 
     friction: tuple[float, float] | None = None

@@ -31,11 +31,16 @@ from angora_jax.ppo.normalization import normalize_observation
 class Agent:
     """A trained policy with everything needed to run it.
 
-    config: the run's config. env: its task. network: the policy/value network module. head: the policy head.
-    state: the restored `PolicyState` (params, normaliser statistics). cycle: the training cycle it was saved at.
-    compiled: jitted functions of this agent's kind (see `compiled_once`), shared by every agent that `load_agent`
-    makes from runs with the same task, network and head: parameters are their arguments, so evaluating another
-    checkpoint, or the same one again, does not compile again.
+    Attributes:
+        config: the run's config.
+        env: its task.
+        network: the policy/value network module.
+        head: the policy head.
+        state: the restored `PolicyState` (params, normaliser statistics).
+        cycle: the training cycle it was saved at.
+        compiled: jitted functions of this agent's kind (see `compiled_once`), shared by every agent that `load_agent`
+            makes from runs with the same task, network and head: parameters are their arguments, so evaluating another
+            checkpoint, or the same one again, does not compile again.
     """
 
     config: Config
@@ -92,15 +97,21 @@ class Agent:
 
 
 def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_overrides: Sequence[str] = ()) -> Agent:
-    """The policy saved in `run_dir`. checkpoint: "best" (falls back to "latest" when the run keeps no best),
-    "latest", or a cycle number with a checkpoint (see `RUN_DIR/checkpoints`). env_overrides: task options that
-    differ from the run's, as `key.sub=value` strings applied to `env.options` as training applies overrides, for
-    acting in a changed task whose observations the network still fits (e.g. `pose_estimator=FILE`: a cube policy
-    trained on the true pose sees it through a pose estimator).
+    """The policy saved in `run_dir`.
 
     Only the parameters and observation statistics are read: the training environments' states in the checkpoint
-    may have another layout than the current task's (e.g. the scene changed since training). Raises CheckpointError
-    when the parameters do not fit the config's network.
+    may have another layout than the current task's (e.g. the scene changed since training).
+
+    Args:
+        run_dir: the run directory.
+        checkpoint: "best" (falls back to "latest" when the run keeps no best), "latest", or a cycle number with a
+            checkpoint (see `RUN_DIR/checkpoints`).
+        env_overrides: task options that differ from the run's, as `key.sub=value` strings applied to `env.options` as
+            training applies overrides, for acting in a changed task whose observations the network still fits (e.g.
+            `pose_estimator=FILE`: a cube policy trained on the true pose sees it through a pose estimator).
+
+    Raises:
+        CheckpointError: the parameters do not fit the config's network.
     """
     config = _seeing_as_trained(read_run_config(run_dir), run_dir)
     if env_overrides:

@@ -185,11 +185,16 @@ class Checkpoints:
     def restore(self, template: Any, which: str | int = "latest", partial: bool = False) -> Restored:
         """Read a state shaped like `template` (a TrainState, any tree of arrays, or its `jax.eval_shape`).
 
-        which: "latest", "best", or a cycle number (found among latest, best and snapshots). partial: read only the
-        leaves `template` has (e.g. params and normaliser statistics, stored under the same paths as in the
-        TrainState) and ignore the others, whatever their shapes; otherwise the checkpoint must hold exactly
-        `template`'s leaves. Raises FileNotFoundError listing what exists when there is no such checkpoint, and
-        CheckpointError when it cannot be read or a leaf read differs in shape or dtype from `template`'s.
+        Args:
+            template: the tree whose leaves are read, with their shapes and dtypes.
+            which: "latest", "best", or a cycle number (found among latest, best and snapshots).
+            partial: read only the leaves `template` has (e.g. params and normaliser statistics, stored under the same
+                paths as in the TrainState) and ignore the others, whatever their shapes; otherwise the checkpoint must
+                hold exactly `template`'s leaves.
+
+        Raises:
+            FileNotFoundError: there is no such checkpoint (the message lists what exists).
+            CheckpointError: it cannot be read, or a leaf read differs in shape or dtype from `template`'s.
         """
         kind, cycle = self.locate(which)
         # Whole arrays onto this process's first device, whatever devices saved them (several devices or hosts):

@@ -29,12 +29,18 @@ def initialize(
 ) -> None:
     """Start this process's part of a multi-process job; call it first, before any JAX computation.
 
-    coordinator_address: "host:port" of process 0. Arguments left None come from the cluster environment that JAX
-    detects (SLURM: SLURM_PROCID, SLURM_NTASKS, SLURM_STEP_NODELIST; also Open MPI and Kubernetes). Under such a
-    cluster JAX gives each process one GPU, the one whose index on its node is the process's local rank (SLURM:
-    SLURM_LOCALID), so launch one process per GPU (examples/slurm_train.sh). local_device_ids: this process's GPUs on
-    its host instead (elsewhere than a cluster: process i of one host takes `[i]`); JAX_LOCAL_DEVICE_IDS sets it too.
-    On CPU the cross-process collectives go through gloo (JAX has none by default there); GPUs use NCCL regardless.
+    Arguments left None come from the cluster environment that JAX detects (SLURM: SLURM_PROCID, SLURM_NTASKS,
+    SLURM_STEP_NODELIST; also Open MPI and Kubernetes). Under such a cluster JAX gives each process one GPU, the one
+    whose index on its node is the process's local rank (SLURM: SLURM_LOCALID), so launch one process per GPU
+    (examples/slurm_train.sh). On CPU the cross-process collectives go through gloo (JAX has none by default there);
+    GPUs use NCCL regardless.
+
+    Args:
+        coordinator_address: "host:port" of process 0.
+        num_processes: the processes of the job.
+        process_id: this process's index among them.
+        local_device_ids: this process's GPUs on its host instead (elsewhere than a cluster: process i of one host
+            takes `[i]`); JAX_LOCAL_DEVICE_IDS sets it too.
     """
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(coordinator_address, num_processes, process_id, local_device_ids=local_device_ids)

@@ -100,11 +100,18 @@ def run_episodes(batch: EagerBatch, policy: Policy, carry: Any, reset_keys: jax.
     """Run episode `i` from `reset_keys[i]` (acting with `act_keys[i]`) for every `i`, `batch.size` at a time: a slot
     whose episode ends takes the next pending one.
 
-    carry: the policy's recurrent state for a batch of `batch.size` (its rows are reset as episodes start). on_step:
-    called with (episode, slot) after an episode's reset and after each of its steps, e.g. to render
-    `batch.physics(slot)`. max_steps: cut each episode after this many steps (a video's length); None plays each to
-    its end. Returns name -> `(episodes,)` array: episode_return, episode_length and `metric/<name>` at each
-    episode's last step.
+    Args:
+        batch: the environments stepped together.
+        policy: acts for the whole batch at each step (`Policy`).
+        carry: the policy's recurrent state for a batch of `batch.size` (its rows are reset as episodes start).
+        reset_keys: one reset key per episode, `(episodes,)`.
+        act_keys: one acting key per episode, `(episodes,)`.
+        on_step: called with (episode, slot) after an episode's reset and after each of its steps, e.g. to render
+            `batch.physics(slot)`.
+        max_steps: cut each episode after this many steps (a video's length); None plays each to its end.
+
+    Returns:
+        name -> `(episodes,)` array: episode_return, episode_length and `metric/<name>` at each episode's last step.
     """
     episodes = reset_keys.shape[0]
     slot_episode = np.full(batch.size, -1)  # the episode each slot runs; -1 when it has none left

@@ -38,12 +38,14 @@ DEFAULT_BATCH = 32
 class Evaluation:
     """The outcome of `evaluate`.
 
-    episodes: per-episode values, name -> array `(episodes,)`: `episode_return` (undiscounted raw reward),
-        `episode_length` (policy steps) and `metric/<name>` (each task metric at the episode's last step, e.g.
-        `metric/goals_reached`, AngoraPy's consecutive goals reached, or `metric/success`).
-    summary: name -> {mean, median, mode, std, stderr, min, max} of `episodes[name]`.
-    meta: run directory, checkpoint, cycle, task, physics, episodes, batch, workers, stochastic, seed, wall seconds.
-    json_path, plot_path: the files written (None when not saved).
+    Attributes:
+        episodes: per-episode values, name -> array `(episodes,)`: `episode_return` (undiscounted raw reward),
+            `episode_length` (policy steps) and `metric/<name>` (each task metric at the episode's last step, e.g.
+            `metric/goals_reached`, AngoraPy's consecutive goals reached, or `metric/success`).
+        summary: name -> {mean, median, mode, std, stderr, min, max} of `episodes[name]`.
+        meta: run directory, checkpoint, cycle, task, physics, episodes, batch, workers, stochastic, seed, wall seconds.
+        json_path: the JSON record written (None when not saved).
+        plot_path: the box plot written (None when not saved).
     """
 
     episodes: dict[str, np.ndarray]
@@ -103,14 +105,23 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
              path: str = "cpu", env_overrides: Sequence[str] = ()) -> Evaluation:
     """Evaluate the policy saved in `run_dir` for `episodes` episodes.
 
-    checkpoint: "best", "latest" or a cycle number (as for `load_agent`). stochastic: sample actions instead of
-    taking the policy's mode. path: "cpu" (the eager path) or "batched" (all episodes at once on the training path,
-    each one at most the task's `max_episode_steps`; the only path of Gymnasium tasks, `gym:<id>`). batch: episodes
-    run at once on the CPU path (at most `episodes`). workers: threads stepping the C MuJoCo physics of the batch
-    (at most `batch`; see `EagerBatch`). env_overrides: task options that differ from the run's (`load_agent`);
-    recorded, and `-changed` comes before the files' `.json`. Neither batch nor workers changes any episode. save:
-    write `RUN_DIR/evaluation/<checkpoint>-cycle<N>-<mode>-seed<S>.json` (with `-batched` before `.json` for that
-    path) and a box plot `.png` of the same name (a `-2`, `-3`, ... suffix when taken: nothing is overwritten).
+    Neither `batch` nor `workers` changes any episode.
+
+    Args:
+        run_dir: the run directory.
+        checkpoint: "best", "latest" or a cycle number (as for `load_agent`).
+        episodes: episodes to run.
+        stochastic: sample actions instead of taking the policy's mode.
+        seed: picks the episodes' initial states and goals (those of `Agent.evaluate` with the same seed).
+        save: write `RUN_DIR/evaluation/<checkpoint>-cycle<N>-<mode>-seed<S>.json` (with `-batched` before `.json` for
+            that path) and a box plot `.png` of the same name (a `-2`, `-3`, ... suffix when taken: nothing is
+            overwritten).
+        batch: episodes run at once on the CPU path (at most `episodes`).
+        workers: threads stepping the C MuJoCo physics of the batch (at most `batch`; see `EagerBatch`).
+        path: "cpu" (the eager path) or "batched" (all episodes at once on the training path, each one at most the
+            task's `max_episode_steps`; the only path of Gymnasium tasks, `gym:<id>`).
+        env_overrides: task options that differ from the run's (`load_agent`); recorded, and `-changed` comes before
+            the files' `.json`.
     """
     if episodes < 1 or batch < 1 or workers < 1:
         raise ValueError(f"episodes, batch and workers must be >= 1, got {episodes}, {batch}, {workers}.")

@@ -44,8 +44,9 @@ def export_policy(run_dir: str | Path, out: str | Path, checkpoint: str | int = 
 class Policy:
     """An exported policy, acting deterministically (the head's mode), as `evaluate` does by default.
 
-    agent: the `Agent` rebuilt from the file (its task, network, head and parameters), for what `act` does not cover:
-    values, sampled actions, probing.
+    Attributes:
+        agent: the `Agent` rebuilt from the file (its task, network, head and parameters), for what `act` does not
+            cover: values, sampled actions, probing.
     """
 
     agent: Agent

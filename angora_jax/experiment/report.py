@@ -142,8 +142,12 @@ def plot_curve(runs: list[RunRecord], name: str, path: Path) -> None:
 def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_seconds: int | None = None) -> Path:
     """Write one PNG per metric (runs compared) and index.html into `out_dir`; return the HTML path.
 
-    The report's own files in `out_dir` are regenerated; nothing else there is touched. refresh_seconds: the page
-    reloads itself this often (for a live view), None for a static page.
+    The report's own files in `out_dir` are regenerated; nothing else there is touched.
+
+    Args:
+        run_dirs: the runs to compare.
+        out_dir: where the report is written.
+        refresh_seconds: the page reloads itself this often (for a live view), None for a static page.
     """
     runs = [load_run(d) for d in run_dirs]
     out = Path(out_dir)

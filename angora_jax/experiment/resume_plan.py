@@ -25,8 +25,14 @@ TRAINING_OUTPUTS = (CHECKPOINTS, METRICS_FILE, "tensorboard", "videos", "report"
 
 @dataclass(frozen=True)
 class ResumePlan:
-    """kind and cycle: the checkpoint to continue from (None and None: train from cycle 0). fresh_start: the earlier
-    outputs move aside first (`--from-scratch`). describe: the plan in words."""
+    """How `resume` continues a run, decided before anything is moved or loaded.
+
+    Attributes:
+        kind: the kind of the checkpoint to continue from (None: train from cycle 0).
+        cycle: the cycle of that checkpoint (None: train from cycle 0).
+        fresh_start: the earlier outputs move aside first (`--from-scratch`).
+        describe: the plan in words.
+    """
 
     kind: str | None
     cycle: int | None

@@ -19,8 +19,13 @@ from angora_jax.experiment.run_lock import RunLock
 
 @dataclass
 class RunCheck:
-    """findings: what was found, one line each. problems: what is damaged or inconsistent, with the fix (empty for
-    a sound run). resume: what `angora-jax resume` would do, or why it would refuse."""
+    """What `angora-jax check` found in a run directory.
+
+    Attributes:
+        findings: what was found, one line each.
+        problems: what is damaged or inconsistent, with the fix (empty for a sound run).
+        resume: what `angora-jax resume` would do, or why it would refuse.
+    """
 
     findings: list[str] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)

@@ -62,10 +62,19 @@ def is_disk_full(error: BaseException) -> bool:
 def create_run_dir(config: Config, claim: Callable[[Path], None] | None = None) -> Path:
     """Make a new run directory under `config.logging.run_root` and save the resolved config in it.
 
-    The name is `logging.run_name`, or task-network-date-time (with a -2, -3, ... suffix when taken). claim: called
-    with the new, empty directory before the config is written (the writer lock: a directory with a config is a run
-    that `resume` may continue). Raises RunDirError when a named run directory exists already: nothing in it is
-    touched. A directory that cannot be completed (a full disk) is removed again.
+    The name is `logging.run_name`, or task-network-date-time (with a -2, -3, ... suffix when taken). A directory that
+    cannot be completed (a full disk) is removed again.
+
+    Args:
+        config: the run's config.
+        claim: called with the new, empty directory before the config is written (the writer lock: a directory with a
+            config is a run that `resume` may continue).
+
+    Returns:
+        The new run directory.
+
+    Raises:
+        RunDirError: a named run directory exists already (nothing in it is touched).
     """
     root = Path(config.logging.run_root)
     root.mkdir(parents=True, exist_ok=True)

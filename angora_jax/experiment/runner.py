@@ -47,10 +47,13 @@ from angora_jax.ppo.train import training_cycles
 class TrainingRun:
     """What a finished (or already complete) run returns.
 
-    run_dir: the run directory. state: the final TrainState. history: the monitor records of the cycles run by
-    this call (see `monitor`). finished: all of the config's cycles are done, or `ppo.stop_at` was reached; False
-    when the call stopped at its time limit (`minutes`), with a checkpoint saved, and `resume(run_dir)` continues.
-    stopped_at: what ended the run early under `ppo.stop_at` ("metric/goals_reached 30.4 >= 30"), else None.
+    Attributes:
+        run_dir: the run directory.
+        state: the final TrainState.
+        history: the monitor records of the cycles run by this call (see `monitor`).
+        finished: all of the config's cycles are done, or `ppo.stop_at` was reached; False when the call stopped at its
+            time limit (`minutes`), with a checkpoint saved, and `resume(run_dir)` continues.
+        stopped_at: what ended the run early under `ppo.stop_at` ("metric/goals_reached 30.4 >= 30"), else None.
     """
 
     run_dir: Path
@@ -79,14 +82,25 @@ def train(
 ) -> TrainingRun:
     """Train a new run: validate the config, create its run directory, then run all cycles.
 
-    config: a Config, or anything `load_config` reads (YAML path, configs/ name, dict, None for defaults), with
-    `overrides` (`key.sub=value` strings) applied. on_cycle: called with each cycle's monitor record. minutes: a
-    wall-clock limit for this call, compile included: after the first cycle that ends past it, a checkpoint is saved
-    and the call returns with `finished=False` (train in pieces: `resume` continues exactly).
-    Raises ConfigError (before compiling) for a bad config, RunDirError when the named run directory exists,
-    TrainingInterrupted after Ctrl-C or SIGTERM (with a checkpoint saved), TrainingDivergedError on NaN. In a
-    multi-process run (`angora_jax.experiment.distributed`) all processes stop after the same cycle: a signal to any
-    one interrupts all, and an error in one (e.g. in `on_cycle`) raises ProcessFailed in the others.
+    In a multi-process run (`angora_jax.experiment.distributed`) all processes stop after the same cycle: a signal to
+    any one interrupts all, and an error in one (e.g. in `on_cycle`) raises ProcessFailed in the others.
+
+    Args:
+        config: a Config, or anything `load_config` reads (YAML path, configs/ name, dict, None for defaults).
+        overrides: `key.sub=value` strings applied to a config that `load_config` reads.
+        on_cycle: called with each cycle's monitor record.
+        minutes: a wall-clock limit for this call, compile included: after the first cycle that ends past it, a
+            checkpoint is saved and the call returns with `finished=False` (train in pieces: `resume` continues
+            exactly).
+
+    Returns:
+        The run: its directory, final state and the records of the cycles run.
+
+    Raises:
+        ConfigError: a bad config (before compiling).
+        RunDirError: the named run directory exists.
+        TrainingInterrupted: Ctrl-C or SIGTERM (with a checkpoint saved).
+        TrainingDivergedError: NaN in the losses or parameters.
     """
     compilation_cache.enable()
     if not isinstance(config, Config):
@@ -120,22 +134,35 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
            minutes: float | None = None, exact: bool = False, start_from: str | int = "latest",
            from_scratch: bool = False, force: bool = False) -> TrainingRun:
     """Continue `run_dir` from its latest checkpoint up to the config's `ppo.num_cycles`, exactly as if it had
-    not stopped (same device count assumed). A run that has already finished is returned as it is. minutes: this
-    call's wall-clock limit, as for `train`.
+    not stopped (same device count assumed). A run that has already finished is returned as it is.
 
-    Nothing saved is lost or silently replaced (`resume_plan`): the process takes the run's writer lock (`run_lock`;
-    RunLockedError naming the holder when another process trains it; `force` takes over a lock held on another host);
-    a run that logged cycles but has no loadable latest checkpoint is refused (RunDirError naming the choices)
-    rather than started over; a damaged checkpoint is refused (CheckpointError naming the newest intact one).
-    start_from: "latest", "best" or a cycle with a checkpoint: continue from that one, with the later records of
-    metrics.jsonl and later checkpoints moved aside. from_scratch: train again from cycle 0, with the earlier
-    outputs moved to `RUN_DIR/previous-N/`. Records logged after the checkpoint continued from always move to a side
-    file (`metrics.after-cycle-N.jsonl`).
+    Nothing saved is lost or silently replaced (`resume_plan`): the process takes the run's writer lock (`run_lock`);
+    a run that logged cycles but has no loadable latest checkpoint is refused rather than started over. Records logged
+    after the checkpoint continued from always move to a side file (`metrics.after-cycle-N.jsonl`).
 
     A checkpoint without the environments' states (`checkpoint.lean`; best and snapshots often are), or whose
     environments do not fit this run (another `distribution.num_devices`: MuJoCo Warp's state holds a contact pool
     per device), continues with its parameters, optimizer, normalisers and key, and environments made afresh: not bit
-    for bit, as a printed note says. exact: refuse that instead (CheckpointError naming the cause)."""
+    for bit, as a printed note says.
+
+    Args:
+        run_dir: the run directory to continue.
+        on_cycle: called with each cycle's monitor record.
+        minutes: this call's wall-clock limit, as for `train`.
+        exact: refuse to continue with environments made afresh (CheckpointError naming the cause).
+        start_from: "latest", "best" or a cycle with a checkpoint: continue from that one, with the later records of
+            metrics.jsonl and later checkpoints moved aside.
+        from_scratch: train again from cycle 0, with the earlier outputs moved to `RUN_DIR/previous-N/`.
+        force: take over a writer lock held on another host.
+
+    Returns:
+        The run as `train` returns it.
+
+    Raises:
+        RunLockedError: another process trains the run (the message names it).
+        RunDirError: the run logged cycles but has no loadable latest checkpoint (the message names the choices).
+        CheckpointError: a damaged checkpoint (the message names the newest intact one), or `exact` cannot hold.
+    """
     compilation_cache.enable()
     run_dir = Path(run_dir)
     config = read_run_config(run_dir)

@@ -30,7 +30,14 @@ def render_frames(run_dir: str | Path | None = None, *, task: str | None = None,
 
     Give either `run_dir` (the policy of its `checkpoint`, mode actions unless `stochastic`; the episodes are those
     of `evaluate(run_dir, seed=seed)`) or `task` (uniformly random actions; `task_options` go to the task).
-    camera: a name in `angora_jax.envs.rendering.CAMERAS`. Raises RenderError without a GL backend or a MuJoCo task.
+
+    Args:
+        camera: a name in `angora_jax.envs.rendering.CAMERAS`.
+        width: frame width in pixels.
+        height: frame height in pixels.
+
+    Raises:
+        RenderError: no GL backend, or a task without a MuJoCo scene.
     """
     return render_episodes(run_dir, task, checkpoint, episodes, camera, width, height, seed, stochastic,
                            task_options)[0]

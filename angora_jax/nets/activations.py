@@ -20,9 +20,16 @@ LIF_TAU_REF = 0.004  # s: AngoraPy's refractory period, so its rates stay below 
 def lif(x: jax.Array, tau_rc: float = 0.02, tau_ref: float = LIF_TAU_REF, v_th: float = 1.0,
         gamma: float = 0.01) -> jax.Array:
     """AngoraPy's LiF rate (Hz) for input current `x` (any shape): `v_th / (tau_ref + tau_rc * log(1 + 1 / z))`
-    with `z = gamma * softplus(x / gamma)`, a smooth `max(x, 0)`. tau_rc: membrane time constant (s); tau_ref:
-    refractory period (s), so the rate stays below `1 / tau_ref`; gamma: smoothing of the threshold. Near 0 for very
-    negative `x`, about `9.6 Hz` at 0 (the smoothing), rising towards `v_th / tau_ref` for large `x`."""
+    with `z = gamma * softplus(x / gamma)`, a smooth `max(x, 0)`. Near 0 for very negative `x`, about `9.6 Hz` at 0
+    (the smoothing), rising towards `v_th / tau_ref` for large `x`.
+
+    Args:
+        x: the input current.
+        tau_rc: membrane time constant (s).
+        tau_ref: refractory period (s), so the rate stays below `1 / tau_ref`.
+        v_th: the firing threshold.
+        gamma: smoothing of the threshold.
+    """
     scaled = x / gamma
     valid = scaled > _LIF_ASYMPTOTE
     z = gamma * jax.nn.softplus(scaled)

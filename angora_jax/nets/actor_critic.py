@@ -22,8 +22,10 @@ class HeadLayer(Protocol):
 class ActorCritic(nn.Module):
     """One step for a batch: `(carry, obs) -> (carry, distribution parameters (B, P), value (B,))`.
 
-    visual: the visual area (`nets.visual`), for tasks whose `vision` holds camera images: it encodes each camera's
-    image (one encoder for all cameras) and the network reads the features, `(B, cameras * features)`, as `vision`.
+    Attributes:
+        visual: the visual area (`nets.visual`), for tasks whose `vision` holds camera images: it encodes each camera's
+            image (one encoder for all cameras) and the network reads the features, `(B, cameras * features)`, as
+            `vision`.
     """
 
     network: nn.Module

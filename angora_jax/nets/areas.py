@@ -32,7 +32,10 @@ from angora_jax.nets.models import (
 
 class Area(nn.Module):
     """A dense area: the activation of one dense map of its inputs (concatenated along the last axis),
-    `(B, features)`; orthogonal kernel (gain sqrt 2), zero bias. activation: a name of `nets.activations.ACTIVATIONS`.
+    `(B, features)`; orthogonal kernel (gain sqrt 2), zero bias.
+
+    Attributes:
+        activation: a name of `nets.activations.ACTIVATIONS`.
     """
 
     features: int

@@ -52,10 +52,15 @@ from angora_jax.ppo.tbptt import gather_carries, gather_sequences, minibatch_ind
 class TrainState:
     """Everything a run carries from cycle to cycle; arrays only, so it can be checkpointed and resumed.
 
-    params: network parameters. opt_state: optimizer state. obs_stats: a Sensation of `RunningMeanStd`, one per
-    modality. reward_stats: running stats of the discounted return; discounted_return `(N,)` its per-env value.
-    actor: environment states, recurrent carries and episode accumulators of the N environments. key: PRNG key.
-    cycle: int32 count of finished cycles.
+    Attributes:
+        params: network parameters.
+        opt_state: optimizer state.
+        obs_stats: a Sensation of `RunningMeanStd`, one per modality.
+        reward_stats: running stats of the discounted return.
+        discounted_return: `(N,)` the discounted return of each environment's running episode.
+        actor: environment states, recurrent carries and episode accumulators of the N environments.
+        key: PRNG key.
+        cycle: int32 count of finished cycles.
     """
 
     params: Any
@@ -105,19 +110,26 @@ def make_cycle(
 ) -> tuple[Callable[[jax.Array], TrainState], Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]]:
     """Build the jitted `init(key) -> TrainState` and `cycle(state) -> (state, metrics)`.
 
-    network: a module following the network contract (see `angora_jax.nets`), or None to build
-    `config.network` from the registry. Each cycle consumes `num_envs * rollout_length` environment steps.
-    Metrics are float32 scalars: episodes (finished in this cycle), episode_return and episode_length (means over
-    them, NaN if none finished; an environment's first episode counts its length from the staggered clock it starts
-    with, so early cycles' lengths run long), `metric/<name>` task metrics at episode ends, the loss parts averaged
-    over all minibatches, explained_variance, learning_rate and finite (1 if the losses and parameters are finite).
+    Each cycle consumes `num_envs * rollout_length` environment steps. Metrics are float32 scalars: episodes
+    (finished in this cycle), episode_return and episode_length (means over them, NaN if none finished; an
+    environment's first episode counts its length from the staggered clock it starts with, so early cycles' lengths
+    run long), `metric/<name>` task metrics at episode ends, the loss parts averaged over all minibatches,
+    explained_variance, learning_rate and finite (1 if the losses and parameters are finite). With several devices
+    they are over all devices.
 
-    num_devices: D devices to run data-parallel on; `config.num_envs` and `config.minibatch_size` are totals that
-    must divide by D (ValueError otherwise). For D > 1, `init` returns the state already laid out over the devices
-    and `cycle` accepts any state of the run's shapes (e.g. one restored from a checkpoint) and lays it out first.
-    Metrics are over all devices. D = 1 compiles the plain cycle, with no collectives; D > 1 computes the same
-    cycle up to floating-point summation order (same random numbers, same minibatches). Either way `cycle.lower(state)`
-    gives the compiled program, as for a `jax.jit` function.
+    Args:
+        env: the task.
+        network: a module following the network contract (see `angora_jax.nets`), or None to build `config.network`
+            from the registry.
+        config: the PPO settings.
+        num_devices: D devices to run data-parallel on; `config.num_envs` and `config.minibatch_size` are totals that
+            must divide by D (ValueError otherwise). For D > 1, `init` returns the state already laid out over the
+            devices and `cycle` accepts any state of the run's shapes (e.g. one restored from a checkpoint) and lays it
+            out first. D = 1 compiles the plain cycle, with no collectives; D > 1 computes the same cycle up to
+            floating-point summation order (same random numbers, same minibatches).
+
+    Returns:
+        `(init, cycle)`; `cycle.lower(state)` gives the compiled program, as for a `jax.jit` function.
     """
     config.validate_for(env)
     problem = env.data_parallel_problem() if num_devices > 1 else None

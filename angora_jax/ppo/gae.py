@@ -11,9 +11,15 @@ def next_values(
 ) -> jax.Array:
     """Value of the state after each step, `(T, N)`.
 
-    values: `(T, N)` values of the observations acted on; last_value: `(N,)` value after the rollout's last step;
-    final_values: `(T, N)` values of `final_obs` (read only where truncated). A terminated episode is worth 0
-    afterwards; a truncated one is worth the value of its last observation (it would have gone on).
+    A terminated episode is worth 0 afterwards; a truncated one is worth the value of its last observation (it would
+    have gone on).
+
+    Args:
+        values: `(T, N)` values of the observations acted on.
+        last_value: `(N,)` value after the rollout's last step.
+        final_values: `(T, N)` values of `final_obs` (read only where truncated).
+        dones: `(T, N)` 1 where an episode ended at the step.
+        truncated: `(T, N)` 1 where it ended by truncation.
     """
     following = jnp.concatenate([values[1:], last_value[None]], axis=0)
     after_end = jnp.where(truncated > 0, final_values, 0.0)

@@ -30,9 +30,17 @@ GIB = 2**30
 
 @dataclass(frozen=True)
 class MemoryEstimate:
-    """Bytes per device. env_state, transition: one environment's state and one stored transition. num_envs:
-    environments on each device. available: what the device offers (GPU: XLA's memory limit; CPU: the host's
-    physical memory), None when unknown."""
+    """The memory a run needs at least on each device, in bytes, and what the device offers.
+
+    Attributes:
+        env_state: bytes of one environment's state.
+        transition: bytes of one stored transition.
+        num_envs: environments on each device.
+        rollout_length: transitions stored per environment in a cycle.
+        available: what the device offers (GPU: XLA's memory limit; CPU: the host's physical memory), None when
+            unknown.
+        device: the device's kind, for messages.
+    """
 
     env_state: int
     transition: int

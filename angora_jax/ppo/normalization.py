@@ -96,8 +96,15 @@ def discounted_returns(
 ) -> tuple[jax.Array, jax.Array]:
     """Per-env running discounted return, whose std sets the reward scale.
 
-    returns: `(N,)` carried over from the previous cycle; rewards, dones: `(T, N)`. Returns the return after each
-    step's reward `(T, N)` and the `(N,)` value to carry on (reset to 0 where the last step ended an episode).
+    Args:
+        returns: `(N,)` carried over from the previous cycle.
+        rewards: `(T, N)` raw rewards.
+        dones: `(T, N)` 1 where an episode ended at the step.
+        gamma: the discount factor.
+
+    Returns:
+        The return after each step's reward `(T, N)` and the `(N,)` value to carry on (reset to 0 where the last step
+        ended an episode).
     """
 
     def step(ret, x):

@@ -26,8 +26,9 @@ ApplyFn = Callable[[Any, Any, Sensation], tuple[Any, jax.Array, jax.Array]]
 class ActorState:
     """What acting carries from one step (and cycle) to the next, for N environments.
 
-    reset: `(N,)` float32, 1 where an episode starts at the next step, so the carry is reset before acting.
-    episode_return: `(N,)` undiscounted raw return of the running episodes.
+    Attributes:
+        reset: `(N,)` float32, 1 where an episode starts at the next step, so the carry is reset before acting.
+        episode_return: `(N,)` undiscounted raw return of the running episodes.
     """
 
     env_state: State
@@ -40,10 +41,17 @@ class ActorState:
 class Trajectory:
     """Per-step rollout data; every leaf is `(C, s, N, ...)`.
 
-    obs: the (normalised) observations the policy acted on. resets: 1 where the carry was reset before the step.
-    actions, log_probs: in the head's stored space. values: value estimates of `obs`. rewards: raw rewards.
-    final_values: value of `final_obs` where the step was truncated, else 0. episode_return, episode_length: of
-    the episode that ended at this step, else 0. metrics: the task metrics at this step.
+    Attributes:
+        obs: the (normalised) observations the policy acted on.
+        resets: 1 where the carry was reset before the step.
+        actions: the actions taken, in the head's stored space.
+        log_probs: their log-probabilities under the policy that acted.
+        values: value estimates of `obs`.
+        rewards: raw rewards.
+        final_values: value of `final_obs` where the step was truncated, else 0.
+        episode_return: of the episode that ended at this step, else 0.
+        episode_length: of the episode that ended at this step, else 0.
+        metrics: the task metrics at this step.
     """
 
     obs: Sensation

@@ -28,12 +28,18 @@ def unroll(
     """Run `step(carry, obs_t) -> (carry, policy_params, value)` over a sequence, resetting the carry first
     wherever `resets[t]` is set.
 
-    carry, initial: pytrees with leading axis B; obs: pytree with leaves `(s, B, ...)`; resets: `(s, B)`.
-    Returns the final carry, policy parameters `(s, B, P)` and values `(s, B)`.
+    Args:
+        step: the network's step.
+        carry: pytree with leading axis B, the carry at the sequence's start.
+        initial: pytree with leading axis B, the carry a reset restores.
+        obs: pytree with leaves `(s, B, ...)`.
+        resets: `(s, B)`.
+        runs_sequences: `step(carry, obs, resets, initial)` runs the whole sequence itself (a network that
+            `runs_sequences`, see `angora_jax.nets`): its feed-forward layers take all s x B rows at once and only its
+            recurrent cells scan, instead of a scan over every layer of every step.
 
-    runs_sequences: `step(carry, obs, resets, initial)` runs the whole sequence itself (a network that
-    `runs_sequences`, see `angora_jax.nets`): its feed-forward layers take all s x B rows at once and only its
-    recurrent cells scan, instead of a scan over every layer of every step.
+    Returns:
+        The final carry, policy parameters `(s, B, P)` and values `(s, B)`.
     """
     if runs_sequences:
         return step(carry, obs, resets, initial)

@@ -29,11 +29,16 @@ def train(
 ) -> tuple[TrainState, list[dict[str, float]]]:
     """Run PPO cycles up to `config.num_cycles` and return the final state and one metrics dict per cycle run.
 
-    env: the task (e.g. `angora_jax.make("CartPole")`); network: defaults to `config.network` from the registry.
-    state: continue from this state (e.g. restored from a checkpoint) instead of a fresh one from `config.seed`.
-    `log` receives one line per cycle (None for silence). Metrics are described in `training_cycles`. A state that
-    has already run all cycles comes back unchanged with an empty history. num_devices: train data-parallel on
-    this many devices (see `make_cycle`).
+    Metrics are described in `training_cycles`. A state that has already run all cycles comes back unchanged with an
+    empty history.
+
+    Args:
+        config: the PPO settings.
+        env: the task (e.g. `angora_jax.make("CartPole")`).
+        network: defaults to `config.network` from the registry.
+        log: receives one line per cycle (None for silence).
+        state: continue from this state (e.g. restored from a checkpoint) instead of a fresh one from `config.seed`.
+        num_devices: train data-parallel on this many devices (see `make_cycle`).
     """
     history: list[dict[str, float]] = []
     for latest, metrics in training_cycles(config, env, network, state, num_devices):
@@ -60,8 +65,11 @@ def training_cycles(
     A generator, so that a caller can checkpoint, log or stop between cycles. Besides the cycle's metrics (see
     `make_cycle`), each dict holds cycle, env_steps, seconds (wall time of the cycle) and steps_per_second; the first
     cycle run by this call includes compilation, reported as compile_seconds. Raises TrainingDivergedError when
-    training produces non-finite values. programs: `make_cycle(env, network, config, num_devices)`, made by the
-    caller (to reuse across calls); made here when None.
+    training produces non-finite values.
+
+    Args:
+        programs: `make_cycle(env, network, config, num_devices)`, made by the caller (to reuse across calls); made here
+            when None.
     """
     init, cycle = make_cycle(env, network, config, num_devices) if programs is None else programs
     if state is None:

@@ -94,8 +94,11 @@ def render_pose_dataset(samples: int, cameras: tuple[str, ...] = DEFAULT_CAMERAS
                         renderer: str = "cpu", batch: int = 1024) -> PoseDataset:
     """`samples` independent renders of random hand and cube poses (module docstring); each hand joint is drawn
     within the middle `hand_spread` share of its range (1: the whole range, where fingers often hide the cube).
-    renderer: "cpu" (`mujoco.Renderer`, one frame at a time) or "warp" (MuJoCo Warp's batched ray tracer on a GPU,
-    `batch` poses per call; its lighting differs from OpenGL's, see benchmarks/render_throughput.py)."""
+
+    Args:
+        renderer: "cpu" (`mujoco.Renderer`, one frame at a time) or "warp" (MuJoCo Warp's batched ray tracer on a GPU,
+            `batch` poses per call; its lighting differs from OpenGL's, see benchmarks/render_throughput.py).
+    """
     rng = np.random.default_rng(seed)
     model = load_cube_scene(touch=False, cameras=cameras)
     cube = int(model.joint(CUBE_JOINT).qposadr[0])

@@ -38,9 +38,15 @@ from angora_jax.vision.estimator import (
 
 @dataclass
 class PretrainResult:
-    """estimator: the trained network as a `PoseEstimator`; errors: held-out position (mm) and orientation (deg)
-    medians and 90th percentiles; history: (step, training loss) every `log_every` steps; learning_rate: the
-    schedule it trained with, in words."""
+    """What `pretrain_pose_encoder` returns.
+
+    Attributes:
+        estimator: the trained network as a `PoseEstimator`.
+        errors: held-out position (mm) and orientation (deg) medians and 90th percentiles.
+        history: (step, training loss) every `log_every` steps.
+        seconds: wall time of the training.
+        learning_rate: the schedule it trained with, in words.
+    """
 
     estimator: PoseEstimator
     errors: dict[str, float]
@@ -86,8 +92,11 @@ def pretrain_pose_encoder(train: PoseDataset, test: PoseDataset, encoder: str = 
                           learning_rate: float = 1e-3, seed: int = 0, log_every: int = 100,
                           orientation: str = "6d", decay: bool = True) -> PretrainResult:
     """Train `PoseNet(make_visual_encoder(encoder, **encoder_options), orientation=orientation)` on `train` for
-    `steps` Adam steps of `batch_size` samples and measure it on `test` (module docstring). decay: the learning
-    rate falls from `learning_rate` to zero on a cosine (False: it stays constant)."""
+    `steps` Adam steps of `batch_size` samples and measure it on `test` (module docstring).
+
+    Args:
+        decay: the learning rate falls from `learning_rate` to zero on a cosine (False: it stays constant).
+    """
     model = pose_network(encoder, encoder_options, orientation, train.images.shape[1:])
     mean, spread = train.cube_position.mean(0), train.cube_position.std(0) + 1e-6
     # The images stay on the host and each step sends its batch: a data set of more than 2^31 pixels (e.g. 54,000

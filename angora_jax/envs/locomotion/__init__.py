@@ -25,10 +25,15 @@ OTHERS = {"InvertedPendulum": InvertedPendulum, "InvertedDoublePendulum": Invert
 
 def make_locomotion(name: str, max_episode_steps: int | None = None, impl: str = "auto",
                     backend: str = "mjx", solver: str | None = None) -> Env:
-    """Gymnasium's task `name` (v5). max_episode_steps: None for Gymnasium's (1000; Reacher 50). impl: the MJX
-    implementation ("auto": Warp on a GPU when warp-lang imports, else JAX).
-    backend: "mjx" or "cpu". solver: the constraint solver of the forward-moving tasks (`GAITS`), "newton", "cg" or
-    "pgs" (None: the task's, which is Gymnasium's but Newton for Humanoid; MJX has no PGS: "pgs" needs "cpu")."""
+    """Gymnasium's task `name` (v5).
+
+    Args:
+        max_episode_steps: None for Gymnasium's (1000; Reacher 50).
+        impl: the MJX implementation ("auto": Warp on a GPU when warp-lang imports, else JAX).
+        backend: "mjx" or "cpu".
+        solver: the constraint solver of the forward-moving tasks (`GAITS`), "newton", "cg" or "pgs" (None: the task's,
+            which is Gymnasium's but Newton for Humanoid; MJX has no PGS: "pgs" needs "cpu").
+    """
     if solver is not None and name not in GAITS:
         raise ValueError(f"{name} takes no solver option; only {', '.join(GAITS)} do.")
     if solver == "pgs" and backend == "mjx":

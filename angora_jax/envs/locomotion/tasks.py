@@ -52,8 +52,11 @@ SOLVERS = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL
 
 def load_model(xml: str, impl: str = "auto", solver: str | None = None) -> mujoco.MjModel:
     """Compile one of Gymnasium's MuJoCo models (`gymnasium/envs/mujoco/assets/<xml>`) with its own options, asking
-    for MJX implementation `impl` ("auto", "jax" or "warp") on the batched path. solver: a constraint solver in
-    `SOLVERS` instead of the model's (None: the model's)."""
+    for MJX implementation `impl` ("auto", "jax" or "warp") on the batched path.
+
+    Args:
+        solver: a constraint solver in `SOLVERS` instead of the model's (None: the model's).
+    """
     spec = mujoco.MjSpec.from_file(os.path.join(ASSETS, xml))
     if solver is not None:
         if solver not in SOLVERS:
@@ -120,8 +123,10 @@ class Gait:
     Observation: qpos[skip_qpos:] and qvel, clipped to +-clip_qvel when given, then the `dynamics` named (each of
     `cinert`, `cvel` without the world body, `qfrc_actuator` without the free joint's 6 dofs), then with `contacts`
     the contact cost's F without the world body. Start: qpos0 and zero velocities plus uniform noise of
-    `reset_noise` (velocities: normal noise of that std when `normal_qvel_noise`). solver: the constraint solver
-    that both physics paths run instead of the model's (`SOLVERS`; None: the model's).
+    `reset_noise` (velocities: normal noise of that std when `normal_qvel_noise`).
+
+    Attributes:
+        solver: the constraint solver that both physics paths run instead of the model's (`SOLVERS`; None: the model's).
     """
 
     xml: str

@@ -41,20 +41,27 @@ def make_reach(free: bool = False, reward_preset: str = "default", reward: dict[
                freeze_wrist: bool = False, sequence_length: int | None = None, sequence_order: str = "random",
                randomization: dict | None = None, touch: bool = False, backend: str = "mjx") -> Env:
     """Build a reach task. Defaults follow AngoraPy: 0.02 s per policy step, 100 policy steps per episode,
-    joint targets set relative to the joints' positions (`control`: see `HandTask`). physics: `PhysicsSettings`
-    fields overriding `REACH_PHYSICS` (the Gym scene's own settings are timestep 0.002, iterations 20,
-    ls_iterations 50). `backend="cpu"` gives the eager MuJoCo twin. vision: camera images of the hand in
-    `Sensation.vision` (`envs.cameras.CameraVision` fields, as for the cube), besides the usual inputs.
-    reward_preset: a key of `reach.REWARD_PRESETS`, AngoraPy's "default" or "force_punished"; `reward` overrides
-    single coefficients of it. target_finger: "FF", "MF", "RF" or "LF" for every episode (AngoraPy's
-    `force_finger`), None to draw one per episode. freeze_wrist: the wrist holds its initial pose (`HandTask`).
-    sequence_length: None for one target per episode, or the number of target fingers an episode asks for in turn
-    (AngoraPy's sequential tasks; `reach.Reach`), with metrics `sequence_steps` and `sequence_success`.
-    sequence_order: "random" (each target drawn among the three fingers other than the previous) or "fixed" (FF,
-    MF, RF, LF, FF, ...). randomization: domain randomization ranges, `randomization.Randomization` fields without
-    the cube's. touch: the hand carries Gym's 97 touch sensors (the cube's, `model.add_touch_sensors`) and
-    `Sensation.touch` holds their readings (N); off by default, as in Gym's HandReach, so that MJX evaluates no
-    sensor."""
+    joint targets set relative to the joints' positions (`control`: see `HandTask`).
+
+    Args:
+        physics: `PhysicsSettings` fields overriding `REACH_PHYSICS` (the Gym scene's own settings are timestep 0.002,
+            iterations 20, ls_iterations 50).
+        vision: camera images of the hand in `Sensation.vision` (`envs.cameras.CameraVision` fields, as for the cube),
+            besides the usual inputs.
+        reward_preset: a key of `reach.REWARD_PRESETS`, AngoraPy's "default" or "force_punished"; `reward` overrides
+            single coefficients of it.
+        target_finger: "FF", "MF", "RF" or "LF" for every episode (AngoraPy's `force_finger`), None to draw one per
+            episode.
+        freeze_wrist: the wrist holds its initial pose (`HandTask`).
+        sequence_length: None for one target per episode, or the number of target fingers an episode asks for in turn
+            (AngoraPy's sequential tasks; `reach.Reach`), with metrics `sequence_steps` and `sequence_success`.
+        sequence_order: "random" (each target drawn among the three fingers other than the previous) or "fixed" (FF, MF,
+            RF, LF, FF, ...).
+        randomization: domain randomization ranges, `randomization.Randomization` fields without the cube's.
+        touch: the hand carries Gym's 97 touch sensors (the cube's, `model.add_touch_sensors`) and `Sensation.touch`
+            holds their readings (N); off by default, as in Gym's HandReach, so that MJX evaluates no sensor.
+        backend: "mjx" (batched, for training) or "cpu" (the eager C MuJoCo twin).
+    """
     ranges = Randomization.from_options(randomization, cube=False)
     cameras = CameraVision.from_options(vision)
     settings = REACH_PHYSICS.with_options(physics)
@@ -114,28 +121,31 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
     """Build in-hand cube reorientation (see `ihom.Ihom`). Times in s, angles in rad.
 
     The defaults are the recipe of `configs/shadow_ihom.yaml`; `configs/shadow_ihom_paper.yaml` sets AngoraPy's.
-    reward_preset: a key of `ihom.REWARD_PRESETS`: "dense", "paper" (AngoraPy's eq. 1-2, its "default"),
-    "penalized_force" or "penalized_anatomy" (AngoraPy's); `reward` overrides single coefficients of it.
-    timer: "terminal" (a goal that times out ends the episode, as in AngoraPy) or "truncation".
-    relative_goal: the goal modality also holds the rotation from the cube to the goal (AngoraPy: False).
-    control, action_scale: how actions move the joint targets (`HandTask`; AngoraPy: "position", 1.0).
-    control_dt: simulated time per policy step, 0.08 s as in OpenAI's Dactyl (12.5 Hz) so that the 8 s goal timer
-    is 100 policy steps (AngoraPy's code runs 10 x 2 ms = 0.02 s per step with 100 steps per goal, i.e. 2 s).
-    physics: `PhysicsSettings` fields (timestep, iterations, ls_iterations, impl); the frame skip is control_dt /
-    timestep (default 0.08 / 0.008 = 10). max_episode_steps is max_goals * goal steps, never reached before the
-    goal timer or the cap ends an episode.
-    vision: camera images in place of the cube's pose (`envs.cameras.CameraVision` fields, e.g. `{cameras: [front],
-    width: 64, height: 64}`), rendered by MuJoCo Warp inside the step on a GPU and by OpenGL otherwise.
-    pose_estimator: a `vision.PoseEstimator` file (`angora-jax pretrain-vision` writes `<out>.pose.msgpack`): the
-    policy sees the pose it estimates from its cameras' RGB frames (which set `vision`; give no other) where it saw
-    the true pose, with inputs of the same shapes. Train the estimator on the renderer these frames come from (Warp's
-    on a GPU).
-    freeze_wrist: the wrist holds its initial pose whatever the policy's first two actions say (`HandTask`).
-    pose_noise: noise on the pose the policy sees, `ihom.PoseNoise` fields (position in m, rotation in rad); `{}`
-    gives AngoraPy's NoisyManipulateBlock (3.71 mm, pi / 36).
-    goals: "random" (any rotation) or "test_set", the 24 axis-aligned orientations (AngoraPy's
-    TestCaseManipulateBlock), to evaluate runs on the same fixed set: `evaluate --env-option goals=test_set`.
-    randomization: domain randomization ranges, `randomization.Randomization` fields (docs/tasks.md).
+
+    Args:
+        reward_preset: a key of `ihom.REWARD_PRESETS`: "dense", "paper" (AngoraPy's eq. 1-2, its "default"),
+            "penalized_force" or "penalized_anatomy" (AngoraPy's); `reward` overrides single coefficients of it.
+        timer: "terminal" (a goal that times out ends the episode, as in AngoraPy) or "truncation".
+        relative_goal: the goal modality also holds the rotation from the cube to the goal (AngoraPy: False).
+        control: how actions move the joint targets (`HandTask`; AngoraPy: "position").
+        action_scale: the scale of that move (`HandTask`; AngoraPy: 1.0).
+        control_dt: simulated time per policy step, 0.08 s as in OpenAI's Dactyl (12.5 Hz) so that the 8 s goal timer is
+            100 policy steps (AngoraPy's code runs 10 x 2 ms = 0.02 s per step with 100 steps per goal, i.e. 2 s).
+        physics: `PhysicsSettings` fields (timestep, iterations, ls_iterations, impl); the frame skip is control_dt /
+            timestep (default 0.08 / 0.008 = 10). max_episode_steps is max_goals * goal steps, never reached before the
+            goal timer or the cap ends an episode.
+        vision: camera images in place of the cube's pose (`envs.cameras.CameraVision` fields, e.g. `{cameras: [front],
+            width: 64, height: 64}`), rendered by MuJoCo Warp inside the step on a GPU and by OpenGL otherwise.
+        pose_estimator: a `vision.PoseEstimator` file (`angora-jax pretrain-vision` writes `<out>.pose.msgpack`): the
+            policy sees the pose it estimates from its cameras' RGB frames (which set `vision`; give no other) where it
+            saw the true pose, with inputs of the same shapes. Train the estimator on the renderer these frames come
+            from (Warp's on a GPU).
+        freeze_wrist: the wrist holds its initial pose whatever the policy's first two actions say (`HandTask`).
+        pose_noise: noise on the pose the policy sees, `ihom.PoseNoise` fields (position in m, rotation in rad); `{}`
+            gives AngoraPy's NoisyManipulateBlock (3.71 mm, pi / 36).
+        goals: "random" (any rotation) or "test_set", the 24 axis-aligned orientations (AngoraPy's
+            TestCaseManipulateBlock), to evaluate runs on the same fixed set: `evaluate --env-option goals=test_set`.
+        randomization: domain randomization ranges, `randomization.Randomization` fields (docs/tasks.md).
     """
     ranges = Randomization.from_options(randomization, cube=True)
     estimator = None

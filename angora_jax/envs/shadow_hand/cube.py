@@ -35,8 +35,12 @@ CUBE_PHYSICS = PhysicsSettings(timestep=0.008, iterations=4, ls_iterations=8)
 def load_cube_scene(touch: bool = True, physics: PhysicsSettings = CUBE_PHYSICS,
                     prune_contacts: bool = True, cameras: tuple[str, ...] = ()) -> mujoco.MjModel:
     """Compile the cube scene; `touch=False` drops the touch sensors (and their per-step cost), `prune_contacts=False`
-    keeps the Gym scene's contacts (for comparisons). cameras: `rendering.CAMERAS` names to add as fixed model
-    cameras `vision_<name>` looking at the palm (`model.load_scene`)."""
+    keeps the Gym scene's contacts (for comparisons).
+
+    Args:
+        cameras: `rendering.CAMERAS` names to add as fixed model cameras `vision_<name>` looking at the palm
+            (`model.load_scene`).
+    """
 
     def edit(spec: mujoco.MjSpec) -> None:
         spec.delete(spec.body("target"))

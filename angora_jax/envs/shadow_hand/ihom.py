@@ -102,15 +102,16 @@ _STARTS: dict[tuple[str, bytes, int, int], np.ndarray] = {}
 class IhomReward(Coefficients):
     """Reward coefficients (defaults: AngoraPy's MANIPULATE_BASE, the "paper" preset). Angles in rad.
 
-    progress: weight of the decrease of the angular distance to the goal over one step.
-    orientation: reward per second of simulated time for the cube's orientation, times (1 - d / pi): 1 at the goal,
-        0 facing away (MuJoCo Playground's dense term, linear in the angle); 0 in AngoraPy.
-    success_bonus: added on the step a goal is reached.
-    drop_penalty: subtracted on the step the cube drops.
-    step_penalty: subtracted on every step (a time cost); 0 in AngoraPy.
-    force_multiplier: weight of the squared actuator forces (wrist excluded), a metabolic cost; 0 in AngoraPy.
-    tendon_stress_multiplier: weight of the tendons' squared lengths (m^2) times `TENDON_STRESS_SCALE`, AngoraPy's
-        anatomical cost (its `calculate_tendon_stress_penalty`, scaled to the force cost's average size).
+    Attributes:
+        progress: weight of the decrease of the angular distance to the goal over one step.
+        orientation: reward per second of simulated time for the cube's orientation, times (1 - d / pi): 1 at the goal,
+            0 facing away (MuJoCo Playground's dense term, linear in the angle); 0 in AngoraPy.
+        success_bonus: added on the step a goal is reached.
+        drop_penalty: subtracted on the step the cube drops.
+        step_penalty: subtracted on every step (a time cost); 0 in AngoraPy.
+        force_multiplier: weight of the squared actuator forces (wrist excluded), a metabolic cost; 0 in AngoraPy.
+        tendon_stress_multiplier: weight of the tendons' squared lengths (m^2) times `TENDON_STRESS_SCALE`, AngoraPy's
+            anatomical cost (its `calculate_tendon_stress_penalty`, scaled to the force cost's average size).
     """
 
     progress: float = 1.0
@@ -205,9 +206,10 @@ class PoseNoise:
     pose estimator's units; the value function's asymmetric inputs then hold the true pose too. The defaults are
     AngoraPy's, its pose estimator's measured error.
 
-    position: m, the length of a displacement in a uniformly random direction (AngoraPy: 3.71 mm).
-    rotation: rad, the standard deviation of a rotation angle whose share about the x, y and z axes is drawn uniformly
-        (AngoraPy: pi / 36, 5 degrees).
+    Attributes:
+        position: m, the length of a displacement in a uniformly random direction (AngoraPy: 3.71 mm).
+        rotation: rad, the standard deviation of a rotation angle whose share about the x, y and z axes is drawn
+            uniformly (AngoraPy: pi / 36, 5 degrees).
     """
 
     position: float = 0.00371

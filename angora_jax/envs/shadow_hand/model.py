@@ -37,18 +37,22 @@ class PhysicsSettings:
     """Simulation settings of a scene. Defaults are the Gym hand's own (`GYM_PHYSICS`); tasks choose faster ones
     from measurements (`benchmarks/physics_throughput.py`).
 
-    timestep: physics step in s. iterations / ls_iterations: Newton solver and line-search iteration caps.
-    impl: the MJX implementation of the batched path, "jax" (MJX's own, any device), "warp" (MuJoCo Warp through
-    MJX; needs `pip install warp-lang==1.18.0`, the version mujoco-mjx 3.17's `warp` extra pins) or "auto" (Warp on
-    a GPU when warp-lang is installed, else JAX; `mjx_env.resolve_impl`). The C MuJoCo twin ignores it.
-    contact_caps: when > 0, MJX's JAX implementation tests at most this many nearest geom pairs per collision
-    function and keeps at most this many deepest contacts per contact dimension (the custom numerics
-    `max_geom_pairs` and `max_contact_points`, as in the Menagerie hand tuned for MJX); 0 keeps every candidate.
-    C MuJoCo and Warp ignore it.
-    warp_max_envs: with impl "warp", the batch size Warp's shared contact buffer is sized for (every candidate pair
-    touching in every environment); None (the default) sizes it for the batch that a trainer or evaluator runs
-    (`Env.sized_for`). A larger batch can run out of contact slots; a smaller setting saves GPU memory (Warp's
-    collision step also allocates about 1 KB per slot on every call: 2 GiB for the cube at 32,768 envs).
+    Attributes:
+        timestep: physics step in s.
+        iterations: the Newton solver's iteration cap.
+        ls_iterations: the line search's iteration cap.
+        impl: the MJX implementation of the batched path, "jax" (MJX's own, any device), "warp" (MuJoCo Warp through
+            MJX; needs `pip install warp-lang==1.18.0`, the version mujoco-mjx 3.17's `warp` extra pins) or "auto"
+            (Warp on a GPU when warp-lang is installed, else JAX; `mjx_env.resolve_impl`). The C MuJoCo twin ignores
+            it.
+        contact_caps: when > 0, MJX's JAX implementation tests at most this many nearest geom pairs per collision
+            function and keeps at most this many deepest contacts per contact dimension (the custom numerics
+            `max_geom_pairs` and `max_contact_points`, as in the Menagerie hand tuned for MJX); 0 keeps every
+            candidate. C MuJoCo and Warp ignore it.
+        warp_max_envs: with impl "warp", the batch size Warp's shared contact buffer is sized for (every candidate pair
+            touching in every environment); None (the default) sizes it for the batch that a trainer or evaluator runs
+            (`Env.sized_for`). A larger batch can run out of contact slots; a smaller setting saves GPU memory (Warp's
+            collision step also allocates about 1 KB per slot on every call: 2 GiB for the cube at 32,768 envs).
     """
 
     timestep: float = 0.002
@@ -138,12 +142,17 @@ def load_scene(scene: str = "reach.xml", edit: Callable[[mujoco.MjSpec], None] |
                sensors: tuple[mujoco.mjtSensor, ...] | None = (), cameras: tuple[str, ...] = ()) -> mujoco.MjModel:
     """Compile a Gym hand scene (`reach.xml`, `manipulate_block.xml`, ...) with our MJX preparations and `physics`.
 
-    prune_contacts: take `UNTOUCHED_GEOMS` out of collision (False keeps the Gym scene's contacts, for comparisons).
-    sensors: the sensor types to keep (None: all of the Gym scene's). MJX evaluates every sensor at every physics
-    step, and the Gym scenes' joint-position sensors only repeat `qpos`: a task keeps only what it reads.
-    `edit`, when given, changes the prepared `MjSpec` in place before compiling (a task's own scene changes).
-    cameras: `rendering.CAMERAS` names to add as fixed model cameras `vision_<name>` looking at the palm where it is
-    at the scene's start (`rendering.add_cameras`; what camera vision renders)."""
+    Args:
+        scene: the Gym scene's file name.
+        edit: changes the prepared `MjSpec` in place before compiling (a task's own scene changes).
+        physics: the simulation settings.
+        prune_contacts: take `UNTOUCHED_GEOMS` out of collision (False keeps the Gym scene's contacts, for
+            comparisons).
+        sensors: the sensor types to keep (None: all of the Gym scene's). MJX evaluates every sensor at every physics
+            step, and the Gym scenes' joint-position sensors only repeat `qpos`: a task keeps only what it reads.
+        cameras: `rendering.CAMERAS` names to add as fixed model cameras `vision_<name>` looking at the palm where it
+            is at the scene's start (`rendering.add_cameras`; what camera vision renders).
+    """
     if cameras:
         start = load_scene(scene, edit, physics, prune_contacts, sensors)
         data = mujoco.MjData(start)

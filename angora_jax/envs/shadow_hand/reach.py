@@ -39,16 +39,17 @@ SEQUENCE_ORDERS = ("random", "fixed")
 class ReachReward(Coefficients):
     """Reward coefficients (AngoraPy's REACH_BASE). Distances in m.
 
-    success_distance: a reach succeeds when the goal distance is below this.
-    success_bonus: reward added on every step that is a success.
-    clearance_distance: freereach only; a target counts as reached (`success`) only while every other fingertip is
-    at least this far from the thumb tip, so that thumb and target meet alone, not all fingertips at once (0: no
-    such check). 0.04 m is twice `success_distance`: the other tips stay about one fingertip spacing (2.2-3.0 cm
-    between neighbours in the initial pose) from the target's.
-    force_multiplier: weight of the squared actuator forces (wrist excluded), a metabolic cost.
-    auxiliary_zone_radius: freereach only; non-target fingertips closer than this to the thumb are penalised.
-    auxiliary_penalty_multiplier: freereach only; penalty per metre of intrusion into that zone.
-    stay_probability: reach without a sequence only; share of episodes whose goal is to hold the initial pose.
+    Attributes:
+        success_distance: a reach succeeds when the goal distance is below this.
+        success_bonus: reward added on every step that is a success.
+        clearance_distance: freereach only; a target counts as reached (`success`) only while every other fingertip is
+            at least this far from the thumb tip, so that thumb and target meet alone, not all fingertips at once (0: no
+            such check). 0.04 m is twice `success_distance`: the other tips stay about one fingertip spacing (2.2-3.0 cm
+            between neighbours in the initial pose) from the target's.
+        force_multiplier: weight of the squared actuator forces (wrist excluded), a metabolic cost.
+        auxiliary_zone_radius: freereach only; non-target fingertips closer than this to the thumb are penalised.
+        auxiliary_penalty_multiplier: freereach only; penalty per metre of intrusion into that zone.
+        stay_probability: reach without a sequence only; share of episodes whose goal is to hold the initial pose.
     """
 
     success_distance: float = 0.02
