@@ -28,8 +28,10 @@ SHRINK = {
                        "angora-jax train cartpole logging.run_name=quickstart ppo.num_cycles=2")],
 }
 EXECUTED_PAGES = ["quickstart.md", "tutorials/custom-task.md", "tutorials/custom-model.md"]
-# The site's pages: docs/, and the study notes that docs/tools/results_hook.py publishes from benchmarks/results.
-PAGE_SOURCES = [*sorted(DOCS.rglob("*.md")), *sorted((ROOT / "benchmarks" / "results").rglob("*.md"))]
+# The site's pages: docs/, the changelog it includes, and the study notes that docs/tools/results_hook.py publishes
+# from benchmarks/results.
+PAGE_SOURCES = [*sorted(DOCS.rglob("*.md")), ROOT / "CHANGELOG.md",
+                *sorted((ROOT / "benchmarks" / "results").rglob("*.md"))]
 LIST_ITEM = re.compile(r"^\s*(?:[-*+]|\d+\.)\s")
 FENCE = re.compile(r"^\s*(?:```|~~~)")
 # A page's text in the built site, and within it the paragraphs; a line of a paragraph that starts like a list item
