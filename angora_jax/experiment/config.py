@@ -145,8 +145,13 @@ def load_yaml(text: str) -> Any:
 
 @dataclass(frozen=True)
 class EnvConfig:
-    """task: a registered task name (`angora-jax list-tasks`). options: keyword arguments of
-    `angora_jax.make(task, **options)`, e.g. `max_episode_steps`, `reward` coefficients, `backend`."""
+    """The task a run trains on.
+
+    Attributes:
+        task: a registered task name (`angora-jax list-tasks`).
+        options: keyword arguments of `angora_jax.make(task, **options)`, e.g. `max_episode_steps`, `reward`
+            coefficients, `backend`.
+    """
 
     task: str = "CartPole"
     options: dict[str, Any] = field(default_factory=dict)
@@ -156,12 +161,15 @@ class EnvConfig:
 class LoggingConfig:
     """Where a run is written and what is shown while it trains.
 
-    run_root: folder that holds run directories. run_name: the run directory's name; None makes one from task,
-    network and start time. progress: "auto" (a live line on a terminal, plain log lines otherwise), "bar" (live
-    line), "lines" (one line per cycle) or "none". tensorboard: also write TensorBoard event files (needs the
-    tensorboardX package). wandb: also log to Weights & Biases (needs the wandb package): null (the default) for no,
-    or a section (`logging.wandb.project=NAME`, or `logging.wandb={}` for the defaults) for yes. report: write the
-    run's PNG and HTML report into `RUN_DIR/report` when training ends.
+    Attributes:
+        run_root: folder that holds run directories.
+        run_name: the run directory's name; None makes one from task, network and start time.
+        progress: "auto" (a live line on a terminal, plain log lines otherwise), "bar" (live line), "lines" (one line
+            per cycle) or "none".
+        tensorboard: also write TensorBoard event files (needs the tensorboardX package).
+        wandb: also log to Weights & Biases (needs the wandb package): null (the default) for no, or a section
+            (`logging.wandb.project=NAME`, or `logging.wandb={}` for the defaults) for yes.
+        report: write the run's PNG and HTML report into `RUN_DIR/report` when training ends.
     """
 
     run_root: str = "runs"
@@ -186,16 +194,19 @@ CHECKPOINT_KINDS = ("latest", "best", "snapshots")
 class CheckpointConfig:
     """Which checkpoints a run keeps (all in `RUN_DIR/checkpoints`).
 
-    every: save the latest state every this many cycles (also at the end and when interrupted); the previous
-    latest is replaced. best_metric: keep the state of the cycle with the best value of this per-cycle metric
-    ("episode_return", "episode_length" or "metric/<task metric>"); None keeps no best checkpoint. best_mode: "max"
-    or "min". snapshot_every: keep a snapshot every this many cycles for good, for probing later; 0 for none.
-    lean: the kinds of checkpoint ("latest", "best", "snapshots") saved without the environments' states (physics,
-    recurrent carries, episode accumulators): parameters, optimizer, normalisers, PRNG key and cycle only, a small
-    fraction of the size (the cube at 16,384 envs: the environments are most of a full checkpoint). Evaluating and
-    probing read only parameters and normalisers, so lean snapshots (the default) lose nothing for them. Resuming
-    from a lean checkpoint makes the environments afresh: the run goes on, but not bit for bit as if it had not
-    stopped (`angora-jax resume --exact` refuses it).
+    Attributes:
+        every: save the latest state every this many cycles (also at the end and when interrupted); the previous latest
+            is replaced.
+        best_metric: keep the state of the cycle with the best value of this per-cycle metric ("episode_return",
+            "episode_length" or "metric/<task metric>"); None keeps no best checkpoint.
+        best_mode: "max" or "min".
+        snapshot_every: keep a snapshot every this many cycles for good, for probing later; 0 for none.
+        lean: the kinds of checkpoint ("latest", "best", "snapshots") saved without the environments' states (physics,
+            recurrent carries, episode accumulators): parameters, optimizer, normalisers, PRNG key and cycle only, a
+            small fraction of the size (the cube at 16,384 envs: the environments are most of a full checkpoint).
+            Evaluating and probing read only parameters and normalisers, so lean snapshots (the default) lose nothing
+            for them. Resuming from a lean checkpoint makes the environments afresh: the run goes on, but not bit for
+            bit as if it had not stopped (`angora-jax resume --exact` refuses it).
     """
 
     every: int = count_field(10, why="cycles between latest checkpoints")
@@ -212,9 +223,13 @@ class VideoConfig:
     path from the parameters in memory and written to `RUN_DIR/videos/cycle_NNNNNN.gif`; the run's report shows the
     latest. Needs a MuJoCo task and an OpenGL backend (MUJOCO_GL=egl or osmesa on a machine without a display).
 
-    every: a video after every this many cycles and after the last. steps: at most this many policy steps of the
-    episode (rendering runs on one CPU core, about as fast as the episode plays). camera: a view of the hand or body
-    (`angora_jax.envs.rendering.CAMERAS`). width: the frames' width in pixels. height: their height in pixels.
+    Attributes:
+        every: a video after every this many cycles and after the last.
+        steps: at most this many policy steps of the episode (rendering runs on one CPU core, about as fast as the
+            episode plays).
+        camera: a view of the hand or body (`angora_jax.envs.rendering.CAMERAS`).
+        width: the frames' width in pixels.
+        height: their height in pixels.
     """
 
     every: int = count_field(50, why="cycles between videos")
@@ -231,14 +246,16 @@ class EvaluationConfig:
     good policies end few episodes per cycle (a cube policy that keeps the cube for 50 goals), and it mixes the
     policy's exploration noise into the metric.
 
-    every: evaluate after every this many cycles (and after the last); 0 never. episodes: fresh environments, one
-    episode each, run at once on the batched path (the training physics) with the head's mode on this process's
-    first device. seed: the episodes' starts, the same at every evaluation, so that evaluations compare policies on
-    the same episodes (the training seed does not draw them). An evaluated cycle's record gets
-    `eval/episode_return`, `eval/episode_length` and `eval/metric/<name>` (means over the episodes), which
-    `checkpoint.best_metric` and `ppo.stop_at.metric` may name. video: null (the default) for none, or a section
-    (`evaluation.video={every: 50}`) for a video of the policy every so many cycles (see `VideoConfig`); it runs
-    whether or not `every` does.
+    Attributes:
+        every: evaluate after every this many cycles (and after the last); 0 never.
+        episodes: fresh environments, one episode each, run at once on the batched path (the training physics) with the
+            head's mode on this process's first device.
+        seed: the episodes' starts, the same at every evaluation, so that evaluations compare policies on the same
+            episodes (the training seed does not draw them). An evaluated cycle's record gets `eval/episode_return`,
+            `eval/episode_length` and `eval/metric/<name>` (means over the episodes), which `checkpoint.best_metric` and
+            `ppo.stop_at.metric` may name.
+        video: null (the default) for none, or a section (`evaluation.video={every: 50}`) for a video of the policy
+            every so many cycles (see `VideoConfig`); it runs whether or not `every` does.
     """
 
     every: int = count_field(0, low=0, why="cycles between evaluations; 0: never")
@@ -249,9 +266,13 @@ class EvaluationConfig:
 
 @dataclass(frozen=True)
 class DistributionConfig:
-    """num_devices: devices to train on data-parallel, an integer or "all" (every device JAX sees); 1 is the plain
-    single-device cycle. `ppo.num_envs` and `ppo.minibatch_size` are run totals, divided over the devices, so they
-    must be multiples of the device count (see `angora_jax.ppo.parallel`)."""
+    """The devices of a data-parallel run.
+
+    Attributes:
+        num_devices: devices to train on data-parallel, an integer or "all" (every device JAX sees); 1 is the plain
+            single-device cycle. `ppo.num_envs` and `ppo.minibatch_size` are run totals, divided over the devices, so
+            they must be multiples of the device count (see `angora_jax.ppo.parallel`).
+    """
 
     num_devices: int | str = count_field(1, why='devices, or "all"')
 
@@ -260,13 +281,17 @@ class DistributionConfig:
 class Config:
     """Everything one experiment needs; `to_dict(config)` is its resolved form as saved with a run.
 
-    env: the task and its options. ppo: the PPO run and its network. logging: where the run is written and what is
-    shown. checkpoint: which checkpoints are kept. distribution: the devices of a data-parallel run. evaluation:
-    held-out evaluations during training.
-    imports: Python modules imported before anything is built, by dotted name (e.g. `[my_tasks]`), so that the
-    tasks, networks, heads and components they register can be named in the config; each must be importable (its
-    folder on PYTHONPATH, or installed). The run records them, and every command that reads it imports them again.
-    Installed plugins (entry-point group `angora_jax.plugins`) load without being listed.
+    Attributes:
+        imports: Python modules imported before anything is built, by dotted name (e.g. `[my_tasks]`), so that the
+            tasks, networks, heads and components they register can be named in the config; each must be importable
+            (its folder on PYTHONPATH, or installed). The run records them, and every command that reads it imports
+            them again. Installed plugins (entry-point group `angora_jax.plugins`) load without being listed.
+        env: the task and its options.
+        ppo: the PPO run and its network.
+        logging: where the run is written and what is shown.
+        checkpoint: which checkpoints are kept.
+        distribution: the devices of a data-parallel run.
+        evaluation: held-out evaluations during training.
     """
 
     env: EnvConfig = field(default_factory=EnvConfig)

@@ -1,10 +1,11 @@
 """The config reference: every key of `Config`, with its type, default and description, read from the typed
-dataclasses themselves (each field is described in its class's docstring as `name: description`), so the reference
-cannot drift from the code. `angora-jax config reference` prints it; docs/config.md holds it."""
+dataclasses themselves (each field is described in its class's docstring, in its Google-style `Attributes:` section),
+so the reference cannot drift from the code. `angora-jax config reference` prints it; docs/config.md holds it."""
 
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import re
 import types
 import typing
@@ -44,24 +45,50 @@ def config_keys(cls: type = Config, prefix: str = "") -> list[ConfigKey]:
 
 
 def field_descriptions(cls: type) -> dict[str, str]:
-    """`name -> description` from `cls`'s docstring, where each field is introduced as `name: ` (at a line's start
-    or after a sentence) and described up to the next field's introduction or a blank line."""
-    doc = " ".join(line.strip() if line.strip() else "\n" for line in (cls.__doc__ or "").splitlines())
-    names = "|".join(re.escape(field.name) for field in dataclasses.fields(cls))
-    pattern = re.compile(rf"(?:^|(?<=[.)] )|(?<=\n ))({names}): (.*?)(?=\s(?:{names}): |\n|$)", re.S)
-    return {name: " ".join(text.split()) for name, text in pattern.findall(doc)}
+    """`name -> description` of `cls`'s fields from its docstring's `Attributes:` section (Google style: a line
+    `name: description` per field, continued on more deeply indented lines; the section ends at a line indented no
+    deeper than its title). Lines of other names are not fields and are left out."""
+    lines = inspect.cleandoc(cls.__doc__ or "").splitlines()
+    title = next((i for i, line in enumerate(lines) if line.strip() == "Attributes:"), None)
+    if title is None:
+        return {}
+    fields = {field.name for field in dataclasses.fields(cls)}
+    entries: dict[str, list[str]] = {}
+    name, entry_indent = None, None
+    for line in lines[title + 1:]:
+        depth = _indent(line)
+        if line.strip() and depth <= _indent(lines[title]):
+            break
+        entry = re.match(r"(\w+)(?: \(.*?\))?: (.*)", line.strip())
+        if entry and depth == (entry_indent or depth):
+            entry_indent, name = depth, entry.group(1)
+            entries[name] = [entry.group(2)]
+        elif name is not None:
+            entries[name].append(line.strip())
+    return {name: " ".join(" ".join(text).split()) for name, text in entries.items() if name in fields}
+
+
+def _indent(line: str) -> int:
+    return len(line) - len(line.lstrip())
 
 
 def reference_markdown() -> str:
     """The reference as a Markdown table: key, type, default, description."""
     rows = ["| key | type | default | description |", "|---|---|---|---|"]
     for key in config_keys():
-        kind, default, description = (text.replace("|", "\\|") for text in (key.type, key.default, key.description))
-        rows.append(f"| `{key.key}` | `{kind}` | `{default}` | {description} |")
+        rows.append(f"| `{key.key}` | `{key.type}` | `{key.default}` | {_outside_code(key.description)} |")
     return ("# Config reference\n\nEvery key of an experiment config (`angora_jax.experiment.config.Config`), "
             "generated from the typed dataclasses by `angora-jax config reference`. A YAML file gives any of them "
             "(missing keys take these defaults); `angora-jax config show CONFIG` prints what a run would use.\n\n"
             + "\n".join(rows) + "\n")
+
+
+def _outside_code(text: str) -> str:
+    """`text` for a table cell: its pipes escaped, except inside code spans (every other part between backticks),
+    where the site's Markdown (Python-Markdown) splits no cell and would print the backslash with the pipe."""
+    parts = text.split("`")
+    parts[::2] = [part.replace("|", "\\|") for part in parts[::2]]
+    return "`".join(parts)
 
 
 def _type_name(kind: Any) -> str:

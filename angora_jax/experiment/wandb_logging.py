@@ -22,9 +22,11 @@ RUN_ID_FILE = "run_id"
 class WandbConfig:
     """Logging to Weights & Biases; the section is off (null) unless one of its keys is given.
 
-    project: the W&B project the run goes to. entity: the W&B user or team that owns the project; null for the
-    logged-in user's default. mode: "online" (sent as it trains), "offline" (written to `RUN_DIR/wandb/` only, to
-    `wandb sync` later) or "disabled" (nothing written: W&B's own switch, e.g. for a debugging run).
+    Attributes:
+        project: the W&B project the run goes to.
+        entity: the W&B user or team that owns the project; null for the logged-in user's default.
+        mode: "online" (sent as it trains), "offline" (written to `RUN_DIR/wandb/` only, to `wandb sync` later) or
+            "disabled" (nothing written: W&B's own switch, e.g. for a debugging run).
     """
 
     project: str = "angora-jax"

@@ -41,11 +41,14 @@ RESERVED = ("value_net", "value")
 class AreaSpec:
     """One area of a graph.
 
-    size: its units (a recurrent area's: its cell's). inputs: what it reads, concatenated in this order: other
-    areas and the modalities proprioception, touch, muscle, vision and goal. activation: "tanh", "relu" or "lif"
-    (AngoraPy's leaky integrate-and-fire rate, as a fraction of its maximum: `angora_jax.nets.activations`); a
-    recurrent area's cell uses it for its update. cell: null for a dense area (one dense layer, then the
-    activation), or "rnn" (Elman), "lstm" or "gru" for a recurrent one.
+    Attributes:
+        size: its units (a recurrent area's: its cell's).
+        inputs: what it reads, concatenated in this order: other areas and the modalities proprioception, touch, muscle,
+            vision and goal.
+        activation: "tanh", "relu" or "lif" (AngoraPy's leaky integrate-and-fire rate, as a fraction of its maximum:
+            `angora_jax.nets.activations`); a recurrent area's cell uses it for its update.
+        cell: null for a dense area (one dense layer, then the activation), or "rnn" (Elman), "lstm" or "gru" for a
+            recurrent one.
     """
 
     size: int
@@ -58,9 +61,10 @@ class AreaSpec:
 class ValueSpec:
     """The value function of a graph.
 
-    inputs: what the value net reads, concatenated in this order: modalities, `asymmetric` and areas. sizes: the
-    value net's dense tanh layers (`network.value_net`) before the value head (`network.value`); empty, the head
-    reads the inputs directly.
+    Attributes:
+        inputs: what the value net reads, concatenated in this order: modalities, `asymmetric` and areas.
+        sizes: the value net's dense tanh layers (`network.value_net`) before the value head (`network.value`); empty,
+            the head reads the inputs directly.
     """
 
     inputs: tuple[str, ...] = VALUE_MODALITIES
@@ -71,10 +75,12 @@ class ValueSpec:
 class AreaGraph:
     """The wiring of an `areas` network (see the module docstring for an example).
 
-    areas: area name -> `AreaSpec` (its size, inputs, activation and cell); names are letters, digits and
-    underscores, and become module paths (`network.<name>`) in parameters, recordings and lesions. policy: the area
-    whose output the policy head reads. value: the value function (`ValueSpec`); by default, as for the `cortical`
-    model, a separate two-layer net over every modality and `asymmetric`, so that the areas serve the policy alone.
+    Attributes:
+        areas: area name -> `AreaSpec` (its size, inputs, activation and cell); names are letters, digits and
+            underscores, and become module paths (`network.<name>`) in parameters, recordings and lesions.
+        policy: the area whose output the policy head reads.
+        value: the value function (`ValueSpec`); by default, as for the `cortical` model, a separate two-layer net over
+            every modality and `asymmetric`, so that the areas serve the policy alone.
     """
 
     areas: dict[str, AreaSpec]

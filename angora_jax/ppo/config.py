@@ -30,8 +30,15 @@ FLOAT32_MAX = 3.4028234663852886e38
 
 @dataclass(frozen=True)
 class Bounds:
-    """The valid range of a numeric config field, declared beside it (`bounded`): `low <= value <= high` (`low <
-    value` when `open_low`), finite; a tuple's or mapping's numbers each. why: what the number is, for messages."""
+    """The valid range of a numeric config field, declared beside it (`bounded`): finite, and within it (a tuple's or
+    mapping's numbers each).
+
+    Attributes:
+        low: the smallest value allowed (see `open_low`).
+        high: the largest value allowed.
+        open_low: `low` itself is not allowed (`low < value`).
+        why: what the number is, for messages.
+    """
 
     low: float
     high: float
@@ -114,8 +121,10 @@ class VisualConfig:
     """The visual area: a convolutional encoder of camera images (`angora_jax.nets.visual`), shared by the cameras,
     whose features (cameras x `features`) take the images' place in `vision` for the network.
 
-    encoder: "cornet_z" or "impala". widths: channels per stage (empty: the encoder's own). features: features
-    the encoder gives per camera.
+    Attributes:
+        encoder: "cornet_z" or "impala".
+        widths: channels per stage (empty: the encoder's own).
+        features: features the encoder gives per camera.
     """
 
     encoder: str = "cornet_z"
@@ -127,24 +136,25 @@ class VisualConfig:
 class NetworkConfig:
     """Which registered network to build and its sizes; `None` sizes mean the model's own default.
 
-    name: a name from `angora_jax.nets.list_networks()` ("simple", "deeper", "rnn", "lstm", "gru", "wide",
-        "cortical", "areas").
-    width: units of the dense layers (embedding width for recurrent models; the value net's for cortical).
-    cell_size: units of the recurrent cell (ignored by feed-forward models; the premotor PMC for cortical).
-    shared_trunk: one trunk for policy and value (the value head also reads `asymmetric`) instead of two.
-    cell: the recurrent cell, "rnn", "lstm" or "gru", of the wide network (default lstm) and of the cortical model's
-        premotor area PMC (default lstm); the rnn, lstm and gru networks are named for theirs.
-    areas: the cortical model's area sizes that differ from AngoraPy's, e.g. `{SSC_1: 32, PMC: 64}`.
-    graph: the brain-area graph of the areas network (`angora_jax.nets.area_graph.AreaGraph`): its areas (size,
-        inputs, activation, recurrent cell), the area the policy head reads and the value net. The shipped configs
-        shadow_reach_cortical_graph (the cortical model) and shadow_reach_shadowv2 hold examples.
-    frozen: parameter paths (dotted module paths as in recordings, e.g. `network.SSC_1`) that training leaves
-        unchanged: their updates are masked to zero (`optax.multi_transform`). Each must name a module.
-    pretrained: parameter path -> where its values come from at the start of a run: a run directory (its best
-        checkpoint; `RUN_DIR:latest` or `RUN_DIR:<cycle>` for another), whose parameters at the same path are
-        taken, or a file written by `angora_jax.nets.save_component`. Shapes must match.
-    visual: the visual area that encodes camera images (needed when the task's `vision` option renders them; its
-        parameters are the module `visual`, e.g. `pretrained: {visual: encoder.msgpack}` and `frozen: [visual]`).
+    Attributes:
+        name: a name from `angora_jax.nets.list_networks()` ("simple", "deeper", "rnn", "lstm", "gru", "wide",
+            "cortical", "areas").
+        width: units of the dense layers (embedding width for recurrent models; the value net's for cortical).
+        cell_size: units of the recurrent cell (ignored by feed-forward models; the premotor PMC for cortical).
+        shared_trunk: one trunk for policy and value (the value head also reads `asymmetric`) instead of two.
+        cell: the recurrent cell, "rnn", "lstm" or "gru", of the wide network (default lstm) and of the cortical model's
+            premotor area PMC (default lstm); the rnn, lstm and gru networks are named for theirs.
+        areas: the cortical model's area sizes that differ from AngoraPy's, e.g. `{SSC_1: 32, PMC: 64}`.
+        graph: the brain-area graph of the areas network (`angora_jax.nets.area_graph.AreaGraph`): its areas (size,
+            inputs, activation, recurrent cell), the area the policy head reads and the value net. The shipped configs
+            shadow_reach_cortical_graph (the cortical model) and shadow_reach_shadowv2 hold examples.
+        frozen: parameter paths (dotted module paths as in recordings, e.g. `network.SSC_1`) that training leaves
+            unchanged: their updates are masked to zero (`optax.multi_transform`). Each must name a module.
+        pretrained: parameter path -> where its values come from at the start of a run: a run directory (its best
+            checkpoint; `RUN_DIR:latest` or `RUN_DIR:<cycle>` for another), whose parameters at the same path are taken,
+            or a file written by `angora_jax.nets.save_component`. Shapes must match.
+        visual: the visual area that encodes camera images (needed when the task's `vision` option renders them; its
+            parameters are the module `visual`, e.g. `pretrained: {visual: encoder.msgpack}` and `frozen: [visual]`).
     """
 
     name: str = "simple"
@@ -195,9 +205,10 @@ class NetworkConfig:
 class NormalizationConfig:
     """Running normalisation of observations (per modality) and of rewards (by the discounted return's std).
 
-    observations: standardise each observation modality by its running mean and std.
-    rewards: divide rewards by the running std of the discounted return.
-    clip: normalised observations are clipped to +-clip (standard deviations).
+    Attributes:
+        observations: standardise each observation modality by its running mean and std.
+        rewards: divide rewards by the running std of the discounted return.
+        clip: normalised observations are clipped to +-clip (standard deviations).
     """
 
     observations: bool = True
@@ -210,9 +221,11 @@ class StopAt:
     """End a run early, with a checkpoint, after the first cycle whose training metric reaches a value (AngoraPy's
     `--stop-early`).
 
-    metric: a per-cycle metric, as `checkpoint.best_metric` names them ("episode_return", "metric/goals_reached").
-    value: the value to reach, in the metric's units. mode: "max" stops when the metric is >= value, "min" when it
-    is <= value. A cycle in which no episode ended has no value (NaN) and never stops the run.
+    Attributes:
+        metric: a per-cycle metric, as `checkpoint.best_metric` names them ("episode_return", "metric/goals_reached").
+        value: the value to reach, in the metric's units.
+        mode: "max" stops when the metric is >= value, "min" when it is <= value. A cycle in which no episode ended has
+            no value (NaN) and never stops the run.
     """
 
     metric: str = "episode_return"
@@ -238,45 +251,46 @@ class PPOConfig:
     """One PPO run on a task given separately (the experiment config's `env` section names it). A cycle collects
     `num_envs * rollout_length` transitions, then runs `num_epochs` passes of minibatch updates over them.
 
-    seed: the run's PRNG seed (environments, initial parameters, minibatch draws); a run is reproducible from it.
-    num_cycles: cycles to train (rollout plus updates each).
-    num_envs: environments stepped in parallel (a run total, divided over the devices).
-    rollout_length: policy steps per environment per cycle (T).
-    chunk_length: truncated-BPTT chunk length s; the rollout stores the recurrent carry every s steps. Must divide
-        `rollout_length`; equal to it means full BPTT.
-    minibatch_size: transitions per minibatch, a multiple of `chunk_length`; a minibatch is a tile of n
-        trajectories x m chunks with n * m * chunk_length = minibatch_size.
-    num_epochs: passes of minibatch updates over each cycle's transitions.
-    gamma: discount factor per policy step (0.99 weighs about the next 100 steps).
-    gae_lambda: the lambda of generalised advantage estimation (1: Monte Carlo returns, 0: one-step TD).
-    clip_epsilon: PPO's clip range of the probability ratio.
-    value_coef: weight of the value loss beside the policy loss.
-    entropy_coef: weight of the entropy bonus (exploration).
-    learning_rate: Adam's learning rate.
-    max_grad_norm: the global gradient norm is clipped to this.
-    normalize_advantages: standardise the advantages of each minibatch (mean 0, std 1).
-    bins: bins per action dimension of the multicategorical head.
-    init_log_std: initial log standard deviation of the Gaussian head.
-    network: the network (`NetworkConfig`).
-    normalization: running normalisation of observations and rewards (`NormalizationConfig`).
-    head: "categorical" (discrete), "multicategorical" (continuous, `bins` per dimension), "gaussian", "beta", or
-        "auto" (categorical for discrete tasks, gaussian for continuous ones), or a head added with `register_head`.
-    value_clip: clip the value update to +-`clip_epsilon` around the rollout's values.
-    lr_decay: decay the learning rate linearly to 0 over `num_cycles`.
-    target_kl: None keeps the learning rate as `learning_rate` and `lr_decay` set it; a number adapts it to the
-        policy's step instead (as rsl_rl and rl_games do): after each minibatch whose approximate KL to the rollout
-        policy exceeds 2 * target_kl the rate is divided by 1.5, after one below target_kl / 2 it is multiplied by 1.5,
-        kept within [`lr_min`, `lr_max`]. Starts at `learning_rate`; the rate is part of the optimizer state, so it
-        is checkpointed and a resume continues with it.
-    lr_min: the lowest rate the KL-adaptive rule may set.
-    lr_max: the highest rate the KL-adaptive rule may set.
-    entropy_coef_final: None keeps `entropy_coef` constant; a number anneals it linearly from `entropy_coef` at the
-        first cycle to this at the last (`num_cycles`).
-    stop_at: end the run early once a per-cycle metric reaches a value (`StopAt`); None trains all `num_cycles`.
-    init_from: a saved run, `RUN_DIR` (its best checkpoint) or `RUN_DIR:latest` / `RUN_DIR:<cycle>`, whose network
-        parameters and observation statistics this run starts from, to fine-tune a trained policy on a changed task
-        (e.g. the cube's pose-input policy reading a pose estimator's estimate). The network must have the same
-        shapes; the optimizer, reward statistics and counters start afresh. `network.pretrained` loads over it.
+    Attributes:
+        seed: the run's PRNG seed (environments, initial parameters, minibatch draws); a run is reproducible from it.
+        num_cycles: cycles to train (rollout plus updates each).
+        num_envs: environments stepped in parallel (a run total, divided over the devices).
+        rollout_length: policy steps per environment per cycle (T).
+        chunk_length: truncated-BPTT chunk length s; the rollout stores the recurrent carry every s steps. Must divide
+            `rollout_length`; equal to it means full BPTT.
+        minibatch_size: transitions per minibatch, a multiple of `chunk_length`; a minibatch is a tile of n trajectories
+            x m chunks with n * m * chunk_length = minibatch_size.
+        num_epochs: passes of minibatch updates over each cycle's transitions.
+        gamma: discount factor per policy step (0.99 weighs about the next 100 steps).
+        gae_lambda: the lambda of generalised advantage estimation (1: Monte Carlo returns, 0: one-step TD).
+        clip_epsilon: PPO's clip range of the probability ratio.
+        value_coef: weight of the value loss beside the policy loss.
+        entropy_coef: weight of the entropy bonus (exploration).
+        learning_rate: Adam's learning rate.
+        max_grad_norm: the global gradient norm is clipped to this.
+        normalize_advantages: standardise the advantages of each minibatch (mean 0, std 1).
+        bins: bins per action dimension of the multicategorical head.
+        init_log_std: initial log standard deviation of the Gaussian head.
+        network: the network (`NetworkConfig`).
+        normalization: running normalisation of observations and rewards (`NormalizationConfig`).
+        head: "categorical" (discrete), "multicategorical" (continuous, `bins` per dimension), "gaussian", "beta", or
+            "auto" (categorical for discrete tasks, gaussian for continuous ones), or a head added with `register_head`.
+        value_clip: clip the value update to +-`clip_epsilon` around the rollout's values.
+        lr_decay: decay the learning rate linearly to 0 over `num_cycles`.
+        target_kl: None keeps the learning rate as `learning_rate` and `lr_decay` set it; a number adapts it to the
+            policy's step instead (as rsl_rl and rl_games do): after each minibatch whose approximate KL to the rollout
+            policy exceeds 2 * target_kl the rate is divided by 1.5, after one below target_kl / 2 it is multiplied by
+            1.5, kept within [`lr_min`, `lr_max`]. Starts at `learning_rate`; the rate is part of the optimizer state,
+            so it is checkpointed and a resume continues with it.
+        lr_min: the lowest rate the KL-adaptive rule may set.
+        lr_max: the highest rate the KL-adaptive rule may set.
+        entropy_coef_final: None keeps `entropy_coef` constant; a number anneals it linearly from `entropy_coef` at the
+            first cycle to this at the last (`num_cycles`).
+        stop_at: end the run early once a per-cycle metric reaches a value (`StopAt`); None trains all `num_cycles`.
+        init_from: a saved run, `RUN_DIR` (its best checkpoint) or `RUN_DIR:latest` / `RUN_DIR:<cycle>`, whose network
+            parameters and observation statistics this run starts from, to fine-tune a trained policy on a changed task
+            (e.g. the cube's pose-input policy reading a pose estimator's estimate). The network must have the same
+            shapes; the optimizer, reward statistics and counters start afresh. `network.pretrained` loads over it.
     """
 
     seed: int = bounded(0, 0, SEED_MAX, why="JAX keeps a seed's low 32 bits, so other seeds repeat these")
