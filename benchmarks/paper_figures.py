@@ -64,7 +64,7 @@ FIGURES = {
     "8": [("CartPole", "classic", ("categorical",)), ("Acrobot", "classic", ("categorical",)),
           ("MountainCar", "classic", ("categorical",)), ("Pendulum", "classic", CONTINUOUS),
           ("MountainCarContinuous", "classic", CONTINUOUS),
-          ("gym:LunarLander-v3", "classic", ("categorical",))],  # on the host path: pip install angora-jax[box2d]
+          ("gym:LunarLander-v3", "classic", ("categorical",))],  # on the host path: the box2d extra
     "9": [("InvertedPendulum", "locomotion", CONTINUOUS), ("InvertedDoublePendulum", "locomotion", CONTINUOUS),
           ("Reacher", "locomotion", CONTINUOUS), ("Swimmer", "locomotion", CONTINUOUS),
           ("Hopper", "locomotion", CONTINUOUS), ("Walker2d", "locomotion", CONTINUOUS),

@@ -72,7 +72,8 @@ def choose_impl(impl: str) -> tuple[str, str]:
         return "jax", "physics.impl auto: JAX runs on the CPU (MuJoCo Warp needs an NVIDIA GPU)"
     if importlib.util.find_spec("warp") is None:
         return "jax", (f"physics.impl auto: JAX runs on a GPU but warp-lang is not installed; pip install "
-                       f"{WARP_REQUIREMENT} (or angora-jax[cuda]) for MuJoCo Warp, 4.6x faster on the cube")
+                       f"{WARP_REQUIREMENT} (or the cuda extra: make gpu in the clone) for MuJoCo Warp, 4.6x faster "
+                       "on the cube")
     return "warp", "physics.impl auto: JAX runs on a GPU and warp-lang is importable"
 
 
@@ -124,9 +125,9 @@ def size_warp_graph_cache() -> None:
     graphs, hung after 3 cycles on 4 GPUs. No bound is no cure where XLA keeps placing buffers at new addresses (as
     it did while the checkpointer held a best cycle's arrays for a later save): 4 processes of one GPU each then ran
     out of GPU memory inside Warp after 58 cycles of the fast cube and 28 of the paper's setup
-    (benchmarks/results/cube_multi_gpu/ihom_4gpu_warp_graphs_4xh100.md). So the bound scales with the devices, and one process per
-    GPU keeps Warp's default. MJX creates its Warp calls with warp-lang's default bound, so the default is changed
-    here (warp-lang 1.18's `jax_callable`; a version without the setting is left as it is)."""
+    (benchmarks/results/cube_multi_gpu/ihom_4gpu_warp_graphs_4xh100.md). So the bound scales with the devices, and
+    one process per GPU keeps Warp's default. MJX creates its Warp calls with warp-lang's default bound, so the
+    default is changed here (warp-lang 1.18's `jax_callable`; a version without the setting is left as it is)."""
     from warp._src.jax import ffi  # importable only with warp-lang installed
 
     names = list(inspect.signature(ffi.jax_callable).parameters)[1:]  # __defaults__ covers all but `func`

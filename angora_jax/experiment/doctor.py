@@ -29,7 +29,9 @@ PACKAGES = ("jax", "jaxlib", "jax-cuda13-plugin", "jax-cuda12-plugin", "mujoco",
 REQUIRED = {"jax": "jax", "jaxlib": "jaxlib", "mujoco": "mujoco", "mujoco-mjx": "mujoco.mjx", "flax": "flax",
             "optax": "optax", "distrax": "distrax", "orbax-checkpoint": "orbax.checkpoint", "gymnasium": "gymnasium",
             "gymnasium-robotics": "gymnasium_robotics"}
-CUDA_INSTALL = 'pip install "angora-jax[cuda]" (a CUDA 13 build of JAX and warp-lang; NVIDIA driver >= 580)'
+# angora-jax is not on PyPI: its extras install from the clone (docs/installation.md).
+CUDA_INSTALL = ('make gpu in the clone, or pip install -c constraints.txt -e ".[cuda]" there (a CUDA 13 build of JAX '
+                'and warp-lang; NVIDIA driver >= 580)')
 
 
 @dataclass
@@ -84,7 +86,8 @@ def diagnose() -> Diagnosis:
         if version is not None or name in REQUIRED:
             report.rows.append(("packages", name, version or ("files only" if found else "MISSING")))
         if name in REQUIRED and not found:
-            report.problems.append(f"{name} is not installed: pip install angora-jax (it brings every requirement).")
+            report.problems.append(f"{name} is not installed: install angora_jax with its requirements, `make` in "
+                                   "the clone or pip install -c constraints.txt -e . there.")
     _devices(report)
     _physics(report, installed)
     _rendering(report)
