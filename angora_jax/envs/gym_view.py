@@ -16,7 +16,7 @@ import numpy as np
 
 from angora_jax.envs.core import MODALITIES, Env, State, is_image
 from angora_jax.envs.cpu_env import CpuEnv, eager, single_env_functions
-from angora_jax.envs.registry import list_tasks, make
+from angora_jax.envs.registry import TASKS, make
 from angora_jax.envs.rendering import SceneRenderer, camera_named
 
 NAMESPACE = "AngoraJax"
@@ -93,8 +93,10 @@ def _space(modality: Any) -> gymnasium.spaces.Box:
 
 
 def register_gymnasium_envs() -> None:
-    """Register `AngoraJax/<Task>-v0` for every task not registered yet."""
-    for task in list_tasks():
+    """Register `AngoraJax/<Task>-v0` for every task registered so far and not with Gymnasium yet; call it again after
+    registering a task of your own."""
+    # The names so far, without loading plugins: `import angora_jax` calls this (angora_jax.registry.plugins: why).
+    for task in TASKS.names(plugins=False):
         env_id = f"{NAMESPACE}/{task}-v0"
         if env_id not in gymnasium.registry:
             gymnasium.register(id=env_id, entry_point=GymEnv, kwargs={"task": task})

@@ -25,9 +25,11 @@ class Registry(Generic[F]):
             raise ValueError(f"{self.kind.capitalize()} {name!r} is already registered.")
         self._factories[name] = factory
 
-    def names(self) -> list[str]:
-        """Registered names (the installed plugins' included), sorted."""
-        load_plugins()
+    def names(self, plugins: bool = True) -> list[str]:
+        """Registered names, sorted; plugins: load the installed plugins first, so that their names are included
+        (False: only the names registered so far)."""
+        if plugins:
+            load_plugins()
         return sorted(self._factories)
 
     def get(self, name: str) -> F:
