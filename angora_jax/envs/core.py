@@ -92,18 +92,19 @@ class ActionSpec:
 class State:
     """One environment's state after `reset` or `step` (add a leading axis for a batch).
 
-    physics: the simulator's state (an `mjx.Data` for MuJoCo tasks, a small array pytree for classic ones).
-    obs: the observation the agent sees now; after an auto-reset, the first observation of the new episode.
-    reward: float32 scalar, the reward of the step that led here (0 after reset).
-    done: float32 scalar, 1 if the episode ended at this step (terminated or truncated).
-    truncated: float32 scalar, 1 if the episode ended only because of a time limit: `max_episode_steps`, or a
-        task's own clock, signalled by a boolean `info["time_out"]` (e.g. the cube task's goal timer).
-    final_obs: the observation at the episode's end, before any auto-reset; equals `obs` when not done.
-    steps: int32 scalar, policy steps taken in the current episode.
-    info: task state that is not physics (goal, target finger, timers), a dict of arrays.
-    metrics: task metrics of the current episode at this step (e.g. `success`), float32 scalars; a trainer
-        reports their values at episode ends.
-    key: the environment's own PRNG key (goal sampling, resets).
+    Attributes:
+        physics: the simulator's state (an `mjx.Data` for MuJoCo tasks, a small array pytree for classic ones).
+        obs: the observation the agent sees now; after an auto-reset, the first observation of the new episode.
+        reward: float32 scalar, the reward of the step that led here (0 after reset).
+        done: float32 scalar, 1 if the episode ended at this step (terminated or truncated).
+        truncated: float32 scalar, 1 if the episode ended only because of a time limit: `max_episode_steps`, or a task's
+            own clock, signalled by a boolean `info["time_out"]` (e.g. the cube task's goal timer).
+        final_obs: the observation at the episode's end, before any auto-reset; equals `obs` when not done.
+        steps: int32 scalar, policy steps taken in the current episode.
+        info: task state that is not physics (goal, target finger, timers), a dict of arrays.
+        metrics: task metrics of the current episode at this step (e.g. `success`), float32 scalars; a trainer reports
+            their values at episode ends.
+        key: the environment's own PRNG key (goal sampling, resets).
     """
 
     physics: Any

@@ -304,13 +304,18 @@ class Config:
 
 
 def load_config(source: str | Path | dict | None = None, overrides: typing.Iterable[str] = ()) -> Config:
-    """Read a config and apply `overrides` (strings `key.sub=value`, value in YAML syntax); no validation
-    against the task yet (see `validate`).
+    """Read a config and apply `overrides`; no validation against the task yet (see `validate`).
 
-    source: a YAML file path, the name of a shipped config (`list_configs()`, e.g. "cartpole"), a dict with
-    the same structure, or None for the defaults. A file whose top-level `extends` names another config (a shipped
-    name, or a path relative to the file) is that config with the file's keys on top: sections merge key by key, other
-    values replace. Raises ConfigError for a missing file, bad YAML, an unknown key or a value of the wrong type.
+    A file whose top-level `extends` names another config (a shipped name, or a path relative to the file) is that
+    config with the file's keys on top: sections merge key by key, other values replace.
+
+    Args:
+        source: a YAML file path, the name of a shipped config (`list_configs()`, e.g. "cartpole"), a dict with the
+            same structure, or None for the defaults.
+        overrides: strings `key.sub=value`, the value in YAML syntax.
+
+    Raises:
+        ConfigError: a missing file, bad YAML, an unknown key or a value of the wrong type.
     """
     data = _read(source)
     for override in overrides:
@@ -367,9 +372,13 @@ def best_metric_choices(env: Env, evaluation: EvaluationConfig | None = None) ->
 def validate(config: Config, new_run: bool = True) -> Env:
     """Check the whole config, the task included, without compiling anything; return the task's environment.
 
-    new_run: also check where a new run directory would be made (`check_run_location`); False for the config of a
-    run that exists (resuming or reading it), whose directory was made under the rules of its time.
-    Raises ConfigError naming the key (e.g. `ppo.minibatch_size`), the allowed values and the fix.
+    Args:
+        config: the config to check.
+        new_run: also check where a new run directory would be made (`check_run_location`); False for the config of a
+            run that exists (resuming or reading it), whose directory was made under the rules of its time.
+
+    Raises:
+        ConfigError: naming the key (e.g. `ppo.minibatch_size`), the allowed values and the fix.
     """
     try:  # first: the user's modules register the tasks and networks that the checks below look up
         import_modules(config.imports, "listed under imports in the config; a run's config.yaml lists those it "

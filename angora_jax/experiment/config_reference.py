@@ -17,8 +17,14 @@ from angora_jax.experiment.config import Config
 
 @dataclass(frozen=True)
 class ConfigKey:
-    """One key: dotted name (e.g. `ppo.network.width`), type as written in the code, default (YAML-like text) and
-    the sentence(s) of its class's docstring ("" when the docstring has none)."""
+    """One key of the config reference.
+
+    Attributes:
+        key: dotted name, e.g. `ppo.network.width`.
+        type: the type as written in the code.
+        default: the default, as YAML-like text.
+        description: the sentence(s) of its class's docstring ("" when the docstring has none).
+    """
 
     key: str
     type: str

@@ -53,9 +53,14 @@ def area_sizes(overrides: Mapping[str, int] | None = None) -> dict[str, int]:
 
 def cortical_graph(sizes: Mapping[str, int] = AREA_SIZES, cell: str = "lstm", shared_trunk: bool = False,
                    value_sizes: tuple[int, ...] = VALUE_SIZES) -> AreaGraph:
-    """The `cortical` model's graph. sizes: units per area, every area of `AREA_SIZES` (see `area_sizes`). cell:
-    "rnn", "lstm" or "gru" for PMC. shared_trunk: AngoraPy's value wiring (see the module docstring). value_sizes:
-    the value net's layers."""
+    """The `cortical` model's graph.
+
+    Args:
+        sizes: units per area, every area of `AREA_SIZES` (see `area_sizes`).
+        cell: "rnn", "lstm" or "gru" for PMC.
+        shared_trunk: AngoraPy's value wiring (see the module docstring).
+        value_sizes: the value net's layers.
+    """
     areas = {name: AreaSpec(size=sizes[name], inputs=inputs, cell=cell if name == "PMC" else None)
              for name, inputs in WIRING.items()}
     value_inputs = SHARED_VALUE_INPUTS if shared_trunk else VALUE_MODALITIES

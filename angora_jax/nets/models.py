@@ -54,8 +54,10 @@ def value_head(features: jax.Array, name: str = "value") -> jax.Array:
 class FeedForward(nn.Module):
     """MLP policy and value; the carry is an empty `(B, 0)` array so it shares the recurrent training path.
 
-    shared: one trunk over the policy modalities; the value head reads its features and `asymmetric`. Otherwise a
-    separate value trunk reads all modalities including `asymmetric`.
+    Attributes:
+        sizes: units of each dense layer of a trunk.
+        shared: one trunk over the policy modalities; the value head reads its features and `asymmetric`. Otherwise a
+            separate value trunk reads all modalities including `asymmetric`.
     """
 
     sizes: tuple[int, ...] = (64, 64)
@@ -177,9 +179,13 @@ def cell_output(kind: str, carry: jax.Array | tuple[jax.Array, jax.Array]) -> ja
 class Recurrent(nn.Module):
     """Encoder, then a recurrent cell (Elman RNN, LSTM or GRU), then the heads.
 
-    cell: "rnn", "lstm" or "gru". encoder: "modality" (one embedding per modality) or "concat" (one embedding of all).
-    shared: the value head reads the policy's recurrent features and `asymmetric`; otherwise a second encoder +
-    cell reads all modalities including `asymmetric` and the carry holds both cells' states.
+    Attributes:
+        width: units of the encoder's embeddings.
+        cell_size: units of the recurrent cell.
+        cell: "rnn", "lstm" or "gru".
+        encoder: "modality" (one embedding per modality) or "concat" (one embedding of all).
+        shared: the value head reads the policy's recurrent features and `asymmetric`; otherwise a second encoder +
+            cell reads all modalities including `asymmetric` and the carry holds both cells' states.
     """
 
     width: int = 64

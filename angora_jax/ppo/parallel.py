@@ -219,10 +219,16 @@ class DataParallel:
 def data_parallel(body: Callable[[Any], Any], in_specs: Any, out_specs: Any, num_devices: int) -> DataParallel:
     """Compile the per-device `body(arg)` over the first `num_devices` devices.
 
-    in_specs / out_specs: PartitionSpecs (prefix trees) of the argument and the result: `P(AXIS)` for leaves whose
-    leading axis is split over the devices (environments: each device holds N / D of them, and whatever else its
-    share owns, such as MuJoCo Warp's contact pool), `P()` for replicated ones. The result's `place(arg)` lays a
-    global argument out; outputs specified `P()` must be equal on every device (the collectives ensure it).
+    The result's `place(arg)` lays a global argument out.
+
+    Args:
+        body: the computation of one device.
+        in_specs: PartitionSpecs (a prefix tree) of the argument: `P(AXIS)` for leaves whose leading axis is split over
+            the devices (environments: each device holds N / D of them, and whatever else its share owns, such as
+            MuJoCo Warp's contact pool), `P()` for replicated ones.
+        out_specs: PartitionSpecs of the result, as for `in_specs`; outputs specified `P()` must be equal on every
+            device (the collectives ensure it).
+        num_devices: the devices to run on.
     """
     mesh = Mesh(np.array(jax.devices()[:num_devices]), (AXIS,))
     shardings = jax.tree.map(lambda spec: NamedSharding(mesh, spec), in_specs, is_leaf=lambda x: isinstance(x, P))

@@ -30,9 +30,16 @@ CUBE_AWAY = np.array([0.0, 0.0, 5.0])  # m: a shift that takes the cube out of e
 
 @dataclass(frozen=True)
 class PoseDataset:
-    """images `(N, cameras, height, width, 3)` uint8; cube_position `(N, 3)` m and cube_quaternion `(N, 4)` (w, x,
-    y, z with w >= 0) in the world frame; hand_qpos `(N, 24)` the hand's joint angles (rad); renderer: what drew the
-    images, "cpu" (OpenGL) or "warp"."""
+    """Rendered images of the cube with its pose, for pretraining a pose estimator.
+
+    Attributes:
+        images: `(N, cameras, height, width, 3)` uint8.
+        cube_position: `(N, 3)` m, in the world frame.
+        cube_quaternion: `(N, 4)` (w, x, y, z with w >= 0), in the world frame.
+        hand_qpos: `(N, 24)` the hand's joint angles (rad).
+        cameras: the cameras' names (`rendering.CAMERAS`), in the order of the images' camera axis.
+        renderer: what drew the images, "cpu" (OpenGL) or "warp".
+    """
 
     images: np.ndarray
     cube_position: np.ndarray

@@ -18,12 +18,17 @@ def make_pose(reward: dict[str, float] | None = None, pose_threshold: float = PO
               physics: dict[str, float | str] | None = None, backend: str = "mjx") -> Env:
     """Build `MyoHandPose` (`pose.MyoHandPose`; MyoSuite's myoHandPoseRandom-v0 defaults). Times in s, angles in rad.
 
-    reward: `pose.PoseReward` coefficients overriding MyoSuite's weights (e.g. `{effort: 0}`). pose_threshold,
-    success_steps: a step is solved below `pose_threshold`, an episode a success when solved on more than
-    `success_steps` steps. control_dt: simulated time per policy step, a whole multiple of the timestep (the frame
-    skip is control_dt / timestep: 0.02 / 0.002 = 10). physics: `PhysicsSettings` fields overriding the model's own
-    settings (`model.MYOHAND_PHYSICS`: 2 ms, Newton, 100 iterations, 50 line-search steps). backend: "mjx" (batched,
-    training) or "cpu" (the C MuJoCo twin)."""
+    Args:
+        reward: `pose.PoseReward` coefficients overriding MyoSuite's weights (e.g. `{effort: 0}`).
+        pose_threshold: a step is solved below this pose error.
+        success_steps: an episode is a success when solved on more than this many steps.
+        control_dt: simulated time per policy step, a whole multiple of the timestep (the frame skip is control_dt /
+            timestep: 0.02 / 0.002 = 10).
+        max_episode_steps: policy steps per episode.
+        physics: `PhysicsSettings` fields overriding the model's own settings (`model.MYOHAND_PHYSICS`: 2 ms, Newton,
+            100 iterations, 50 line-search steps).
+        backend: "mjx" (batched, training) or "cpu" (the C MuJoCo twin).
+    """
     settings = MYOHAND_PHYSICS.with_options(physics)
     frame_skip = settings.frame_skip(control_dt)
     task = MyoHandPose(load_hand(settings), PoseReward.from_dict(reward), pose_threshold=pose_threshold,

@@ -48,9 +48,11 @@ SUCCESS_STEPS = 5
 class PoseReward(Coefficients):
     """Weights of the reward's terms (MyoSuite's `DEFAULT_RWD_KEYS_AND_WEIGHTS` for pose), errors in rad.
 
-    pose: weight of minus the pose error. bonus: weight of the bonus, 1 while the error is below the threshold and 1
-    more below 1.5 times it. effort: weight of minus the mean squared muscle activation. penalty: weight of minus 1
-    when the error exceeds `far_error`, which also ends the episode.
+    Attributes:
+        pose: weight of minus the pose error.
+        bonus: weight of the bonus, 1 while the error is below the threshold and 1 more below 1.5 times it.
+        effort: weight of minus the mean squared muscle activation.
+        penalty: weight of minus 1 when the error exceeds `far_error`, which also ends the episode.
     """
 
     pose: float = 1.0
