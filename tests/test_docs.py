@@ -34,11 +34,9 @@ PAGE_SOURCES = [*sorted(DOCS.rglob("*.md")), ROOT / "CHANGELOG.md",
                 *sorted((ROOT / "benchmarks" / "results").rglob("*.md"))]
 LIST_ITEM = re.compile(r"^\s*(?:[-*+]|\d+\.)\s")
 FENCE = re.compile(r"^\s*(?:```|~~~)")
-# A page's text in the built site, and within it the paragraphs; a line of a paragraph that starts like a list item
-# is a list that Markdown did not see (it needs a blank line before it), shown as inline " - " text.
+# A page's text in the built site, and within it the paragraphs.
 ARTICLE = re.compile(r"<article\b[^>]*>(?P<body>.*?)</article>", re.DOTALL)
 PARAGRAPH = re.compile(r"<p\b[^>]*>(?P<text>.*?)</p>", re.DOTALL)
-UNRENDERED_ITEM = re.compile(r"\n\s*(?:[-*+]|\d+\.) \S")
 TAG = re.compile(r"<[^>]+>")
 MIN_PAGE_LINES = 20
 
@@ -109,8 +107,8 @@ def built_site_problems(site: Path) -> list[str]:
         text = html.unescape(TAG.sub("", body))
         if "\\|" in text:
             problems.append(f"{name}: a literal \\| {text.count(chr(92) + '|')} times")
-        run_on = [html.unescape(TAG.sub("", p["text"])) for p in PARAGRAPH.finditer(body)
-                  if UNRENDERED_ITEM.search(p["text"])]
+        paragraphs = [html.unescape(TAG.sub("", p["text"])) for p in PARAGRAPH.finditer(body)]
+        run_on = [text for text in paragraphs if run_on_list(text.splitlines()) is not None]
         if run_on:
             problems.append(f"{name}: list items run on in {len(run_on)} paragraphs, e.g. {run_on[0][:120]!r}")
         lines = [line for line in text.splitlines() if line.strip()]
@@ -119,21 +117,32 @@ def built_site_problems(site: Path) -> list[str]:
     return problems
 
 
+def run_on_list(lines: list[str]) -> int | None:
+    """The index of the line of one paragraph's `lines` where a list runs on as the paragraph's text (Markdown needs
+    a blank line before a list): a line that starts like a list item after a line ending with a colon, or the first
+    of two or more such lines. One such line alone is a wrapped formula's minus (`a\\n- b`), which reads right."""
+    items = [i for i, line in enumerate(lines) if i and LIST_ITEM.match(line)]
+    after_colon = [i for i in items if lines[i - 1].rstrip().endswith(":")]
+    return after_colon[0] if after_colon else items[0] if len(items) > 1 else None
+
+
 def unseparated_lists(markdown: str) -> list[int]:
-    """Line numbers (from 1) of list items that follow a paragraph's line with no blank line between: Markdown then
-    reads them as the paragraph's text. Code blocks, headings, tables, HTML, admonitions and indented lines (a
-    list item's continuation) are not paragraphs."""
-    found, paragraph, fenced = [], [], False
+    """Line numbers (from 1) where a list runs on inside a paragraph of `markdown` (`run_on_list`). Code blocks,
+    headings, tables, HTML, admonitions, lists and indented blocks are not paragraphs."""
+    found, paragraphs, fenced = [], [[]], False
     for number, line in enumerate(markdown.splitlines(), 1):
         if FENCE.match(line):
-            fenced, paragraph = not fenced, []
+            fenced = not fenced
+            paragraphs.append([])
         elif fenced or not line.strip() or line.startswith("#"):
-            paragraph = []
+            paragraphs.append([])
         else:
-            starts_paragraph = paragraph and not paragraph[0].startswith(("|", "<", "!!!", "???", " ", "\t"))
-            if LIST_ITEM.match(line) and starts_paragraph and not any(LIST_ITEM.match(p) for p in paragraph):
-                found.append(number)
-            paragraph.append(line)
+            paragraphs[-1].append((number, line))
+    for paragraph in paragraphs:
+        lines = [line for _, line in paragraph]
+        if lines and not lines[0].startswith(("|", "<", "!!!", "???", " ", "\t")) and not LIST_ITEM.match(lines[0]):
+            index = run_on_list(lines)
+            found += [paragraph[index][0]] if index is not None else []
     return found
 
 
@@ -141,6 +150,7 @@ def test_lists_follow_a_blank_line():
     """The fast tier's counterpart of the built-site check for lists: no list item directly after a paragraph's
     line in the site's Markdown (pages, and study notes published from benchmarks/results)."""
     assert unseparated_lists("Text:\n- a\n- b\n\nText:\n\n- a\n\n```\nx\n- y\n```\n- a\n  b\n- c\n") == [2]
+    assert unseparated_lists("Text.\n- a\n- b\n\nr = a\n- b\n\n- a\n- b\n") == [2]
     found = {path.relative_to(ROOT).as_posix(): unseparated_lists(path.read_text()) for path in PAGE_SOURCES}
     assert {path: lines for path, lines in found.items() if lines} == {}
 
