@@ -18,8 +18,17 @@ policy (`ppo.init_from`, e.g. fine-tuned to read a pose estimator) continues tha
 LABEL=BASE`: its env steps and times count from where BASE's rows end. `--before LABEL=MINUTES` adds wall time that
 run's route spent elsewhere first (e.g. pretraining the estimator), for comparisons at equal wall time.
 
+Seeds: runs given under the same label are seeds of one recipe. For each milestone the label then gets the mean and
+the 95% confidence interval (Student's t) over the seeds that reached it, and the plot draws the seeds' mean with its
+band; `--seeds N` refuses a label with another number of runs (a crashed seed must not shrink the statistics
+silently). Every run also gets its stability: the peak of its training-mean CGR (a 5-cycle rolling mean), its last
+value (the mean of the last 5 cycles), their ratio and how long it trained past the peak. The JSON's `curves` map
+each label to its runs, one list of per-cycle rows each.
+
     python benchmarks/ihom_curve.py fast=runs/fast/metrics.jsonl paper=runs/paper/metrics.jsonl \\
         --device "NVIDIA H100 80GB HBM3" --name ShadowHandCube_h100
+    python benchmarks/ihom_curve.py fast=runs/s0 fast=runs/s1 fast=runs/s2 fast=runs/s3 fast=runs/s4 --seeds 5 \\
+        --device "NVIDIA H200" --name fast_seeds_h200
 """
 
 from __future__ import annotations
@@ -32,6 +41,8 @@ import os
 from pathlib import Path
 
 import matplotlib
+import numpy as np
+import scipy.stats
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -41,6 +52,8 @@ CGR = "metric/goals_reached"
 MILESTONES = (1, 5, 10, 20, 30)
 # AngoraPy's IHOM run (Weidler et al. 2023): samples, wall hours and hardware, for a training-mean CGR of about 30.
 PAPER = {"samples": 1_187_512_320, "hours": 96.0, "hardware": "384 CPU cores + 32 GPUs (P100)", "cgr": 30.0}
+# Cycles in the rolling mean that stability is judged on: one cycle's training mean moves by a few CGR.
+SMOOTH = 5
 
 
 def read_pieces(paths: list[str]) -> list[dict]:
@@ -83,21 +96,81 @@ def milestones(rows: list[dict]) -> list[dict]:
     return found
 
 
-def plot(runs: dict[str, list[dict]], title: str, path: str) -> None:
+def mean_interval(values: list[float]) -> dict:
+    """n, mean and the 95% confidence interval's half width (Student's t; None for fewer than 2 values)."""
+    if not values:
+        return {"n": 0, "mean": None, "ci95": None}
+    half = float(scipy.stats.t.ppf(0.975, len(values) - 1) * scipy.stats.sem(values)) if len(values) > 1 else None
+    return {"n": len(values), "mean": float(np.mean(values)), "ci95": half}
+
+
+def seed_milestones(seeds: list[list[dict]]) -> list[dict]:
+    """Per CGR bar over a recipe's seeds (each a run's `milestones`): how many reached it, and the mean and 95%
+    interval of env steps, training and wall minutes over those that did."""
+    summary = []
+    for bar, entries in zip(MILESTONES, zip(*seeds, strict=True), strict=True):
+        reached = [e for e in entries if e["cycle"] is not None]
+        row = {"cgr": bar, "seeds": len(entries), "reached": len(reached)}
+        for key in ("env_steps", "train_minutes", "wall_minutes"):
+            row[key] = mean_interval([e[key] for e in reached])
+        summary.append(row)
+    return summary
+
+
+def stability(rows: list[dict]) -> dict:
+    """The peak of the training-mean CGR's rolling mean over `SMOOTH` cycles, the cycle and wall minutes where it
+    was, the mean of the last `SMOOTH` cycles, their ratio, and the cycles and wall minutes trained past the peak."""
+    cgr = np.array([math.nan if r.get(CGR) is None else r[CGR] for r in rows])
+    if len(cgr) < SMOOTH or np.isnan(cgr).all():
+        return {"peak": None}
+    rolling = np.array([np.nanmean(cgr[i:i + SMOOTH]) for i in range(len(cgr) - SMOOTH + 1)])
+    top = int(np.nanargmax(rolling))
+    at_peak, last = rows[top + SMOOTH - 1], rows[-1]
+    peak, final = float(rolling[top]), float(rolling[-1])
+    return {"peak": peak, "peak_cycle": at_peak["cycle"], "peak_wall_minutes": at_peak["wall_seconds"] / 60,
+            "final": final, "final_over_peak": final / peak if peak > 0 else None,
+            "cycles_past_peak": last["cycle"] - at_peak["cycle"],
+            "wall_minutes_past_peak": (last["wall_seconds"] - at_peak["wall_seconds"]) / 60}
+
+
+def band(seeds: list[list[dict]], x: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`(grid, mean, half width)` of the seeds' CGR against `x` (env_steps or wall_seconds), each seed interpolated
+    on a grid up to where the shortest ends."""
+    end = min(rows[-1][x] for rows in seeds)
+    grid = np.linspace(min(rows[0][x] for rows in seeds), end, 200)
+    curves = np.array([np.interp(grid, [r[x] for r in rows], [math.nan if r.get(CGR) is None else r[CGR]
+                                                               for r in rows]) for rows in seeds])
+    half = scipy.stats.t.ppf(0.975, len(seeds) - 1) * scipy.stats.sem(curves, axis=0)
+    return grid, curves.mean(axis=0), half
+
+
+def plot(runs: dict[str, list[list[dict]]], title: str, path: str) -> None:
     """CGR against env steps (log scale, the paper's endpoint marked) and against wall minutes; drop share of
-    episode ends and goal distance against env steps."""
+    episode ends and goal distance against env steps. A label of several seeds is drawn as their mean with its 95%
+    band in the CGR panels and as thin lines per seed in the others."""
     figure, axes = plt.subplots(1, 4, figsize=(18, 4))
-    for label, rows in runs.items():
-        steps = [r["env_steps"] for r in rows]
-        minutes = [r["wall_seconds"] / 60 for r in rows]
+    for label, seeds in runs.items():
+        color = None
+        if len(seeds) > 1:
+            named = f"{label} ({len(seeds)} seeds, mean and 95% CI)"
+            for ax, x, scale in ((axes[0], "env_steps", 1), (axes[1], "wall_seconds", 60)):
+                grid, mean, half = band(seeds, x)
+                (line,) = ax.plot(grid / scale, mean, label=named, color=color)
+                color = line.get_color()
+                ax.fill_between(grid / scale, mean - half, mean + half, alpha=0.25, color=color)
+        for rows in seeds:
+            steps = [r["env_steps"] for r in rows]
 
-        def values(key, rows=rows):
-            return [math.nan if r.get(key) is None else r[key] for r in rows]
+            def values(key, rows=rows):
+                return [math.nan if r.get(key) is None else r[key] for r in rows]
 
-        axes[0].plot(steps, values(CGR), label=label)
-        axes[1].plot(minutes, values(CGR), label=label)
-        axes[2].plot(steps, values("metric/dropped"), label=label)
-        axes[3].plot(steps, values("metric/goal_distance"), label=label)
+            width = 0.6 if len(seeds) > 1 else 1.5
+            if len(seeds) == 1:
+                (line,) = axes[0].plot(steps, values(CGR), label=label)
+                color = line.get_color()
+                axes[1].plot([r["wall_seconds"] / 60 for r in rows], values(CGR), label=label, color=color)
+            axes[2].plot(steps, values("metric/dropped"), color=color, linewidth=width)
+            axes[3].plot(steps, values("metric/goal_distance"), color=color, linewidth=width)
     axes[0].scatter([PAPER["samples"]], [PAPER["cgr"]], marker="*", s=150, color="k", zorder=3,
                     label=f"AngoraPy (paper): {PAPER['cgr']:g} at {PAPER['samples']:.3g}")
     axes[0].set_xscale("log")
@@ -129,20 +202,29 @@ def main(argv: list[str] | None = None) -> int:
                         help="wall minutes that run LABEL's route spent outside the runs given, before it (e.g. "
                              "pretraining its pose estimator): added to its wall clock")
     parser.add_argument("--note", default="", help="free text stored with the results (e.g. what else shared the GPU)")
+    parser.add_argument("--seeds", type=int, metavar="N",
+                        help="each label must have exactly N runs (its seeds), or nothing is written")
     args = parser.parse_args(argv)
-    runs = {}
+    runs: dict[str, list[list[dict]]] = {}
     for spec in args.runs:
         label, sep, paths = spec.partition("=")
         if not sep or not label or not paths:
             raise SystemExit(f"Run {spec!r} must look like LABEL=PATH[,PATH...].")
-        runs[label] = read_pieces(paths.split(","))
+        runs.setdefault(label, []).append(read_pieces(paths.split(",")))
+    if args.seeds is not None:
+        wrong = {label: len(seeds) for label, seeds in runs.items() if len(seeds) != args.seeds}
+        if wrong:
+            raise SystemExit(f"--seeds {args.seeds}: " + ", ".join(f"{label!r} has {n}" for label, n in wrong.items())
+                             + " run(s); give each label's every seed, or a --seeds that matches.")
     continues = dict(spec.partition("=")[::2] for spec in args.continues)
     for label, base in continues.items():
         if label not in runs or base not in runs:
             raise SystemExit(f"--continues {label}={base}: both must be labels of the runs given ({', '.join(runs)}).")
-        end = runs[base][-1]
-        runs[label] = [{**r, **{k: r[k] + end[k] for k in ("env_steps", "train_seconds", "wall_seconds")}}
-                       for r in runs[label]]
+        if len(runs[base]) > 1:
+            raise SystemExit(f"--continues {label}={base}: {base!r} has several seeds; a run continues one run.")
+        end = runs[base][0][-1]
+        runs[label] = [[{**r, **{k: r[k] + end[k] for k in ("env_steps", "train_seconds", "wall_seconds")}}
+                        for r in rows] for rows in runs[label]]
     before = {}
     for spec in args.before:
         label, _, minutes = spec.partition("=")
@@ -152,25 +234,44 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(f"--before {spec!r} must look like LABEL=MINUTES.") from None
         if label not in runs:
             raise SystemExit(f"--before {spec}: {label!r} is not a label of the runs given ({', '.join(runs)}).")
-        runs[label] = [{**r, "wall_seconds": r["wall_seconds"] + 60.0 * before[label]} for r in runs[label]]
-    summary = {label: milestones(rows) for label, rows in runs.items()}
+        runs[label] = [[{**r, "wall_seconds": r["wall_seconds"] + 60.0 * before[label]} for r in rows]
+                       for rows in runs[label]]
+    per_run = {label: [milestones(rows) for rows in seeds] for label, seeds in runs.items()}
+    summary = {label: found[0] for label, found in per_run.items() if len(found) == 1}
+    over_seeds = {label: seed_milestones(found) for label, found in per_run.items() if len(found) > 1}
+    stable = {label: [stability(rows) for rows in seeds] for label, seeds in runs.items()}
     stem = os.path.join(study_folder(args.study), f"ihom_curve_{args.name}")
     record = {"benchmark": "ihom_curve", "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
               "training_device": args.device, "note": args.note, "continues": continues, "before_minutes": before,
               "paper": PAPER,
-              "milestones": summary,
-              "curves": {label: [{k: r.get(k) for k in ("cycle", "env_steps", "train_seconds", "wall_seconds",
-                                                         "steps_per_second",
-                                                         "episode_return", "episode_length", CGR, "metric/dropped",
-                                                         "metric/timed_out", "metric/goal_distance", "entropy")}
-                                 for r in rows] for label, rows in runs.items()}}
+              "milestones": summary, "seed_milestones": over_seeds,
+              "seed_milestones_per_run": {label: found for label, found in per_run.items() if len(found) > 1},
+              "stability": stable,
+              "curves": {label: [[{k: r.get(k) for k in ("cycle", "env_steps", "train_seconds", "wall_seconds",
+                                                          "steps_per_second", "learning_rate",
+                                                          "episode_return", "episode_length", CGR, "metric/dropped",
+                                                          "metric/timed_out", "metric/goal_distance", "entropy")}
+                                  for r in rows] for rows in seeds] for label, seeds in runs.items()}}
     with open(stem + ".json", "w") as file:
         json.dump(record, file, indent=1)
     plot(runs, f"ShadowHandCube (IHOM) on {args.device}", stem + ".png")
-    for label, rows in runs.items():
-        last = rows[-1]
-        print(f"{label}: {last['cycle']} cycles, {last['env_steps']:,} env steps, {last['train_seconds'] / 60:.1f} min "
-              f"training, {last['wall_seconds'] / 60:.1f} min wall, last training-mean CGR {last.get(CGR):.2f}")
+    for label, seeds in runs.items():
+        for rows, held in zip(seeds, stable[label], strict=True):
+            last = rows[-1]
+            print(f"{label}: {last['cycle']} cycles, {last['env_steps']:,} env steps, {last['train_seconds'] / 60:.1f} "
+                  f"min training, {last['wall_seconds'] / 60:.1f} min wall, last training-mean CGR {last.get(CGR):.2f}")
+            if held["peak"] is not None:
+                print(f"  peak {held['peak']:.1f} (5-cycle mean) at cycle {held['peak_cycle']}, last "
+                      f"{held['final']:.1f} ({100 * (held['final_over_peak'] or 0):.0f}% of the peak) after "
+                      f"{held['cycles_past_peak']} cycles ({held['wall_minutes_past_peak']:.1f} wall min) past it")
+        if label in over_seeds:
+            print(markdown_table([{"cgr": row["cgr"], "reached": f"{row['reached']}/{row['seeds']}",
+                                   **{key: show(row[key]) for key in ("env_steps", "train_minutes", "wall_minutes")}}
+                                  for row in over_seeds[label]],
+                                 [("cgr", "CGR", "d"), ("reached", "seeds reached", "s"),
+                                  ("env_steps", "env steps (mean +- 95% CI)", "s"),
+                                  ("train_minutes", "training min", "s"), ("wall_minutes", "wall min", "s")]))
+            continue
         print(markdown_table(summary[label], [("cgr", "CGR", "d"), ("cycle", "cycle", "d"),
                                               ("env_steps", "env steps", ",d"),
                                               ("train_minutes", "training min", ".1f"),
@@ -179,6 +280,15 @@ def main(argv: list[str] | None = None) -> int:
                                               ("paper_wall_ratio", "paper wall / ours", ".0f")]))
     print(f"wrote {stem}.json and {stem}.png")
     return 0
+
+
+def show(value: dict) -> str:
+    """`mean +- half width` of a `mean_interval`, '-' when no seed reached it."""
+    if value["mean"] is None:
+        return "-"
+    digits = ",.0f" if value["mean"] > 1000 else ".1f"
+    half = "" if value["ci95"] is None else f" +- {value['ci95']:{digits}}"
+    return f"{value['mean']:{digits}}{half}"
 
 
 if __name__ == "__main__":

@@ -204,7 +204,8 @@ def test_ihom_curve_joins_pieces_by_cycle_and_finds_the_milestones(tmp_path, mon
     pieces = f"run={tmp_path / 'a.jsonl'},{tmp_path / 'b.jsonl'}"
     assert ihom_curve.main([pieces, "--device", "cpu", "--name", "t"]) == 0
     record = json.loads((tmp_path / "ihom_curve_t.json").read_text())
-    assert record["training_device"] == "cpu" and len(record["curves"]["run"]) == 4
+    (curve,) = record["curves"]["run"]  # one list of rows per run of the label
+    assert record["training_device"] == "cpu" and len(curve) == 4
     assert (tmp_path / "ihom_curve_t.png").read_bytes()[:4] == b"\x89PNG"
     # A fine-tuned run continues its base's curve; time its route spent elsewhere first goes on its wall clock.
     tuned = tmp_path / "tuned.jsonl"
@@ -212,11 +213,38 @@ def test_ihom_curve_joins_pieces_by_cycle_and_finds_the_milestones(tmp_path, mon
     assert ihom_curve.main([pieces, f"tuned={tuned}", "--continues", "tuned=run", "--before", "tuned=0.5",
                             "--device", "cpu", "--name", "t2"]) == 0
     record = json.loads((tmp_path / "ihom_curve_t2.json").read_text())
-    (point,) = record["curves"]["tuned"]
+    ((point,),) = record["curves"]["tuned"]
     assert point["env_steps"] == 500 and point["train_seconds"] == 10.0 and point["wall_seconds"] == 11.0 + 2.0 + 30.0
     assert record["before_minutes"] == {"tuned": 0.5} and record["continues"] == {"tuned": "run"}
     with pytest.raises(SystemExit, match="LABEL=MINUTES"):
         ihom_curve.main([pieces, "--before", "run=soon", "--device", "cpu", "--name", "t3"])
+
+
+def test_ihom_curve_gives_seed_statistics_and_each_runs_peak_and_fall(tmp_path, monkeypatch):
+    """Three seeds under one label: the milestones' mean and Student's t 95% interval over the seeds that reached
+    each; every run's 5-cycle peak, last value and time past the peak; --seeds refuses another count."""
+    def run(name, cgr):
+        rows = [{"cycle": c + 1, "env_steps": 100 * (c + 1), "seconds": 1.0, "time": 1000.0 + c, "metric/goals_reached":
+                 value} for c, value in enumerate(cgr)]
+        (tmp_path / name).write_text("".join(json.dumps(r) + "\n" for r in rows))
+        return f"fast={tmp_path / name}"
+
+    rising = [0, 2, 6, 11, 21, 31, 40, 40, 40, 40, 40, 20, 20, 20, 20, 20]  # peaks at 40, ends at 20
+    seeds = [run("a.jsonl", rising), run("b.jsonl", [0, 0, *rising[:-2]]), run("c.jsonl", [0] * 16)]
+    monkeypatch.setattr(ihom_curve, "study_folder", lambda study: str(tmp_path))
+    assert ihom_curve.main([*seeds, "--seeds", "3", "--device", "cpu", "--name", "s"]) == 0
+    record = json.loads((tmp_path / "ihom_curve_s.json").read_text())
+    thirty = {row["cgr"]: row for row in record["seed_milestones"]["fast"]}[30]
+    assert thirty["reached"] == 2 and thirty["seeds"] == 3, "seed c never reaches 30"
+    assert thirty["env_steps"]["mean"] == 700 and thirty["env_steps"]["n"] == 2  # cycles 6 and 8
+    assert thirty["env_steps"]["ci95"] == pytest.approx(12.706 * 100, rel=1e-3)  # t(0.975, 1) x sem of 600, 800
+    first = record["stability"]["fast"][0]
+    assert first["peak"] == 40 and first["peak_cycle"] == 11 and first["final"] == 20
+    assert first["final_over_peak"] == 0.5 and first["cycles_past_peak"] == 5
+    assert record["stability"]["fast"][2]["peak"] == 0
+    assert (tmp_path / "ihom_curve_s.png").read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(SystemExit, match="'fast' has 3 run"):
+        ihom_curve.main([*seeds, "--seeds", "5", "--device", "cpu", "--name", "s2"])
 
 
 @pytest.mark.slow
