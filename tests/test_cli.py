@@ -357,6 +357,23 @@ def test_one_process_per_device_through_the_command_and_the_host_launcher(tmp_pa
     assert session["processes"] == 2 and session["physics"]["num_devices"] == 2
 
 
+@pytest.mark.slow
+def test_seeds_of_one_config_run_as_one_single_device_run_each(tmp_path):
+    """examples/seeds_one_per_gpu.sh with 3 seeds on 2 "GPUs": seed i trains as <name>-seed<i> with ppo.seed=i, the
+    third waiting for the first's GPU; every run is an ordinary run that finished its cycles."""
+    script = Path(__file__).resolve().parents[1] / "examples" / "seeds_one_per_gpu.sh"
+    environment = os.environ | QUICK_SUBPROCESS | {"PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}",
+                                                   "GPUS": "2", "SEEDS_FROM": "5"}
+    tiny = [*TINY, "ppo.num_cycles=1", "logging.progress=none", f"logging.run_root={tmp_path}"]
+    done = subprocess.run(["bash", str(script), "cartpole", "3", *tiny], env=environment, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    for seed in (5, 6, 7):
+        run = tmp_path / f"cartpole-seed{seed}"
+        assert load_config(run / "config.yaml").ppo.seed == seed
+        assert [record["cycle"] for record in read_metrics(run)] == [1]
+
+
 def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("localhost", 0))
