@@ -20,6 +20,7 @@ same axis (`nacon` is `(D,)`), as `pmap` would stack them. Those buffers are scr
 refills, so they carry nothing from one step to the next.
 
 Equivalence: D devices compute what one device computes, up to floating-point summation order.
+
 - Random numbers depend on the environment, not on the device: the rollout key is split into one key per global
   environment and each device takes its block (`local_share`); environment states (and their auto-reset keys)
   come from the global environment keys the same way.

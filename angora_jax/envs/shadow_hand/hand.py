@@ -40,6 +40,7 @@ class HandTask(MujocoTask):
 
     Actions are 20 values in [-1, 1], one per actuator; `control` says what they move, by up to `action_scale` x half
     the actuator's control range per policy step:
+
     - "position" (AngoraPy's and Gym's relative control): targets are set from the joints' current positions. A zero
       action then sets each target where the joint already is, so nothing resists gravity: the palm-up hand sags.
     - "target": targets move from the previous step's targets (MuJoCo Playground's LEAP hand). A zero action holds

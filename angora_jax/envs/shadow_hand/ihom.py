@@ -7,6 +7,7 @@ rotation by an angle uniform in [-pi, pi] about an axis uniform in [-1, 1]^3, in
 Consecutive goals reached (CGR) is the metric `goals_reached` at the episode's end.
 
 Episode rules, checked after every policy step:
+
 - drop: the cube's centre is below the palm's centre -> terminated (the cube is gone; nothing follows);
 - goal timer: `steps_per_goal` policy steps without reaching the current goal (8 s at the default 0.08 s per step)
   -> terminated with `timer="terminal"` (the default, as in AngoraPy and Gym's hand tasks), or truncated with
@@ -31,6 +32,7 @@ auto-reset computes a fresh start at every step), so `settled_starts` settles a 
 C MuJoCo, at construction; a reset picks one with its key, on both physics paths alike.
 
 Reward (`IhomReward` coefficients), with d the angular distance to the goal in rad and dt the policy step in s:
+
     r = progress * (d(t-1) - d(t)) + orientation * dt * (1 - d(t) / pi) + success_bonus * success
         - drop_penalty * dropped - step_penalty - force_multiplier * sum(actuator_force[2:] ** 2)
         - tendon_stress_multiplier * 116 * sum(ten_length ** 2)
