@@ -26,8 +26,12 @@ class Registry(Generic[F]):
         self._factories[name] = factory
 
     def names(self, plugins: bool = True) -> list[str]:
-        """Registered names, sorted; plugins: load the installed plugins first, so that their names are included
-        (False: only the names registered so far)."""
+        """Registered names, sorted.
+
+        Args:
+            plugins: load the installed plugins first, so that their names are included (False: only the names
+                registered so far).
+        """
         if plugins:
             load_plugins()
         return sorted(self._factories)

@@ -31,9 +31,14 @@ class UserCodeError(ValueError):
 def import_modules(names: Iterable[str], source: str) -> None:
     """Import each module of `names` (dotted names, e.g. "mytasks.hand"), so that what it defines registers.
 
-    source: where the names came from, for the message (e.g. "the config's imports"). Raises UserCodeError for a
-    name that is not a module name, a module that is not found (put its folder on PYTHONPATH or install it), or a
-    module that raises while importing (its error, named)."""
+    Args:
+        names: the modules to import.
+        source: where the names came from, for the message (e.g. "the config's imports").
+
+    Raises:
+        UserCodeError: a name that is not a module name, a module that is not found (put its folder on PYTHONPATH or
+            install it), or a module that raises while importing (its error, named).
+    """
     for name in names:
         if not all(part.isidentifier() for part in name.split(".")):
             raise UserCodeError(f"{name!r} ({source}) is not a module name: give the dotted name Python imports "
