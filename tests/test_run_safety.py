@@ -102,7 +102,8 @@ def test_a_damaged_checkpoint_is_named_with_the_newest_intact_one_by_every_verb(
         assert "The newest intact checkpoint is snapshots of cycle 6: read it with --checkpoint 6" in err, err
     assert sorted(p.relative_to(run) for p in run.rglob("*")) == before, "a refused command changed the run"
     assert main(["check", str(run)]) == 2
-    assert f"PROBLEM: checkpoint latest/6 is damaged: {victim}" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert f"PROBLEM: checkpoint latest/6 is damaged: {victim}" in out and "checkpoints/latest: damaged: cycle 6" in out
     # Told to, resume falls back to the intact checkpoint and keeps the damaged one aside.
     assert main(["resume", str(run), "--from", "6"]) == 0
     assert (run / "set-aside" / "resumed-from-cycle-6" / CHECKPOINTS / "latest" / "6").is_dir()

@@ -81,6 +81,8 @@ def check_run(run_dir: str | Path) -> RunCheck:
             unverified = [cycle for cycle, damage in verdicts.items() if damage == "no manifest"]
             kept = [f"intact: cycle {_runs(intact, every=True)}"] * bool(intact)
             kept += [f"without a manifest, unverifiable: cycle {_runs(unverified, every=True)}"] * bool(unverified)
+            damaged = [cycle for cycle in verdicts if cycle not in intact and cycle not in unverified]
+            kept += [f"damaged: cycle {_runs(damaged, every=True)}"] * bool(damaged)
             result.findings.append(f"checkpoints/{kind}: {'; '.join(kept) or 'none'}")
             result.problems += [f"checkpoint {kind}/{cycle} is damaged: {damage}" for cycle, damage in verdicts.items()
                                 if damage not in (None, "no manifest")]
