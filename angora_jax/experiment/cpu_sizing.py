@@ -6,8 +6,8 @@ from __future__ import annotations
 from angora_jax.experiment.config import Config
 
 # Env steps per second of MJX's JAX implementation on 2 CPU cores (batch 16, the tasks' own physics settings;
-# benchmarks/results/physics_throughput/physics_throughput_cpu.json, configs "reach-tuned" and "cube-tuned"). More cores run faster,
-# roughly in proportion.
+# benchmarks/results/physics_throughput/physics_throughput_cpu.json, configs "reach-tuned" and "cube-tuned"). More
+# cores run faster, roughly in proportion.
 CPU_ENV_STEPS_PER_S = {"ShadowHandReach": 1715.0, "ShadowHandFreeReach": 1715.0, "ShadowHandCube": 44.0,
                        "ShadowHandReachSequential": 1715.0, "ShadowHandFreeReachSequential": 1715.0}
 # Past this many env steps per cycle, a task without a measured rate is called GPU-sized.
@@ -32,8 +32,8 @@ def cpu_note(config: Config, physics: dict, on_gpu: bool) -> str | None:
     override = f"ppo.num_envs={envs} ppo.minibatch_size={minibatch}"
     cost = "" if rate is None else (
         f", about {_duration(steps / rate)} per cycle at the {rate:,.0f} env steps/s that 2 CPU cores ran "
-        f"(benchmarks/results/physics_throughput/physics_throughput_cpu.json; {_duration(envs * ppo.rollout_length / rate)} with the "
-        "override)")
+        "(benchmarks/results/physics_throughput/physics_throughput_cpu.json; "
+        f"{_duration(envs * ppo.rollout_length / rate)} with the override)")
     return (f"Note: no GPU found, and this config is sized for one: {ppo.num_envs:,} envs x {ppo.rollout_length} steps "
             f"= {steps:,} env steps per cycle on {physics['engine']} on the CPU{cost}. For a CPU run, add: {override}; "
             "for the GPU, install JAX's CUDA build and warp-lang (README, `angora-jax doctor`).")

@@ -46,11 +46,11 @@ GPUs, when Warp's cache of captured CUDA graphs, 32 per call by default, began e
 GPU; `mjx_env.size_warp_graph_cache` keeps 32 per device;
 benchmarks/results/scaling/scaling_ShadowHandCube_weak_one_4xh100.json).
 Only one process per GPU is measured over whole runs, so it is the layout to use there.
-Measured on two H200s (reach, weak scaling, 4,096 envs per GPU; benchmarks/results/scaling/scaling_*): 1.76x one GPU's rate
-with one process driving both, 1.81x with one process per GPU. Communication is not what is lost: the same program
-on one GPU (this `shard_map` over a one-device mesh) runs at 0.91 of the plain `jax.jit` cycle, and two GPUs run it
-at 1.97x that. Under the Shardy partitioner it runs at 0.96 on one GPU, but Shardy cannot compile it for two (see
-`DataParallel`). Two independent single-GPU runs side by side keep 0.98-1.0 each, and removing the per-step
+Measured on two H200s (reach, weak scaling, 4,096 envs per GPU; benchmarks/results/scaling/scaling_*): 1.76x one
+GPU's rate with one process driving both, 1.81x with one process per GPU. Communication is not what is lost: the
+same program on one GPU (this `shard_map` over a one-device mesh) runs at 0.91 of the plain `jax.jit` cycle, and two
+GPUs run it at 1.97x that. Under the Shardy partitioner it runs at 0.96 on one GPU, but Shardy cannot compile it for
+two (see `DataParallel`). Two independent single-GPU runs side by side keep 0.98-1.0 each, and removing the per-step
 all-reduce (the normaliser updated once per rollout) did not change the ratio, so neither the host nor the lockstep
 costs more. The compiled programs show why: the reach env step's position stage has 264 gathers in the data-parallel
 program against 119 in the plain one, 117 of them indexed through `jnp.take` index arithmetic on constants of the

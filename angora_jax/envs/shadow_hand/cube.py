@@ -15,7 +15,8 @@ a letter and colour per face, so every face is distinguishable). Our changes, ea
 - Sensors: only the 97 touch sensors (from Gym's `*_touch_sensors_92` files) are kept, and only with `touch=True`;
   the Gym scene's joint-position sensors duplicate `qpos`, and MJX evaluates every sensor at every physics step.
 - Solver and timestep (`PhysicsSettings`): the defaults were chosen from measured dynamics error against the Gym
-  scene's settings and measured speed; the evidence is in `benchmarks/results/physics_throughput/ihom_solver_settings.md`.
+  scene's settings and measured speed; the evidence is in
+  `benchmarks/results/physics_throughput/ihom_solver_settings.md`.
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ SCENE = TOUCH_SCENE
 CUBE_BODY = "object"
 CUBE_JOINT = "object:joint"
 CUBE_HALF_SIZE = 0.025  # m
-# Chosen from the dynamics error against the Gym settings and the speed (benchmarks/results/physics_throughput/ihom_solver_settings.md).
+# Chosen from the dynamics error against the Gym settings and the speed
+# (benchmarks/results/physics_throughput/ihom_solver_settings.md).
 CUBE_PHYSICS = PhysicsSettings(timestep=0.008, iterations=4, ls_iterations=8)
 
 
