@@ -35,7 +35,7 @@ DYNAMICS_FIELDS = ("xipos", "cinert", "cvel", "qfrc_actuator", "cfrc_ext")
 # lengthening rates) and activations, in snapshots only then.
 MUSCLE_FIELDS = ("actuator_velocity", "act")
 # Fields that `mjx.Data` keeps in its implementation's part (`data._impl`) rather than among its own.
-_MJX_IMPL_FIELDS = ("cinert", "cfrc_ext")
+_MJX_IMPL_FIELDS = ("cinert", "cfrc_ext", "actuator_velocity")
 
 
 @struct.dataclass
