@@ -81,5 +81,6 @@ def test_wandb_settings_are_checked_before_training(monkeypatch):
     assert load_config("cartpole").logging.wandb is None, "off unless asked for"
     found = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "wandb" else found(name, *a))
-    with pytest.raises(ConfigError, match=r"needs the wandb package: pip install 'angora-jax\[wandb\]'"):
+    needs = r"needs the wandb package: pip install -c constraints.txt -e '\.\[wandb\]' in a clone"
+    with pytest.raises(ConfigError, match=needs):
         validate(load_config("cartpole", ["logging.wandb={}"]))

@@ -410,7 +410,8 @@ def validate(config: Config, new_run: bool = True) -> Env:
         check_run_location(logging)
     if logging.tensorboard and importlib.util.find_spec("tensorboardX") is None:
         raise ConfigError(
-            "logging.tensorboard=true needs the tensorboardX package: pip install 'angora-jax[tensorboard]', or set "
+            "logging.tensorboard=true needs the tensorboardX package: pip install -c constraints.txt -e "
+            "'.[tensorboard]' in a clone of angora_jax (or pip install tensorboardX), or set "
             "logging.tensorboard=false (metrics.jsonl is always written)."
         )
     if logging.wandb is not None:

@@ -1,9 +1,9 @@
 """Weights & Biases logging (`logging.wandb`): the run's resolved config once, then every cycle's scalars.
 
-Optional: the `wandb` package comes with `pip install 'angora-jax[wandb]'`, and `config.validate` refuses
-`logging.wandb` without it before anything compiles. W&B keeps its own files in `RUN_DIR/wandb/` (in `offline`
-mode everything stays there, for `wandb sync` later). A resumed run continues the same W&B run: its id is kept in
-`RUN_DIR/wandb/run_id`.
+Optional: the `wandb` package comes with the `wandb` extra (in a clone: `pip install -c constraints.txt -e
+'.[wandb]'`), and `config.validate` refuses `logging.wandb` without it before anything compiles. W&B keeps its own
+files in `RUN_DIR/wandb/` (in `offline` mode everything stays there, for `wandb sync` later). A resumed run continues
+the same W&B run: its id is kept in `RUN_DIR/wandb/run_id`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ from pathlib import Path
 from typing import Any
 
 WANDB_MODES = ("online", "offline", "disabled")
-WANDB_INSTALL = "pip install 'angora-jax[wandb]' (in a checkout: pip install -c constraints.txt -e '.[wandb]')"
+# angora-jax is not on PyPI: its extras install from a clone; plain `pip install wandb` works anywhere.
+WANDB_INSTALL = "pip install -c constraints.txt -e '.[wandb]' in a clone of angora_jax (or pip install wandb)"
 RUN_ID_FILE = "run_id"
 
 
