@@ -1,4 +1,5 @@
-"""Shadow-hand physics: MJX throughput of stock and tuned scenes on each MJX backend, and each tuning's fidelity.
+"""Hand physics: MJX throughput of stock and tuned Shadow-hand scenes and of the MyoHand on each MJX backend, and each
+tuning's fidelity.
 
 Configurations (`CONFIGS`, in priority order; `--configs` picks some, in the order given):
   reach-tuned     the ShadowHandReach scene: REACH_PHYSICS (5 ms, Newton 2 / line search 4), untouched geoms pruned,
@@ -20,18 +21,22 @@ Configurations (`CONFIGS`, in priority order; `--configs` picks some, in the ord
   reach-tuned-gym-sensors  reach-tuned with the Gym scene's 29 sensors (24 joint positions, 5 touch): what
                   dropping them buys
   reach-tuned-no-finger-pairs  reach-tuned without the 19 explicit finger-finger pairs: what they cost
+  myohand         the muscle-driven MyoHand as myo-sim 0.2.3 builds it (2 ms, Newton 100/50; needs the myo extra),
+                  from MyoHandPose's episode starts, uniform random excitations in [0, 1]: throughput only
+                  (benchmarks/myohand_fidelity.py compares its MJX implementations with C MuJoCo)
 `--physics reach:0.004/4/8,cube:0.004/4/8` adds configurations of the tuned scenes with other settings (timestep
 s / Newton iterations / line-search iterations): the sweep behind REACH_PHYSICS and CUBE_PHYSICS.
 
-Throughput: for each configuration and MJX backend (`impl="jax"`; `impl="warp"` for `--warp-configs`, by default
-the tuned scenes, when warp-lang is installed, otherwise a "skipped" row), in a subprocess of its own so that device
-memory peaks do not accumulate, at each batch size in increasing order (so the running peak is the current batch's):
-raw batched physics (`common.raw_mjx_rate`: `vmap(mjx.step)` in `lax.scan` from our tasks' episode starts, fresh
-uniform random joint targets every policy step) as physics steps/s, policy steps/s and sim-s/s (physics steps/s x
-timestep), compile seconds, setup seconds (the reset's compile and the first run, where Warp builds its kernels),
-peak device memory (`peak_bytes_in_use`, where the backend reports it: GPUs; Warp's own scratch allocations are not
-in it), XLA's memory for the program per environment (`compiled.memory_analysis()`, any device: arguments, outputs
-and temporaries), and the scene's MJX sizes (contacts, constraint rows, KiB of one environment's `mjx.Data`).
+Throughput: for each configuration and MJX backend (`impl="jax"`; `impl="warp"` for `--warp-configs`, by default the
+tuned scenes and the MyoHand, when warp-lang is installed, otherwise a "skipped" row), in a subprocess of its own so
+that device memory peaks do not accumulate, at each batch size in increasing order (so the running peak is the
+current batch's): raw batched physics (`common.raw_mjx_rate`: `vmap(mjx.step)` in `lax.scan` from our tasks' episode
+starts, fresh uniform random joint targets every policy step) as physics steps/s, policy steps/s and sim-s/s
+(physics steps/s x timestep), compile seconds, setup seconds (the reset's compile and the first run, where Warp
+builds its kernels), peak device memory (`peak_bytes_in_use`, where the backend reports it: GPUs; Warp's own scratch
+allocations are not in it), XLA's memory for the program per environment (`compiled.memory_analysis()`, any device:
+arguments, outputs and temporaries), and the scene's MJX sizes (contacts, constraint rows, KiB of one environment's
+`mjx.Data`).
 
 Fidelity, on C MuJoCo (float64, one thread: it isolates the scene and its settings from float32 effects), against
 the stock scene of the same task:
@@ -74,6 +79,8 @@ from common import markdown_table, peak_memory_bytes, raw_mjx_rate, write_result
 from angora_jax.envs.core import Sensation
 from angora_jax.envs.mjx_env import WARP_REQUIREMENT, MjxEnv, mjx_module
 from angora_jax.envs.mujoco_task import MujocoTask, set_mjx_impl, start_physics
+from angora_jax.envs.myohand.model import MYOHAND_PHYSICS, load_hand
+from angora_jax.envs.myohand.pose import MyoHandPose
 from angora_jax.envs.shadow_hand import REACH_PHYSICS
 from angora_jax.envs.shadow_hand.cube import CUBE_PHYSICS, load_cube_scene
 from angora_jax.envs.shadow_hand.ihom import Ihom, angular_distance
@@ -81,7 +88,7 @@ from angora_jax.envs.shadow_hand.model import GYM_PHYSICS, PhysicsSettings, load
 from angora_jax.envs.shadow_hand.reach import Reach
 
 mjx = mjx_module()
-REACH_DT, CUBE_DT = 0.02, 0.08  # s per policy step of the tasks
+REACH_DT, CUBE_DT, MYOHAND_DT = 0.02, 0.08, 0.02  # s per policy step of the tasks
 CUBE_HORIZON = 25  # policy steps of the cube fidelity checks (2 s)
 MENAGERIE_SCENE = os.path.join(os.path.dirname(mjx.__file__), "test_data", "shadow_hand", "scene_right.xml")
 GPU_SWEEP, GPU_COMPARE = "1024,8192,32768", "8192"
@@ -91,9 +98,9 @@ RESULT_PREFIX = "RESULT "
 @dataclasses.dataclass(frozen=True)
 class Config:
     """A scene to measure: `build(impl)` compiles it for an MJX implementation. task: "reach" or "cube" (compared
-    with that task's stock scene) or None (throughput only); sweep: measured at every batch size of the sweep;
-    mjx_base: for a change that C MuJoCo cannot see, the configuration without it (`--mjx-fidelity` compares the two
-    on MJX)."""
+    with that task's stock scene), "myohand" (its episode starts, throughput only) or None (throughput only); sweep:
+    measured at every batch size of the sweep; mjx_base: for a change that C MuJoCo cannot see, the configuration
+    without it (`--mjx-fidelity` compares the two on MJX)."""
 
     name: str
     task: str | None
@@ -129,6 +136,11 @@ def menagerie(impl: str) -> mujoco.MjModel:
     return spec.compile()
 
 
+def myohand(impl: str) -> mujoco.MjModel:
+    """The stock MyoHand (`envs.myohand.model.load_hand`) for MJX implementation `impl`."""
+    return load_hand(dataclasses.replace(MYOHAND_PHYSICS, impl=impl))
+
+
 CONFIGS = {c.name: c for c in (
     reach_config("reach-tuned", REACH_PHYSICS, sweep=True),
     cube_config("cube-tuned", CUBE_PHYSICS, sweep=True),
@@ -140,6 +152,7 @@ CONFIGS = {c.name: c for c in (
     reach_config("reach-tuned-gym-contacts", REACH_PHYSICS, prune_contacts=False),
     reach_config("reach-tuned-gym-sensors", REACH_PHYSICS, sensors=None),
     reach_config("reach-tuned-no-finger-pairs", REACH_PHYSICS, finger_pairs=False),
+    Config("myohand", "myohand", MYOHAND_DT, myohand, sweep=True),
 )}
 
 
@@ -185,7 +198,7 @@ class Idle(MujocoTask):
         return action
 
 
-TASKS = {"reach": Reach, "cube": Ihom, None: Idle}
+TASKS = {"reach": Reach, "cube": Ihom, "myohand": MyoHandPose, None: Idle}
 
 
 # ---------------------------------------------------------------- throughput (run in a worker subprocess)
@@ -371,6 +384,8 @@ def mjx_fidelity(config: Config, args: argparse.Namespace) -> dict:
 def fidelity(config: Config, args: argparse.Namespace) -> dict:
     if config.task is None:
         return {"note": "another hand: no fidelity check"}
+    if config.task == "myohand":
+        return {"note": "the stock MyoHand: benchmarks/myohand_fidelity.py compares MJX with C MuJoCo"}
     if config.mjx_base:
         if args.mjx_fidelity:
             return mjx_fidelity(config, args)
@@ -403,7 +418,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--configs", default=None, help=f"comma-separated, run in this order; all: {list(CONFIGS)}")
     parser.add_argument("--physics", default=None, help="extra configurations, e.g. 'reach:0.004/4/8,cube:0.01/4/8'")
     parser.add_argument("--impls", default="jax,warp", help="MJX backends")
-    parser.add_argument("--warp-configs", default="reach-tuned,cube-tuned",
+    parser.add_argument("--warp-configs", default="reach-tuned,cube-tuned,myohand",
                         help="configurations measured on warp too ('all': every one)")
     parser.add_argument("--gpu", action="store_true", help=f"GPU sizes: --batch-sizes {GPU_SWEEP} --compare-batch "
                         f"{GPU_COMPARE} --policy-steps 5 --max-minutes 8")
