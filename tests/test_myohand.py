@@ -20,6 +20,7 @@ import pytest
 from quick_compile import compile_quickly
 
 import angora_jax as aj
+from angora_jax.cli import main
 from angora_jax.envs.myohand.model import JOINTS, MUSCLES, load_hand
 from angora_jax.envs.myohand.pose import POSE_THRESHOLD, TARGET_RANGES, MyoHandPose, PoseReward
 
@@ -199,11 +200,18 @@ def test_myohand_pose_trains_two_cycles_with_the_beta_head(tmp_path, quick_compi
     run = aj.train("myohand_pose", [
         "env.options.physics={impl: warp}", "env.options.max_episode_steps=4", "ppo.num_cycles=2", "ppo.num_envs=4",
         "ppo.rollout_length=8", "ppo.chunk_length=8", "ppo.minibatch_size=16", "ppo.num_epochs=1",
-        "ppo.network.width=16", "checkpoint.every=2", "checkpoint.snapshot_every=0", "logging.progress=none", "logging.report=false",
-        f"logging.run_root={tmp_path}", "logging.run_name=pose"])
+        "ppo.network.width=16", "checkpoint.every=2", "checkpoint.snapshot_every=0", "logging.progress=none",
+        "logging.report=false", f"logging.run_root={tmp_path}", "logging.run_name=pose"])
     history = [json.loads(line) for line in (run.run_dir / "metrics.jsonl").read_text().splitlines()]
     assert len(history) == len(run.history) == 2
     assert {"metric/success", "metric/pose_error", "metric/effort"} <= set(history[-1])
     assert all(np.isfinite(record["episode_return"]) for record in history)
     agent = aj.load_agent(run.run_dir, "latest")
     assert agent.config.ppo.head == "beta" and float(agent.env.action_spec.low.min()) == 0.0
+
+
+def test_a_config_of_the_myohand_without_myo_sim_exits_2_naming_the_install(monkeypatch, capsys):
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "myo_sim" else real(name, *a))
+    assert main(["config", "show", "myohand_pose"]) == 2
+    assert 'pip install -c constraints.txt -e ".[myo]"' in capsys.readouterr().err

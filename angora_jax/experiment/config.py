@@ -397,6 +397,8 @@ def validate(config: Config, new_run: bool = True) -> Env:
         env = make(config.env.task, **config.env.options)
     except (TypeError, ValueError) as error:
         raise ConfigError(f"env.options do not fit task {config.env.task!r}: {error}") from None
+    except ModuleNotFoundError as error:  # an optional package the task needs (its message names the install)
+        raise ConfigError(f"Task {config.env.task!r} cannot be made: {error}") from None
     if config.ppo.network.name not in list_networks():
         raise ConfigError(_unknown("ppo.network.name", config.ppo.network.name, list_networks(), "networks") + YOUR_OWN)
     try:
