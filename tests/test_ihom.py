@@ -37,7 +37,7 @@ from angora_jax.ppo.gae import next_values
 BATCH = 2
 STEPS = 25  # 2 s of simulated time
 NOISE = 0.5  # actions; under "target" control a step moves each target by up to 0.5 x 0.2 of half its range
-SIZES = {"proprioception": 48, "touch": 97, "vision": 7, "goal": 13, "asymmetric": 27}
+SIZES = {"proprioception": 48, "touch": 97, "muscle": 0, "vision": 7, "goal": 13, "asymmetric": 27}
 
 
 def about_x(angle: float) -> jax.Array:

@@ -67,6 +67,25 @@ def test_observations_hold_joints_the_muscle_sense_and_the_goal(cpu):
     assert env.task_variables(state)["muscle_force"].shape == (MUSCLES,)
 
 
+def test_files_written_before_the_muscle_modality_still_load():
+    """An exported policy stores its observation statistics per modality (flax serialization); one written before
+    `muscle` existed lacks it, which a task without muscles restores as empty. A task that observes muscles refuses
+    it, naming why."""
+    from flax import serialization
+
+    from angora_jax.envs.core import Sensation
+    from angora_jax.ppo.normalization import observation_stats
+
+    stats = observation_stats(Sensation.make(proprioception=jnp.ones(3), goal=jnp.ones(2)))
+    old = serialization.to_state_dict(stats)
+    del old["muscle"]
+    restored = serialization.from_state_dict(stats, serialization.msgpack_restore(serialization.msgpack_serialize(old)))
+    assert jax.tree.structure(restored) == jax.tree.structure(stats) and restored.muscle.mean.shape == (0,)
+    muscled = observation_stats(Sensation.make(proprioception=jnp.ones(3), muscle=jnp.ones(3 * MUSCLES)))
+    with pytest.raises(ValueError, match=r"no \['muscle'\], which this task observes"):
+        serialization.from_state_dict(muscled, old)
+
+
 def test_starts_and_targets_are_drawn_within_their_ranges(model):
     task = MyoHandPose(model)
     keys = jax.random.split(jax.random.key(1), 200)

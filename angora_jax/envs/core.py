@@ -14,7 +14,8 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from flax import struct
+import numpy as np
+from flax import serialization, struct
 
 # The fields of a `Sensation`, in their order.
 MODALITIES = ("proprioception", "touch", "muscle", "vision", "goal", "asymmetric")
@@ -51,6 +52,32 @@ class Sensation:
     def sizes(self) -> dict[str, int]:
         """Feature size of each modality (the last axis; the channels of images)."""
         return {k: int(v.shape[-1]) for k, v in self.__dict__.items()}
+
+
+def _holds_nothing(field: Any) -> bool:
+    """Whether a Sensation field (a modality's array, or a pytree per modality such as its running statistics) holds
+    no features: every leaf with a feature axis has size 0."""
+    return all(np.size(leaf) == 0 for leaf in jax.tree.leaves(field) if np.ndim(leaf) >= 1)
+
+
+def _sensation_to_state_dict(sensation: Sensation) -> dict[str, Any]:
+    return {name: serialization.to_state_dict(getattr(sensation, name)) for name in MODALITIES}
+
+
+def _sensation_from_state_dict(target: Sensation, state: dict[str, Any]) -> Sensation:
+    """`target` filled from a state dict (flax serialization: exported policies) that may lack modalities added after
+    it was written (`muscle`): those hold nothing in `target` either, as for every task of that time."""
+    missing = [name for name in MODALITIES if name not in state and not _holds_nothing(getattr(target, name))]
+    if missing:
+        raise ValueError(f"The saved observations have no {missing}, which this task observes: the file was written "
+                         "for another task.")
+    return target.replace(**{name: serialization.from_state_dict(getattr(target, name), state[name])
+                             for name in MODALITIES if name in state})
+
+
+# Exported policies written before the `muscle` modality existed stay readable.
+serialization.register_serialization_state(Sensation, _sensation_to_state_dict, _sensation_from_state_dict,
+                                           override=True)
 
 
 def is_image(leaf) -> bool:
