@@ -135,7 +135,8 @@ class MyoHandPose(MujocoTask):
         """Euclidean norm of target minus joint angles over all joints (rad), MyoSuite's pose distance."""
         return jnp.linalg.norm(info["target"] - snap.qpos)
 
-    def evaluate(self, key, prev, snap, info):
+    def evaluate(self, key: jax.Array, prev: Snapshot, snap: Snapshot, info: dict[str, jax.Array]
+                 ) -> tuple[jax.Array, jax.Array, dict[str, jax.Array], dict[str, jax.Array]]:
         """Reward, termination and metrics of a step, as the class docstring and `PoseReward` say."""
         c = self.reward_config
         error = self.pose_error(snap, info)
