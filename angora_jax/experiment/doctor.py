@@ -22,8 +22,9 @@ import jax
 from angora_jax.envs.mjx_env import WARP_REQUIREMENT, choose_impl, on_gpu
 from angora_jax.ppo.memory import GIB, device_memory
 
+# myo-sim (optional) holds the MyoHand's muscles and tendons: a run of a MyoHand task depends on its version.
 PACKAGES = ("jax", "jaxlib", "jax-cuda13-plugin", "jax-cuda12-plugin", "mujoco", "mujoco-mjx", "warp-lang", "flax",
-            "optax", "distrax", "orbax-checkpoint", "gymnasium", "gymnasium-robotics", "angora-jax")
+            "optax", "distrax", "orbax-checkpoint", "gymnasium", "gymnasium-robotics", "myo-sim", "angora-jax")
 # Required packages and the module each provides (a package may be present as files without its metadata, as
 # gymnasium-robotics is when only its Shadow-hand assets are copied: the module is what must be found).
 REQUIRED = {"jax": "jax", "jaxlib": "jaxlib", "mujoco": "mujoco", "mujoco-mjx": "mujoco.mjx", "flax": "flax",
