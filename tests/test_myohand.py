@@ -86,6 +86,17 @@ def test_files_written_before_the_muscle_modality_still_load():
         serialization.from_state_dict(muscled, old)
 
 
+def test_the_gymnasium_view_shows_the_muscle_sense_and_passes_check_env():
+    import gymnasium
+    from gymnasium.utils.env_checker import check_env
+
+    env = gymnasium.make("AngoraJax/MyoHandPose-v0")
+    spaces = {name: space.shape for name, space in env.observation_space.spaces.items()}
+    assert spaces == {"proprioception": (2 * JOINTS,), "muscle": (3 * MUSCLES,), "goal": (2 * JOINTS,)}
+    assert (env.action_space.low.min(), env.action_space.high.max(), env.action_space.shape) == (0.0, 1.0, (MUSCLES,))
+    check_env(env.unwrapped, skip_render_check=True)
+
+
 def test_starts_and_targets_are_drawn_within_their_ranges(model):
     task = MyoHandPose(model)
     keys = jax.random.split(jax.random.key(1), 200)
