@@ -26,7 +26,7 @@ from common import RESULTS, lagged_decoding_rows, markdown_table, timed, write_r
 
 import angora_jax as aj
 from angora_jax import analysis as an
-from angora_jax.cli import add_env_option
+from angora_jax.cli.arguments import add_env_option
 
 
 def main(argv: list[str] | None = None) -> None:

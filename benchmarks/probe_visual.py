@@ -23,7 +23,7 @@ from common import RESULTS, lagged_decoding_rows, markdown_table, timed, write_r
 
 import angora_jax as aj
 from angora_jax import analysis as an
-from angora_jax.cli import add_env_option
+from angora_jax.cli.arguments import add_env_option
 
 # What to decode over lags, per task (Env.task_variables): the cube's orientation (rotation matrix, sign-free),
 # angular velocity (rad/s) and rotation to the goal (matrix); reach's fingertips (m).
