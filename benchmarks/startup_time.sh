@@ -20,12 +20,13 @@ for name in cold warm; do
       logging.progress=lines checkpoint.every=100 > "$OUT/startup_${CONFIG}_$name.log" 2>&1
   end=$(date +%s.%N)
   python - "$ROOT/$name" "$CONFIG" "$name" "$start" "$end" "$OUT" <<'PY'
-import json, sys
+import datetime, json, sys
 run, config, name, start, end, out = sys.argv[1], sys.argv[2], sys.argv[3], float(sys.argv[4]), float(sys.argv[5]), sys.argv[6]
 session = json.loads(open(f"{run}/sessions.jsonl").readline())
 rows = [json.loads(line) for line in open(f"{run}/metrics.jsonl")]
 first = rows[0]
-result = {"benchmark": "startup_time", "config": config, "run": name, "launch_to_session_s": session["time"] - start,
+result = {"benchmark": "startup_time", "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+          "config": config, "run": name, "launch_to_session_s": session["time"] - start,
           "session_to_first_cycle_start_s": first["time"] - first["seconds"] - session["time"],
           "first_cycle_s": first["seconds"], "launch_to_first_cycle_end_s": first["time"] - start,
           "second_cycle_s": rows[1]["seconds"] if len(rows) > 1 else None, "launch_to_exit_s": end - start,
