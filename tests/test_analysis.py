@@ -6,6 +6,7 @@ dynamics (SINDy) on held-out episodes, and the probing benchmark script (benchma
 run."""
 
 import dataclasses
+import math
 import sys
 
 import jax
@@ -314,7 +315,11 @@ def test_probe_trained_script_writes_every_part_and_finds_the_reach_policy_needs
         assert all(set(row) == set(probe.layers) for row in summary[key].values()), key
     assert summary["fixed_points"]["starts"] == 8
     assert set(summary["pca_components_for_90pct"]) == set(probe.layers)
-    assert all(seconds > 0 for seconds in summary["timescale_median_s"].values())
+    # NaN: no unit of the layer decorrelates below 1/e within the window (an area holding the episode's goal, such as
+    # LPFC, whose activity decodes the goal at R^2 0.99, may do so); a trained agent of other float rounding may.
+    medians = summary["timescale_median_s"].values()
+    assert all(seconds > 0 for seconds in medians if not math.isnan(seconds))
+    assert sum(not math.isnan(seconds) for seconds in medians) >= len(probe.layers) - 1, summary["timescale_median_s"]
     future = summary["future"]
     assert {(row["lag"], row["layer"], row["variable"]) for row in future["lagged_decoding"]} == {
         (lag, layer, "metric_goal_distance") for lag in (0, 4) for layer in probe.layers}
