@@ -64,7 +64,10 @@ def test_observations_hold_joints_the_muscle_sense_and_the_goal(cpu):
                                atol=1e-6)
     target = state.info["target"]
     np.testing.assert_allclose(state.obs.goal, np.concatenate([target, target - data.qpos]), atol=1e-6)
-    assert env.task_variables(state)["muscle_force"].shape == (MUSCLES,)
+    task = env.task_variables(state)
+    assert task["muscle_force"].shape == (MUSCLES,)
+    np.testing.assert_allclose(task["joint_velocities"], data.qvel, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(task["muscle_excitation"], 0.3, rtol=1e-6)  # the ctrl the action set
 
 
 def test_files_written_before_the_muscle_modality_still_load():

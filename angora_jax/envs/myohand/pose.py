@@ -151,7 +151,9 @@ class MyoHandPose(MujocoTask):
         return reward, far, {**info, "solved_steps": solved_steps}, metrics
 
     def task_variables(self, snap: Snapshot, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
-        """joint_angles (23, rad), target (23, rad), muscle_force (39, N) and muscle_activation (39, in [0, 1]): what
-        the muscles-or-movements analyses decode from a network's layers."""
-        return {"joint_angles": snap.qpos, "target": info["target"], "muscle_force": snap.actuator_force,
-                "muscle_activation": snap.act}
+        """joint_angles (23, rad), joint_velocities (23, rad/s), target (23, rad), muscle_force (39, N),
+        muscle_activation (39, in [0, 1]) and muscle_excitation (39, the `ctrl` the last action set, in [0, 1]): what
+        the muscles-or-movements analyses decode from a network's layers, the synergies factorise and a muscle's
+        lesion silences."""
+        return {"joint_angles": snap.qpos, "joint_velocities": snap.qvel, "target": info["target"],
+                "muscle_force": snap.actuator_force, "muscle_activation": snap.act, "muscle_excitation": snap.ctrl}
