@@ -9,7 +9,8 @@ from __future__ import annotations
 from angora_jax.envs.backends import on_backend
 from angora_jax.envs.core import Env
 from angora_jax.envs.myohand.model import MYOHAND_PHYSICS, load_hand
-from angora_jax.envs.myohand.pose import POSE_THRESHOLD, SUCCESS_STEPS, MyoHandPose, PoseReward
+from angora_jax.envs.myohand.muscle_task import SUCCESS_STEPS
+from angora_jax.envs.myohand.pose import POSE_THRESHOLD, MyoHandPose, PoseReward
 from angora_jax.envs.registry import register
 
 

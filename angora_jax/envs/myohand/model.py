@@ -20,6 +20,11 @@ MYOHAND_PHYSICS = PhysicsSettings(timestep=0.002, iterations=100, ls_iterations=
 MUSCLES = 39
 JOINTS = 23
 INSTALL_HINT = 'pip install -c constraints.txt -e ".[myo]" (or pip install myo-sim==0.2.3)'
+# Where MyoSuite (3.0.0, `core/model_recipes.py`, `_calibrate_compose_hand_root`) puts the composed hand's root body:
+# position (m) and quaternion (w, x, y, z) in its legacy world frame, where its tasks' targets and objects are given.
+# myo-sim leaves the root at the origin, unrotated, so gravity pulls on the hand from another direction there.
+MYOSUITE_ROOT_POS = (-0.02525155, 0.07146933, 1.39249298)
+MYOSUITE_ROOT_QUAT = (0.52167746, 0.46981366, -0.47875126, -0.52718591)
 
 
 def require_myo_sim() -> None:
@@ -28,13 +33,23 @@ def require_myo_sim() -> None:
         raise ModuleNotFoundError(f"The MyoHand tasks build the hand from the 'myo-sim' package: {INSTALL_HINT}.")
 
 
-def load_hand(physics: PhysicsSettings = MYOHAND_PHYSICS) -> mujoco.MjModel:
+def load_hand(physics: PhysicsSettings = MYOHAND_PHYSICS, myosuite_frame: bool = False) -> mujoco.MjModel:
     """Compile the MyoHand with `physics` (timestep, solver iterations, MJX implementation). Its joints are
     `JOINTS` hinges (rad), its actuators `MUSCLES` muscles whose `ctrl` is the excitation in [0, 1]
-    (`actuator_ctrlrange`) and whose `act` is the activation, one state per muscle (`na` = `nu`)."""
+    (`actuator_ctrlrange`) and whose `act` is the activation, one state per muscle (`na` = `nu`).
+
+    Args:
+        physics: the solver settings.
+        myosuite_frame: place the hand where MyoSuite does (`MYOSUITE_ROOT_POS`, `MYOSUITE_ROOT_QUAT`), so that
+            positions given in MyoSuite's world frame (reach targets) apply as they are, and gravity pulls as there;
+            otherwise the root stays where myo-sim puts it.
+    """
     require_myo_sim()
     from myo_sim.build.compose import build_right_hand_from_arm_spec
 
     spec = build_right_hand_from_arm_spec()
+    if myosuite_frame:
+        root = spec.body("myoarm_r_root")
+        root.pos, root.quat = MYOSUITE_ROOT_POS, MYOSUITE_ROOT_QUAT
     physics.apply(spec)
     return spec.compile()

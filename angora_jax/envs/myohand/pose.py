@@ -27,7 +27,8 @@ import numpy as np
 
 from angora_jax.envs.coefficients import Coefficients
 from angora_jax.envs.core import Sensation
-from angora_jax.envs.mujoco_task import MujocoTask, Snapshot
+from angora_jax.envs.mujoco_task import Snapshot
+from angora_jax.envs.myohand.muscle_task import SUCCESS_STEPS, MuscleHandTask
 
 # Per joint (in the model's joint order), the lowest and highest angle (rad) over MyoSuite's ten ASL digit postures
 # (`ASL_qpos` in myosuite 3.0.0 `envs/myo/tasks/basic/__init__.py`, for the hand that myo-sim composes).
@@ -39,9 +40,8 @@ TARGET_RANGES = (
     (0.306345, 1.571), (-0.204204, -0.010472), (0.0, 1.52387), (0.06284, 1.45318),  # ring
     (0.21994, 1.48459), (-0.2618, -0.068068), (0.18852, 1.571), (0.01571, 1.571),  # little
 )
-# MyoSuite's hand pose threshold (`pose_thd`, rad) and its success rule: solved on more than this many steps.
+# MyoSuite's hand pose threshold (`pose_thd`, rad).
 POSE_THRESHOLD = 0.7
-SUCCESS_STEPS = 5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,15 +62,13 @@ class PoseReward(Coefficients):
     far_error: float = 2 * math.pi
 
 
-class MyoHandPose(MujocoTask):
+class MyoHandPose(MuscleHandTask):
     """Reach a drawn posture of the 23 joints with 39 muscles (the module docstring gives MyoSuite's definitions).
 
     Observation: proprioception (23 joint angles in rad, 23 velocities in rad/s), muscle (per muscle, in actuator
     order: 39 lengths in m, 39 lengthening velocities in m/s and 39 forces in N, negative when pulling: what muscle
     spindles and Golgi tendon organs sense), goal (the 23 target angles and the 23 errors target minus angle, rad).
-    Actions: 39 excitations in [0, 1], written to `ctrl`; values outside are clipped, as MuJoCo clamps the muscles'
-    limited `ctrl` and MyoSuite clips actions to its action space. Muscle activations follow the excitations with
-    MuJoCo's activation dynamics, from 0 at an episode's start.
+    Actions: 39 excitations in [0, 1] (`MuscleHandTask`).
     Metrics: `success` (solved on more than `success_steps` steps of the episode so far; its value at an episode's
     end is MyoSuite's success), `solved` (this step's error below `pose_threshold`), `pose_error` (rad) and `effort`
     (mean squared activation).
@@ -78,42 +76,23 @@ class MyoHandPose(MujocoTask):
 
     metric_names = ("success", "solved", "pose_error", "effort")
     random_initial_qpos = True
-    muscle_sense = True
 
     def __init__(self, model: mujoco.MjModel, reward: PoseReward = PoseReward(),
                  pose_threshold: float = POSE_THRESHOLD, success_steps: int = SUCCESS_STEPS):
-        if model.nu != model.na or not np.all(model.actuator_dyntype == mujoco.mjtDyn.mjDYN_MUSCLE):
-            raise ValueError("MyoHandPose drives muscles: every actuator must have muscle dynamics (one activation "
-                             f"each), got nu={model.nu}, na={model.na}.")
+        super().__init__(model, success_steps)
         if len(TARGET_RANGES) != model.njnt:
             raise ValueError(f"TARGET_RANGES holds {len(TARGET_RANGES)} joints, the model {model.njnt}: build the "
                              "model with envs.myohand.model.load_hand (myo-sim 0.2.3).")
         if pose_threshold <= 0:
             raise ValueError(f"pose_threshold must be > 0 (rad), got {pose_threshold}.")
-        if isinstance(success_steps, bool) or not isinstance(success_steps, int) or success_steps < 0:
-            raise ValueError(f"success_steps must be a whole number >= 0, got {success_steps!r}.")
-        self.model = model
         self.reward_config = reward
         self.pose_threshold = float(pose_threshold)
-        self.success_steps = success_steps
         self._joint_low, self._joint_high = model.jnt_range.T.astype(np.float32)
         self._target_low, self._target_high = np.asarray(TARGET_RANGES, np.float32).T
-        self._ctrl_low, self._ctrl_high = model.actuator_ctrlrange.T.astype(np.float32)
 
     def initial_qpos(self, key: jax.Array) -> jax.Array:
         """Angles drawn uniformly within the joints' ranges (MyoSuite's `reset_type="random"`)."""
         return jax.random.uniform(key, (self.model.nq,), minval=self._joint_low, maxval=self._joint_high)
-
-    def initial_control(self, snap: Snapshot) -> jax.Array:
-        """No excitation: every muscle at rest."""
-        return jnp.zeros(self.model.nu, jnp.float32)
-
-    def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """The muscles' excitation range, [0, 1] each."""
-        return self._ctrl_low, self._ctrl_high
-
-    def control(self, action: jax.Array, snap: Snapshot) -> jax.Array:
-        return jnp.clip(action, self._ctrl_low, self._ctrl_high)
 
     def draw_target(self, key: jax.Array) -> jax.Array:
         """A target posture `(23,)` in rad, uniform per joint within `TARGET_RANGES`."""
@@ -121,10 +100,6 @@ class MyoHandPose(MujocoTask):
 
     def initial_info(self, key: jax.Array, snap: Snapshot) -> dict[str, jax.Array]:
         return {"target": self.draw_target(key), "solved_steps": jnp.zeros((), jnp.int32)}
-
-    def muscles(self, snap: Snapshot) -> jax.Array:
-        """The muscle sense `(3 * 39,)`: lengths (m), lengthening velocities (m/s), forces (N), in actuator order."""
-        return jnp.concatenate([snap.actuator_length, snap.actuator_velocity, snap.actuator_force])
 
     def observe(self, snap: Snapshot, info: dict[str, jax.Array]) -> Sensation:
         goal = jnp.concatenate([info["target"], info["target"] - snap.qpos])
@@ -143,17 +118,8 @@ class MyoHandPose(MujocoTask):
         solved = error < self.pose_threshold
         bonus = solved.astype(jnp.float32) + (error < 1.5 * self.pose_threshold)
         far = error > c.far_error
-        effort = jnp.mean(snap.act ** 2)
+        effort = self.effort(snap)
         reward = -c.pose * error + c.bonus * bonus - c.effort * effort - c.penalty * far
-        solved_steps = info["solved_steps"] + solved.astype(jnp.int32)
-        metrics = {"success": (solved_steps > self.success_steps).astype(jnp.float32),
-                   "solved": solved.astype(jnp.float32), "pose_error": error, "effort": effort}
+        solved_steps, success = self.count_success(info["solved_steps"], solved)
+        metrics = {"success": success, "solved": solved.astype(jnp.float32), "pose_error": error, "effort": effort}
         return reward, far, {**info, "solved_steps": solved_steps}, metrics
-
-    def task_variables(self, snap: Snapshot, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
-        """joint_angles (23, rad), joint_velocities (23, rad/s), target (23, rad), muscle_force (39, N),
-        muscle_activation (39, in [0, 1]) and muscle_excitation (39, the `ctrl` the last action set, in [0, 1]): what
-        the muscles-or-movements analyses decode from a network's layers, the synergies factorise and a muscle's
-        lesion silences."""
-        return {"joint_angles": snap.qpos, "joint_velocities": snap.qvel, "target": info["target"],
-                "muscle_force": snap.actuator_force, "muscle_activation": snap.act, "muscle_excitation": snap.ctrl}
