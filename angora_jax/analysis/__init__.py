@@ -34,9 +34,11 @@ from angora_jax.analysis.lesion import (
     silence_modality,
     with_random_weights,
 )
+from angora_jax.analysis.muscles import muscles_or_movements, plot_muscles_or_movements
 from angora_jax.analysis.probes import PROBES, Probe, cube_lesions, reach_lesions
 from angora_jax.analysis.recording import episode_outcomes, record_activity, replay_activity, save_activity
 from angora_jax.analysis.similarity import plot_similarity, similarity
+from angora_jax.analysis.synergies import plot_synergies, synergies
 from angora_jax.analysis.timescales import cross_correlation, plot_cross_correlation, plot_timescales, timescales
 from angora_jax.analysis.tuning import plot_tuning, tuning_curves
 from angora_jax.analysis.visual import (
@@ -55,8 +57,8 @@ from angora_jax.analysis.visual import (
 __all__ = ["PROBES", "Probe", "ablation", "agent_fixed_points", "area_input", "cross_correlation", "cube_lesions",
            "decode", "dense_layers", "episode_outcomes", "feature_maps", "find_fixed_points", "first_layer_filters",
            "fit_sindy", "gradient_saliency", "lesion", "lesion_area", "lesion_fraction", "mask_edges",
-           "plot_ablation", "plot_cross_correlation", "plot_decoding", "plot_dynamics", "plot_similarity",
-           "plot_sindy", "plot_timescales", "plot_tuning", "plot_visual", "pose_saliency", "preferred_stimuli",
-           "principal_components", "reach_lesions", "record_activity", "replay_activity", "saliency",
-           "saliency_share", "save_activity", "silence_modality", "similarity", "sindy", "timescales",
-           "tuning_curves", "visual_analysis", "with_random_weights"]
+           "muscles_or_movements", "plot_ablation", "plot_cross_correlation", "plot_decoding", "plot_dynamics",
+           "plot_muscles_or_movements", "plot_similarity", "plot_sindy", "plot_synergies", "plot_timescales",
+           "plot_tuning", "plot_visual", "pose_saliency", "preferred_stimuli", "principal_components", "reach_lesions",
+           "record_activity", "replay_activity", "saliency", "saliency_share", "save_activity", "silence_modality",
+           "similarity", "sindy", "synergies", "timescales", "tuning_curves", "visual_analysis", "with_random_weights"]

@@ -1,0 +1,105 @@
+"""Muscle synergies: how few fixed patterns of co-activation explain a muscle-driven agent's activations.
+
+The activations `A` (samples x muscles, non-negative: every alive step of every recorded episode) are factorised by
+non-negative matrix factorisation (scikit-learn's `NMF`) as `A ~ W H`, for k = 1 .. `max_synergies`: the k rows of
+`H` are the synergies (each a non-negative weight per muscle, scaled to unit norm), `W` their activation over time.
+Each k is scored by the variance accounted for, the synergy literature's measure (e.g. Tresch, Cheung and d'Avella
+2006): VAF = 1 - ||A - W H||^2 / ||A||^2, uncentred (the squared Frobenius norms). The count is the smallest k whose
+VAF reaches `threshold` (0.9 by convention).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import xarray as xr
+from sklearn.decomposition import NMF
+
+ACTIVATION = "task_muscle_activation"
+
+
+def synergies(data: xr.Dataset | np.ndarray, max_synergies: int = 8, threshold: float = 0.9,
+              variable: str = ACTIVATION, seed: int = 0) -> xr.Dataset:
+    """The VAF of 1 .. `max_synergies` synergies and the synergies of the smallest count that reaches `threshold`.
+
+    Args:
+        data: a recording (`record_activity`; its `variable` at the steps where `alive`) or an array (samples x
+            muscles) of non-negative activations.
+        max_synergies: the most synergies to fit (at most the number of muscles).
+        threshold: the VAF the count must reach, in (0, 1].
+        variable: the recording's variable of activations (`task_muscle_activation` of `MyoHandPose`).
+        seed: NMF's initialisation seed.
+
+    Returns:
+        A Dataset with `vaf` (dim `count`: 1 .. max_synergies), `muscle_weights` (dims synergy x muscle: the chosen
+        count's synergies, unit norm, ordered by their share of the activations) and `activation` (dims sample x
+        synergy: each synergy's activation per sample); attributes `count` (the chosen count; `max_synergies` when
+        none reaches the threshold, and `reached` 0), `threshold` and `samples`.
+
+    Raises:
+        ValueError: negative activations, a variable the recording lacks, or a count out of range.
+    """
+    activations = _activations(data, variable)
+    muscles = activations.shape[1]
+    if not 1 <= max_synergies <= muscles:
+        raise ValueError(f"max_synergies must lie in 1..{muscles} (the muscles), got {max_synergies}.")
+    if not 0 < threshold <= 1:
+        raise ValueError(f"threshold must lie in (0, 1], got {threshold}.")
+    total = np.sum(activations**2)
+    fits = []
+    for k in range(1, max_synergies + 1):
+        model = NMF(n_components=k, init="nndsvda", max_iter=1000, random_state=seed)
+        weights = model.fit_transform(activations)
+        fits.append((weights, model.components_, 1 - np.sum((activations - weights @ model.components_)**2) / total))
+    vaf = np.array([fit[2] for fit in fits])
+    reached = bool(np.any(vaf >= threshold))
+    count = int(np.argmax(vaf >= threshold)) + 1 if reached else max_synergies
+    weights, components, _ = fits[count - 1]
+    norms = np.linalg.norm(components, axis=1, keepdims=True)
+    norms[norms == 0] = 1.0  # a synergy NMF left empty stays zero
+    weights, components = weights * norms.T, components / norms
+    order = np.argsort(-np.sum(weights, axis=0))
+    return xr.Dataset(
+        {"vaf": ("count", vaf, {"description": "1 - ||A - WH||^2 / ||A||^2 (uncentred)"}),
+         "muscle_weights": (("synergy", "muscle"), components[order], {"description": "per synergy, unit norm"}),
+         "activation": (("sample", "synergy"), weights[:, order], {"description": "each synergy's activation"})},
+        coords={"count": np.arange(1, max_synergies + 1), "synergy": np.arange(count), "muscle": np.arange(muscles)},
+        attrs={"count": count, "reached": int(reached), "threshold": threshold, "samples": len(activations)})
+
+
+def _activations(data: xr.Dataset | np.ndarray, variable: str) -> np.ndarray:
+    """(samples, muscles) float64 from a recording's alive steps or an array; ValueError when negative or absent."""
+    if isinstance(data, xr.Dataset):
+        if variable not in data.data_vars:
+            raise ValueError(f"Not in the recording: {variable}; it has {sorted(data.data_vars)}. Record a muscle task "
+                             "(MyoHandPose records task_muscle_activation).")
+        values = np.asarray(data[variable].values, np.float64)[data["alive"].values > 0]
+    else:
+        values = np.asarray(data, np.float64)
+    values = values.reshape(len(values), -1)
+    if values.size == 0 or np.any(values < 0) or not np.any(values > 0):
+        raise ValueError("Synergies factorise non-negative activations, not all zero: give muscle activations "
+                         "(e.g. task_muscle_activation), not forces or centred values.")
+    return values
+
+
+def plot_synergies(result: xr.Dataset, path: str) -> None:
+    """The VAF against the number of synergies (the threshold dashed) and the chosen synergies' muscle weights."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    count = result.sizes["synergy"]
+    fig, axes = plt.subplots(1, 1 + count, figsize=(3.6 + 2.4 * count, 3.2), squeeze=False)
+    ax = axes[0][0]
+    ax.plot(result["count"].values, result["vaf"].values, marker="o")
+    ax.axhline(result.attrs["threshold"], ls="--", color="k", lw=0.8)
+    ax.set(xlabel="synergies", ylabel="VAF", ylim=(0, 1.02), title=f"{result.attrs['count']} reach the threshold"
+           if result.attrs["reached"] else "none reach the threshold")
+    for i, ax in enumerate(axes[0][1:]):
+        ax.barh(result["muscle"].values, result["muscle_weights"].values[i], color="tab:blue")
+        ax.set(title=f"synergy {i + 1}", xlabel="weight", ylabel="muscle" if i == 0 else None)
+        ax.invert_yaxis()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

@@ -1,0 +1,93 @@
+"""The analyses only a muscle model allows (issue 62, item 4): muscle synergies (NMF, variance accounted for),
+muscles or movements (decoding of muscle and kinematic variables per layer, against the random-weights control) and
+single-muscle lesions (an agent whose excitation of one muscle is 0). Synthetic data with planted answers; the lesion
+on the MyoHand's C MuJoCo twin with an untrained policy (no trained MyoHand agent exists yet)."""
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from angora_jax.analysis import muscles_or_movements, plot_muscles_or_movements, plot_synergies, synergies
+
+MUSCLES = 39
+
+
+def planted_activations(samples=1000, seed=0):
+    """Activations of 39 muscles made of 3 planted synergies (each mostly on its own third of the muscles, unit
+    norm) with exponential activations, plus noise of 0.01 clipped at 0."""
+    rng = np.random.default_rng(seed)
+    own = np.arange(MUSCLES) % 3 == np.arange(3)[:, None]
+    planted = 0.1 * rng.random((3, MUSCLES)) + own * rng.random((3, MUSCLES))
+    planted /= np.linalg.norm(planted, axis=1, keepdims=True)
+    activations = rng.exponential(1.0, (samples, 3)) @ planted
+    return np.clip(activations + 0.01 * rng.standard_normal(activations.shape), 0, None), planted
+
+
+@pytest.mark.filterwarnings("ignore:Maximum number of iterations")  # NMF fitting noise past the 3 planted
+def test_synergies_find_the_3_planted_ones_and_recover_them(tmp_path):
+    activations, planted = planted_activations()
+    result = synergies(activations, max_synergies=5)
+    assert result.attrs["count"] == 3 and result.attrs["reached"] == 1
+    assert result["vaf"].values[1] < 0.9 <= result["vaf"].values[2]
+    assert np.all(np.diff(result["vaf"].values) > -1e-3), "more synergies never explain much less"
+    reconstruction = result["activation"].values @ result["muscle_weights"].values
+    uncentred = 1 - np.sum((activations - reconstruction) ** 2) / np.sum(activations**2)
+    assert result["vaf"].sel(count=3) == pytest.approx(uncentred, abs=1e-9)
+    similarity = result["muscle_weights"].values @ planted.T  # both unit norm: cosine similarities
+    assert np.all(similarity.max(axis=0) > 0.9) and np.all(similarity.max(axis=1) > 0.9)
+    plot_synergies(result, str(tmp_path / "synergies.png"))
+    assert (tmp_path / "synergies.png").stat().st_size > 0
+
+
+@pytest.mark.filterwarnings("ignore:Maximum number of iterations")
+def test_synergies_read_a_recording_and_refuse_negative_values():
+    activations, _ = planted_activations(samples=120)
+    recording = xr.Dataset({"task_muscle_activation": (("episode", "time", "muscle"),
+                                                       activations.reshape(4, 30, MUSCLES)),
+                            "alive": (("episode", "time"), np.r_[np.ones(20), np.zeros(10)][None].repeat(4, 0))})
+    assert synergies(recording, max_synergies=3).attrs["samples"] == 80, "only alive steps"
+    with pytest.raises(ValueError, match="non-negative"):
+        synergies(activations - 0.5)
+    with pytest.raises(ValueError, match="task_muscle_activation"):
+        synergies(recording.drop_vars("task_muscle_activation"))
+
+
+def kinematic_recording(episodes=10, steps=60, seed=0):
+    """A recording where layer `network.M1` is a linear readout (with noise) of 6 "muscle force" variables and
+    `network.SPL` one of 4 "joint angle" variables, independent random walks; its random-weights control is noise
+    of the same shapes."""
+    rng = np.random.default_rng(seed)
+
+    def walk(size):
+        return np.cumsum(rng.standard_normal((episodes, steps, size)), axis=1)
+
+    muscles, joints = walk(6), walk(4)
+    dims = ("episode", "time")
+    data = {"task_muscle_force": ((*dims, "m"), muscles), "task_joint_angles": ((*dims, "j"), joints),
+            "activity_network.M1": ((*dims, "u1"), muscles @ rng.standard_normal((6, 16))
+                                    + 0.1 * rng.standard_normal((episodes, steps, 16))),
+            "activity_network.SPL": ((*dims, "u2"), joints @ rng.standard_normal((4, 16))
+                                     + 0.1 * rng.standard_normal((episodes, steps, 16))),
+            "alive": (dims, np.ones((episodes, steps)))}
+    recording = xr.Dataset(data)
+    control = recording.assign({name: (recording[name].dims, rng.standard_normal(recording[name].shape))
+                                for name in ("activity_network.M1", "activity_network.SPL")})
+    return recording, control
+
+
+def test_each_layer_decodes_its_own_kind_of_variable_better_than_the_other_and_than_the_control(tmp_path):
+    recording, control = kinematic_recording()
+    result = muscles_or_movements(recording, control, muscles=["task_muscle_force"],
+                                  movements=["task_joint_angles"], folds=3)
+    r2 = result["r2"]
+    assert r2.sel(layer="network.M1", variable="task_muscle_force") > 0.9
+    assert r2.sel(layer="network.SPL", variable="task_joint_angles") > 0.9
+    assert r2.sel(layer="network.M1", variable="task_joint_angles") < 0.5
+    assert r2.sel(layer="network.SPL", variable="task_muscle_force") < 0.5
+    assert result["preference"].sel(layer="network.M1") > 0.5 > -0.5 > result["preference"].sel(layer="network.SPL")
+    assert np.all(result["control_r2"].values < 0.2), "noise decodes nothing"
+    assert list(result["kind"].values) == ["muscle", "movement"]
+    plot_muscles_or_movements(result, str(tmp_path / "mm.png"))
+    with pytest.raises(ValueError, match="replay_activity"):
+        muscles_or_movements(recording, control.isel(episode=slice(5)), muscles=["task_muscle_force"],
+                             movements=["task_joint_angles"], folds=3)
