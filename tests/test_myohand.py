@@ -186,11 +186,11 @@ def test_options_are_checked_and_a_missing_myo_sim_names_the_install(monkeypatch
         aj.make("MyoHandPose", backend="cpu")
 
 
-@pytest.fixture(scope="module")
-def warp_rollout():
-    """A batch of MJX environments on MuJoCo Warp (on the CPU here) stepped `STEPS` times with random excitations,
-    from the keys the C MuJoCo twin is reset with: the keys, states and excitations."""
-    env = aj.make("MyoHandPose", physics={"impl": "warp"}).sized_for(BATCH)
+@pytest.fixture(scope="module", params=["MyoHandPose", "MyoHandReach"])
+def warp_rollout(request):
+    """A batch of MJX environments of a MyoHand task on MuJoCo Warp (on the CPU here) stepped `STEPS` times with random
+    excitations, from the keys the C MuJoCo twin is reset with: the task's name, the keys, states and excitations."""
+    env = aj.make(request.param, physics={"impl": "warp"}).sized_for(BATCH)
     keys = jax.random.split(jax.random.key(3), BATCH)
     reset = compile_quickly(jax.vmap(env.reset), keys)
     state = reset(keys)
@@ -199,7 +199,7 @@ def warp_rollout():
     states = [state]
     for action in actions:
         states.append(step(states[-1], action))
-    return keys, states, actions
+    return request.param, keys, states, actions
 
 
 @pytest.mark.slow
@@ -207,9 +207,10 @@ def test_mjx_on_warp_and_the_c_mujoco_twin_agree_for_10_steps(warp_rollout):
     """Same keys and excitations: joint angles within 1e-4 rad, muscle forces within 1e-3 of the largest force and
     rewards within 1e-4 over 10 policy steps (100 physics steps; float32 Warp against float64 C MuJoCo). Warp is the
     implementation GPUs run; MJX's JAX implementation wraps some tendons differently from C MuJoCo (its differences,
-    and Warp's over 500 physics steps, are in benchmarks/results/myohand/)."""
-    keys, states, actions = warp_rollout
-    cpu = aj.make("MyoHandPose", backend="cpu")
+    and Warp's over 500 physics steps, are in benchmarks/results/myohand/). Both tasks: the pose's hand and the
+    reach's, which stands where MyoSuite puts it (gravity from another direction)."""
+    task, keys, states, actions = warp_rollout
+    cpu = aj.make(task, backend="cpu")
     for b in range(BATCH):
         state = cpu.reset(keys[b])
         np.testing.assert_allclose(states[0].info["target"][b], state.info["target"], atol=1e-6)
