@@ -91,3 +91,57 @@ def test_each_layer_decodes_its_own_kind_of_variable_better_than_the_other_and_t
     with pytest.raises(ValueError, match="replay_activity"):
         muscles_or_movements(recording, control.isel(episode=slice(5)), muscles=["task_muscle_force"],
                              movements=["task_joint_angles"], folds=3)
+
+
+@pytest.fixture(scope="module")
+def cpu_hand():
+    """The MyoHandPose C MuJoCo twin (skipped without myo-sim)."""
+    pytest.importorskip("myo_sim")
+    import angora_jax as aj
+
+    return aj.make("MyoHandPose", backend="cpu")
+
+
+def test_a_silenced_muscle_gets_no_excitation_and_the_others_theirs(cpu_hand):
+    import jax
+    import jax.numpy as jnp
+
+    from angora_jax.analysis.lesion import SilencedActions
+
+    env = SilencedActions(cpu_hand, (5,))
+    state = env.step(env.reset(jax.random.key(0)), jnp.full(MUSCLES, 0.3))
+    excitation = np.asarray(env.task_variables(state)["muscle_excitation"])
+    assert excitation[5] == 0.0
+    np.testing.assert_allclose(np.delete(excitation, 5), 0.3, rtol=1e-6)
+    assert env.sized_for(4) is env and env.data is cpu_hand.data, "the rest is the task's"
+
+
+# A MyoHandPose run of the brain-area model on MuJoCo Warp (on the CPU), 2 cycles of 4 environments: untrained, only
+# what the analyses need to run on (no trained MyoHand agent exists yet).
+TINY_AREAS = "{SSC_1: 16, SSC_2: 8, SPL: 8, IPL: 8, IPS: 8, MCC: 8, LPFC: 8, PMC_in: 16, PMC: 16, M1: 16}"
+TINY_HAND = ["env.options.physics={impl: warp}", "env.options.max_episode_steps=8", "ppo.num_cycles=2",
+             "ppo.num_envs=4", "ppo.rollout_length=8", "ppo.chunk_length=8", "ppo.minibatch_size=16",
+             "ppo.num_epochs=1", "ppo.network.width=16", f"ppo.network.areas={TINY_AREAS}", "checkpoint.every=2",
+             "checkpoint.snapshot_every=0", "logging.progress=none", "logging.report=false"]
+
+
+@pytest.mark.slow
+def test_a_muscles_lesion_zeroes_that_muscles_recorded_excitation_only_and_the_probe_fits(tmp_path, quick_compiles):
+    """The fast counterparts: the silenced step on the C MuJoCo twin above, and the analyses on synthetic data."""
+    pytest.importorskip("myo_sim")
+    import angora_jax as aj
+    from angora_jax.analysis import PROBES, record_activity, silence_actions
+
+    run = aj.train("myohand_pose_cortical", [*TINY_HAND, f"logging.run_root={tmp_path}", "logging.run_name=hand"])
+    agent = aj.load_agent(run.run_dir, "latest")
+    intact = record_activity(agent, episodes=4, steps=6)
+    lesioned = record_activity(silence_actions(agent, [7]), episodes=4, steps=6)
+    # Step 0 shows the reset's ctrl (0 everywhere); from step 1 on, the ctrl the previous action set.
+    sent = lesioned["task_muscle_excitation"].values[:, 1:]
+    assert np.all(sent[..., 7] == 0.0) and np.all(intact["task_muscle_excitation"].values[:, 1:, 7] > 0)
+    np.testing.assert_array_equal(np.delete(sent, 7, axis=-1)[:, 0],
+                                  np.delete(intact["task_muscle_excitation"].values[:, 1], 7, axis=-1))
+    probe = PROBES["MyoHandPose"]
+    assert {f"activity_{layer}" for layer in probe.layers} | set(probe.variables) <= set(intact.data_vars)
+    lesions = probe.lesions(agent)
+    assert len(lesions) == MUSCLES + 3 and lesions["-none"] is agent

@@ -1,18 +1,22 @@
-"""In-silico lesions: silence units of a dense layer, a whole area, or an input modality, and see what the task
-metric loses (`ablation`: many episodes per lesion, means with standard errors).
+"""In-silico lesions: silence units of a dense layer, a whole area, an input modality or an action component (a
+muscle), and see what the task metric loses (`ablation`: many episodes per lesion, means with standard errors).
 
 A unit of a dense layer is silenced by zeroing its kernel column and bias entry: its pre-activation is then 0, and
 so is its output after the networks' tanh (or relu); a brain-area graph's LiF unit (`activation: lif`) then fires at
 its constant resting rate, which carries no information either. The rest of the network is untouched, and an empty
 unit set leaves the parameters bit for bit as they were. A modality is silenced at the network's input: its normalised
 value is held at 0, the mean the normaliser saw in training (its variance is set to infinity), so the network
-receives no information from it.
+receives no information from it. An action component is silenced between the policy and the task
+(`silence_actions`): the task receives 0 there, as a denervated muscle receives no excitation, whatever the policy
+sends; the policy's output layer is not the place, since a head's parameters (a Beta's concentrations) give no action
+of 0 when zeroed.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -20,6 +24,7 @@ import numpy as np
 import xarray as xr
 
 from angora_jax.analysis.recording import episode_outcomes
+from angora_jax.envs.core import Env, Sensation, State
 from angora_jax.experiment.agent import Agent
 
 
@@ -82,6 +87,93 @@ def silence_modality(agent: Agent, modality: str) -> Agent:
     stats = getattr(agent.state.obs_stats, modality)
     silenced = agent.state.obs_stats.replace(**{modality: stats.replace(var=jnp.full_like(stats.var, jnp.inf))})
     return replace(agent, state=agent.state.replace(obs_stats=silenced))
+
+
+def silence_actions(agent: Agent, components: Sequence[int] | np.ndarray) -> Agent:
+    """`agent` whose action `components` (indices) are forced to 0 before they reach the task: a muscle's lesion on a
+    muscle-driven task (MyoHand: component i is muscle i's excitation, so the muscle stays at rest however the
+    policy drives it). The policy and its recorded `action` are untouched; the task sees the silenced action (a
+    recording's `task_muscle_excitation` holds the 0). The silenced agent's programs compile anew (the mask is part
+    of the task's step): a lesion per muscle costs one compile each.
+
+    Args:
+        agent: the agent to lesion (continuous actions).
+        components: indices into the action vector; empty: the agent unchanged.
+
+    Raises:
+        ValueError: discrete actions (0 is an action there, not silence) or a component out of range.
+    """
+    spec = agent.env.action_spec
+    if spec.discrete:
+        raise ValueError("Silencing action components forces them to 0, which is a choice for discrete actions, not "
+                         "silence: lesion the policy's areas (lesion_area) instead.")
+    components = np.asarray(components, int)
+    if components.size and (components.min() < 0 or components.max() >= spec.size):
+        raise ValueError(f"Action components {components.tolist()} out of range: {agent.config.env.task} has "
+                         f"{spec.size}.")
+    if not components.size:
+        return agent
+    return replace(agent, env=SilencedActions(agent.env, tuple(int(c) for c in components)), compiled={})
+
+
+class SilencedActions(Env):
+    """`env` with its action `components` forced to 0 in every step (`silence_actions`); everything else is `env`'s.
+
+    Attributes:
+        env: the task.
+        components: the silenced action indices.
+    """
+
+    def __init__(self, env: Env, components: tuple[int, ...]):
+        self.env = env
+        self.components = components
+        self.action_spec, self.max_episode_steps = env.action_spec, env.max_episode_steps
+        self.dt, self.metric_names = env.dt, env.metric_names
+        self._keep = np.ones(env.action_spec.shape, np.float32)
+        self._keep[..., list(components)] = 0.0
+
+    def __getattr__(self, name: str) -> Any:
+        # What a particular backend adds (the MuJoCo task, the C MuJoCo data) reads through; `env` itself is set in
+        # __init__, so this never recurses.
+        return getattr(self.__dict__["env"], name)
+
+    def _silenced(self, action: jax.Array) -> jax.Array:
+        return jnp.asarray(action, jnp.float32) * self._keep
+
+    def _reset(self, key: jax.Array) -> Any:
+        return self.env._reset(key)
+
+    def _step(self, physics: Any, info: dict[str, jax.Array], action: jax.Array, key: jax.Array) -> Any:
+        return self.env._step(physics, info, self._silenced(action), key)
+
+    def reset(self, key: jax.Array) -> State:
+        return self.env.reset(key)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        return self.env.step(state, self._silenced(action))
+
+    def advance(self, state: State, action: jax.Array) -> tuple[State, jax.Array]:
+        return self.env.advance(state, self._silenced(action))
+
+    def sized_for(self, num_envs: int) -> Env:
+        sized = self.env.sized_for(num_envs)
+        return self if sized is self.env else SilencedActions(sized, self.components)
+
+    def data_parallel_problem(self) -> str | None:
+        return self.env.data_parallel_problem()
+
+    def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
+        return self.env.physics_info(num_envs)
+
+    @property
+    def sees_images(self) -> bool:
+        return self.env.sees_images
+
+    def task_variables(self, state: State) -> dict[str, jax.Array]:
+        return self.env.task_variables(state)
+
+    def observation_shapes(self) -> Sensation:
+        return self.env.observation_shapes()
 
 
 def ablation(agent: Agent, lesions: Mapping[str, Agent], episodes: int = 256, steps: int | None = None,

@@ -9,7 +9,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from angora_jax.analysis.lesion import lesion, lesion_area, lesion_fraction, silence_modality
+import mujoco
+
+from angora_jax.analysis.lesion import lesion, lesion_area, lesion_fraction, silence_actions, silence_modality
 from angora_jax.experiment.agent import Agent
 
 
@@ -51,6 +53,17 @@ def cube_lesions(agent: Agent) -> dict[str, Agent]:
             "-none": lesion(agent, "network.M1", [])}
 
 
+def muscle_lesions(agent: Agent) -> dict[str, Agent]:
+    """A muscle-driven hand's lesions of `agent` (name -> lesioned agent): each muscle silenced on its own (its
+    excitation held at 0, `silence_actions`; named `-<actuator name>`), M1 and the muscle sense, and the empty lesion
+    (no muscle; it must equal the intact agent). Each muscle's lesion compiles its own evaluation program."""
+    model = agent.env.task.model
+    muscles = {f"-{mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i)}": silence_actions(agent, [i])
+               for i in range(model.nu)}
+    return {**muscles, "-M1": lesion_area(agent, "network.M1"), "-muscle sense": silence_modality(agent, "muscle"),
+            "-none": silence_actions(agent, [])}
+
+
 PROBES = {
     "ShadowHandReach": Probe(
         layers=("network.SSC_2", "network.SPL", "network.IPS", "network.MCC", "network.LPFC", "network.PMC.1",
@@ -67,4 +80,15 @@ PROBES = {
                    "input_touch"),
         lesions=cube_lesions, outcomes=("goals_reached", "dropped"),
         rsa_variables=("task_cube_rotation", "task_rotation_to_goal", "task_cube_angular_velocity")),
+    # The muscle hand's variables (MuscleHandTask.task_variables): what the muscles do (forces in N, activations and
+    # the excitations sent, in [0, 1]) and what the joints do (angles in rad, velocities in rad/s), the
+    # muscles-or-movements question's two sides; the target posture and the pose error (the outcome).
+    "MyoHandPose": Probe(
+        layers=("network.SSC_1", "network.SSC_2", "network.SPL", "network.IPL", "network.IPS", "network.MCC",
+                "network.LPFC", "network.PMC_in", "network.PMC.1", "network.M1"),
+        variables=("task_muscle_force", "task_muscle_activation", "task_joint_angles", "task_joint_velocities",
+                   "task_target", "metric_pose_error"),
+        lesions=muscle_lesions, outcomes=("pose_error", "success"),
+        rsa_variables=("task_target", "task_joint_angles", "task_muscle_activation"),
+        rsa_condition="metric_pose_error"),
 }
