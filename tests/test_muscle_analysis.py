@@ -127,10 +127,12 @@ TINY_HAND = ["env.options.physics={impl: warp}", "env.options.max_episode_steps=
 
 @pytest.mark.slow
 def test_a_muscles_lesion_zeroes_that_muscles_recorded_excitation_only_and_the_probe_fits(tmp_path, quick_compiles):
-    """The fast counterparts: the silenced step on the C MuJoCo twin above, and the analyses on synthetic data."""
+    """And the analyze verbs on its recording, the muscles-or-movements one with its random-weights control. The fast
+    counterparts: the silenced step on the C MuJoCo twin above, and the analyses on synthetic data."""
     pytest.importorskip("myo_sim")
     import angora_jax as aj
-    from angora_jax.analysis import PROBES, record_activity, silence_actions
+    from angora_jax.analysis import PROBES, record_activity, save_activity, silence_actions
+    from angora_jax.cli import main
 
     run = aj.train("myohand_pose_cortical", [*TINY_HAND, f"logging.run_root={tmp_path}", "logging.run_name=hand"])
     agent = aj.load_agent(run.run_dir, "latest")
@@ -145,3 +147,32 @@ def test_a_muscles_lesion_zeroes_that_muscles_recorded_excitation_only_and_the_p
     assert {f"activity_{layer}" for layer in probe.layers} | set(probe.variables) <= set(intact.data_vars)
     lesions = probe.lesions(agent)
     assert len(lesions) == MUSCLES + 3 and lesions["-none"] is agent
+    path = save_activity(intact, tmp_path / "hand.nc")
+    assert main(["analyze", "muscles-or-movements", str(path), "--run", str(run.run_dir), "--checkpoint", "latest",
+                 "--layers", "network.M1", "network.SSC_1", "--folds", "2"]) == 0
+    control = xr.load_dataset(tmp_path / "hand.muscles-or-movements.nc")["control_r2"].values
+    assert np.all(np.isfinite(control)), "the random-weights control replayed the recording"
+    assert main(["analyze", "synergies", str(path), "--max-synergies", "3"]) == 0
+
+
+@pytest.mark.filterwarnings("ignore:Maximum number of iterations")
+def test_the_analyze_verbs_write_plots_and_numbers_and_exit_2_on_a_recording_without_muscles(tmp_path, capsys):
+    from angora_jax.cli import main
+
+    activations, _ = planted_activations(samples=200)
+    muscles = xr.Dataset({"task_muscle_activation": (("episode", "time", "muscle"), activations.reshape(5, 40, -1)),
+                          "alive": (("episode", "time"), np.ones((5, 40)))})
+    muscles.to_netcdf(tmp_path / "muscles.nc", engine="scipy")
+    assert main(["analyze", "synergies", str(tmp_path / "muscles.nc"), "--max-synergies", "4"]) == 0
+    assert "3 synergies reach VAF 0.9" in capsys.readouterr().out
+    assert xr.load_dataset(tmp_path / "muscles.synergies.nc").attrs["count"] == 3
+    recording, _ = kinematic_recording()
+    recording.to_netcdf(tmp_path / "joints.nc", engine="scipy")
+    assert main(["analyze", "muscles-or-movements", str(tmp_path / "joints.nc"), "--muscles", "task_muscle_force",
+                 "--movements", "task_joint_angles", "--folds", "3"]) == 0
+    assert "network.M1: muscles R^2 1.00" in capsys.readouterr().out
+    assert (tmp_path / "joints.muscles-or-movements.png").is_file()
+    assert main(["analyze", "muscles-or-movements", str(tmp_path / "joints.nc"), "--folds", "3"]) == 2
+    assert "task_muscle_activation" in capsys.readouterr().err
+    assert main(["analyze", "synergies", str(tmp_path / "joints.nc")]) == 2
+    assert "task_muscle_activation" in capsys.readouterr().err

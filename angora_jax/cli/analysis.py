@@ -83,6 +83,23 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     equations.add_argument("--horizon", type=positive_int, default=10,
                            help="policy steps of the held-out simulation (default: 10)")
     equations.add_argument("--held-out", type=float, default=0.25, help="fraction of episodes held out (default: 0.25)")
+    synergy = analysis("synergies", "muscle synergies (NMF of the muscle activations): VAF per count, the count for "
+                                    "90%% and the synergies")
+    synergy.add_argument("--max-synergies", type=positive_int, default=8, help="most synergies to fit (default: 8)")
+    synergy.add_argument("--threshold", type=float, default=0.9, help="the VAF to reach (default: 0.9)")
+    synergy.add_argument("--variable", default="task_muscle_activation",
+                         help="the recorded activations (default: task_muscle_activation)")
+    muscles = analysis("muscles-or-movements", "ridge R^2 of muscle and of joint variables per layer; with --run, "
+                                               "beside the random-weights control's")
+    muscles.add_argument("--run", default=None, help="the recorded run: its network with random weights replays the "
+                                                     "recording as the control")
+    muscles.add_argument("--checkpoint", default="best", help="the recorded checkpoint (default: best)")
+    muscles.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    muscles.add_argument("--muscles", nargs="+", default=["task_muscle_force", "task_muscle_activation"],
+                         help="muscle variables (default: task_muscle_force task_muscle_activation)")
+    muscles.add_argument("--movements", nargs="+", default=["task_joint_angles", "task_joint_velocities"],
+                         help="kinematic variables (default: task_joint_angles task_joint_velocities)")
+    muscles.add_argument("--folds", type=positive_int, default=5)
     ablate = analyses.add_parser("ablate", help="task outcomes of a run with areas, modalities or units silenced")
     ablate.add_argument("run_dir")
     ablate.add_argument("--lesion", nargs="*", default=[], metavar="AREA", help="dense layers or areas to silence")
@@ -112,7 +129,8 @@ def command_decode(args: argparse.Namespace) -> int:
 
 
 def command_analysis(args: argparse.Namespace) -> int:
-    """similarity, dynamics, timescales, crosscorrelation, tuning and sindy of a recording."""
+    """similarity, dynamics, timescales, crosscorrelation, tuning, sindy, synergies and muscles-or-movements of a
+    recording."""
     from angora_jax import analysis
 
     fixed = {}
@@ -136,6 +154,15 @@ def command_analysis(args: argparse.Namespace) -> int:
             images = data["input_vision"].values[0, : args.frames, args.camera]
             agent = load_agent(args.run, checkpoint_of(args.checkpoint), args.env_option)
             return analysis.visual_analysis(agent, images, args.units, args.steps)
+        if args.analysis == "synergies":
+            return analysis.synergies(data, args.max_synergies, args.threshold, args.variable)
+        if args.analysis == "muscles-or-movements":
+            control = None
+            if args.run:
+                agent = load_agent(args.run, checkpoint_of(args.checkpoint))
+                control = analysis.replay_activity(analysis.with_random_weights(agent), data)
+            return analysis.muscles_or_movements(data, control, args.layers, args.muscles, args.movements,
+                                                 args.folds)
         if args.analysis == "sindy":
             return analysis.sindy(data, args.layer, args.components, args.inputs, not args.continuous, args.degree,
                                   args.threshold, args.horizon, args.held_out)
@@ -154,7 +181,8 @@ def command_analysis(args: argparse.Namespace) -> int:
         else:
             {"similarity": analysis.plot_similarity, "timescales": analysis.plot_timescales,
              "crosscorrelation": analysis.plot_cross_correlation, "visual": analysis.plot_visual,
-             "tuning": analysis.plot_tuning, "sindy": analysis.plot_sindy}[args.analysis](result, path)
+             "tuning": analysis.plot_tuning, "sindy": analysis.plot_sindy, "synergies": analysis.plot_synergies,
+             "muscles-or-movements": analysis.plot_muscles_or_movements}[args.analysis](result, path)
 
     def summary(result):
         if args.analysis == "similarity":
@@ -173,6 +201,18 @@ def command_analysis(args: argparse.Namespace) -> int:
         elif args.analysis == "tuning":
             strength = result["strength"].values
             yield f"eta^2 of {args.variable} per unit: median {np.median(strength):.2f}, max {strength.max():.2f}"
+        elif args.analysis == "synergies":
+            yield "VAF by count: " + ", ".join(f"{k} {v:.3f}" for k, v in zip(result["count"].values,
+                                                                              result["vaf"].values, strict=True))
+            yield (f"{result.attrs['count']} synergies reach VAF {args.threshold}" if result.attrs["reached"] else
+                   f"No count up to {args.max_synergies} reaches VAF {args.threshold}")
+        elif args.analysis == "muscles-or-movements":
+            control = "" if args.run else " (no control: give --run)"
+            yield from (f"{layer}: muscles R^2 {result['kind_r2'].sel(layer=layer, kind_name='muscle').item():.2f}, "
+                        f"movements {result['kind_r2'].sel(layer=layer, kind_name='movement').item():.2f}; random "
+                        f"weights {result['control_kind_r2'].sel(layer=layer, kind_name='muscle').item():.2f}, "
+                        f"{result['control_kind_r2'].sel(layer=layer, kind_name='movement').item():.2f}{control}"
+                        for layer in result["layer"].values)
         elif args.analysis == "sindy":
             yield from result["equation"].values
             error, baseline = result["simulation_error"].values[-1], result["baseline_error"].values[-1]
