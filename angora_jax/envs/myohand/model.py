@@ -33,16 +33,15 @@ def require_myo_sim() -> None:
         raise ModuleNotFoundError(f"The MyoHand tasks build the hand from the 'myo-sim' package: {INSTALL_HINT}.")
 
 
-def load_hand(physics: PhysicsSettings = MYOHAND_PHYSICS, myosuite_frame: bool = False) -> mujoco.MjModel:
-    """Compile the MyoHand with `physics` (timestep, solver iterations, MJX implementation). Its joints are
-    `JOINTS` hinges (rad), its actuators `MUSCLES` muscles whose `ctrl` is the excitation in [0, 1]
-    (`actuator_ctrlrange`) and whose `act` is the activation, one state per muscle (`na` = `nu`).
+def hand_spec(physics: PhysicsSettings = MYOHAND_PHYSICS, myosuite_frame: bool = False) -> mujoco.MjSpec:
+    """The MyoHand's spec with `physics` (timestep, solver iterations, MJX implementation), for a scene to add to
+    before compiling (`load_hand` compiles it as it is).
 
     Args:
         physics: the solver settings.
         myosuite_frame: place the hand where MyoSuite does (`MYOSUITE_ROOT_POS`, `MYOSUITE_ROOT_QUAT`), so that
-            positions given in MyoSuite's world frame (reach targets) apply as they are, and gravity pulls as there;
-            otherwise the root stays where myo-sim puts it.
+            positions given in MyoSuite's world frame (reach targets, the die) apply as they are, and gravity pulls
+            as there; otherwise the root stays where myo-sim puts it.
     """
     require_myo_sim()
     from myo_sim.build.compose import build_right_hand_from_arm_spec
@@ -52,4 +51,11 @@ def load_hand(physics: PhysicsSettings = MYOHAND_PHYSICS, myosuite_frame: bool =
         root = spec.body("myoarm_r_root")
         root.pos, root.quat = MYOSUITE_ROOT_POS, MYOSUITE_ROOT_QUAT
     physics.apply(spec)
-    return spec.compile()
+    return spec
+
+
+def load_hand(physics: PhysicsSettings = MYOHAND_PHYSICS, myosuite_frame: bool = False) -> mujoco.MjModel:
+    """Compile the MyoHand (`hand_spec`'s arguments). Its joints are `JOINTS` hinges (rad), its actuators `MUSCLES`
+    muscles whose `ctrl` is the excitation in [0, 1] (`actuator_ctrlrange`) and whose `act` is the activation, one
+    state per muscle (`na` = `nu`)."""
+    return hand_spec(physics, myosuite_frame).compile()
