@@ -148,3 +148,41 @@ def test_cube_probing_notebook_runs_every_analysis_on_a_tiny_cube_run(tmp_path, 
     }
     failed = [name for name, holds in checks.items() if not holds]
     assert not failed, "failed: " + "; ".join(failed) + f"\nfound: {found}"
+
+
+# What the muscle hand notebook found, printed as one JSON line after its cells have run.
+MUSCLE_FINDINGS = """
+import json
+print("FINDINGS", json.dumps({
+    "vaf": [float(v) for v in found["vaf"].values], "count": int(found.attrs["count"]),
+    "layers": list(map(str, muscles_or_movements["layer"].values)),
+    "kinds": list(map(str, muscles_or_movements["kind"].values)),
+    "control_finite": bool(np.isfinite(muscles_or_movements["control_r2"].values).all()),
+    "silenced_max": float(silenced["task_muscle_excitation"].values[:, 1:, 0].max()),
+    "lesions": list(map(str, ablation["lesion"].values)),
+    "none_equals_intact": bool((ablation["outcome_values"].sel(lesion="-none")
+                                == ablation["outcome_values"].sel(lesion="intact")).all()),
+}))
+"""
+
+
+def test_muscle_hand_notebook_trains_a_tiny_run_and_runs_the_three_muscle_analyses(tmp_path):
+    """The MyoHand notebook top to bottom with its own tiny run (3 cycles on MuJoCo Warp, on the CPU) and 5 episodes:
+    the synergies' VAF for 1 .. 8 (non-decreasing within NMF's tolerance, at most 1), muscles or movements over the
+    probe's areas with its random-weights control, muscle 0 silenced in the recording, and the lesions named as the
+    probe names them, the empty one equal to the intact agent. Every figure is a PNG."""
+    pytest.importorskip("myo_sim")
+    result = run_notebook("muscle_hand.ipynb", tmp_path, epilogue=MUSCLE_FINDINGS, ANGORA_EPISODES="5",
+                          **QUICK_SUBPROCESS)
+    found = json.loads(result.stdout.split("FINDINGS ", 1)[1].splitlines()[0])
+    from angora_jax.analysis import PROBES
+
+    probe = PROBES["MyoHandPose"]
+    assert len(found["vaf"]) == 8 and max(found["vaf"]) <= 1 and 1 <= found["count"] <= 8, found
+    assert found["layers"] == list(probe.layers) and found["control_finite"], found
+    assert found["kinds"] == ["muscle", "muscle", "movement", "movement"], found
+    assert found["silenced_max"] == 0.0, found
+    assert found["lesions"][0] == "intact" and found["lesions"][-3:] == ["-M1", "-muscle sense", "-none"], found
+    assert len(found["lesions"]) == 1 + 3 + 3 and found["none_equals_intact"], found
+    for name in ("synergies", "muscles_or_movements", "ablation_pose_error"):
+        assert (tmp_path / f"{name}.png").read_bytes()[:4] == b"\x89PNG", name

@@ -83,15 +83,16 @@ def plot_muscles_or_movements(result: xr.Dataset, path: str) -> None:
 
     layers = [str(layer).removeprefix("network.") for layer in result["layer"].values]
     x = np.arange(len(layers))
-    fig, ax = plt.subplots(figsize=(2.0 + 1.0 * len(layers), 3.4))
+    fig, ax = plt.subplots(figsize=(4.5 + 1.0 * len(layers), 3.4))  # the legend beside the bars
     for i, (kind, color) in enumerate((("muscle", "tab:red"), ("movement", "tab:blue"))):
-        ax.bar(x + (i - 1.5) * 0.2, result["kind_r2"].sel(kind_name=kind).values, 0.2, color=color,
+        ax.bar(x + (2 * i - 1.5) * 0.2, result["kind_r2"].sel(kind_name=kind).values, 0.2, color=color,
                label=f"{kind}s")
-        ax.bar(x + (i + 0.5) * 0.2, result["control_kind_r2"].sel(kind_name=kind).values, 0.2, color=color,
+        ax.bar(x + (2 * i - 0.5) * 0.2, result["control_kind_r2"].sel(kind_name=kind).values, 0.2, color=color,
                alpha=0.4, hatch="//", label=f"{kind}s, random weights")
     ax.set_xticks(x, layers, rotation=30, ha="right")
     ax.set_ylabel("held-out R^2 (mean over variables)")
-    ax.legend(fontsize="small")
+    ax.axhline(0, color="k", lw=0.5)
+    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1, 1))
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
