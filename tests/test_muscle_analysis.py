@@ -127,8 +127,10 @@ TINY_HAND = ["env.options.physics={impl: warp}", "env.options.max_episode_steps=
 
 @pytest.mark.slow
 def test_a_muscles_lesion_zeroes_that_muscles_recorded_excitation_only_and_the_probe_fits(tmp_path, quick_compiles):
-    """And the analyze verbs on its recording, the muscles-or-movements one with its random-weights control. The fast
-    counterparts: the silenced step on the C MuJoCo twin above, and the analyses on synthetic data."""
+    """A tiny MyoHand run's recording with muscle 7 silenced, the probe against the recording, the analyze verbs on
+    it (muscles-or-movements with its random-weights control) and ablate silencing a muscle (exit 2 for a muscle the
+    hand lacks). The fast counterparts: the silenced step on the C MuJoCo twin above, and the analyses on synthetic
+    data."""
     pytest.importorskip("myo_sim")
     import angora_jax as aj
     from angora_jax.analysis import PROBES, record_activity, save_activity, silence_actions
@@ -153,6 +155,10 @@ def test_a_muscles_lesion_zeroes_that_muscles_recorded_excitation_only_and_the_p
     control = xr.load_dataset(tmp_path / "hand.muscles-or-movements.nc")["control_r2"].values
     assert np.all(np.isfinite(control)), "the random-weights control replayed the recording"
     assert main(["analyze", "synergies", str(path), "--max-synergies", "3"]) == 0
+    assert main(["analyze", "ablate", str(run.run_dir), "--checkpoint", "latest", "--action", "7", "--episodes", "4",
+                 "--out", str(tmp_path / "ablation.png")]) == 0
+    assert list(xr.load_dataset(tmp_path / "ablation.nc")["lesion"].values) == ["intact", "-action 7"]
+    assert main(["analyze", "ablate", str(run.run_dir), "--checkpoint", "latest", "--action", str(MUSCLES)]) == 2
 
 
 @pytest.mark.filterwarnings("ignore:Maximum number of iterations")

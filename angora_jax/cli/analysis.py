@@ -100,12 +100,16 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     muscles.add_argument("--movements", nargs="+", default=["task_joint_angles", "task_joint_velocities"],
                          help="kinematic variables (default: task_joint_angles task_joint_velocities)")
     muscles.add_argument("--folds", type=positive_int, default=5)
-    ablate = analyses.add_parser("ablate", help="task outcomes of a run with areas, modalities or units silenced")
+    ablate = analyses.add_parser("ablate", help="task outcomes of a run with areas, modalities, units or actions "
+                                                   "silenced")
     ablate.add_argument("run_dir")
     ablate.add_argument("--lesion", nargs="*", default=[], metavar="AREA", help="dense layers or areas to silence")
     ablate.add_argument("--silence", nargs="*", default=[], metavar="MODALITY", help="input modalities to silence")
     ablate.add_argument("--fraction", nargs="*", default=[], metavar="AREA:F",
                         help="silence a random fraction F of an area's units, e.g. network.M1:0.5")
+    ablate.add_argument("--action", nargs="*", type=int, default=[], metavar="I",
+                        help="action components to silence, each on its own (on a muscle hand: muscle I's "
+                             "excitation held at 0)")
     ablate.add_argument("--episodes", type=positive_int, default=256)
     ablate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
     ablate.add_argument("--out", default=None, help="PNG and NetCDF (default: RUN_DIR/ablation.png)")
@@ -260,13 +264,21 @@ def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None 
 
 
 def command_ablate(args: argparse.Namespace) -> int:
-    from angora_jax.analysis import ablation, lesion_area, lesion_fraction, plot_ablation, silence_modality
+    from angora_jax.analysis import (
+        ablation,
+        lesion_area,
+        lesion_fraction,
+        plot_ablation,
+        silence_actions,
+        silence_modality,
+    )
 
     checkpoint = checkpoint_of(args.checkpoint)
     agent = load_agent(args.run_dir, checkpoint)
     try:
         lesions = {f"-{area}": lesion_area(agent, area) for area in args.lesion}
         lesions |= {f"-{modality} input": silence_modality(agent, modality) for modality in args.silence}
+        lesions |= {f"-action {component}": silence_actions(agent, [component]) for component in args.action}
         for spec in args.fraction:
             area, _, text = spec.rpartition(":")
             fraction = float(text) if text.replace(".", "", 1).isdigit() else -1.0
