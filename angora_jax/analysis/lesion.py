@@ -133,9 +133,11 @@ class SilencedActions(Env):
         self._keep[..., list(components)] = 0.0
 
     def __getattr__(self, name: str) -> Any:
-        # What a particular backend adds (the MuJoCo task, the C MuJoCo data) reads through; `env` itself is set in
-        # __init__, so this never recurses.
-        return getattr(self.__dict__["env"], name)
+        # What a particular backend adds (the MuJoCo task, the C MuJoCo data) reads through. `env` is set in __init__;
+        # asked for before that (copy and pickle make instances without it), it is missing rather than recursing.
+        if name == "env":
+            raise AttributeError(name)
+        return getattr(self.env, name)
 
     def _silenced(self, action: jax.Array) -> jax.Array:
         return jnp.asarray(action, jnp.float32) * self._keep
