@@ -21,11 +21,12 @@ from angora_jax.envs.registry import register
 
 
 def _on_backend(task: Callable[[mujoco.MjModel], MuscleHandTask], control_dt: float, max_episode_steps: int,
-                physics: dict[str, float | str] | None, backend: str, myosuite_frame: bool = False) -> Env:
-    """The task that `task` makes of the hand compiled with `physics`, on `backend` (the arguments of `make_pose`)."""
+                physics: dict[str, float | str] | None, backend: str) -> Env:
+    """The task that `task` makes of the hand compiled with `physics`, on `backend` (the arguments of `make_pose`).
+    The hand stands where MyoSuite puts it, so gravity pulls on it as in MyoSuite's tasks and their targets apply."""
     settings = MYOHAND_PHYSICS.with_options(physics)
     frame_skip = settings.frame_skip(control_dt)
-    return on_backend(backend, task(load_hand(settings, myosuite_frame)), frame_skip, max_episode_steps,
+    return on_backend(backend, task(load_hand(settings, myosuite_frame=True)), frame_skip, max_episode_steps,
                       settings.warp_max_envs)
 
 
@@ -69,7 +70,7 @@ def make_reach(reward: dict[str, float] | None = None, reach_threshold: float = 
     coefficients = ReachReward.from_dict(reward)
     return _on_backend(lambda model: MyoHandReach(model, coefficients, reach_threshold=reach_threshold,
                                                   success_steps=success_steps),
-                       control_dt, max_episode_steps, physics, backend, myosuite_frame=True)
+                       control_dt, max_episode_steps, physics, backend)
 
 
 register("MyoHandPose", make_pose)

@@ -8,7 +8,8 @@ pose error is the Euclidean norm of target minus joint angles over all 23 joints
 error is below 0.7 rad (MyoSuite's `pose_thd` for the hand); an episode is a `success` when it is solved on more than
 5 of its steps (MyoSuite's `evaluate_success`, `successful_steps=5`). Episodes last 100 steps of 20 ms (10 physics
 steps of 2 ms), and the reward's terms and weights are MyoSuite's: pose (minus the error), bonus (1 below the
-threshold, 1 more below 1.5 times it) and penalty (-1 beyond 2 pi rad, which ends the episode).
+threshold, 1 more below 1.5 times it) and penalty (-1 beyond 2 pi rad, which ends the episode). The hand stands
+where MyoSuite puts it (`model.load_hand(myosuite_frame=True)`), so gravity pulls on it as there.
 
 What differs: the effort cost is the mean squared activation over the 39 muscles (MyoSuite's generic `act_reg` term
 in `terms/base_reward.py`); MyoSuite's pose task itself charges the norm of the activations divided by their number.
