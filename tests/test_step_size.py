@@ -1,9 +1,9 @@
 """Step-size control (`ppo.step_size`): the KL-adaptive learning rate's rule and bounds, the entropy weight's
 annealing, the settings refused together, and both through a run that is stopped and resumed."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 import pytest
 from tiny import TINY_PPO
 
@@ -33,17 +33,15 @@ def test_without_a_target_the_optimizer_state_holds_no_rate_and_follows_the_sche
     """Runs saved before step-size control have this optimizer state layout, so their checkpoints still restore."""
     plain = PPOConfig(learning_rate=1e-3, num_cycles=10)
     state = make_optimizer(plain, 4).init({"w": jnp.zeros(3)})
-    assert not any(isinstance(s, optax.InjectHyperparamsState) for s in jax_tree_nodes(state))
+    assert not hyperparameter_states(state)
     assert float(learning_rate(state, plain, 20, 4)) == pytest.approx(1e-3)
     assert float(learning_rate(state, plain.replace(lr_decay=True), 20, 4)) == pytest.approx(5e-4)
 
 
-def jax_tree_nodes(tree) -> list:
-    """`tree` and its nested tuples (optax states are tuples of states)."""
-    nodes = [tree]
-    for child in tree if isinstance(tree, tuple) else ():
-        nodes += jax_tree_nodes(child)
-    return nodes
+def hyperparameter_states(state) -> list:
+    """The `optax.inject_hyperparams` states anywhere in an optimizer state (optax has two such classes, both with
+    `hyperparams`)."""
+    return [s for s in jax.tree.leaves(state, is_leaf=lambda s: hasattr(s, "hyperparams")) if hasattr(s, "hyperparams")]
 
 
 def test_the_entropy_weight_anneals_linearly_from_the_first_cycle_to_the_last():
