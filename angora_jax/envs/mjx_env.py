@@ -63,11 +63,19 @@ def on_gpu() -> bool:
     return any(device.platform == "gpu" for device in jax.local_devices())
 
 
-def choose_impl(impl: str) -> tuple[str, str]:
+def choose_impl(impl: str, jax_lacks: str = "") -> tuple[str, str]:
     """`resolve_impl(impl)` and why, as a phrase for logs and `angora-jax doctor` (with what to install when
-    a faster choice is missing)."""
+    a faster choice is missing).
+
+    Args:
+        impl: "jax", "warp" or "auto".
+        jax_lacks: what MJX's JAX implementation cannot step in the scene ("" when it steps all of it): "auto" then
+            picks Warp wherever warp-lang is importable, on the CPU too (without it `MjxEnv` names the install).
+    """
     if impl != "auto":
         return impl, f"physics.impl is set to {impl!r}"
+    if jax_lacks and importlib.util.find_spec("warp") is not None:
+        return "warp", f"physics.impl auto: MJX's JAX implementation lacks {jax_lacks}; warp-lang is importable"
     if not on_gpu():
         return "jax", "physics.impl auto: JAX runs on the CPU (MuJoCo Warp needs an NVIDIA GPU)"
     if importlib.util.find_spec("warp") is None:
@@ -94,9 +102,32 @@ def local_device(impl: str) -> jax.Device:
     return jax.local_devices()[0]
 
 
+def jax_collision_gap(model: mujoco.MjModel) -> str:
+    """"" when MJX's JAX implementation has a collision function for every pair of geom types that can touch in
+    `model`, else MJX's own message naming the pair it lacks (e.g. ellipsoid (4) against box (6))."""
+    try:
+        mjx_module()._src.collision_driver.make_condim(model)
+    except ValueError as error:
+        return " ".join(str(arg) for arg in error.args)
+    return ""
+
+
 def warp_sizes(model: mujoco.MjModel, max_envs: int) -> dict[str, int]:
     """Warp's buffer sizes for `model`: contacts for `max_envs` environments (`naconmax`) and constraint rows per
-    environment (`njmax`), each the worst case MJX's JAX implementation allocates (every candidate pair touching)."""
+    environment (`njmax`).
+
+    A scene that states its budget in MuJoCo's own size fields (`MjSpec.nconmax` and `njmax`, MJCF's `<size nconmax
+    njmax>`: contacts and constraint rows per environment, which C MuJoCo has ignored since 3.0) gets it; the scene
+    says how it was measured. Otherwise each is the worst case MJX's JAX implementation allocates (every candidate
+    pair touching), which needs a JAX collision function for every pair of geom types that can touch: a ValueError
+    naming the fix when one is missing."""
+    if model.nconmax > 0 and model.njmax > 0:
+        return {"naconmax": model.nconmax * max_envs, "njmax": model.njmax}
+    gap = jax_collision_gap(model)
+    if gap:
+        raise ValueError(f"MuJoCo Warp's buffers for this scene cannot be sized from MJX's JAX implementation ({gap}): "
+                         "state the scene's contacts and constraint rows per environment in MjSpec.nconmax and "
+                         "njmax (MJCF <size nconmax=... njmax=...>), e.g. from C MuJoCo rollouts with a margin.")
     data = mjx_module().make_data(model, device=local_device("jax"), impl="jax")
     return {"naconmax": max(1, data._impl.contact.dist.shape[0]) * max_envs, "njmax": data._impl.efc_J.shape[0]}
 
@@ -150,6 +181,10 @@ class MjxEnv(MujocoEnv):
         self.impl = mjx_impl(task.model)
         self.warp_max_envs = warp_max_envs
         sizes = {}
+        gap = jax_collision_gap(task.model) if self.impl == "jax" else ""
+        if gap:
+            raise ValueError(f"MJX's JAX implementation cannot step this scene ({gap}): set physics.impl to 'warp' "
+                             f"or 'auto' with warp-lang installed (pip install {WARP_REQUIREMENT}).")
         if self.impl == "warp":
             require_warp()
             size_warp_graph_cache()

@@ -265,9 +265,13 @@ class MujocoEnv(Env):
 
 def set_mjx_impl(spec: mujoco.MjSpec, impl: str, why: str = "") -> None:
     """Ask for MJX implementation `impl` ("jax" or "warp") in the model compiled from `spec`; `why` says how it was
-    chosen (shown when a run starts and by `angora-jax doctor`)."""
+    chosen (shown when a run starts and by `angora-jax doctor`). A later call replaces an earlier one's choice (a
+    scene that adds what one implementation cannot step chooses again)."""
     if impl not in MJX_IMPLS:
         raise ValueError(f"Unknown MJX implementation impl={impl!r}; choose one of {MJX_IMPLS}.")
+    for name in (MJX_IMPL_TEXT, MJX_IMPL_WHY_TEXT):
+        if spec.text(name) is not None:
+            spec.delete(spec.text(name))
     if impl != "jax":
         spec.add_text(name=MJX_IMPL_TEXT, data=impl)
     if why:

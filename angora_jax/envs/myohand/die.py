@@ -1,5 +1,5 @@
-"""The die of MyoChallenge 2022's die reorientation in the MyoHand's scene: groundwork for a `MyoHandReorient` task,
-which does not exist yet (no goal, reward or success rule here).
+"""The die of MyoChallenge 2022's die reorientation in the MyoHand's scene, which `reorient.MyoHandReorient` turns
+to drawn goals.
 
 The die is MyoSuite's (myosuite 3.0.0, `envs/myo/assets/hand/myohand_die.xml`): a rounded cube 5.7 cm across, 12
 capsules of radius 5 mm along its edges and three crossed boxes for its faces, 108 g, placed in MyoSuite's world frame
@@ -11,16 +11,17 @@ cannot fall further than 25 cm).
 Measured on C MuJoCo (benchmarks/results/myohand/README.md): with no excitation the die slides over the palm as in
 MyoSuite's scene (0.027 m at 0.3 s, 0.074 m at 0.75 s; MyoSuite's 0.038 and 0.075 m) and, with no slide limits to hold
 it, falls off after 0.88 s; under random excitations it passes MyoSuite's drop threshold (0.2 m) after 0.15-0.23 s
-(MyoSuite's scene: 0.26-0.27 s). MuJoCo Warp accepts the scene and steps it as C MuJoCo does (the die within 0.4 mm
-after 100 physics steps), but `mjx_env.warp_sizes` cannot size Warp's buffers for it: it asks MJX's JAX
-implementation, which has no collision function for the hand's ellipsoids against the die's boxes.
+(MyoSuite's scene: 0.26-0.27 s). MuJoCo Warp steps the scene as C MuJoCo does (the die within 0.4 mm after 100
+physics steps; tests/test_myohand_reorient.py checks a few policy steps).
 
-Missing for `MyoHandReorient` (MyoSuite's `ReorientEnv`, myoChallengeDieReorientP1/P2-v0): the goal (orientation
-drawn per axis within +-90 degrees for phase 1, +-180 for phase 2, position within +-1 / +-2 cm; phase 2 also draws the
-die's size +-7 mm, mass 50-250 g and friction), the tolerance (solved within 0.025 m and 0.262 rad of Euler-angle
-error, success on more than 5 of 150 steps of 10 ms, failed beyond 0.2 m), CGR (goals reached in a row with a step
-cap, as on the Shadow cube), Warp's buffer sizes without MJX's JAX implementation, and the speed of contacts at 16k+
-environments.
+MuJoCo Warp and MJX's JAX implementation. MJX's JAX implementation has no collision function for the hand's ellipsoids
+against the die's boxes, so it cannot step the scene, nor size Warp's buffers by its worst case (`mjx_env.warp_sizes`).
+`load_hand_with_die` therefore asks for Warp under `physics.impl: auto` wherever warp-lang is installed (the CPU
+included), and states the scene's budget in MuJoCo's own size fields, which `warp_sizes` reads: `DIE_NCONMAX`
+contacts and `DIE_NJMAX` constraint rows per environment. C MuJoCo rollouts gave at most 34 contacts and 145 rows
+(150 episodes of up to 150 policy steps of 10 ms from `die_start` under uniform, binary and drifting random
+excitations, until the die passed 0.2 m); the budget is about three times that. Warp pools the contacts of all
+environments of a batch, so one environment may use more than `DIE_NCONMAX` while others use fewer.
 """
 
 from __future__ import annotations
@@ -30,6 +31,8 @@ import itertools
 import mujoco
 import numpy as np
 
+from angora_jax.envs.mjx_env import choose_impl
+from angora_jax.envs.mujoco_task import set_mjx_impl
 from angora_jax.envs.myohand.model import MYOHAND_PHYSICS, hand_spec
 from angora_jax.envs.shadow_hand.model import PhysicsSettings
 
@@ -44,6 +47,12 @@ EDGE_RADIUS = 0.005
 FACE_HALF = (0.0284, 0.0236)
 # The forearm's rotation (`pro_sup_r`, rad) at the start of MyoSuite's die task: the palm faces up.
 PALM_UP = -1.5
+# Warp's budget per environment (module docstring): contacts (C MuJoCo rollouts: at most 34), and constraint rows, 4 per
+# contact (condim 3 in MuJoCo's pyramidal cone) and 64 for joint and tendon limits (rollouts: at most 145 rows in all).
+DIE_NCONMAX = 96
+DIE_NJMAX = 4 * DIE_NCONMAX + 64
+# What MJX's JAX implementation lacks to step the die's scene (`mjx_env.choose_impl`).
+JAX_LACKS = "a collision function for the hand's ellipsoids against the die's boxes"
 
 
 def add_die(spec: mujoco.MjSpec) -> None:
@@ -64,9 +73,12 @@ def add_die(spec: mujoco.MjSpec) -> None:
 
 
 def load_hand_with_die(physics: PhysicsSettings = MYOHAND_PHYSICS) -> mujoco.MjModel:
-    """The MyoHand in MyoSuite's frame with MyoSuite's die (`add_die`), compiled with `physics`."""
+    """The MyoHand in MyoSuite's frame with MyoSuite's die (`add_die`), compiled with `physics`: under impl "auto" for
+    MuJoCo Warp wherever warp-lang is installed (`JAX_LACKS`), with Warp's budget `DIE_NCONMAX` and `DIE_NJMAX`."""
     spec = hand_spec(physics, myosuite_frame=True)
     add_die(spec)
+    set_mjx_impl(spec, *choose_impl(physics.impl, jax_lacks=JAX_LACKS))
+    spec.nconmax, spec.njmax = DIE_NCONMAX, DIE_NJMAX
     return spec.compile()
 
 
