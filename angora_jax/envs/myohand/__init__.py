@@ -1,5 +1,5 @@
-"""MyoHand tasks (MyoSuite's muscle-driven hand, from the optional `myo-sim` package), registered as `MyoHandPose` and
-`MyoHandReach`.
+"""MyoHand tasks (MyoSuite's muscle-driven hand, from the optional `myo-sim` package), registered as `MyoHandPose`,
+`MyoHandReach` and `MyoHandReorient`.
 
 The hand is built only when a task is made, so that `import angora_jax` needs no `myo-sim`; making a task without it
 raises a ModuleNotFoundError naming the install command.
@@ -13,10 +13,21 @@ import mujoco
 
 from angora_jax.envs.backends import on_backend
 from angora_jax.envs.core import Env
+from angora_jax.envs.myohand.die import load_hand_with_die
 from angora_jax.envs.myohand.model import MYOHAND_PHYSICS, load_hand
 from angora_jax.envs.myohand.muscle_task import SUCCESS_STEPS, MuscleHandTask
 from angora_jax.envs.myohand.pose import POSE_THRESHOLD, MyoHandPose, PoseReward
 from angora_jax.envs.myohand.reach import NEAR_PER_TIP, TIPS, MyoHandReach, ReachReward
+from angora_jax.envs.myohand.reorient import (
+    DROP_DISTANCE,
+    GOAL_POSITION,
+    GOAL_ROTATION,
+    POSITION_THRESHOLD,
+    ROTATION_THRESHOLD,
+    STEPS_PER_GOAL,
+    MyoHandReorient,
+    ReorientReward,
+)
 from angora_jax.envs.registry import register
 
 
@@ -73,5 +84,41 @@ def make_reach(reward: dict[str, float] | None = None, reach_threshold: float = 
                        control_dt, max_episode_steps, physics, backend)
 
 
+def make_reorient(reward: dict[str, float] | None = None, goal_position: float = GOAL_POSITION,
+                  goal_rotation: float = GOAL_ROTATION, position_threshold: float = POSITION_THRESHOLD,
+                  rotation_threshold: float = ROTATION_THRESHOLD, drop_distance: float = DROP_DISTANCE,
+                  success_steps: int = SUCCESS_STEPS, steps_per_goal: int = STEPS_PER_GOAL, max_goals: int = 50,
+                  control_dt: float = 0.01, physics: dict[str, float | str] | None = None,
+                  backend: str = "mjx") -> Env:
+    """Build `MyoHandReorient` (`reorient.MyoHandReorient`; MyoSuite's myoChallengeDieReorientP1-v0 defaults, goals
+    in a row as on the Shadow cube). Times in s, lengths in m, angles in rad. Episodes end by a drop, a goal's time
+    running out or `max_goals`, never by the step limit (max_goals * steps_per_goal).
+
+    Args:
+        reward: `reorient.ReorientReward` coefficients overriding the defaults (e.g. `{effort: 0}`).
+        goal_position: goal positions within this many m per axis of the die's start (phase 2: 0.02).
+        goal_rotation: goal Euler angles within this many rad (phase 2: 3.14).
+        position_threshold: a step is solved within this distance of the goal position ...
+        rotation_threshold: ... and this rotation angle of the goal orientation.
+        drop_distance: the die has dropped beyond this distance from the goal position.
+        success_steps: a goal is reached when solved on more than this many steps.
+        steps_per_goal: policy steps each goal gets (MyoSuite's episode: 150).
+        max_goals: goals reached that cut an episode.
+        control_dt: simulated time per policy step, a whole multiple of the timestep (MyoSuite's 0.01: 5 x 2 ms).
+        physics: `PhysicsSettings` fields overriding the model's own settings (as `make_pose`); impl "auto" runs
+            MuJoCo Warp wherever warp-lang is installed (`die.load_hand_with_die`).
+        backend: "mjx" (batched, training) or "cpu" (the C MuJoCo twin).
+    """
+    coefficients = ReorientReward.from_dict(reward)
+    settings = MYOHAND_PHYSICS.with_options(physics)
+    task = MyoHandReorient(load_hand_with_die(settings), coefficients, goal_position=goal_position,
+                           goal_rotation=goal_rotation, position_threshold=position_threshold,
+                           rotation_threshold=rotation_threshold, drop_distance=drop_distance,
+                           success_steps=success_steps, steps_per_goal=steps_per_goal, max_goals=max_goals)
+    return on_backend(backend, task, settings.frame_skip(control_dt), max_goals * steps_per_goal,
+                      settings.warp_max_envs)
+
+
 register("MyoHandPose", make_pose)
 register("MyoHandReach", make_reach)
+register("MyoHandReorient", make_reorient)
