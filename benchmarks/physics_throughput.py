@@ -24,6 +24,11 @@ Configurations (`CONFIGS`, in priority order; `--configs` picks some, in the ord
   myohand         the muscle-driven MyoHand as myo-sim 0.2.3 builds it (2 ms, Newton 100/50; needs the myo extra),
                   from MyoHandPose's episode starts, uniform random excitations in [0, 1]: throughput only
                   (benchmarks/myohand_fidelity.py compares its MJX implementations with C MuJoCo)
+  myohand_reorient  the MyoHand palm up with MyoChallenge 2022's die on the palm (`MyoHandReorient`'s scene and
+                  start, 10 ms policy steps): the hand's contacts with the die, on Warp only (MJX's JAX implementation
+                  has no ellipsoid-box collision); timed runs of a few policy steps from the start keep the die on the
+                  palm (random excitations throw it off after 0.15 s); throughput only. Issue 62's target: 1M physics
+                  steps/s on one GPU at 16k+ envs: --configs myohand_reorient --impls warp --batch-sizes 16384,32768
 `--physics reach:0.004/4/8,cube:0.004/4/8` adds configurations of the tuned scenes with other settings (timestep
 s / Newton iterations / line-search iterations): the sweep behind REACH_PHYSICS and CUBE_PHYSICS.
 
@@ -77,10 +82,12 @@ import numpy as np
 from common import markdown_table, peak_memory_bytes, raw_mjx_rate, write_results
 
 from angora_jax.envs.core import Sensation
-from angora_jax.envs.mjx_env import WARP_REQUIREMENT, MjxEnv, mjx_module
+from angora_jax.envs.mjx_env import WARP_REQUIREMENT, MjxEnv, jax_collision_gap, mjx_module
 from angora_jax.envs.mujoco_task import MujocoTask, set_mjx_impl, start_physics
+from angora_jax.envs.myohand.die import JAX_LACKS, load_hand_with_die
 from angora_jax.envs.myohand.model import MYOHAND_PHYSICS, load_hand
 from angora_jax.envs.myohand.pose import MyoHandPose
+from angora_jax.envs.myohand.reorient import MyoHandReorient
 from angora_jax.envs.shadow_hand import REACH_PHYSICS
 from angora_jax.envs.shadow_hand.cube import CUBE_PHYSICS, load_cube_scene
 from angora_jax.envs.shadow_hand.ihom import Ihom, angular_distance
@@ -88,7 +95,7 @@ from angora_jax.envs.shadow_hand.model import GYM_PHYSICS, PhysicsSettings, load
 from angora_jax.envs.shadow_hand.reach import Reach
 
 mjx = mjx_module()
-REACH_DT, CUBE_DT, MYOHAND_DT = 0.02, 0.08, 0.02  # s per policy step of the tasks
+REACH_DT, CUBE_DT, MYOHAND_DT, REORIENT_DT = 0.02, 0.08, 0.02, 0.01  # s per policy step of the tasks
 CUBE_HORIZON = 25  # policy steps of the cube fidelity checks (2 s)
 MENAGERIE_SCENE = os.path.join(os.path.dirname(mjx.__file__), "test_data", "shadow_hand", "scene_right.xml")
 GPU_SWEEP, GPU_COMPARE = "1024,8192,32768", "8192"
@@ -98,9 +105,10 @@ RESULT_PREFIX = "RESULT "
 @dataclasses.dataclass(frozen=True)
 class Config:
     """A scene to measure: `build(impl)` compiles it for an MJX implementation. task: "reach" or "cube" (compared
-    with that task's stock scene), "myohand" (its episode starts, throughput only) or None (throughput only); sweep:
-    measured at every batch size of the sweep; mjx_base: for a change that C MuJoCo cannot see, the configuration
-    without it (`--mjx-fidelity` compares the two on MJX)."""
+    with that task's stock scene), "myohand" or "myohand_reorient" (their episode starts, throughput only) or None
+    (throughput only); sweep: measured at every batch size of the sweep; mjx_base: for a change that C MuJoCo cannot
+    see, the configuration without it (`--mjx-fidelity` compares the two on MJX); jax_lacks: what MJX's JAX
+    implementation cannot step in the scene ("" when nothing), which then runs on Warp only."""
 
     name: str
     task: str | None
@@ -108,6 +116,7 @@ class Config:
     build: Callable[[str], mujoco.MjModel]
     sweep: bool = False
     mjx_base: str | None = None
+    jax_lacks: str = ""
 
 
 def reach_config(name: str, physics: PhysicsSettings, prune_contacts: bool = True, finger_pairs: bool = True,
@@ -141,6 +150,12 @@ def myohand(impl: str) -> mujoco.MjModel:
     return load_hand(dataclasses.replace(MYOHAND_PHYSICS, impl=impl))
 
 
+def myohand_die(impl: str) -> mujoco.MjModel:
+    """The MyoHand with MyoChallenge 2022's die (`envs.myohand.die.load_hand_with_die`) for MJX implementation `impl`,
+    with the scene's Warp budget."""
+    return load_hand_with_die(dataclasses.replace(MYOHAND_PHYSICS, impl=impl))
+
+
 CONFIGS = {c.name: c for c in (
     reach_config("reach-tuned", REACH_PHYSICS, sweep=True),
     cube_config("cube-tuned", CUBE_PHYSICS, sweep=True),
@@ -153,6 +168,7 @@ CONFIGS = {c.name: c for c in (
     reach_config("reach-tuned-gym-sensors", REACH_PHYSICS, sensors=None),
     reach_config("reach-tuned-no-finger-pairs", REACH_PHYSICS, finger_pairs=False),
     Config("myohand", "myohand", MYOHAND_DT, myohand, sweep=True),
+    Config("myohand_reorient", "myohand_reorient", REORIENT_DT, myohand_die, sweep=True, jax_lacks=JAX_LACKS),
 )}
 
 
@@ -198,13 +214,16 @@ class Idle(MujocoTask):
         return action
 
 
-TASKS = {"reach": Reach, "cube": Ihom, "myohand": MyoHandPose, None: Idle}
+TASKS = {"reach": Reach, "cube": Ihom, "myohand": MyoHandPose, "myohand_reorient": MyoHandReorient, None: Idle}
 
 
 # ---------------------------------------------------------------- throughput (run in a worker subprocess)
 
 def scene_sizes(model: mujoco.MjModel) -> dict:
-    """MJX (JAX implementation) sizes of one environment: contacts, constraint rows, KiB of `mjx.Data`."""
+    """MJX (JAX implementation) sizes of one environment: contacts, constraint rows, KiB of `mjx.Data`; for a scene
+    that MJX's JAX implementation cannot step, the Warp budget it states (`mjx_env.warp_sizes`) and no KiB."""
+    if jax_collision_gap(model):
+        return {"contacts": int(model.nconmax), "constraint_rows": int(model.njmax), "data_kib_per_env": None}
     data = mjx.make_data(model, impl="jax")
     return {"contacts": int(data._impl.contact.dist.shape[0]), "constraint_rows": int(data._impl.efc_J.shape[0]),
             "data_kib_per_env": sum(x.nbytes for x in jax.tree.leaves(data)) / 1024}
@@ -386,6 +405,8 @@ def fidelity(config: Config, args: argparse.Namespace) -> dict:
         return {"note": "another hand: no fidelity check"}
     if config.task == "myohand":
         return {"note": "the stock MyoHand: benchmarks/myohand_fidelity.py compares MJX with C MuJoCo"}
+    if config.task == "myohand_reorient":
+        return {"note": "the MyoHand and its die: tests/test_myohand_reorient.py compares Warp with C MuJoCo"}
     if config.mjx_base:
         if args.mjx_fidelity:
             return mjx_fidelity(config, args)
@@ -418,7 +439,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--configs", default=None, help=f"comma-separated, run in this order; all: {list(CONFIGS)}")
     parser.add_argument("--physics", default=None, help="extra configurations, e.g. 'reach:0.004/4/8,cube:0.01/4/8'")
     parser.add_argument("--impls", default="jax,warp", help="MJX backends")
-    parser.add_argument("--warp-configs", default="reach-tuned,cube-tuned,myohand",
+    parser.add_argument("--warp-configs", default="reach-tuned,cube-tuned,myohand,myohand_reorient",
                         help="configurations measured on warp too ('all': every one)")
     parser.add_argument("--gpu", action="store_true", help=f"GPU sizes: --batch-sizes {GPU_SWEEP} --compare-batch "
                         f"{GPU_COMPARE} --policy-steps 5 --max-minutes 8")
@@ -459,6 +480,8 @@ def measure_throughput(configs: list[Config], args: argparse.Namespace) -> list[
             remaining = deadline - time.monotonic()
             if impl == "warp" and not warp:
                 status = f"skipped: warp not installed (pip install {WARP_REQUIREMENT})"
+            elif impl == "jax" and config.jax_lacks:
+                status = f"skipped: MJX's JAX implementation lacks {config.jax_lacks}"
             elif remaining <= 0:
                 status = f"skipped: time budget ({args.max_minutes:g} min)"
             else:
