@@ -30,17 +30,14 @@ import mujoco
 import numpy as np
 from common import markdown_table, write_results
 
-from angora_jax.envs.mjx_env import local_device, mjx_module, quiet_iteration_caps, require_warp
-from angora_jax.envs.myohand.die import DIE, DIE_POS, PALM_UP, die_start, load_hand_with_die
+from angora_jax.envs.mjx_env import local_device, mjx_module, quiet_iteration_caps, require_warp, warp_sizes
+from angora_jax.envs.myohand.die import DIE, DIE_NCONMAX, DIE_NJMAX, DIE_POS, PALM_UP, die_start, load_hand_with_die
 from angora_jax.envs.myohand.model import MYOHAND_PHYSICS
 
 FRAME_SKIP = 5  # MyoSuite's die task: 10 ms policy steps
 STEPS = 150  # its episode
 DROP = 0.2  # its drop threshold (m)
 TIMES = (0.1, 0.3, 0.75, 1.5)
-# Warp's buffers, set here: `mjx_env.warp_sizes` asks MJX's JAX implementation, which cannot collide the hand's
-# ellipsoids with the die's boxes.
-WARP_SIZES = {"naconmax": 64, "njmax": 512}
 
 
 def myosuite_scene(path: str) -> tuple[mujoco.MjModel, np.ndarray, int]:
@@ -87,7 +84,7 @@ def warp_agreement(seed: int) -> dict:
     device = local_device("warp")
     mjx = mjx_module()
     mjx_model = quiet_iteration_caps(mjx.put_model(model, device=device, impl="warp"))
-    state = mjx.put_data(model, data, device=device, impl="warp", **WARP_SIZES)
+    state = mjx.put_data(model, data, device=device, impl="warp", **warp_sizes(model, 1))  # the scene's budget
 
     @jax.jit
     def policy_step(state, ctrl):
@@ -132,7 +129,8 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(warp_agreement(0))
         print(rows[-1])
     config = {"frame_skip": FRAME_SKIP, "steps": STEPS, "drop_m": DROP, "die_pos": DIE_POS, "seeds": args.seeds,
-              "myosuite_xml": args.myosuite_xml, "warp_sizes": WARP_SIZES if args.warp else None}
+              "myosuite_xml": args.myosuite_xml,
+              "warp_sizes": {"nconmax": DIE_NCONMAX, "njmax": DIE_NJMAX} if args.warp else None}
     print(f"wrote {write_results('myohand_die', config, rows, args.out, study='myohand')}")
     return 0
 
