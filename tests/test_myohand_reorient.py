@@ -83,7 +83,13 @@ def test_goals_are_reached_after_more_than_5_solved_steps_and_counted_in_a_row(t
     assert not np.allclose(info["target"], goal) and info["goal_solved"] == 0 and info["goal_steps"] == 0
     c = ReorientReward()
     np.testing.assert_allclose(rewards[5] - rewards[4], c.goal_bonus, atol=1e-5)
-    np.testing.assert_allclose(rewards[0], -c.position * 0.02 - c.rotation * 0.2 - c.effort * 0.0, atol=1e-3)
+    np.testing.assert_allclose(rewards[0], 0.0, atol=1e-5)  # held still, unexcited: no progress, no cost
+    closer = die_at(task, goal[:3] + [0.01, 0, 0], (Rotation.from_rotvec([0.1, 0, 0])
+                                                     * Rotation.from_quat(goal[3:], scalar_first=True)
+                                                     ).as_quat(scalar_first=True))
+    fresh = task.initial_info(jax.random.key(0), near) | {"target": jnp.asarray(goal)}
+    progress = float(task.evaluate(jax.random.key(0), near, closer, fresh)[0])
+    np.testing.assert_allclose(progress, c.position_progress * 0.01 + c.rotation_progress * 0.1, atol=1e-3)
     for step in range(6):
         _, terminated, info, metrics = task.evaluate(jax.random.key(10 + step), near, near, info)
     assert metrics["cgr"] == 1 and metrics["solved"] == 0 and metrics["success"] == 1 and not terminated

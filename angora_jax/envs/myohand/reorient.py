@@ -11,8 +11,8 @@ to the die's start orientation). Phase 2 (myoChallengeDieReorientP2-v0) draws +-
 `goal_position: 0.02, goal_rotation: 3.14`) and also the die's size, mass and friction, which this task does not. A
 step is `solved` when the die's centre is within 0.025 m of the goal position and its orientation within 0.262 rad of
 the goal's, and it has not dropped; it has `dropped` when its centre is more than 0.2 m from the goal position, which
-ends the episode. The reward's terms are MyoSuite's: minus the position distance (m, weight 100), minus the rotation
-distance (rad, weight 1), minus 1 on a drop, minus the effort.
+ends the episode. MyoSuite's reward terms (minus the position distance, weight 100, minus the rotation distance,
+weight 1, minus the effort) are here, but the defaults reward progress instead (see Reward below).
 
 The rotation error. MyoSuite's is the norm of the difference of the two orientations' Euler angles (`mat2euler`). We
 use the rotation angle between them (the geodesic distance, `ihom.angular_distance`, in [0, pi]): it is a distance
@@ -31,12 +31,21 @@ metric `success` is MyoSuite's score of an episode: 1 when the first goal was re
 its (at most) 150 steps; its value at an episode's end is the episode's.
 
 Reward (`ReorientReward`), with p the position distance (m) and d the rotation angle (rad) to the goal active during
-the step: r = -position * p - rotation * d + goal_bonus * reached - drop_penalty * dropped - effort * effort. What
-differs from MyoSuite: the goal bonus (5, the Shadow cube's +5 per goal) pays for a reached goal; a drop costs 100,
-where MyoSuite charges 0 (its `penalty` weight; 10 in its comment): every step costs about 2.5 at a fresh goal
-(0.01 m and 1.5 rad), so under gamma 0.97 holding the die costs about 2.5 / 0.03 = 83, and a cheaper drop would be
-the best policy. The effort is the mean squared activation over the 39 muscles, weight 1, as `MyoHandPose` and
-`MyoHandReach` charge it (MyoSuite's die task weights its `act_reg`, the norm of the activations over their number, 0).
+the step, and p', d' the same before the step: r = position_progress * (p' - p) + rotation_progress * (d' - d) -
+position * p - rotation * d + goal_bonus * reached - drop_penalty * dropped - effort * effort. The defaults (100, 1,
+0, 0, 5, 50, 1) reward the decrease of MyoSuite's two distances with MyoSuite's weights, as the Shadow cube rewards
+the decrease of its angle (`ihom.IhomReward.progress`), not the distances themselves. MyoSuite's terms charge every
+step the die is away from its goal, so every episode is a sum of costs; under that reward, with a drop ending the
+episode, dropping the die at once is the best policy unless the drop costs more than all of them. Measured: the
+first GPU run, with MyoSuite's terms (100, 1) and a drop penalty of 100, learned to drop the die sooner (its episodes
+fell from 18 to 6 steps of 10 ms in 164 cycles; benchmarks/results/myohand/README.md). Progress sums over an
+episode to the distance closed, whatever the path (a potential-based shaping), so holding the die costs only effort
+(at most about 0.33 a step, about 11 under gamma 0.97), against 50 and the distance lost on a drop; set `position:
+100, rotation: 1, position_progress: 0, rotation_progress: 0` for MyoSuite's terms. The goal bonus (5, the Shadow
+cube's +5 per goal) pays for a reached goal; MyoSuite's die task has no bonus and a drop penalty of 0 (its `penalty`
+weight; 10 in its comment). The effort is the mean squared activation over the 39 muscles, weight 1, as `MyoHandPose`
+and `MyoHandReach` charge it (MyoSuite's die task weights its `act_reg`, the norm of the activations over their
+number, 0).
 Actions are the 39 muscles' excitations in [0, 1] (`ctrl`), where MyoSuite maps actions in [-1, 1] through a sigmoid;
 the die moves on a free joint (`die.py` says what that changes).
 
@@ -84,20 +93,27 @@ STEPS_PER_GOAL = 150
 
 @dataclasses.dataclass(frozen=True)
 class ReorientReward(Coefficients):
-    """Weights of the reward's terms (the module docstring says which are MyoSuite's), in m and rad.
+    """Weights of the reward's terms (the module docstring says which are MyoSuite's and why the defaults differ), in m
+    and rad.
 
     Attributes:
-        position: weight of minus the distance (m) from the die's centre to the goal position (MyoSuite's 100).
-        rotation: weight of minus the rotation angle (rad) from the die's orientation to the goal's.
+        position_progress: weight of the decrease of the distance (m) from the die's centre to the goal position over
+            the step.
+        rotation_progress: weight of the decrease of the rotation angle (rad) from the die's orientation to the goal's
+            over the step.
+        position: weight of minus the distance (m) to the goal position (MyoSuite's term, weight 100 there).
+        rotation: weight of minus the rotation angle (rad) to the goal (MyoSuite's term, weight 1 there).
         goal_bonus: added on the step a goal is reached.
         drop_penalty: subtracted on the step the die drops (which ends the episode).
         effort: weight of minus the mean squared muscle activation.
     """
 
-    position: float = 100.0
-    rotation: float = 1.0
+    position_progress: float = 100.0
+    rotation_progress: float = 1.0
+    position: float = 0.0
+    rotation: float = 0.0
     goal_bonus: float = 5.0
-    drop_penalty: float = 100.0
+    drop_penalty: float = 50.0
     effort: float = 1.0
 
 
@@ -214,7 +230,10 @@ class MyoHandReorient(MuscleHandTask):
         timed_out = (goal_steps >= self.steps_per_goal) & ~dropped
         success = jnp.maximum(info["success"], (reached & (info["goals_reached"] == 0)).astype(jnp.float32))
         effort = self.effort(snap)
-        reward = (-c.position * position_error - c.rotation * rotation_error + c.goal_bonus * reached
+        position_before, rotation_before = self.errors(prev, target)
+        reward = (c.position_progress * (position_before - position_error)
+                  + c.rotation_progress * (rotation_before - rotation_error)
+                  - c.position * position_error - c.rotation * rotation_error + c.goal_bonus * reached
                   - c.drop_penalty * dropped - c.effort * effort)
         terminated = dropped | timed_out
         next_info = {"target": jnp.where(reached, self.sample_goal(key), target), "goals_reached": goals_reached,
