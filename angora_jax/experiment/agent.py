@@ -20,8 +20,7 @@ from angora_jax.experiment.programs import initial_state_shape
 from angora_jax.experiment.run_dir import CHECKPOINTS, read_run_config, read_sessions, run_source
 from angora_jax.nets import ActorCritic, make_network
 from angora_jax.nets.components import register_run_reader
-from angora_jax.nets.visual import make_visual_area
-from angora_jax.ppo.cycle import build_head
+from angora_jax.ppo.cycle import build_head, build_model
 from angora_jax.ppo.distributions import PolicyHead
 from angora_jax.ppo.evaluate import PolicyState, make_evaluate
 from angora_jax.ppo.normalization import normalize_observation
@@ -60,7 +59,7 @@ class Agent:
     @property
     def model(self) -> ActorCritic:
         """Network and head as one module: `model.apply({"params": agent.params}, carry, obs)`."""
-        return ActorCritic(self.network, self.head, make_visual_area(self.config.ppo.network.visual))
+        return build_model(self.network, self.head, self.config.ppo)
 
     @property
     def params(self) -> Any:

@@ -247,6 +247,38 @@ class StopAt:
 
 
 @dataclass(frozen=True)
+class BlocksConfig:
+    """Policy blocks after SAPG (Singla, Agarwal, Pathak, "SAPG: Split and Aggregate Policy Gradients", ICML 2024):
+    the environments are split into `count` contiguous blocks, each acting with its own policy. The policies are one
+    network conditioned on a learned per-block embedding (one set of parameters, one optimizer). Every block learns
+    from its own data with PPO's loss; the leader (block 0) also learns from the followers' data off-policy, through
+    PPO's clipped ratio of its own probability to the follower's that acted. Evaluation, export and loaded agents act
+    with the leader. `count` 1 (the default) is plain PPO, with the parameter and optimizer-state layout of runs
+    saved before blocks existed.
+
+    Attributes:
+        count: M, the number of blocks; must divide `num_envs` and the minibatch tile's trajectories, so every
+            minibatch holds each block's equal share (block j is environments j N / M to (j + 1) N / M - 1, so with
+            `distribution.num_devices` = M each device holds one block).
+        embedding_size: units of the learned block embedding, which the network reads beside the `goal` modality.
+        leader_off_policy_weight: lambda, the weight of the leader's off-policy term beside its on-policy one (each a
+            mean over its transitions, as SAPG weighs them); 0 leaves the blocks independent but for shared weights.
+        entropy_coefs: one entropy weight per block (M numbers; SAPG gives followers different ones for diversity),
+            instead of `entropy_coef` for all; constant over the run.
+    """
+
+    count: int = count_field(1, why="policy blocks")
+    embedding_size: int = count_field(32, why="units of the block embedding")
+    leader_off_policy_weight: float = bounded(1.0, 0, why="a loss weight")
+    entropy_coefs: tuple[float, ...] = bounded((), 0, why="loss weights")
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the run has several blocks (else it is plain PPO)."""
+        return self.count > 1
+
+
+@dataclass(frozen=True)
 class PPOConfig:
     """One PPO run on a task given separately (the experiment config's `env` section names it). A cycle collects
     `num_envs * rollout_length` transitions, then runs `num_epochs` passes of minibatch updates over them.
@@ -291,6 +323,7 @@ class PPOConfig:
             parameters and observation statistics this run starts from, to fine-tune a trained policy on a changed task
             (e.g. the cube's pose-input policy reading a pose estimator's estimate). The network must have the same
             shapes; the optimizer, reward statistics and counters start afresh. `network.pretrained` loads over it.
+        blocks: SAPG-style policy blocks with a leader (`BlocksConfig`); the default, one block, is plain PPO.
     """
 
     seed: int = bounded(0, 0, SEED_MAX, why="JAX keeps a seed's low 32 bits, so other seeds repeat these")
@@ -322,6 +355,7 @@ class PPOConfig:
     network: NetworkConfig = field(default_factory=NetworkConfig)
     normalization: NormalizationConfig = field(default_factory=NormalizationConfig)
     stop_at: StopAt | None = None
+    blocks: BlocksConfig = field(default_factory=BlocksConfig)
 
     def replace(self, **changes) -> PPOConfig:
         """A copy with `changes` applied (frozen dataclasses cannot be edited in place)."""
@@ -361,7 +395,32 @@ class PPOConfig:
                 "chunks per trajectory; pick a minibatch_size of (divisor of num_envs) * (divisor of chunks) * "
                 "chunk_length."
             )
+        self._validate_blocks()
         return self
+
+    def _validate_blocks(self) -> None:
+        blocks = self.blocks
+        if not blocks.enabled:
+            if blocks.entropy_coefs:
+                raise ValueError("ppo.blocks.entropy_coefs gives each policy block its entropy weight, but "
+                                 "ppo.blocks.count is 1: set count, or use ppo.entropy_coef.")
+            return
+        if blocks.entropy_coefs and len(blocks.entropy_coefs) != blocks.count:
+            raise ValueError(f"ppo.blocks.entropy_coefs needs one weight per block ({blocks.count}), got "
+                             f"{len(blocks.entropy_coefs)}; or leave it empty for ppo.entropy_coef in every block.")
+        if blocks.entropy_coefs and self.entropy_coef_final is not None:
+            raise ValueError("ppo.blocks.entropy_coefs fixes each block's entropy weight and ppo.entropy_coef_final "
+                             "anneals the run's: set one of them (entropy_coef_final: null, or entropy_coefs: []).")
+        trajectories = tile_shape(self)[0]
+        if trajectories % blocks.count:
+            raise ValueError(f"ppo.blocks.count={blocks.count} must divide the minibatch tile's {trajectories} "
+                             f"trajectories (of ppo.num_envs={self.num_envs}, ppo.minibatch_size="
+                             f"{self.minibatch_size}), so every minibatch holds each block's equal share; pick a "
+                             "count that divides it, or a minibatch_size with more trajectories per tile.")
+        areas = self.network.graph.areas.values() if self.network.name == "areas" else ()
+        if areas and not any("goal" in area.inputs for area in areas):
+            raise ValueError("ppo.blocks conditions the network on each block's embedding through the goal modality, "
+                             "which no area of network.graph reads: add goal to an area's inputs.")
 
     def validate_for(self, env: Env) -> PPOConfig:
         """`validate()`, then check the head against the task's action space; return self."""

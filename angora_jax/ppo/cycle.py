@@ -28,6 +28,14 @@ from angora_jax.nets.components import (
     with_component,
 )
 from angora_jax.nets.visual import make_visual_area
+from angora_jax.ppo.blocks import (
+    LEADER,
+    block_mask,
+    entropy_weights,
+    environment_blocks,
+    leader_off_policy_loss,
+    row_blocks,
+)
 from angora_jax.ppo.config import PPOConfig, tile_shape
 from angora_jax.ppo.distributions import PolicyHead, make_head
 from angora_jax.ppo.gae import gae, next_values
@@ -43,7 +51,7 @@ from angora_jax.ppo.parallel import (
     pmean,
     psum,
 )
-from angora_jax.ppo.rollout import ActorState, make_rollout
+from angora_jax.ppo.rollout import ActorState, Trajectory, make_rollout
 from angora_jax.ppo.step_size import adapt_learning_rate, entropy_coef, learning_rate, make_optimizer
 from angora_jax.ppo.tbptt import gather_carries, gather_sequences, minibatch_indices, unroll
 
@@ -105,6 +113,13 @@ def build_head(env: Env, config: PPOConfig) -> PolicyHead:
     return make_head(name, env.action_spec, **options.get(name, {}))
 
 
+def build_model(network: nn.Module, head: PolicyHead, config: PPOConfig) -> ActorCritic:
+    """The network and head as the one module that training, evaluation and loaded agents apply, with the config's
+    visual area and policy blocks (`ppo.blocks`; called without a block, it acts with the leader)."""
+    return ActorCritic(network, head, make_visual_area(config.network.visual), config.blocks.count,
+                       config.blocks.embedding_size)
+
+
 def make_cycle(
     env: Env, network: nn.Module | None, config: PPOConfig, num_devices: int = 1
 ) -> tuple[Callable[[jax.Array], TrainState], Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]]:
@@ -115,7 +130,9 @@ def make_cycle(
     environment's first episode counts its length from the staggered clock it starts with, so early cycles' lengths
     run long), `metric/<name>` task metrics at episode ends, the loss parts averaged over all minibatches,
     explained_variance, learning_rate and finite (1 if the losses and parameters are finite). With several devices
-    they are over all devices.
+    they are over all devices. With policy blocks (`ppo.blocks.count` > 1) the episode metrics are the leader's, each
+    block's are also given as `block<j>/<name>`, and the loss parts add the leader's off-policy term's
+    (`leader_off_policy_loss`, `leader_clip_fraction`).
 
     Args:
         env: the task.
@@ -140,7 +157,8 @@ def make_cycle(
     axis = axis_name(num_devices)
     network = make_network(config.network) if network is None else network
     head = build_head(env, config)
-    model = ActorCritic(network, head, make_visual_area(config.network.visual))
+    model = build_model(network, head, config)
+    blocks = config.blocks
     num_envs, chunk_length = local.num_envs, config.chunk_length
     num_chunks = config.rollout_length // chunk_length
     tile = tile_shape(config)  # the run's minibatch tile; each device takes 1/D of its trajectories
@@ -149,8 +167,12 @@ def make_cycle(
     optimizer = make_optimizer(config, updates_per_cycle, config.network.frozen)
     norm = config.normalization
 
+    def acting_blocks() -> jax.Array | None:
+        # Traced inside the (per-device) program, where the device's index is known.
+        return environment_blocks(config.num_envs, blocks.count, axis) if blocks.enabled else None
+
     def apply_fn(params, carry, obs):
-        return model.apply({"params": params}, carry, obs)
+        return model.apply({"params": params}, carry, obs, block=acting_blocks())
 
     rollout = make_rollout(
         env,
@@ -189,19 +211,23 @@ def make_cycle(
             cycle=jnp.zeros((), jnp.int32),
         )
 
-    def loss_fn(params, sequences: Batch, start_carry, entropy_weight):
+    def loss_fn(params, sequences: Batch, start_carry, entropy_weight, rows):
         params = stop_frozen_gradients(params, config.network.frozen)
         # Camera images of all s steps are encoded as one batch, not step by step inside the recurrent scan.
         obs = model.apply({"params": params}, sequences.obs, method=ActorCritic.perceive)
-        _, policy_params, values = unroll(
-            lambda carry, obs, *sequence: model.apply({"params": params}, carry, obs, *sequence),
-            jax.lax.stop_gradient(start_carry),  # truncated BPTT: no gradient across chunk borders
-            network.initial_carry(minibatch_rows),
-            obs,
-            sequences.resets,
-            model.runs_sequences,
-        )
-        return ppo_loss(
+
+        def forward(block):
+            return unroll(
+                lambda carry, obs, *sequence: model.apply({"params": params}, carry, obs, *sequence, block=block),
+                jax.lax.stop_gradient(start_carry),  # truncated BPTT: no gradient across chunk borders
+                network.initial_carry(minibatch_rows),
+                obs,
+                sequences.resets,
+                model.runs_sequences,
+            )
+
+        _, policy_params, values = forward(rows)
+        loss, parts = ppo_loss(
             head,
             policy_params,
             values,
@@ -211,17 +237,30 @@ def make_cycle(
             entropy_weight,
             config.value_clip,
         )
+        if blocks.enabled and blocks.leader_off_policy_weight > 0:
+            # The leader acting on every row; the term counts the followers' rows only.
+            _, leader_params, _ = forward(jnp.full_like(rows, LEADER))
+            off_policy, off_parts = leader_off_policy_loss(head, leader_params, sequences.loss, rows,
+                                                           config.clip_epsilon, blocks.leader_off_policy_weight,
+                                                           blocks.count)
+            loss = loss + off_policy
+            parts = parts | off_parts | {"loss": loss}
+        return loss, parts
 
-    def update_minibatch(batch: Batch, start_carries, entropy_weight, train, minibatch):
+    def update_minibatch(batch: Batch, start_carries, env_blocks, entropy_weight, train, minibatch):
         params, opt_state = train
         (env_index, chunk_index), moments = minibatch
+        rows = None
+        if blocks.enabled:
+            rows = row_blocks(env_blocks, env_index, chunk_index.shape[0])
+            entropy_weight = entropy_weights(blocks, entropy_weight, rows)
         sequences = gather_sequences(batch, chunk_index, env_index)
         if config.normalize_advantages:
             loss_inputs = sequences.loss
             advantages = normalized_advantages(loss_inputs.advantages, *moments)
             sequences = sequences.replace(loss=loss_inputs.replace(advantages=advantages))
         start_carry = gather_carries(start_carries, chunk_index, env_index)
-        grads, parts = jax.grad(loss_fn, has_aux=True)(params, sequences, start_carry, entropy_weight)
+        grads, parts = jax.grad(loss_fn, has_aux=True)(params, sequences, start_carry, entropy_weight, rows)
         grads = average_gradients(grads, axis)
         parts["grad_norm"] = optax.tree.norm(grads)
         if config.target_kl is not None:
@@ -230,14 +269,14 @@ def make_cycle(
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), parts
 
-    def update_epoch(batch: Batch, start_carries, entropy_weight, train, key):
+    def update_epoch(batch: Batch, start_carries, env_blocks, entropy_weight, train, key):
         indices = minibatch_indices(key, config.num_envs, num_chunks, tile, axis)
         moments = None
         if config.normalize_advantages:
             per_minibatch = jax.vmap(lambda e, c: gather_sequences(batch.loss.advantages, c, e))(*indices)
             moments = advantage_moments(per_minibatch, axis)
-        return jax.lax.scan(lambda t, x: update_minibatch(batch, start_carries, entropy_weight, t, x), train,
-                            (indices, moments))
+        return jax.lax.scan(lambda t, x: update_minibatch(batch, start_carries, env_blocks, entropy_weight, t, x),
+                            train, (indices, moments))
 
     def cycle(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
         key, rollout_key, update_key = jax.random.split(state.key, 3)
@@ -269,14 +308,18 @@ def make_cycle(
             loss=LossInputs(traj.actions, traj.log_probs, traj.values, chunked(advantages), chunked(targets)),
         )
         entropy_weight = entropy_coef(config, state.cycle)
+        env_blocks = acting_blocks()
         with jax.named_scope("update"):
             (params, opt_state), parts = jax.lax.scan(
-                lambda t, k: update_epoch(batch, start_carries, entropy_weight, t, k),
+                lambda t, k: update_epoch(batch, start_carries, env_blocks, entropy_weight, t, k),
                 (state.params, state.opt_state),
                 jax.random.split(update_key, config.num_epochs),
             )
         metrics = {name: pmean(value.mean(), axis) for name, value in parts.items()}
-        metrics |= episode_metrics(traj.dones, traj.episode_return, traj.episode_length, traj.metrics, axis)
+        if blocks.enabled:
+            metrics |= block_episode_metrics(traj, env_blocks, blocks.count, axis)
+        else:
+            metrics |= episode_metrics(traj.dones, traj.episode_return, traj.episode_length, traj.metrics, axis)
         metrics["explained_variance"] = explained_variance(targets, values, axis)
         # The rate this cycle's first update used (the schedule's), or the one the KL rule left after its last.
         metrics["learning_rate"] = learning_rate(opt_state, config, state.cycle * updates_per_cycle, updates_per_cycle)
@@ -393,6 +436,20 @@ def _read_source(key: str, source: str, read: Callable[..., Any], *args: Any) ->
         return read(*args)
     except (ValueError, OSError) as error:
         raise ValueError(f"{key}={source!r}: {error}") from None
+
+
+def block_episode_metrics(traj: Trajectory, env_blocks: jax.Array, count: int, axis: str | None = None
+                          ) -> dict[str, jax.Array]:
+    """`episode_metrics` of each of `count` policy blocks, as `block<j>/<name>`, and the leader's (block 0) under the
+    plain names, which is what `checkpoint.best_metric`, `ppo.stop_at` and the progress line read: the policy that
+    evaluation acts with. `env_blocks` `(N,)` is each environment's block."""
+    per_block = {}
+    for block in range(count):
+        mask = block_mask(env_blocks, block)
+        per_block[block] = episode_metrics(traj.dones * mask, traj.episode_return * mask, traj.episode_length * mask,
+                                           traj.metrics, axis)
+    named = {f"block{block}/{name}": value for block, metrics in per_block.items() for name, value in metrics.items()}
+    return per_block[LEADER] | named
 
 
 def variance(x: jax.Array, axis: str | None = None) -> jax.Array:

@@ -11,10 +11,9 @@ import jax.numpy as jnp
 from flax import struct
 
 from angora_jax.envs.core import Env, Sensation
-from angora_jax.nets import ActorCritic, make_network
-from angora_jax.nets.visual import make_visual_area
+from angora_jax.nets import make_network
 from angora_jax.ppo.config import PPOConfig
-from angora_jax.ppo.cycle import TrainState, build_head
+from angora_jax.ppo.cycle import TrainState, build_head, build_model
 from angora_jax.ppo.normalization import normalize_observation
 
 
@@ -50,7 +49,7 @@ def make_evaluate(
     limit = steps or env.max_episode_steps
     network = make_network(config.network) if network is None else network
     head = build_head(env, config)
-    model = ActorCritic(network, head, make_visual_area(config.network.visual))
+    model = build_model(network, head, config)
 
     def evaluate(state: TrainState, key: jax.Array) -> dict[str, jax.Array]:
         reset_key, act_key = jax.random.split(key)

@@ -30,13 +30,14 @@ def ppo_loss(
     batch: LossInputs,
     clip_epsilon: float,
     value_coef: float,
-    entropy_coef: float,
+    entropy_coef: float | jax.Array,
     value_clip: bool,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Total loss (to minimise) and its parts.
 
     policy_params `(..., P)` and values `(...)` come from the current network on the minibatch's observations.
     Returns `loss = policy_loss + value_coef * value_loss - entropy_coef * entropy` and a dict with the parts,
+    `entropy_coef` a scalar or one weight per row `(B,)` (the mean of the weighted entropies then),
     the approximate KL divergence to the rollout policy and the fraction of clipped ratios. `batch.advantages` are
     used as given (normalised or not).
     """
@@ -52,8 +53,11 @@ def ppo_loss(
         value_error = jnp.maximum(value_error, (clipped_values - batch.targets) ** 2)
     value_loss = 0.5 * value_error.mean()
 
-    entropy = head.entropy(policy_params).mean()
-    loss = policy_loss + value_coef * value_loss - entropy_coef * entropy
+    entropies = head.entropy(policy_params)
+    entropy = entropies.mean()
+    # A weight per row (policy blocks, `angora_jax.ppo.blocks`) weighs each row's entropy; a scalar the mean's.
+    bonus = entropy_coef * entropy if jnp.ndim(entropy_coef) == 0 else (entropy_coef * entropies).mean()
+    loss = policy_loss + value_coef * value_loss - bonus
     parts = {
         "loss": loss,
         "policy_loss": policy_loss,
