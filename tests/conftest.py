@@ -35,16 +35,18 @@ import pytest  # noqa: E402  (after the environment above, which must be set bef
 # the last files to start are short and both workers end together. test_evaluation comes first because it trains
 # the shared cortical reach run (`cortical_reach` below, about 3 minutes in the suite), and the files after it that
 # read that run come late enough for it to be ready, so no worker waits. Per file on 2 CPU cores (seconds, the sum of
-# its tests' times in a 35-minute `make test` with --junitxml; randomization, benchmark_scripts and reach_learning
-# less what their quick compiles saved since): randomization 478, evaluation 286, benchmarks 270, vision 251, ihom
-# 237, analysis 234, distributed 223, ppo_learning 203, notebook 203, locomotion 201, cli 165, benchmark_scripts 155,
-# docs 140, warp 121, checkpoint 115, run_safety 100, nets 81, tbptt 76, settings 73, reach_sequential 67, host_env 65,
-# training_video 61, envs 57, config 47, parallel 47; every file not listed is shorter and follows in name order.
+# its tests' times in a 35-minute `make test` with --junitxml; randomization, benchmark_scripts, reach_learning,
+# benchmarks, vision, checkpoint, tbptt and settings less what their quick compiles saved since, at 2.7 times the CPU
+# seconds measured in benchmarks/results/suite_profile): randomization 478, evaluation 286, ihom 237, vision 234,
+# analysis 234, distributed 223, benchmarks 219, ppo_learning 203, notebook 203, locomotion 201, cli 165,
+# benchmark_scripts 132, docs 140, warp 121, checkpoint 104, run_safety 100, nets 81, reach_sequential 67, host_env 65,
+# tbptt 62, training_video 61, settings 59, envs 57, config 47, parallel 47; every file not listed is shorter and
+# follows in name order.
 LONGEST_FIRST = (
-    "test_evaluation", "test_randomization", "test_benchmarks", "test_vision", "test_ihom", "test_analysis",
-    "test_distributed", "test_ppo_learning", "test_notebook", "test_locomotion", "test_cli", "test_benchmark_scripts",
-    "test_docs", "test_warp", "test_checkpoint", "test_run_safety", "test_nets", "test_tbptt", "test_settings",
-    "test_reach_sequential", "test_host_env", "test_training_video", "test_envs", "test_config", "test_parallel",
+    "test_evaluation", "test_randomization", "test_ihom", "test_vision", "test_analysis", "test_distributed",
+    "test_benchmarks", "test_ppo_learning", "test_notebook", "test_locomotion", "test_cli", "test_docs",
+    "test_benchmark_scripts", "test_warp", "test_checkpoint", "test_run_safety", "test_nets", "test_reach_sequential",
+    "test_host_env", "test_tbptt", "test_training_video", "test_settings", "test_envs", "test_config", "test_parallel",
 )
 
 
@@ -91,6 +93,18 @@ def quick_compiles():
     """For a test that runs every program it compiles only briefly (a cycle or two, a few steps): JAX compiles them
     with XLA's CPU backend at optimisation level 0 and LLVM's expensive passes off (tests/quick_compile.py says what
     that saves), and back to the default afterwards, leaving no quick program in JAX's in-process caches."""
+    from quick_compile import quick_compilation
+
+    with quick_compilation():
+        yield
+
+
+@pytest.fixture(scope="module")
+def quick_file_compiles():
+    """`quick_compiles` for a whole test file whose programs all run briefly (`pytestmark =
+    pytest.mark.usefixtures("quick_file_compiles")`): set up before the file's other module fixtures, so they compile
+    quickly too, and the in-process caches cleared once, after its last test. Such a file asks for no training
+    fixture (`TRAINING_FIXTURES`), which would otherwise train at optimisation level 0 if first asked for there."""
     from quick_compile import quick_compilation
 
     with quick_compilation():

@@ -19,13 +19,15 @@ def quick_compilation() -> Iterator[None]:
     off (`jax_disable_most_optimizations`). The setting is part of the persistent compilation cache's key but not of
     JAX's in-process caches, which would hand the quick programs to any later compile of the same program in this
     process (a later test's training loop, or a test comparing runs bit for bit). So those caches are cleared on
-    leaving."""
+    leaving, unless it was already on when entered (a test's quick compiles within its file's): then it stays on."""
+    already = jax.config.values["jax_disable_most_optimizations"]
     jax.config.update("jax_disable_most_optimizations", True)
     try:
         yield
     finally:
-        jax.config.update("jax_disable_most_optimizations", False)
-        jax.clear_caches()
+        if not already:
+            jax.config.update("jax_disable_most_optimizations", False)
+            jax.clear_caches()
 
 
 def compile_quickly(function, *example_args):

@@ -22,6 +22,9 @@ from angora_jax.analysis.timescales import autocorrelation
 
 DT = 0.02
 
+# Every program here runs once on small synthetic data (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 
 def synthetic(episodes=20, steps=50, seed=0):
     """A recording with a variable x per step, a layer `code` whose 6 units are linear in x and a layer `noise` of

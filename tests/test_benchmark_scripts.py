@@ -232,10 +232,10 @@ def test_robustness_scales_the_ranges_by_width_and_width_0_is_the_unrandomized_e
 
 
 @pytest.mark.slow
-def test_probe_estimator_measures_saliency_on_the_cube_against_the_cubes_share_of_pixels(tmp_path):
+def test_probe_estimator_measures_saliency_on_the_cube_against_the_cubes_share_of_pixels(tmp_path, quick_compiles):
     """A tiny estimator with its initial weights (two 32 x 32 cameras) and two poses whose cube is a square: each
     camera's row per measure holds shares of saliency between 0 and 1, the square's share of pixels as chance, and
-    the figures exist."""
+    the figures exist. Its few hundred programs each run once or twice on two frames: they compile quickly."""
     options, cameras = {"widths": (4, 4, 4, 4), "features": 6}, ("front", "top")
     network = PoseNet(make_visual_encoder("cornet_z", **options))
     params = network.init(jax.random.key(0), jnp.zeros((1, 2, 32, 32, 3), jnp.uint8))["params"]

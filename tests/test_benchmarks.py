@@ -32,6 +32,10 @@ EPISODE = 4
 # Pendulum's worst step costs pi^2 + 0.1 * 8^2 + 0.001 * 2^2.
 WORST_STEP = math.pi**2 + 6.4 + 0.004
 
+# Every program this file compiles trains or times a few tiny cycles, and so do those of the processes that the ladder
+# and time_to_solve start (QUICK_SUBPROCESS): all compile quickly (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 
 @pytest.fixture(scope="module")
 def pendulum():
@@ -113,7 +117,9 @@ def test_own_recipes_train_ours_from_its_config_and_brax_from_its_recipe(pendulu
 
 
 @pytest.mark.slow
-def test_ladder_measures_each_rung_in_its_own_process_and_reports_failures():
+def test_ladder_measures_each_rung_in_its_own_process_and_reports_failures(monkeypatch):
+    for name, value in QUICK_SUBPROCESS.items():
+        monkeypatch.setenv(name, value)
     settings = {"options": {}, "steps": 2, "rollout_length": 4, "chunk_length": 4, "minibatches": 2, "epochs": 1,
                 "model": "simple", "repeats": 1}
     good, bad = throughput_ladder.ladder(["Pendulum", "NoSuchTask"], [4], settings, jobs=2)
@@ -146,7 +152,7 @@ def test_time_to_solve_reports_each_seed_and_their_spread(tmp_path):
     # (measured: 61.5 and 65.5 there, 38.0 and 36.0 in cycle 4).
     subprocess.run([sys.executable, script, "--seeds", "0", "1", "--target", "episode_return=50", "--minutes", "1",
                     "--out", str(out), "--", "--task", "CartPole", "--cycles", "10", "--width", "16",
-                    "--learning-rate", "3e-3"], check=True)
+                    "--learning-rate", "3e-3"], check=True, env=os.environ | QUICK_SUBPROCESS)
     record = json.loads(out.read_text())
     rows, summary = record["results"], record["config"]["summary"]
     assert [r["seed"] for r in rows] == [0, 1]

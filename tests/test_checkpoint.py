@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 import yaml
 from jax_events import jax_events
-from quick_compile import quick_compilation
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -38,6 +37,9 @@ TINY = [
 # Wall-clock, memory and compilation-cache readings differ between any two runs; everything else must match exactly.
 UNTIMED = {"seconds", "steps_per_second", "compile_seconds", "time", "memory/host_peak_bytes", "compile_cache_hits",
            "compile_cache_misses"}
+
+# Every run here is a few tiny cycles (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
 
 
 def config(tmp_path, name):
@@ -91,9 +93,8 @@ def test_a_second_run_of_the_same_settings_reuses_the_traced_programs_and_its_ow
         other_seed = aj.train(aj.load_config("cartpole", [*TINY, "ppo.seed=7", f"logging.run_root={tmp_path}",
                                                          "logging.run_name=seed7"]))
         assert not {"init", "cycle"} & set(traced), traced
-        with quick_compilation():  # its programs serve no other test
-            aj.train(aj.load_config("cartpole", [*TINY, "ppo.network.width=8", f"logging.run_root={tmp_path}",
-                                                 "logging.run_name=narrow"]))
+        aj.train(aj.load_config("cartpole", [*TINY, "ppo.network.width=8", f"logging.run_root={tmp_path}",
+                                             "logging.run_name=narrow"]))
         assert {"init", "cycle"} <= set(traced), traced
     for a, b in zip(whole.history, again.history, strict=True):
         assert {k: v for k, v in a.items() if k not in UNTIMED} == {k: v for k, v in b.items() if k not in UNTIMED}

@@ -16,6 +16,9 @@ BOX = ActionSpec(low=LOW, high=HIGH)
 DISCRETE = ActionSpec(low=jnp.zeros((0,)), high=jnp.zeros((0,)), num_actions=5)
 BATCH = 64
 
+# Every program here runs once on a small batch (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 
 def random_params(head: PolicyHead, seed: int = 0) -> jax.Array:
     return jax.random.normal(jax.random.key(seed), (BATCH, head.num_params)) * 1.5

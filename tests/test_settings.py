@@ -18,6 +18,9 @@ from angora_jax.experiment.config import load_config, validate
 from angora_jax.experiment.held_out import is_due
 from angora_jax.ppo.cycle import make_cycle
 
+# Every program here runs a cycle or two (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 
 def one_cycle(overrides: list[str]):
     """The parameters after one cycle, its programs compiled quickly (tests/quick_compile.py): every setting makes

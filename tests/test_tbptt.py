@@ -16,6 +16,9 @@ from angora_jax.ppo.tbptt import gather_carries, gather_sequences, minibatch_ind
 
 T, B = 8, 3
 
+# Every program here runs a few steps or a cycle or two (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 
 @pytest.fixture(scope="module")
 def setup():

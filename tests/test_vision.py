@@ -20,6 +20,9 @@ from angora_jax.vision.estimator import orientation_error_degrees, quaternions, 
 
 FAR = np.array([10.0, 10.0, 0.0])  # m: a cube here is out of every camera's view
 
+# Every program here runs a few steps, a cycle or two or a short pretraining (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 
 def test_renders_are_uint8_deterministic_and_the_cube_pixels_follow_the_cube(opengl):
     with PoseRenderer(("top", "front"), width=64, height=48) as renderer:
@@ -200,7 +203,7 @@ def test_camera_vision_options_and_the_networks_that_see_them_are_checked(seeing
 
 
 @pytest.mark.slow
-def test_a_pose_estimator_gives_the_policy_the_pose_it_reads_from_the_cameras(tmp_path, opengl, quick_compiles):
+def test_a_pose_estimator_gives_the_policy_the_pose_it_reads_from_the_cameras(tmp_path, opengl):
     """Dactyl's way to the cube from pixels: `pose_estimator` renders the estimator's cameras and puts the pose it
     reads from them (and the relative goal from its orientation) where the pose-input policy reads the true
     pose, in inputs of the same shapes (a pose-trained network reads them unchanged); the network needs no
@@ -272,8 +275,7 @@ def test_warp_frames_are_each_envs_own_and_outlive_the_sized_env_that_compiled_t
 
 
 @pytest.mark.slow
-def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_visual_area(tmp_path, opengl,
-                                                                                        quick_compiles):
+def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_visual_area(tmp_path, opengl):
     """The brain-area model (`cortical`, whose parietal areas read the visual area's features) on reach seeing its hand
     through two cameras (the reach physics compiles in a third of the cube's time on the CPU; the cube's frames are
     checked above and its pixel config trained on the GPU), its visual area loaded from a component file and frozen:
