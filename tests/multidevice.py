@@ -18,10 +18,15 @@ import angora_jax as aj
 from angora_jax.envs.registry import make
 from angora_jax.experiment import TrainingInterrupted, resume
 from angora_jax.ppo import PPOConfig, make_cycle
+from angora_jax.ppo.blocks import environment_blocks
+from angora_jax.ppo.config import BlocksConfig
 from angora_jax.ppo.normalization import RunningMeanStd
 from angora_jax.ppo.parallel import AXIS
 
 CURVE = PPOConfig(num_envs=16, rollout_length=32, chunk_length=8, minibatch_size=128, num_epochs=2, num_cycles=8)
+# Four policy blocks, one per device on 4 devices (ppo.blocks), for 3 cycles.
+BLOCKS = CURVE.replace(num_cycles=3, blocks=BlocksConfig(count=4, embedding_size=4,
+                                                         entropy_coefs=(0.0, 0.01, 0.02, 0.03)))
 REPLICATED = ("params", "opt_state", "obs_stats", "reward_stats", "key", "cycle")
 
 
@@ -39,11 +44,11 @@ def replicas_identical(state) -> bool:
     return True
 
 
-def curve(num_devices):
+def curve(num_devices, config=CURVE):
     """Metrics of every cycle, whether the replicas were in sync after it, and the parameters after it (host)."""
-    init, cycle = make_cycle(make("CartPole"), None, CURVE, num_devices)
+    init, cycle = make_cycle(make("CartPole"), None, config, num_devices)
     state, history, in_sync, params = init(jax.random.key(0)), [], [], []
-    for _ in range(CURVE.num_cycles):
+    for _ in range(config.num_cycles):
         state, metrics = cycle(state)
         history.append({name: float(value) for name, value in metrics.items()})
         in_sync.append(num_devices == 1 or replicas_identical(state))
@@ -54,6 +59,13 @@ def curve(num_devices):
 def largest_difference(single, parallel) -> float:
     """Max abs difference between corresponding leaves of two lists of arrays."""
     return max(float(np.abs(a - b).max()) for a, b in zip(single, parallel, strict=True))
+
+
+def device_blocks() -> list[list[int]]:
+    """The policy blocks of each device's environments, 16 environments in 4 blocks on 4 devices."""
+    mesh = Mesh(np.array(jax.devices()), (AXIS,))
+    blocks = jax.jit(jax.shard_map(lambda: environment_blocks(16, 4, AXIS), mesh=mesh, in_specs=(), out_specs=P(AXIS)))
+    return np.asarray(blocks()).reshape(4, 4).tolist()
 
 
 def pooled_stats():
@@ -118,5 +130,15 @@ if __name__ == "__main__":
         "pooled_stats_error": pooled_stats(),
         "body_operands": body_operands(),
         "resumed_equals_whole": resumed_equals_whole(Path(sys.argv[1])),
+        "device_blocks": device_blocks(),
+    }
+    blocks_single, _, blocks_single_params = curve(1, BLOCKS)
+    blocks_parallel, blocks_in_sync, blocks_parallel_params = curve(4, BLOCKS)
+    result |= {
+        "blocks_single": blocks_single,
+        "blocks_parallel": blocks_parallel,
+        "blocks_in_sync": blocks_in_sync,
+        "blocks_param_differences": [largest_difference(a, b) for a, b in
+                                     zip(blocks_single_params, blocks_parallel_params, strict=True)],
     }
     print(json.dumps(result))

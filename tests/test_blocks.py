@@ -56,13 +56,20 @@ def test_blocks_are_contiguous_environment_ranges_one_per_device_when_there_are_
     np.testing.assert_array_equal(row_blocks(environment_blocks(8, 2), jnp.array([1, 6]), 2), [0, 1, 0, 1])
 
 
-def off_policy_term(advantages):
-    """The leader's off-policy term on one step of 4 rows, rows 0-1 the leader's, 2-3 a follower's."""
-    head = build_head(CartPole(), PLAIN)
+def one_step(advantages):
+    """A minibatch of one step of 4 rows, rows 0-1 the leader's, 2-3 a follower's: the head, the leader's logits,
+    the loss inputs and the rows' blocks."""
     logits = jnp.array([[[0.3, -0.2], [0.1, 0.4], [-0.5, 0.2], [0.7, 0.0]]])
     batch = LossInputs(actions=jnp.array([[0, 1, 1, 0]]), log_probs=jnp.log(jnp.full((1, 4), 0.5)),
                        values=jnp.zeros((1, 4)), advantages=jnp.asarray([advantages]), targets=jnp.zeros((1, 4)))
-    return leader_off_policy_loss(head, logits, batch, jnp.array([0, 0, 1, 1]), 0.2, 0.5, 2)
+    return build_head(CartPole(), PLAIN), logits, batch, jnp.array([0, 0, 1, 1])
+
+
+def off_policy_term(advantages, rows=slice(0, 4)):
+    """The leader's off-policy term (weight 0.5, M = 2) on `one_step`'s `rows`."""
+    head, logits, batch, blocks = one_step(advantages)
+    return leader_off_policy_loss(head, logits[:, rows], jax.tree.map(lambda x: x[:, rows], batch), blocks[rows],
+                                  0.2, 0.5, 2)
 
 
 def test_the_leaders_off_policy_term_reads_the_followers_transitions_and_not_its_own():
@@ -75,6 +82,16 @@ def test_the_leaders_off_policy_term_reads_the_followers_transitions_and_not_its
     objective = np.minimum(ratios * [0.5, 2.0], np.clip(ratios, 0.8, 1.2) * [0.5, 2.0])
     assert float(parts["leader_off_policy_loss"]) == pytest.approx(-objective.mean(), rel=1e-5)
     assert float(base) == pytest.approx(0.5 / 2 * -objective.mean(), rel=1e-5)
+
+
+def test_devices_holding_whole_blocks_average_to_the_whole_minibatchs_off_policy_term():
+    """Under data parallelism device 0 holds the leader's rows alone and the others the followers': the mean of the
+    devices' terms (gradients are averaged the same way) must be the whole minibatch's term, with no 0 / 0."""
+    advantages = [1.0, -1.0, 0.5, 2.0]
+    whole = off_policy_term(advantages)[0]
+    shares = [off_policy_term(advantages, rows)[0] for rows in (slice(0, 2), slice(2, 4))]
+    assert float(shares[0]) == 0.0
+    assert float((shares[0] + shares[1]) / 2) == pytest.approx(float(whole), rel=1e-6)
 
 
 def test_each_row_weighs_its_entropy_by_its_blocks_weight():

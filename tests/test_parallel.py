@@ -76,6 +76,20 @@ def test_resumed_four_device_run_equals_uninterrupted(four_devices):
     assert four_devices["resumed_equals_whole"]
 
 
+@pytest.mark.slow
+def test_four_policy_blocks_lie_one_per_device_and_compute_the_single_device_run(four_devices):
+    """ppo.blocks with as many blocks as devices: device d holds block d, and the leader's off-policy term and the
+    per-block entropy weights give on 4 devices what they give on one, up to float rounding."""
+    assert four_devices["device_blocks"] == [[0] * 4, [1] * 4, [2] * 4, [3] * 4]
+    assert all(four_devices["blocks_in_sync"])
+    assert max(four_devices["blocks_param_differences"]) < 1e-5
+    single, parallel = four_devices["blocks_single"], four_devices["blocks_parallel"]
+    assert "leader_off_policy_loss" in single[0] and "block3/episode_return" in single[0]
+    for one, four in zip(single, parallel, strict=True):
+        names = sorted(one)
+        np.testing.assert_allclose([four[k] for k in names], [one[k] for k in names], rtol=1e-5, atol=1e-5)
+
+
 def test_single_device_config_is_unchanged():
     config = PPOConfig()
     assert per_device(config, 1) is config

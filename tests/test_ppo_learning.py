@@ -9,6 +9,7 @@ import pytest
 from angora_jax.envs.classic import CartPole
 from angora_jax.envs.registry import make
 from angora_jax.ppo import NetworkConfig, PPOConfig, TrainingDivergedError, make_evaluate, train
+from angora_jax.ppo.config import BlocksConfig
 
 # Random policies score about 22 on CartPole (max 500), about -1200 on Pendulum (best about -150) and -500 on Acrobot
 # (the episode's limit; gymnasium's reward threshold is -100).
@@ -26,6 +27,9 @@ CASES = {
         CARTPOLE.replace(num_cycles=50, network=NetworkConfig(name="lstm")),
         400.0,
     ),
+    # Two SAPG policy blocks (ppo.blocks), judged by the leader's return: 500 from cycle 25 on (seed 0, AMD EPYC).
+    "cartpole-simple-categorical-blocks": ("CartPole", CARTPOLE.replace(num_cycles=50, blocks=BlocksConfig(count=2)),
+                                           400.0),
     "acrobot-simple-categorical": ("Acrobot", CARTPOLE.replace(num_cycles=40), -120.0),
     "pendulum-simple-gaussian": ("Pendulum", PENDULUM, -400.0),
     "pendulum-gru-beta": ("Pendulum", PENDULUM.replace(head="beta", network=NetworkConfig(name="gru")), -400.0),

@@ -74,18 +74,23 @@ def leader_off_policy_loss(
         rows: `(B,)` the block of each row; rows of block 0 (the leader's own) do not count here.
         clip_epsilon: PPO's clip range.
         weight: lambda, `ppo.blocks.leader_off_policy_weight`.
-        count: M, the number of blocks (> 1); each minibatch holds (M - 1) / M follower rows.
+        count: M, the number of blocks (> 1); each minibatch holds (M - 1) / M follower rows (as
+            `BlocksConfig.count` requires), and under data parallelism a device's share of it may hold any number.
 
     Returns:
         The term to add to the loss (to minimise), and `leader_off_policy_loss` and `leader_clip_fraction` (the share of
         follower transitions whose ratio lies outside the clip range).
     """
     followers = jnp.broadcast_to(rows != LEADER, batch.advantages.shape).astype(jnp.float32)
+    # The minibatch's follower count, (M - 1) / M of its rows, and not this share's count: a data-parallel device
+    # holds whole blocks (device 0 the leader's alone), and the mean over devices of these per-device sums must be
+    # the whole minibatch's mean, as each device's plain PPO loss is a mean over its equal share.
+    count_followers = followers.size * (count - 1) / count
     ratio = jnp.exp(head.log_prob(leader_policy_params, batch.actions) - batch.log_probs)
     clipped = jnp.clip(ratio, 1.0 - clip_epsilon, 1.0 + clip_epsilon)
     objective = jnp.minimum(ratio * batch.advantages, clipped * batch.advantages)
-    follower_mean = -(objective * followers).sum() / followers.sum()
-    outside = jax.lax.stop_gradient(((jnp.abs(ratio - 1.0) > clip_epsilon) * followers).sum() / followers.sum())
+    follower_mean = -(objective * followers).sum() / count_followers
+    outside = jax.lax.stop_gradient(((jnp.abs(ratio - 1.0) > clip_epsilon) * followers).sum() / count_followers)
     return weight / count * follower_mean, {"leader_off_policy_loss": follower_mean, "leader_clip_fraction": outside}
 
 
