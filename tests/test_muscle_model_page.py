@@ -94,3 +94,20 @@ def test_the_tendons_wrap_objects_and_the_activations_rise_and_fall_are_as_state
         fall += 1
     step_ms = 1000 * model.opt.timestep
     assert f"a = 0.9 in {rise * step_ms:.0f} ms" in prose and f"back to 0.1 in {fall * step_ms:.0f} ms" in prose
+
+
+def test_the_muscle_modality_is_as_the_page_states_it(model, prose):
+    """Its size and the order of its four parts, each a table row, are what `MuscleHandTask.muscles` returns."""
+    from angora_jax.envs.myohand.pose import MyoHandPose
+
+    data = mujoco.MjData(model)
+    data.ctrl[:] = 0.5
+    mujoco.mj_step(model, data)
+    task = MyoHandPose(model)
+    modality = np.asarray(task.muscles(task.snapshot(data)))
+    parts = {"length": data.actuator_length, "velocity": data.actuator_velocity, "force": data.actuator_force,
+             "activation": data.act}
+    np.testing.assert_allclose(modality, np.concatenate(list(parts.values())), rtol=1e-6, atol=1e-6)
+    assert (f"(`MuscleHandTask.muscles`), {modality.size} numbers: the {model.nu} muscles' lengths, then their "
+            "velocities, then their forces, then their activations, each in actuator order") in prose
+    assert all(f"| {part} | " in prose for part in parts)

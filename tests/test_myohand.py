@@ -52,13 +52,15 @@ def test_the_hand_has_23_joints_and_39_muscles_on_39_wrapping_tendons(model):
 def test_observations_hold_joints_the_muscle_sense_and_the_goal(cpu):
     env, state = cpu
     sizes = {name: int(value.shape[-1]) for name, value in state.obs.__dict__.items()}
-    assert sizes == {"proprioception": 2 * JOINTS, "touch": 0, "muscle": 3 * MUSCLES, "vision": 0,
+    assert sizes == {"proprioception": 2 * JOINTS, "touch": 0, "muscle": 4 * MUSCLES, "vision": 0,
                      "goal": 2 * JOINTS, "asymmetric": 0}
     state = env.step(state, jnp.full(MUSCLES, 0.3))
     data = env.data
-    # The muscle sense reads the C MuJoCo data: lengths, lengthening velocities, forces, each in actuator order.
+    # The muscle modality reads the C MuJoCo data: lengths, lengthening velocities, forces and activations, each in
+    # actuator order; the activations rise towards the excitation, so they are neither 0 nor 0.3 yet.
     np.testing.assert_allclose(state.obs.muscle, np.concatenate(
-        [data.actuator_length, data.actuator_velocity, data.actuator_force]), rtol=1e-6, atol=1e-6)
+        [data.actuator_length, data.actuator_velocity, data.actuator_force, data.act]), rtol=1e-6, atol=1e-6)
+    assert np.all((data.act > 0.01) & (data.act < 0.3))
     assert np.all(data.actuator_force <= 0) and np.any(data.actuator_force < -1.0), "excited muscles pull"
     np.testing.assert_allclose(state.obs.proprioception, np.concatenate([data.qpos, data.qvel]), rtol=1e-6,
                                atol=1e-6)
@@ -84,7 +86,7 @@ def test_files_written_before_the_muscle_modality_still_load():
     del old["muscle"]
     restored = serialization.from_state_dict(stats, serialization.msgpack_restore(serialization.msgpack_serialize(old)))
     assert jax.tree.structure(restored) == jax.tree.structure(stats) and restored.muscle.mean.shape == (0,)
-    muscled = observation_stats(Sensation.make(proprioception=jnp.ones(3), muscle=jnp.ones(3 * MUSCLES)))
+    muscled = observation_stats(Sensation.make(proprioception=jnp.ones(3), muscle=jnp.ones(4 * MUSCLES)))
     with pytest.raises(ValueError, match=r"no \['muscle'\], which this task observes"):
         serialization.from_state_dict(muscled, old)
 
@@ -95,7 +97,7 @@ def test_the_gymnasium_view_shows_the_muscle_sense_and_passes_check_env():
 
     env = gymnasium.make("AngoraJax/MyoHandPose-v0")
     spaces = {name: space.shape for name, space in env.observation_space.spaces.items()}
-    assert spaces == {"proprioception": (2 * JOINTS,), "muscle": (3 * MUSCLES,), "goal": (2 * JOINTS,)}
+    assert spaces == {"proprioception": (2 * JOINTS,), "muscle": (4 * MUSCLES,), "goal": (2 * JOINTS,)}
     assert (env.action_space.low.min(), env.action_space.high.max(), env.action_space.shape) == (0.0, 1.0, (MUSCLES,))
     check_env(env.unwrapped, skip_render_check=True)
 
@@ -219,9 +221,10 @@ def test_mjx_on_warp_and_the_c_mujoco_twin_agree_for_10_steps(warp_rollout):
             mjx = states[t + 1]
             np.testing.assert_allclose(mjx.obs.proprioception[b, :JOINTS], state.obs.proprioception[:JOINTS],
                                        atol=1e-4)
-            forces = state.obs.muscle[2 * MUSCLES:]
-            np.testing.assert_allclose(mjx.obs.muscle[b, 2 * MUSCLES:], forces,
+            forces = state.obs.muscle[2 * MUSCLES:3 * MUSCLES]
+            np.testing.assert_allclose(mjx.obs.muscle[b, 2 * MUSCLES:3 * MUSCLES], forces,
                                        atol=1e-3 * float(jnp.abs(forces).max()))
+            np.testing.assert_allclose(mjx.obs.muscle[b, 3 * MUSCLES:], state.obs.muscle[3 * MUSCLES:], atol=1e-4)
             np.testing.assert_allclose(mjx.reward[b], state.reward, atol=1e-4)
         moved = jnp.abs(state.obs.proprioception[:JOINTS] - states[0].obs.proprioception[b, :JOINTS]).max()
         assert float(moved) > 0.05, "the hand must move"

@@ -32,14 +32,14 @@ def test_observations_hold_joints_fingertips_the_muscle_sense_and_the_goal():
     env = aj.make("MyoHandReach", backend="cpu")
     state = env.step(env.reset(jax.random.key(0)), jnp.full(MUSCLES, 0.3))
     sizes = {name: int(value.shape[-1]) for name, value in state.obs.__dict__.items()}
-    assert sizes == {"proprioception": 2 * JOINTS + FLAT, "touch": 0, "muscle": 3 * MUSCLES, "vision": 0,
+    assert sizes == {"proprioception": 2 * JOINTS + FLAT, "touch": 0, "muscle": 4 * MUSCLES, "vision": 0,
                      "goal": 2 * FLAT, "asymmetric": 0}
     data = env.data
     tips = np.concatenate([data.site(tip).xpos for tip in TIPS])
     np.testing.assert_allclose(state.obs.proprioception, np.concatenate([data.qpos, data.qvel, tips]), rtol=1e-6,
                                atol=1e-5)
     np.testing.assert_allclose(state.obs.muscle, np.concatenate(
-        [data.actuator_length, data.actuator_velocity, data.actuator_force]), rtol=1e-6, atol=1e-6)
+        [data.actuator_length, data.actuator_velocity, data.actuator_force, data.act]), rtol=1e-6, atol=1e-6)
     target = np.asarray(state.info["target"])
     np.testing.assert_allclose(state.obs.goal, np.concatenate([target, target - tips]), atol=1e-5)
     variables = env.task_variables(state)

@@ -126,12 +126,13 @@ def test_the_goal_cap_cuts_the_episode_as_a_truncation(task):
 def test_observations_hold_the_hand_the_muscles_the_die_and_its_goal(cpu):
     state = cpu.step(cpu.reset(jax.random.key(2)), jnp.full(MUSCLES, 0.2))
     sizes = {name: int(value.shape[-1]) for name, value in state.obs.__dict__.items()}
-    assert sizes == {"proprioception": 2 * JOINTS + 15, "touch": 0, "muscle": 3 * MUSCLES, "vision": 0,
+    assert sizes == {"proprioception": 2 * JOINTS + 15, "touch": 0, "muscle": 4 * MUSCLES, "vision": 0,
                      "goal": 36, "asymmetric": 23}
     data = cpu.data
     die = data.joint(DIE).qpos
     goal = np.asarray(state.info["target"])
     np.testing.assert_allclose(state.obs.proprioception[:JOINTS], data.qpos[:JOINTS], atol=1e-6)
+    np.testing.assert_allclose(state.obs.muscle[3 * MUSCLES:], data.act, atol=1e-6)
     np.testing.assert_allclose(state.obs.goal[:3], die[:3], atol=1e-6)
     np.testing.assert_allclose(state.obs.goal[12:15], goal[:3], atol=1e-6)
     np.testing.assert_allclose(state.obs.goal[24:27], goal[:3] - die[:3], atol=1e-6)

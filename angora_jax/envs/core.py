@@ -29,7 +29,8 @@ class Sensation:
     A modality that a task does not provide is an empty array of shape `(..., 0)`, never None, so that all
     tasks share one pytree structure. `asymmetric` holds privileged inputs that only the value function reads.
     `muscle` is the muscle sense of muscle-driven bodies (the MyoHand): per muscle its length, velocity and force, as
-    muscle spindles and Golgi tendon organs report them (`envs.myohand`); tasks driven by motors leave it empty.
+    muscle spindles and Golgi tendon organs report them, and its activation, an efference copy of the motor command
+    (`envs.myohand`); tasks driven by motors leave it empty.
     """
 
     proprioception: jax.Array

@@ -1,5 +1,6 @@
 """`MuscleHandTask`: what every MyoHand task shares, whatever its goal: actions as muscle excitations, the muscle
-sense, the effort cost and MyoSuite's success rule over an episode's solved steps."""
+modality (the muscle sense and an efference copy of the activations), the effort cost and MyoSuite's success rule over
+an episode's solved steps."""
 
 from __future__ import annotations
 
@@ -53,9 +54,14 @@ class MuscleHandTask(MujocoTask):
         return jnp.clip(action, self._ctrl_low, self._ctrl_high)
 
     def muscles(self, snap: Snapshot) -> jax.Array:
-        """The muscle sense `(3 * nu,)`: lengths (m), lengthening velocities (m/s), forces (N, negative when pulling),
-        in actuator order: what muscle spindles and Golgi tendon organs sense."""
-        return jnp.concatenate([snap.actuator_length, snap.actuator_velocity, snap.actuator_force])
+        """The muscle modality `(4 * nu,)`, each block in actuator order: lengths (m), lengthening velocities (m/s),
+        forces (N, negative when pulling), then activations (dimensionless, in [0, 1], MuJoCo's `act`).
+
+        The first three are what muscle spindles and Golgi tendon organs sense. The activations are no receptor's
+        sense but an efference copy: the motor command's own state, which MyoSuite's pose task observes too
+        (`act` in its observation) and which a feed-forward policy otherwise could not know, since activations lag
+        the excitations by MuJoCo's activation dynamics (10-40 ms)."""
+        return jnp.concatenate([snap.actuator_length, snap.actuator_velocity, snap.actuator_force, snap.act])
 
     def effort(self, snap: Snapshot) -> jax.Array:
         """The effort cost: the mean squared activation over the muscles (MyoSuite's generic `act_reg` term)."""

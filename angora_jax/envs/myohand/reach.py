@@ -17,7 +17,7 @@ simulated time exceeds two control steps, which its floating-point clock does at
 What differs: the effort cost, the mean squared activation over the 39 muscles (MyoSuite's generic `act_reg` term),
 is charged with weight 1 as in `MyoHandPose`, where MyoSuite's reach weights it 0. Actions are the muscles'
 excitations in [0, 1] (`ctrl`), where MyoSuite maps actions in [-1, 1] through a sigmoid. The observation holds the
-muscle sense instead of MyoSuite's activations, and velocities in rad/s instead of MyoSuite's rad per control step.
+muscle sense besides MyoSuite's activations, and velocities in rad/s instead of MyoSuite's rad per control step.
 """
 
 from __future__ import annotations
@@ -74,8 +74,8 @@ class MyoHandReach(MuscleHandTask):
     """Bring the five fingertips to drawn targets with 39 muscles (the module docstring gives MyoSuite's definitions).
 
     Observation: proprioception (23 joint angles in rad, 23 velocities in rad/s, the 5 fingertips' positions, 15 in m),
-    muscle (`MuscleHandTask.muscles`: 39 lengths, 39 lengthening velocities, 39 forces), goal (the 15 target
-    coordinates and the 15 errors target minus tip, m). Positions are in MyoSuite's world frame. Actions: 39
+    muscle (`MuscleHandTask.muscles`: 39 lengths, 39 lengthening velocities, 39 forces, 39 activations), goal (the
+    15 target coordinates and the 15 errors target minus tip, m). Positions are in MyoSuite's world frame. Actions: 39
     excitations in [0, 1] (`MuscleHandTask`).
     Metrics: `success` (solved on more than `success_steps` steps of the episode so far; its value at an episode's
     end is MyoSuite's success), `solved` (this step's distance below `reach_threshold`), `tip_distance` (m, the norm

@@ -50,7 +50,7 @@ Actions are the 39 muscles' excitations in [0, 1] (`ctrl`), where MyoSuite maps 
 the die moves on a free joint (`die.py` says what that changes).
 
 Observations. proprioception (61): the hand's 23 joint angles (rad) and velocities (rad/s; MyoSuite: rad per control
-step), the five fingertips' positions (15, m); muscle (117, `MuscleHandTask.muscles`); goal (36): the die's position
+step), the five fingertips' positions (15, m); muscle (156, `MuscleHandTask.muscles`); goal (36): the die's position
 (3, m) and orientation (9, its rotation matrix row by row), the goal's (3 and 9), and their difference: goal minus die
 position (3, m) and the rotation from the die to the goal (9, a matrix, world frame); asymmetric (23, the value
 function's): the die's linear (3, m/s, world frame) and angular velocity (3, rad/s, its own frame), the fingertips
