@@ -30,7 +30,7 @@ class CpuEnv(MujocoEnv):
         # A randomized task scales its own copy of the model at each reset (`ModelRandomizer.write`).
         self.model = task.model if task.randomizer is None else copy.deepcopy(task.model)
         self.data = mujoco.MjData(self.model)
-        self._initial_qpos = jax.jit(task.initial_qpos)
+        self._start_qpos = jax.jit(task.start_qpos)
         self._initial_qvel = jax.jit(task.initial_qvel)
         self._begin = jax.jit(self._begin_task)
         self._advance = jax.jit(self._advance_task)
@@ -56,7 +56,8 @@ class CpuEnv(MujocoEnv):
         qvel = None  # a fixed start is at rest (`MujocoTask.initial_qvel`)
         if self.task.random_initial_qpos:
             qvel = np.asarray(self._initial_qvel(jax.random.fold_in(pose_key, 1)), np.float64)
-        start_physics(self.task, np.asarray(self._initial_qpos(pose_key), np.float64), self.data, qvel, self.model)
+        qpos = np.asarray(self._start_qpos(pose_key, task_key), np.float64)
+        start_physics(self.task, qpos, self.data, qvel, self.model)
         snap = self.task.snapshot(self.data)
         info, obs = self._begin(key, task_key, snap, factors)
         return snap, self.see(obs, self.data, info), info

@@ -296,7 +296,8 @@ class MjxEnv(MujocoEnv):
         randomizer = self.task.randomizer
         factors = {} if randomizer is None else randomizer.draw(key)
         if self._start is None:
-            qpos, qvel = self.task.initial_qpos(pose_key), self.task.initial_qvel(jax.random.fold_in(pose_key, 1))
+            qpos = self.task.start_qpos(pose_key, task_key)
+            qvel = self.task.initial_qvel(jax.random.fold_in(pose_key, 1))
             model = self.mjx_model if randomizer is None else randomizer.apply(self.mjx_model, factors)
             data = mjx_module().forward(model, self._data0.replace(qpos=qpos, qvel=qvel))
             # MJX's forward writes free joints' quaternions back normalised, C MuJoCo's (the twin, Gymnasium) does not:

@@ -126,6 +126,13 @@ class MujocoTask(abc.ABC):
     def initial_qpos(self, key: jax.Array) -> jax.Array:
         """Joint positions at the start of an episode, shape `(nq,)`."""
 
+    def start_qpos(self, pose_key: jax.Array, task_key: jax.Array) -> jax.Array:
+        """Joint positions at the start of an episode `(nq,)`, given both of its reset's keys: `pose_key`'s and the one
+        `initial_info` draws the task's state (a goal) from. Both physics paths call this; by default it is
+        `initial_qpos(pose_key)`. A task whose start depends on its goal overrides it (`MyoHandPose`'s
+        `start_spread`), drawing the goal again from `task_key` as `initial_info` will."""
+        return self.initial_qpos(pose_key)
+
     def initial_qvel(self, key: jax.Array) -> jax.Array:
         """Joint velocities at the start of an episode, shape `(nv,)` (at rest unless a task says otherwise; used
         with `random_initial_qpos`). `key` is derived from `initial_qpos`'s key."""

@@ -16,7 +16,7 @@ from angora_jax.envs.core import Env
 from angora_jax.envs.myohand.die import load_hand_with_die
 from angora_jax.envs.myohand.model import MYOHAND_PHYSICS, load_hand
 from angora_jax.envs.myohand.muscle_task import SUCCESS_STEPS, MuscleHandTask
-from angora_jax.envs.myohand.pose import POSE_THRESHOLD, MyoHandPose, PoseReward
+from angora_jax.envs.myohand.pose import POSE_THRESHOLD, START_SPREAD, MyoHandPose, PoseReward
 from angora_jax.envs.myohand.reach import NEAR_PER_TIP, TIPS, MyoHandReach, ReachReward
 from angora_jax.envs.myohand.reorient import (
     DROP_DISTANCE,
@@ -42,14 +42,17 @@ def _on_backend(task: Callable[[mujoco.MjModel], MuscleHandTask], control_dt: fl
 
 
 def make_pose(reward: dict[str, float] | None = None, pose_threshold: float = POSE_THRESHOLD,
-              success_steps: int = SUCCESS_STEPS, control_dt: float = 0.02, max_episode_steps: int = 100,
-              physics: dict[str, float | str] | None = None, backend: str = "mjx") -> Env:
+              success_steps: int = SUCCESS_STEPS, start_spread: float = START_SPREAD, control_dt: float = 0.02,
+              max_episode_steps: int = 100, physics: dict[str, float | str] | None = None, backend: str = "mjx") -> Env:
     """Build `MyoHandPose` (`pose.MyoHandPose`; MyoSuite's myoHandPoseRandom-v0 defaults). Times in s, angles in rad.
 
     Args:
         reward: `pose.PoseReward` coefficients overriding MyoSuite's weights (e.g. `{effort: 0}`).
         pose_threshold: a step is solved below this pose error.
         success_steps: an episode is a success when solved on more than this many steps.
+        start_spread: in (0, 1]: each start's pose error as a fraction of MyoSuite's uniform start's (the start is
+            target + start_spread x (uniform start - target)); 1 is MyoSuite's task, below 1 an easier one whose
+            `success` is not MyoSuite's (a curriculum's first stage; 0.4 starts about 1 rad from the target).
         control_dt: simulated time per policy step, a whole multiple of the timestep (the frame skip is control_dt /
             timestep: 0.02 / 0.002 = 10).
         max_episode_steps: policy steps per episode.
@@ -59,7 +62,7 @@ def make_pose(reward: dict[str, float] | None = None, pose_threshold: float = PO
     """
     coefficients = PoseReward.from_dict(reward)
     return _on_backend(lambda model: MyoHandPose(model, coefficients, pose_threshold=pose_threshold,
-                                                 success_steps=success_steps),
+                                                 success_steps=success_steps, start_spread=start_spread),
                        control_dt, max_episode_steps, physics, backend)
 
 

@@ -14,12 +14,19 @@ where MyoSuite puts it (`model.load_hand(myosuite_frame=True)`), so gravity pull
 What differs: the effort cost is the mean squared activation over the 39 muscles (MyoSuite's generic `act_reg` term
 in `terms/base_reward.py`); MyoSuite's pose task itself charges the norm of the activations divided by their number.
 Actions are the muscles' excitations in [0, 1] (`ctrl`), where MyoSuite maps actions in [-1, 1] through a sigmoid.
+
+An option that is not MyoSuite's, for a curriculum's first stage: `start_spread` s in (0, 1] draws each episode's start
+as target + s x (uniform start - target), the uniform start being MyoSuite's; the start's pose error is then s times
+that of MyoSuite's start, in the same direction (s = 0.4: a median of about 1 rad, where the oracle controller of
+`benchmarks/myohand_pose_oracle.py` succeeds on 83% of episodes). With s < 1 the `success` and every other metric are
+of that easier task, not of MyoSuite's; s = 1 (the default) is MyoSuite's task, bit for bit.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 
 import jax
 import jax.numpy as jnp
@@ -43,6 +50,8 @@ TARGET_RANGES = (
 )
 # MyoSuite's hand pose threshold (`pose_thd`, rad).
 POSE_THRESHOLD = 0.7
+# The start's pose error over MyoSuite's (`MyoHandPose.start_spread`): 1 is MyoSuite's uniform start.
+START_SPREAD = 1.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,24 +77,37 @@ class MyoHandPose(MuscleHandTask):
 
     Observation: proprioception (23 joint angles in rad, 23 velocities in rad/s), muscle (per muscle, in actuator
     order: 39 lengths in m, 39 lengthening velocities in m/s and 39 forces in N, negative when pulling: what muscle
-    spindles and Golgi tendon organs sense), goal (the 23 target angles and the 23 errors target minus angle, rad).
+    spindles and Golgi tendon organs sense; then 39 activations in [0, 1], an efference copy, which MyoSuite's pose
+    task observes too; `MuscleHandTask.muscles`), goal (the 23 target angles and the 23 errors target minus angle, rad).
     Actions: 39 excitations in [0, 1] (`MuscleHandTask`).
     Metrics: `success` (solved on more than `success_steps` steps of the episode so far; its value at an episode's
-    end is MyoSuite's success), `solved` (this step's error below `pose_threshold`), `pose_error` (rad) and `effort`
-    (mean squared activation).
+    end is MyoSuite's success when `start_spread` is 1), `solved` (this step's error below `pose_threshold`),
+    `pose_error` (rad) and `effort` (mean squared activation).
+
+    Attributes:
+        reward_config: the reward's weights.
+        pose_threshold: a step is solved below this pose error (rad).
+        start_spread: the start's pose error as a fraction of MyoSuite's uniform start's, in (0, 1] (the module
+            docstring); below 1 the metrics are of an easier task than MyoSuite's.
     """
 
     metric_names = ("success", "solved", "pose_error", "effort")
     random_initial_qpos = True
 
     def __init__(self, model: mujoco.MjModel, reward: PoseReward = PoseReward(),
-                 pose_threshold: float = POSE_THRESHOLD, success_steps: int = SUCCESS_STEPS):
+                 pose_threshold: float = POSE_THRESHOLD, success_steps: int = SUCCESS_STEPS,
+                 start_spread: float = START_SPREAD):
         super().__init__(model, success_steps)
         if len(TARGET_RANGES) != model.njnt:
             raise ValueError(f"TARGET_RANGES holds {len(TARGET_RANGES)} joints, the model {model.njnt}: build the "
                              "model with envs.myohand.model.load_hand (myo-sim 0.2.3).")
         if pose_threshold <= 0:
             raise ValueError(f"pose_threshold must be > 0 (rad), got {pose_threshold}.")
+        if isinstance(start_spread, bool) or not isinstance(start_spread, numbers.Real) or not 0 < start_spread <= 1:
+            raise ValueError(f"start_spread must be a number in (0, 1], got {start_spread!r}: 1 starts where MyoSuite "
+                             "does (uniform within the joints' ranges), 0.4 about 1 rad from the target; set e.g. "
+                             "env.options.start_spread=0.4.")
+        self.start_spread = float(start_spread)
         self.reward_config = reward
         self.pose_threshold = float(pose_threshold)
         self._joint_low, self._joint_high = model.jnt_range.T.astype(np.float32)
@@ -94,6 +116,16 @@ class MyoHandPose(MuscleHandTask):
     def initial_qpos(self, key: jax.Array) -> jax.Array:
         """Angles drawn uniformly within the joints' ranges (MyoSuite's `reset_type="random"`)."""
         return jax.random.uniform(key, (self.model.nq,), minval=self._joint_low, maxval=self._joint_high)
+
+    def start_qpos(self, pose_key: jax.Array, task_key: jax.Array) -> jax.Array:
+        """The start `(23,)` in rad: `initial_qpos(pose_key)` (MyoSuite's) moved towards the episode's target, which
+        `initial_info` draws from `task_key`, to `start_spread` of its distance. Within the joints' ranges, as both
+        ends are."""
+        uniform = self.initial_qpos(pose_key)
+        if self.start_spread == 1:  # MyoSuite's start exactly, not target + (uniform - target) rounded
+            return uniform
+        target = self.draw_target(task_key)
+        return target + self.start_spread * (uniform - target)
 
     def draw_target(self, key: jax.Array) -> jax.Array:
         """A target posture `(23,)` in rad, uniform per joint within `TARGET_RANGES`."""
