@@ -22,13 +22,21 @@ Seeds: runs given under the same label are seeds of one recipe. For each milesto
 the 95% confidence interval (Student's t) over the seeds that reached it, and the plot draws the seeds' mean with its
 band; `--seeds N` refuses a label with another number of runs (a crashed seed must not shrink the statistics
 silently). Every run also gets its stability: the peak of its training-mean CGR (a 5-cycle rolling mean), its last
-value (the mean of the last 5 cycles), their ratio and how long it trained past the peak. The JSON's `curves` map
-each label to its runs, one list of per-cycle rows each.
+value (the mean of the last 5 cycles), their ratio (`fraction_of_peak`) and how long it trained past the peak. The
+JSON's `curves` map each label to its runs, one list of per-cycle rows each.
+
+Scaling: `--devices LABEL=N` says a label's runs trained on N GPUs. The JSON's `scaling` then gives, per such label,
+the mean time to CGR 30 over its seeds that reached it, on the wall clock (compile included) and without the cycles'
+compile seconds, and `time_to_solve_efficiency` (and `..._compiled`) against the label with the fewest devices:
+T_base x N_base / (T x N), 1 when N GPUs solve N times faster. Start-up before the first cycle (imports, Warp's kernel
+builds) is not in the metrics; add it per label with `--before` (benchmarks/startup_time.sh measures it).
 
     python benchmarks/ihom_curve.py fast=runs/fast/metrics.jsonl paper=runs/paper/metrics.jsonl \\
         --device "NVIDIA H100 80GB HBM3" --name ShadowHandCube_h100
     python benchmarks/ihom_curve.py fast=runs/s0 fast=runs/s1 fast=runs/s2 fast=runs/s3 fast=runs/s4 --seeds 5 \\
         --device "NVIDIA H200" --name fast_seeds_h200
+    python benchmarks/ihom_curve.py one=runs/ihom-1gpu two=runs/ihom-2gpu four=runs/ihom-4gpu \\
+        --devices one=1 --devices two=2 --devices four=4 --device "NVIDIA H200" --name scaling_h200
 """
 
 from __future__ import annotations
@@ -52,13 +60,16 @@ CGR = "metric/goals_reached"
 MILESTONES = (1, 5, 10, 20, 30)
 # AngoraPy's IHOM run (Weidler et al. 2023): samples, wall hours and hardware, for a training-mean CGR of about 30.
 PAPER = {"samples": 1_187_512_320, "hours": 96.0, "hardware": "384 CPU cores + 32 GPUs (P100)", "cgr": 30.0}
+# The CGR whose time-to-solve scaling is reported (issue 60's "time to CGR 30").
+SOLVED = 30
 # Cycles in the rolling mean that stability is judged on: one cycle's training mean moves by a few CGR.
 SMOOTH = 5
 
 
 def read_pieces(paths: list[str]) -> list[dict]:
     """The rows of one run's metrics files (run directories or metrics.jsonl paths), joined by cycle: a later file's
-    row replaces an earlier one's; rows come back sorted by cycle with `wall_seconds` (cumulative) added."""
+    row replaces an earlier one's; rows come back sorted by cycle with `train_seconds`, `wall_seconds` and
+    `compiled_seconds` (the wall clock less the cycles' compile seconds) added, all cumulative."""
     by_cycle: dict[int, dict] = {}
     for path in paths:
         file = Path(path) / "metrics.jsonl" if Path(path).is_dir() else Path(path)
@@ -68,27 +79,29 @@ def read_pieces(paths: list[str]) -> list[dict]:
             if line.strip():
                 row = json.loads(line)
                 by_cycle[int(row["cycle"])] = row
-    rows, train, wall, previous = [], 0.0, 0.0, None
+    rows, train, wall, compiling, previous = [], 0.0, 0.0, 0.0, None
     for cycle in sorted(by_cycle):
         row = by_cycle[cycle]
         train += row["seconds"]
+        compiling += row.get("compile_seconds") or 0.0
         same_piece = previous is not None and previous["cycle"] == cycle - 1 and "compile_seconds" not in row
         wall += row["time"] - previous["time"] if same_piece else row["seconds"]
-        rows.append({**row, "train_seconds": train, "wall_seconds": wall})
+        rows.append({**row, "train_seconds": train, "wall_seconds": wall, "compiled_seconds": wall - compiling})
         previous = row
     return rows
 
 
 def milestones(rows: list[dict]) -> list[dict]:
-    """For each CGR bar: the first cycle whose training-mean CGR reaches it, its env steps, training and wall minutes
-    (None when never reached), and the ratios of AngoraPy's samples and wall time to ours."""
+    """For each CGR bar: the first cycle whose training-mean CGR reaches it, its env steps, training, wall and compiled
+    minutes (None when never reached), and the ratios of AngoraPy's samples and wall time to ours."""
     found = []
     for bar in MILESTONES:
         row = next((r for r in rows if (r.get(CGR) is not None and r[CGR] >= bar)), None)
-        entry = {"cgr": bar, "cycle": None, "env_steps": None, "train_minutes": None, "wall_minutes": None}
+        entry = {"cgr": bar, "cycle": None, "env_steps": None, "train_minutes": None, "wall_minutes": None,
+                 "compiled_minutes": None}
         if row is not None:
             entry.update(cycle=row["cycle"], env_steps=row["env_steps"], train_minutes=row["train_seconds"] / 60,
-                         wall_minutes=row["wall_seconds"] / 60)
+                         wall_minutes=row["wall_seconds"] / 60, compiled_minutes=row["compiled_seconds"] / 60)
             if bar >= PAPER["cgr"]:
                 entry["paper_samples_ratio"] = PAPER["samples"] / row["env_steps"]
                 entry["paper_wall_ratio"] = PAPER["hours"] * 3600 / row["wall_seconds"]
@@ -110,16 +123,39 @@ def seed_milestones(seeds: list[list[dict]]) -> list[dict]:
     summary = []
     for bar, entries in zip(MILESTONES, zip(*seeds, strict=True), strict=True):
         reached = [e for e in entries if e["cycle"] is not None]
-        row = {"cgr": bar, "seeds": len(entries), "reached": len(reached)}
-        for key in ("env_steps", "train_minutes", "wall_minutes"):
+        row = {"cgr": bar, "num_seeds": len(entries), "reached": len(reached)}
+        for key in ("env_steps", "train_minutes", "wall_minutes", "compiled_minutes"):
             row[key] = mean_interval([e[key] for e in reached])
         summary.append(row)
     return summary
 
 
+def scaling(per_run: dict[str, list[list[dict]]], devices: dict[str, int], bar: int = SOLVED) -> list[dict]:
+    """Time-to-solve scaling: for each label given a device count, the mean over its seeds that reached CGR `bar` of
+    the wall minutes to it (compile included) and of the compiled minutes (without the cycles' compile seconds), and
+    the efficiency against the label with the fewest devices, T_base * N_base / (T * N): 1 when N devices solve N
+    times faster. None where no seed of a label reached the bar."""
+    rows = []
+    for label, count in sorted(devices.items(), key=lambda item: item[1]):
+        reached = [found for found in (next(m for m in run if m["cgr"] == bar) for run in per_run[label])
+                   if found["cycle"] is not None]
+        rows.append({"label": label, "devices": count, "cgr": bar, "num_seeds": len(per_run[label]),
+                     "reached": len(reached),
+                     **{key: float(np.mean([m[key] for m in reached])) if reached else None
+                        for key in ("wall_minutes", "compiled_minutes")}})
+    base = rows[0] if rows else None
+    for row in rows:
+        for key, name in (("wall_minutes", "time_to_solve_efficiency"),
+                          ("compiled_minutes", "time_to_solve_efficiency_compiled")):
+            known = base[key] is not None and row[key] is not None
+            row[name] = base[key] * base["devices"] / (row[key] * row["devices"]) if known else None
+    return rows
+
+
 def stability(rows: list[dict]) -> dict:
     """The peak of the training-mean CGR's rolling mean over `SMOOTH` cycles, the cycle and wall minutes where it
-    was, the mean of the last `SMOOTH` cycles, their ratio, and the cycles and wall minutes trained past the peak."""
+    was, the mean of the last `SMOOTH` cycles, their ratio (`fraction_of_peak`), and the cycles and wall minutes
+    trained past the peak."""
     cgr = np.array([math.nan if r.get(CGR) is None else r[CGR] for r in rows])
     if len(cgr) < SMOOTH or np.isnan(cgr).all():
         return {"peak": None}
@@ -128,7 +164,7 @@ def stability(rows: list[dict]) -> dict:
     at_peak, last = rows[top + SMOOTH - 1], rows[-1]
     peak, final = float(rolling[top]), float(rolling[-1])
     return {"peak": peak, "peak_cycle": at_peak["cycle"], "peak_wall_minutes": at_peak["wall_seconds"] / 60,
-            "final": final, "final_over_peak": final / peak if peak > 0 else None,
+            "final": final, "fraction_of_peak": final / peak if peak > 0 else None,
             "cycles_past_peak": last["cycle"] - at_peak["cycle"],
             "wall_minutes_past_peak": (last["wall_seconds"] - at_peak["wall_seconds"]) / 60}
 
@@ -204,6 +240,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--note", default="", help="free text stored with the results (e.g. what else shared the GPU)")
     parser.add_argument("--seeds", type=int, metavar="N",
                         help="each label must have exactly N runs (its seeds), or nothing is written")
+    parser.add_argument("--devices", action="append", default=[], metavar="LABEL=N",
+                        help="the label's runs trained on N GPUs: adds time-to-solve scaling against the label "
+                             "with the fewest (repeat per label)")
     args = parser.parse_args(argv)
     runs: dict[str, list[list[dict]]] = {}
     for spec in args.runs:
@@ -236,7 +275,16 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(f"--before {spec}: {label!r} is not a label of the runs given ({', '.join(runs)}).")
         runs[label] = [[{**r, "wall_seconds": r["wall_seconds"] + 60.0 * before[label]} for r in rows]
                        for rows in runs[label]]
+    devices = {}
+    for spec in args.devices:
+        label, _, count = spec.partition("=")
+        if not count.isdigit() or int(count) < 1:
+            raise SystemExit(f"--devices {spec!r} must look like LABEL=N with N a device count of at least 1.")
+        if label not in runs:
+            raise SystemExit(f"--devices {spec}: {label!r} is not a label of the runs given ({', '.join(runs)}).")
+        devices[label] = int(count)
     per_run = {label: [milestones(rows) for rows in seeds] for label, seeds in runs.items()}
+    scaled = scaling(per_run, devices)
     summary = {label: found[0] for label, found in per_run.items() if len(found) == 1}
     over_seeds = {label: seed_milestones(found) for label, found in per_run.items() if len(found) > 1}
     stable = {label: [stability(rows) for rows in seeds] for label, seeds in runs.items()}
@@ -246,7 +294,7 @@ def main(argv: list[str] | None = None) -> int:
               "paper": PAPER,
               "milestones": summary, "seed_milestones": over_seeds,
               "seed_milestones_per_run": {label: found for label, found in per_run.items() if len(found) > 1},
-              "stability": stable,
+              "stability": stable, "scaling": scaled,
               "curves": {label: [[{k: r.get(k) for k in ("cycle", "env_steps", "train_seconds", "wall_seconds",
                                                           "steps_per_second", "learning_rate",
                                                           "episode_return", "episode_length", CGR, "metric/dropped",
@@ -262,10 +310,10 @@ def main(argv: list[str] | None = None) -> int:
                   f"min training, {last['wall_seconds'] / 60:.1f} min wall, last training-mean CGR {last.get(CGR):.2f}")
             if held["peak"] is not None:
                 print(f"  peak {held['peak']:.1f} (5-cycle mean) at cycle {held['peak_cycle']}, last "
-                      f"{held['final']:.1f} ({100 * (held['final_over_peak'] or 0):.0f}% of the peak) after "
+                      f"{held['final']:.1f} ({100 * (held['fraction_of_peak'] or 0):.0f}% of the peak) after "
                       f"{held['cycles_past_peak']} cycles ({held['wall_minutes_past_peak']:.1f} wall min) past it")
         if label in over_seeds:
-            print(markdown_table([{"cgr": row["cgr"], "reached": f"{row['reached']}/{row['seeds']}",
+            print(markdown_table([{"cgr": row["cgr"], "reached": f"{row['reached']}/{row['num_seeds']}",
                                    **{key: show(row[key]) for key in ("env_steps", "train_minutes", "wall_minutes")}}
                                   for row in over_seeds[label]],
                                  [("cgr", "CGR", "d"), ("reached", "seeds reached", "s"),
@@ -278,6 +326,13 @@ def main(argv: list[str] | None = None) -> int:
                                               ("wall_minutes", "wall min", ".1f"),
                                               ("paper_samples_ratio", "paper samples / ours", ".1f"),
                                               ("paper_wall_ratio", "paper wall / ours", ".0f")]))
+    if scaled:
+        print(markdown_table([{**row, "reached": f"{row['reached']}/{row['num_seeds']}"} for row in scaled],
+                             [("label", "run", "s"), ("devices", "GPUs", "d"), ("reached", "seeds reached", "s"),
+                              ("wall_minutes", f"wall min to CGR {SOLVED}", ".1f"),
+                              ("compiled_minutes", "without compiles", ".1f"),
+                              ("time_to_solve_efficiency", "efficiency", ".2f"),
+                              ("time_to_solve_efficiency_compiled", "efficiency without compiles", ".2f")]))
     print(f"wrote {stem}.json and {stem}.png")
     return 0
 

@@ -241,16 +241,45 @@ def test_ihom_curve_gives_seed_statistics_and_each_runs_peak_and_fall(tmp_path, 
     assert ihom_curve.main([*seeds, "--seeds", "3", "--device", "cpu", "--name", "s"]) == 0
     record = json.loads((tmp_path / "ihom_curve_s.json").read_text())
     thirty = {row["cgr"]: row for row in record["seed_milestones"]["fast"]}[30]
-    assert thirty["reached"] == 2 and thirty["seeds"] == 3, "seed c never reaches 30"
+    assert thirty["reached"] == 2 and thirty["num_seeds"] == 3, "seed c never reaches 30"
     assert thirty["env_steps"]["mean"] == 700 and thirty["env_steps"]["n"] == 2  # cycles 6 and 8
     assert thirty["env_steps"]["ci95"] == pytest.approx(12.706 * 100, rel=1e-3)  # t(0.975, 1) x sem of 600, 800
     first = record["stability"]["fast"][0]
     assert first["peak"] == 40 and first["peak_cycle"] == 11 and first["final"] == 20
-    assert first["final_over_peak"] == 0.5 and first["cycles_past_peak"] == 5
+    assert first["fraction_of_peak"] == 0.5 and first["cycles_past_peak"] == 5
     assert record["stability"]["fast"][2]["peak"] == 0
     assert (tmp_path / "ihom_curve_s.png").read_bytes()[:4] == b"\x89PNG"
     with pytest.raises(SystemExit, match="'fast' has 3 run"):
         ihom_curve.main([*seeds, "--seeds", "5", "--device", "cpu", "--name", "s2"])
+
+
+def test_ihom_curve_reports_time_to_solve_efficiency_against_the_fewest_devices(tmp_path, monkeypatch):
+    """One GPU reaches CGR 30 at wall minute 8 (its first cycle compiles for 60 s), four GPUs at minute 2.5 (the same
+    compile): efficiency 8 x 1 / (2.5 x 4) = 0.8 with compiles, 7 / (1.5 x 4) without; a label that never reaches 30
+    gets None, and a device count that is not one exits with the fix."""
+    def run(name, minutes, cgr_at_end):
+        cycles = int(minutes)
+        rows = [{"cycle": 1, "env_steps": 100, "seconds": 60.0, "compile_seconds": 60.0, "time": 60.0,
+                 "metric/goals_reached": 0.0}]
+        step = (minutes * 60 - 60.0) / (cycles - 1)
+        rows += [{"cycle": c, "env_steps": 100 * c, "seconds": step, "time": 60.0 + step * (c - 1),
+                  "metric/goals_reached": cgr_at_end if c == cycles else 1.0} for c in range(2, cycles + 1)]
+        (tmp_path / name).write_text("".join(json.dumps(r) + "\n" for r in rows))
+        return str(tmp_path / name)
+
+    monkeypatch.setattr(ihom_curve, "study_folder", lambda study: str(tmp_path))
+    runs = [f"one={run('one.jsonl', 8, 31.0)}", f"four={run('four.jsonl', 2.5, 30.0)}",
+            f"never={run('never.jsonl', 4, 29.0)}"]
+    assert ihom_curve.main([*runs, "--devices", "four=4", "--devices", "one=1", "--devices", "never=2",
+                            "--device", "cpu", "--name", "e"]) == 0
+    rows = {row["label"]: row for row in json.loads((tmp_path / "ihom_curve_e.json").read_text())["scaling"]}
+    assert rows["one"]["devices"] == 1 and rows["one"]["time_to_solve_efficiency"] == pytest.approx(1.0)
+    assert rows["four"]["wall_minutes"] == pytest.approx(2.5) and rows["four"]["compiled_minutes"] == pytest.approx(1.5)
+    assert rows["four"]["time_to_solve_efficiency"] == pytest.approx(0.8)
+    assert rows["four"]["time_to_solve_efficiency_compiled"] == pytest.approx(7 / 6)
+    assert rows["never"]["reached"] == 0 and rows["never"]["time_to_solve_efficiency"] is None
+    with pytest.raises(SystemExit, match="LABEL=N"):
+        ihom_curve.main([*runs, "--devices", "four=many", "--device", "cpu", "--name", "e2"])
 
 
 @pytest.mark.slow
