@@ -11,6 +11,7 @@ that GPUs run, and with the training smoke test it is in the slow tier.
 import importlib.util
 import json
 import math
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -21,6 +22,7 @@ from quick_compile import compile_quickly
 
 import angora_jax as aj
 from angora_jax.cli import main
+from angora_jax.envs import mjx_env
 from angora_jax.envs.myohand.model import JOINTS, MUSCLES, load_hand
 from angora_jax.envs.myohand.pose import POSE_THRESHOLD, TARGET_RANGES, MyoHandPose, PoseReward
 
@@ -141,6 +143,25 @@ def test_the_c_mujoco_twin_starts_at_start_spread_of_myosuites_distance_from_the
         target = np.asarray(wide.info["target"])
         np.testing.assert_array_equal(close.info["target"], target)
         np.testing.assert_allclose(near.data.qpos - target, 0.4 * (far.data.qpos - target), atol=1e-5)
+
+
+@pytest.mark.parametrize("forward", ["identity", pytest.param("warp", marks=pytest.mark.slow)])
+def test_mjx_starts_at_start_spread_where_the_c_mujoco_twin_does(forward, monkeypatch):
+    """MJX's batched reset at start_spread 0.4 (on MuJoCo Warp) puts the hand where the C MuJoCo twin's does for the
+    same keys, aiming at the same target (float32 against float64). The reset's forward pass changes neither (the
+    drawn qpos is written back after it), so the fast case runs the reset with the identity for it: Warp's own forward
+    costs about 15 s of CPU once per machine to build its kernels for the hand, which the slow case pays."""
+    env = aj.make("MyoHandPose", physics={"impl": "warp"}, start_spread=0.4).sized_for(BATCH)
+    if forward == "identity":  # after the model and data are put on the device, which the module does too
+        monkeypatch.setattr(mjx_env, "mjx_module", lambda: SimpleNamespace(forward=lambda model, data: data))
+    keys = jax.random.split(jax.random.key(5), BATCH)
+    states = compile_quickly(jax.vmap(env.reset), keys)(keys)
+    twin = aj.make("MyoHandPose", backend="cpu", start_spread=0.4)
+    for b in range(BATCH):
+        state = twin.reset(keys[b])
+        np.testing.assert_allclose(states.info["target"][b], state.info["target"], atol=1e-6)
+        np.testing.assert_allclose(states.physics.qpos[b], twin.data.qpos, atol=1e-6)
+        assert np.linalg.norm(twin.data.qpos - state.info["target"]) < 2.0, "a start nearer than MyoSuite's 2.6 rad"
 
 
 @pytest.mark.parametrize("spread", [0, -0.4, 1.5, float("nan"), True, "0.4"])
