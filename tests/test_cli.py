@@ -4,6 +4,7 @@ import io
 import json
 import os
 import re
+import shutil
 import signal
 import socket
 import subprocess
@@ -372,6 +373,81 @@ def test_seeds_of_one_config_run_as_one_single_device_run_each(tmp_path):
         run = tmp_path / f"cartpole-seed{seed}"
         assert load_config(run / "config.yaml").ppo.seed == seed
         assert [record["cycle"] for record in read_metrics(run)] == [1]
+
+
+CURRICULUM = Path(__file__).resolve().parents[1] / "examples" / "myohand_pose_curriculum.sh"
+# MyoHandPose shrunk for the CPU: MuJoCo Warp, 4 hands, 4-step episodes (so a cycle of 8 steps ends episodes and the
+# best checkpoint by success exists), one cycle per stage, a 16-unit MLP.
+TINY_POSE = ["env.options.physics={impl: warp}", "env.options.max_episode_steps=4", "ppo.num_cycles=1",
+             "ppo.num_envs=4", "ppo.rollout_length=8", "ppo.chunk_length=8", "ppo.minibatch_size=16",
+             "ppo.num_epochs=1", "ppo.network.width=16", "checkpoint.snapshot_every=0", "logging.progress=none",
+             "logging.report=false"]
+
+
+def run_curriculum(arguments: list[str], cwd: Path, path: str, **environment: str) -> subprocess.CompletedProcess:
+    """examples/myohand_pose_curriculum.sh with `arguments`, its commands found on `path` first."""
+    environment = os.environ | environment | {"PATH": f"{path}:{os.environ['PATH']}"}
+    return subprocess.run([shutil.which("bash"), str(CURRICULUM), *arguments], cwd=cwd, env=environment,
+                          capture_output=True, text=True, timeout=600)
+
+
+@pytest.mark.slow
+def test_the_myohand_pose_curriculum_trains_two_stages_then_evaluates_records_and_analyzes(tmp_path):
+    """examples/myohand_pose_curriculum.sh on the CPU, shrunk (TINY_POSE; 3 evaluation and 5 recorded episodes; about
+    70 s of CPU): stage 1's config.yaml holds start_spread 0.4, stage 2's 1.0 and stage 1's best checkpoint as
+    init_from; the evaluation JSON (of start_spread 1), the recording and both analyses' numbers exist, parse and are
+    printed where they went. Run again on the same ROOT it exits 2 naming the existing run, and changes nothing."""
+    pytest.importorskip("myo_sim")
+    import xarray as xr
+
+    root = tmp_path / "pose"
+    venv = str(Path(sys.executable).parent)
+    done = run_curriculum([str(root), *TINY_POSE], tmp_path, venv, EPISODES="3", RECORD_EPISODES="5",
+                          **QUICK_SUBPROCESS)
+    assert done.returncode == 0, done.stderr[-3000:]
+    first, second = (load_config(root / stage / "config.yaml") for stage in ("stage1", "stage2"))
+    assert first.env.options["start_spread"] == 0.4 and first.ppo.init_from is None
+    assert second.env.options["start_spread"] == 1.0 and second.ppo.init_from == f"{root / 'stage1'}:best"
+    assert [[record["cycle"] for record in read_metrics(root / stage)] for stage in ("stage1", "stage2")] == [[1], [1]]
+    (evaluation,) = (root / "stage2" / "evaluation").glob("*.json")
+    record = json.loads(evaluation.read_text())
+    assert record["task_options"]["start_spread"] == 1.0 and len(record["per_episode"]["metric/success"]) == 3
+    synergies = xr.load_dataset(root / "recording.synergies.nc")
+    assert synergies["vaf"].sizes["count"] == 8 and 1 <= synergies.attrs["count"] <= 8
+    muscles = xr.load_dataset(root / "recording.muscles-or-movements.nc")
+    assert set(muscles["kind_name"].values) == {"muscle", "movement"} and "control_kind_r2" in muscles
+    for line in (f"evaluation (3 episodes, start_spread 1): {evaluation}",
+                 f"recording (5 episodes): {root}/recording.nc", f"synergies: {root}/recording.synergies.png",
+                 f"muscles or movements: {root}/recording.muscles"):
+        assert line in done.stdout, line
+    files = {path: path.stat().st_mtime_ns for path in root.rglob("*")}
+    again = run_curriculum([str(root), *TINY_POSE], tmp_path, venv)
+    assert again.returncode == 2 and f"Run directory {root / 'stage1'} already exists" in again.stderr
+    assert "give another ROOT" in again.stderr
+    assert {path: path.stat().st_mtime_ns for path in root.rglob("*")} == files
+
+
+@pytest.mark.parametrize(("arguments", "environment", "message"), [
+    ([], {}, "give ROOT, the folder for the two runs and the results, first"),
+    (["ppo.seed=1"], {}, "give ROOT"),
+    (["runs/pose"], {"STAGE2_MINUTES": "abc"}, "STAGE2_MINUTES=abc is not a positive number of minutes"),
+    (["runs/pose"], {"STAGE1_MINUTES": "0.0"}, "STAGE1_MINUTES=0.0 is not a positive number of minutes"),
+    (["runs/pose"], {"EPISODES": "0"}, "EPISODES=0 is not a positive whole number of episodes"),
+    (["runs/pose"], {"RECORD_EPISODES": "4"}, "5 folds; give at least 5"),
+    (["runs/pose"], {"CHECKPOINT": "worst"}, "CHECKPOINT=worst: give best, latest or a cycle number"),
+    (["runs/pose", "ppo.seed=1", "env.options.start_spread=0.3"], {}, "start_spread as SPREAD=..."),
+    (["runs/pose", "logging.run_root=elsewhere"], {}, "the place as ROOT."),
+])
+def test_the_curriculum_scripts_argument_errors_exit_2_before_anything_runs(arguments, environment, message, tmp_path):
+    """The fast counterpart of the curriculum's run: each wrong argument exits 2 naming it, and no `angora-jax`
+    command starts (a stand-in on PATH would leave a mark)."""
+    stand_in = tmp_path / "bin" / "angora-jax"
+    stand_in.parent.mkdir()
+    stand_in.write_text(f"#!/bin/sh\ntouch {tmp_path}/ran\n")
+    stand_in.chmod(0o755)
+    done = run_curriculum(arguments, tmp_path, str(stand_in.parent), **environment)
+    assert done.returncode == 2 and message in done.stderr and "usage:" in done.stderr, done.stderr
+    assert not (tmp_path / "ran").exists() and not (tmp_path / "runs").exists()
 
 
 def free_port() -> int:
