@@ -33,6 +33,10 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(
 import path_agreement  # noqa: E402
 
 PNG_MAGIC = b"\x89PNG"
+# The CartPole run's evaluations use few batch sizes (a policy and a physics step compiled per size on the CPU path,
+# an evaluation program per episode count on the batched one), so that tests share them: 1, 3 and 48 rows (the
+# bit-identity test), EPISODES, and 16 episodes on the batched path (the two paths' agreement).
+EPISODES = 4
 
 
 @pytest.fixture(scope="module")
@@ -51,10 +55,10 @@ def run_dir(tmp_path_factory):
 
 @pytest.mark.slow
 def test_evaluate_writes_statistics_json_and_box_plot_without_overwriting(run_dir):
-    result = aj.evaluate(run_dir, "latest", episodes=6)
+    result = aj.evaluate(run_dir, "latest", episodes=EPISODES)
     record = json.loads(result.json_path.read_text())
     returns = np.array(record["per_episode"]["episode_return"])
-    assert returns.shape == (6,) and np.all(returns >= 1)
+    assert returns.shape == (EPISODES,) and np.all(returns >= 1)
     # CartPole pays 1 per step, so a return is the episode's length.
     assert record["per_episode"]["episode_length"] == record["per_episode"]["episode_return"]
     assert record["summary"]["episode_return"]["mean"] == pytest.approx(returns.mean())
@@ -62,23 +66,24 @@ def test_evaluate_writes_statistics_json_and_box_plot_without_overwriting(run_di
     assert record["cycle"] == 20 and record["stochastic"] is False
     assert result.plot_path.read_bytes().startswith(PNG_MAGIC) and result.plot_path.stat().st_size > 5000
     first = result.json_path.read_text()
-    again = aj.evaluate(run_dir, "latest", episodes=6, batch=1)
+    again = aj.evaluate(run_dir, "latest", episodes=EPISODES, batch=1)
     assert again.json_path != result.json_path and result.json_path.read_text() == first
-    # Mode actions from the same keys: the same episodes again, one at a time as all six at once.
-    assert record["batch"] == 6 and again.meta["batch"] == 1
+    # Mode actions from the same keys: the same episodes again, one at a time as all at once.
+    assert record["batch"] == EPISODES and again.meta["batch"] == 1
     assert again.episodes["episode_return"].tolist() == returns.tolist()
 
 
 def test_evaluating_again_compiles_nothing(run_dir):
     """Another call (another checkpoint, seed or path) reuses the compiled policy, task logic and batched program."""
     for path in evaluation.PATHS:
-        evaluate(run_dir, "latest", episodes=4, save=False, path=path)
+        evaluate(run_dir, "latest", episodes=EPISODES, save=False, path=path)
     # Off: the suite's persistent compilation cache would turn a repeated compile into a read that this misses.
     jax.config.update("jax_enable_compilation_cache", False)
     try:
         with jax_events("backend_compile_duration") as compiles:
             for path in evaluation.PATHS:
-                assert evaluate(run_dir, "best", episodes=4, seed=3, save=False, path=path).meta["episodes"] == 4
+                assert evaluate(run_dir, "best", episodes=EPISODES, seed=3, save=False,
+                                path=path).meta["episodes"] == EPISODES
     finally:
         jax.config.update("jax_enable_compilation_cache", True)
     assert compiles == []
@@ -163,12 +168,12 @@ def test_batched_evaluation_writes_the_same_record_as_the_cpu_path(run_dir, caps
     """`--path batched` runs every episode at once on the training path (the GPU's way to evaluate 480 episodes): a
     record of its own name, with the same statistics as the CPU path's for the same episodes (mode actions, same
     reset keys; CartPole's physics are the same JAX functions on both paths)."""
-    assert main(["evaluate", str(run_dir), "--checkpoint", "latest", "--episodes", "12", "--path", "batched"]) == 0
+    assert main(["evaluate", str(run_dir), "--checkpoint", "latest", "--episodes", "16", "--path", "batched"]) == 0
     out = capsys.readouterr().out
-    assert "12 episodes on batched" in out and "at a time" in out
+    assert "16 episodes on batched" in out and "at a time" in out
     batched = json.loads(next((run_dir / EVALUATION_DIR).glob("latest-cycle20-mode-seed0-batched.json")).read_text())
-    cpu = evaluate(run_dir, "latest", episodes=12, save=False)
-    assert batched["path"] == "batched" and len(batched["per_episode"]["episode_length"]) == 12
+    cpu = evaluate(run_dir, "latest", episodes=16, save=False, batch=EPISODES)
+    assert batched["path"] == "batched" and len(batched["per_episode"]["episode_length"]) == 16
     np.testing.assert_allclose(batched["per_episode"]["episode_length"], cpu.episodes["episode_length"])
     with pytest.raises(ValueError, match="Unknown evaluation path 'gpu'"):
         evaluate(run_dir, "latest", episodes=2, save=False, path="gpu")
@@ -177,10 +182,10 @@ def test_batched_evaluation_writes_the_same_record_as_the_cpu_path(run_dir, caps
 @pytest.mark.slow
 def test_cpu_and_batched_paths_agree_by_the_path_agreement_tool(run_dir, tmp_path, capsys):
     out = tmp_path / "agreement.json"
-    assert path_agreement.main([str(run_dir), "--episodes", "16", "--batch", "5", "--out", str(out)]) == 0
+    assert path_agreement.main([str(run_dir), "--episodes", "16", "--batch", "3", "--out", str(out)]) == 0
     assert "PASS" in capsys.readouterr().out
     record = json.loads(out.read_text())
-    assert record["config"]["verdict"] == "PASS" and record["config"]["cpu_batch"] == 5
+    assert record["config"]["verdict"] == "PASS" and record["config"]["cpu_batch"] == 3
     rows = {row["quantity"]: row for row in record["results"]}
     assert list(rows) == ["episode_return", "episode_length"] and all(row["agree"] for row in rows.values())
     # Both paths start episode i from the same key and act with the mode: the means differ by far less than the bound.
@@ -220,7 +225,7 @@ def test_a_run_from_a_bigger_machine_evaluates_here(run_dir, tmp_path, capsys):
     config["distribution"]["num_devices"] = jax.device_count() + 3  # trained on more devices than this machine has
     config["logging"] |= {"run_root": "/home/someone/runs", "tensorboard": True}
     (copy / "config.yaml").write_text(yaml.safe_dump(config))
-    assert main(["evaluate", str(copy), "--checkpoint", "latest", "--episodes", "2"]) == 0
+    assert main(["evaluate", str(copy), "--checkpoint", "latest", "--episodes", str(EPISODES)]) == 0
     assert len(list((copy / "evaluation").glob("latest-cycle20-*.json"))) == 1
     # Render loads the same way; CartPole then has no scene to draw.
     assert main(["render", str(copy), "--checkpoint", "latest", "--out", str(tmp_path / "cartpole.gif")]) == 2
