@@ -33,16 +33,16 @@ ZERO_WIDTH = {"friction": [1, 1], "joint_damping": [1, 1], "armature": [1, 1], "
               "action_delay": [0, 0], "action_noise": 0, "observation_noise": 0}
 
 
-def rollout(env):
-    """`run(keys, actions)`: the batch's first states and its states after each of `STEPS` steps, compiled quickly
-    (tests/quick_compile.py: these programs run six steps) for the arguments of each call."""
+def rollout(env, keys, actions):
+    """`run(keys, actions)`: the batch's first states and its states after each of `STEPS` steps, compiled once
+    (quickly, tests/quick_compile.py: these programs run six steps) for arguments shaped as `keys` and `actions`."""
     sized = env.sized_for(BATCH)
 
     def run(keys, actions):
         first = jax.vmap(sized.reset)(keys)
         return first, jax.lax.scan(lambda s, a: (jax.vmap(sized.step)(s, a),) * 2, first, actions)[1]
 
-    return lambda keys, actions: compile_quickly(run, keys, actions)(keys, actions)
+    return compile_quickly(run, keys, actions)
 
 
 @pytest.fixture(scope="module")
@@ -55,11 +55,13 @@ def inputs():
 @pytest.fixture(scope="module")
 def warp_runs(inputs):
     """Reach on Warp unrandomized, with zero-width ranges, with wide ranges and with wide ranges of the model's fields
-    only (no noise): (env, first states, states)."""
+    only (no noise): (env, first states, states, the compiled `rollout`, which later tests run again on other keys
+    instead of compiling the same program anew)."""
     runs = {}
     for name, ranges in {"plain": None, "zero": ZERO_WIDTH, "wide": WIDE, "fields": FIELDS}.items():
         env = aj.make("ShadowHandReach", physics=WARP, randomization=ranges)
-        runs[name] = (env, *rollout(env)(*inputs))
+        run = rollout(env, *inputs)
+        runs[name] = (env, *run(*inputs), run)
     return runs
 
 
@@ -89,21 +91,23 @@ def test_the_cube_refuses_a_mass_or_size_that_is_not_positive(key):
 
 @pytest.mark.slow
 def test_a_draw_differs_per_environment_and_is_reproducible_per_key(warp_runs, inputs):
-    env, first, _ = warp_runs["wide"]
+    _, first, _, run = warp_runs["wide"]
     draws = first.info[INFO_KEY]
     assert set(draws) == {"geom_friction", "dof_damping", "dof_armature", "actuator_gainprm", "actuator_biasprm"}
     friction = np.asarray(draws["geom_friction"][:, 0, 0])
     assert len(set(friction.tolist())) == BATCH and (0.2 <= friction).all() and (friction <= 2.0).all()
-    again = compile_quickly(jax.vmap(env.sized_for(BATCH).reset), inputs[0])(inputs[0])
-    jax.tree.map(np.testing.assert_array_equal, again.info[INFO_KEY], draws)
+    # The same keys in reversed slots draw the same worlds, reversed: a draw follows its key, not its slot.
+    keys, actions = inputs
+    again = run(keys[::-1], actions[:, ::-1])[0].info[INFO_KEY]
+    jax.tree.map(lambda a, b: np.testing.assert_array_equal(a[::-1], b), again, draws)
     zero = warp_runs["zero"][1].info[INFO_KEY]
     assert all(bool((factors == 1).all()) for factors in jax.tree.leaves(zero)), "zero width at 1 draws exactly 1"
 
 
 @pytest.mark.slow
 def test_zero_width_ranges_give_the_unrandomized_task_bit_for_bit_on_warp(warp_runs):
-    _, plain_first, plain = warp_runs["plain"]
-    _, zero_first, zero = warp_runs["zero"]
+    _, plain_first, plain, _ = warp_runs["plain"]
+    _, zero_first, zero, _ = warp_runs["zero"]
     for a, b in ((plain_first, zero_first), (plain, zero)):
         np.testing.assert_array_equal(a.physics.qpos, b.physics.qpos)
         np.testing.assert_array_equal(a.physics.qvel, b.physics.qvel)
@@ -116,18 +120,18 @@ def test_warp_simulates_each_environment_with_its_own_fields(warp_runs, inputs):
     """Randomized fields change the trajectory, and each environment of a Warp batch reads its own world's fields:
     with the keys' order reversed every environment's trajectory is the same, only in reversed place (had Warp read
     one world's fields for all, the environments would swap worlds)."""
-    env, _, fields = warp_runs["fields"]
-    _, _, plain = warp_runs["plain"]
+    _, _, fields, run = warp_runs["fields"]
+    _, _, plain, _ = warp_runs["plain"]
     assert float(jnp.abs(fields.physics.qpos[-1] - plain.physics.qpos[-1]).max()) > 0.05
     keys, actions = inputs
-    _, reversed_run = rollout(env)(keys[::-1], actions[:, ::-1])
+    _, reversed_run = run(keys[::-1], actions[:, ::-1])
     np.testing.assert_allclose(reversed_run.physics.qpos[:, ::-1], fields.physics.qpos, atol=1e-5)
 
 
 @pytest.mark.slow
 def test_the_cpu_twin_simulates_the_same_worlds_for_the_same_key(warp_runs, inputs):
-    _, first, wide = warp_runs["wide"]
-    _, _, plain = warp_runs["plain"]
+    _, first, wide, _ = warp_runs["wide"]
+    _, _, plain, _ = warp_runs["plain"]
     cpu = aj.make("ShadowHandReach", physics=WARP, randomization=WIDE, backend="cpu")
     keys, actions = inputs
     for b in range(BATCH):
@@ -207,7 +211,7 @@ def test_evaluate_runs_a_policy_under_randomization_given_as_an_env_option(tmp_p
 def cube_pose(env, inputs):
     """The cube's pose (position and quaternion, (BATCH, 7)) after `STEPS` steps of `rollout` on `env`."""
     cube = slice(env.task.cube_qpos, env.task.cube_qpos + 7)
-    return rollout(env)(*inputs)[1].physics.qpos[-1, :, cube]
+    return rollout(env, *inputs)(*inputs)[1].physics.qpos[-1, :, cube]
 
 
 @pytest.fixture(scope="module")
@@ -246,12 +250,20 @@ def test_an_action_delay_is_drawn_per_environment_and_reaches_the_physics_that_m
     np.testing.assert_array_equal(np.asarray(reset(many).info[DELAY_KEY]["delay"]), delays)
     late = aj.make("ShadowHandReach", physics=WARP, randomization={"action_delay": [2, 2]})
     keys, actions = inputs
-    first, states = rollout(late)(keys, actions)
+    first, states = rollout(late, keys, actions)(keys, actions)
     assert first.info[DELAY_KEY]["pending"].shape == (BATCH, 2, 20)
-    before = [first.physics] + [jax.tree.map(lambda x, t=t: x[t], states.physics) for t in range(STEPS - 1)]
-    control = jax.vmap(late.task.control)
+
+    def late_controls(first, states, actions):
+        """The control of step t - 2's action in step t - 2's state, for steps t = 2 ... `STEPS` - 1: one program
+        (eagerly, each slice and operation would compile its own)."""
+        before = [first] + [jax.tree.map(lambda x, t=t: x[t], states) for t in range(STEPS - 3)]
+        control = jax.vmap(late.task.control)
+        return jnp.stack([control(actions[t - 2], late.task.snapshot(before[t - 2])) for t in range(2, STEPS)])
+
+    late_ctrl = compile_quickly(late_controls, first.physics, states.physics, actions)(first.physics, states.physics,
+                                                                                      actions)
     for t in range(STEPS):
-        expected = first.physics.ctrl if t < 2 else control(actions[t - 2], late.task.snapshot(before[t - 2]))
+        expected = first.physics.ctrl if t < 2 else late_ctrl[t - 2]
         # Computed outside the step's program: the same up to float32 rounding of a fused operation.
         np.testing.assert_allclose(states.physics.ctrl[t], expected, rtol=1e-6, atol=1e-7)
 
