@@ -44,12 +44,15 @@ def test_renders_are_uint8_deterministic_and_the_cube_pixels_follow_the_cube(ope
 
 @pytest.mark.slow
 def test_every_visual_encoder_maps_uint8_images_to_features():
+    # Shapes traced through each encoder's code (`jax.eval_shape`), nothing compiled: eagerly, each of the 8 inits and
+    # applies compiled every operation of its own shapes (about 6 s of CPU).
     for name in VISUAL_ENCODERS:
         encoder = make_visual_encoder(name, widths=(8, 8, 8, 8)[: 4 if name == "cornet_z" else 3], features=12)
         for size in (32, 64):
-            images = jnp.zeros((2, size, size, 3), jnp.uint8)
-            params = encoder.init(jax.random.key(0), images)
-            assert encoder.apply(params, images).shape == (2, 12), (name, size)
+            images = jax.ShapeDtypeStruct((2, size, size, 3), jnp.uint8)
+            params = jax.eval_shape(encoder.init, jax.random.key(0), images)
+            features = jax.eval_shape(encoder.apply, params, images)
+            assert (features.shape, features.dtype) == ((2, 12), jnp.float32), (name, size)
     with pytest.raises(ValueError, match="Unknown visual encoder 'vgg'.*cornet_z"):
         make_visual_encoder("vgg")
 
@@ -327,15 +330,17 @@ def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_vis
     assert layers["network.IPS"].shape == (3, 16), "the parietal areas see"
 
     # `angora-jax record --images` keeps the frames the policy saw (uint8 through NetCDF), without it they are left out.
+    # Recorded on MuJoCo Warp (its physics and renderer): its recording program compiled in 6 s here, MJX's JAX
+    # implementation's in 24 s (2 loaded cores). What is checked is what record keeps of the frames, whoever drew them.
     import xarray as xr
 
     from angora_jax.cli import main
 
     kept, lean = tmp_path / "with.nc", tmp_path / "without.nc"
+    on_warp = ["--env-option", "vision.renderer=null", "--env-option", "physics={impl: warp}"]
     assert main(["record", str(run.run_dir), "--out", str(kept), "--episodes", "2", "--steps", "3", "--images",
-                 "--env-option", "vision.renderer=null"]) == 0
-    assert main(["record", str(run.run_dir), "--out", str(lean), "--episodes", "2", "--steps", "3",
-                 "--env-option", "vision.renderer=null"]) == 0
+                 *on_warp]) == 0
+    assert main(["record", str(run.run_dir), "--out", str(lean), "--episodes", "2", "--steps", "3", *on_warp]) == 0
     with xr.open_dataset(kept) as recording, xr.open_dataset(lean) as without:
         frames = recording["input_vision"]
         assert frames.dims == ("episode", "time", "camera", "y", "x", "channel") and frames.dtype == np.uint8
