@@ -1,10 +1,9 @@
 """In-hand cube reorientation (`ShadowHandCube`): episode rules and reward on the task's pure functions, the returns
-that the episode semantics give simple behaviours, settled starts, one compiled batched MJX rollout for shapes and
-MJX/CPU parity, and a traced cycle of the paper preset.
+that the episode semantics give simple behaviours, settled starts, one compiled batched rollout on MuJoCo Warp for
+shapes and parity with the C MuJoCo twin, and two compiled cycles of each shipped cube config on Warp.
 
-The rule tests call `evaluate`/`observe` eagerly on snapshots taken from one CPU-twin reset and edited (no MJX
-compile). MJX compiles of the cube scene take about a minute on a CPU, so the module compiles reset plus rollout
-once, as one program; the paper preset's cycle is traced, not compiled.
+The rule tests call `evaluate`/`observe` eagerly on snapshots taken from one CPU-twin reset and edited (no physics
+compile). The module compiles reset plus rollout once, as one program.
 """
 
 import dataclasses
@@ -38,6 +37,11 @@ BATCH = 2
 STEPS = 25  # 2 s of simulated time
 NOISE = 0.5  # actions; under "target" control a step moves each target by up to 0.5 x 0.2 of half its range
 SIZES = {"proprioception": 48, "touch": 97, "muscle": 0, "vision": 7, "goal": 13, "asymmetric": 27}
+
+# Every program here runs briefly: eager rule checks, one rollout of 25 steps, two cycles of each cube config (those
+# asked for quick compiles on their own before, clearing JAX's in-process caches after each, so that the rule tests
+# after them compiled their operations again). All compile quickly (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
 
 
 def about_x(angle: float) -> jax.Array:
@@ -396,7 +400,7 @@ def test_mjx_and_cpu_paths_agree_for_2_seconds(rollout):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["shadow_ihom", "shadow_ihom_paper", "shadow_ihom_cortical"])
-def test_the_cube_configs_compile_and_train_a_cycle_on_warp(name, quick_compiles):
+def test_the_cube_configs_compile_and_train_a_cycle_on_warp(name):
     """The shipped cube configs as they are (the paper's: wide LSTM 1024, 11 bins, TBPTT 16, AngoraPy's reward; the
     brain-area model's: AngoraPy's areas), on MuJoCo Warp as on a GPU, with only the batch made small: two cycles
     compile and run, the state keeps its shapes, the cube's metrics come out finite where defined and the parameters
