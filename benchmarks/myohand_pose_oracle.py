@@ -29,8 +29,9 @@ Scenarios (each episode's start and target; the task's own reset, target draw an
 - `hold`: the same targets, the hand placed on its target at rest (can it stay there?);
 - `near`: the same targets, the hand placed `NEAR_DISTANCE` (1 rad of pose error) from its target in a random
   direction, clipped to the joints' ranges, at rest (how far does the oracle's pull reach?);
-- `reachable`: the task's starts, but targets the hand is known to reach (`reachable_target`: where a constant random
-  excitation brings it in 2 s), farther from the starts than the task's: can the oracle steer at all within 2 s?
+- `reachable`: the task's starts, but targets the hand is known to reach (`reachable_posture` of
+  `angora_jax/envs/myohand/reachable.py`: where a constant random excitation brings it in 2 s; the seeds are the
+  episodes', not the bank's rows), farther from the starts than the task's: can the oracle steer at all within 2 s?
 
 Prints a table (success rate, the pose error at the episode's end and its minimum over the episode, per controller
 and scenario) and the per-joint residual at the episode's end, and writes
@@ -54,6 +55,7 @@ from common import markdown_table, write_results
 from scipy.optimize import lsq_linear
 
 import angora_jax as aj
+from angora_jax.envs.myohand.reachable import EXCITATION_MAX, reachable_posture
 
 # Seeds of the held-out episodes: far from the small seeds that training and the tests use.
 FIRST_SEED = 20_000
@@ -63,8 +65,6 @@ FIRST_SEED = 20_000
 SCENARIOS = ("task", "hold", "near", "reachable")
 # How far from its target a "near" episode starts (rad, the pose error's norm, before clipping to the joints' ranges).
 NEAR_DISTANCE = 1.0
-# The highest excitation of the constant drives that make the reachable targets.
-REACHABLE_EXCITATION = 0.3
 RUNS = ("zero/task", "random/task", "oracle/task", "zero/hold", "oracle/hold", "zero/near", "oracle/near",
         "zero/reachable", "oracle/reachable")
 # The joints (names without the hand's "_r") of each part of the hand, for the residual's shares.
@@ -146,18 +146,6 @@ def uniform(seed: int) -> Controller:
     return lambda model, data, target: rng.uniform(0.0, 1.0, model.nu)
 
 
-def reachable_target(model: mujoco.MjModel, seed: int) -> np.ndarray:
-    """A posture `(nq,)` (rad) that the hand can reach and nearly hold: where it is after 2 s of a constant excitation
-    drawn uniformly in [0, 0.3] per muscle, from joint angles drawn uniformly in their ranges, at rest (numpy
-    generator seeded with `seed`)."""
-    rng = np.random.default_rng(seed)
-    data = mujoco.MjData(model)
-    data.qpos[:] = rng.uniform(model.jnt_range[:, 0], model.jnt_range[:, 1])
-    data.ctrl[:] = rng.uniform(0.0, REACHABLE_EXCITATION, model.nu)
-    mujoco.mj_step(model, data, nstep=round(2.0 / model.opt.timestep))
-    return data.qpos.copy()
-
-
 def run_episode(env: aj.Env, control: Controller, seed: int, scenario: str = "task") -> dict[str, np.ndarray | float]:
     """One episode of `env` (the C MuJoCo twin) from `jax.random.key(seed)`, in `scenario` (`SCENARIOS`).
 
@@ -176,7 +164,7 @@ def run_episode(env: aj.Env, control: Controller, seed: int, scenario: str = "ta
         env.data.qvel[:] = 0.0
         mujoco.mj_forward(env.model, env.data)
     elif scenario == "reachable":
-        target = reachable_target(env.model, seed)
+        target = reachable_posture(env.model, seed)
     start = target - env.data.qpos
     errors = []
     while not bool(state.done):
@@ -266,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
               "control_dt_s": env.frame_skip * float(env.model.opt.timestep),
               "max_episode_steps": env.max_episode_steps, "pose_threshold_rad": env.task.pose_threshold,
               "success_steps": env.task.success_steps, "oracle": dataclasses.asdict(gains),
-              "random_excitation_seed": args.first_seed, "reachable_excitation_max": REACHABLE_EXCITATION}
+              "random_excitation_seed": args.first_seed, "reachable_excitation_max": EXCITATION_MAX}
     path = write_results("myohand_pose_oracle", config, rows, args.out, study="myohand")
     print(markdown_table([{**r, "run": f"{r['controller']}/{r['scenario']}", "start": r["start_error"]["median"],
                            "end_median": r["end_error"]["median"], "end_p90": r["end_error"]["p90"],

@@ -25,6 +25,7 @@ from angora_jax.cli import main
 from angora_jax.envs import mjx_env
 from angora_jax.envs.myohand.model import JOINTS, MUSCLES, load_hand
 from angora_jax.envs.myohand.pose import POSE_THRESHOLD, TARGET_RANGES, MyoHandPose, PoseReward
+from angora_jax.envs.myohand.reachable import BANK_SIZE, HELD_OUT, load_bank, reachable_posture
 
 BATCH = 2
 STEPS = 10
@@ -162,6 +163,43 @@ def test_mjx_starts_at_start_spread_where_the_c_mujoco_twin_does(forward, monkey
         np.testing.assert_allclose(states.info["target"][b], state.info["target"], atol=1e-6)
         np.testing.assert_allclose(states.physics.qpos[b], twin.data.qpos, atol=1e-6)
         assert np.linalg.norm(twin.data.qpos - state.info["target"]) < 2.0, "a start nearer than MyoSuite's 2.6 rad"
+
+
+def test_the_reachable_bank_holds_the_postures_its_seeds_make_within_the_joints_ranges():
+    """Rows 0, 1 and the last (a held-out one) are `reachable_posture` of their seeds on the pose task's hand (in
+    MyoSuite's frame: gravity shapes where the hand rests), so the shipped file is what its generator makes. The joint
+    limits are soft constraints, so a hand pressed against one rests a little past it (up to 0.09 rad in the bank)."""
+    bank = load_bank()
+    hand = load_hand(myosuite_frame=True)
+    assert bank.shape == (BANK_SIZE, JOINTS) and bank.dtype == np.float32
+    for row in (0, 1, BANK_SIZE - 1):
+        np.testing.assert_allclose(bank[row], reachable_posture(hand, row), atol=1e-5)
+    assert np.all(bank >= hand.jnt_range[:, 0] - 0.1) and np.all(bank <= hand.jnt_range[:, 1] + 0.1)
+
+
+def test_reachable_targets_are_bank_rows_and_held_out_targets_only_the_held_out_rows(model):
+    """targets=reachable draws rows of the bank less its last HELD_OUT, reachable_held_out only those; both spread over
+    their part (hundreds of distinct rows in 600 draws), and start_spread still moves the start towards them."""
+    bank = load_bank()
+    keys = jax.random.split(jax.random.key(7), 600)
+    rows = {}
+    for targets, part in (("reachable", bank[:-HELD_OUT]), ("reachable_held_out", bank[-HELD_OUT:])):
+        task = MyoHandPose(model, targets=targets, start_spread=0.5)
+        drawn = np.asarray(jax.vmap(task.draw_target)(keys))
+        match = np.all(drawn[:, None, :] == part[None, :, :], axis=-1)
+        assert np.all(match.sum(axis=1) >= 1), f"{targets}: every target is a row of its part of the bank"
+        rows[targets] = {tuple(row) for row in drawn}
+        assert len(rows[targets]) > 300
+        pose_keys = jax.random.split(jax.random.key(8), 600)
+        starts = np.asarray(jax.vmap(task.start_qpos)(pose_keys, keys))
+        uniform = np.asarray(jax.vmap(task.initial_qpos)(pose_keys))
+        np.testing.assert_allclose(starts - drawn, 0.5 * (uniform - drawn), atol=1e-5)
+    assert not rows["reachable"] & rows["reachable_held_out"]
+
+
+def test_an_unknown_targets_value_is_refused_naming_the_choices(model):
+    with pytest.raises(ValueError, match="targets must be one of asl, reachable, reachable_held_out"):
+        MyoHandPose(model, targets="random")
 
 
 @pytest.mark.parametrize("spread", [0, -0.4, 1.5, float("nan"), True, "0.4"])

@@ -42,8 +42,9 @@ def _on_backend(task: Callable[[mujoco.MjModel], MuscleHandTask], control_dt: fl
 
 
 def make_pose(reward: dict[str, float] | None = None, pose_threshold: float = POSE_THRESHOLD,
-              success_steps: int = SUCCESS_STEPS, start_spread: float = START_SPREAD, control_dt: float = 0.02,
-              max_episode_steps: int = 100, physics: dict[str, float | str] | None = None, backend: str = "mjx") -> Env:
+              success_steps: int = SUCCESS_STEPS, start_spread: float = START_SPREAD, targets: str = "asl",
+              control_dt: float = 0.02, max_episode_steps: int = 100, physics: dict[str, float | str] | None = None,
+              backend: str = "mjx") -> Env:
     """Build `MyoHandPose` (`pose.MyoHandPose`; MyoSuite's myoHandPoseRandom-v0 defaults). Times in s, angles in rad.
 
     Args:
@@ -53,6 +54,8 @@ def make_pose(reward: dict[str, float] | None = None, pose_threshold: float = PO
         start_spread: in (0, 1]: each start's pose error as a fraction of MyoSuite's uniform start's (the start is
             target + start_spread x (uniform start - target)); 1 is MyoSuite's task, below 1 an easier one whose
             `success` is not MyoSuite's (a curriculum's first stage; 0.4 starts about 1 rad from the target).
+        targets: "asl" (MyoSuite's: each joint uniform within the ASL digits' ranges), "reachable" (postures the
+            hand makes itself, `reachable.py`'s bank less its held-out rows) or "reachable_held_out" (those rows).
         control_dt: simulated time per policy step, a whole multiple of the timestep (the frame skip is control_dt /
             timestep: 0.02 / 0.002 = 10).
         max_episode_steps: policy steps per episode.
@@ -62,7 +65,8 @@ def make_pose(reward: dict[str, float] | None = None, pose_threshold: float = PO
     """
     coefficients = PoseReward.from_dict(reward)
     return _on_backend(lambda model: MyoHandPose(model, coefficients, pose_threshold=pose_threshold,
-                                                 success_steps=success_steps, start_spread=start_spread),
+                                                 success_steps=success_steps, start_spread=start_spread,
+                                                 targets=targets),
                        control_dt, max_episode_steps, physics, backend)
 
 

@@ -20,6 +20,12 @@ as target + s x (uniform start - target), the uniform start being MyoSuite's; th
 that of MyoSuite's start, in the same direction (s = 0.4: a median of about 1 rad, where the oracle controller of
 `benchmarks/myohand_pose_oracle.py` succeeds on 83% of episodes). With s < 1 the `success` and every other metric are
 of that easier task, not of MyoSuite's; s = 1 (the default) is MyoSuite's task, bit for bit.
+
+A second option that is not MyoSuite's: `targets`. "asl" (the default) is MyoSuite's draw above; "reachable" draws
+the target from a bank of postures the hand makes itself (`reachable.py`: where a constant random excitation brings
+it), rows the held-out part excludes, and "reachable_held_out" from that held-out part only, for evaluation on targets
+that training never saw. Starts, success and reward are the same; the targets are anywhere in the joints' ranges, not
+within the ASL digits' ranges, and a controller that knows the model succeeds on 85% of them (15% of MyoSuite's).
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ from angora_jax.envs.coefficients import Coefficients
 from angora_jax.envs.core import Sensation
 from angora_jax.envs.mujoco_task import Snapshot
 from angora_jax.envs.myohand.muscle_task import SUCCESS_STEPS, MuscleHandTask
+from angora_jax.envs.myohand.reachable import HELD_OUT, load_bank
 
 # Per joint (in the model's joint order), the lowest and highest angle (rad) over MyoSuite's ten ASL digit postures
 # (`ASL_qpos` in myosuite 3.0.0 `envs/myo/tasks/basic/__init__.py`, for the hand that myo-sim composes).
@@ -52,6 +59,9 @@ TARGET_RANGES = (
 POSE_THRESHOLD = 0.7
 # The start's pose error over MyoSuite's (`MyoHandPose.start_spread`): 1 is MyoSuite's uniform start.
 START_SPREAD = 1.0
+# Where targets come from (`MyoHandPose.targets`): MyoSuite's ASL ranges, or the reachable bank's training or held-out
+# rows.
+TARGETS = ("asl", "reachable", "reachable_held_out")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,6 +99,7 @@ class MyoHandPose(MuscleHandTask):
         pose_threshold: a step is solved below this pose error (rad).
         start_spread: the start's pose error as a fraction of MyoSuite's uniform start's, in (0, 1] (the module
             docstring); below 1 the metrics are of an easier task than MyoSuite's.
+        targets: one of `TARGETS` (the module docstring): "asl" is MyoSuite's.
     """
 
     metric_names = ("success", "solved", "pose_error", "effort")
@@ -96,7 +107,7 @@ class MyoHandPose(MuscleHandTask):
 
     def __init__(self, model: mujoco.MjModel, reward: PoseReward = PoseReward(),
                  pose_threshold: float = POSE_THRESHOLD, success_steps: int = SUCCESS_STEPS,
-                 start_spread: float = START_SPREAD):
+                 start_spread: float = START_SPREAD, targets: str = "asl"):
         super().__init__(model, success_steps)
         if len(TARGET_RANGES) != model.njnt:
             raise ValueError(f"TARGET_RANGES holds {len(TARGET_RANGES)} joints, the model {model.njnt}: build the "
@@ -107,7 +118,14 @@ class MyoHandPose(MuscleHandTask):
             raise ValueError(f"start_spread must be a number in (0, 1], got {start_spread!r}: 1 starts where MyoSuite "
                              "does (uniform within the joints' ranges), 0.4 about 1 rad from the target; set e.g. "
                              "env.options.start_spread=0.4.")
+        if targets not in TARGETS:
+            raise ValueError(f"targets must be one of {', '.join(TARGETS)}, got {targets!r}: asl is MyoSuite's draw, "
+                             "reachable postures the hand makes itself (env.options.targets=reachable).")
         self.start_spread = float(start_spread)
+        self.targets = targets
+        if targets != "asl":
+            bank = load_bank()
+            self._bank = bank[-HELD_OUT:] if targets == "reachable_held_out" else bank[:-HELD_OUT]
         self.reward_config = reward
         self.pose_threshold = float(pose_threshold)
         self._joint_low, self._joint_high = model.jnt_range.T.astype(np.float32)
@@ -128,8 +146,11 @@ class MyoHandPose(MuscleHandTask):
         return target + self.start_spread * (uniform - target)
 
     def draw_target(self, key: jax.Array) -> jax.Array:
-        """A target posture `(23,)` in rad, uniform per joint within `TARGET_RANGES`."""
-        return jax.random.uniform(key, self._target_low.shape, minval=self._target_low, maxval=self._target_high)
+        """A target posture `(23,)` in rad: uniform per joint within `TARGET_RANGES` ("asl"), or a uniformly drawn
+        row of the reachable bank's part that `targets` names."""
+        if self.targets == "asl":
+            return jax.random.uniform(key, self._target_low.shape, minval=self._target_low, maxval=self._target_high)
+        return jnp.asarray(self._bank)[jax.random.randint(key, (), 0, len(self._bank))]
 
     def initial_info(self, key: jax.Array, snap: Snapshot) -> dict[str, jax.Array]:
         return {"target": self.draw_target(key), "solved_steps": jnp.zeros((), jnp.int32)}
