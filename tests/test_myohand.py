@@ -351,3 +351,8 @@ def test_a_config_of_the_myohand_without_myo_sim_exits_2_naming_the_install(monk
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "myo_sim" else real(name, *a))
     assert main(["config", "show", "myohand_pose"]) == 2
     assert 'pip install -c constraints.txt -e ".[myo]"' in capsys.readouterr().err
+
+
+def test_a_config_with_unknown_targets_exits_2_naming_the_choices(capsys):
+    assert main(["config", "show", "myohand_pose", "env.options.targets=random"]) == 2
+    assert "targets must be one of asl, reachable, reachable_held_out" in capsys.readouterr().err
