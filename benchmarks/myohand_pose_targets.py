@@ -16,17 +16,11 @@ import argparse
 import jax
 import numpy as np
 from common import markdown_table, write_results
+from sklearn.metrics import pairwise_distances_argmin_min
 
 from angora_jax.envs.myohand.model import load_hand
 from angora_jax.envs.myohand.pose import POSE_THRESHOLD, MyoHandPose
 from angora_jax.envs.myohand.reachable import HELD_OUT, load_bank
-
-
-def nearest_distances(queries: np.ndarray, references: np.ndarray, chunk: int = 256) -> np.ndarray:
-    """For each row of `queries` `(n, d)`, the Euclidean distance to its nearest row of `references` `(m, d)`."""
-    return np.concatenate([
-        np.sqrt(((block[:, None, :] - references[None, :, :]) ** 2).sum(-1)).min(axis=1)
-        for block in np.array_split(queries, max(1, len(queries) // chunk))])
 
 
 def summary(name: str, distances: np.ndarray) -> dict:
@@ -47,8 +41,8 @@ def main() -> None:
     training, held_out = bank[:-HELD_OUT], bank[-HELD_OUT:]
     task = MyoHandPose(load_hand(myosuite_frame=True))
     asl = np.asarray(jax.vmap(task.draw_target)(jax.random.split(jax.random.key(args.seed), args.asl)), np.float64)
-    rows = [summary("reachable_held_out", nearest_distances(held_out, training)),
-            summary("asl (MyoSuite's draw)", nearest_distances(asl, training))]
+    rows = [summary("reachable_held_out", pairwise_distances_argmin_min(held_out, training)[1]),
+            summary("asl (MyoSuite's draw)", pairwise_distances_argmin_min(asl, training)[1])]
     print(f"Distance to the nearest of the bank's {len(training)} training targets (rad; success below "
           f"{POSE_THRESHOLD}):")
     print(markdown_table(rows, [("queries", "queries", "s"), ("count", "count", "d"), ("p10_rad", "10th pct.", ".3f"),

@@ -5,21 +5,8 @@ import os
 import subprocess
 import sys
 
-import numpy as np
-
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
-import myohand_pose_targets as targets_script  # noqa: E402
-
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks",
                       "myohand_pose_targets.py")
-
-
-def test_nearest_distances_match_a_brute_force_search_in_any_chunking():
-    rng = np.random.default_rng(0)
-    queries, references = rng.normal(size=(37, 5)), rng.normal(size=(11, 5))
-    expected = np.array([min(np.linalg.norm(q - r) for r in references) for q in queries])
-    for chunk in (1, 7, 100):
-        np.testing.assert_allclose(targets_script.nearest_distances(queries, references, chunk), expected)
 
 
 def test_the_script_finds_held_out_targets_near_training_and_myosuites_outside_the_reachable_set(tmp_path):
