@@ -20,7 +20,7 @@ from sklearn.metrics import pairwise_distances_argmin_min
 
 from angora_jax.envs.myohand.model import load_hand
 from angora_jax.envs.myohand.pose import POSE_THRESHOLD, MyoHandPose
-from angora_jax.envs.myohand.reachable import HELD_OUT, load_bank
+from angora_jax.envs.myohand.reachable import HELD_OUT, bank_part
 
 
 def summary(name: str, distances: np.ndarray) -> dict:
@@ -37,8 +37,7 @@ def main() -> None:
     parser.add_argument("--out", default=None, help="JSON path (default: results/myohand/)")
     args = parser.parse_args()
 
-    bank = load_bank().astype(np.float64)
-    training, held_out = bank[:-HELD_OUT], bank[-HELD_OUT:]
+    training, held_out = (bank_part(held_out=part).astype(np.float64) for part in (False, True))
     task = MyoHandPose(load_hand(myosuite_frame=True))
     asl = np.asarray(jax.vmap(task.draw_target)(jax.random.split(jax.random.key(args.seed), args.asl)), np.float64)
     rows = [summary("reachable_held_out", pairwise_distances_argmin_min(held_out, training)[1]),
@@ -48,9 +47,9 @@ def main() -> None:
     print(markdown_table(rows, [("queries", "queries", "s"), ("count", "count", "d"), ("p10_rad", "10th pct.", ".3f"),
                                 ("median_rad", "median", ".3f"), ("p90_rad", "90th pct.", ".3f"),
                                 ("min_rad", "min", ".3f"), ("share_within_threshold", "within 0.7 rad", ".3f")]))
-    path = write_results("myohand_pose_targets", {"asl_draws": args.asl, "seed": args.seed, "bank_rows": len(bank),
-                                                  "held_out_rows": HELD_OUT, "threshold_rad": POSE_THRESHOLD},
-                         rows, args.out, study="myohand")
+    config = {"asl_draws": args.asl, "seed": args.seed, "bank_rows": len(training) + len(held_out),
+              "held_out_rows": HELD_OUT, "threshold_rad": POSE_THRESHOLD}
+    path = write_results("myohand_pose_targets", config, rows, args.out, study="myohand")
     print(f"wrote {path}")
 
 

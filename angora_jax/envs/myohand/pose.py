@@ -43,7 +43,7 @@ from angora_jax.envs.coefficients import Coefficients
 from angora_jax.envs.core import Sensation
 from angora_jax.envs.mujoco_task import Snapshot
 from angora_jax.envs.myohand.muscle_task import SUCCESS_STEPS, MuscleHandTask
-from angora_jax.envs.myohand.reachable import HELD_OUT, load_bank
+from angora_jax.envs.myohand.reachable import bank_part
 
 # Per joint (in the model's joint order), the lowest and highest angle (rad) over MyoSuite's ten ASL digit postures
 # (`ASL_qpos` in myosuite 3.0.0 `envs/myo/tasks/basic/__init__.py`, for the hand that myo-sim composes).
@@ -124,8 +124,7 @@ class MyoHandPose(MuscleHandTask):
         self.start_spread = float(start_spread)
         self.targets = targets
         if targets != "asl":
-            bank = load_bank()
-            self._bank = bank[-HELD_OUT:] if targets == "reachable_held_out" else bank[:-HELD_OUT]
+            self._bank = bank_part(held_out=targets == "reachable_held_out")
         self.reward_config = reward
         self.pose_threshold = float(pose_threshold)
         self._joint_low, self._joint_high = model.jnt_range.T.astype(np.float32)

@@ -57,6 +57,13 @@ def load_bank() -> np.ndarray:
     return postures
 
 
+def bank_part(held_out: bool) -> np.ndarray:
+    """The rows of the shipped bank that training draws (all but the last `HELD_OUT`), or with `held_out` those last
+    rows, float32 `(rows, 23)` (rad)."""
+    postures = load_bank()
+    return postures[-HELD_OUT:] if held_out else postures[:-HELD_OUT]
+
+
 def main(argv: list[str] | None = None) -> None:
     from angora_jax.envs.myohand.model import load_hand
 
