@@ -113,6 +113,7 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     ablate.add_argument("--episodes", type=positive_int, default=256)
     ablate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
     ablate.add_argument("--out", default=None, help="PNG and NetCDF (default: RUN_DIR/ablation.png)")
+    add_env_option(ablate)
     ablate.set_defaults(handler=command_ablate)
 
 
@@ -273,8 +274,7 @@ def command_ablate(args: argparse.Namespace) -> int:
         silence_modality,
     )
 
-    checkpoint = checkpoint_of(args.checkpoint)
-    agent = load_agent(args.run_dir, checkpoint)
+    agent = load_agent(args.run_dir, checkpoint_of(args.checkpoint), args.env_option)
     try:
         lesions = {f"-{area}": lesion_area(agent, area) for area in args.lesion}
         lesions |= {f"-{modality} input": silence_modality(agent, modality) for modality in args.silence}
