@@ -205,12 +205,13 @@ def study_folder(study: str) -> str:
     return path
 
 
-def write_results(name: str, config: dict, rows: list[dict], out: str | None = None, *, study: str) -> str:
+def write_results(name: str, config: dict, rows: list[dict], out: str | None = None, *, study: str,
+                  extra: dict | None = None) -> str:
     """Write rows with device, versions and config as JSON to `out` (default:
-    results/<study>/<name>_<platform>.json)."""
+    results/<study>/<name>_<platform>.json), with `extra`'s keys beside them (e.g. statistics over rows)."""
     path = out or os.path.join(study_folder(study), f"{name}_{jax.devices()[0].platform}.json")
     record = {"benchmark": name, "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-              "device": device(), "versions": versions(), "config": config, "results": rows}
+              "device": device(), "versions": versions(), "config": config, "results": rows, **(extra or {})}
     with open(path, "w") as f:
         json.dump(record, f, indent=2)
     return path

@@ -56,19 +56,22 @@ def unresolved(root: Path, results: Path) -> list[str]:
 
 
 def misplaced(results: Path) -> list[str]:
-    """Files that are not in a study folder whose README.md names them."""
+    """Files that are not in a study folder whose README.md names them: a file directly in the folder by its name, a
+    file of a run directory kept whole inside it (`<study>/<run folder>/...`, as `angora-jax report` and
+    benchmarks/seed_statistics.py read runs) by a folder above it, `<run folder>/`."""
     problems = []
     for path in sorted(results.rglob("*")):
         if not path.is_file():
             continue
         parts = path.relative_to(results).parts
         readme = results / parts[0] / "README.md"
-        if len(parts) != 2:
+        names = [parts[-1]] if len(parts) == 2 else [f"{'/'.join(parts[1:k])}/" for k in range(2, len(parts))]
+        if len(parts) < 2:
             problems.append(f"{path.relative_to(results)}: not in a study folder (benchmarks/results/<study>/<file>)")
         elif not readme.is_file():
             if f"{parts[0]}/: no README.md" not in problems:
                 problems.append(f"{parts[0]}/: no README.md")
-        elif path != readme and parts[1] not in readme.read_text():
+        elif path != readme and not any(name in readme.read_text() for name in names):
             problems.append(f"{path.relative_to(results)}: not named in {parts[0]}/README.md")
     return problems
 
@@ -97,5 +100,10 @@ def test_the_checks_fail_on_a_missing_citation_and_a_loose_file(tree):
     assert unresolved(tree, tree / "results") == ["README.md: study/b_gpu.json", "README.md: study/c_*.png."]
     (tree / "results" / "loose.json").write_text("{}")
     (tree / "results" / "study" / "unnamed.png").write_bytes(b"")
+    for run in ("run_a", "run_b"):
+        (tree / "results" / "study" / run / "evaluation").mkdir(parents=True)
+        (tree / "results" / "study" / run / "evaluation" / "best.json").write_text("{}")
+    (tree / "results" / "study" / "README.md").write_text("# study\n\n`a_gpu.json`, `run_a/`: current\n")
     assert misplaced(tree / "results") == ["loose.json: not in a study folder (benchmarks/results/<study>/<file>)",
+                                           "study/run_b/evaluation/best.json: not named in study/README.md",
                                            "study/unnamed.png: not named in study/README.md"]
