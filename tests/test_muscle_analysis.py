@@ -30,6 +30,10 @@ def test_synergies_find_the_3_planted_ones_and_recover_them(tmp_path):
     assert result.attrs["count"] == 3 and result.attrs["reached"] == 1
     assert result["vaf"].values[1] < 0.9 <= result["vaf"].values[2]
     assert np.all(np.diff(result["vaf"].values) > -1e-3), "more synergies never explain much less"
+    # Shuffled apart, the muscles keep their tonic level (the first synergy still explains much) but not the planted
+    # co-activation: 3 synergies explain far less.
+    shuffled = result["vaf_shuffled"].values
+    assert 0.3 < shuffled[0] and shuffled[2] < result["vaf"].values[2] - 0.1, shuffled
     reconstruction = result["activation"].values @ result["muscle_weights"].values
     uncentred = 1 - np.sum((activations - reconstruction) ** 2) / np.sum(activations**2)
     assert result["vaf"].sel(count=3) == pytest.approx(uncentred, abs=1e-9)
@@ -170,7 +174,8 @@ def test_the_analyze_verbs_write_plots_and_numbers_and_exit_2_on_a_recording_wit
                           "alive": (("episode", "time"), np.ones((5, 40)))})
     muscles.to_netcdf(tmp_path / "muscles.nc", engine="scipy")
     assert main(["analyze", "synergies", str(tmp_path / "muscles.nc"), "--max-synergies", "4"]) == 0
-    assert "3 synergies reach VAF 0.9" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "3 synergies reach VAF 0.9" in out and "VAF by count (shuffled control): 1 " in out
     assert xr.load_dataset(tmp_path / "muscles.synergies.nc").attrs["count"] == 3
     recording, _ = kinematic_recording()
     recording.to_netcdf(tmp_path / "joints.nc", engine="scipy")

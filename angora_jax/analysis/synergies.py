@@ -6,6 +6,11 @@ non-negative matrix factorisation (scikit-learn's `NMF`) as `A ~ W H`, for k = 1
 Each k is scored by the variance accounted for, the synergy literature's measure (e.g. Tresch, Cheung and d'Avella
 2006): VAF = 1 - ||A - W H||^2 / ||A||^2, uncentred (the squared Frobenius norms). The count is the smallest k whose
 VAF reaches `threshold` (0.9 by convention).
+
+Uncentred VAF credits a tonic co-activation to the first synergy, and a finite sample gives any factorisation some
+VAF, so a count alone says little. The control, `vaf_shuffled`, factorises the same activations with each muscle's
+samples permuted on their own: every muscle keeps its distribution (and so its tonic level) but loses its
+co-activation with the others. Structure is where the VAF rises above that control.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ ACTIVATION = "task_muscle_activation"
 
 
 def synergies(data: xr.Dataset | np.ndarray, max_synergies: int = 8, threshold: float = 0.9,
-              variable: str = ACTIVATION, seed: int = 0) -> xr.Dataset:
+              variable: str = ACTIVATION, seed: int = 0, control: bool = True) -> xr.Dataset:
     """The VAF of 1 .. `max_synergies` synergies and the synergies of the smallest count that reaches `threshold`.
 
     Args:
@@ -27,13 +32,15 @@ def synergies(data: xr.Dataset | np.ndarray, max_synergies: int = 8, threshold: 
         max_synergies: the most synergies to fit (at most the number of muscles).
         threshold: the VAF the count must reach, in (0, 1].
         variable: the recording's variable of activations (`task_muscle_activation` of `MyoHandPose`).
-        seed: NMF's initialisation seed.
+        seed: NMF's initialisation seed and the control's permutations'.
+        control: also fit the shuffled control (twice the fits).
 
     Returns:
-        A Dataset with `vaf` (dim `count`: 1 .. max_synergies), `muscle_weights` (dims synergy x muscle: the chosen
-        count's synergies, unit norm, ordered by their share of the activations) and `activation` (dims sample x
-        synergy: each synergy's activation per sample); attributes `count` (the chosen count; `max_synergies` when
-        none reaches the threshold, and `reached` 0), `threshold` and `samples`.
+        A Dataset with `vaf` and `vaf_shuffled` (dim `count`: 1 .. max_synergies; the control NaN without `control`),
+        `muscle_weights` (dims synergy x muscle: the chosen count's synergies, unit norm, ordered by their share of
+        the activations) and `activation` (dims sample x synergy: each synergy's activation per sample); attributes
+        `count` (the chosen count; `max_synergies` when none reaches the threshold, and `reached` 0), `threshold` and
+        `samples`.
 
     Raises:
         ValueError: negative activations, a variable the recording lacks, or a count out of range.
@@ -44,13 +51,13 @@ def synergies(data: xr.Dataset | np.ndarray, max_synergies: int = 8, threshold: 
         raise ValueError(f"max_synergies must lie in 1..{muscles} (the muscles), got {max_synergies}.")
     if not 0 < threshold <= 1:
         raise ValueError(f"threshold must lie in (0, 1], got {threshold}.")
-    total = np.sum(activations**2)
-    fits = []
-    for k in range(1, max_synergies + 1):
-        model = NMF(n_components=k, init="nndsvda", max_iter=1000, random_state=seed)
-        weights = model.fit_transform(activations)
-        fits.append((weights, model.components_, 1 - np.sum((activations - weights @ model.components_)**2) / total))
+    fits = [_factorise(activations, k, seed) for k in range(1, max_synergies + 1)]
     vaf = np.array([fit[2] for fit in fits])
+    shuffled = np.full(max_synergies, np.nan)
+    if control:
+        rng = np.random.default_rng(seed)
+        permuted = np.stack([rng.permutation(column) for column in activations.T], axis=1)
+        shuffled = np.array([_factorise(permuted, k, seed)[2] for k in range(1, max_synergies + 1)])
     reached = bool(np.any(vaf >= threshold))
     count = int(np.argmax(vaf >= threshold)) + 1 if reached else max_synergies
     weights, components, _ = fits[count - 1]
@@ -60,10 +67,19 @@ def synergies(data: xr.Dataset | np.ndarray, max_synergies: int = 8, threshold: 
     order = np.argsort(-np.sum(weights, axis=0))
     return xr.Dataset(
         {"vaf": ("count", vaf, {"description": "1 - ||A - WH||^2 / ||A||^2 (uncentred)"}),
+         "vaf_shuffled": ("count", shuffled, {"description": "the same with each muscle's samples permuted apart"}),
          "muscle_weights": (("synergy", "muscle"), components[order], {"description": "per synergy, unit norm"}),
          "activation": (("sample", "synergy"), weights[:, order], {"description": "each synergy's activation"})},
         coords={"count": np.arange(1, max_synergies + 1), "synergy": np.arange(count), "muscle": np.arange(muscles)},
         attrs={"count": count, "reached": int(reached), "threshold": threshold, "samples": len(activations)})
+
+
+def _factorise(activations: np.ndarray, k: int, seed: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """NMF of `activations` with `k` synergies: (W, H, uncentred VAF)."""
+    model = NMF(n_components=k, init="nndsvda", max_iter=1000, random_state=seed)
+    weights = model.fit_transform(activations)
+    residual = np.sum((activations - weights @ model.components_) ** 2)
+    return weights, model.components_, 1 - residual / np.sum(activations**2)
 
 
 def _activations(data: xr.Dataset | np.ndarray, variable: str) -> np.ndarray:
@@ -92,7 +108,11 @@ def plot_synergies(result: xr.Dataset, path: str) -> None:
     count = result.sizes["synergy"]
     fig, axes = plt.subplots(1, 1 + count, figsize=(3.6 + 2.4 * count, 3.2), squeeze=False)
     ax = axes[0][0]
-    ax.plot(result["count"].values, result["vaf"].values, marker="o")
+    ax.plot(result["count"].values, result["vaf"].values, marker="o", label="activations")
+    if "vaf_shuffled" in result and not np.all(np.isnan(result["vaf_shuffled"].values)):
+        ax.plot(result["count"].values, result["vaf_shuffled"].values, marker="o", color="0.6",
+                label="muscles shuffled apart")
+        ax.legend(fontsize="small", loc="lower right")
     ax.axhline(result.attrs["threshold"], ls="--", color="k", lw=0.8)
     ax.set(xlabel="synergies", ylabel="VAF", ylim=(0, 1.02), title=f"{result.attrs['count']} reach the threshold"
            if result.attrs["reached"] else "none reach the threshold")

@@ -207,8 +207,9 @@ def command_analysis(args: argparse.Namespace) -> int:
             strength = result["strength"].values
             yield f"eta^2 of {args.variable} per unit: median {np.median(strength):.2f}, max {strength.max():.2f}"
         elif args.analysis == "synergies":
-            yield "VAF by count: " + ", ".join(f"{k} {v:.3f}" for k, v in zip(result["count"].values,
-                                                                              result["vaf"].values, strict=True))
+            yield "VAF by count (shuffled control): " + ", ".join(
+                f"{k} {v:.3f} ({c:.3f})" for k, v, c in zip(result["count"].values, result["vaf"].values,
+                                                         result["vaf_shuffled"].values, strict=True))
             yield (f"{result.attrs['count']} synergies reach VAF {args.threshold}" if result.attrs["reached"] else
                    f"No count up to {args.max_synergies} reaches VAF {args.threshold}")
         elif args.analysis == "muscles-or-movements":
