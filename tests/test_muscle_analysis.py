@@ -130,7 +130,8 @@ TINY_HAND = ["env.options.physics={impl: warp}", "env.options.max_episode_steps=
 
 
 @pytest.mark.slow
-def test_a_muscles_lesion_zeroes_that_muscles_recorded_excitation_only_and_the_probe_fits(tmp_path, quick_compiles):
+def test_a_muscles_lesion_zeroes_that_muscles_recorded_excitation_only_and_the_probe_fits(tmp_path, quick_compiles,
+                                                                                           capsys):
     """A tiny MyoHand run's recording with muscle 7 silenced, the probe against the recording, the analyze verbs on
     it (muscles-or-movements with its random-weights control) and ablate silencing a muscle (exit 2 for a muscle the
     hand lacks). The fast counterparts: the silenced step on the C MuJoCo twin above, and the analyses on synthetic
@@ -153,16 +154,21 @@ def test_a_muscles_lesion_zeroes_that_muscles_recorded_excitation_only_and_the_p
     assert {f"activity_{layer}" for layer in probe.layers} | set(probe.variables) <= set(intact.data_vars)
     lesions = probe.lesions(agent)
     assert len(lesions) == MUSCLES + 3 and lesions["-none"] is agent
+    assert intact["muscle_activation_component"].values[7] == "PQ_r", "the recording names the muscles"
     path = save_activity(intact, tmp_path / "hand.nc")
     assert main(["analyze", "muscles-or-movements", str(path), "--run", str(run.run_dir), "--checkpoint", "latest",
                  "--layers", "network.M1", "network.SSC_1", "--folds", "2"]) == 0
     control = xr.load_dataset(tmp_path / "hand.muscles-or-movements.nc")["control_r2"].values
     assert np.all(np.isfinite(control)), "the random-weights control replayed the recording"
     assert main(["analyze", "synergies", str(path), "--max-synergies", "3"]) == 0
-    assert main(["analyze", "ablate", str(run.run_dir), "--checkpoint", "latest", "--action", "7", "--episodes", "4",
+    assert xr.load_dataset(tmp_path / "hand.synergies.nc")["muscle"].values[24] == "FPL_r"
+    assert main(["analyze", "ablate", str(run.run_dir), "--checkpoint", "latest", "--action", "PQ_r", "--episodes", "4",
                  "--out", str(tmp_path / "ablation.png")]) == 0
-    assert list(xr.load_dataset(tmp_path / "ablation.nc")["lesion"].values) == ["intact", "-action 7"]
+    assert list(xr.load_dataset(tmp_path / "ablation.nc")["lesion"].values) == ["intact", "-action 7 (PQ_r)"]
     assert main(["analyze", "ablate", str(run.run_dir), "--checkpoint", "latest", "--action", str(MUSCLES)]) == 2
+    capsys.readouterr()
+    assert main(["analyze", "ablate", str(run.run_dir), "--checkpoint", "latest", "--action", "PQ"]) == 2
+    assert "muscle names (ECRL_r, ECRB_r" in capsys.readouterr().err
 
 
 @pytest.mark.filterwarnings("ignore:Maximum number of iterations")

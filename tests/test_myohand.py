@@ -52,6 +52,14 @@ def test_the_hand_has_23_joints_and_39_muscles_on_39_wrapping_tendons(model):
     assert model.opt.timestep == 0.002
 
 
+def test_the_muscle_variables_are_labelled_with_the_muscles_names_in_action_order(model):
+    labels = MyoHandPose(model).task_variable_labels()
+    assert set(labels) == {"muscle_force", "muscle_activation", "muscle_excitation"}
+    names = labels["muscle_excitation"]
+    assert len(names) == MUSCLES and len(set(names)) == MUSCLES
+    assert names[:3] == ("ECRL_r", "ECRB_r", "ECU_r") and names[24] == "FPL_r" and names[-1] == "UI_UB5_r"
+
+
 def test_observations_hold_joints_the_muscle_sense_and_the_goal(cpu):
     env, state = cpu
     sizes = {name: int(value.shape[-1]) for name, value in state.obs.__dict__.items()}

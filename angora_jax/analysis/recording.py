@@ -196,14 +196,19 @@ def _dataset(agent: Agent, record: dict[str, Any], dt: float, images: bool) -> x
     data["reward"] = (("episode", "time"), episode_major(record["reward"]), {"description": "reward of the step"})
     for name, values in record["metrics"].items():
         data[f"metric_{name}"] = (("episode", "time"), episode_major(values), {"description": f"task metric {name}"})
+    task = getattr(agent.env, "task", None)  # a MuJoCo task, through any wrapper that reads through to it
+    labels = task.task_variable_labels() if task is not None else {}
+    coords = {"time": ("time", np.arange(action.shape[1]) * dt, {"units": "s"})}
     for name, values in record["task"].items():
         data[f"task_{name}"] = (("episode", "time", f"{name}_component"), episode_major(values),
                                 {"description": f"task variable {name} (see the task's task_variables)"})
+        if name in labels:
+            coords[f"{name}_component"] = list(labels[name])
     data["alive"] = (("episode", "time"), episode_major(record["alive"]),
                      {"description": "1 while the episode's first run lasts, through its last step"})
     data["time_in_episode"] = (("episode", "time"), episode_major(record["steps"]) * dt,
                                {"units": "s", "description": "time since the episode started"})
-    return xr.Dataset(data, coords={"time": ("time", np.arange(action.shape[1]) * dt, {"units": "s"})},
+    return xr.Dataset(data, coords=coords,
                       attrs={"task": agent.config.env.task, "network": agent.config.ppo.network.name,
                              "cycle": agent.cycle, "policy_step_s": dt,
                              "camera_images": int(is_image(record["inputs"].vision))})

@@ -37,7 +37,8 @@ def synergies(data: xr.Dataset | np.ndarray, max_synergies: int = 8, threshold: 
 
     Returns:
         A Dataset with `vaf` and `vaf_shuffled` (dim `count`: 1 .. max_synergies; the control NaN without `control`),
-        `muscle_weights` (dims synergy x muscle: the chosen count's synergies, unit norm, ordered by their share of
+        `muscle_weights` (dims synergy x muscle, the muscles named where the recording names them: the chosen count's
+        synergies, unit norm, ordered by their share of
         the activations) and `activation` (dims sample x synergy: each synergy's activation per sample); attributes
         `count` (the chosen count; `max_synergies` when none reaches the threshold, and `reached` 0), `threshold` and
         `samples`.
@@ -47,6 +48,7 @@ def synergies(data: xr.Dataset | np.ndarray, max_synergies: int = 8, threshold: 
     """
     activations = _activations(data, variable)
     muscles = activations.shape[1]
+    names = _muscle_names(data, variable, muscles)
     if not 1 <= max_synergies <= muscles:
         raise ValueError(f"max_synergies must lie in 1..{muscles} (the muscles), got {max_synergies}.")
     if not 0 < threshold <= 1:
@@ -70,7 +72,7 @@ def synergies(data: xr.Dataset | np.ndarray, max_synergies: int = 8, threshold: 
          "vaf_shuffled": ("count", shuffled, {"description": "the same with each muscle's samples permuted apart"}),
          "muscle_weights": (("synergy", "muscle"), components[order], {"description": "per synergy, unit norm"}),
          "activation": (("sample", "synergy"), weights[:, order], {"description": "each synergy's activation"})},
-        coords={"count": np.arange(1, max_synergies + 1), "synergy": np.arange(count), "muscle": np.arange(muscles)},
+        coords={"count": np.arange(1, max_synergies + 1), "synergy": np.arange(count), "muscle": names},
         attrs={"count": count, "reached": int(reached), "threshold": threshold, "samples": len(activations)})
 
 
@@ -80,6 +82,15 @@ def _factorise(activations: np.ndarray, k: int, seed: int) -> tuple[np.ndarray, 
     weights = model.fit_transform(activations)
     residual = np.sum((activations - weights @ model.components_) ** 2)
     return weights, model.components_, 1 - residual / np.sum(activations**2)
+
+
+def _muscle_names(data: xr.Dataset | np.ndarray, variable: str, muscles: int) -> np.ndarray:
+    """The recording's names of the muscles (its coordinate of `variable`'s last dimension), else their indices."""
+    if isinstance(data, xr.Dataset):
+        dim = data[variable].dims[-1]
+        if dim in data.coords and data.sizes[dim] == muscles:
+            return np.asarray(data[dim].values)
+    return np.arange(muscles)
 
 
 def _activations(data: xr.Dataset | np.ndarray, variable: str) -> np.ndarray:
@@ -106,7 +117,9 @@ def plot_synergies(result: xr.Dataset, path: str) -> None:
     import matplotlib.pyplot as plt
 
     count = result.sizes["synergy"]
-    fig, axes = plt.subplots(1, 1 + count, figsize=(3.6 + 2.4 * count, 3.2), squeeze=False)
+    # Tall enough for one readable label per muscle.
+    height = max(3.2, 0.11 * result.sizes["muscle"] + 1.0)
+    fig, axes = plt.subplots(1, 1 + count, figsize=(3.6 + 2.4 * count, height), squeeze=False)
     ax = axes[0][0]
     ax.plot(result["count"].values, result["vaf"].values, marker="o", label="activations")
     if "vaf_shuffled" in result and not np.all(np.isnan(result["vaf_shuffled"].values)):
@@ -116,9 +129,11 @@ def plot_synergies(result: xr.Dataset, path: str) -> None:
     ax.axhline(result.attrs["threshold"], ls="--", color="k", lw=0.8)
     ax.set(xlabel="synergies", ylabel="VAF", ylim=(0, 1.02), title=f"{result.attrs['count']} reach the threshold"
            if result.attrs["reached"] else "none reach the threshold")
+    muscles = result["muscle"].values
     for i, ax in enumerate(axes[0][1:]):
-        ax.barh(result["muscle"].values, result["muscle_weights"].values[i], color="tab:blue")
+        ax.barh(np.arange(len(muscles)), result["muscle_weights"].values[i], color="tab:blue")
         ax.set(title=f"synergy {i + 1}", xlabel="weight", ylabel="muscle" if i == 0 else None)
+        ax.set_yticks(np.arange(len(muscles)), [str(m) for m in muscles], fontsize=6)
         ax.invert_yaxis()
     fig.tight_layout()
     fig.savefig(path, dpi=100)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, add_env_option, checkpoint_of, positive_int
-from angora_jax.experiment import load_agent
+from angora_jax.experiment import Agent, load_agent
 
 
 def add_analyze(commands: argparse._SubParsersAction) -> None:
@@ -107,9 +107,9 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     ablate.add_argument("--silence", nargs="*", default=[], metavar="MODALITY", help="input modalities to silence")
     ablate.add_argument("--fraction", nargs="*", default=[], metavar="AREA:F",
                         help="silence a random fraction F of an area's units, e.g. network.M1:0.5")
-    ablate.add_argument("--action", nargs="*", type=int, default=[], metavar="I",
+    ablate.add_argument("--action", nargs="*", default=[], metavar="I",
                         help="action components to silence, each on its own (on a muscle hand: muscle I's "
-                             "excitation held at 0)")
+                             "excitation held at 0; a muscle's name, e.g. FPL_r, names it too)")
     ablate.add_argument("--episodes", type=positive_int, default=256)
     ablate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
     ablate.add_argument("--out", default=None, help="PNG and NetCDF (default: RUN_DIR/ablation.png)")
@@ -265,6 +265,23 @@ def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None 
     return EXIT_OK
 
 
+def action_components(agent: Agent, given: list[str]) -> list[tuple[int, str]]:
+    """`--action`'s values as (index, lesion name): action indices, or on a muscle hand muscles' names too."""
+    task = getattr(agent.env, "task", None)
+    muscles = list(task.task_variable_labels().get("muscle_excitation", ())) if task is not None else []
+    components = []
+    for value in given:
+        if value.isdigit():
+            index = int(value)
+        elif value in muscles:
+            index = muscles.index(value)
+        else:
+            names = f" or muscle names ({', '.join(muscles)})" if muscles else ""
+            raise ValueError(f"--action takes action indices{names}, got {value!r}.")
+        components.append((index, f"-action {index}" + (f" ({muscles[index]})" if index < len(muscles) else "")))
+    return components
+
+
 def command_ablate(args: argparse.Namespace) -> int:
     from angora_jax.analysis import (
         ablation,
@@ -279,7 +296,7 @@ def command_ablate(args: argparse.Namespace) -> int:
     try:
         lesions = {f"-{area}": lesion_area(agent, area) for area in args.lesion}
         lesions |= {f"-{modality} input": silence_modality(agent, modality) for modality in args.silence}
-        lesions |= {f"-action {component}": silence_actions(agent, [component]) for component in args.action}
+        lesions |= {name: silence_actions(agent, [index]) for index, name in action_components(agent, args.action)}
         for spec in args.fraction:
             area, _, text = spec.rpartition(":")
             fraction = float(text) if text.replace(".", "", 1).isdigit() else -1.0

@@ -169,6 +169,11 @@ class MujocoTask(abc.ABC):
         """`Env.task_variables` of the snapshot: named vectors in SI units; none unless the task names some."""
         return {}
 
+    def task_variable_labels(self) -> dict[str, tuple[str, ...]]:
+        """A name per component of those `task_variables` whose components have one (e.g. each muscle's), which
+        recordings keep as coordinates; none by default."""
+        return {}
+
     def perceive(self, obs: Sensation, frames: jax.Array, info: dict[str, jax.Array]) -> Sensation:
         """`obs` (from `observe`) completed with the camera `frames` of the same state (`vision`'s uint8
         `frame_shape`), which the physics backends render after `observe`: by default the frames are the vision

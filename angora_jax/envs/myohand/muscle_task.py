@@ -80,3 +80,10 @@ class MuscleHandTask(MujocoTask):
         and a muscle's lesion silences."""
         return {"joint_angles": snap.qpos, "joint_velocities": snap.qvel, "target": info["target"],
                 "muscle_force": snap.actuator_force, "muscle_activation": snap.act, "muscle_excitation": snap.ctrl}
+
+    def task_variable_labels(self) -> dict[str, tuple[str, ...]]:
+        """The muscles' names (the model's actuators in order, e.g. `FPL_r`; `actuator i` for an unnamed one) for the
+        muscle variables: action i is muscle i's excitation, so they name the actions too."""
+        muscles = tuple(mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator {i}"
+                        for i in range(self.model.nu))
+        return {"muscle_force": muscles, "muscle_activation": muscles, "muscle_excitation": muscles}
