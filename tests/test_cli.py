@@ -413,7 +413,8 @@ def test_the_myohand_pose_curriculum_trains_two_stages_then_evaluates_records_an
     record = json.loads(evaluation.read_text())
     assert record["task_options"]["start_spread"] == 1.0 and len(record["per_episode"]["metric/success"]) == 3
     synergies = xr.load_dataset(root / "recording.synergies.nc")
-    assert synergies["vaf"].sizes["count"] == 8 and 1 <= synergies.attrs["count"] <= 8
+    # Fitted until the VAF reached 90% (or one synergy per muscle): the last count fitted is the one chosen.
+    assert 1 <= synergies["vaf"].sizes["count"] == synergies.attrs["count"] <= 39
     muscles = xr.load_dataset(root / "recording.muscles-or-movements.nc")
     assert set(muscles["kind_name"].values) == {"muscle", "movement"} and "control_kind_r2" in muscles
     for line in (f"evaluation (3 episodes, start_spread 1): {evaluation}",

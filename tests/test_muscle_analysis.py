@@ -34,6 +34,10 @@ def test_synergies_find_the_3_planted_ones_and_recover_them(tmp_path):
     # co-activation: 3 synergies explain far less.
     shuffled = result["vaf_shuffled"].values
     assert 0.3 < shuffled[0] and shuffled[2] < result["vaf"].values[2] - 0.1, shuffled
+    # Without a limit the fits stop at the count that reaches the threshold, the same fits as above.
+    until = synergies(activations)
+    assert list(until["count"].values) == [1, 2, 3] and until.attrs["count"] == 3
+    np.testing.assert_allclose(until["vaf"].values, result["vaf"].values[:3])
     reconstruction = result["activation"].values @ result["muscle_weights"].values
     uncentred = 1 - np.sum((activations - reconstruction) ** 2) / np.sum(activations**2)
     assert result["vaf"].sel(count=3) == pytest.approx(uncentred, abs=1e-9)

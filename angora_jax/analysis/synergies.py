@@ -22,26 +22,26 @@ from sklearn.decomposition import NMF
 ACTIVATION = "task_muscle_activation"
 
 
-def synergies(data: xr.Dataset | np.ndarray, max_synergies: int = 8, threshold: float = 0.9,
+def synergies(data: xr.Dataset | np.ndarray, max_synergies: int | None = None, threshold: float = 0.9,
               variable: str = ACTIVATION, seed: int = 0, control: bool = True) -> xr.Dataset:
-    """The VAF of 1 .. `max_synergies` synergies and the synergies of the smallest count that reaches `threshold`.
+    """The VAF of 1, 2, ... synergies and the synergies of the smallest count that reaches `threshold`.
 
     Args:
         data: a recording (`record_activity`; its `variable` at the steps where `alive`) or an array (samples x
             muscles) of non-negative activations.
-        max_synergies: the most synergies to fit (at most the number of muscles).
+        max_synergies: fit 1 .. this many synergies (at most the number of muscles); None: fit 1, 2, ... until the
+            VAF reaches `threshold`, at most one per muscle.
         threshold: the VAF the count must reach, in (0, 1].
         variable: the recording's variable of activations (`task_muscle_activation` of `MyoHandPose`).
         seed: NMF's initialisation seed and the control's permutations'.
         control: also fit the shuffled control (twice the fits).
 
     Returns:
-        A Dataset with `vaf` and `vaf_shuffled` (dim `count`: 1 .. max_synergies; the control NaN without `control`),
+        A Dataset with `vaf` and `vaf_shuffled` (dim `count`: the counts fitted; the control NaN without `control`),
         `muscle_weights` (dims synergy x muscle, the muscles named where the recording names them: the chosen count's
-        synergies, unit norm, ordered by their share of
-        the activations) and `activation` (dims sample x synergy: each synergy's activation per sample); attributes
-        `count` (the chosen count; `max_synergies` when none reaches the threshold, and `reached` 0), `threshold` and
-        `samples`.
+        synergies, unit norm, ordered by their share of the activations) and `activation` (dims sample x synergy:
+        each synergy's activation per sample); attributes `count` (the chosen count; the largest fitted when none
+        reaches the threshold, and `reached` 0), `threshold` and `samples`.
 
     Raises:
         ValueError: negative activations, a variable the recording lacks, or a count out of range.
@@ -49,19 +49,24 @@ def synergies(data: xr.Dataset | np.ndarray, max_synergies: int = 8, threshold: 
     activations = _activations(data, variable)
     muscles = activations.shape[1]
     names = _muscle_names(data, variable, muscles)
-    if not 1 <= max_synergies <= muscles:
+    if max_synergies is not None and not 1 <= max_synergies <= muscles:
         raise ValueError(f"max_synergies must lie in 1..{muscles} (the muscles), got {max_synergies}.")
     if not 0 < threshold <= 1:
         raise ValueError(f"threshold must lie in (0, 1], got {threshold}.")
-    fits = [_factorise(activations, k, seed) for k in range(1, max_synergies + 1)]
+    fits = []
+    for k in range(1, (max_synergies or muscles) + 1):
+        fits.append(_factorise(activations, k, seed))
+        if max_synergies is None and fits[-1][2] >= threshold:
+            break
     vaf = np.array([fit[2] for fit in fits])
-    shuffled = np.full(max_synergies, np.nan)
+    fitted = len(fits)
+    shuffled = np.full(fitted, np.nan)
     if control:
         rng = np.random.default_rng(seed)
         permuted = np.stack([rng.permutation(column) for column in activations.T], axis=1)
-        shuffled = np.array([_factorise(permuted, k, seed)[2] for k in range(1, max_synergies + 1)])
+        shuffled = np.array([_factorise(permuted, k, seed)[2] for k in range(1, fitted + 1)])
     reached = bool(np.any(vaf >= threshold))
-    count = int(np.argmax(vaf >= threshold)) + 1 if reached else max_synergies
+    count = int(np.argmax(vaf >= threshold)) + 1 if reached else fitted
     weights, components, _ = fits[count - 1]
     norms = np.linalg.norm(components, axis=1, keepdims=True)
     norms[norms == 0] = 1.0  # a synergy NMF left empty stays zero
@@ -72,7 +77,7 @@ def synergies(data: xr.Dataset | np.ndarray, max_synergies: int = 8, threshold: 
          "vaf_shuffled": ("count", shuffled, {"description": "the same with each muscle's samples permuted apart"}),
          "muscle_weights": (("synergy", "muscle"), components[order], {"description": "per synergy, unit norm"}),
          "activation": (("sample", "synergy"), weights[:, order], {"description": "each synergy's activation"})},
-        coords={"count": np.arange(1, max_synergies + 1), "synergy": np.arange(count), "muscle": names},
+        coords={"count": np.arange(1, fitted + 1), "synergy": np.arange(count), "muscle": names},
         attrs={"count": count, "reached": int(reached), "threshold": threshold, "samples": len(activations)})
 
 

@@ -85,7 +85,8 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     equations.add_argument("--held-out", type=float, default=0.25, help="fraction of episodes held out (default: 0.25)")
     synergy = analysis("synergies", "muscle synergies (NMF of the muscle activations): VAF per count, the count for "
                                     "90%% and the synergies")
-    synergy.add_argument("--max-synergies", type=positive_int, default=8, help="most synergies to fit (default: 8)")
+    synergy.add_argument("--max-synergies", type=positive_int, default=None,
+                         help="fit 1 .. this many synergies (default: until the VAF reaches the threshold)")
     synergy.add_argument("--threshold", type=float, default=0.9, help="the VAF to reach (default: 0.9)")
     synergy.add_argument("--variable", default="task_muscle_activation",
                          help="the recorded activations (default: task_muscle_activation)")
@@ -211,7 +212,7 @@ def command_analysis(args: argparse.Namespace) -> int:
                 f"{k} {v:.3f} ({c:.3f})" for k, v, c in zip(result["count"].values, result["vaf"].values,
                                                          result["vaf_shuffled"].values, strict=True))
             yield (f"{result.attrs['count']} synergies reach VAF {args.threshold}" if result.attrs["reached"] else
-                   f"No count up to {args.max_synergies} reaches VAF {args.threshold}")
+                   f"No count up to {result.sizes['count']} reaches VAF {args.threshold}")
         elif args.analysis == "muscles-or-movements":
             control = "" if args.run else " (no control: give --run)"
             yield from (f"{layer}: muscles R^2 {result['kind_r2'].sel(layer=layer, kind_name='muscle').item():.2f}, "
