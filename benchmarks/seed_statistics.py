@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from common import markdown_table, write_results
 
-from angora_jax.experiment.report import load_run, seed_groups
+from angora_jax.experiment.report import RunRecord, load_run, seed_groups
 from angora_jax.experiment.run_dir import read_sessions
 
 
@@ -39,14 +39,13 @@ def session_minutes(rows: list[dict], sessions: list[dict]) -> np.ndarray:
     return (offsets[owner] + elapsed) / 60.0
 
 
-def run_statistics(run_dir: str, metric: str, bar: float, smooth: int) -> dict:
+def run_statistics(run: RunRecord, metric: str, bar: float, smooth: int) -> dict:
     """One run's row: seed, network, minutes, env steps, the bar, the peak, past the peak, env steps/s and every
     evaluation's mean of `metric` with its standard error."""
-    run = load_run(run_dir)
     rows = [row for row in run.rows if not math.isnan(row.get(metric, math.nan))]
     if not rows:
-        raise SystemExit(f"seed_statistics: {run_dir} recorded no {metric}.")
-    sessions = read_sessions(run_dir)
+        raise SystemExit(f"seed_statistics: {run.path} recorded no {metric}.")
+    sessions = read_sessions(run.path)
     minutes = session_minutes(rows, sessions)
     values = np.array([row[metric] for row in rows])
     cycles = [row["cycle"] for row in rows]
@@ -55,7 +54,7 @@ def run_statistics(run_dir: str, metric: str, bar: float, smooth: int) -> dict:
     peak = int(running.argmax()) + window - 1
     reached = np.flatnonzero(values >= bar)
     evaluations = {}
-    for path in sorted(Path(run_dir, "evaluation").glob("*.json")):
+    for path in sorted(Path(run.path, "evaluation").glob("*.json")):
         record = json.loads(path.read_text())
         if metric in record.get("summary", {}):
             label = " ".join([record["checkpoint"], *record.get("env_overrides", [])])
@@ -106,10 +105,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", required=True, help="the JSON to write, in the runs' study folder: "
                                                     "results/<study>/<name>.json")
     args = parser.parse_args(argv)
-    rows = [run_statistics(run, args.metric, args.bar, args.smooth) for run in args.runs]
-    by_name = {row["run"]: row for row in rows}
-    groups = [group_statistics([by_name[run.name] for run in group])
-              for group in seed_groups([load_run(run) for run in args.runs])]
+    runs = [load_run(run) for run in args.runs]
+    rows = [run_statistics(run, args.metric, args.bar, args.smooth) for run in runs]
+    row_of = {id(run): row for run, row in zip(runs, rows, strict=True)}
+    groups = [group_statistics([row_of[id(run)] for run in group]) for group in seed_groups(runs)]
     print(markdown_table(rows, [("run", "run", ""), ("network", "network", ""), ("seed", "seed", ""),
                                 ("minutes", "minutes", ".2f"), ("bar_minutes", f"{args.metric} >= {args.bar} at",
                                                                 ".2f"),
