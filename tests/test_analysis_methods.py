@@ -7,6 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import xarray as xr
+from sklearn.metrics import r2_score
+from sklearn.model_selection import GroupKFold
 
 from angora_jax.analysis import (
     cross_correlation,
@@ -193,6 +195,25 @@ def test_held_out_r2_of_noise_is_chance_even_with_more_units_than_samples():
     signal = rng.standard_normal(samples)
     code = signal[:, None] * rng.standard_normal(units) + rng.standard_normal((samples, units))
     assert cross_validated_r2(code, signal[:, None], groups).min() > 0.95
+
+
+def test_a_layer_that_only_tells_episodes_apart_decodes_no_better_than_the_training_mean():
+    """Units holding a per-episode offset (plus noise), and a target with a per-episode level of its own, unrelated to
+    the offsets: within the training episodes the offsets identify each episode and so its level, and a penalty
+    chosen by leave-one-out over steps (neighbouring steps are near copies) is tiny: on new episodes that readout
+    scored R^2 -2.76, where predicting the training mean scores -0.31. Chosen on held-out episodes, the readout
+    shrinks to about that mean."""
+    rng = np.random.default_rng(1)
+    episodes, steps, units = 60, 50, 128
+    offsets = rng.standard_normal((episodes, 1, units))
+    features = (offsets + 0.1 * rng.standard_normal((episodes, steps, units))).reshape(-1, units)
+    levels = rng.standard_normal((episodes, 1))
+    target = (levels + 0.03 * np.cumsum(rng.standard_normal((episodes, steps)), axis=1)).reshape(-1, 1)
+    groups = np.repeat(np.arange(episodes), steps)
+    mean = [r2_score(target[test], np.full(len(test), target[train].mean()))
+            for train, test in GroupKFold(n_splits=5).split(target, target, groups)]
+    scores = cross_validated_r2(features, target, groups)
+    assert scores.mean() > np.mean(mean) - 0.1, (scores, mean)
 
 
 def test_tuning_strength_separates_a_tuned_layer_from_noise():
