@@ -90,6 +90,9 @@ def test_goals_are_reached_after_more_than_5_solved_steps_and_counted_in_a_row(t
     fresh = task.initial_info(jax.random.key(0), near) | {"target": jnp.asarray(goal)}
     progress = float(task.evaluate(jax.random.key(0), near, closer, fresh)[0])
     np.testing.assert_allclose(progress, c.position_progress * 0.01 + c.rotation_progress * 0.1, atol=1e-3)
+    dense = MyoHandReorient(task.model, ReorientReward(orientation=2.0))
+    np.testing.assert_allclose(float(dense.evaluate(jax.random.key(0), near, closer, fresh)[0]) - progress,
+                               2.0 * (1 - 0.1 / np.pi), atol=1e-3)  # the die 0.1 rad from its goal
     for step in range(6):
         _, terminated, info, metrics = task.evaluate(jax.random.key(10 + step), near, near, info)
     assert metrics["cgr"] == 1 and metrics["solved"] == 0 and metrics["success"] == 1 and not terminated

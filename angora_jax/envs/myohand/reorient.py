@@ -32,9 +32,10 @@ its (at most) 150 steps; its value at an episode's end is the episode's.
 
 Reward (`ReorientReward`), with p the position distance (m) and d the rotation angle (rad) to the goal active during
 the step, and p', d' the same before the step: r = position_progress * (p' - p) + rotation_progress * (d' - d) -
-position * p - rotation * d + goal_bonus * reached - drop_penalty * dropped - effort * effort. The defaults (100, 1,
-0, 0, 5, 50, 1) reward the decrease of MyoSuite's two distances with MyoSuite's weights, as the Shadow cube rewards
-the decrease of its angle (`ihom.IhomReward.progress`), not the distances themselves. MyoSuite's terms charge every
+position * p - rotation * d + orientation * (1 - d / pi) + goal_bonus * reached - drop_penalty * dropped - effort *
+effort. The defaults (100, 1, 0, 0, 0, 5, 50, 1) reward the decrease of MyoSuite's two distances with MyoSuite's
+weights, as the Shadow cube rewards the decrease of its angle (`ihom.IhomReward.progress`), not the distances
+themselves. MyoSuite's terms charge every
 step the die is away from its goal, so every episode is a sum of costs; under that reward, with a drop ending the
 episode, dropping the die at once is the best policy unless the drop costs more than all of them. Measured: the
 first GPU run, with MyoSuite's terms (100, 1) and a drop penalty of 100, learned to drop the die sooner (its episodes
@@ -46,6 +47,11 @@ cube's +5 per goal) pays for a reached goal; MyoSuite's die task has no bonus an
 weight; 10 in its comment). The effort is the mean squared activation over the 39 muscles, weight 1, as `MyoHandPose`
 and `MyoHandReach` charge it (MyoSuite's die task weights its `act_reg`, the norm of the activations over their
 number, 0).
+Scale, read from the measured cortical run (7 minutes: drops fell to a quarter, the rotation error did not fall):
+turning the die at 3 rad/s earns 0.03 a step under the default `rotation_progress`, against an effort of about 0.26
+every step, so the turn's signal is a tenth of the effort's. Next to try on a GPU (not yet measured): a larger
+`rotation_progress`, the dense `orientation` term (0.05 a step pays 7.5 over a goal's 150 steps, as the Shadow cube's
+5 per second does over 1.5 s), a smaller effort weight, and goals nearer the start first (`goal_rotation`).
 Actions are the 39 muscles' excitations in [0, 1] (`ctrl`), where MyoSuite maps actions in [-1, 1] through a sigmoid;
 the die moves on a free joint (`die.py` says what that changes).
 
@@ -103,6 +109,10 @@ class ReorientReward(Coefficients):
             over the step.
         position: weight of minus the distance (m) to the goal position (MyoSuite's term, weight 100 there).
         rotation: weight of minus the rotation angle (rad) to the goal (MyoSuite's term, weight 1 there).
+        orientation: paid every policy step times (1 - d / pi), d the rotation angle to the goal: the weight at the
+            goal, 0 facing away. The Shadow cube's dense term (`ihom.IhomReward.orientation`, MuJoCo Playground's),
+            per step instead of per second; unlike `rotation` it is never negative, so it pays for holding the die
+            near its goal where `rotation` charges for every step held away from it.
         goal_bonus: added on the step a goal is reached.
         drop_penalty: subtracted on the step the die drops (which ends the episode).
         effort: weight of minus the mean squared muscle activation.
@@ -112,6 +122,7 @@ class ReorientReward(Coefficients):
     rotation_progress: float = 1.0
     position: float = 0.0
     rotation: float = 0.0
+    orientation: float = 0.0
     goal_bonus: float = 5.0
     drop_penalty: float = 50.0
     effort: float = 1.0
@@ -233,7 +244,8 @@ class MyoHandReorient(MuscleHandTask):
         position_before, rotation_before = self.errors(prev, target)
         reward = (c.position_progress * (position_before - position_error)
                   + c.rotation_progress * (rotation_before - rotation_error)
-                  - c.position * position_error - c.rotation * rotation_error + c.goal_bonus * reached
+                  - c.position * position_error - c.rotation * rotation_error
+                  + c.orientation * (1.0 - rotation_error / jnp.pi) + c.goal_bonus * reached
                   - c.drop_penalty * dropped - c.effort * effort)
         terminated = dropped | timed_out
         next_info = {"target": jnp.where(reached, self.sample_goal(key), target), "goals_reached": goals_reached,
