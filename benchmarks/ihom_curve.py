@@ -22,7 +22,8 @@ Seeds: runs given under the same label are seeds of one recipe. For each milesto
 the 95% confidence interval (Student's t) over the seeds that reached it, and the plot draws the seeds' mean with its
 band; `--seeds N` refuses a label with another number of runs (a crashed seed must not shrink the statistics
 silently). Every run also gets its stability: the peak of its training-mean CGR (a 5-cycle rolling mean), its last
-value (the mean of the last 5 cycles), their ratio (`fraction_of_peak`) and how long it trained past the peak. The
+value (the mean of the last 5 cycles), their ratio (`fraction_of_peak`), how long it trained past the peak, and
+how many times its time to CGR 30 it trained in all (`solve_time_multiple`). The
 JSON's `curves` map each label to its runs, one list of per-cycle rows each.
 
 Scaling: `--devices LABEL=N` says a label's runs trained on N GPUs. The JSON's `scaling` then gives, per such label,
@@ -154,8 +155,9 @@ def scaling(per_run: dict[str, list[list[dict]]], devices: dict[str, int], bar: 
 
 def stability(rows: list[dict]) -> dict:
     """The peak of the training-mean CGR's rolling mean over `SMOOTH` cycles, the cycle and wall minutes where it
-    was, the mean of the last `SMOOTH` cycles, their ratio (`fraction_of_peak`), and the cycles and wall minutes
-    trained past the peak."""
+    was, the mean of the last `SMOOTH` cycles, their ratio (`fraction_of_peak`), the cycles and wall minutes trained
+    past the peak, and `solve_time_multiple`: the run's wall minutes over those to the first training mean of
+    `SOLVED` (issue 60 asks for 2; None when never reached)."""
     cgr = np.array([math.nan if r.get(CGR) is None else r[CGR] for r in rows])
     if len(cgr) < SMOOTH or np.isnan(cgr).all():
         return {"peak": None}
@@ -163,10 +165,12 @@ def stability(rows: list[dict]) -> dict:
     top = int(np.nanargmax(rolling))
     at_peak, last = rows[top + SMOOTH - 1], rows[-1]
     peak, final = float(rolling[top]), float(rolling[-1])
+    solved = next((r for r in rows if r.get(CGR) is not None and r[CGR] >= SOLVED), None)
     return {"peak": peak, "peak_cycle": at_peak["cycle"], "peak_wall_minutes": at_peak["wall_seconds"] / 60,
             "final": final, "fraction_of_peak": final / peak if peak > 0 else None,
             "cycles_past_peak": last["cycle"] - at_peak["cycle"],
-            "wall_minutes_past_peak": (last["wall_seconds"] - at_peak["wall_seconds"]) / 60}
+            "wall_minutes_past_peak": (last["wall_seconds"] - at_peak["wall_seconds"]) / 60,
+            "solve_time_multiple": last["wall_seconds"] / solved["wall_seconds"] if solved else None}
 
 
 def band(seeds: list[list[dict]], x: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -311,7 +315,9 @@ def main(argv: list[str] | None = None) -> int:
             if held["peak"] is not None:
                 print(f"  peak {held['peak']:.1f} (5-cycle mean) at cycle {held['peak_cycle']}, last "
                       f"{held['final']:.1f} ({100 * (held['fraction_of_peak'] or 0):.0f}% of the peak) after "
-                      f"{held['cycles_past_peak']} cycles ({held['wall_minutes_past_peak']:.1f} wall min) past it")
+                      f"{held['cycles_past_peak']} cycles ({held['wall_minutes_past_peak']:.1f} wall min) past it"
+                      + (f"; trained {held['solve_time_multiple']:.2f} times its time to CGR {SOLVED}"
+                         if held["solve_time_multiple"] else ""))
         if label in over_seeds:
             print(markdown_table([{"cgr": row["cgr"], "reached": f"{row['reached']}/{row['num_seeds']}",
                                    **{key: show(row[key]) for key in ("env_steps", "train_minutes", "wall_minutes")}}

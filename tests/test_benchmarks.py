@@ -247,7 +247,8 @@ def test_ihom_curve_gives_seed_statistics_and_each_runs_peak_and_fall(tmp_path, 
     first = record["stability"]["fast"][0]
     assert first["peak"] == 40 and first["peak_cycle"] == 11 and first["final"] == 20
     assert first["fraction_of_peak"] == 0.5 and first["cycles_past_peak"] == 5
-    assert record["stability"]["fast"][2]["peak"] == 0
+    assert first["solve_time_multiple"] == pytest.approx(16 / 6)  # 16 wall seconds, CGR 30 first at the 6th
+    assert record["stability"]["fast"][2]["peak"] == 0 and record["stability"]["fast"][2]["solve_time_multiple"] is None
     assert (tmp_path / "ihom_curve_s.png").read_bytes()[:4] == b"\x89PNG"
     with pytest.raises(SystemExit, match="'fast' has 3 run"):
         ihom_curve.main([*seeds, "--seeds", "5", "--device", "cpu", "--name", "s2"])
