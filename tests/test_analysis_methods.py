@@ -214,6 +214,8 @@ def test_a_layer_that_only_tells_episodes_apart_decodes_no_better_than_the_train
             for train, test in GroupKFold(n_splits=5).split(target, target, groups)]
     scores = cross_validated_r2(features, target, groups)
     assert scores.mean() > np.mean(mean) - 0.1, (scores, mean)
+    with pytest.raises(ValueError, match="at least 2 episodes to fit it on"):  # two folds of two episodes
+        cross_validated_r2(features[:2 * steps], target[:2 * steps], groups[:2 * steps], folds=2)
 
 
 def test_tuning_strength_separates_a_tuned_layer_from_noise():
