@@ -7,10 +7,8 @@ penalty is chosen by an inner `GroupKFold` over the training fold's episodes, ne
 neighbouring steps of one episode are nearly copies, so leave-one-out rewards a readout that tells episodes apart
 (a layer holding a per-episode offset) with hardly any penalty, and on new episodes that readout is worse than the
 mean (held-out R^2 down to -9 on a trained agent's value pathway; -2.8 on made-up episodes whose training mean
-scores -0.3, tests/test_analysis_methods.py).
-The baseline decodes
-the same variable from Gaussian noise of the layer's shape: what a readout finds by chance. The interval is the
-mean over folds +- 1.96 standard errors.
+scores -0.3, tests/test_analysis_methods.py). The baseline decodes the same variable from Gaussian noise of the
+layer's shape: what a readout finds by chance. The interval is the mean over folds +- 1.96 standard errors.
 
 A linear readout finds an input in any layer that keeps it, and random projections keep it: the same network with
 random weights given the same inputs (`replay_activity(with_random_weights(agent), recording)`) decodes the inputs of
@@ -75,7 +73,7 @@ def ridge_readout(features: np.ndarray, targets: np.ndarray, groups: np.ndarray)
     """A fitted ridge readout (standardized units, then scikit-learn's `Ridge`) from features `(samples, units)` to
     targets `(samples, outputs)`, each output with the penalty of `PENALTIES` (per sample) that predicts it best on
     held-out episodes of an inner `GroupKFold` (`INNER_FOLDS`, fewer when `groups` has fewer groups; samples of a
-    group stay together)."""
+    group stay together). Raises ValueError when `groups` holds fewer than 2 groups."""
     episodes = len(np.unique(groups))
     if episodes < 2:
         raise ValueError("Choosing a readout's penalty on held-out episodes needs at least 2 episodes to fit it on; "
