@@ -92,12 +92,17 @@ def read_pieces(paths: list[str]) -> list[dict]:
     return rows
 
 
+def first_reaching(rows: list[dict], bar: float) -> dict | None:
+    """The first row whose training-mean CGR is at least `bar`, None when none is."""
+    return next((r for r in rows if r.get(CGR) is not None and r[CGR] >= bar), None)
+
+
 def milestones(rows: list[dict]) -> list[dict]:
     """For each CGR bar: the first cycle whose training-mean CGR reaches it, its env steps, training, wall and compiled
     minutes (None when never reached), and the ratios of AngoraPy's samples and wall time to ours."""
     found = []
     for bar in MILESTONES:
-        row = next((r for r in rows if (r.get(CGR) is not None and r[CGR] >= bar)), None)
+        row = first_reaching(rows, bar)
         entry = {"cgr": bar, "cycle": None, "env_steps": None, "train_minutes": None, "wall_minutes": None,
                  "compiled_minutes": None}
         if row is not None:
@@ -165,7 +170,7 @@ def stability(rows: list[dict]) -> dict:
     top = int(np.nanargmax(rolling))
     at_peak, last = rows[top + SMOOTH - 1], rows[-1]
     peak, final = float(rolling[top]), float(rolling[-1])
-    solved = next((r for r in rows if r.get(CGR) is not None and r[CGR] >= SOLVED), None)
+    solved = first_reaching(rows, SOLVED)
     return {"peak": peak, "peak_cycle": at_peak["cycle"], "peak_wall_minutes": at_peak["wall_seconds"] / 60,
             "final": final, "fraction_of_peak": final / peak if peak > 0 else None,
             "cycles_past_peak": last["cycle"] - at_peak["cycle"],
