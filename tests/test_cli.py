@@ -21,6 +21,7 @@ from tiny import TINY_PPO
 import angora_jax as aj
 from angora_jax import cli
 from angora_jax.cli import main
+from angora_jax.cli.errors import device_memory_message
 from angora_jax.experiment import compilation_cache, runner
 from angora_jax.experiment.config import load_config, validate
 from angora_jax.experiment.config_reference import reference_markdown
@@ -225,6 +226,34 @@ def test_a_failure_before_the_first_cycle_leaves_no_run_dir(tmp_path, monkeypatc
     with pytest.raises(RuntimeError, match="RESOURCE_EXHAUSTED"):
         aj.train("cartpole", [*TINY, f"logging.run_root={tmp_path}", "logging.run_name=failed"])
     assert not (tmp_path / "failed").exists()
+
+
+@pytest.mark.parametrize("failure", [
+    "RESOURCE_EXHAUSTED: Out of memory while trying to allocate 10.00GiB.",
+    # MuJoCo Warp's kernel load on a GPU whose memory another process holds (benchmarks/results/myohand)
+    "FFI callback error: Exception: Failed to load CUDA module 'mujoco.mjx.third_party.mujoco_warp._src.smooth'",
+])
+def test_the_gpu_out_of_memory_exits_2_naming_the_share_and_the_smaller_batch(failure, capsys, tmp_path, monkeypatch):
+    def out_of_memory(*args):
+        raise jax.errors.JaxRuntimeError(failure)
+        yield
+
+    monkeypatch.setattr(runner, "training_cycles", out_of_memory)
+    assert main(["train", "cartpole", *TINY, f"logging.run_root={tmp_path}", "logging.run_name=r"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and not (tmp_path / "r").exists()
+    assert "XLA_PYTHON_CLIENT_MEM_FRACTION=0.45" in err and "ppo.num_envs" in err and "angora-jax resume" in err
+
+
+def test_other_runtime_errors_and_a_full_disk_are_not_taken_for_the_gpu_out_of_memory():
+    assert device_memory_message(jax.errors.JaxRuntimeError("INTERNAL: an XLA bug")) is None
+    assert device_memory_message(RuntimeError("RESOURCE_EXHAUSTED: out of memory")) is None, "not from JAX"
+    full = jax.errors.JaxRuntimeError("RESOURCE_EXHAUSTED: Failed to write: No space left on device")
+    assert device_memory_message(full) is None
+    try:
+        raise ValueError("while compiling") from jax.errors.JaxRuntimeError("RESOURCE_EXHAUSTED: Out of memory")
+    except ValueError as wrapped:
+        assert device_memory_message(wrapped).startswith("the GPU ran out of memory (RESOURCE_EXHAUSTED")
 
 
 def start_training(argv: list[str]) -> tuple[subprocess.Popen, str]:

@@ -35,7 +35,7 @@ import sys
 
 from angora_jax.cli import analysis, configs, evaluation, reports, training, vision
 from angora_jax.cli.arguments import EXIT_FAILED, EXIT_USAGE, add_import_option
-from angora_jax.cli.errors import os_error_message
+from angora_jax.cli.errors import device_memory_message, os_error_message
 from angora_jax.experiment import ConfigError, RunDirError, TrainingInterrupted
 from angora_jax.experiment.distributed import ProcessFailed
 from angora_jax.ppo import TrainingDivergedError
@@ -69,8 +69,8 @@ def leaf_parsers(command: argparse.ArgumentParser) -> list[argparse.ArgumentPars
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command; exit codes: 0 done, 1 training diverged or another process of the run failed, 2 bad usage
-    or config, a second writer, a damaged file or a full disk (nothing saved before is changed), 128 + signal number
-    (130 Ctrl-C, 143 SIGTERM) when training was interrupted after saving a checkpoint."""
+    or config, a second writer, a damaged file, a full disk or a GPU out of memory (nothing saved before is changed),
+    128 + signal number (130 Ctrl-C, 143 SIGTERM) when training was interrupted after saving a checkpoint."""
     cli = parser()
     args, extra = cli.parse_known_args(argv)
     if extra:
@@ -98,3 +98,9 @@ def main(argv: list[str] | None = None) -> int:
     except (TrainingDivergedError, ProcessFailed) as error:
         print(f"angora-jax {args.command}: {error}", file=sys.stderr)
         return EXIT_FAILED
+    except Exception as error:
+        message = device_memory_message(error)
+        if message is None:
+            raise
+        print(f"angora-jax {args.command}: {message}", file=sys.stderr)
+        return EXIT_USAGE

@@ -29,3 +29,35 @@ def os_error_message(error: OSError) -> str:
     return f"{error.strerror or error}{where}: {fix}." + (
         " A run stopped by it keeps every checkpoint saved before: `angora-jax check RUN_DIR` shows them, "
         "`angora-jax resume RUN_DIR` continues." if during_a_run else "")
+
+
+# How XLA (its status code) and MuJoCo Warp (a kernel load that fails, after Warp has printed the CUDA error) say that
+# a device's memory ran out.
+_OUT_OF_MEMORY = ("RESOURCE_EXHAUSTED", "out of memory", "Out of memory")
+_WARP_KERNEL_LOAD = "Failed to load CUDA module"
+
+
+def device_memory_message(error: BaseException) -> str | None:
+    """The sentence for a JAX runtime error (or one it was raised from) that says a GPU's memory ran out, naming the
+    usual causes and their fixes; None for every other error. A full disk, which TensorStore also reports as
+    RESOURCE_EXHAUSTED, is not taken for it."""
+    while error is not None:
+        text = str(error)
+        if type(error).__name__ in ("JaxRuntimeError", "XlaRuntimeError") and "No space left on device" not in text:
+            if any(sign in text for sign in _OUT_OF_MEMORY):
+                line = next(line for line in text.splitlines() if any(sign in line for sign in _OUT_OF_MEMORY))
+                what = f"the GPU ran out of memory ({line.strip()[:200]})"
+                break
+            if _WARP_KERNEL_LOAD in text:
+                what = ("MuJoCo Warp could not load its CUDA kernels onto the GPU (Warp printed the CUDA error above; "
+                        "'out of memory' is the usual one)")
+                break
+        error = error.__cause__ or error.__context__
+    else:
+        return None
+    return (f"{what}. Each JAX process takes 75% of a GPU's memory when it starts, so a second process on the same GPU "
+            "(nvidia-smi lists them) leaves too little: run them one after another, or give each a share before "
+            "starting it (XLA_PYTHON_CLIENT_MEM_FRACTION=0.45 for two). Alone on the GPU, use fewer environments "
+            "(train: ppo.num_envs and ppo.minibatch_size; evaluate: a smaller --batch; record: fewer --episodes). "
+            "A run stopped by it keeps every checkpoint saved before: `angora-jax check RUN_DIR` shows them, "
+            "`angora-jax resume RUN_DIR` continues.")
