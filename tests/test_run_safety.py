@@ -26,6 +26,7 @@ from angora_jax.experiment.manifest import MANIFEST_FILE
 from angora_jax.experiment.run_check import check_run
 from angora_jax.experiment.run_dir import CHECKPOINTS, DiskFullError
 from angora_jax.experiment.run_lock import LOCK_FILE, RunLock, RunLockedError, _process_start
+from angora_jax.experiment.whole_files import written_whole
 
 # A recurrent network, so that a resumed run must restore carries and environments mid-episode.
 TINY = [*TINY_PPO, "ppo.network.name=gru", "ppo.network.width=8", "ppo.network.cell_size=8",
@@ -350,3 +351,45 @@ def test_a_recording_larger_than_memory_is_refused_after_its_first_steps(whole, 
     err = exits_2(["record", str(whole.run_dir), "--episodes", "2", "--steps", "1000000000", "--out", str(out)], capsys)
     assert "Recording 2 episodes x 1,000,000,000 steps takes" in err and "record fewer episodes or steps" in err
     assert not out.exists()
+
+
+def test_a_result_file_is_written_whole_or_not_at_all_and_never_over_a_kept_one(tmp_path):
+    path = tmp_path / "result.json"
+    with pytest.raises(KeyboardInterrupt), written_whole(path) as draft:
+        draft.write_text('{"half": ')
+        raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == [], "neither the file nor its draft is left"
+    with written_whole(path) as draft:
+        draft.write_text("{}")
+    with pytest.raises(FileExistsError), written_whole(path, replace=False) as draft:
+        draft.write_text('{"new": 1}')
+    assert path.read_text() == "{}" and list(tmp_path.iterdir()) == [path]
+
+
+def test_ctrl_c_while_a_recording_is_written_exits_130_and_leaves_no_half_file(whole, tmp_path, monkeypatch, capsys):
+    """A recording cut off while it is written would block the next `record` to the same --out ("exists"); it is
+    written to a draft instead, renamed when whole."""
+    import xarray as xr
+
+    def cut_off(dataset, path, **options):
+        Path(path).write_bytes(b"CDF\x01 half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(xr.Dataset, "to_netcdf", cut_off)
+    out = tmp_path / "activity.nc"
+    try:
+        code = main(["record", str(whole.run_dir), "--episodes", "2", "--steps", "5", "--out", str(out)])
+    except KeyboardInterrupt:  # caught here, or pytest would stop the whole session
+        pytest.fail("Ctrl-C left `angora-jax record` as a traceback")
+    assert code == 130
+    err = capsys.readouterr().err
+    assert err.startswith("angora-jax record: interrupted (Ctrl-C)") and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_second_ablation_of_a_run_keeps_the_first(whole, tmp_path, capsys):
+    run = copy_of(whole, tmp_path)
+    for _ in range(2):
+        assert main(["analyze", "ablate", str(run), "--silence", "proprioception", "--episodes", "2"]) == 0
+    assert {"ablation.png", "ablation.nc", "ablation-2.png", "ablation-2.nc"} <= {p.name for p in run.iterdir()}
+    assert "numbers: " + str(run / "ablation-2.nc") in capsys.readouterr().out

@@ -45,6 +45,7 @@ from flax import linen as nn
 
 from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, load_agent
+from angora_jax.experiment.whole_files import written_whole
 from angora_jax.nets import ActorCritic
 from angora_jax.ppo.evaluate import make_evaluate
 
@@ -251,5 +252,6 @@ def save_activity(dataset: xr.Dataset, path: str | Path) -> Path:
     # NetCDF 3 has no unsigned bytes: images are written as int8 marked `_Unsigned`, which xarray reads as uint8.
     images = {name: dataset[name].copy(data=dataset[name].values.view(np.int8)).assign_attrs(_Unsigned="true")
               for name in dataset.data_vars if dataset[name].dtype == np.uint8}
-    dataset.assign(images).to_netcdf(path, engine="scipy")
+    with written_whole(path, replace=False) as draft:
+        dataset.assign(images).to_netcdf(draft, engine="scipy")
     return path

@@ -31,6 +31,7 @@ angora-jax pretrain-vision --out encoder.msgpack    a visual encoder that sees t
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 
 from angora_jax.cli import analysis, configs, evaluation, reports, training, vision
@@ -95,6 +96,10 @@ def main(argv: list[str] | None = None) -> int:
     except TrainingInterrupted as stop:
         print(f"angora-jax {args.command}: {stop}", file=sys.stderr)
         return 128 + stop.signum
+    except KeyboardInterrupt:  # Ctrl-C in a verb other than train's loop, which stops after saving instead
+        print(f"angora-jax {args.command}: interrupted (Ctrl-C); the files it wrote are whole, none was left "
+              "half-written.", file=sys.stderr)
+        return 128 + signal.SIGINT
     except (TrainingDivergedError, ProcessFailed) as error:
         print(f"angora-jax {args.command}: {error}", file=sys.stderr)
         return EXIT_FAILED

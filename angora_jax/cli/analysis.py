@@ -10,6 +10,8 @@ import numpy as np
 
 from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, add_env_option, checkpoint_of, positive_int
 from angora_jax.experiment import Agent, load_agent
+from angora_jax.experiment.run_dir import numbered_paths
+from angora_jax.experiment.whole_files import written_whole
 
 
 def add_analyze(commands: argparse._SubParsersAction) -> None:
@@ -113,7 +115,8 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
                              "excitation held at 0; a muscle's name, e.g. FPL_r, names it too)")
     ablate.add_argument("--episodes", type=positive_int, default=256)
     ablate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
-    ablate.add_argument("--out", default=None, help="PNG and NetCDF (default: RUN_DIR/ablation.png)")
+    ablate.add_argument("--out", default=None,
+                        help="PNG and NetCDF (default: RUN_DIR/ablation.png, else the next free ablation-N.png)")
     add_env_option(ablate)
     ablate.set_defaults(handler=command_ablate)
 
@@ -258,12 +261,20 @@ def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None 
     except ValueError as error:
         print(f"angora-jax analyze {args.analysis}: {error}", file=sys.stderr)
         return EXIT_USAGE
-    plot(result, str(out))
-    result.to_netcdf(out.with_suffix(".nc"), engine="scipy")
+    write_plot_and_numbers(result, out, plot)
     for line in summary(result):
         print(line)
     print(f"Plot: {out}; numbers: {out.with_suffix('.nc')}")
     return EXIT_OK
+
+
+def write_plot_and_numbers(result, out: Path, plot) -> None:
+    """`plot(result, path)` to `out` (PNG) and `result` to `out` with the suffix .nc (NetCDF), each written whole
+    (`written_whole`): an interrupted analysis leaves no half file."""
+    with written_whole(out) as draft:
+        plot(result, str(draft))
+    with written_whole(out.with_suffix(".nc")) as draft:
+        result.to_netcdf(draft, engine="scipy")
 
 
 def action_components(agent: Agent, given: list[str]) -> list[tuple[int, str]]:
@@ -308,11 +319,12 @@ def command_ablate(args: argparse.Namespace) -> int:
         print(f"angora-jax analyze ablate: {error}", file=sys.stderr)
         return EXIT_USAGE
     result = ablation(agent, lesions, args.episodes)
-    out = Path(args.out) if args.out else Path(args.run_dir) / "ablation.png"
+    # In the run directory an earlier ablation is kept: the next free name (ablation-2.png, ...), as evaluations do.
+    out = Path(args.out) if args.out else next(path for path in numbered_paths(Path(args.run_dir), "ablation", ".png")
+                                               if not path.exists() and not path.with_suffix(".nc").exists())
     best = (agent.config.checkpoint.best_metric or "").removeprefix("metric/")
     outcome = best if best in result["outcome"] else "episode_return"  # the run's own measure of success
-    plot_ablation(result, outcome, str(out))
-    result.to_netcdf(out.with_suffix(".nc"), engine="scipy")
+    write_plot_and_numbers(result, out, lambda result, path: plot_ablation(result, outcome, path))
     for name in result["lesion"].values:
         print(f"{name:>24}: " + ", ".join(f"{o} {result['mean'].sel(lesion=name, outcome=o).item():.3g} +- "
                                           f"{result['sem'].sel(lesion=name, outcome=o).item():.2g}"

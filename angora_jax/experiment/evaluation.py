@@ -27,6 +27,7 @@ from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.config import to_dict
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
 from angora_jax.experiment.run_dir import numbered_paths
+from angora_jax.experiment.whole_files import written_whole
 from angora_jax.ppo.evaluate import make_evaluate
 
 EVALUATION_DIR = "evaluation"
@@ -200,13 +201,14 @@ def save_evaluation(result: Evaluation, directory: Path) -> Evaluation:
     record = {**meta, "summary": result.summary, "per_episode": {k: v.tolist() for k, v in result.episodes.items()}}
     for json_path in numbered_paths(directory, stem, ".json"):
         try:
-            with json_path.open("x") as file:  # "x": fails instead of overwriting an earlier evaluation
-                json.dump(record, file, indent=1)
+            with written_whole(json_path, replace=False) as draft:  # never over an earlier evaluation
+                draft.write_text(json.dumps(record, indent=1))
             break
         except FileExistsError:
             continue
     plot_path = json_path.with_suffix(".png")
-    box_plot(result, plot_path)
+    with written_whole(plot_path) as draft:
+        box_plot(result, draft)
     return replace(result, json_path=json_path, plot_path=plot_path)
 
 

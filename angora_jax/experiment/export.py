@@ -19,6 +19,7 @@ from angora_jax.envs.core import Sensation
 from angora_jax.experiment.agent import Agent, acting_parts, load_agent
 from angora_jax.experiment.config import load_config, to_dict
 from angora_jax.experiment.run_dir import RunDirError
+from angora_jax.experiment.whole_files import written_whole
 
 FORMAT = "angora_jax.policy/1"
 
@@ -36,7 +37,8 @@ def export_policy(run_dir: str | Path, out: str | Path, checkpoint: str | int = 
         "state": serialization.to_state_dict(jax.device_get(agent.state)),
     }
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_bytes(serialization.msgpack_serialize(content))
+    with written_whole(out, replace=False) as draft:
+        draft.write_bytes(serialization.msgpack_serialize(content))
     return out
 
 

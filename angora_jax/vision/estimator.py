@@ -28,6 +28,7 @@ from flax import serialization
 from jax.scipy.spatial.transform import Rotation
 
 from angora_jax.envs.shadow_hand import register_pose_estimator_reader
+from angora_jax.experiment.whole_files import written_whole
 from angora_jax.nets.visual import make_visual_encoder
 
 ORIENTATIONS = {"quaternion": 4, "6d": 6}  # the head's outputs per orientation representation
@@ -128,7 +129,8 @@ class PoseEstimator:
                  "cameras": list(self.cameras), "size": self.size,
                  "position_mean": np.asarray(self.position_mean, np.float32),
                  "position_spread": np.asarray(self.position_spread, np.float32), "renderer": self.renderer or ""}
-        file.write_bytes(serialization.msgpack_serialize(state))
+        with written_whole(file, replace=False) as draft:
+            draft.write_bytes(serialization.msgpack_serialize(state))
         return file
 
     @classmethod

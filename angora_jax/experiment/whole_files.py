@@ -1,0 +1,29 @@
+"""Result files (recordings, evaluations, analyses, plots) that are either whole or absent.
+
+A file is written under a temporary name beside its own and renamed when it is complete, so a Ctrl-C, a full disk or
+a crash while it is written leaves no half file behind: nothing that a later command would refuse to overwrite, or
+read as a result.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+
+@contextlib.contextmanager
+def written_whole(path: str | Path, replace: bool = True) -> Iterator[Path]:
+    """Yield the temporary path to write `path`'s contents to (beside it, same extension, so writers that read the
+    format from the name still can); when the block ends without an error it becomes `path`, else it is removed.
+    With `replace=False` an existing `path` is never overwritten: FileExistsError, and the new file is dropped."""
+    path = Path(path)
+    draft = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
+    try:
+        yield draft
+        if not replace and path.exists():
+            raise FileExistsError(f"{path} exists and is never overwritten.")
+        os.replace(draft, path)
+    finally:
+        draft.unlink(missing_ok=True)
