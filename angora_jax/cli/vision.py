@@ -11,6 +11,7 @@ import jax
 
 from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, positive_int, refused_existing, seed
 from angora_jax.envs.rendering import CAMERAS, RenderError
+from angora_jax.experiment.whole_files import written_whole
 from angora_jax.vision.estimator import ORIENTATIONS
 
 
@@ -91,7 +92,8 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
     train, test = dataset.split(0.1)
     result = pretrain_pose_encoder(train, test, args.encoder, options, args.steps, args.batch, seed=args.seed,
                                    orientation=args.orientation)
-    save_component(result.params, "encoder", out)
+    with written_whole(out, replace=False) as draft:
+        save_component(result.params, "encoder", draft)
     result.estimator.save(estimator_out)
     report = {"encoder": args.encoder, "options": options, "cameras": args.cameras, "size": args.size,
               "renderer": args.renderer, "samples": args.samples, "device": str(jax.devices()[0].device_kind),
@@ -99,7 +101,8 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
               "orientation": args.orientation, "batch": args.batch, "learning_rate": result.learning_rate,
               **result.errors,
               "loss": result.history}
-    numbers_out.write_text(json.dumps(report, indent=1))
+    with written_whole(numbers_out, replace=False) as draft:
+        draft.write_text(json.dumps(report, indent=1))
     errors = result.errors
     print(f"Rendered {len(dataset)} samples x {len(args.cameras)} cameras in {rendered:.0f} s; trained {args.steps} "
           f"steps in {result.seconds:.0f} s. Held-out ({errors['test_samples']}): position "

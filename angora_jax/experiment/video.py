@@ -20,6 +20,7 @@ from angora_jax.envs.registry import make
 from angora_jax.envs.rendering import RenderError, SceneRenderer, camera_named
 from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
+from angora_jax.experiment.whole_files import written_whole
 
 
 def render_frames(run_dir: str | Path | None = None, *, task: str | None = None, checkpoint: str | int = "best",
@@ -95,16 +96,16 @@ def write_video(frames: list[np.ndarray], out: str | Path, fps: float) -> Path:
     if not frames:
         raise ValueError("No frames to write.")
     out.parent.mkdir(parents=True, exist_ok=True)
-    if out.suffix.lower() == ".gif":
-        iio.imwrite(out, np.stack(frames), duration=1000.0 / fps, loop=0)
-        return out
-    try:
-        iio.imwrite(out, np.stack(frames), fps=fps, macro_block_size=1)
-    except (ImportError, RuntimeError, OSError) as error:
-        out.unlink(missing_ok=True)
-        raise RenderError(
-            f"Cannot encode {out} ({error}). MP4 needs the imageio-ffmpeg package (`pip install -c constraints.txt "
-            f"-e .` installs it); or write a .gif, which needs only Pillow."
-        ) from error
+    with written_whole(out, replace=False) as draft:
+        if out.suffix.lower() == ".gif":
+            iio.imwrite(draft, np.stack(frames), duration=1000.0 / fps, loop=0)
+            return out
+        try:
+            iio.imwrite(draft, np.stack(frames), fps=fps, macro_block_size=1)
+        except (ImportError, RuntimeError, OSError) as error:
+            raise RenderError(
+                f"Cannot encode {out} ({error}). MP4 needs the imageio-ffmpeg package (`pip install -c "
+                f"constraints.txt -e .` installs it); or write a .gif, which needs only Pillow."
+            ) from error
     return out
 
