@@ -26,6 +26,7 @@ import yaml  # noqa: E402
 
 from angora_jax.experiment.monitor import read_metrics  # noqa: E402
 from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError, latest_video, read_sessions  # noqa: E402
+from angora_jax.experiment.whole_files import written_whole  # noqa: E402
 
 # Curves drawn when at least one run has them, in this order; task metrics (metric/*) follow the return.
 CURVES = (
@@ -155,14 +156,14 @@ def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_second
     images = []
     for name in curve_names(runs):
         image = out / (name.replace("/", "_") + ".png")
-        plot_curve(runs, name, image)
+        with written_whole(image) as draft:  # a browser reloading a live report sees the old image or the new one
+            plot_curve(runs, name, draft)
         images.append((name, image.name))
     # Each run's latest video (evaluation.video), linked where it lies rather than copied: videos are large.
     videos = [(run.name, os.path.relpath(video, out)) for run in runs if (video := latest_video(run.path))]
     page = out / "index.html"
-    partial = out / "index.html.partial"  # a browser reloading while this writes sees the old page or the new one
-    partial.write_text(render_html(runs, images, refresh_seconds, videos))
-    partial.replace(page)
+    with written_whole(page) as draft:
+        draft.write_text(render_html(runs, images, refresh_seconds, videos))
     return page
 
 
