@@ -197,3 +197,9 @@ def test_the_analyze_verbs_write_plots_and_numbers_and_exit_2_on_a_recording_wit
     assert "task_muscle_activation" in capsys.readouterr().err
     assert main(["analyze", "synergies", str(tmp_path / "joints.nc")]) == 2
     assert "task_muscle_activation" in capsys.readouterr().err
+    # An analysis's numbers are NetCDF too, but no recording; a layer that was not recorded is named with the rest.
+    assert main(["analyze", "decode", str(tmp_path / "muscles.synergies.nc")]) == 2
+    assert "muscles.synergies.nc is NetCDF but not a recording" in capsys.readouterr().err
+    assert main(["analyze", "tuning", str(tmp_path / "joints.nc"), "--layer", "nosuch", "--variable",
+                 "task_joint_angles"]) == 2
+    assert "Not in the recording: ['activity_nosuch']" in capsys.readouterr().err

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
+from angora_jax.analysis.decoding import require
 from angora_jax.analysis.similarity import condition_labels
 
 
@@ -15,6 +16,7 @@ def tuning_curves(dataset: xr.Dataset, layer: str, variable: str, bins: int = 10
     """`response` and `sem` (bin x unit): the mean activity of every unit of `layer` per quantile bin of `variable`
     (its `feature`-th component for a vector variable); `center` (bin): the variable's mean in the bin;
     `strength` (unit): eta squared, 0 (untuned) to 1 (the bin explains all of the unit's variance)."""
+    require(dataset, [layer])
     labels = condition_labels(dataset, variable, bins, feature)
     alive = labels >= 0
     activity = np.asarray(dataset[f"activity_{layer}"].values, np.float64)[alive]

@@ -256,6 +256,11 @@ def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None 
               f"NetCDF file from angora-jax record): {type(error).__name__}: {str(error).splitlines()[0]}. Make one "
               "with angora-jax record RUN_DIR --out FILE.nc.", file=sys.stderr)
         return EXIT_USAGE
+    if not {"episode", "time"} <= set(data.dims) or "alive" not in data:
+        print(f"angora-jax analyze {args.analysis}: {recording} is NetCDF but not a recording (it lacks the episode "
+              "and time dimensions or the alive mask of angora-jax record; an analysis's numbers, perhaps). Make "
+              "one with angora-jax record RUN_DIR --out FILE.nc.", file=sys.stderr)
+        return EXIT_USAGE
     try:
         result = compute(data)
     except ValueError as error:
