@@ -256,6 +256,23 @@ def test_other_runtime_errors_and_a_full_disk_are_not_taken_for_the_gpu_out_of_m
         assert device_memory_message(wrapped).startswith("the GPU ran out of memory (RESOURCE_EXHAUSTED")
 
 
+def test_distributed_outside_a_cluster_without_its_settings_exits_2_naming_them(capsys, monkeypatch):
+    for name in os.environ:
+        if name.startswith(("SLURM_", "OMPI_", "JAX_COORDINATOR", "KUBERNETES_")):
+            monkeypatch.delenv(name)
+    collectives = jax.config.values["jax_cpu_collectives_implementation"]
+    try:
+        assert main(["train", "cartpole", "--distributed"]) == 2
+    finally:  # distributed.initialize chooses gloo for the CPU before JAX refuses the settings
+        jax.config.update("jax_cpu_collectives_implementation", collectives)
+    err = capsys.readouterr().err
+    assert "--distributed could not set up the job: coordinator_address should be defined." in err
+    assert "--coordinator HOST:PORT" in err and "Traceback" not in err
+    with pytest.raises(SystemExit) as usage:
+        main(["train", "cartpole", "--distributed", "--coordinator", "node01"])
+    assert usage.value.code == 2 and "must be host:port, e.g. node01:12355" in capsys.readouterr().err
+
+
 def start_training(argv: list[str]) -> tuple[subprocess.Popen, str]:
     """`angora-jax` ARGV in a process of its own; returns it once it announces that it compiles, with that line."""
     process = subprocess.Popen([sys.executable, "-m", "angora_jax.cli", *argv], stdout=subprocess.PIPE,

@@ -364,6 +364,10 @@ def test_a_result_file_is_written_whole_or_not_at_all_and_never_over_a_kept_one(
     with pytest.raises(FileExistsError), written_whole(path, replace=False) as draft:
         draft.write_text('{"new": 1}')
     assert path.read_text() == "{}" and list(tmp_path.iterdir()) == [path]
+    elsewhere = tmp_path / "no such folder" / "result.json"
+    with pytest.raises(FileNotFoundError) as failed, written_whole(elsewhere) as draft:
+        draft.write_text("{}")
+    assert failed.value.filename == str(elsewhere), "the error names the file asked for, not its draft"
 
 
 def test_ctrl_c_while_a_recording_is_written_exits_130_and_leaves_no_half_file(whole, tmp_path, monkeypatch, capsys):

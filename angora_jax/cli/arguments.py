@@ -49,6 +49,14 @@ def device_ids(text: str) -> list[int]:
 
 
 
+def host_port(text: str) -> str:
+    """An argparse type: "host:port", the port a whole number from 1 to 65535."""
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"must be host:port, e.g. node01:12355, got {text!r}")
+    return text
+
+
 def add_env_option(command: argparse.ArgumentParser) -> None:
     command.add_argument("--env-option", action="append", default=[], metavar="KEY=VALUE",
                          help="a task option that differs from the run's (repeatable; the network must still fit "
@@ -68,7 +76,8 @@ def add_distributed_flags(command: argparse.ArgumentParser) -> None:
         "--distributed", action="store_true",
         help="join a jax.distributed job, one process per GPU (under SLURM each takes the GPU of its local rank; "
              "elsewhere give --local-devices); see examples/slurm_train.sh")
-    command.add_argument("--coordinator", help="host:port of process 0 (default: from the cluster environment)")
+    command.add_argument("--coordinator", type=host_port,
+                         help="host:port of process 0 (default: from the cluster environment)")
     command.add_argument("--num-processes", type=positive_int,
                          help="processes in the job (default: from the cluster)")
     command.add_argument("--process-id", type=non_negative_int, help="this process's index (default: from the cluster)")

@@ -65,7 +65,14 @@ def add_check(commands: argparse._SubParsersAction) -> None:
 
 def start_distributed(args: argparse.Namespace) -> None:
     if args.distributed:
-        initialize(args.coordinator, args.num_processes, args.process_id, args.local_devices)
+        try:
+            initialize(args.coordinator, args.num_processes, args.process_id, args.local_devices)
+        except ValueError as error:  # JAX's checks of the job's settings, before it connects to anything
+            raise ConfigError(
+                f"--distributed could not set up the job: {error} Outside a cluster that JAX detects (SLURM, Open "
+                "MPI, Kubernetes), give --coordinator HOST:PORT, --num-processes N and --process-id I to every "
+                "process (examples/multi_gpu_host.sh); under SLURM, start it with srun (examples/slurm_train.sh)."
+            ) from error
     elif any(value is not None for value in (args.coordinator, args.num_processes, args.process_id,
                                              args.local_devices)):
         raise ConfigError("--coordinator, --num-processes, --process-id and --local-devices set up a jax.distributed "

@@ -25,5 +25,9 @@ def written_whole(path: str | Path, replace: bool = True) -> Iterator[Path]:
         if not replace and path.exists():
             raise FileExistsError(f"{path} exists and is never overwritten.")
         os.replace(draft, path)
+    except OSError as error:
+        if error.filename == str(draft):  # the message names the file asked for, not the draft
+            error.filename = str(path)
+        raise
     finally:
         draft.unlink(missing_ok=True)
