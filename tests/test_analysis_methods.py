@@ -249,6 +249,17 @@ def test_pca_finds_one_dimension_in_a_rank_one_code():
     assert np.isnan(trajectory[0, 45]).all() and np.isfinite(trajectory[1]).all(), "dead steps are not projected"
 
 
+def test_components_stop_at_the_widest_layer_and_lags_past_the_recording_are_refused():
+    """Asked of a large recording, more would have run out of memory (components x steps) or time (lags)."""
+    data = synthetic()
+    widest = max(data[name].shape[-1] for name in data.data_vars if name.startswith("activity_"))
+    assert principal_components(data, components=1000).sizes["component"] == widest
+    steps = data.sizes["time"]
+    for analysis in (timescales, cross_correlation):
+        with pytest.raises(ValueError, match=f"shorter than the recording's {steps} steps"):
+            analysis(data, max_lag=steps)
+
+
 def test_participation_ratio_and_dimensionality_of_a_known_spectrum():
     """Three units over mutually orthogonal zero-mean +-1 patterns with standard deviations 2, 1, 1: the covariance's
     eigenvalues are in the ratio 4 : 1 : 1, so the participation ratio (4 + 1 + 1)^2 / (16 + 1 + 1) is 2 and 90% of

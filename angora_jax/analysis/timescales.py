@@ -62,6 +62,7 @@ def cross_correlation(dataset: xr.Dataset, layers: Sequence[str] | None = None, 
     from sklearn.decomposition import PCA
 
     layers = list(layers or recorded_layers(dataset))
+    _check_max_lag(dataset, max_lag)
     alive = dataset["alive"].values > 0
     leading = {}
     for layer in layers:
@@ -85,6 +86,7 @@ def timescales(dataset: xr.Dataset, layers: Sequence[str] | None = None, max_lag
     first lag, linearly interpolated, where its autocorrelation drops below 1/e; NaN when it stays above within
     `max_lag` or the unit is constant) summarised as `timescale_median` and `timescale_iqr_low/high` (layer)."""
     layers = list(layers or recorded_layers(dataset))
+    _check_max_lag(dataset, max_lag)
     dt = float(dataset.attrs.get("policy_step_s", 1.0))
     curves, medians, low, high = [], [], [], []
     for acf in map_in_threads(lambda layer: autocorrelation(dataset, layer, max_lag), layers):
@@ -102,6 +104,13 @@ def timescales(dataset: xr.Dataset, layers: Sequence[str] | None = None, max_lag
          "timescale_iqr_high": (("layer",), np.asarray(high), {"units": "s"})},
         coords={"layer": layers, "lag": ("lag", np.arange(max_lag + 1) * dt, {"units": "s"})},
     )
+
+
+def _check_max_lag(dataset: xr.Dataset, max_lag: int) -> None:
+    """Raise a ValueError when `max_lag` reaches past the recording's steps: no two steps are that far apart."""
+    steps = dataset.sizes["time"]
+    if max_lag >= steps:
+        raise ValueError(f"max_lag (--max-lag) must be shorter than the recording's {steps} steps, got {max_lag}.")
 
 
 def _crossing(acf: np.ndarray, level: float = 1.0 / np.e) -> float:
