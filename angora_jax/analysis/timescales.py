@@ -58,11 +58,11 @@ def cross_correlation(dataset: xr.Dataset, layers: Sequence[str] | None = None, 
     """Between every two layers, the correlation of their leading principal components (PCA over the alive steps,
     scikit-learn) at lags -max_lag..max_lag: `cross_correlation` (layer x other x lag) is corr(a(t), b(t + lag)), so
     a peak at a positive lag means `layer` leads `other`. A component's sign is arbitrary, so `peak_lag` (layer x
-    other, in s) is the lag of the largest |correlation|."""
+    other, in s) is the lag of the largest |correlation|. `max_lag` stops at the recording's steps less one."""
     from sklearn.decomposition import PCA
 
     layers = list(layers or recorded_layers(dataset))
-    _check_max_lag(dataset, max_lag)
+    max_lag = _lags_within(dataset, max_lag)
     alive = dataset["alive"].values > 0
     leading = {}
     for layer in layers:
@@ -84,9 +84,10 @@ def cross_correlation(dataset: xr.Dataset, layers: Sequence[str] | None = None, 
 def timescales(dataset: xr.Dataset, layers: Sequence[str] | None = None, max_lag: int = 20) -> xr.Dataset:
     """Per layer: `autocorrelation` (layer x lag, the mean over its units), and per unit the timescale in s (the
     first lag, linearly interpolated, where its autocorrelation drops below 1/e; NaN when it stays above within
-    `max_lag` or the unit is constant) summarised as `timescale_median` and `timescale_iqr_low/high` (layer)."""
+    `max_lag` or the unit is constant) summarised as `timescale_median` and `timescale_iqr_low/high` (layer).
+    `max_lag` stops at the recording's steps less one."""
     layers = list(layers or recorded_layers(dataset))
-    _check_max_lag(dataset, max_lag)
+    max_lag = _lags_within(dataset, max_lag)
     dt = float(dataset.attrs.get("policy_step_s", 1.0))
     curves, medians, low, high = [], [], [], []
     for acf in map_in_threads(lambda layer: autocorrelation(dataset, layer, max_lag), layers):
@@ -106,11 +107,10 @@ def timescales(dataset: xr.Dataset, layers: Sequence[str] | None = None, max_lag
     )
 
 
-def _check_max_lag(dataset: xr.Dataset, max_lag: int) -> None:
-    """Raise a ValueError when `max_lag` reaches past the recording's steps: no two steps are that far apart."""
-    steps = dataset.sizes["time"]
-    if max_lag >= steps:
-        raise ValueError(f"max_lag (--max-lag) must be shorter than the recording's {steps} steps, got {max_lag}.")
+def _lags_within(dataset: xr.Dataset, max_lag: int) -> int:
+    """`max_lag`, but at most the recording's steps less one: no two of its steps lie further apart, and each lag
+    past them would cost a pass over the recording for a NaN."""
+    return min(max_lag, dataset.sizes["time"] - 1)
 
 
 def _crossing(acf: np.ndarray, level: float = 1.0 / np.e) -> float:
