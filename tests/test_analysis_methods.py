@@ -255,8 +255,8 @@ def test_components_stop_at_the_widest_layer_and_lags_at_the_recordings_length()
     widest = max(data[name].shape[-1] for name in data.data_vars if name.startswith("activity_"))
     assert principal_components(data, components=1000).sizes["component"] == widest
     steps = data.sizes["time"]
-    assert timescales(data, max_lag=100_000).sizes["lag"] == steps
-    assert cross_correlation(data, max_lag=100_000).sizes["lag"] == 2 * steps - 1
+    assert timescales(data, max_lag=steps + 10).sizes["lag"] == steps
+    assert cross_correlation(data, max_lag=steps + 10).sizes["lag"] == 2 * steps - 1
 
 
 def test_participation_ratio_and_dimensionality_of_a_known_spectrum():
