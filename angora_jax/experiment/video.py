@@ -99,13 +99,13 @@ def write_video(frames: list[np.ndarray], out: str | Path, fps: float) -> Path:
     with written_whole(out, replace=False) as draft:
         if out.suffix.lower() == ".gif":
             iio.imwrite(draft, np.stack(frames), duration=1000.0 / fps, loop=0)
-            return out
-        try:
-            iio.imwrite(draft, np.stack(frames), fps=fps, macro_block_size=1)
-        except (ImportError, RuntimeError, OSError) as error:
-            raise RenderError(
-                f"Cannot encode {out} ({error}). MP4 needs the imageio-ffmpeg package (`pip install -c "
-                f"constraints.txt -e .` installs it); or write a .gif, which needs only Pillow."
-            ) from error
+        else:
+            try:
+                iio.imwrite(draft, np.stack(frames), fps=fps, macro_block_size=1)
+            except (ImportError, RuntimeError, OSError) as error:
+                raise RenderError(
+                    f"Cannot encode {out} ({error}). MP4 needs the imageio-ffmpeg package (`pip install -c "
+                    f"constraints.txt -e .` installs it); or write a .gif, which needs only Pillow."
+                ) from error
     return out
 
