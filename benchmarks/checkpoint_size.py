@@ -1,5 +1,10 @@
-"""Checkpoint sizes on disk: a config's fresh TrainState saved whole and lean (`checkpoint.lean`: without the
-environments' states), through the run's own `Checkpoints`, with the bytes of each part of the state.
+"""Checkpoint sizes on disk and save times: a config's fresh TrainState saved whole and lean (`checkpoint.lean`:
+without the environments' states), through the run's own `Checkpoints`, with the bytes of each part of the state.
+
+A save's seconds are what training waits for it: from `save` until the checkpoint is on disk and verified (`close`),
+the median of `--repeats` saves into fresh folders. A run saves its best checkpoint after every cycle that beats the
+earlier ones, which while it learns is most cycles: the ratio of a whole save to a lean one is what `checkpoint.lean`
+buys there.
 
     # the fast cube at 16,384 envs on MuJoCo Warp (its state is Warp's, whichever device makes it: the CPU works)
     python benchmarks/checkpoint_size.py shadow_ihom 'env.options.physics={impl: warp}'
@@ -12,7 +17,9 @@ benchmarks/results/evaluation_and_checkpoints/checkpoint_size_<task>_<platform>.
 
 from __future__ import annotations
 
+import statistics
 import tempfile
+import time
 from pathlib import Path
 
 import jax
@@ -33,6 +40,7 @@ def tree_bytes(tree) -> int:
 
 def main() -> None:
     parser = config_parser(__doc__)
+    parser.add_argument("--repeats", type=int, default=3, help="saves timed per kind (default 3; the median is kept)")
     parser.add_argument("--out", default=None,
                         help="JSON path (default: results/evaluation_and_checkpoints/checkpoint_size_<task>_<platform>"
                              ".json)")
@@ -44,19 +52,26 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         for kind, lean in (("whole", ()), ("lean", ("latest",))):
-            checkpoints = Checkpoints(Path(folder) / kind, config.checkpoint.__class__(lean=lean))
-            checkpoints.save(state, {"env_steps": 0}, to_dict(config), final=True)
-            checkpoints.close()
-            rows.append({"checkpoint": kind, "disk_mb": folder_bytes(Path(folder) / kind) / 1e6})
+            seconds = []
+            for repeat in range(max(args.repeats, 1)):
+                checkpoints = Checkpoints(Path(folder) / f"{kind}{repeat}", config.checkpoint.__class__(lean=lean))
+                start = time.perf_counter()
+                checkpoints.save(state, {"env_steps": 0}, to_dict(config), final=True)
+                checkpoints.close()
+                seconds.append(time.perf_counter() - start)
+            rows.append({"checkpoint": kind, "disk_mb": folder_bytes(Path(folder) / f"{kind}0") / 1e6,
+                         "save_seconds": statistics.median(seconds), "save_seconds_each": seconds})
     parts = {"environments (actor, discounted_return)": tree_bytes((state.actor, state.discounted_return)),
              "parameters": tree_bytes(state.params), "optimizer": tree_bytes(state.opt_state),
              "normalisers, key, cycle": tree_bytes((state.obs_stats, state.reward_stats, state.cycle))}
     for row in rows:
         row |= {"task": config.env.task, "num_envs": config.ppo.num_envs, "impl": env.physics_info().get("impl", "-")}
     rows[1]["fraction_of_whole"] = rows[1]["disk_mb"] / rows[0]["disk_mb"]
+    rows[1]["save_time_fraction_of_whole"] = rows[1]["save_seconds"] / rows[0]["save_seconds"]
     print(markdown_table(rows, [("task", "task", "s"), ("impl", "physics", "s"), ("num_envs", "envs", ",d"),
                                 ("checkpoint", "checkpoint", "s"), ("disk_mb", "MB on disk", ",.1f"),
-                                ("fraction_of_whole", "of whole", ".3f")]))
+                                ("fraction_of_whole", "of whole", ".3f"), ("save_seconds", "save s", ".3f"),
+                                ("save_time_fraction_of_whole", "save time of whole", ".3f")]))
     for name, size in parts.items():
         print(f"  {name}: {size / 1e6:,.1f} MB in memory")
     path = write_results(f"checkpoint_size_{config.env.task}", {"config": to_dict(config), "state_mb": {

@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import yaml
 from benchmark_results import BENCHMARKS, results
 from brax.envs.wrappers import training as brax_training
 from quick_compile import QUICK_SUBPROCESS
@@ -18,10 +19,12 @@ from scipy import stats
 
 from angora_jax.envs.registry import make
 from angora_jax.experiment import load_config, validate
+from angora_jax.experiment.config import to_dict
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
 import angorapy_ratio  # noqa: E402
 import brax_side_by_side as side  # noqa: E402
+import checkpoint_cost  # noqa: E402
 import head_sampling  # noqa: E402
 import ihom_curve  # noqa: E402
 import paper_figures  # noqa: E402
@@ -142,6 +145,33 @@ def test_angorapy_ratio_divides_our_measured_rate_by_the_papers():
     record["config"]["args"]["task"] = "ShadowHandReach"
     with pytest.raises(ValueError, match="ShadowHandCube"):
         angorapy_ratio.ratios(record)
+
+
+def test_checkpoint_cost_puts_each_save_in_the_gap_before_the_next_cycle(tmp_path):
+    """A record's time is taken before its cycle's saves: here a best save costs 2 s, a latest (every 3 cycles) 1 s,
+    and they show in the next record's gap. Cycle 6 starts a resumed piece (it has `compile_seconds`): the gap after
+    cycle 5 holds the restart and is left out, though cycle 5's best counts for the bests after it."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.yaml").write_text(yaml.safe_dump(to_dict(load_config("cartpole", ["checkpoint.every=3",
+                                                                                  "checkpoint.best_metric=episode_return"]))))
+    returns = [1.0, 2.0, 2.0, 1.0, 3.0, 1.0, 4.0]  # new bests after cycles 1, 2, 5 and 7
+    rows, time = [], 100.0
+    for cycle, value in enumerate(returns, start=1):
+        if cycle == 6:
+            time += 60.0  # a restart before cycle 6: the next gap is no save's
+        time += 1.0  # the cycle's own second
+        rows.append({"cycle": cycle, "seconds": 1.0, "episode_return": value, "time": time}
+                    | ({"compile_seconds": 1.0} if cycle in (1, 6) else {}))
+        time += 2.0 * (value == max(returns[:cycle]) and value not in returns[:cycle - 1]) + 1.0 * (cycle % 3 == 0)
+    (run / "metrics.jsonl").write_text("".join(json.dumps(row) + "\n" for row in rows))
+    out = tmp_path / "cost.json"
+    checkpoint_cost.main([f"tiny={run}", "--name", "tiny", "--out", str(out)])
+    found = {row["saved"]: row for row in json.loads(out.read_text())["results"]}
+    assert {name: row["cycles"] for name, row in found.items()} == {"best": 2, "latest": 2, "none": 1, "any": 4}
+    assert found["best"]["median_gap_s"] == pytest.approx(2.0) and found["latest"]["median_gap_s"] == pytest.approx(1.0)
+    assert found["none"]["mean_gap_s"] == pytest.approx(0.0, abs=1e-9)
+    assert found["any"]["share_of_wall"] == pytest.approx(6.0 / 11.0), "2 + 2 + 1 + 1 s of saves, 5 cycles of 1 s"
 
 
 @pytest.mark.slow

@@ -135,12 +135,14 @@ def test_checkpoint_size_benchmark_saves_whole_and_lean_at_smoke_size(tmp_path):
     out = tmp_path / "sizes.json"
     done = subprocess.run(
         [sys.executable, str(TESTS.parent / "benchmarks" / "checkpoint_size.py"), "shadow_reach", "ppo.num_envs=2048",
-         "ppo.minibatch_size=8192", "ppo.network.width=16", "env.options.physics={impl: warp}", "--out", str(out)],
+         "ppo.minibatch_size=8192", "ppo.network.width=16", "env.options.physics={impl: warp}", "--repeats", "1",
+         "--out", str(out)],
         cwd=TESTS.parent / "benchmarks", capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     record = json.loads(out.read_text())
     whole, lean = record["results"]
     assert (whole["checkpoint"], lean["checkpoint"], lean["impl"]) == ("whole", "lean", "warp")
     assert 0 < lean["disk_mb"] and lean["fraction_of_whole"] < 0.4
+    assert whole["save_seconds"] > 0 and lean["save_seconds"] > 0 and len(whole["save_seconds_each"]) == 1
     assert record["config"]["state_mb"]["environments (actor, discounted_return)"] > 0
     assert "| ShadowHandReach | warp | 2,048 | lean |" in done.stdout

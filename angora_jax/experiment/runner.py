@@ -249,7 +249,7 @@ def _restore_to_continue(checkpoints: Checkpoints, cycle: int, template: TrainSt
             raise CheckpointError(
                 f"Cannot resume {run_dir} exactly from cycle {cycle}: {reason}, so the run cannot continue bit for "
                 "bit. Resume without --exact (its environments are then made afresh), or keep environments in "
-                "future latest checkpoints with checkpoint.lean=[snapshots].")
+                "future latest checkpoints with checkpoint.lean=[best, snapshots] (the default).")
         state = checkpoints.restore(lean, cycle, partial=True).state
     if is_main_process():
         print(f"Resuming {run_dir} from cycle {cycle} with fresh environments, not bit for bit: {reason}.",
