@@ -397,3 +397,25 @@ def test_a_second_ablation_of_a_run_keeps_the_first(whole, tmp_path, capsys):
         assert main(["analyze", "ablate", str(run), "--silence", "proprioception", "--episodes", "2"]) == 0
     assert {"ablation.png", "ablation.nc", "ablation-2.png", "ablation-2.nc"} <= {p.name for p in run.iterdir()}
     assert "numbers: " + str(run / "ablation-2.nc") in capsys.readouterr().out
+
+
+def test_analyses_of_a_recording_keep_earlier_results_and_refuse_a_taken_out(whole, tmp_path, capsys):
+    """A second analysis of a kind (other options, the same recording) takes the next free name; --out naming an
+    existing plot, or a plot whose numbers exist, exits 2 before computing, and the files keep their bytes."""
+    recording = tmp_path / "rec.nc"
+    assert main(["record", str(whole.run_dir), "--episodes", "2", "--steps", "6", "--out", str(recording)]) == 0
+    for lag in (2, 3):
+        assert main(["analyze", "timescales", str(recording), "--max-lag", str(lag)]) == 0
+    assert {"rec.timescales.png", "rec.timescales.nc", "rec.timescales-2.png", "rec.timescales-2.nc"} <= {
+        p.name for p in tmp_path.iterdir()}
+    first = {p: p.read_bytes() for p in (tmp_path / "rec.timescales.png", tmp_path / "rec.timescales.nc")}
+    capsys.readouterr()
+    (tmp_path / "other.nc").write_bytes(b"someone's numbers")
+    for out in (tmp_path / "rec.timescales.png", tmp_path / "other.png"):
+        assert main(["analyze", "timescales", str(recording), "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert "exists; analyses never overwrite a file: give another --out" in err and "Traceback" not in err
+    assert main(["analyze", "ablate", str(whole.run_dir), "--silence", "proprioception", "--out",
+                 str(tmp_path / "rec.timescales.png")]) == 2
+    assert all(p.read_bytes() == data for p, data in first.items())
+    assert (tmp_path / "other.nc").read_bytes() == b"someone's numbers" and not (tmp_path / "other.png").exists()

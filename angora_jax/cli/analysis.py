@@ -26,13 +26,17 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     decoding.add_argument("--lags", nargs="*", type=int, default=None,
                           help="policy steps k: decode the variable k steps after the activity (k < 0: before), "
                                "e.g. --lags -4 0 4 8 16")
-    decoding.add_argument("--out", default=None, help="heat map PNG (default: beside the recording)")
+    decoding.add_argument("--out", default=None,
+                          help="heat map PNG, its numbers beside it as .nc; never overwritten (default: beside the "
+                               "recording, *.decode.png, else the next free *.decode-N.png)")
     decoding.set_defaults(handler=command_decode)
 
     def analysis(name: str, help: str) -> argparse.ArgumentParser:
         parser = analyses.add_parser(name, help=help)
         parser.add_argument("recording", help="a NetCDF file from angora-jax record")
-        parser.add_argument("--out", default=None, help=f"PNG (default: beside the recording, *.{name}.png)")
+        parser.add_argument("--out", default=None,
+                            help=f"PNG, its numbers beside it as .nc; never overwritten (default: beside the "
+                                 f"recording, *.{name}.png, else the next free *.{name}-N.png)")
         parser.set_defaults(handler=command_analysis)
         return parser
 
@@ -116,7 +120,8 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     ablate.add_argument("--episodes", type=positive_int, default=256)
     ablate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
     ablate.add_argument("--out", default=None,
-                        help="PNG and NetCDF (default: RUN_DIR/ablation.png, else the next free ablation-N.png)")
+                        help="PNG and NetCDF; never overwritten (default: RUN_DIR/ablation.png, else the next free "
+                             "ablation-N.png)")
     add_env_option(ablate)
     ablate.set_defaults(handler=command_ablate)
 
@@ -242,13 +247,15 @@ def command_analysis(args: argparse.Namespace) -> int:
 
 def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None = None) -> int:
     """Read the recording, compute, write `<out>.png` and `<out>.nc` (default: `<recording>.<stem or the
-    analysis>.png`), print the summary; usage errors exit 2."""
+    analysis>.png`, or the next free `-2`, `-3` ... name), print the summary; usage errors exit 2."""
     import xarray as xr
 
     recording = Path(args.recording)
     if not recording.is_file():
         raise FileNotFoundError(f"No recording {recording}; make one with angora-jax record RUN_DIR --out FILE.")
-    out = Path(args.out) if args.out else recording.with_suffix(f".{stem or args.analysis}.png")
+    out = output_path(args.analysis, args.out, recording.parent, f"{recording.stem}.{stem or args.analysis}")
+    if out is None:
+        return EXIT_USAGE
     try:
         data = xr.load_dataset(recording)
     except (ValueError, OSError, TypeError) as error:  # xarray's and its readers' ways to say "not NetCDF"
@@ -271,6 +278,23 @@ def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None 
         print(line)
     print(f"Plot: {out}; numbers: {out.with_suffix('.nc')}")
     return EXIT_OK
+
+
+def output_path(analysis: str, given: str | None, directory: Path, stem: str) -> Path | None:
+    """Where an analysis writes its plot, with its numbers beside it (the suffix .nc). `given` (--out) unless it or
+    its numbers exist: then None, after saying so on stderr. Without --out, the first of `directory/<stem>.png`,
+    `<stem>-2.png`, ... that neither file takes: a second analysis of the same recording with other options keeps
+    the first's results."""
+    if given:
+        out = Path(given)
+        taken = next((path for path in (out, out.with_suffix(".nc")) if path.exists()), None)
+        if taken is not None:
+            print(f"angora-jax analyze {analysis}: {taken} exists; analyses never overwrite a file: give another "
+                  "--out, or leave --out out for the next free name.", file=sys.stderr)
+            return None
+        return out
+    return next(path for path in numbered_paths(directory, stem, ".png")
+                if not path.exists() and not path.with_suffix(".nc").exists())
 
 
 def write_plot_and_numbers(result, out: Path, plot) -> None:
@@ -309,6 +333,10 @@ def command_ablate(args: argparse.Namespace) -> int:
         silence_modality,
     )
 
+    # In the run directory an earlier ablation is kept: the next free name (ablation-2.png, ...), as evaluations do.
+    out = output_path("ablate", args.out, Path(args.run_dir), "ablation")
+    if out is None:
+        return EXIT_USAGE
     agent = load_agent(args.run_dir, checkpoint_of(args.checkpoint), args.env_option)
     try:
         lesions = {f"-{area}": lesion_area(agent, area) for area in args.lesion}
@@ -324,9 +352,6 @@ def command_ablate(args: argparse.Namespace) -> int:
         print(f"angora-jax analyze ablate: {error}", file=sys.stderr)
         return EXIT_USAGE
     result = ablation(agent, lesions, args.episodes)
-    # In the run directory an earlier ablation is kept: the next free name (ablation-2.png, ...), as evaluations do.
-    out = Path(args.out) if args.out else next(path for path in numbered_paths(Path(args.run_dir), "ablation", ".png")
-                                               if not path.exists() and not path.with_suffix(".nc").exists())
     best = (agent.config.checkpoint.best_metric or "").removeprefix("metric/")
     outcome = best if best in result["outcome"] else "episode_return"  # the run's own measure of success
     write_plot_and_numbers(result, out, lambda result, path: plot_ablation(result, outcome, path))
