@@ -202,7 +202,8 @@ def plot(runs: dict[str, list[list[dict]]], title: str, path: str) -> None:
                 grid, mean, half = band(seeds, x)
                 (line,) = ax.plot(grid / scale, mean, label=named, color=color)
                 color = line.get_color()
-                ax.fill_between(grid / scale, mean - half, mean + half, alpha=0.25, color=color)
+                # A CGR is never below 0; with few seeds Student's t makes the interval reach far past it.
+                ax.fill_between(grid / scale, np.maximum(mean - half, 0.0), mean + half, alpha=0.25, color=color)
         for rows in seeds:
             steps = [r["env_steps"] for r in rows]
 
