@@ -17,6 +17,7 @@ from contextlib import AbstractContextManager
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from angora_jax.envs.core import Env
 from angora_jax.envs.mjx_env import mjx_module  # ours drops mujoco-mjx's notice that optional Warp is absent
@@ -215,6 +216,16 @@ def write_results(name: str, config: dict, rows: list[dict], out: str | None = N
     with open(path, "w") as f:
         json.dump(record, f, indent=2)
     return path
+
+
+def rolling_peak(values, window: int) -> tuple[int, float, float]:
+    """Of the means of `values` over `window` consecutive entries (NaN skipped): the index of the entry that ends the
+    highest window, that window's mean, and the last window's mean. A training metric's peak and where it ended,
+    judged on a few cycles rather than one noisy cycle."""
+    values = np.asarray(values, dtype=float)
+    rolling = np.array([np.nanmean(values[i:i + window]) for i in range(len(values) - window + 1)])
+    top = int(np.nanargmax(rolling))
+    return top + window - 1, float(rolling[top]), float(rolling[-1])
 
 
 def markdown_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> str:

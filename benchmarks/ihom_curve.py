@@ -55,7 +55,7 @@ import scipy.stats
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from common import markdown_table, study_folder  # noqa: E402
+from common import markdown_table, rolling_peak, study_folder  # noqa: E402
 
 CGR = "metric/goals_reached"
 MILESTONES = (1, 5, 10, 20, 30)
@@ -166,10 +166,8 @@ def stability(rows: list[dict]) -> dict:
     cgr = np.array([math.nan if r.get(CGR) is None else r[CGR] for r in rows])
     if len(cgr) < SMOOTH or np.isnan(cgr).all():
         return {"peak": None}
-    rolling = np.array([np.nanmean(cgr[i:i + SMOOTH]) for i in range(len(cgr) - SMOOTH + 1)])
-    top = int(np.nanargmax(rolling))
-    at_peak, last = rows[top + SMOOTH - 1], rows[-1]
-    peak, final = float(rolling[top]), float(rolling[-1])
+    top, peak, final = rolling_peak(cgr, SMOOTH)
+    at_peak, last = rows[top], rows[-1]
     solved = first_reaching(rows, SOLVED)
     return {"peak": peak, "peak_cycle": at_peak["cycle"], "peak_wall_minutes": at_peak["wall_seconds"] / 60,
             "final": final, "fraction_of_peak": final / peak if peak > 0 else None,

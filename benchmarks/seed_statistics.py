@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from common import markdown_table, write_results
+from common import markdown_table, rolling_peak, write_results
 
 from angora_jax.experiment.report import RunRecord, load_run, seed_groups
 from angora_jax.experiment.run_dir import read_sessions
@@ -49,9 +49,7 @@ def run_statistics(run: RunRecord, metric: str, bar: float, smooth: int) -> dict
     minutes = session_minutes(rows, sessions)
     values = np.array([row[metric] for row in rows])
     cycles = [row["cycle"] for row in rows]
-    window = min(smooth, len(values))
-    running = np.convolve(values, np.ones(window) / window, mode="valid")
-    peak = int(running.argmax()) + window - 1
+    peak, peak_value, final = rolling_peak(values, min(smooth, len(values)))
     reached = np.flatnonzero(values >= bar)
     evaluations = {}
     for path in sorted(Path(run.path, "evaluation").glob("*.json")):
@@ -70,8 +68,8 @@ def run_statistics(run: RunRecord, metric: str, bar: float, smooth: int) -> dict
         "steps_per_second": float(np.median([row["steps_per_second"] for row in rows[1:]] or [math.nan])),
         "bar_minutes": float(minutes[reached[0]]) if reached.size else None,
         "bar_cycle": cycles[reached[0]] if reached.size else None,
-        "peak": float(running.max()), "peak_cycle": cycles[peak], "peak_minutes": float(minutes[peak]),
-        "final": float(running[-1]), "minutes_past_peak": float(minutes[-1] - minutes[peak]),
+        "peak": peak_value, "peak_cycle": cycles[peak], "peak_minutes": float(minutes[peak]),
+        "final": final, "minutes_past_peak": float(minutes[-1] - minutes[peak]),
         "evaluations": evaluations,
     }
 
