@@ -56,6 +56,29 @@ def test_rdms_are_symmetric_with_zero_diagonal_and_match_the_encoded_variable():
         similarity(synthetic(), "metric_y")
 
 
+def test_decoding_with_one_fold_is_refused_in_our_words():
+    with pytest.raises(ValueError, match=r"at least 2 folds \(--folds\), got 1"):
+        decode(synthetic(episodes=4, steps=5), ["code"], ["metric_x"], folds=1)
+
+
+def test_a_feature_is_required_of_a_vector_variable_in_range_and_refused_of_a_scalar():
+    """`--feature` on a scalar variable was ignored silently, and one out of range was an IndexError traceback
+    (negative ones counted from the end)."""
+    data = synthetic()
+    assert tuning_curves(data.assign(metric_v=data["activity_code"]), "code", "metric_v", bins=4, feature=5).attrs[
+        "feature"] == 5
+    for variable, feature, message in (("metric_x", 0, "metric_x is one number per step, with no features: drop "
+                                                        "feature=0"),
+                                       ("activity_code", None, "activity_code has 6 features; choose one"),
+                                       ("activity_code", 6, "feature=6 .* is not a feature of activity_code: it has "
+                                                            "6, 0 to 5"),
+                                       ("activity_code", -1, "feature=-1 .* is not a feature")):
+        with pytest.raises(ValueError, match=message):
+            similarity(data, variable, layers=["code"], bins=4, feature=feature)
+    with pytest.raises(ValueError, match="drop feature=2"):
+        tuning_curves(data, "code", "metric_x", bins=4, feature=2)
+
+
 def test_condition_bins_split_only_the_alive_steps_into_equal_parts():
     """The quantiles that bound the bins are those of the alive steps: steps after an episode ended belong to the
     next episode, whose values (here all 0, below every alive value) would otherwise pull the lower bounds down and

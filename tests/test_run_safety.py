@@ -399,6 +399,14 @@ def test_a_second_ablation_of_a_run_keeps_the_first(whole, tmp_path, capsys):
     assert "numbers: " + str(run / "ablation-2.nc") in capsys.readouterr().out
 
 
+def test_record_refuses_images_of_a_task_without_a_camera_before_running(whole, tmp_path, capsys):
+    """`record --images` of CartPole (no image modality) used to record without images and say nothing."""
+    assert main(["record", str(whole.run_dir), "--images", "--episodes", "2", "--out", str(tmp_path / "r.nc")]) == 2
+    err = capsys.readouterr().err
+    assert "CartPole sees through no camera" in err and "record without it" in err and "Traceback" not in err
+    assert not (tmp_path / "r.nc").exists()
+
+
 def test_analyses_of_a_recording_keep_earlier_results_and_refuse_a_taken_out(whole, tmp_path, capsys):
     """A second analysis of a kind (other options, the same recording) takes the next free name; --out naming an
     existing plot, or a plot whose numbers exist, exits 2 before computing, and the files keep their bytes."""

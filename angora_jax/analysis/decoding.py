@@ -52,6 +52,9 @@ def _cross_validated_r2s(feature_sets: Sequence[np.ndarray], targets: np.ndarray
                          spans: Sequence[slice] | None) -> np.ndarray:
     """`cross_validated_r2` of each of `feature_sets` on the same targets and folds, `(sets, folds[, spans])`: every
     (set, fold) fit runs in parallel (`map_in_threads`)."""
+    if folds < 2:
+        raise ValueError(f"Decoding needs at least 2 folds (--folds), got {folds}: each fold's episodes are held out "
+                         "while the readout is fitted on the others'.")
     columns = [slice(0, targets.shape[1])] if spans is None else list(spans)
     splits = list(GroupKFold(n_splits=folds).split(targets, targets, groups))
 

@@ -100,6 +100,9 @@ def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | 
                              "load_agent(run_dir, env_overrides=...).")
     else:
         agent = load_agent(agent, checkpoint, env_overrides)
+    if images and not any(is_image(leaf) for leaf in jax.tree.leaves(agent.env.observation_shapes())):
+        raise ValueError(f"images=True (--images) keeps camera images, but {agent.config.env.task} sees through no "
+                         "camera (no image modality in its observations): record without it.")
     record = _run_episodes(agent, episodes, steps, seed)
     return _dataset(agent, record, agent.env.dt, images).assign_attrs(env_overrides="; ".join(env_overrides))
 

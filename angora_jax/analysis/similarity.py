@@ -28,9 +28,15 @@ def condition_labels(dataset: xr.Dataset, variable: str, bins: int = 8, feature:
         raise ValueError(f"No variable {variable!r} in the recording; it has {sorted(dataset.data_vars)}.")
     values = np.asarray(dataset[variable].values, np.float64)
     if values.ndim == 3:
+        count = values.shape[-1]
         if feature is None:
-            raise ValueError(f"{variable} has {values.shape[-1]} features; choose one with feature=<index>.")
+            raise ValueError(f"{variable} has {count} features; choose one with feature=<index> (--feature).")
+        if not 0 <= feature < count:
+            raise ValueError(f"feature={feature} (--feature) is not a feature of {variable}: it has {count}, 0 to "
+                             f"{count - 1}.")
         values = values[..., feature]
+    elif feature is not None:
+        raise ValueError(f"{variable} is one number per step, with no features: drop feature={feature} (--feature).")
     alive = dataset["alive"].values > 0
     labels = np.digitize(values, np.quantile(values[alive], np.linspace(0, 1, bins + 1)[1:-1]))
     compact = np.full(labels.shape, -1)
