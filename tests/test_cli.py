@@ -131,6 +131,14 @@ def test_episode_count_below_one_is_a_usage_error(command, capsys):
     assert "--episodes" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("port", ["99999", "-1", "http"])
+def test_a_port_outside_0_to_65535_is_a_usage_error(port, capsys):
+    """`monitor --port 99999` was an OverflowError traceback from the socket's bind."""
+    with pytest.raises(SystemExit) as stop:
+        main(["monitor", "no/such/run", f"--port={port}"])
+    assert stop.value.code == 2 and "must be a port from 0 (any free one) to 65535" in capsys.readouterr().err
+
+
 def test_train_then_evaluate_exit_0(capsys, tmp_path):
     argv = ["train", "cartpole", *TINY, "ppo.num_cycles=3", f"logging.run_root={tmp_path}", "logging.run_name=r"]
     assert main(argv) == 0
@@ -239,10 +247,25 @@ def test_the_gpu_out_of_memory_exits_2_naming_the_share_and_the_smaller_batch(fa
         yield
 
     monkeypatch.setattr(runner, "training_cycles", out_of_memory)
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     assert main(["train", "cartpole", *TINY, f"logging.run_root={tmp_path}", "logging.run_name=r"]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and not (tmp_path / "r").exists()
     assert "XLA_PYTHON_CLIENT_MEM_FRACTION=0.45" in err and "ppo.num_envs" in err and "angora-jax resume" in err
+
+
+def test_out_of_memory_on_the_cpu_names_the_batch_and_no_gpu(capsys, tmp_path, monkeypatch):
+    """`angora-jax run --num-envs 100000000000` on a CPU machine was told that the GPU ran out and to share it."""
+    def out_of_memory(*args):
+        raise jax.errors.JaxRuntimeError("INTERNAL: Error dispatching computation: Out of memory allocating 16 bytes.")
+        yield
+
+    monkeypatch.setattr(runner, "training_cycles", out_of_memory)
+    assert jax.default_backend() == "cpu"
+    assert main(["train", "cartpole", *TINY, f"logging.run_root={tmp_path}", "logging.run_name=r"]) == 2
+    err = capsys.readouterr().err
+    assert "the machine ran out of memory (INTERNAL" in err and "Use fewer environments (train: ppo.num_envs" in err
+    assert "GPU" not in err and "Traceback" not in err
 
 
 def test_other_runtime_errors_and_a_full_disk_are_not_taken_for_the_gpu_out_of_memory():
@@ -253,7 +276,7 @@ def test_other_runtime_errors_and_a_full_disk_are_not_taken_for_the_gpu_out_of_m
     try:
         raise ValueError("while compiling") from jax.errors.JaxRuntimeError("RESOURCE_EXHAUSTED: Out of memory")
     except ValueError as wrapped:
-        assert device_memory_message(wrapped).startswith("the GPU ran out of memory (RESOURCE_EXHAUSTED")
+        assert device_memory_message(wrapped).startswith("the machine ran out of memory (RESOURCE_EXHAUSTED")
 
 
 def test_distributed_outside_a_cluster_without_its_settings_exits_2_naming_them(capsys):

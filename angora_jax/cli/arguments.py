@@ -28,6 +28,13 @@ def positive_int(text: str) -> int:
 
 
 
+def port(text: str) -> int:
+    """An argparse type: a TCP port, 0 (any free one) to 65535."""
+    if not text.isdigit() or int(text) > 65535:
+        raise argparse.ArgumentTypeError(f"must be a port from 0 (any free one) to 65535, got {text!r}")
+    return int(text)
+
+
 def positive_float(text: str) -> float:
     value = float(text)
     if not value > 0:

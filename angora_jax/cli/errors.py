@@ -38,26 +38,33 @@ _WARP_KERNEL_LOAD = "Failed to load CUDA module"
 
 
 def device_memory_message(error: BaseException) -> str | None:
-    """The sentence for a JAX runtime error (or one it was raised from) that says a GPU's memory ran out, naming the
-    usual causes and their fixes; None for every other error. A full disk, which TensorStore also reports as
-    RESOURCE_EXHAUSTED, is not taken for it."""
+    """The sentence for a JAX runtime error (or one it was raised from) that says a device's memory ran out, naming
+    the usual causes and their fixes (on a GPU: another process holding its share; on the CPU: only the batch);
+    None for every other error. A full disk, which TensorStore also reports as RESOURCE_EXHAUSTED, is not taken for
+    it."""
+    import jax
+
+    on_gpu = jax.default_backend() == "gpu"
     while error is not None:
         text = str(error)
         if type(error).__name__ in ("JaxRuntimeError", "XlaRuntimeError") and "No space left on device" not in text:
             if any(sign in text for sign in _OUT_OF_MEMORY):
                 line = next(line for line in text.splitlines() if any(sign in line for sign in _OUT_OF_MEMORY))
-                what = f"the GPU ran out of memory ({line.strip()[:200]})"
+                what = f"the {'GPU' if on_gpu else 'machine'} ran out of memory ({line.strip()[:200]})"
                 break
             if _WARP_KERNEL_LOAD in text:
                 what = ("MuJoCo Warp could not load its CUDA kernels onto the GPU (Warp printed the CUDA error above; "
                         "'out of memory' is the usual one)")
+                on_gpu = True
                 break
         error = error.__cause__ or error.__context__
     else:
         return None
-    return (f"{what}. Each JAX process takes 75% of a GPU's memory when it starts, so a second process on the same GPU "
-            "(nvidia-smi lists them) leaves too little: run them one after another, or give each a share before "
-            "starting it (XLA_PYTHON_CLIENT_MEM_FRACTION=0.45 for two). Alone on the GPU, use fewer environments "
-            "(train: ppo.num_envs and ppo.minibatch_size; evaluate: a smaller --batch; record: fewer --episodes). "
+    smaller = ("use fewer environments (train: ppo.num_envs and ppo.minibatch_size; evaluate: a smaller --batch; "
+               "record: fewer --episodes; run: fewer --num-envs)")
+    shared = ("Each JAX process takes 75% of a GPU's memory when it starts, so a second process on the same GPU "
+              "(nvidia-smi lists them) leaves too little: run them one after another, or give each a share before "
+              f"starting it (XLA_PYTHON_CLIENT_MEM_FRACTION=0.45 for two). Alone on the GPU, {smaller}. ")
+    return (f"{what}. {shared if on_gpu else smaller[0].upper() + smaller[1:] + '. '}"
             "A run stopped by it keeps every checkpoint saved before: `angora-jax check RUN_DIR` shows them, "
             "`angora-jax resume RUN_DIR` continues.")

@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, positive_float
+from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, port, positive_float
 
 
 def add_report(commands: argparse._SubParsersAction) -> None:
@@ -26,7 +26,7 @@ def add_monitor(commands: argparse._SubParsersAction) -> None:
     monitor.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
     monitor.add_argument("--out", default=None, help="where the page is written (default: as for report)")
     monitor.add_argument("--every", type=positive_float, default=30.0, help="seconds between updates (default: 30)")
-    monitor.add_argument("--port", type=int, default=8000, help="HTTP port (default: 8000; 0: any free port)")
+    monitor.add_argument("--port", type=port, default=8000, help="HTTP port (default: 8000; 0: any free port)")
     monitor.add_argument("--host", default="127.0.0.1",
                          help="address to serve on (default: this machine only; 0.0.0.0 for the network)")
     monitor.add_argument("--no-serve", action="store_true", help="only rewrite the page on disk (open it yourself)")
