@@ -61,6 +61,14 @@ def test_report_compares_runs_in_pngs_and_html(runs, comparison):
     assert "<td>0 (group of 2)</td>" in page and "<td>1 (group of 2)</td>" in page, "two seeds of one config"
 
 
+def test_a_run_given_twice_is_drawn_once(runs, tmp_path, monkeypatch):
+    """`report runs/a runs/a` (or `./runs/a`) listed the run twice and counted it as two seeds of one group."""
+    monkeypatch.chdir(runs[0].run_dir.parent)
+    assert main(["report", "seed0", "./seed0", str(runs[0].run_dir), "seed1", "--out", str(tmp_path)]) == 0
+    page = (tmp_path / "index.html").read_text()
+    assert page.count('<tr class="run"') == 2 and "<td>0 (group of 2)</td>" in page
+
+
 def test_runs_that_differ_only_in_seed_are_one_group_drawn_as_mean_and_95_percent_band(tmp_path):
     def run(name, seed, learning_rate, returns):
         config = {"ppo": {"seed": seed, "learning_rate": learning_rate}, "logging": {"run_name": name}}

@@ -146,11 +146,14 @@ def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_second
     The report's own files in `out_dir` are regenerated; nothing else there is touched.
 
     Args:
-        run_dirs: the runs to compare.
+        run_dirs: the runs to compare; a run given twice (under any spelling of its path) is drawn once.
         out_dir: where the report is written.
         refresh_seconds: the page reloads itself this often (for a live view), None for a static page.
     """
-    runs = [load_run(d) for d in run_dirs]
+    distinct: dict[Path, str | Path] = {}
+    for run_dir in run_dirs:
+        distinct.setdefault(Path(run_dir).resolve(), run_dir)
+    runs = [load_run(d) for d in distinct.values()]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     images = []
