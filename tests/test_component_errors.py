@@ -65,6 +65,24 @@ def test_a_damaged_component_file_is_refused_naming_the_file_and_how_to_write_on
     assert "save_component" in err and "pretrain-vision" in err, "how to write one"
 
 
+def test_a_component_file_is_written_whole_or_not_at_all(source_run, tmp_path, monkeypatch):
+    """A full disk halfway through `save_component` left half a file, which blocked the next save to that name and
+    read as damaged; now nothing is left, and the next save goes through."""
+    params, file = aj.load_agent(source_run).params, tmp_path / "part.msgpack"
+    write_bytes = Path.write_bytes
+
+    def disk_fills(path, data):
+        write_bytes(path, data[: len(data) // 2])
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_bytes", disk_fills)
+    with pytest.raises(OSError, match="No space left"):
+        save_component(params, "network", file)
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.setattr(Path, "write_bytes", write_bytes)
+    assert save_component(params, "network", file) == file and file.stat().st_size > 0
+
+
 def test_a_component_of_another_size_is_refused_naming_the_shapes(source_run, capsys, tmp_path):
     file = save_component(aj.load_agent(source_run).params, "network", tmp_path / "wide.msgpack")
     err = refused(capsys, tmp_path, f"ppo.network.pretrained={{network: {file}}}", "ppo.network.width=8")

@@ -26,7 +26,7 @@ from angora_jax.experiment.manifest import MANIFEST_FILE
 from angora_jax.experiment.run_check import check_run
 from angora_jax.experiment.run_dir import CHECKPOINTS, DiskFullError
 from angora_jax.experiment.run_lock import LOCK_FILE, RunLock, RunLockedError, _process_start
-from angora_jax.experiment.whole_files import written_whole
+from angora_jax.whole_files import written_whole
 
 # A recurrent network, so that a resumed run must restore carries and environments mid-episode.
 TINY = [*TINY_PPO, "ppo.network.name=gru", "ppo.network.width=8", "ppo.network.cell_size=8",

@@ -45,9 +45,9 @@ from flax import linen as nn
 
 from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, load_agent
-from angora_jax.experiment.whole_files import written_whole
 from angora_jax.nets import ActorCritic
 from angora_jax.ppo.evaluate import make_evaluate
+from angora_jax.whole_files import written_whole
 
 # Policy steps compiled as one program when recording until the episodes end: a recording stops at most this many
 # steps after its longest episode ended (a cube episode lasts 100-5,000 steps).

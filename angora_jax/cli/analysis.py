@@ -11,7 +11,7 @@ import numpy as np
 from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, add_env_option, checkpoint_of, positive_int
 from angora_jax.experiment import Agent, load_agent
 from angora_jax.experiment.run_dir import numbered_paths
-from angora_jax.experiment.whole_files import written_whole
+from angora_jax.whole_files import written_whole
 
 
 def add_analyze(commands: argparse._SubParsersAction) -> None:

@@ -27,8 +27,8 @@ from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.config import to_dict
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
 from angora_jax.experiment.run_dir import numbered_paths
-from angora_jax.experiment.whole_files import written_whole
 from angora_jax.ppo.evaluate import make_evaluate
+from angora_jax.whole_files import written_whole
 
 EVALUATION_DIR = "evaluation"
 # Episodes run at once by default: enough to spread the fixed cost of each step's JAX calls, few enough that a small

@@ -19,7 +19,7 @@ from angora_jax.envs.core import Sensation
 from angora_jax.experiment.agent import Agent, acting_parts, load_agent
 from angora_jax.experiment.config import load_config, to_dict
 from angora_jax.experiment.run_dir import RunDirError
-from angora_jax.experiment.whole_files import written_whole
+from angora_jax.whole_files import written_whole
 
 FORMAT = "angora_jax.policy/1"
 

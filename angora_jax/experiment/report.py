@@ -26,7 +26,7 @@ import yaml  # noqa: E402
 
 from angora_jax.experiment.monitor import read_metrics  # noqa: E402
 from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError, latest_video, read_sessions  # noqa: E402
-from angora_jax.experiment.whole_files import written_whole  # noqa: E402
+from angora_jax.whole_files import written_whole  # noqa: E402
 
 # Curves drawn when at least one run has them, in this order; task metrics (metric/*) follow the return.
 CURVES = (

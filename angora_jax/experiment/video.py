@@ -20,7 +20,7 @@ from angora_jax.envs.registry import make
 from angora_jax.envs.rendering import RenderError, SceneRenderer, camera_named
 from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
-from angora_jax.experiment.whole_files import written_whole
+from angora_jax.whole_files import written_whole
 
 
 def render_frames(run_dir: str | Path | None = None, *, task: str | None = None, checkpoint: str | int = "best",

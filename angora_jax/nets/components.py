@@ -20,6 +20,8 @@ import numpy as np
 import optax
 from flax import serialization
 
+from angora_jax.whole_files import written_whole
+
 # How a component file is written, for messages about files that are not one.
 WRITE_COMPONENTS = ("write components with angora_jax.nets.components.save_component(agent.params, PATH, FILE) or "
                     "`angora-jax pretrain-vision --out FILE`")
@@ -104,12 +106,15 @@ def shape_misfits(current: Any, given: Any) -> list[str]:
 
 
 def save_component(params: Any, path: str, file: str | Path) -> Path:
-    """Write the module `path` of `params` (e.g. `agent.params`) to `file`; refuses to overwrite."""
+    """Write the module `path` of `params` (e.g. `agent.params`) to `file`, whole or not at all (`written_whole`: a
+    crash while writing leaves no half file); refuses to overwrite."""
     file = Path(file)
     if file.exists():
         raise FileExistsError(f"{file} exists; components are never overwritten: give another file.")
     file.parent.mkdir(parents=True, exist_ok=True)
-    file.write_bytes(serialization.msgpack_serialize(jax.device_get(component(params, path))))
+    data = serialization.msgpack_serialize(jax.device_get(component(params, path)))
+    with written_whole(file, replace=False) as draft:
+        draft.write_bytes(data)
     return file
 
 

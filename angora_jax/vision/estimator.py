@@ -28,8 +28,8 @@ from flax import serialization
 from jax.scipy.spatial.transform import Rotation
 
 from angora_jax.envs.shadow_hand import register_pose_estimator_reader
-from angora_jax.experiment.whole_files import written_whole
 from angora_jax.nets.visual import make_visual_encoder
+from angora_jax.whole_files import written_whole
 
 ORIENTATIONS = {"quaternion": 4, "6d": 6}  # the head's outputs per orientation representation
 
