@@ -427,3 +427,7 @@ def test_analyses_of_a_recording_keep_earlier_results_and_refuse_a_taken_out(who
                  str(tmp_path / "rec.timescales.png")]) == 2
     assert all(p.read_bytes() == data for p, data in first.items())
     assert (tmp_path / "other.nc").read_bytes() == b"someone's numbers" and not (tmp_path / "other.png").exists()
+    capsys.readouterr()
+    assert main(["analyze", "visual", str(recording), "--run", str(whole.run_dir)]) == 2
+    assert "task (CartPole) sees through no camera: the visual analysis is for agents that see pixels" in (
+        capsys.readouterr().err), "not: record it with --images, which CartPole refuses"

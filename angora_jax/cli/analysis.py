@@ -160,6 +160,10 @@ def command_analysis(args: argparse.Namespace) -> int:
             return analysis.tuning_curves(data, args.layer, args.variable, args.bins, args.feature)
         if args.analysis == "visual":
             if "input_vision" not in data:
+                if not data.attrs.get("camera_images"):
+                    raise ValueError(f"The recording's task ({data.attrs.get('task', 'unknown')}) sees through no "
+                                     "camera: the visual analysis is for agents that see pixels (e.g. a run of "
+                                     "shadow_reach_pixels), recorded with angora-jax record RUN_DIR --images.")
                 raise ValueError("The recording kept no camera images: record it with angora-jax record RUN_DIR "
                                  "--images.")
             cameras = data["input_vision"].sizes["camera"]
