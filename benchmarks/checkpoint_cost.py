@@ -20,6 +20,7 @@ from pathlib import Path
 
 from common import markdown_table, write_results
 
+from angora_jax.experiment.checkpoint import improves
 from angora_jax.experiment.config import load_config
 from angora_jax.experiment.monitor import read_metrics
 
@@ -28,16 +29,15 @@ ORDER = (*KINDS, "none")
 
 
 def saves_after(rows: list[dict], config) -> list[tuple[dict, set[str]]]:
-    """Each record but the last with the checkpoint kinds saved after its cycle (the best rule as the run's: strictly
-    better than every earlier cycle, NaN never) and its `gap`: a record's time is taken before the cycle's saves, so
+    """Each record but the last with the checkpoint kinds saved after its cycle (the best by the run's own rule,
+    `checkpoint.improves`) and its `gap`: a record's time is taken before the cycle's saves, so
     they fall between it and the next cycle, whose own seconds are taken out. A record before a piece's first cycle
     (a restart: that cycle carries `compile_seconds`) or before a gap in the cycles gets none."""
-    checkpoint, best, out = config.checkpoint, math.nan, []
+    checkpoint, best, out = config.checkpoint, None, []
     for row, following in zip(rows, rows[1:], strict=False):
         value = row.get(checkpoint.best_metric, math.nan) if checkpoint.best_metric else math.nan
         kinds = set()
-        better = value > best if checkpoint.best_mode == "max" else value < best
-        if math.isfinite(value) and (math.isnan(best) or better):
+        if improves(value, best, checkpoint.best_mode):
             best = value
             kinds.add("best")
         if row["cycle"] % checkpoint.every == 0:

@@ -298,12 +298,18 @@ class Checkpoints:
 
     def _improves(self, metrics: dict[str, float]) -> bool:
         name = self.config.best_metric
-        value = metrics.get(name, math.nan) if name is not None else math.nan
-        if math.isnan(value):  # e.g. no episode finished in this cycle
-            return False
-        if self.best_value is None:
-            return True
-        return value > self.best_value if self.config.best_mode == "max" else value < self.best_value
+        return improves(metrics.get(name, math.nan) if name is not None else math.nan, self.best_value,
+                        self.config.best_mode)
+
+
+def improves(value: float, best: float | None, mode: str) -> bool:
+    """Whether a cycle's `value` of the best metric makes a new best checkpoint against `best` (None: none yet) under
+    `mode` ("max" or "min"): NaN never does (e.g. no episode finished in the cycle), nor does a tie."""
+    if math.isnan(value):
+        return False
+    if best is None:
+        return True
+    return value > best if mode == "max" else value < best
 
 
 # What Orbax's and TensorStore's writer threads print when a save fails, each thread for itself and some after the save
