@@ -422,7 +422,7 @@ def test_analyses_of_a_recording_keep_earlier_results_and_refuse_a_taken_out(who
     for out in (tmp_path / "rec.timescales.png", tmp_path / "other.png"):
         assert main(["analyze", "timescales", str(recording), "--out", str(out)]) == 2
         err = capsys.readouterr().err
-        assert "exists; analyses never overwrite a file: give another --out" in err and "Traceback" not in err
+        assert "exists; analyses are never overwritten: give another --out" in err and "Traceback" not in err
     assert main(["analyze", "ablate", str(whole.run_dir), "--silence", "proprioception", "--out",
                  str(tmp_path / "rec.timescales.png")]) == 2
     assert all(p.read_bytes() == data for p, data in first.items())

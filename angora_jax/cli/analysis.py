@@ -8,7 +8,14 @@ from pathlib import Path
 
 import numpy as np
 
-from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, add_env_option, checkpoint_of, positive_int
+from angora_jax.cli.arguments import (
+    EXIT_OK,
+    EXIT_USAGE,
+    add_env_option,
+    checkpoint_of,
+    positive_int,
+    refused_existing,
+)
 from angora_jax.experiment import Agent, load_agent
 from angora_jax.experiment.run_dir import numbered_paths
 from angora_jax.whole_files import written_whole
@@ -291,12 +298,8 @@ def output_path(analysis: str, given: str | None, directory: Path, stem: str) ->
     the first's results."""
     if given:
         out = Path(given)
-        taken = next((path for path in (out, out.with_suffix(".nc")) if path.exists()), None)
-        if taken is not None:
-            print(f"angora-jax analyze {analysis}: {taken} exists; analyses never overwrite a file: give another "
-                  "--out, or leave --out out for the next free name.", file=sys.stderr)
-            return None
-        return out
+        taken = any(refused_existing(f"analyze {analysis}", path, "analyses") for path in (out, out.with_suffix(".nc")))
+        return None if taken else out
     return next(path for path in numbered_paths(directory, stem, ".png")
                 if not path.exists() and not path.with_suffix(".nc").exists())
 
