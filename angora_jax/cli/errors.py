@@ -60,11 +60,11 @@ def device_memory_message(error: BaseException) -> str | None:
         error = error.__cause__ or error.__context__
     else:
         return None
-    smaller = ("use fewer environments (train: ppo.num_envs and ppo.minibatch_size; evaluate: a smaller --batch; "
-               "record: fewer --episodes; run: fewer --num-envs)")
-    shared = ("Each JAX process takes 75% of a GPU's memory when it starts, so a second process on the same GPU "
+    fewer = ("fewer environments (train: ppo.num_envs and ppo.minibatch_size; evaluate: a smaller --batch; record: "
+             "fewer --episodes; run: fewer --num-envs)")
+    advice = (f"Use {fewer}. " if not on_gpu else
+              "Each JAX process takes 75% of a GPU's memory when it starts, so a second process on the same GPU "
               "(nvidia-smi lists them) leaves too little: run them one after another, or give each a share before "
-              f"starting it (XLA_PYTHON_CLIENT_MEM_FRACTION=0.45 for two). Alone on the GPU, {smaller}. ")
-    return (f"{what}. {shared if on_gpu else smaller[0].upper() + smaller[1:] + '. '}"
-            "A run stopped by it keeps every checkpoint saved before: `angora-jax check RUN_DIR` shows them, "
-            "`angora-jax resume RUN_DIR` continues.")
+              f"starting it (XLA_PYTHON_CLIENT_MEM_FRACTION=0.45 for two). Alone on the GPU, use {fewer}. ")
+    return (f"{what}. {advice}A run stopped by it keeps every checkpoint saved before: `angora-jax check RUN_DIR` "
+            "shows them, `angora-jax resume RUN_DIR` continues.")
