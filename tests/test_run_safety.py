@@ -16,6 +16,7 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 import pytest
+import xarray as xr
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -431,3 +432,8 @@ def test_analyses_of_a_recording_keep_earlier_results_and_refuse_a_taken_out(who
     assert main(["analyze", "visual", str(recording), "--run", str(whole.run_dir)]) == 2
     assert "task (CartPole) sees through no camera: the visual analysis is for agents that see pixels" in (
         capsys.readouterr().err), "not: record it with --images, which CartPole refuses"
+    older = xr.load_dataset(recording)
+    del older.attrs["camera_images"]  # a recording from before the attribute: it cannot say the task has no camera
+    older.to_netcdf(tmp_path / "older.nc")
+    assert main(["analyze", "visual", str(tmp_path / "older.nc"), "--run", str(whole.run_dir)]) == 2
+    assert "kept no camera images: record it with angora-jax record RUN_DIR --images" in capsys.readouterr().err

@@ -167,7 +167,7 @@ def command_analysis(args: argparse.Namespace) -> int:
             return analysis.tuning_curves(data, args.layer, args.variable, args.bins, args.feature)
         if args.analysis == "visual":
             if "input_vision" not in data:
-                if not data.attrs.get("camera_images"):
+                if data.attrs.get("camera_images", 1) == 0:  # recordings older than the attribute say nothing
                     raise ValueError(f"The recording's task ({data.attrs.get('task', 'unknown')}) sees through no "
                                      "camera: the visual analysis is for agents that see pixels (e.g. a run of "
                                      "shadow_reach_pixels), recorded with angora-jax record RUN_DIR --images.")
