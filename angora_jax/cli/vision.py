@@ -92,8 +92,7 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
     train, test = dataset.split(0.1)
     result = pretrain_pose_encoder(train, test, args.encoder, options, args.steps, args.batch, seed=args.seed,
                                    orientation=args.orientation)
-    with written_whole(out, replace=False) as draft:
-        save_component(result.params, "encoder", draft)
+    save_component(result.params, "encoder", out)  # whole or not at all, never over an existing file
     result.estimator.save(estimator_out)
     report = {"encoder": args.encoder, "options": options, "cameras": args.cameras, "size": args.size,
               "renderer": args.renderer, "samples": args.samples, "device": str(jax.devices()[0].device_kind),
