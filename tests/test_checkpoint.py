@@ -265,6 +265,25 @@ def test_records_after_the_checkpoint_are_set_aside_not_lost(tmp_path):
     assert set_aside_after(tmp_path, 3) is None  # nothing later than cycle 3 any more
 
 
+def test_a_save_is_written_behind_the_next_cycle_and_whole_when_it_is_final(runs, tmp_path):
+    """`save` returns while Orbax writes in the background; the manifest, written once the files are whole, marks
+    when: not after the save itself, but after the next cycle's save, and at once after a `final` save (a run that
+    stops must leave its checkpoints whole before it says how to resume)."""
+    whole = runs[0]
+    saver = Checkpoints(tmp_path / "c", CheckpointConfig(every=2, best_metric=None, snapshot_every=0))
+
+    def at(cycle):
+        return whole.state.replace(cycle=jnp.asarray(cycle, whole.state.cycle.dtype))
+
+    assert saver.save(at(2), {}, {}) == ["latest"]
+    assert not (tmp_path / "c/latest/2/manifest.json").exists()
+    assert saver.save(at(3), {}, {}) == []
+    assert (tmp_path / "c/latest/2/manifest.json").is_file() and saver.damage("latest", 2) is None
+    assert saver.save(at(5), {}, {}, final=True) == ["latest"]
+    assert (tmp_path / "c/latest/5/manifest.json").is_file() and saver.steps("latest") == [5]
+    saver.close()
+
+
 def test_the_best_state_is_written_in_the_cycle_that_reaches_it(runs, tmp_path):
     """No state is held for a later save: holding the best cycle's device arrays churned XLA's buffer addresses, and
     with them MuJoCo Warp's captured CUDA graphs, until the GPUs ran out of memory (`Checkpoints`)."""

@@ -144,5 +144,6 @@ def test_checkpoint_size_benchmark_saves_whole_and_lean_at_smoke_size(tmp_path):
     assert (whole["checkpoint"], lean["checkpoint"], lean["impl"]) == ("whole", "lean", "warp")
     assert 0 < lean["disk_mb"] and lean["fraction_of_whole"] < 0.4
     assert whole["save_seconds"] > 0 and lean["save_seconds"] > 0 and len(whole["save_seconds_each"]) == 1
+    assert 0 < whole["blocking_seconds"] <= whole["save_seconds"] and len(lean["blocking_seconds_each"]) == 1
     assert record["config"]["state_mb"]["environments (actor, discounted_return)"] > 0
     assert "| ShadowHandReach | warp | 2,048 | lean |" in done.stdout

@@ -13,13 +13,11 @@ have changed since saving.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import shutil
 import sys
 import warnings
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -84,12 +82,17 @@ class Restored:
 class Checkpoints:
     """The checkpoints of one run directory: decides what to save after a cycle, and restores.
 
-    Saving is synchronous: a checkpoint is complete on disk when `save` returns, which is what an interrupted run
-    needs. The best state is written in the cycle that reaches it, although while a policy improves that is nearly
-    every cycle (0.5 s for a lean save on 4 H100s beside 1.25 s cycles): holding the best cycle's device arrays
-    until a later save made XLA place each cycle's buffers at new addresses, MuJoCo Warp captured a CUDA graph for
-    each new set, and 4 processes of one H100 each ran out of GPU memory inside Warp after 58 and 108 cycles of the
-    fast cube (benchmarks/results/cube_multi_gpu/ihom_4gpu_warp_graphs_4xh100.md).
+    Saves are written in the background while the next cycle runs (one process; with several, synchronously):
+    `save` returns once Orbax has copied the state to host memory, and the files are written behind it (on one H200
+    the fast cube spent 11% of its wall time in synchronous saves: benchmarks/results/cube_one_gpu/README.md). The
+    next `save`, a `final` one and `close` wait for what is still being written, write its manifest and raise its
+    errors (a full disk) there, so a checkpoint is complete on disk when the run stops, and a process killed mid-write
+    leaves the checkpoint before it intact (Orbax removes an old checkpoint only once the new one is whole). The best
+    state is copied in the cycle that reaches it, although while a policy improves that is nearly every cycle:
+    holding the best cycle's device arrays until a later save made XLA place each cycle's buffers at new addresses,
+    MuJoCo Warp captured a CUDA graph for each new set, and 4 processes of one H100 each ran out of GPU memory inside
+    Warp after 58 and 108 cycles of the fast cube (benchmarks/results/cube_multi_gpu/ihom_4gpu_warp_graphs_4xh100.md);
+    the copy to host frees them.
     """
 
     def __init__(self, directory: Path, config: CheckpointConfig, create: bool = True):
@@ -97,11 +100,15 @@ class Checkpoints:
         self.config = config
         self._directory = Path(directory).resolve()
         keep = {"latest": 1, "best": 1, "snapshots": None}
+        # With several processes Orbax's background writes wait on barriers across processes that the next cycle's
+        # collectives can hold up (2 CPU processes timed out in them), so there each save is written before `save`
+        # returns, as before.
+        self._background = create and jax.process_count() == 1
         self._managers = {
             kind: ocp.CheckpointManager(
                 self._directory / kind,
                 options=ocp.CheckpointManagerOptions(
-                    max_to_keep=keep[kind], create=create, enable_async_checkpointing=False
+                    max_to_keep=keep[kind], create=create, enable_async_checkpointing=self._background
                 ),
                 # Handlers named up front: the stored shapes can be read (item_metadata) before anything is restored.
                 item_handlers={"state": ocp.PyTreeCheckpointHandler(), "meta": ocp.JsonCheckpointHandler()},
@@ -111,6 +118,8 @@ class Checkpoints:
         # Each checkpoint's verification (checksums of all its files, gigabytes for the cube) is done once per object:
         # resuming asks about the same checkpoint when planning, locating, reading its metadata and restoring it.
         self._damage: dict[tuple[str, int], str | None] = {}
+        self._writing: list[tuple[str, int]] = []  # saves returned but still being written, in the order started
+        self._quiet: _QuietWriters | None = None  # while they are written
         best = self._managers["best"].latest_step()
         try:
             self.best_value = None if best is None else self._read_meta("best", best)["metrics"].get(config.best_metric)
@@ -125,7 +134,10 @@ class Checkpoints:
         self, state: Any, metrics: dict[str, float], config: dict[str, Any], final: bool = False
     ) -> list[str]:
         """Save what is due after this cycle (latest every `every` cycles or when `final`; best when the metric
-        improved; a snapshot every `snapshot_every` cycles) and return the kinds saved."""
+        improved; a snapshot every `snapshot_every` cycles) and return the kinds saved. The files are written in the
+        background, except after a `final` save, which returns once everything is on disk; the saves of the cycle
+        before are finished first, and a full disk met by either raises DiskFullError here."""
+        self.finish()
         cycle = int(state.cycle)
         meta = {"cycle": cycle, "env_steps": metrics.get("env_steps"), "metrics": _finite(metrics), "config": config}
         due = {
@@ -139,40 +151,76 @@ class Checkpoints:
             if is_due and cycle not in self._managers[kind].all_steps():
                 lean = kind in self.config.lean
                 storable = to_storable(state.without_environments() if lean else state)
+                self._quiet = self._quiet or _QuietWriters()
                 try:
-                    with _echoes_dropped():
-                        self._managers[kind].save(cycle, args=ocp.args.Composite(
-                            state=ocp.args.PyTreeSave(storable),
-                            meta=ocp.args.JsonSave(meta | {"environments": not lean})))
+                    self._managers[kind].save(cycle, args=ocp.args.Composite(
+                        state=ocp.args.PyTreeSave(storable), meta=ocp.args.JsonSave(meta | {"environments": not lean})))
                 except Exception as error:
-                    if not is_disk_full(error):
-                        raise
-                    raise self._disk_full(kind, cycle, error) from None
-                if is_main_process():  # Orbax's save has waited for every process's shards
-                    try:
-                        write_manifest(self._directory / kind / str(cycle))
-                    except OSError as error:
-                        if not is_disk_full(error):
-                            raise
-                        raise self._disk_full(kind, cycle, error, saved=True) from None
+                    self._finish(failed=[(kind, cycle, error)])  # raises it, once the saves begun before are done
+                self._writing.append((kind, cycle))
                 saved.append(kind)
         if "best" in saved:
             self.best_value = metrics[self.config.best_metric]
+        if final or not self._background:
+            self.finish()
         return saved
 
-    def _disk_full(self, kind: str, cycle: int, error: BaseException, saved: bool = False) -> DiskFullError:
-        """Remove what the failed save left (Orbax's temporary folder; the manifest's draft when only the manifest
-        failed, `saved`) and say what is intact."""
-        if saved:
+    def finish(self) -> None:
+        """Wait until the saves still being written are on disk, then write their manifests; DiskFullError (the
+        failed saves' leftovers removed, the checkpoints before them intact) if the disk filled meanwhile."""
+        self._finish(failed=[])
+
+    def _finish(self, failed: list[tuple[str, int, BaseException]]) -> None:
+        """`finish`, with the saves that already failed when started (`failed`: kind, cycle, error)."""
+        writing, self._writing = self._writing, []
+        unsaved = {(kind, cycle) for kind, cycle, _ in failed}
+        manifests_failed = []
+        try:
+            for kind, cycle in writing:
+                try:
+                    self._managers[kind].wait_until_finished()
+                except Exception as error:
+                    failed.append((kind, cycle, error))
+                    unsaved.add((kind, cycle))
+            for kind, cycle in writing:
+                if (kind, cycle) in unsaved or not is_main_process():  # Orbax's save waited for every process
+                    continue
+                try:
+                    write_manifest(self._directory / kind / str(cycle))
+                except OSError as error:
+                    manifests_failed.append((kind, cycle, error))
+            errors = [error for *_, error in failed + manifests_failed]
+            other = next((error for error in errors if not is_disk_full(error)), None)
+            if other is not None:
+                raise other
+            if errors:
+                raise self._disk_full([(kind, cycle) for kind, cycle, _ in failed],
+                                      [(kind, cycle) for kind, cycle, _ in manifests_failed], errors[0]) from None
+        except BaseException as error:
+            if self._quiet is not None:
+                self._quiet.stop(disk_full=is_disk_full(error) or isinstance(error, DiskFullError))
+                self._quiet = None
+            raise
+        if self._quiet is not None:
+            self._quiet.stop(disk_full=False)
+            self._quiet = None
+
+    def _disk_full(self, unsaved: list[tuple[str, int]], unlisted: list[tuple[str, int]],
+                   error: BaseException) -> DiskFullError:
+        """Remove what the failed saves left (Orbax's temporary folders of `unsaved`; the manifests' drafts of
+        `unlisted`, saved but without their manifest) and say what is intact."""
+        for kind, cycle in unlisted:
             (self._directory / kind / str(cycle) / f"{MANIFEST_FILE}.tmp").unlink(missing_ok=True)
-        else:
+        for kind, cycle in unsaved:
             for leftover in (self._directory / kind).glob(f"{cycle}.*"):  # Orbax's <cycle>.orbax-checkpoint-tmp*
                 shutil.rmtree(leftover, ignore_errors=True)
             self._managers[kind].reload()
         kept = {k: self.steps(k) for k in KINDS if self.steps(k)}
         free = shutil.disk_usage(self._directory).free
-        what = (f"the {kind} checkpoint of cycle {cycle} was saved, but not its manifest (it reads as unverifiable)"
-                if saved else f"the {kind} checkpoint of cycle {cycle} could not be saved")
+        what = "; ".join(
+            [f"the {kind} checkpoint of cycle {cycle} could not be saved" for kind, cycle in unsaved]
+            + [f"the {kind} checkpoint of cycle {cycle} was saved, but not its manifest (it reads as unverifiable)"
+               for kind, cycle in unlisted])
         run_dir = self._directory.parent
         then = (f"The checkpoints saved before are intact ({kept}). Free space (or move the run to a larger disk), "
                 f"then continue with `angora-jax resume {run_dir}`" if kept else
@@ -196,6 +244,7 @@ class Checkpoints:
             FileNotFoundError: there is no such checkpoint (the message lists what exists).
             CheckpointError: it cannot be read, or a leaf read differs in shape or dtype from `template`'s.
         """
+        self.finish()  # a checkpoint this object is still writing is read once whole
         kind, cycle = self.locate(which)
         # Whole arrays onto this process's first device, whatever devices saved them (several devices or hosts):
         # training lays the state out again for the devices it runs on.
@@ -234,8 +283,12 @@ class Checkpoints:
         return self._read_meta(*self.locate(which)).get("environments", True)
 
     def close(self) -> None:
-        for manager in self._managers.values():
-            manager.close()
+        """Finish the saves being written (`finish`), then release Orbax's managers."""
+        try:
+            self.finish()
+        finally:
+            for manager in self._managers.values():
+                manager.close()
 
     def locate(self, which: str | int) -> tuple[str, int]:
         """The kind and cycle of checkpoint `which` ("latest", "best" or a cycle: of the kinds that hold it, the first
@@ -262,6 +315,7 @@ class Checkpoints:
     def damage(self, kind: str, cycle: int) -> str | None:
         """What is wrong with checkpoint `kind`/`cycle` by its manifest (`manifest.verify`), None when intact; "no
         manifest" when it cannot be checked (saved before manifests were written)."""
+        self.finish()  # its manifest is written once it is whole
         if (kind, cycle) not in self._damage:
             self._damage[kind, cycle] = verify(self._directory / kind / str(cycle))
         return self._damage[kind, cycle]
@@ -321,44 +375,50 @@ def _is_echo(text: str) -> bool:
     return any(echo in text for echo in _ECHOES)
 
 
+def _chain(error: BaseException | None) -> str:
+    """The reprs of an error and of those it was raised from or during."""
+    seen = []
+    while error is not None and error not in seen:
+        seen.append(error)
+        error = error.__cause__ or error.__context__
+    return " ".join(map(repr, seen))
+
+
 class _EchoFilter(logging.Filter):
-    def filter(self, record: logging.LogRecord) -> bool:
-        return not _is_echo(record.getMessage())
+    def filter(self, record: logging.LogRecord) -> bool:  # the message, or the error it was logged with
+        return not _is_echo(record.getMessage() + (_chain(record.exc_info[1]) if record.exc_info else ""))
 
 
-@contextlib.contextmanager
-def _echoes_dropped() -> Iterator[None]:
-    """Around a save: drop the writer threads' reports of its failure (asyncio's and absl's log records, and the
-    tracebacks that callbacks print through sys.excepthook or sys.unraisablehook); the save's own error says it once.
-    After a full disk they go on after the save, so the hooks then stay for the rest of the process."""
-    unraisable, excepthook = sys.unraisablehook, sys.excepthook
-    echo = _EchoFilter()
-    loggers = [logging.getLogger(name) for name in ("asyncio", "absl")]
+class _QuietWriters:
+    """While saves are written: drop the writer threads' reports of their failure (asyncio's and absl's log records,
+    and the tracebacks that callbacks print through sys.excepthook or sys.unraisablehook); the save's own error says
+    it once. After a full disk they go on after the save, so the hooks then stay for the rest of the process."""
 
-    def quiet_unraisable(report) -> None:
-        if not _is_echo(f"{report.exc_value!r} {report.err_msg}"):
-            unraisable(report)
+    def __init__(self) -> None:
+        self._unraisable, self._excepthook = sys.unraisablehook, sys.excepthook
+        self._echo = _EchoFilter()
+        self._loggers = [logging.getLogger(name) for name in ("asyncio", "absl")]
+        unraisable, excepthook = self._unraisable, self._excepthook
 
-    def quiet_excepthook(kind, error, traceback) -> None:
-        if not _is_echo(repr(error)):
-            excepthook(kind, error, traceback)
+        def quiet_unraisable(report) -> None:
+            if not _is_echo(f"{_chain(report.exc_value)} {report.err_msg}"):
+                unraisable(report)
 
-    sys.unraisablehook, sys.excepthook = quiet_unraisable, quiet_excepthook
-    for logger in loggers:
-        logger.addFilter(echo)
-    disk_full = False
-    try:
-        yield
-    except BaseException as error:
-        disk_full = is_disk_full(error)
-        raise
-    finally:
+        def quiet_excepthook(kind, error, traceback) -> None:
+            if not _is_echo(_chain(error)):
+                excepthook(kind, error, traceback)
+
+        sys.unraisablehook, sys.excepthook = quiet_unraisable, quiet_excepthook
+        for logger in self._loggers:
+            logger.addFilter(self._echo)
+
+    def stop(self, disk_full: bool) -> None:
         if disk_full:  # and the writes it had scheduled are dropped unawaited
             warnings.filterwarnings("ignore", "coroutine .* was never awaited", RuntimeWarning)
-        else:
-            sys.unraisablehook, sys.excepthook = unraisable, excepthook
-            for logger in loggers:
-                logger.removeFilter(echo)
+            return
+        sys.unraisablehook, sys.excepthook = self._unraisable, self._excepthook
+        for logger in self._loggers:
+            logger.removeFilter(self._echo)
 
 
 def disk_needed(config: CheckpointConfig, state: Any, cycles_left: int) -> int:
