@@ -82,17 +82,16 @@ class Restored:
 class Checkpoints:
     """The checkpoints of one run directory: decides what to save after a cycle, and restores.
 
-    Saves are written in the background while the next cycle runs (one process; with several, synchronously):
-    `save` returns once Orbax has copied the state to host memory, and the files are written behind it (on one H200
-    the fast cube spent 11% of its wall time in synchronous saves: benchmarks/results/cube_one_gpu/README.md). The
-    next `save`, a `final` one and `close` wait for what is still being written, write its manifest and raise its
-    errors (a full disk) there, so a checkpoint is complete on disk when the run stops, and a process killed mid-write
-    leaves the checkpoint before it intact (Orbax removes an old checkpoint only once the new one is whole). The best
-    state is copied in the cycle that reaches it, although while a policy improves that is nearly every cycle:
-    holding the best cycle's device arrays until a later save made XLA place each cycle's buffers at new addresses,
-    MuJoCo Warp captured a CUDA graph for each new set, and 4 processes of one H100 each ran out of GPU memory inside
-    Warp after 58 and 108 cycles of the fast cube (benchmarks/results/cube_multi_gpu/ihom_4gpu_warp_graphs_4xh100.md);
-    the copy to host frees them.
+    Saves are written in the background while the next cycle runs: `save` returns once Orbax has copied the state to
+    host memory, and the files are written behind it (on one H200 the fast cube spent 11% of its wall time in
+    synchronous saves: benchmarks/results/cube_one_gpu/README.md). The next `save`, a `final` one, a restore and
+    `close` wait for what is still being written, write its manifest and raise its errors (a full disk) there, so a
+    checkpoint is complete on disk when the run stops, and a process killed mid-write leaves the checkpoint before it
+    intact (Orbax removes an old checkpoint only once the new one is whole). The best state is copied in the cycle
+    that reaches it, although while a policy improves that is nearly every cycle: holding the best cycle's device
+    arrays until a later save made XLA place each cycle's buffers at new addresses, MuJoCo Warp captured a CUDA graph
+    for each new set, and 4 processes of one H100 each ran out of GPU memory inside Warp after 58 and 108 cycles of
+    the fast cube (benchmarks/results/cube_multi_gpu/ihom_4gpu_warp_graphs_4xh100.md); the copy to host frees them.
     """
 
     def __init__(self, directory: Path, config: CheckpointConfig, create: bool = True):
@@ -100,15 +99,13 @@ class Checkpoints:
         self.config = config
         self._directory = Path(directory).resolve()
         keep = {"latest": 1, "best": 1, "snapshots": None}
-        # With several processes Orbax's background writes wait on barriers across processes that the next cycle's
-        # collectives can hold up (2 CPU processes timed out in them), so there each save is written before `save`
-        # returns, as before.
-        self._background = create and jax.process_count() == 1
         self._managers = {
             kind: ocp.CheckpointManager(
                 self._directory / kind,
                 options=ocp.CheckpointManagerOptions(
-                    max_to_keep=keep[kind], create=create, enable_async_checkpointing=self._background
+                    max_to_keep=keep[kind], create=create, enable_async_checkpointing=create,
+                    # The kinds' background writes run at once; across processes each needs barriers of its own.
+                    multiprocessing_options=ocp.options.MultiprocessingOptions(barrier_sync_key_prefix=kind),
                 ),
                 # Handlers named up front: the stored shapes can be read (item_metadata) before anything is restored.
                 item_handlers={"state": ocp.PyTreeCheckpointHandler(), "meta": ocp.JsonCheckpointHandler()},
@@ -161,7 +158,7 @@ class Checkpoints:
                 saved.append(kind)
         if "best" in saved:
             self.best_value = metrics[self.config.best_metric]
-        if final or not self._background:
+        if final:
             self.finish()
         return saved
 
