@@ -170,7 +170,6 @@ class Checkpoints:
     def _finish(self, failed: list[tuple[str, int, BaseException]]) -> None:
         """`finish`, with the saves that already failed when started (`failed`: kind, cycle, error)."""
         writing, self._writing = self._writing, []
-        unsaved = {(kind, cycle) for kind, cycle, _ in failed}
         manifests_failed = []
         try:
             for kind, cycle in writing:
@@ -178,7 +177,7 @@ class Checkpoints:
                     self._managers[kind].wait_until_finished()
                 except Exception as error:
                     failed.append((kind, cycle, error))
-                    unsaved.add((kind, cycle))
+            unsaved = {(kind, cycle) for kind, cycle, _ in failed}
             for kind, cycle in writing:
                 if (kind, cycle) in unsaved or not is_main_process():  # Orbax's save waited for every process
                     continue
