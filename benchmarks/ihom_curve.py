@@ -20,11 +20,11 @@ run's route spent elsewhere first (e.g. pretraining the estimator), for comparis
 
 Seeds: runs given under the same label are seeds of one recipe. For each milestone the label then gets the mean and
 the 95% confidence interval (Student's t) over the seeds that reached it, and the plot draws the seeds' mean with its
-band; `--seeds N` refuses a label with another number of runs (a crashed seed must not shrink the statistics
-silently). Every run also gets its stability: the peak of its training-mean CGR (a 5-cycle rolling mean), its last
-value (the mean of the last 5 cycles), their ratio (`fraction_of_peak`), how long it trained past the peak, and
-how many times its time to CGR 30 it trained in all (`solve_time_multiple`). The
-JSON's `curves` map each label to its runs, one list of per-cycle rows each.
+band while every seed runs, and each seed to its own end; `--seeds N` refuses a label with another number of runs
+(a crashed seed must not shrink the statistics silently). Every run also gets its stability: the peak of its
+training-mean CGR (a 5-cycle rolling mean), its last value (the mean of the last 5 cycles), their ratio
+(`fraction_of_peak`), how long it trained past the peak, and how many times its time to CGR 30 it trained in all
+(`solve_time_multiple`). The JSON's `curves` map each label to its runs, one list of per-cycle rows each.
 
 Scaling: `--devices LABEL=N` says a label's runs trained on N GPUs. The JSON's `scaling` then gives, per such label,
 the mean time to CGR 30 over its seeds that reached it, on the wall clock (compile included) and without the cycles'
@@ -187,15 +187,16 @@ def band(seeds: list[list[dict]], x: str) -> tuple[np.ndarray, np.ndarray, np.nd
     return grid, curves.mean(axis=0), half
 
 
-def plot(runs: dict[str, list[list[dict]]], title: str, path: str) -> None:
+def figure(runs: dict[str, list[list[dict]]], title: str) -> plt.Figure:
     """CGR against env steps (log scale, the paper's endpoint marked) and against wall minutes; drop share of
     episode ends and goal distance against env steps. A label of several seeds is drawn as their mean with its 95%
-    band in the CGR panels and as thin lines per seed in the others."""
-    figure, axes = plt.subplots(1, 4, figsize=(18, 4))
+    band in the CGR panels, while every seed still runs, and as thin lines per seed in every panel, each to its own
+    end (a seed stopped at CGR 30 by `ppo.stop_at`, or by a time limit, ends the band but not the others' lines)."""
+    fig, axes = plt.subplots(1, 4, figsize=(18, 4))
     for label, seeds in runs.items():
         color = None
         if len(seeds) > 1:
-            named = f"{label} ({len(seeds)} seeds, mean and 95% CI)"
+            named = f"{label} ({len(seeds)} seeds, mean and 95% CI while all run; thin: each seed)"
             for ax, x, scale in ((axes[0], "env_steps", 1), (axes[1], "wall_seconds", 60)):
                 grid, mean, half = band(seeds, x)
                 (line,) = ax.plot(grid / scale, mean, label=named, color=color)
@@ -204,15 +205,16 @@ def plot(runs: dict[str, list[list[dict]]], title: str, path: str) -> None:
                 ax.fill_between(grid / scale, np.maximum(mean - half, 0.0), mean + half, alpha=0.25, color=color)
         for rows in seeds:
             steps = [r["env_steps"] for r in rows]
+            minutes = [r["wall_seconds"] / 60 for r in rows]
 
             def values(key, rows=rows):
                 return [math.nan if r.get(key) is None else r[key] for r in rows]
 
             width = 0.6 if len(seeds) > 1 else 1.5
-            if len(seeds) == 1:
-                (line,) = axes[0].plot(steps, values(CGR), label=label)
-                color = line.get_color()
-                axes[1].plot([r["wall_seconds"] / 60 for r in rows], values(CGR), label=label, color=color)
+            (line,) = axes[0].plot(steps, values(CGR), color=color, linewidth=width,
+                                   label=label if len(seeds) == 1 else None)
+            color = line.get_color()
+            axes[1].plot(minutes, values(CGR), color=color, linewidth=width)
             axes[2].plot(steps, values("metric/dropped"), color=color, linewidth=width)
             axes[3].plot(steps, values("metric/goal_distance"), color=color, linewidth=width)
     axes[0].scatter([PAPER["samples"]], [PAPER["cgr"]], marker="*", s=150, color="k", zorder=3,
@@ -225,10 +227,16 @@ def plot(runs: dict[str, list[list[dict]]], title: str, path: str) -> None:
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    figure.suptitle(title)
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig
+
+
+def plot(runs: dict[str, list[list[dict]]], title: str, path: str) -> None:
+    """`figure` saved as a PNG at `path`."""
+    fig = figure(runs, title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -284,6 +284,23 @@ def test_ihom_curve_gives_seed_statistics_and_each_runs_peak_and_fall(tmp_path, 
         ihom_curve.main([*seeds, "--seeds", "5", "--device", "cpu", "--name", "s2"])
 
 
+def test_ihom_curve_draws_the_seeds_band_while_all_run_and_each_seed_to_its_own_end():
+    """A seed that stops early (here after 3 cycles) ends the band, not the other seeds' lines: each seed's CGR is drawn
+    to its last cycle in both CGR panels, so a seed stopped at CGR 30 still shows reaching it."""
+    def rows(cycles):
+        return [{"env_steps": 100 * c, "wall_seconds": 60.0 * c, ihom_curve.CGR: 10.0 * c}
+                for c in range(1, cycles + 1)]
+
+    fig = ihom_curve.figure({"fast": [rows(3), rows(5), rows(4)]}, "t")
+    try:
+        for ax, scale in ((fig.axes[0], 100), (fig.axes[1], 1)):
+            ends = sorted(max(line.get_xdata()) * 100 / scale for line in ax.get_lines())
+            assert ends == [300, 300, 400, 500], "the band's mean to the shortest seed, then each seed to its end"
+            assert max(max(line.get_ydata()) for line in ax.get_lines()) == 50.0
+    finally:
+        ihom_curve.plt.close(fig)
+
+
 def test_ihom_curve_reports_time_to_solve_efficiency_against_the_fewest_devices(tmp_path, monkeypatch):
     """One GPU reaches CGR 30 at wall minute 8 (its first cycle compiles for 60 s), four GPUs at minute 2.5 (the same
     compile): efficiency 8 x 1 / (2.5 x 4) = 0.8 with compiles, 7 / (1.5 x 4) without; a label that never reaches 30
