@@ -26,7 +26,7 @@ from angora_jax.experiment.checkpoint import disk_needed
 from angora_jax.experiment.manifest import MANIFEST_FILE
 from angora_jax.experiment.run_check import check_run
 from angora_jax.experiment.run_dir import CHECKPOINTS, DiskFullError
-from angora_jax.experiment.run_lock import LOCK_FILE, RunLock, RunLockedError, _process_start
+from angora_jax.experiment.run_lock import LOCK_FILE, RunLock, RunLockedError, _process_start, _process_state
 from angora_jax.whole_files import written_whole
 
 # A recurrent network, so that a resumed run must restore carries and environments mid-episode.
@@ -205,6 +205,48 @@ def test_a_live_holder_is_told_from_a_later_process_with_its_id_by_its_start(tmp
     finally:
         alive.kill()
         alive.wait()
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="process states are read from Linux's /proc")
+def test_a_holder_killed_but_never_reaped_is_taken_over(tmp_path):
+    """A trainer killed with SIGKILL whose parent does not reap it (a container without an init, a launcher that
+    died first) stays a zombie: its id still answers `kill 0`, but it writes nothing more, so its lock is taken
+    over, and the lock's start matches (it is the same process)."""
+    dead = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        start = _process_start(dead.pid)
+        dead.kill()
+        deadline = time.monotonic() + 30
+        while _process_state(dead.pid) != "Z":  # not reaped: no wait() yet
+            assert time.monotonic() < deadline, _process_state(dead.pid)
+            time.sleep(0.05)
+        os.kill(dead.pid, 0)  # the id still answers
+        lock = {"host": socket.gethostname(), "pid": dead.pid, "process_start": start, "since": time.time()}
+        (tmp_path / LOCK_FILE).write_text(json.dumps(lock))
+        taker = RunLock(tmp_path)
+        taker.acquire()
+        assert RunLock(tmp_path).holder().pid == os.getpid()
+        taker.release()
+    finally:
+        dead.wait()
+
+
+def test_a_save_cut_short_by_a_killed_writer_is_named_by_check_and_removed_by_resume(whole, tmp_path, capsys):
+    """A writer killed while Orbax wrote a checkpoint in the background leaves its temporary folder (renamed to the
+    cycle only once whole): `check` names it as unfinished, not as damage, and the next writer removes it before it
+    saves anything, without Orbax's warning about a folder that already exists."""
+    run = copy_of(whole, tmp_path)
+    for kind, cycle in (("latest", CYCLES + 1), ("snapshots", CYCLES + 3)):
+        unfinished = run / CHECKPOINTS / kind / f"{cycle}.orbax-checkpoint-tmp-1234"
+        unfinished.mkdir()
+        (unfinished / "_CHECKPOINT_METADATA").write_text("{")
+    report = check_run(run)
+    assert report.problems == [] and "unfinished (its writer stopped mid-save" in report.format()
+    assert f"checkpoints/latest: intact: cycle {CYCLES}; unfinished" in report.format()
+    assert main(["resume", str(run)]) == 0
+    assert "orbax-checkpoint-tmp" not in capsys.readouterr().err
+    assert not list((run / CHECKPOINTS).glob("*/*.orbax-*")), "removed by the writer"
+    assert "unfinished" not in check_run(run).format()
 
 
 def test_a_full_disk_keeps_the_previous_checkpoint_and_says_so(whole, tmp_path, monkeypatch):

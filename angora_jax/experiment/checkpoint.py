@@ -104,6 +104,9 @@ class Checkpoints:
                 self._directory / kind,
                 options=ocp.CheckpointManagerOptions(
                     max_to_keep=keep[kind], create=create, enable_async_checkpointing=create,
+                    # A writer killed mid-save leaves Orbax's unfinished folder (never a checkpoint): the next writer
+                    # removes it before anything else, instead of Orbax warning when it saves that cycle again.
+                    cleanup_tmp_directories=create,
                     # The kinds' background writes run at once; across processes each needs barriers of its own.
                     multiprocessing_options=ocp.options.MultiprocessingOptions(barrier_sync_key_prefix=kind),
                 ),

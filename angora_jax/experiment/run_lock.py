@@ -44,7 +44,8 @@ class LockHolder:
         return f"process {self.pid} on host {self.host}, since {since}"
 
     def is_gone(self) -> bool:
-        """True when this host can tell the holder has ended (it runs here, and no such process lives)."""
+        """True when this host can tell the holder has ended (it runs here, and no such process lives, or only as a
+        zombie: killed, not yet reaped)."""
         if self.host != socket.gethostname():
             return False
         try:
@@ -53,18 +54,34 @@ class LockHolder:
             return True
         except PermissionError:  # a process of another user: alive
             return False
+        # A killed process whose parent never reaps it stays a zombie, forever in a container without an init.
+        if _process_state(self.pid) in ("Z", "X"):
+            return True
         # The id may have been given to another process since (after a reboot, or a long time): compare starts.
         return self.process_start is not None and _process_start(self.pid) != self.process_start
+
+
+def _stat_fields(pid: int) -> list[str] | None:
+    """The fields of /proc/PID/stat after the process name (Linux), from field 3 (the state) on; None where /proc
+    does not say."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return stat.rpartition(")")[2].split()  # the name before ')' may hold spaces
+
+
+def _process_state(pid: int) -> str | None:
+    """The process's state letter (R, S, D, Z for a zombie, ...), None where /proc does not say."""
+    fields = _stat_fields(pid)
+    return fields[0] if fields else None
 
 
 def _process_start(pid: int) -> int | None:
     """The process's start time in clock ticks since boot (Linux), which tells a process from a later one that got
     the same id; None where /proc does not say."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    return int(stat.rpartition(")")[2].split()[19])  # field 22; the name before ')' may hold spaces
+    fields = _stat_fields(pid)
+    return int(fields[19]) if fields else None  # field 22
 
 
 class RunLock:
