@@ -181,6 +181,15 @@ def test_the_lock_is_taken_by_one_of_two_processes_at_once(tmp_path):
     assert RunLock(tmp_path).holder() is None
 
 
+def takes_over(run: Path, lock: dict) -> None:
+    """With LOCK written as the run's lock, this process acquires it (the holder is taken for gone) and releases it."""
+    (run / LOCK_FILE).write_text(json.dumps(lock))
+    taker = RunLock(run)
+    taker.acquire()
+    assert RunLock(run).holder().pid == os.getpid()
+    taker.release()
+
+
 @pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="process starts are read from Linux's /proc")
 def test_a_live_holder_is_told_from_a_later_process_with_its_id_by_its_start(tmp_path):
     """The lock records its holder's start (field 22 of /proc/<pid>/stat, clock ticks since boot), so that a process
@@ -197,11 +206,7 @@ def test_a_live_holder_is_told_from_a_later_process_with_its_id_by_its_start(tmp
         (tmp_path / LOCK_FILE).write_text(json.dumps(lock))
         with pytest.raises(RunLockedError, match=f"is being trained by process {alive.pid} on host"):
             RunLock(tmp_path).acquire()
-        (tmp_path / LOCK_FILE).write_text(json.dumps({**lock, "process_start": start - 1}))
-        taker = RunLock(tmp_path)
-        taker.acquire()
-        assert RunLock(tmp_path).holder().pid == os.getpid()
-        taker.release()
+        takes_over(tmp_path, {**lock, "process_start": start - 1})
     finally:
         alive.kill()
         alive.wait()
@@ -221,12 +226,8 @@ def test_a_holder_killed_but_never_reaped_is_taken_over(tmp_path):
             assert time.monotonic() < deadline, _process_state(dead.pid)
             time.sleep(0.05)
         os.kill(dead.pid, 0)  # the id still answers
-        lock = {"host": socket.gethostname(), "pid": dead.pid, "process_start": start, "since": time.time()}
-        (tmp_path / LOCK_FILE).write_text(json.dumps(lock))
-        taker = RunLock(tmp_path)
-        taker.acquire()
-        assert RunLock(tmp_path).holder().pid == os.getpid()
-        taker.release()
+        takes_over(tmp_path, {"host": socket.gethostname(), "pid": dead.pid, "process_start": start,
+                              "since": time.time()})
     finally:
         dead.wait()
 
