@@ -130,6 +130,17 @@ class Checkpoints:
         """Cycles at which checkpoints of `kind` ("latest", "best", "snapshots") exist, ascending."""
         return sorted(self._managers[kind].all_steps())
 
+    def unfinished(self, kind: str) -> list[int]:
+        """Cycles of `kind` whose save was cut short (its writer killed mid-write), ascending: never checkpoints, and
+        removed when a writer opens the run."""
+        return sorted({int(path.name.partition(".")[0]) for path in self._temporary(kind)})
+
+    def _temporary(self, kind: str, cycle: int | None = None) -> list[Path]:
+        """Orbax's folders of saves not yet whole (`<cycle>.orbax-checkpoint-tmp*`, renamed to the cycle once whole)
+        of `kind`, of one cycle or of all."""
+        return [path for path in (self._directory / kind).glob(f"{'*' if cycle is None else cycle}.*")
+                if path.name.partition(".")[0].isdigit()]
+
     def save(
         self, state: Any, metrics: dict[str, float], config: dict[str, Any], final: bool = False
     ) -> list[str]:
@@ -211,7 +222,7 @@ class Checkpoints:
         for kind, cycle in unlisted:
             (self._directory / kind / str(cycle) / f"{MANIFEST_FILE}.tmp").unlink(missing_ok=True)
         for kind, cycle in unsaved:
-            for leftover in (self._directory / kind).glob(f"{cycle}.*"):  # Orbax's <cycle>.orbax-checkpoint-tmp*
+            for leftover in self._temporary(kind, cycle):
                 shutil.rmtree(leftover, ignore_errors=True)
             self._managers[kind].reload()
         kept = {k: self.steps(k) for k in KINDS if self.steps(k)}

@@ -83,9 +83,7 @@ def check_run(run_dir: str | Path) -> RunCheck:
             kept += [f"without a manifest, unverifiable: cycle {_runs(unverified, every=True)}"] * bool(unverified)
             damaged = [cycle for cycle in verdicts if cycle not in intact and cycle not in unverified]
             kept += [f"damaged: cycle {_runs(damaged, every=True)}"] * bool(damaged)
-            # Orbax writes each checkpoint under a temporary name and renames it once whole.
-            unfinished = sorted(int(p.name.split(".")[0]) for p in (run_dir / CHECKPOINTS / kind).glob("*.orbax-*")
-                                if p.name.split(".")[0].isdigit())
+            unfinished = checkpoints.unfinished(kind)
             kept += [f"unfinished (its writer stopped mid-save; never a checkpoint, resume removes it): cycle "
                      f"{_runs(unfinished, every=True)}"] * bool(unfinished)
             result.findings.append(f"checkpoints/{kind}: {'; '.join(kept) or 'none'}")
