@@ -235,7 +235,7 @@ def test_a_holder_killed_but_never_reaped_is_taken_over(tmp_path):
 def test_a_save_cut_short_by_a_killed_writer_is_named_by_check_and_removed_by_resume(whole, tmp_path, capsys):
     """A writer killed while Orbax wrote a checkpoint in the background leaves its temporary folder (renamed to the
     cycle only once whole): `check` names it as unfinished, not as damage, and the next writer removes it before it
-    saves anything, without Orbax's warning about a folder that already exists."""
+    saves anything, without Orbax's warning about a folder that already exists, and says what it removed."""
     run = copy_of(whole, tmp_path)
     for kind, cycle in (("latest", CYCLES + 1), ("snapshots", CYCLES + 3)):
         unfinished = run / CHECKPOINTS / kind / f"{cycle}.orbax-checkpoint-tmp-1234"
@@ -245,7 +245,10 @@ def test_a_save_cut_short_by_a_killed_writer_is_named_by_check_and_removed_by_re
     assert report.problems == [] and "unfinished (its writer stopped mid-save" in report.format()
     assert f"checkpoints/latest: intact: cycle {CYCLES}; unfinished" in report.format()
     assert main(["resume", str(run)]) == 0
-    assert "orbax-checkpoint-tmp" not in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "orbax-checkpoint-tmp" not in err
+    assert f"stopped mid-save left in {run / CHECKPOINTS} (latest of cycle {CYCLES + 1}; snapshots of cycle " \
+           f"{CYCLES + 3}): unfinished" in err
     assert not list((run / CHECKPOINTS).glob("*/*.orbax-*")), "removed by the writer"
     assert "unfinished" not in check_run(run).format()
 

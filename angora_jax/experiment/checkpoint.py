@@ -98,6 +98,8 @@ class Checkpoints:
         """directory: the run's checkpoints folder; create=False to only read an existing run's checkpoints."""
         self.config = config
         self._directory = Path(directory).resolve()
+        # Read before the managers below remove them, so that the writer can say what it removed.
+        self.removed_unfinished = {kind: cycles for kind in KINDS if create and (cycles := self.unfinished(kind))}
         keep = {"latest": 1, "best": 1, "snapshots": None}
         self._managers = {
             kind: ocp.CheckpointManager(

@@ -274,6 +274,11 @@ def _run(
     history: list[dict[str, Any]] = []
     resolved = to_dict(config)
     checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint)
+    if is_main_process() and checkpoints.removed_unfinished:
+        cut_short = "; ".join(f"{kind} of cycle {', '.join(map(str, cycles))}"
+                              for kind, cycles in checkpoints.removed_unfinished.items())
+        print(f"Removed what a writer stopped mid-save left in {run_dir / CHECKPOINTS} ({cut_short}): unfinished, "
+              "never checkpoints; the checkpoints saved before them are intact.", file=sys.stderr, flush=True)
     evaluate = held_out_evaluation(config, env)
     # Under jax.distributed only process 0 logs; all processes take part in saving checkpoints (Orbax coordinates
     # them: each writes the shards of its own devices, process 0 the replicated arrays and metadata).
