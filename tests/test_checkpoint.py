@@ -15,6 +15,7 @@ from jax_events import jax_events
 from tiny import TINY_PPO
 
 import angora_jax as aj
+from angora_jax.cli import main
 from angora_jax.experiment import Checkpoints, RunDirError, TrainingInterrupted, read_metrics, resume, validate
 from angora_jax.experiment.checkpoint import CheckpointError
 from angora_jax.experiment.config import CheckpointConfig
@@ -80,6 +81,58 @@ def test_a_time_limit_stops_with_a_checkpoint_and_resume_continues_exactly(runs,
     assert [r["cycle"] for r in read_metrics(first.run_dir)] == [1, 2, 3, 4]
     with pytest.raises(ValueError, match="minutes"):
         aj.train(config(tmp_path, "no_time"), minutes=0.0)
+
+
+def test_a_finished_run_trained_longer_ends_as_the_longer_run_and_records_its_new_length(runs, tmp_path, capsys):
+    """`resume --num-cycles N` trains a finished run on to N cycles, bit for bit the run that was asked for N from the
+    start, and records N in its config.yaml and session record; fewer cycles than it has done, or a run whose
+    schedule spans its length, are refused with the reason before anything changes."""
+    whole = runs[0]
+    short = aj.train(aj.load_config("cartpole", [*TINY, "ppo.num_cycles=2", f"logging.run_root={tmp_path}",
+                                                 "logging.run_name=short"]))
+    assert main(["resume", str(short.run_dir)]) == 0
+    assert "already complete; to train it longer: angora-jax resume" in capsys.readouterr().out
+    assert main(["resume", str(short.run_dir), "--num-cycles", "4"]) == 0
+    assert "ppo.num_cycles 2 -> 4, recorded in its config.yaml" in capsys.readouterr().err
+    for a, b in zip(jax.tree.leaves(whole.state.params), jax.tree.leaves(aj.load_agent(short.run_dir, "latest").params),
+                    strict=True):
+        np.testing.assert_array_equal(a, b)
+    untimed = [[{k: v for k, v in r.items() if k not in UNTIMED} for r in read_metrics(d)]
+               for d in (whole.run_dir, short.run_dir)]
+    assert untimed[0] == untimed[1]
+    assert yaml.safe_load((short.run_dir / "config.yaml").read_text())["ppo"]["num_cycles"] == 4
+    assert json.loads((short.run_dir / "hyperparameters.json").read_text())["ppo.num_cycles"] == 4
+    sessions = [json.loads(line) for line in (short.run_dir / "sessions.jsonl").read_text().splitlines()]
+    assert [(s["start_cycle"], s["num_cycles"]) for s in sessions] == [(0, 2), (2, 2), (2, 4)]
+
+    before = (short.run_dir / "config.yaml").read_text()
+    assert main(["resume", str(short.run_dir), "--num-cycles", "3"]) == 2
+    assert "--num-cycles 3 is below cycle 4, where" in capsys.readouterr().err
+    (short.run_dir / "config.yaml").write_text(before.replace("lr_decay: false", "lr_decay: true"))
+    assert main(["resume", str(short.run_dir), "--num-cycles", "6"]) == 2
+    err = capsys.readouterr().err
+    assert "anneals over its ppo.num_cycles (ppo.lr_decay)" in err and "ppo.init_from=" in err
+    assert "num_cycles: 4" in (short.run_dir / "config.yaml").read_text()
+
+
+def test_a_run_stopped_at_its_target_trains_on_past_it_when_asked(runs, tmp_path, capsys):
+    """A run that `ppo.stop_at` ended says how to go on; `resume --no-stop-at` trains it to its `ppo.num_cycles`, bit
+    for bit the run without a target, and removes the target from its config.yaml."""
+    whole = runs[0]
+    early = aj.train(aj.load_config("cartpole", [*TINY, "ppo.stop_at={metric: episode_return, value: -1.0e9}",
+                                                 f"logging.run_root={tmp_path}", "logging.run_name=early"]))
+    assert early.stopped_at is not None and int(early.state.cycle) == 1
+    assert main(["resume", str(early.run_dir)]) == 0  # the target still holds: one cycle more, and it stops again
+    out = capsys.readouterr().out
+    assert "Stopped early at cycle 2, as ppo.stop_at asks" in out
+    assert f"To train on past it: angora-jax resume {early.run_dir} --no-stop-at" in out
+    assert main(["resume", str(early.run_dir), "--no-stop-at"]) == 0
+    captured = capsys.readouterr()
+    assert "ppo.stop_at removed, recorded in its config.yaml" in captured.err and "4 cycles done (2" in captured.out
+    assert yaml.safe_load((early.run_dir / "config.yaml").read_text())["ppo"]["stop_at"] is None
+    for a, b in zip(jax.tree.leaves(whole.state.params), jax.tree.leaves(aj.load_agent(early.run_dir, "latest").params),
+                    strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
 @pytest.mark.slow

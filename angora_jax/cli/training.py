@@ -12,6 +12,7 @@ from angora_jax.cli.arguments import (
     add_time_limit,
     checkpoint_of,
     config_with_imports,
+    positive_int,
 )
 from angora_jax.experiment import ConfigError, TrainingRun, read_metrics, resume, train
 from angora_jax.experiment.distributed import initialize, is_main_process
@@ -45,6 +46,13 @@ def add_resume(commands: argparse._SubParsersAction) -> None:
         "--from-scratch", action="store_true",
         help="train the run again from cycle 0 with its config; the earlier metrics, checkpoints and report move to "
              "RUN_DIR/previous-N/")
+    resume.add_argument(
+        "--num-cycles", type=positive_int, default=None, metavar="N",
+        help="train to N cycles in all instead of the run's ppo.num_cycles (recorded in its config.yaml): to train a "
+             "finished run longer, or stop one sooner")
+    resume.add_argument(
+        "--no-stop-at", action="store_true",
+        help="train on past the run's ppo.stop_at (removed from its config.yaml), to its ppo.num_cycles")
     resume.add_argument(
         "--force", action="store_true",
         help="take over the run's writer lock even when it is held on another host: only when that process is "
@@ -92,7 +100,8 @@ def command_resume(args: argparse.Namespace) -> int:
     start_distributed(args)
     with signals_exit_while_preparing():
         run = resume(args.run_dir, minutes=args.minutes, exact=args.exact, start_from=checkpoint_of(args.start_from),
-                     from_scratch=args.from_scratch, force=args.force)
+                     from_scratch=args.from_scratch, force=args.force, num_cycles=args.num_cycles,
+                     no_stop_at=args.no_stop_at)
     if is_main_process():
         print_finished(run)
     return EXIT_OK
@@ -108,10 +117,13 @@ def print_finished(run: TrainingRun) -> None:
     cycle = int(run.state.cycle)
     print(f"Run {run.run_dir}: {cycle} cycles done ({len(run.history)} in this session).")
     if run.stopped_at is not None:
-        print(f"Stopped early at cycle {cycle}, as ppo.stop_at asks: {run.stopped_at}.")
+        print(f"Stopped early at cycle {cycle}, as ppo.stop_at asks: {run.stopped_at}. To train on past it: "
+              f"angora-jax resume {run.run_dir} --no-stop-at")
     if not run.finished:
         print(f"Stopped at the time limit (--minutes) with a checkpoint of cycle {cycle}; continue with: "
               f"angora-jax resume {run.run_dir}")
+    elif not run.history and run.stopped_at is None:
+        print(f"It was already complete; to train it longer: angora-jax resume {run.run_dir} --num-cycles N")
     returns = [r["episode_return"] for r in read_metrics(run.run_dir) if math.isfinite(r["episode_return"])]
     if len(returns) >= 2:
         tenth = max(1, len(returns) // 10)

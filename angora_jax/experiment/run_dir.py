@@ -30,6 +30,7 @@ from pathlib import Path
 import yaml
 
 from angora_jax.experiment.config import Config, ConfigError, flatten, load_config, to_dict
+from angora_jax.whole_files import written_whole
 
 CONFIG_FILE = "config.yaml"
 HYPERPARAMETERS_FILE = "hyperparameters.json"
@@ -100,9 +101,7 @@ def create_run_dir(config: Config, claim: Callable[[Path], None] | None = None) 
     try:
         if claim is not None:
             claim(path)
-        resolved = to_dict(config)
-        (path / CONFIG_FILE).write_text(yaml.safe_dump(resolved, sort_keys=False))
-        (path / HYPERPARAMETERS_FILE).write_text(json.dumps(flatten(resolved), indent=1))
+        write_run_config(path, config)
     except BaseException:
         shutil.rmtree(path, ignore_errors=True)
         raise
@@ -128,6 +127,15 @@ def read_run_config(run_dir: str | Path) -> Config:
         return load_config(path)
     except ConfigError as error:
         raise RunDirError(f"{path} does not load with this version of angora_jax: {error}") from None
+
+
+def write_run_config(run_dir: str | Path, config: Config) -> None:
+    """Write `config` as the run's `config.yaml` (and its flat view, `hyperparameters.json`), each file whole."""
+    resolved = to_dict(config)
+    for name, text in ((CONFIG_FILE, yaml.safe_dump(resolved, sort_keys=False)),
+                       (HYPERPARAMETERS_FILE, json.dumps(flatten(resolved), indent=1))):
+        with written_whole(Path(run_dir) / name) as draft:
+            draft.write_text(text)
 
 
 def record_session(run_dir: str | Path, entry: dict) -> None:

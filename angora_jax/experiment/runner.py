@@ -15,7 +15,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +26,7 @@ from angora_jax.envs.core import Env
 from angora_jax.envs.mjx_env import on_gpu
 from angora_jax.experiment import compilation_cache
 from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, disk_needed
-from angora_jax.experiment.config import Config, load_config, num_devices, to_dict, validate
+from angora_jax.experiment.config import Config, ConfigError, load_config, num_devices, to_dict, validate
 from angora_jax.experiment.cpu_sizing import cpu_note
 from angora_jax.experiment.distributed import ProcessFailed, agree_to_stop, is_main_process, shared_run_dir
 from angora_jax.experiment.doctor import devices, versions
@@ -35,7 +35,13 @@ from angora_jax.experiment.monitor import Monitor, logged_cycles, set_aside_afte
 from angora_jax.experiment.programs import cycle_programs, initial_state_shape
 from angora_jax.experiment.progress import Progress
 from angora_jax.experiment.resume_plan import plan_resume, set_aside_checkpoints_after, set_aside_outputs
-from angora_jax.experiment.run_dir import CHECKPOINTS, create_run_dir, read_run_config, record_session
+from angora_jax.experiment.run_dir import (
+    CHECKPOINTS,
+    create_run_dir,
+    read_run_config,
+    record_session,
+    write_run_config,
+)
 from angora_jax.experiment.run_lock import RunLock, RunLockedError, release_own_lock
 from angora_jax.experiment.sources import check_sources
 from angora_jax.ppo.cycle import TrainState
@@ -132,9 +138,11 @@ def train(
 
 def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | None = None,
            minutes: float | None = None, exact: bool = False, start_from: str | int = "latest",
-           from_scratch: bool = False, force: bool = False) -> TrainingRun:
+           from_scratch: bool = False, force: bool = False, num_cycles: int | None = None,
+           no_stop_at: bool = False) -> TrainingRun:
     """Continue `run_dir` from its latest checkpoint up to the config's `ppo.num_cycles`, exactly as if it had
-    not stopped (same device count assumed). A run that has already finished is returned as it is.
+    not stopped (same device count assumed). A run that has already finished is returned as it is, unless
+    `num_cycles` asks for more (or `no_stop_at` lifts the target that ended it).
 
     Nothing saved is lost or silently replaced (`resume_plan`): the process takes the run's writer lock (`run_lock`);
     a run that logged cycles but has no loadable latest checkpoint is refused rather than started over. Records logged
@@ -154,6 +162,11 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
             metrics.jsonl and later checkpoints moved aside.
         from_scratch: train again from cycle 0, with the earlier outputs moved to `RUN_DIR/previous-N/`.
         force: take over a writer lock held on another host.
+        num_cycles: train to this many cycles in all instead of the config's `ppo.num_cycles` (to train a finished
+            run longer, or stop one sooner), recorded in the run's config.yaml. Refused (ConfigError) below the
+            cycle it continues from, and for a run whose schedules span `ppo.num_cycles` (`ppo.lr_decay`,
+            `ppo.entropy_coef_final`): a new length would change them mid-run.
+        no_stop_at: train on past `ppo.stop_at` (removed from the run's config.yaml), to `ppo.num_cycles`.
 
     Returns:
         The run as `train` returns it.
@@ -162,14 +175,30 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
         RunLockedError: another process trains the run (the message names it).
         RunDirError: the run logged cycles but has no loadable latest checkpoint (the message names the choices).
         CheckpointError: a damaged checkpoint (the message names the newest intact one), or `exact` cannot hold.
+        ConfigError: `num_cycles` cannot apply (the message says why).
     """
     compilation_cache.enable()
     run_dir = Path(run_dir)
     config = read_run_config(run_dir)
+    before = config.ppo
+    if num_cycles is not None:
+        config = _lengthened(config, num_cycles, run_dir)
+    if no_stop_at:
+        config = replace(config, ppo=replace(config.ppo, stop_at=None))
     env = validate(config, new_run=False)
     lock = _lock_together(run_dir, force)
     try:
         plan = plan_resume(run_dir, config, start_from, from_scratch)
+        if config.ppo != before:
+            if plan.cycle is not None and config.ppo.num_cycles < plan.cycle:
+                raise ConfigError(f"--num-cycles {config.ppo.num_cycles} is below cycle {plan.cycle}, where {run_dir} "
+                                  "continues: ask for at least that many.")
+            if is_main_process():
+                write_run_config(run_dir, config)
+                changes = [f"ppo.num_cycles {before.num_cycles} -> {config.ppo.num_cycles}"] * (
+                    config.ppo.num_cycles != before.num_cycles) + ["ppo.stop_at removed"] * (
+                    config.ppo.stop_at != before.stop_at)
+                print(f"{run_dir}: {', '.join(changes)}, recorded in its config.yaml.", file=sys.stderr, flush=True)
         if plan.cycle is None:  # a start from cycle 0 reads its saved starting values (ppo.init_from, pretrained)
             check_sources(config, env)
         state = None
@@ -198,6 +227,20 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     finally:
         if lock is not None:
             lock.release()
+
+
+def _lengthened(config: Config, num_cycles: int, run_dir: Path) -> Config:
+    """`config` trained to `num_cycles` cycles in all; ConfigError where its schedules span its length."""
+    if num_cycles == config.ppo.num_cycles:
+        return config
+    spanning = [name for name, on in (("ppo.lr_decay", config.ppo.lr_decay),
+                                      ("ppo.entropy_coef_final", config.ppo.entropy_coef_final is not None)) if on]
+    if spanning:
+        raise ConfigError(
+            f"{run_dir} anneals over its ppo.num_cycles ({' and '.join(spanning)}), so another length would change "
+            f"its schedule mid-run. Start a new run from its policy instead: angora-jax train CONFIG "
+            f"ppo.init_from={run_dir}:latest (the optimizer and reward statistics start afresh).")
+    return replace(config, ppo=replace(config.ppo, num_cycles=num_cycles))
 
 
 def _lock_together(run_dir: Path, force: bool) -> RunLock | None:
@@ -296,7 +339,8 @@ def _run(
         devices_used = num_devices(config)
         physics = env.physics_info(per_device(config.ppo, devices_used).num_envs) | {"num_devices": devices_used}
         start = 0 if state is None else int(state.cycle)
-        record_session(run_dir, {"time": time.time(), "start_cycle": start, "host": socket.gethostname(),
+        record_session(run_dir, {"time": time.time(), "start_cycle": start, "num_cycles": config.ppo.num_cycles,
+                                 "host": socket.gethostname(),
                                  "processes": jax.process_count(), "devices": devices(), "versions": versions(),
                                  "physics": physics})
         announcement = (f"{run_dir}: {config.env.task} on {describe_physics(physics)}; compiling the first cycle "
