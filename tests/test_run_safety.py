@@ -17,6 +17,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 import pytest
 import xarray as xr
+import yaml
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -381,6 +382,32 @@ def test_a_run_made_under_older_name_rules_is_still_read_and_resumed(whole, tmp_
     config.write_text(config.read_text().replace("run_name: whole", "run_name: my old run"))
     assert main(["check", str(run)]) == 0, capsys.readouterr()
     assert main(["resume", str(run)]) == 0 and main(["evaluate", str(run), "--episodes", "1"]) == 0
+
+
+def test_a_damaged_or_lost_config_is_written_again_from_the_checkpoints_copy(whole, tmp_path, capsys):
+    """A config.yaml damaged (a half-saved edit) or deleted stops every verb with the way back; `check
+    --restore-config` writes the config saved with the newest checkpoint, keeps the damaged file, and the run resumes
+    and evaluates again. A config that loads is left alone."""
+    run = copy_of(whole, tmp_path)
+    config = run / "config.yaml"
+    original = config.read_text()
+    config.write_text(original[: len(original) // 2] + "\n  [")
+    for verb in (["resume"], ["evaluate", "--episodes", "1"]):
+        err = exits_2([*verb, str(run)], capsys)
+        assert "config.yaml does not load" in err and f"angora-jax check {run} --restore-config" in err
+    assert main(["check", str(run), "--restore-config"]) == 0
+    out = capsys.readouterr().out
+    assert f"Restored {config} from the config saved with the latest checkpoint of cycle {CYCLES}" in out
+    assert aj.load_config(config) == aj.load_config(yaml.safe_load(original))
+    assert (run / "config.yaml.damaged").read_text().endswith("\n  [")
+    assert main(["resume", str(run)]) == 0 and main(["evaluate", str(run), "--episodes", "1"]) == 0
+    assert main(["check", str(run), "--restore-config"]) == 0
+    assert "loads; nothing was restored" in capsys.readouterr().out
+    config.unlink()
+    assert f"has checkpoints but no config.yaml: `angora-jax check {run} --restore-config`" in exits_2(
+        ["resume", str(run)], capsys)
+    assert main(["check", str(run), "--restore-config"]) == 0 and config.is_file()
+    assert not (run / "config.yaml-2.damaged").exists(), "nothing to keep: there was no file"
 
 
 def test_a_run_whose_checkpoints_will_not_fit_says_so_before_training(whole, tmp_path, monkeypatch, capsys):

@@ -16,7 +16,7 @@ from angora_jax.cli.arguments import (
 )
 from angora_jax.experiment import ConfigError, TrainingRun, read_metrics, resume, train
 from angora_jax.experiment.distributed import initialize, is_main_process
-from angora_jax.experiment.run_check import check_run
+from angora_jax.experiment.run_check import check_run, restore_config
 from angora_jax.experiment.runner import signals_exit_while_preparing
 
 
@@ -68,6 +68,10 @@ def add_check(commands: argparse._SubParsersAction) -> None:
         "check", help="verify a run directory (checkpoints against their manifests, metrics.jsonl, config, lock) and "
                       "say what resume would do; exit 2 when something is damaged")
     check.add_argument("run_dir")
+    check.add_argument(
+        "--restore-config", action="store_true",
+        help="write a damaged or missing config.yaml again from the copy saved with the newest intact checkpoint "
+             "(the damaged file is kept beside it as config.yaml.damaged)")
     check.set_defaults(handler=command_check)
 
 
@@ -108,6 +112,8 @@ def command_resume(args: argparse.Namespace) -> int:
 
 
 def command_check(args: argparse.Namespace) -> int:
+    if args.restore_config:
+        print(restore_config(args.run_dir))
     found = check_run(args.run_dir)
     print(f"{args.run_dir}:\n" + found.format())
     return EXIT_USAGE if found.problems else EXIT_OK

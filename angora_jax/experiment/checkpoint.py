@@ -352,6 +352,18 @@ class Checkpoints:
                  if (kind, cycle) != skip and self.damage(kind, cycle) in (None, "no manifest")]
         return (max(found)[1], max(found)[0]) if found else None
 
+    def saved_config(self) -> tuple[str, int, dict[str, Any]] | None:
+        """The run's config as saved with its newest intact checkpoint, as (kind, cycle, the config's dict), or None
+        when no checkpoint keeps one."""
+        newest = self.newest_intact()
+        if newest is None:
+            return None
+        # Of that cycle's checkpoints, the first intact one of latest, best, snapshots: the one a user knows best.
+        kind = next(kind for kind in KINDS if newest[1] in self.steps(kind)
+                    and self.damage(kind, newest[1]) in (None, "no manifest"))
+        config = self._read_meta(kind, newest[1]).get("config")
+        return (kind, newest[1], config) if isinstance(config, dict) and config else None
+
     def _read_meta(self, kind: str, cycle: int) -> dict[str, Any]:
         self.check_intact(kind, cycle)
         try:

@@ -74,10 +74,12 @@ def load_run(run_dir: str | Path) -> RunRecord:
     try:
         config = yaml.safe_load((path / CONFIG_FILE).read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as error:
-        raise RunDirError(f"{path / CONFIG_FILE} is damaged ({type(error).__name__}): restore it from a copy, or "
-                          "leave the run out of the report.") from None
+        raise RunDirError(f"{path / CONFIG_FILE} is damaged ({type(error).__name__}): `angora-jax check {run_dir} "
+                          "--restore-config` writes it again from its checkpoints' copy, or leave the run out of the "
+                          "report.") from None
     if not isinstance(config, dict):
-        raise RunDirError(f"{path / CONFIG_FILE} holds no config (a {type(config).__name__}): restore it from a copy.")
+        raise RunDirError(f"{path / CONFIG_FILE} holds no config (a {type(config).__name__}): `angora-jax check "
+                          f"{run_dir} --restore-config` writes it again from its checkpoints' copy.")
     return RunRecord(path.resolve().name, path, config, read_metrics(path))
 
 

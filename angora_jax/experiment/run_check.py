@@ -2,6 +2,8 @@
 
 Reads only: the config (does it load and fit this version), the writer lock, metrics.jsonl (damaged lines, and each
 cycle logged once and in order), every checkpoint against its manifest, and the resume plan (`resume_plan`).
+`restore_config` (`check --restore-config`) is its one repair: a damaged config.yaml written again from the copy
+that the checkpoints keep.
 """
 
 from __future__ import annotations
@@ -10,10 +12,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from angora_jax.experiment.checkpoint import KINDS, Checkpoints
-from angora_jax.experiment.config import ConfigError, validate
+from angora_jax.experiment.config import CheckpointConfig, ConfigError, load_config, validate
 from angora_jax.experiment.monitor import damaged_metric_lines, logged_cycles
 from angora_jax.experiment.resume_plan import plan_resume
-from angora_jax.experiment.run_dir import CHECKPOINTS, METRICS_FILE, RunDirError, read_run_config
+from angora_jax.experiment.run_dir import (
+    CHECKPOINTS,
+    CONFIG_FILE,
+    METRICS_FILE,
+    RunDirError,
+    numbered_paths,
+    read_run_config,
+    write_run_config,
+)
 from angora_jax.experiment.run_lock import RunLock
 
 
@@ -102,6 +112,52 @@ def check_run(run_dir: str | Path) -> RunCheck:
         result.resume = f"refuses: {refusal}"
         result.problems.append("resume cannot continue as it is: see above")
     return result
+
+
+def restore_config(run_dir: str | Path) -> str:
+    """Write `run_dir`'s config.yaml (and hyperparameters.json) again from the config saved with its newest intact
+    checkpoint, when config.yaml is missing or does not load; the file as it was is kept beside it
+    (`config.yaml.damaged`, then `config.yaml-2.damaged`, ...). Holds the run's writer lock meanwhile. Returns what
+    was done; RunDirError when no checkpoint keeps a loadable copy, RunLockedError while another process trains the
+    run."""
+    run_dir = Path(run_dir)
+    path = run_dir / CONFIG_FILE
+    if path.is_file():
+        try:
+            read_run_config(run_dir)
+            return f"{path} loads; nothing was restored."
+        except RunDirError:
+            pass
+    checkpoints_dir = run_dir / CHECKPOINTS
+    if not any(checkpoints_dir.glob("*/[0-9]*")):
+        raise RunDirError(f"{run_dir} has no checkpoint that keeps a copy of its config: restore {path} from a copy "
+                          "of your own.")
+    lock = RunLock(run_dir)
+    lock.acquire()
+    try:
+        checkpoints = Checkpoints(checkpoints_dir, CheckpointConfig(), create=False)
+        try:
+            saved = checkpoints.saved_config()
+        finally:
+            checkpoints.close()
+        if saved is None:
+            raise RunDirError(f"No intact checkpoint of {run_dir} keeps a copy of its config: restore {path} from a "
+                              "copy of your own.")
+        kind, cycle, data = saved
+        try:
+            config = load_config(data)
+        except ConfigError as error:
+            raise RunDirError(f"The config saved with the {kind} checkpoint of cycle {cycle} does not load with this "
+                              f"version of angora_jax either: {error}") from None
+        kept = ""
+        if path.exists():
+            aside = next(name for name in numbered_paths(run_dir, CONFIG_FILE, ".damaged") if not name.exists())
+            path.rename(aside)
+            kept = f"; the file as it was is kept as {aside}"
+        write_run_config(run_dir, config)
+    finally:
+        lock.release()
+    return f"Restored {path} from the config saved with the {kind} checkpoint of cycle {cycle}{kept}."
 
 
 def _runs(cycles: list[int], every: bool = False) -> str:
