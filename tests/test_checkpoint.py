@@ -92,6 +92,8 @@ def test_a_finished_run_trained_longer_ends_as_the_longer_run_and_records_its_ne
                                                  "logging.run_name=short"]))
     assert main(["resume", str(short.run_dir)]) == 0
     assert "already complete; to train it longer: angora-jax resume" in capsys.readouterr().out
+    assert main(["check", str(short.run_dir)]) == 0
+    assert "the run is complete (2 of 2 cycles): `angora-jax resume" in capsys.readouterr().out
     assert main(["resume", str(short.run_dir), "--num-cycles", "4"]) == 0
     assert "ppo.num_cycles 2 -> 4, recorded in its config.yaml" in capsys.readouterr().err
     for a, b in zip(jax.tree.leaves(whole.state.params), jax.tree.leaves(aj.load_agent(short.run_dir, "latest").params),
@@ -126,6 +128,8 @@ def test_a_run_stopped_at_its_target_trains_on_past_it_when_asked(runs, tmp_path
     out = capsys.readouterr().out
     assert "Stopped early at cycle 2, as ppo.stop_at asks" in out
     assert f"To train on past it: angora-jax resume {early.run_dir} --no-stop-at" in out
+    assert main(["check", str(early.run_dir)]) == 0
+    assert "ppo.stop_at ended it (episode_return" in capsys.readouterr().out
     assert main(["resume", str(early.run_dir), "--no-stop-at"]) == 0
     captured = capsys.readouterr()
     assert "ppo.stop_at removed, recorded in its config.yaml" in captured.err and "4 cycles done (2" in captured.out

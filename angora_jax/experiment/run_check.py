@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from angora_jax.experiment.checkpoint import KINDS, Checkpoints
-from angora_jax.experiment.config import CheckpointConfig, ConfigError, load_config, validate
-from angora_jax.experiment.monitor import damaged_metric_lines, logged_cycles
+from angora_jax.experiment.config import CheckpointConfig, Config, ConfigError, load_config, validate
+from angora_jax.experiment.monitor import damaged_metric_lines, logged_cycles, read_metrics
 from angora_jax.experiment.resume_plan import plan_resume
 from angora_jax.experiment.run_dir import (
     CHECKPOINTS,
@@ -107,11 +107,27 @@ def check_run(run_dir: str | Path) -> RunCheck:
                                f"({cycles[-1]}): records were lost")
 
     try:
-        result.resume = plan_resume(run_dir, config).describe
+        plan = plan_resume(run_dir, config)
+        result.resume = plan.describe + _ended(run_dir, config, plan.cycle)
     except RunDirError as refusal:
         result.resume = f"refuses: {refusal}"
         result.problems.append("resume cannot continue as it is: see above")
     return result
+
+
+def _ended(run_dir: Path, config: Config, cycle: int | None) -> str:
+    """Why a run that resume would continue from `cycle` trains no further, and how to go on; "" when it would."""
+    if cycle is None:
+        return ""
+    if cycle >= config.ppo.num_cycles:
+        return (f"; the run is complete ({cycle} of {config.ppo.num_cycles} cycles): `angora-jax resume {run_dir} "
+                "--num-cycles N` trains it longer")
+    stop_at = config.ppo.stop_at
+    record = next((row for row in read_metrics(run_dir) if row.get("cycle") == cycle), None)
+    if stop_at is not None and record is not None and stop_at.reached(record):
+        return (f"; ppo.stop_at ended it ({stop_at.metric} {float(record[stop_at.metric]):.4g}): resume trains one "
+                f"cycle and stops again; `angora-jax resume {run_dir} --no-stop-at` trains on past it")
+    return ""
 
 
 def restore_config(run_dir: str | Path) -> str:
