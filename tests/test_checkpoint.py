@@ -83,6 +83,30 @@ def test_a_time_limit_stops_with_a_checkpoint_and_resume_continues_exactly(runs,
         aj.train(config(tmp_path, "no_time"), minutes=0.0)
 
 
+def test_a_checkpoint_replaced_while_it_is_read_gives_way_to_the_one_that_replaced_it(runs, tmp_path):
+    """Evaluating or probing a run while it trains: the training process replaces its latest checkpoint (one is kept)
+    after a reader listed it. Reading "latest" then reads the newer one; reading that cycle by number says it was
+    replaced, not that it is corrupt."""
+    whole = runs[0]
+    run = tmp_path / "live"
+    shutil.copytree(whole.run_dir, run)
+    reader = Checkpoints(run / CHECKPOINTS, config(tmp_path, "live").checkpoint, create=False)
+    assert reader.steps("latest") == [4]
+    writer = Checkpoints(run / CHECKPOINTS, config(tmp_path, "live").checkpoint)
+    writer.save(whole.state.replace(cycle=whole.state.cycle + 1), {"cycle": 5}, {}, final=True)
+    writer.close()
+    assert not (run / CHECKPOINTS / "latest" / "4").exists()
+    read = reader.restore(whole.state, "latest")
+    assert read.meta["cycle"] == 5 and int(read.state.cycle) == 5
+    reader = Checkpoints(run / CHECKPOINTS, config(tmp_path, "live").checkpoint, create=False)
+    writer = Checkpoints(run / CHECKPOINTS, config(tmp_path, "live").checkpoint)
+    writer.save(whole.state.replace(cycle=whole.state.cycle + 2), {"cycle": 6}, {}, final=True)
+    writer.close()
+    with pytest.raises(CheckpointError, match=r"latest/5 was removed while it was read: a process training the run "
+                                              r"replaced it with cycle 6.*Read latest again"):
+        reader.restore(whole.state, 5)
+
+
 def test_a_finished_run_trained_longer_ends_as_the_longer_run_and_records_its_new_length(runs, tmp_path, capsys):
     """`resume --num-cycles N` trains a finished run on to N cycles, bit for bit the run that was asked for N from the
     start, and records N in its config.yaml and session record; fewer cycles than it has done, or a run whose

@@ -245,6 +245,8 @@ def test_a_save_cut_short_by_a_killed_writer_is_named_by_check_and_removed_by_re
     report = check_run(run)
     assert report.problems == [] and "unfinished (its writer stopped mid-save" in report.format()
     assert f"checkpoints/latest: intact: cycle {CYCLES}; unfinished" in report.format()
+    with RunLock(run):  # while a writer holds the run, its newest save is being written, not cut short
+        assert f"unfinished (being written now): cycle {CYCLES + 1}" in check_run(run).format()
     assert main(["resume", str(run)]) == 0
     err = capsys.readouterr().err
     assert "orbax-checkpoint-tmp" not in err

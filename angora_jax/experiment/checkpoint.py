@@ -18,6 +18,7 @@ import math
 import shutil
 import sys
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -77,6 +78,10 @@ class Restored:
 
     state: Any
     meta: dict[str, Any]
+
+
+# Reads of a checkpoint that a training process replaced meanwhile, before giving up (`Checkpoints._read_newest`).
+_REPLACED_RETRIES = 5
 
 
 class Checkpoints:
@@ -257,7 +262,9 @@ class Checkpoints:
             CheckpointError: it cannot be read, or a leaf read differs in shape or dtype from `template`'s.
         """
         self.finish()  # a checkpoint this object is still writing is read once whole
-        kind, cycle = self.locate(which)
+        return self._read_newest(which, lambda kind, cycle: self._restore(template, kind, cycle, partial))
+
+    def _restore(self, template: Any, kind: str, cycle: int, partial: bool) -> Restored:
         # Whole arrays onto this process's first device, whatever devices saved them (several devices or hosts):
         # training lays the state out again for the devices it runs on.
         device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
@@ -292,7 +299,35 @@ class Checkpoints:
     def holds_environments(self, which: str | int = "latest") -> bool:
         """Whether checkpoint `which` holds the environments' states (not `checkpoint.lean`), so that resuming from
         it continues exactly; FileNotFoundError as `restore` when there is no such checkpoint."""
-        return self._read_meta(*self.locate(which)).get("environments", True)
+        return self._read_newest(which, self._read_meta).get("environments", True)
+
+    def _read_newest(self, which: str | int, read: Callable[[str, int], Any]) -> Any:
+        """`read(kind, cycle)` of checkpoint `which`. A process training the run replaces its latest and best
+        checkpoints (one of each is kept) while others read them; a read that fails because its checkpoint was
+        replaced meanwhile reads the one that replaced it ("latest", "best"), or says what happened (a cycle)."""
+        for attempt in range(_REPLACED_RETRIES):
+            kind, cycle = self.locate(which)
+            try:
+                return read(kind, cycle)
+            except CheckpointError:
+                newer = self._replaced(kind, cycle)
+                if newer is None:
+                    raise
+                if not isinstance(which, str) or attempt == _REPLACED_RETRIES - 1:
+                    raise CheckpointError(
+                        f"Checkpoint {self._directory / kind / str(cycle)} was removed while it was read: a process "
+                        f"training the run replaced it with cycle {newer}, as it keeps only the newest {kind} "
+                        f"checkpoint. Read {kind} again, or a snapshot (kept for good).") from None
+        raise AssertionError("unreachable")
+
+    def _replaced(self, kind: str, cycle: int) -> int | None:
+        """The cycle of the checkpoint that replaced `kind`/`cycle` ("latest" or "best", which keep one) since this
+        object listed them, else None."""
+        if kind == "snapshots":  # kept for good: a failed read is the checkpoint's own
+            return None
+        self._managers[kind].reload()
+        newer = max(self._managers[kind].all_steps(), default=None)
+        return newer if newer is not None and newer > cycle else None
 
     def close(self) -> None:
         """Finish the saves being written (`finish`), then release Orbax's managers."""

@@ -67,6 +67,8 @@ def check_run(run_dir: str | Path) -> RunCheck:
                  "cannot tell whether it runs: resume --force takes the lock over" if holder.pid < 0 else
                  "running, or on another host")
         result.findings.append(f"writer: {holder.describe()} ({state})")
+    # While a writer may be training the run, its newest saves are still being written, not cut short.
+    live = holder is not None and holder.pid >= 0 and not holder.is_gone()
 
     cycles = logged_cycles(run_dir)
     result.findings.append(f"{METRICS_FILE}: {len(cycles)} cycles logged"
@@ -87,15 +89,20 @@ def check_run(run_dir: str | Path) -> RunCheck:
     try:
         for kind in KINDS:
             verdicts = {cycle: checkpoints.damage(kind, cycle) for cycle in checkpoints.steps(kind)}
+            if live:  # a checkpoint the writer replaced while it was verified is not damage
+                verdicts = {cycle: damage for cycle, damage in verdicts.items()
+                            if (run_dir / CHECKPOINTS / kind / str(cycle)).is_dir()}
             intact = [cycle for cycle, damage in verdicts.items() if damage is None]
             unverified = [cycle for cycle, damage in verdicts.items() if damage == "no manifest"]
             kept = [f"intact: cycle {_runs(intact, every=True)}"] * bool(intact)
-            kept += [f"without a manifest, unverifiable: cycle {_runs(unverified, every=True)}"] * bool(unverified)
+            kept += [f"without a manifest{' yet (the writer adds it once the save is whole)' if live else ''}, "
+                     f"unverifiable: cycle {_runs(unverified, every=True)}"] * bool(unverified)
             damaged = [cycle for cycle in verdicts if cycle not in intact and cycle not in unverified]
             kept += [f"damaged: cycle {_runs(damaged, every=True)}"] * bool(damaged)
             unfinished = checkpoints.unfinished(kind)
-            kept += [f"unfinished (its writer stopped mid-save; never a checkpoint, resume removes it): cycle "
-                     f"{_runs(unfinished, every=True)}"] * bool(unfinished)
+            stopped = ("being written now" if live else
+                       "its writer stopped mid-save; never a checkpoint, resume removes it")
+            kept += [f"unfinished ({stopped}): cycle {_runs(unfinished, every=True)}"] * bool(unfinished)
             result.findings.append(f"checkpoints/{kind}: {'; '.join(kept) or 'none'}")
             result.problems += [f"checkpoint {kind}/{cycle} is damaged: {damage}" for cycle, damage in verdicts.items()
                                 if damage not in (None, "no manifest")]
