@@ -142,21 +142,22 @@ def test_a_finished_run_trained_longer_ends_as_the_longer_run_and_records_its_ne
 
 
 def test_a_run_stopped_at_its_target_trains_on_past_it_when_asked(runs, tmp_path, capsys):
-    """A run that `ppo.stop_at` ended says how to go on; `resume --no-stop-at` trains it to its `ppo.num_cycles`, bit
-    for bit the run without a target, and removes the target from its config.yaml."""
+    """A run that `ppo.stop_at` ended is complete: `resume` leaves it as it is and says how to go on; `resume
+    --no-stop-at` trains it to its `ppo.num_cycles`, bit for bit the run without a target, and removes the target from
+    its config.yaml."""
     whole = runs[0]
     early = aj.train(aj.load_config("cartpole", [*TINY, "ppo.stop_at={metric: episode_return, value: -1.0e9}",
                                                  f"logging.run_root={tmp_path}", "logging.run_name=early"]))
     assert early.stopped_at is not None and int(early.state.cycle) == 1
-    assert main(["resume", str(early.run_dir)]) == 0  # the target still holds: one cycle more, and it stops again
+    assert main(["resume", str(early.run_dir)]) == 0  # ended by its target, it is complete: left as it is
     out = capsys.readouterr().out
-    assert "Stopped early at cycle 2, as ppo.stop_at asks" in out
+    assert "1 cycles done (0 in this session)" in out and "Stopped early at cycle 1, as ppo.stop_at asks" in out
     assert f"To train on past it: angora-jax resume {early.run_dir} --no-stop-at" in out
     assert main(["check", str(early.run_dir)]) == 0
     assert "ppo.stop_at ended it (episode_return" in capsys.readouterr().out
     assert main(["resume", str(early.run_dir), "--no-stop-at"]) == 0
     captured = capsys.readouterr()
-    assert "ppo.stop_at removed, recorded in its config.yaml" in captured.err and "4 cycles done (2" in captured.out
+    assert "ppo.stop_at removed, recorded in its config.yaml" in captured.err and "4 cycles done (3" in captured.out
     assert yaml.safe_load((early.run_dir / "config.yaml").read_text())["ppo"]["stop_at"] is None
     for a, b in zip(jax.tree.leaves(whole.state.params), jax.tree.leaves(aj.load_agent(early.run_dir, "latest").params),
                     strict=True):

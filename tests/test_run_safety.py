@@ -1,6 +1,7 @@
 """A run directory is never lost, overwritten or silently restarted: one writer per run, resume that refuses to start
 over, checkpoints checked against their manifests, a full disk, and runs killed at random points and resumed."""
 
+import errno
 import json
 import os
 import random
@@ -273,8 +274,16 @@ def test_a_full_disk_keeps_the_previous_checkpoint_and_says_so(whole, tmp_path, 
         raise ValueError("RESOURCE_EXHAUSTED: Error writing ...: Failed to write 1016 bytes to file 17: No space "
                          "left on device [os_error_code='28']")
 
+    real_close = ocp.CheckpointManager.close
+
+    def close_raising_the_failure_again(self):
+        real_close(self)
+        if saves[3:]:  # as Orbax's background writer can: the failed save's bare OSError, once more, on close
+            raise OSError(errno.ENOSPC, "No space left on device")
+
     root = tmp_path / "runs"
     monkeypatch.setattr(ocp.CheckpointManager, "save", save_until_full)
+    monkeypatch.setattr(ocp.CheckpointManager, "close", close_raising_the_failure_again)
     with pytest.raises(DiskFullError) as full:
         aj.train("cartpole", settings(root, "full"))
     monkeypatch.undo()

@@ -126,6 +126,7 @@ class Checkpoints:
         # resuming asks about the same checkpoint when planning, locating, reading its metadata and restoring it.
         self._damage: dict[tuple[str, int], str | None] = {}
         self._writing: list[tuple[str, int]] = []  # saves returned but still being written, in the order started
+        self._failed = False  # a save failed and `finish` said so
         self._quiet: _QuietWriters | None = None  # while they are written
         best = self._managers["best"].latest_step()
         try:
@@ -214,6 +215,7 @@ class Checkpoints:
                 raise self._disk_full([(kind, cycle) for kind, cycle, _ in failed],
                                       [(kind, cycle) for kind, cycle, _ in manifests_failed], errors[0]) from None
         except BaseException as error:
+            self._failed = True
             if self._quiet is not None:
                 self._quiet.stop(disk_full=is_disk_full(error) or isinstance(error, DiskFullError))
                 self._quiet = None
@@ -335,7 +337,13 @@ class Checkpoints:
             self.finish()
         finally:
             for manager in self._managers.values():
-                manager.close()
+                try:
+                    manager.close()
+                except Exception:
+                    # Orbax raises a failed background save's error again when its manager closes; `finish` has
+                    # reported it (DiskFullError), and raising it here would replace that message with a bare one.
+                    if not self._failed:
+                        raise
 
     def locate(self, which: str | int) -> tuple[str, int]:
         """The kind and cycle of checkpoint `which` ("latest", "best" or a cycle: of the kinds that hold it, the first

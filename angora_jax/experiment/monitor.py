@@ -26,6 +26,7 @@ import numpy as np
 
 from angora_jax.experiment.run_dir import METRICS_FILE, DiskFullError, RunDirError, is_disk_full
 from angora_jax.experiment.wandb_logging import WandbConfig, WandbLog
+from angora_jax.ppo.config import StopAt
 from angora_jax.ppo.cycle import TrainState
 from angora_jax.ppo.parallel import host_copy
 
@@ -114,6 +115,15 @@ def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
         print(f"Warning: {Path(run_dir) / METRICS_FILE}: line(s) {', '.join(map(str, damaged[:5]))} are not records "
               "of a cycle and are skipped (angora-jax check RUN_DIR).", file=sys.stderr)
     return [{k: math.nan if v is None else v for k, v in row.items()} for _, row in rows]
+
+
+def ended_by_stop_at(run_dir: str | Path, stop_at: StopAt | None, cycle: int | None) -> str | None:
+    """What ended `run_dir` under its `ppo.stop_at` at `cycle` ("metric/goals_reached 30.4 >= 30"), read from that
+    cycle's record; None when it has no target, no such record, or the record does not reach it."""
+    if stop_at is None or cycle is None:
+        return None
+    record = next((row for _, row in _parse_metrics(Path(run_dir) / METRICS_FILE)[0] if row["cycle"] == cycle), None)
+    return None if record is None else stop_at.ended({k: math.nan if v is None else v for k, v in record.items()})
 
 
 def logged_cycles(run_dir: str | Path) -> list[int]:

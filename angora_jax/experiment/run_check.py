@@ -13,7 +13,7 @@ from pathlib import Path
 
 from angora_jax.experiment.checkpoint import KINDS, Checkpoints
 from angora_jax.experiment.config import CheckpointConfig, Config, ConfigError, load_config, validate
-from angora_jax.experiment.monitor import damaged_metric_lines, logged_cycles, read_metrics
+from angora_jax.experiment.monitor import damaged_metric_lines, ended_by_stop_at, logged_cycles
 from angora_jax.experiment.resume_plan import plan_resume
 from angora_jax.experiment.run_dir import (
     CHECKPOINTS,
@@ -129,11 +129,10 @@ def _ended(run_dir: Path, config: Config, cycle: int | None) -> str:
     if cycle >= config.ppo.num_cycles:
         return (f"; the run is complete ({cycle} of {config.ppo.num_cycles} cycles): `angora-jax resume {run_dir} "
                 "--num-cycles N` trains it longer")
-    stop_at = config.ppo.stop_at
-    record = next((row for row in read_metrics(run_dir) if row.get("cycle") == cycle), None)
-    if stop_at is not None and record is not None and stop_at.reached(record):
-        return (f"; ppo.stop_at ended it ({stop_at.metric} {float(record[stop_at.metric]):.4g}): resume trains one "
-                f"cycle and stops again; `angora-jax resume {run_dir} --no-stop-at` trains on past it")
+    ended = ended_by_stop_at(run_dir, config.ppo.stop_at, cycle)
+    if ended is not None:
+        return (f"; ppo.stop_at ended it ({ended}): resume leaves it as it is; `angora-jax resume {run_dir} "
+                "--no-stop-at` trains on past it")
     return ""
 
 

@@ -31,7 +31,7 @@ from angora_jax.experiment.cpu_sizing import cpu_note
 from angora_jax.experiment.distributed import ProcessFailed, agree_to_stop, is_main_process, shared_run_dir
 from angora_jax.experiment.doctor import devices, versions
 from angora_jax.experiment.held_out import held_out_evaluation
-from angora_jax.experiment.monitor import Monitor, logged_cycles, set_aside_after
+from angora_jax.experiment.monitor import Monitor, ended_by_stop_at, logged_cycles, set_aside_after
 from angora_jax.experiment.programs import cycle_programs, initial_state_shape
 from angora_jax.experiment.progress import Progress
 from angora_jax.experiment.resume_plan import plan_resume, set_aside_checkpoints_after, set_aside_outputs
@@ -141,8 +141,8 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
            from_scratch: bool = False, force: bool = False, num_cycles: int | None = None,
            no_stop_at: bool = False) -> TrainingRun:
     """Continue `run_dir` from its latest checkpoint up to the config's `ppo.num_cycles`, exactly as if it had
-    not stopped (same device count assumed). A run that has already finished is returned as it is, unless
-    `num_cycles` asks for more (or `no_stop_at` lifts the target that ended it).
+    not stopped (same device count assumed). A run that has already finished (all its cycles, or ended by its
+    `ppo.stop_at`) is returned as it is, unless `num_cycles` asks for more or `no_stop_at` lifts the target.
 
     Nothing saved is lost or silently replaced (`resume_plan`): the process takes the run's writer lock (`run_lock`);
     a run that logged cycles but has no loadable latest checkpoint is refused rather than started over. Records logged
@@ -223,7 +223,8 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
                 if side is not None:
                     print(f"Records after cycle {plan.cycle} are kept in {side}.", file=sys.stderr, flush=True)
         _together(f"angora_jax resume {run_dir}")
-        return _run(config, env, run_dir, state=state, on_cycle=on_cycle, minutes=minutes)
+        ended = None if plan.fresh_start else ended_by_stop_at(run_dir, config.ppo.stop_at, plan.cycle)
+        return _run(config, env, run_dir, state=state, on_cycle=on_cycle, minutes=minutes, ended=ended)
     finally:
         if lock is not None:
             lock.release()
@@ -308,12 +309,14 @@ def _run(
     on_cycle: Callable[[dict[str, Any]], None] | None,
     minutes: float | None = None,
     new: bool = False,
+    ended: str | None = None,
 ) -> TrainingRun:
     if minutes is not None and minutes <= 0:
         raise ValueError(f"minutes (the call's time limit) must be > 0, got {minutes}.")
     deadline = None if minutes is None else time.monotonic() + 60.0 * minutes
-    finished = state is not None and int(state.cycle) >= config.ppo.num_cycles
-    stop_at, stopped_at = config.ppo.stop_at, None
+    # A run that its ppo.stop_at ended is as complete as one that did all its cycles (`ended`: what ended it).
+    finished = state is not None and (int(state.cycle) >= config.ppo.num_cycles or ended is not None)
+    stop_at, stopped_at = config.ppo.stop_at, ended
     history: list[dict[str, Any]] = []
     resolved = to_dict(config)
     checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint)
@@ -365,7 +368,8 @@ def _run(
             programs = cycle_programs(config, env)
             if main:
                 _warn_if_disk_is_small(run_dir, config, initial_state_shape(config, env), config.ppo.num_cycles - start)
-            for latest, metrics in training_cycles(config.ppo, env, None, state, num_devices(config), programs):
+            cycles = () if ended else training_cycles(config.ppo, env, None, state, num_devices(config), programs)
+            for latest, metrics in cycles:
                 if "compile_seconds" in metrics:  # the programs this session compiled, and those read from the cache
                     cached = compilation_cache.counts()
                     metrics |= {f"compile_cache_{kind}": cached[kind] - cached_before[kind] for kind in cached}
@@ -391,9 +395,8 @@ def _run(
                 if decision.failed:
                     raise ProcessFailed(decision.failed, int(metrics["cycle"]), run_dir)
                 # The compiled cycle reduces its metrics over every device, so all processes decide this alike.
-                if stop_at is not None and stop_at.reached(metrics):
-                    relation = ">=" if stop_at.mode == "max" else "<="
-                    stopped_at = f"{stop_at.metric} {float(metrics[stop_at.metric]):.4g} {relation} {stop_at.value:g}"
+                if stop_at is not None:
+                    stopped_at = stop_at.ended(metrics)
                 finished = record["cycle"] == config.ppo.num_cycles or stopped_at is not None
                 stopping = decision.signum is not None or decision.out_of_time
                 _save_together(checkpoints, state, record, resolved, stopping or finished, run_dir)

@@ -245,6 +245,13 @@ class StopAt:
         value = float(metrics.get(self.metric, math.nan))
         return value >= self.value if self.mode == "max" else value <= self.value
 
+    def ended(self, metrics: dict[str, float]) -> str | None:
+        """What ended the run after the cycle of `metrics` ("metric/goals_reached 30.4 >= 30"), None when they do not
+        reach the value."""
+        if not self.reached(metrics):
+            return None
+        return f"{self.metric} {float(metrics[self.metric]):.4g} {'>=' if self.mode == 'max' else '<='} {self.value:g}"
+
 
 @dataclass(frozen=True)
 class BlocksConfig:
