@@ -114,7 +114,7 @@ def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
     if damaged:
         print(f"Warning: {Path(run_dir) / METRICS_FILE}: line(s) {', '.join(map(str, damaged[:5]))} are not records "
               "of a cycle and are skipped (angora-jax check RUN_DIR).", file=sys.stderr)
-    return [{k: math.nan if v is None else v for k, v in row.items()} for _, row in rows]
+    return [_with_nans(row) for _, row in rows]
 
 
 def ended_by_stop_at(run_dir: str | Path, stop_at: StopAt | None, cycle: int | None) -> str | None:
@@ -123,7 +123,12 @@ def ended_by_stop_at(run_dir: str | Path, stop_at: StopAt | None, cycle: int | N
     if stop_at is None or cycle is None:
         return None
     record = next((row for _, row in _parse_metrics(Path(run_dir) / METRICS_FILE)[0] if row["cycle"] == cycle), None)
-    return None if record is None else stop_at.ended({k: math.nan if v is None else v for k, v in record.items()})
+    return None if record is None else stop_at.ended(_with_nans(record))
+
+
+def _with_nans(record: dict[str, Any]) -> dict[str, Any]:
+    """A record as read from metrics.jsonl, its nulls (non-finite values when written) read back as NaN."""
+    return {k: math.nan if v is None else v for k, v in record.items()}
 
 
 def logged_cycles(run_dir: str | Path) -> list[int]:

@@ -60,15 +60,16 @@ def check_run(run_dir: str | Path) -> RunCheck:
         result.problems.append(f"config.yaml does not run with this version of angora_jax: {error}")
 
     holder = RunLock(run_dir).holder()
+    gone = holder is not None and holder.is_gone()
     if holder is None:
         result.findings.append("writer: none (no process trains it now)")
     else:
-        state = ("ended, so resume takes the lock over" if holder.is_gone() else
+        state = ("ended, so resume takes the lock over" if gone else
                  "cannot tell whether it runs: resume --force takes the lock over" if holder.pid < 0 else
                  "running, or on another host")
         result.findings.append(f"writer: {holder.describe()} ({state})")
     # While a writer may be training the run, its newest saves are still being written, not cut short.
-    live = holder is not None and holder.pid >= 0 and not holder.is_gone()
+    live = holder is not None and holder.pid >= 0 and not gone
 
     cycles = logged_cycles(run_dir)
     result.findings.append(f"{METRICS_FILE}: {len(cycles)} cycles logged"
