@@ -20,6 +20,7 @@ from angora_jax.experiment.run_dir import (
     CONFIG_FILE,
     METRICS_FILE,
     RunDirError,
+    has_checkpoints,
     numbered_paths,
     read_run_config,
     write_run_config,
@@ -152,7 +153,7 @@ def restore_config(run_dir: str | Path) -> str:
         except RunDirError:
             pass
     checkpoints_dir = run_dir / CHECKPOINTS
-    if not any(checkpoints_dir.glob("*/[0-9]*")):
+    if not has_checkpoints(run_dir):
         raise RunDirError(f"{run_dir} has no checkpoint that keeps a copy of its config: restore {path} from a copy "
                           "of your own.")
     lock = RunLock(run_dir)

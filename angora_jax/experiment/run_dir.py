@@ -119,9 +119,8 @@ def run_source(source: str | Path) -> tuple[str, str | int]:
 def read_run_config(run_dir: str | Path) -> Config:
     """The config saved in `run_dir`; RunDirError when `run_dir` is not a run directory."""
     path = Path(run_dir) / CONFIG_FILE
-    saved = any(Path(run_dir, CHECKPOINTS).glob("*/[0-9]*"))
     if not path.is_file():
-        if saved:
+        if has_checkpoints(run_dir):
             raise RunDirError(f"{run_dir} has checkpoints but no {CONFIG_FILE}: `angora-jax check {run_dir} "
                               "--restore-config` writes it again from the copy they keep.")
         raise RunDirError(
@@ -131,8 +130,13 @@ def read_run_config(run_dir: str | Path) -> Config:
         return load_config(path)
     except ConfigError as error:
         copy = (f" Its checkpoints keep a copy of it: `angora-jax check {run_dir} --restore-config` writes that back "
-                "(the file as it is now is kept beside it).") if saved else ""
+                "(the file as it is now is kept beside it).") if has_checkpoints(run_dir) else ""
         raise RunDirError(f"{path} does not load with this version of angora_jax: {error}{copy}") from None
+
+
+def has_checkpoints(run_dir: str | Path) -> bool:
+    """Whether `run_dir` holds a checkpoint of any kind (each keeps the run's config)."""
+    return any(Path(run_dir, CHECKPOINTS).glob("*/[0-9]*"))
 
 
 def write_run_config(run_dir: str | Path, config: Config) -> None:
