@@ -141,15 +141,20 @@ def test_a_finished_run_trained_longer_ends_as_the_longer_run_and_records_its_ne
     assert "num_cycles: 4" in (short.run_dir / "config.yaml").read_text()
 
 
-def test_a_run_stopped_at_its_target_trains_on_past_it_when_asked(runs, tmp_path, capsys):
-    """A run that `ppo.stop_at` ended is complete: `resume` leaves it as it is and says how to go on; `resume
-    --no-stop-at` trains it to its `ppo.num_cycles`, bit for bit the run without a target, and removes the target from
-    its config.yaml."""
+def test_a_run_stopped_at_its_target_trains_on_past_it_when_asked(runs, tmp_path, capsys, monkeypatch):
+    """A run that `ppo.stop_at` ended is complete: `resume` leaves it as it is, reads its checkpoint without the
+    environments (nothing continues them) and says how to go on; `resume --no-stop-at` trains it to its
+    `ppo.num_cycles`, bit for bit the run without a target, and removes the target from its config.yaml."""
     whole = runs[0]
     early = aj.train(aj.load_config("cartpole", [*TINY, "ppo.stop_at={metric: episode_return, value: -1.0e9}",
                                                  f"logging.run_root={tmp_path}", "logging.run_name=early"]))
     assert early.stopped_at is not None and int(early.state.cycle) == 1
+    restores, restore = [], Checkpoints.restore
+    monkeypatch.setattr(Checkpoints, "restore", lambda self, template, which="latest", partial=False: (
+        restores.append((which, partial, template.actor is None)), restore(self, template, which, partial))[1])
     assert main(["resume", str(early.run_dir)]) == 0  # ended by its target, it is complete: left as it is
+    assert restores == [(1, True, True)], "a full checkpoint read whole for a run that does not go on"
+    monkeypatch.undo()
     out = capsys.readouterr().out
     assert "1 cycles done (0 in this session)" in out and "Stopped early at cycle 1, as ppo.stop_at asks" in out
     assert f"To train on past it: angora-jax resume {early.run_dir} --no-stop-at" in out

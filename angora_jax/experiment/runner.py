@@ -201,12 +201,14 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
                 print(f"{run_dir}: {', '.join(changes)}, recorded in its config.yaml.", file=sys.stderr, flush=True)
         if plan.cycle is None:  # a start from cycle 0 reads its saved starting values (ppo.init_from, pretrained)
             check_sources(config, env)
+        ended = None if plan.fresh_start else ended_by_stop_at(run_dir, config.ppo.stop_at, plan.cycle)
         state = None
         if plan.cycle is not None:
             checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)
             try:
+                finished = plan.cycle >= config.ppo.num_cycles or ended is not None
                 state = _restore_to_continue(checkpoints, plan.cycle, initial_state_shape(config, env), exact, run_dir,
-                                             config.ppo.num_cycles)
+                                             finished)
             finally:
                 checkpoints.close()
         if is_main_process():
@@ -223,7 +225,6 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
                 if side is not None:
                     print(f"Records after cycle {plan.cycle} are kept in {side}.", file=sys.stderr, flush=True)
         _together(f"angora_jax resume {run_dir}")
-        ended = None if plan.fresh_start else ended_by_stop_at(run_dir, config.ppo.stop_at, plan.cycle)
         return _run(config, env, run_dir, state=state, on_cycle=on_cycle, minutes=minutes, ended=ended)
     finally:
         if lock is not None:
@@ -269,11 +270,12 @@ def _together(what: str) -> None:
 
 
 def _restore_to_continue(checkpoints: Checkpoints, cycle: int, template: TrainState, exact: bool, run_dir: Path,
-                         num_cycles: int) -> TrainState:
+                         finished: bool) -> TrainState:
     """The state of the checkpoint of `cycle`, whole where it can be; else without its environments (see `resume`). A
-    finished run's needs none: nothing continues."""
+    `finished` run's is read without them even when saved with them: nothing continues, and the cube's 16,384
+    environments are most of a 301 MB checkpoint."""
     lean = template.without_environments()
-    if cycle >= num_cycles and not checkpoints.holds_environments(cycle):
+    if finished:
         return checkpoints.restore(lean, cycle, partial=True).state
     if checkpoints.holds_environments(cycle):
         try:
