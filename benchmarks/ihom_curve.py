@@ -75,7 +75,8 @@ def read_pieces(paths: list[str]) -> list[dict]:
     for path in paths:
         file = Path(path) / "metrics.jsonl" if Path(path).is_dir() else Path(path)
         if not file.exists():
-            raise SystemExit(f"No metrics file {file}: give a run directory or its metrics.jsonl.")
+            hint = " (the label ends at the first '=': a label cannot hold one)" if "=" in path else ""
+            raise SystemExit(f"No metrics file {file}: give a run directory or its metrics.jsonl{hint}.")
         for line in file.read_text().splitlines():
             if line.strip():
                 row = json.loads(line)

@@ -254,6 +254,8 @@ def test_ihom_curve_joins_pieces_by_cycle_and_finds_the_milestones(tmp_path, mon
     assert record["before_minutes"] == {"tuned": 0.5} and record["continues"] == {"tuned": "run"}
     with pytest.raises(SystemExit, match="LABEL=MINUTES"):
         ihom_curve.main([pieces, "--before", "run=soon", "--device", "cpu", "--name", "t3"])
+    with pytest.raises(SystemExit, match="the label ends at the first '='"):  # a label "blocks.count=2"
+        ihom_curve.main([f"blocks.count=2={tmp_path / 'a.jsonl'}", "--device", "cpu", "--name", "t4"])
 
 
 def test_ihom_curve_gives_seed_statistics_and_each_runs_peak_and_fall(tmp_path, monkeypatch):
