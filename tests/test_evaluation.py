@@ -26,7 +26,8 @@ from angora_jax.envs.eager_batch import EagerBatch
 from angora_jax.envs.rendering import RenderError
 from angora_jax.experiment import evaluation, snapshot_cycles
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
-from angora_jax.experiment.evaluation import EVALUATION_DIR, agreement, evaluate
+from angora_jax.experiment.evaluation import agreement, evaluate
+from angora_jax.experiment.run_dir import EVALUATIONS
 from angora_jax.ppo.cycle import make_cycle
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
@@ -171,7 +172,7 @@ def test_batched_evaluation_writes_the_same_record_as_the_cpu_path(run_dir, caps
     assert main(["evaluate", str(run_dir), "--checkpoint", "latest", "--episodes", "16", "--path", "batched"]) == 0
     out = capsys.readouterr().out
     assert "16 episodes on batched" in out and "at a time" in out
-    batched = json.loads(next((run_dir / EVALUATION_DIR).glob("latest-cycle20-mode-seed0-batched.json")).read_text())
+    batched = json.loads(next((run_dir / EVALUATIONS).glob("latest-cycle20-mode-seed0-batched.json")).read_text())
     cpu = evaluate(run_dir, "latest", episodes=16, save=False, batch=EPISODES)
     assert batched["path"] == "batched" and len(batched["per_episode"]["episode_length"]) == 16
     np.testing.assert_allclose(batched["per_episode"]["episode_length"], cpu.episodes["episode_length"])

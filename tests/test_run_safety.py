@@ -27,7 +27,7 @@ from angora_jax.experiment import read_metrics, resume, runner
 from angora_jax.experiment.checkpoint import disk_needed
 from angora_jax.experiment.manifest import MANIFEST_FILE
 from angora_jax.experiment.run_check import check_run
-from angora_jax.experiment.run_dir import CHECKPOINTS, DiskFullError
+from angora_jax.experiment.run_dir import CHECKPOINTS, EVALUATIONS, VIDEOS, DiskFullError
 from angora_jax.experiment.run_lock import LOCK_FILE, RunLock, RunLockedError, _process_start, _process_state
 from angora_jax.whole_files import written_whole
 
@@ -125,19 +125,41 @@ def test_resume_never_starts_over_by_itself(whole, tmp_path, capsys):
     shutil.rmtree(run / CHECKPOINTS)  # no checkpoint at all: the same
     assert "has no latest checkpoint" in exits_2(["resume", str(run)], capsys)
     assert check_run(run).resume.startswith("refuses: ")
-    # Asked to, it trains again from cycle 0 and keeps the earlier files aside.
+    # Asked to, it trains again from cycle 0 and keeps the earlier files aside, with what was made from its checkpoints.
+    (run / EVALUATIONS).mkdir()
+    made = [run / EVALUATIONS / "best-cycle6-mode-seed0.json", run / "ablation.png", run / "ablation-2.nc"]
+    for path in made:
+        path.write_text("made from the earlier training's checkpoints")
     fresh = resume(run, from_scratch=True)
     assert (run / "previous-1" / "metrics.jsonl").read_text() == metrics
+    assert not any(path.exists() for path in made)
+    assert all((run / "previous-1" / path.relative_to(run)).exists() for path in made)
     assert untimed(read_metrics(run)) == untimed(whole.history) and fresh.finished
 
 
-def test_records_after_the_checkpoint_continued_from_move_to_a_side_file_with_damaged_lines(whole, tmp_path):
+def test_records_after_the_checkpoint_continued_from_move_to_a_side_file_with_damaged_lines(whole, tmp_path, capsys):
+    """`--from 3` sets aside the later records and checkpoints, and the evaluations and training videos of the later
+    cycles: the cycles trained again are other policies under the same numbers."""
     run = copy_of(whole, tmp_path)
     with (run / "metrics.jsonl").open("a") as log:
         log.write('{"cycle": 7, "episode_ret')  # a record cut short by a crash, then another process's line
         log.write("\n" + json.dumps({"cycle": 8}) + "\n")
     assert "metrics.jsonl lines 7 hold no cycle's record" in check_run(run).format()
+    for checkpoint in ("3", "latest"):
+        assert main(["evaluate", str(run), "--checkpoint", checkpoint, "--episodes", "1"]) == 0
+    (run / VIDEOS).mkdir()
+    for cycle in (3, 6):
+        (run / VIDEOS / f"cycle_{cycle:06d}.gif").write_bytes(b"GIF89a")
+    capsys.readouterr()
     resume(run, start_from=3)
+    aside = run / "set-aside" / "resumed-from-cycle-3"
+    assert f"Checkpoints, evaluations and videos after cycle 3 are kept in {aside}." in capsys.readouterr().err
+    assert sorted(p.name for p in (aside / EVALUATIONS).iterdir()) == ["latest-cycle6-mode-seed0.json",
+                                                                       "latest-cycle6-mode-seed0.png"]
+    assert sorted(p.name for p in (run / EVALUATIONS).iterdir()) == ["3-cycle3-mode-seed0.json",
+                                                                     "3-cycle3-mode-seed0.png"]
+    assert [p.name for p in (aside / VIDEOS).iterdir()] == ["cycle_000006.gif"]
+    assert [p.name for p in (run / VIDEOS).iterdir()] == ["cycle_000003.gif"]
     assert [r["cycle"] for r in read_metrics(run)] == list(range(1, CYCLES + 1))
     side = (run / "metrics.after-cycle-3.jsonl").read_text().splitlines()
     assert [json.loads(line)["cycle"] for line in side[:3]] == [4, 5, 6] and side[3].startswith('{"cycle": 7, "ep')

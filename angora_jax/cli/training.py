@@ -40,12 +40,13 @@ def add_resume(commands: argparse._SubParsersAction) -> None:
              "another device count with MuJoCo Warp, otherwise continues with fresh environments")
     resume.add_argument(
         "--from", dest="start_from", default="latest", metavar="CHECKPOINT",
-        help="continue from this checkpoint instead of the latest: best or a cycle number (the records and "
-             "checkpoints after it are moved aside, never deleted); for a damaged or missing latest checkpoint")
+        help="continue from this checkpoint instead of the latest: best or a cycle number (the records, checkpoints, "
+             "evaluations and videos after it are moved aside, never deleted); for a damaged or missing latest "
+             "checkpoint")
     resume.add_argument(
         "--from-scratch", action="store_true",
-        help="train the run again from cycle 0 with its config; the earlier metrics, checkpoints and report move to "
-             "RUN_DIR/previous-N/")
+        help="train the run again from cycle 0 with its config; the earlier metrics, checkpoints, report, videos and "
+             "evaluations move to RUN_DIR/previous-N/")
     resume.add_argument(
         "--num-cycles", type=positive_int, default=None, metavar="N",
         help="train to N cycles in all instead of the run's ppo.num_cycles (recorded in its config.yaml): to train a "

@@ -26,11 +26,10 @@ from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.config import to_dict
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
-from angora_jax.experiment.run_dir import numbered_paths
+from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths
 from angora_jax.ppo.evaluate import make_evaluate
 from angora_jax.whole_files import written_whole
 
-EVALUATION_DIR = "evaluation"
 # Episodes run at once by default: enough to spread the fixed cost of each step's JAX calls, few enough that a small
 # evaluation still fills the batch.
 DEFAULT_BATCH = 32
@@ -149,7 +148,7 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     meta = _record(agent, run_dir, checkpoint, episodes, stochastic, seed, wall, changed,
                    {"physics": physics, "batch": envs.size, "workers": envs.workers})
     result = Evaluation(per_episode, {name: summarize(v) for name, v in per_episode.items()}, meta)
-    return save_evaluation(result, Path(run_dir) / EVALUATION_DIR) if save else result
+    return save_evaluation(result, Path(run_dir) / EVALUATIONS) if save else result
 
 
 def _evaluate_batched(agent: Agent, run_dir: str | Path, checkpoint: str | int, episodes: int, stochastic: bool,
@@ -167,7 +166,7 @@ def _evaluate_batched(agent: Agent, run_dir: str | Path, checkpoint: str | int, 
     meta = _record(agent, run_dir, checkpoint, episodes, stochastic, seed, wall, changed,
                    {"physics": physics, "path": "batched", "batch": episodes, "workers": 1})
     result = Evaluation(per_episode, {name: summarize(v) for name, v in per_episode.items()}, meta)
-    return save_evaluation(result, Path(run_dir) / EVALUATION_DIR) if save else result
+    return save_evaluation(result, Path(run_dir) / EVALUATIONS) if save else result
 
 
 def _record(agent: Agent, run_dir: str | Path, checkpoint: str | int, episodes: int, stochastic: bool, seed: int,

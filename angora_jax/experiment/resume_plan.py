@@ -7,6 +7,7 @@ the choices (`--from best` or a cycle, `--from-scratch`), and whatever a choice 
 
 from __future__ import annotations
 
+import re
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,12 +16,16 @@ from angora_jax.experiment.checkpoint import KINDS, Checkpoints
 from angora_jax.experiment.config import Config
 from angora_jax.experiment.manifest import verify
 from angora_jax.experiment.monitor import logged_cycles
-from angora_jax.experiment.run_dir import CHECKPOINTS, METRICS_FILE, RunDirError, numbered_paths
+from angora_jax.experiment.run_dir import CHECKPOINTS, EVALUATIONS, METRICS_FILE, VIDEOS, RunDirError, numbered_paths
 
 # What a fresh start moves aside (into RUN_DIR/previous-N/): everything the earlier training wrote but its config and
-# the session log, which goes on. Checkpoints first: a start over killed halfway then leaves records without
-# checkpoints, which resume refuses, rather than checkpoints without the records before them.
-TRAINING_OUTPUTS = (CHECKPOINTS, METRICS_FILE, "tensorboard", "videos", "report", "wandb")
+# the session log, which goes on, and what was made from its checkpoints (evaluations, `analyze ablate`'s default
+# files): left beside the new run's, they would read as its own. Checkpoints first: a start over killed halfway then
+# leaves records without checkpoints, which resume refuses, rather than checkpoints without the records before them.
+TRAINING_OUTPUTS = (CHECKPOINTS, METRICS_FILE, "tensorboard", VIDEOS, "report", "wandb", EVALUATIONS)
+MADE_FROM_CHECKPOINTS = ("metrics.after-cycle-*.jsonl", "ablation*.png", "ablation*.nc")
+# The cycle in the name of an evaluation (`best-cycle26-mode-seed0.json`) and of a training video (`cycle_000026.gif`).
+EVALUATION_CYCLE, VIDEO_CYCLE = re.compile(r"-cycle(\d+)-"), re.compile(r"cycle_(\d+)")
 
 
 @dataclass(frozen=True)
@@ -79,26 +84,30 @@ def plan_resume(run_dir: Path, config: Config, start_from: str | int = "latest",
         later = [c for c in logged if c > cycle]
         return ResumePlan(kind, cycle, False,
                           f"continue from the {kind} checkpoint of cycle {cycle}" +
-                          (f"; the {len(later)} cycles logged after it, and later checkpoints, are set aside"
-                           if later else ""))
+                          (f"; the {len(later)} cycles logged after it, and later checkpoints with their "
+                           "evaluations and videos, are set aside" if later else ""))
     finally:
         checkpoints.close()
 
 
 def set_aside_checkpoints_after(run_dir: Path, cycle: int) -> Path | None:
     """Move the checkpoints of cycles after `cycle` (a resume from an earlier checkpoint recomputes those cycles), and
-    damaged latest ones (the next resume would read them), into `RUN_DIR/set-aside/resumed-from-cycle-<cycle>[-n]/`;
-    returns that folder, or None when there were none. Only latest checkpoints are verified: checksumming every
-    snapshot on each resume would cost time and change nothing."""
+    damaged latest ones (the next resume would read them), into `RUN_DIR/set-aside/resumed-from-cycle-<cycle>[-n]/`,
+    with the evaluations and training videos of those later cycles (the cycles trained again are other policies of
+    the same numbers); returns that folder, or None when there was nothing to move. Only latest checkpoints are
+    verified: checksumming every snapshot on each resume would cost time and change nothing."""
     later = [path for kind in KINDS for path in (run_dir / CHECKPOINTS / kind).glob("*")
              if path.name.isdigit() and (int(path.name) > cycle or (
                  kind == "latest" and verify(path) not in (None, "no manifest")))]
+    later += [path for folder, pattern in ((EVALUATIONS, EVALUATION_CYCLE), (VIDEOS, VIDEO_CYCLE))
+              for path in sorted((run_dir / folder).glob("*"))
+              if (found := pattern.search(path.name)) and int(found.group(1)) > cycle]
     if not later:
         return None
     target = next(path for path in numbered_paths(run_dir / "set-aside", f"resumed-from-cycle-{cycle}", "")
                   if not path.exists())
     for path in later:
-        destination = target / CHECKPOINTS / path.parent.name / path.name
+        destination = target / path.relative_to(run_dir)
         destination.parent.mkdir(parents=True, exist_ok=True)
         shutil.move(path, destination)
     return target
@@ -111,6 +120,6 @@ def set_aside_outputs(run_dir: Path) -> Path:
     for name in TRAINING_OUTPUTS:
         if (run_dir / name).exists():
             shutil.move(run_dir / name, target / name)
-    for side in run_dir.glob("metrics.after-cycle-*.jsonl"):
+    for side in [path for pattern in MADE_FROM_CHECKPOINTS for path in run_dir.glob(pattern)]:
         shutil.move(side, target / side.name)
     return target

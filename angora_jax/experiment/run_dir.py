@@ -38,6 +38,7 @@ METRICS_FILE = "metrics.jsonl"
 CHECKPOINTS = "checkpoints"
 SESSIONS_FILE = "sessions.jsonl"
 VIDEOS = "videos"
+EVALUATIONS = "evaluation"  # `angora-jax evaluate` writes its JSON and plots here
 
 
 class RunDirError(ValueError):

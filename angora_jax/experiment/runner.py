@@ -37,6 +37,8 @@ from angora_jax.experiment.progress import Progress
 from angora_jax.experiment.resume_plan import plan_resume, set_aside_checkpoints_after, set_aside_outputs
 from angora_jax.experiment.run_dir import (
     CHECKPOINTS,
+    EVALUATIONS,
+    VIDEOS,
     create_run_dir,
     read_run_config,
     record_session,
@@ -159,7 +161,7 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
         minutes: this call's wall-clock limit, as for `train`.
         exact: refuse to continue with environments made afresh (CheckpointError naming the cause).
         start_from: "latest", "best" or a cycle with a checkpoint: continue from that one, with the later records of
-            metrics.jsonl and later checkpoints moved aside.
+            metrics.jsonl, later checkpoints and the evaluations and videos of later cycles moved aside.
         from_scratch: train again from cycle 0, with the earlier outputs moved to `RUN_DIR/previous-N/`.
         force: take over a writer lock held on another host.
         num_cycles: train to this many cycles in all instead of the config's `ppo.num_cycles` (to train a finished
@@ -220,7 +222,8 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
             else:
                 moved = set_aside_checkpoints_after(run_dir, plan.cycle)
                 if moved is not None:
-                    print(f"Checkpoints after cycle {plan.cycle} are kept in {moved}.", file=sys.stderr, flush=True)
+                    print(f"{_kept(moved)} after cycle {plan.cycle} are kept in {moved}.", file=sys.stderr,
+                          flush=True)
                 side = set_aside_after(run_dir, plan.cycle)
                 if side is not None:
                     print(f"Records after cycle {plan.cycle} are kept in {side}.", file=sys.stderr, flush=True)
@@ -229,6 +232,13 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     finally:
         if lock is not None:
             lock.release()
+
+
+def _kept(moved: Path) -> str:
+    """What `set_aside_checkpoints_after` moved into `moved`, in words: "Checkpoints", "Checkpoints and evaluations"."""
+    names = [name for name, folder in (("checkpoints", CHECKPOINTS), ("evaluations", EVALUATIONS), ("videos", VIDEOS))
+             if (moved / folder).exists()]
+    return (", ".join(names[:-1]) + " and " + names[-1] if len(names) > 1 else names[0]).capitalize()
 
 
 def _lengthened(config: Config, num_cycles: int, run_dir: Path) -> Config:
