@@ -121,6 +121,11 @@ def test_overrides_may_follow_the_options_and_other_strays_are_usage_errors(caps
     with pytest.raises(SystemExit) as stop:
         main(["train", "cartpole", "--minutes", "5", "stray"])
     assert stop.value.code == 2 and "unrecognized arguments: stray" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:  # a resumed run keeps its settings: the message says what can change
+        main(["resume", "runs/r", "ppo.lr_max=1e-3"])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and "resume continues a run with the settings it was trained with" in err
+    assert "(ppo.lr_max=1e-3)" in err and "--num-cycles N" in err and "ppo.init_from=RUN_DIR:latest" in err
 
 
 @pytest.mark.parametrize("command", ["evaluate", "render"])

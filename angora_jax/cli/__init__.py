@@ -75,8 +75,14 @@ def main(argv: list[str] | None = None) -> int:
     cli = parser()
     args, extra = cli.parse_known_args(argv)
     if extra:
-        if hasattr(args, "overrides") and all("=" in item and not item.startswith("-") for item in extra):
+        settings = all("=" in item and not item.startswith("-") for item in extra)
+        if hasattr(args, "overrides") and settings:
             args.overrides = [*args.overrides, *extra]  # overrides after the options: `train CFG --distributed a=1`
+        elif args.command == "resume" and settings:
+            cli.error(f"resume continues a run with the settings it was trained with, so it takes no KEY=VALUE "
+                      f"({' '.join(extra)}). To train it longer: --num-cycles N; past its ppo.stop_at: --no-stop-at; "
+                      "with other settings, a new run from its policy: angora-jax train CONFIG "
+                      "ppo.init_from=RUN_DIR:latest KEY=VALUE")
         else:
             cli.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
