@@ -257,13 +257,14 @@ def test_acting_reads_only_parameters_and_statistics(runs, tmp_path, capsys):
     carry = actor.carry
     np.testing.assert_array_equal(agent.act(carry, obs)[1], aj.load_agent(whole.run_dir, "latest").act(carry, obs)[1])
 
+    # A cycle left to train: the environments would continue (a finished run's are not read, so nothing misfits).
+    saved = yaml.safe_load((changed_dir / "config.yaml").read_text())
+    saved["ppo"]["num_cycles"] = 5
+    (changed_dir / "config.yaml").write_text(yaml.safe_dump(saved))
     with pytest.raises(CheckpointError, match=r"actor\.env_state\.physics.*stored \(4, 8\).*expected \(4, 4\).*"
                                               r"Evaluating and rendering still work"):
         resume(changed_dir, exact=True)
     # Without --exact the run goes on from the checkpoint's parameters, optimizer and key, with fresh environments.
-    saved = yaml.safe_load((changed_dir / "config.yaml").read_text())
-    saved["ppo"]["num_cycles"] = 5
-    (changed_dir / "config.yaml").write_text(yaml.safe_dump(saved))
     continued = resume(changed_dir)
     assert "from cycle 4 with fresh environments, not bit for bit" in capsys.readouterr().err
     assert int(continued.state.cycle) == 5 and [r["cycle"] for r in continued.history] == [5]

@@ -122,7 +122,7 @@ def test_two_devices_train_on_warp_what_one_device_trains(two_devices):
 
 @pytest.mark.slow
 def test_resuming_warp_on_another_device_count_goes_on_with_fresh_environments(two_devices):
-    assert two_devices["continued_cycle"] == 3
+    assert two_devices["continued_cycle"] == 4
     assert ("from cycle 3 with fresh environments, not bit for bit: its environments' states do not fit this run "
             "(actor.env_state.physics._impl.nacon: stored (2,) int32, expected (1,) int32") in two_devices["stderr"]
 

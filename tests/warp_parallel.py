@@ -30,11 +30,11 @@ if __name__ == "__main__":
     root = Path(sys.argv[1])
     single, double = train(root, 1), train(root, 2)
     counters = double.state.actor.env_state.physics._impl.nacon
-    # The same run resumed on one device: its 2-device checkpoint holds two contact pools, which one device cannot
-    # take, so it is read without its environments (a run with cycles left goes on with fresh ones: test_checkpoint).
+    # The same run resumed on one device for a fourth cycle: its 2-device checkpoint holds two contact pools, which one
+    # device cannot take, so it goes on from the checkpoint without its environments, with fresh ones.
     config = (root / "devices2" / "config.yaml").read_text()
     (root / "devices2" / "config.yaml").write_text(config.replace("num_devices: 2", "num_devices: 1"))
-    continued = resume(root / "devices2")
+    continued = resume(root / "devices2", num_cycles=4)
     untimed = ("seconds", "steps_per_second", "compile_seconds", "time", "compile_cache_hits", "compile_cache_misses")
     result = {
         "device_count": jax.device_count(),
