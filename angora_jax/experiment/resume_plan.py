@@ -23,7 +23,8 @@ from angora_jax.experiment.run_dir import CHECKPOINTS, EVALUATIONS, METRICS_FILE
 # files): left beside the new run's, they would read as its own. Checkpoints first: a start over killed halfway then
 # leaves records without checkpoints, which resume refuses, rather than checkpoints without the records before them.
 TRAINING_OUTPUTS = (CHECKPOINTS, METRICS_FILE, "tensorboard", VIDEOS, "report", "wandb", EVALUATIONS)
-MADE_FROM_CHECKPOINTS = ("metrics.after-cycle-*.jsonl", "ablation*.png", "ablation*.nc")
+# Files beside those: the records earlier resumes set aside, and `analyze ablate`'s default files.
+SIDE_FILES = ("metrics.after-cycle-*.jsonl", "ablation*.png", "ablation*.nc")
 # The cycle in the name of an evaluation (`best-cycle26-mode-seed0.json`) and of a training video (`cycle_000026.gif`).
 EVALUATION_CYCLE, VIDEO_CYCLE = re.compile(r"-cycle(\d+)-"), re.compile(r"cycle_(\d+)")
 
@@ -120,6 +121,6 @@ def set_aside_outputs(run_dir: Path) -> Path:
     for name in TRAINING_OUTPUTS:
         if (run_dir / name).exists():
             shutil.move(run_dir / name, target / name)
-    for side in [path for pattern in MADE_FROM_CHECKPOINTS for path in run_dir.glob(pattern)]:
+    for side in [path for pattern in SIDE_FILES for path in run_dir.glob(pattern)]:
         shutil.move(side, target / side.name)
     return target
