@@ -23,8 +23,9 @@ from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.cli import main
+from angora_jax.experiment import checkpoint as checkpoint_module
 from angora_jax.experiment import read_metrics, resume, runner
-from angora_jax.experiment.checkpoint import disk_needed
+from angora_jax.experiment.checkpoint import Checkpoints, disk_needed
 from angora_jax.experiment.manifest import MANIFEST_FILE
 from angora_jax.experiment.run_check import check_run
 from angora_jax.experiment.run_dir import CHECKPOINTS, EVALUATIONS, VIDEOS, DiskFullError
@@ -112,6 +113,22 @@ def test_a_damaged_checkpoint_is_named_with_the_newest_intact_one_by_every_verb(
     assert main(["resume", str(run), "--from", "6"]) == 0
     assert (run / "set-aside" / "resumed-from-cycle-6" / CHECKPOINTS / "latest" / "6").is_dir()
     assert main(["export", str(run), "--checkpoint", "6", "--out", str(tmp_path / "p.msgpack")]) == 0
+
+
+def test_the_newest_intact_checkpoint_is_found_without_verifying_the_older_ones(whole, tmp_path, monkeypatch):
+    """Naming the newest intact checkpoint (`check --restore-config`, a damaged latest's message) hashes checkpoints
+    newest first and stops at the first intact one: a cube run's older checkpoints are 301 MB each."""
+    run = copy_of(whole, tmp_path)
+    verified, verify = [], checkpoint_module.verify
+    monkeypatch.setattr(checkpoint_module, "verify",
+                        lambda path: verified.append(path.relative_to(run)) or verify(path))
+    kept = Checkpoints(run / CHECKPOINTS, aj.load_config("cartpole").checkpoint, create=False)
+    verified.clear()  # opening the checkpoints verifies the best one, to read its value
+    try:
+        assert kept.newest_intact() == ("snapshots", 6) and len(verified) == 1, verified
+        assert kept.newest_intact(skip=("snapshots", 6)) == ("latest", 6) and len(verified) == 2, verified
+    finally:
+        kept.close()
 
 
 def test_resume_never_starts_over_by_itself(whole, tmp_path, capsys):
