@@ -432,3 +432,33 @@ def test_pretrain_vision_without_opengl_or_warp_exits_2_naming_what_to_install(t
     monkeypatch.setattr(dataset, "require_warp", no_warp)
     monkeypatch.setattr(dataset, "_render_warp", never_renders)
     assert "pip install warp-lang" in pretrain_vision_refused(tmp_path, capsys, "--renderer", "warp")
+
+
+def test_cameras_the_garbage_collector_drops_are_closed_later_never_inside_the_collection(opengl):
+    """A finalizer runs wherever collection strikes, even inside a lock its thread holds: cameras dropped while a
+    thread pool holds concurrent.futures' global lock (as Orbax's does while it starts a thread) must not wait for
+    that lock (a test process hung so). Their renderers are closed, on their GL thread, when cameras are made again."""
+    import concurrent.futures.thread
+    import gc
+    import threading
+
+    import angora_jax as aj
+    from angora_jax.envs import cameras as cameras_module
+
+    task = aj.make("ShadowHandReach", vision=PIXELS).task
+    held = [cameras_module.HostCameras(task.model, task.vision)]
+    gl = held[0]._gl
+
+    def drop_while_holding_the_lock():
+        with concurrent.futures.thread._global_shutdown_lock:
+            held.clear()
+            gc.collect()
+
+    dropper = threading.Thread(target=drop_while_holding_the_lock, daemon=True)
+    dropper.start()
+    dropper.join(timeout=60)
+    assert not dropper.is_alive(), "the finalizer waited for the lock its own thread held"
+    assert [pool for pool, _ in cameras_module._dropped] == [gl]
+    again = cameras_module.HostCameras(task.model, task.vision)
+    assert not cameras_module._dropped and gl._shutdown, "the dropped cameras' GL thread was not closed"
+    again.close()

@@ -19,6 +19,7 @@ no skybox and draws the hand untextured, so most pixels differ (benchmarks/rende
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 import weakref
@@ -134,12 +135,21 @@ class CameraVision:
         return (xp.clip(depth / self.depth_range, 0.0, 1.0) * 255.0 + 0.5).astype(xp.uint8)
 
 
+# The GL threads and renderers of cameras the garbage collector dropped, closed at the next safe point (when cameras
+# are made again). A finalizer runs wherever collection strikes, even inside a lock its thread holds: closing there
+# (a submit to the GL thread takes concurrent.futures' global lock) hung a test process while Orbax's thread pool,
+# holding that lock, started a thread. Appending to a deque takes no lock.
+_dropped: collections.deque[tuple[ThreadPoolExecutor, list[SceneRenderer]]] = collections.deque()
+
+
 class HostCameras:
     """Frames of a `mujoco.MjData` of `model` through `vision`'s cameras with `mujoco.Renderer` (OpenGL; needs
     MUJOCO_GL=egl or osmesa without a display). `frames(data) -> (cameras, height, width, channels)` uint8."""
 
     def __init__(self, model: mujoco.MjModel, vision: CameraVision):
         vision.camera_ids(model)
+        while _dropped:
+            _close_in(*_dropped.popleft())
         self.model, self.vision = model, vision
         # A GL context is current in one thread only, and JAX runs host callbacks in threads of its own (a new one
         # almost every call): all GL work runs in this one thread, which owns the renderers.
@@ -150,7 +160,7 @@ class HostCameras:
             for name in vision.cameras]).result()
         self._data = mujoco.MjData(model)
         # A renderer must be closed in the thread whose GL context it uses, never by the garbage collector's thread.
-        self._closer = weakref.finalize(self, _close_in, self._gl, self._renderers)
+        self._closer = weakref.finalize(self, _dropped.append, (self._gl, self._renderers))
         self._closer.atexit = False  # at exit the GL thread is already stopped, and the process frees its contexts
 
     def frames(self, data: mujoco.MjData) -> np.ndarray:
@@ -197,7 +207,8 @@ class HostCameras:
         return jax.pure_callback(render, shape, qpos, mocap_pos, mocap_quat, vmap_method="broadcast_all")
 
     def close(self) -> None:
-        self._closer()
+        if self._closer.detach() is not None:
+            _close_in(self._gl, self._renderers)
 
 
 def _close_in(gl: ThreadPoolExecutor, renderers: list[SceneRenderer]) -> None:
