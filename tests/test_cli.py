@@ -563,6 +563,6 @@ def test_config_show_prints_the_resolved_config_a_run_would_use(capsys, tmp_path
     (tmp_path / "shown.yaml").write_text(shown)
     assert load_config(tmp_path / "shown.yaml") == load_config("shadow_ihom_4gpu", ["ppo.seed=3"])
     assert main(["config", "show", "cartpole", "ppo.gama=1"]) == 2
-    assert "Unknown key 'ppo.gama'. Did you mean 'gamma'?" in capsys.readouterr().err
+    assert "Unknown key 'ppo.gama'. Did you mean 'ppo.gamma'?" in capsys.readouterr().err
     assert main(["config", "reference"]) == 0
     assert capsys.readouterr().out == reference_markdown()

@@ -46,7 +46,8 @@ def test_shipped_configs_are_valid(name):
 
 
 BAD = {
-    "unknown key": (["ppo.gama=0.9"], r"Unknown key 'ppo.gama'.*Did you mean 'gamma'"),
+    "unknown key": (["ppo.gama=0.9"], r"Unknown key 'ppo.gama'.*Did you mean 'ppo.gamma'"),
+    "key at the wrong level": (["seed=1"], r"Unknown key 'seed'. Did you mean 'ppo.seed' or 'evaluation.seed'\?"),
     "unknown section": (["model.name=lstm"], r"Unknown key 'model'.*Keys of the config: env, ppo"),
     "int expected": (["ppo.num_cycles=1.5"], r"ppo.num_cycles must be an integer, got 1.5"),
     "bool expected": (["ppo.normalization.rewards=maybe"], r"ppo.normalization.rewards must be true or false"),

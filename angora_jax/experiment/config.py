@@ -558,6 +558,20 @@ def _apply_override(data: dict[str, Any], override: str) -> None:
     node[leaf] = value
 
 
+def _paths_below(cls: type, key: str, prefix: str = "") -> list[str]:
+    """Dotted paths of the keys named `key` in the sections below `cls` (`seed` -> ppo.seed, evaluation.seed): a key
+    given at the wrong level is most often one of these."""
+    hints = typing.get_type_hints(cls)
+    found = []
+    for name in (f.name for f in dataclasses.fields(cls)):
+        for kind in (hints[name], *typing.get_args(hints[name])):
+            if dataclasses.is_dataclass(kind):
+                section = f"{prefix}{name}"
+                found += [f"{section}.{key}"] if key in {f.name for f in dataclasses.fields(kind)} else []
+                found += _paths_below(kind, key, f"{section}.")
+    return found
+
+
 def _build(cls: type, data: Any, path: str) -> Any:
     where = path or "the config"
     if not isinstance(data, dict):
@@ -568,9 +582,11 @@ def _build(cls: type, data: Any, path: str) -> Any:
             raise ConfigError(f"Key {_shorten(key)} ({type(key).__name__}) of {where} is not a name: keys are words "
                               f"such as {names[0]!r} (keys of {where}: {', '.join(names)}); quote it if it is one.")
         if key not in names:
-            close = difflib.get_close_matches(str(key), names, n=1)
-            hint = f" Did you mean {close[0]!r}?" if close else ""
             full = f"{path}.{key}" if path else str(key)
+            prefix = f"{path}." if path else ""
+            close = [prefix + name for name in difflib.get_close_matches(str(key), names, n=1)]
+            guesses = close or [prefix + below for below in _paths_below(cls, str(key))]
+            hint = f" Did you mean {' or '.join(map(repr, guesses))}?" if guesses else ""
             raise ConfigError(f"Unknown key {full!r}.{hint} Keys of {where}: {', '.join(names)}.")
     required = [f.name for f in dataclasses.fields(cls)
                 if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING and f.name not in data]
