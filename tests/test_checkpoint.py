@@ -113,9 +113,12 @@ def test_a_finished_run_trained_longer_ends_as_the_longer_run_and_records_its_ne
     schedule spans its length, are refused with the reason before anything changes."""
     whole = runs[0]
     short = aj.train(aj.load_config("cartpole", [*TINY, "ppo.num_cycles=2", f"logging.run_root={tmp_path}",
-                                                 "logging.run_name=short"]))
+                                                 "logging.run_name=short", "logging.progress=lines"]))
+    capsys.readouterr()
     assert main(["resume", str(short.run_dir)]) == 0
-    assert "already complete; to train it longer: angora-jax resume" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "nothing to train (cycle 2 of 2: already complete)" in said and "compiling" not in said, said
+    assert "already complete; to train it longer: angora-jax resume" in said
     assert main(["check", str(short.run_dir)]) == 0
     assert "the run is complete (2 of 2 cycles): `angora-jax resume" in capsys.readouterr().out
     assert main(["resume", str(short.run_dir), "--num-cycles", "4"]) == 0

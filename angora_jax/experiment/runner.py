@@ -358,8 +358,13 @@ def _run(
                                  "host": socket.gethostname(),
                                  "processes": jax.process_count(), "devices": devices(), "versions": versions(),
                                  "physics": physics})
-        announcement = (f"{run_dir}: {config.env.task} on {describe_physics(physics)}; compiling the first cycle "
-                        f"(from cycle {start} of {config.ppo.num_cycles}) ...")
+        if ended:
+            plan = f"nothing to train (ppo.stop_at ended it at cycle {start})"
+        elif finished:
+            plan = f"nothing to train (cycle {start} of {config.ppo.num_cycles}: already complete)"
+        else:
+            plan = f"compiling the first cycle (from cycle {start} of {config.ppo.num_cycles}) ..."
+        announcement = f"{run_dir}: {config.env.task} on {describe_physics(physics)}; {plan}"
         note = cpu_note(config, physics, on_gpu())
         if note:
             announcement += "\n" + note
