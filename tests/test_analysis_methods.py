@@ -182,6 +182,22 @@ def test_timescales_of_ar1_units_and_white_noise():
     assert float(noise["timescale_median"].item()) / DT == pytest.approx(1 - 1 / np.e, abs=0.03)
 
 
+def test_analyze_timescales_says_why_a_layer_has_none(tmp_path, capsys):
+    """A layer slower than --max-lag and a constant layer have NaN timescales: the summary says which, not "nan"."""
+    from angora_jax import cli
+    from angora_jax.analysis import save_activity
+
+    fast, slow = ar1_recording(0.5, episodes=40, steps=30), ar1_recording(0.99, episodes=40, steps=30, seed=1)
+    recording = fast.assign(activity_slow=slow["activity_unit"], activity_still=xr.zeros_like(fast["activity_unit"]))
+    path = save_activity(recording, tmp_path / "rec.nc")
+    assert cli.main(["analyze", "timescales", str(path), "--max-lag", "5"]) == 0
+    said = capsys.readouterr().out
+    assert "unit: timescale median " in said and "nan" not in said, said
+    assert f"slow: timescale longer than {5 * DT:.3g} s: no unit's autocorrelation falls below 1/e within 5 steps " \
+           "(give a larger --max-lag)" in said
+    assert "still: no timescale: its units are constant over the recording" in said
+
+
 def test_timescales_read_only_the_alive_steps():
     """After its episode ends a unit holds a different process (a random walk a thousand times larger); the dead
     steps must change nothing: every episode dying after 40 steps gives the timescales of its first 40 steps alone,

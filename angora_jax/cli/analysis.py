@@ -217,8 +217,7 @@ def command_analysis(args: argparse.Namespace) -> int:
         elif args.analysis == "crosscorrelation":
             yield f"Lag of the peak |correlation| (s; > 0: the row leads):\n{result['peak_lag'].to_pandas().round(3)}"
         elif args.analysis == "timescales":
-            yield from (f"{layer}: timescale median {result['timescale_median'].sel(layer=layer).item():.3g} s"
-                        for layer in result["layer"].values)
+            yield from (f"{layer}: {_timescale_said(result, layer)}" for layer in result["layer"].values)
         elif args.analysis == "visual":
             yield from (f"{layer}: preferred stimuli drive units 0-{len(result['unit']) - 1} to " + ", ".join(
                 f"{a:.3g}" for a in result["preferred_activation"].sel(layer=layer).values)
@@ -368,4 +367,16 @@ def command_ablate(args: argparse.Namespace) -> int:
                                           for o in result["outcome"].values))
     print(f"Plot ({outcome}): {out}; numbers: {out.with_suffix('.nc')}")
     return EXIT_OK
+
+
+def _timescale_said(result, layer: str) -> str:
+    """A layer's median timescale, or why it has none (a NaN alone would leave the user guessing)."""
+    median = result["timescale_median"].sel(layer=layer).item()
+    if np.isfinite(median):
+        return f"timescale median {median:.3g} s"
+    if not np.isfinite(result["autocorrelation"].sel(layer=layer).values).any():
+        return "no timescale: its units are constant over the recording"
+    lags = result["lag"].values
+    return (f"timescale longer than {lags[-1]:.3g} s: no unit's autocorrelation falls below 1/e within "
+            f"{len(lags) - 1} steps (give a larger --max-lag)")
 
