@@ -101,6 +101,28 @@ def test_bad_input_exits_2_with_the_cause(argv, message, capsys, tmp_path, monke
     assert sorted(path.name for path in tmp_path.iterdir() if path.name != "runs") == ["binary.yaml", "empty.yaml"]
 
 
+def test_a_path_in_or_above_a_run_names_the_run_directory(capsys, tmp_path, monkeypatch):
+    """A run's config.yaml or checkpoints folder given for the run, or the folder of runs, names the run directory
+    to give instead (relative as typed); a missing path says it does not exist; a run given for a recording says to
+    record it."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "runs" / "a" / "checkpoints").mkdir(parents=True)
+    (tmp_path / "runs" / "a" / "config.yaml").write_text("env: {task: CartPole}\n")
+    for argv, said in [
+        (["evaluate", "runs/a/config.yaml"], "runs/a/config.yaml is a file, not a run directory. It is inside the run "
+                                             "directory runs/a: give that."),
+        (["check", "runs/a/checkpoints"], "runs/a/checkpoints is not a run directory: it has no config.yaml. It is "
+                                          "inside the run directory runs/a: give that."),
+        (["report", "runs"], "runs is not a run directory: it has no config.yaml. It holds run directories (a): give "
+                             "one of them, e.g. runs/a."),
+        (["resume", "runs/b"], "runs/b is not a run directory: it does not exist. Start runs with `angora-jax train`."),
+        (["analyze", "decode", "runs/a"], "runs/a is a run directory, not a recording: record its activity first, "
+                                          "angora-jax record runs/a --out a.nc, then analyze that file."),
+    ]:
+        assert main(argv) == 2, argv
+        assert said in capsys.readouterr().err, argv
+
+
 def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys, tmp_path, monkeypatch):
     def fail(config, minutes=None):
         raise ProcessFailed((1,), 3, tmp_path / "run")

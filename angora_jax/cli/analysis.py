@@ -17,7 +17,7 @@ from angora_jax.cli.arguments import (
     refused_existing,
 )
 from angora_jax.experiment import Agent, load_agent
-from angora_jax.experiment.run_dir import numbered_paths
+from angora_jax.experiment.run_dir import CONFIG_FILE, numbered_paths
 from angora_jax.whole_files import written_whole
 
 
@@ -261,6 +261,9 @@ def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None 
     import xarray as xr
 
     recording = Path(args.recording)
+    if (recording / CONFIG_FILE).is_file():
+        raise FileNotFoundError(f"{recording} is a run directory, not a recording: record its activity first, "
+                                f"angora-jax record {recording} --out {recording.name}.nc, then analyze that file.")
     if not recording.is_file():
         raise FileNotFoundError(f"No recording {recording}; make one with angora-jax record RUN_DIR --out FILE.")
     out = output_path(args.analysis, args.out, recording.parent, f"{recording.stem}.{stem or args.analysis}")

@@ -25,7 +25,13 @@ import matplotlib.pyplot as plt  # noqa: E402
 import yaml  # noqa: E402
 
 from angora_jax.experiment.monitor import read_metrics  # noqa: E402
-from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError, latest_video, read_sessions  # noqa: E402
+from angora_jax.experiment.run_dir import (  # noqa: E402
+    CONFIG_FILE,
+    RunDirError,
+    latest_video,
+    not_a_run_dir,
+    read_sessions,
+)
 from angora_jax.whole_files import written_whole  # noqa: E402
 
 # Curves drawn when at least one run has them, in this order; task metrics (metric/*) follow the return.
@@ -70,7 +76,7 @@ def load_run(run_dir: str | Path) -> RunRecord:
     """Read a run directory's config and metrics; RunDirError when it is not a run directory."""
     path = Path(run_dir)
     if not (path / CONFIG_FILE).is_file():
-        raise RunDirError(f"{run_dir} is not a run directory: it has no {CONFIG_FILE}.")
+        raise RunDirError(not_a_run_dir(run_dir))
     try:
         config = yaml.safe_load((path / CONFIG_FILE).read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as error:

@@ -124,15 +124,40 @@ def read_run_config(run_dir: str | Path) -> Config:
         if has_checkpoints(run_dir):
             raise RunDirError(f"{run_dir} has checkpoints but no {CONFIG_FILE}: `angora-jax check {run_dir} "
                               "--restore-config` writes it again from the copy they keep.")
-        raise RunDirError(
-            f"{run_dir} is not a run directory: it has no {CONFIG_FILE}. Start runs with `angora-jax train`."
-        )
+        raise RunDirError(not_a_run_dir(run_dir, "Start runs with `angora-jax train`."))
     try:
         return load_config(path)
     except ConfigError as error:
         copy = (f" Its checkpoints keep a copy of it: `angora-jax check {run_dir} --restore-config` writes that back "
                 "(the file as it is now is kept beside it).") if has_checkpoints(run_dir) else ""
         raise RunDirError(f"{path} does not load with this version of angora_jax: {error}{copy}") from None
+
+
+def not_a_run_dir(path: str | Path, otherwise: str = "") -> str:
+    """Why `path` is not a run directory, and the run directory it is in or holds, where there is one (a run's
+    config.yaml or checkpoints folder given for the run is a slip worth naming); else `otherwise` is added."""
+    resolved = Path(path).resolve()
+    if not resolved.exists():
+        return f"{path} is not a run directory: it does not exist. {otherwise}".rstrip()
+    said = (f"{path} is a file, not a run directory." if resolved.is_file() else
+            f"{path} is not a run directory: it has no {CONFIG_FILE}.")
+    run = next((parent for parent in resolved.parents if (parent / CONFIG_FILE).is_file()), None)
+    if run is not None:
+        return f"{said} It is inside the run directory {_as_given(path, run)}: give that."
+    if resolved.is_dir():
+        runs = sorted(child.name for child in resolved.iterdir() if (child / CONFIG_FILE).is_file())
+        if runs:
+            shown = ", ".join(runs[:5]) + (f" and {len(runs) - 5} more" if len(runs) > 5 else "")
+            return f"{said} It holds run directories ({shown}): give one of them, e.g. {Path(path) / runs[-1]}."
+    return f"{said} {otherwise}".rstrip()
+
+
+def _as_given(path: str | Path, run: Path) -> Path:
+    """`run` (an ancestor of `path`) written as the user wrote `path`: relative stays relative."""
+    given = Path(path)
+    depth = len(given.resolve().relative_to(run).parts)
+    short = given.parents[depth - 1] if depth <= len(given.parents) else run
+    return short if short.resolve() == run else run
 
 
 def has_checkpoints(run_dir: str | Path) -> bool:
