@@ -34,6 +34,7 @@ TINY = [
     "logging.report=false",
     "checkpoint.every=100",
     "checkpoint.snapshot_every=2",
+    "checkpoint.best_episodes=4",  # a few episodes end per cycle: the best metric pools cycles, across the resume too
 ]
 # Wall-clock, memory and compilation-cache readings differ between any two runs; everything else must match exactly.
 UNTIMED = {"seconds", "steps_per_second", "compile_seconds", "time", "memory/host_peak_bytes", "compile_cache_hits",
@@ -325,9 +326,25 @@ def test_checkpoint_kinds_and_monitor_records(runs, tmp_path):
     whole = runs[0]
     checkpoints = Checkpoints(whole.run_dir / CHECKPOINTS, config(tmp_path, "whole").checkpoint, create=False)
     assert checkpoints.steps("latest") == [4] and checkpoints.steps("snapshots") == [2, 4]
-    best = checkpoints.steps("best")
-    returns = {r["cycle"]: r["episode_return"] for r in whole.history}
-    assert len(best) == 1 and returns[best[0]] == np.nanmax(list(returns.values()))
+    # The best cycle's return pooled over the latest 4 episodes (the cycle's own, then the cycles before it, the
+    # oldest in part) beats every earlier cycle's.
+    pooled, recent = {}, []
+    for record in whole.history:
+        if record["episodes"] > 0:
+            recent.append((record["episode_return"], record["episodes"]))
+        total = weighted = 0.0
+        for value, count in reversed(recent):
+            taken = min(count, 4 - total)
+            total, weighted = total + taken, weighted + value * taken
+            if total >= 4:
+                break
+        pooled[record["cycle"]] = weighted / 4 if total >= 4 else np.nan
+    finite = [cycle for cycle, value in pooled.items() if np.isfinite(value)]
+    assert finite and len(finite) < len(pooled), f"the first cycle ends under 4 episodes, so this run pools: {pooled}"
+    assert checkpoints.steps("best") == [max(finite, key=lambda c: (pooled[c], -c))], pooled
+    resumed = Checkpoints(runs[3].run_dir / CHECKPOINTS, config(tmp_path, "split").checkpoint, create=False)
+    assert resumed.steps("best") == checkpoints.steps("best"), "the resumed run's pool went on where it stopped"
+    resumed.close()
     with pytest.raises(FileNotFoundError, match="No checkpoint 3.*'snapshots': \\[2, 4\\]"):
         checkpoints.restore(whole.state, 3)
     checkpoints.close()
@@ -375,11 +392,53 @@ def test_a_save_is_written_behind_the_next_cycle_and_whole_when_it_is_final(runs
     saver.close()
 
 
+def test_a_lucky_cycle_of_one_episode_does_not_hold_the_best_for_good(runs, tmp_path):
+    """With few environments a cycle ends an episode or two: one that succeeded by chance (success 1.0, which nothing
+    can beat) used to stay the best for good, and `evaluate` read that untrained policy. The metric is now compared
+    over the latest `best_episodes` episodes, pooled across cycles; `eval/` values, held out, as they are."""
+    whole = runs[0]
+    cycles = [(1.0, 1), (0.0, 3), (0.5, 30), (0.25, 4), (0.9, 40), (0.8, 40)]
+    # Cycle 3 pools its 30 episodes with two of cycle 2's failures; cycle 4's 4 with 28 of cycle 3's ties it.
+    for metric, expected in [("metric/success", {3: 0.5 * 30 / 32, 5: 0.9}),
+                             ("eval/metric/success", {1: 1.0})]:
+        saver = Checkpoints(tmp_path / metric.replace("/", "_"), CheckpointConfig(every=100, best_metric=metric))
+        best = {}
+        for cycle, (success, episodes) in enumerate(cycles, 1):
+            state = whole.state.replace(cycle=jnp.asarray(cycle, whole.state.cycle.dtype))
+            if "best" in saver.save(state, {metric: success, "episodes": episodes}, {}):
+                best[cycle] = saver.best_value
+        saver.close()
+        assert best.keys() == expected.keys(), (metric, best)
+        for cycle, value in expected.items():
+            assert best[cycle] == pytest.approx(value), (metric, cycle)
+
+
+def test_a_resumed_run_pools_the_best_metric_with_the_episodes_before_its_checkpoint(runs, tmp_path):
+    """The episodes that the best metric pools are kept in each checkpoint: a run resumed from one compares its next
+    cycle as the run that had not stopped would."""
+    whole = runs[0]
+    settings = CheckpointConfig(every=1, best_metric="metric/success", lean=("latest", "best"))
+
+    def at(cycle):
+        return whole.state.replace(cycle=jnp.asarray(cycle, whole.state.cycle.dtype))
+
+    first = Checkpoints(tmp_path / "c", settings)
+    assert first.save(at(1), {"metric/success": 0.0, "episodes": 20}, {}) == ["latest"]
+    assert first.save(at(2), {"metric/success": 0.5, "episodes": 20}, {}) == ["latest", "best"]
+    first.close()
+    again = Checkpoints(tmp_path / "c", settings)
+    again.continue_from(2)
+    assert again.save(at(3), {"metric/success": 1.0, "episodes": 8}, {}, final=True) == ["latest", "best"]
+    assert again.best_value == pytest.approx((8 * 1.0 + 20 * 0.5 + 4 * 0.0) / 32)
+    again.close()
+
+
 def test_the_best_state_is_written_in_the_cycle_that_reaches_it(runs, tmp_path):
     """No state is held for a later save: holding the best cycle's device arrays churned XLA's buffer addresses, and
     with them MuJoCo Warp's captured CUDA graphs, until the GPUs ran out of memory (`Checkpoints`)."""
     whole = runs[0]
-    saver = Checkpoints(tmp_path / "best", CheckpointConfig(every=4, best_metric="episode_return", lean=("best",)))
+    saver = Checkpoints(tmp_path / "best", CheckpointConfig(every=4, best_metric="episode_return", best_episodes=1,
+                                                            lean=("best",)))
     returns = {1: 1.0, 2: 2.0, 3: 1.5, 4: 2.5}
     saved = {}
     for cycle, value in returns.items():

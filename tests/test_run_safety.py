@@ -34,7 +34,8 @@ from angora_jax.whole_files import written_whole
 
 # A recurrent network, so that a resumed run must restore carries and environments mid-episode.
 TINY = [*TINY_PPO, "ppo.network.name=gru", "ppo.network.width=8", "ppo.network.cell_size=8",
-        "logging.progress=none", "logging.report=false", "checkpoint.every=2", "checkpoint.snapshot_every=3"]
+        "logging.progress=none", "logging.report=false", "checkpoint.every=2", "checkpoint.snapshot_every=3",
+        "checkpoint.best_episodes=4"]
 CYCLES = 6
 # Wall-clock, memory and compilation-cache readings differ between any two runs; everything else must match exactly.
 UNTIMED = {"seconds", "steps_per_second", "compile_seconds", "time", "memory/host_peak_bytes", "compile_cache_hits",

@@ -66,8 +66,9 @@ def tensorboard_scalars(folder: Path) -> dict[str, dict[int, float]]:
 
 def test_best_mode_min_keeps_the_lowest_cycle_and_tensorboard_gets_every_cycles_scalars(tmp_path):
     run = aj.train("cartpole", [*TINY_PPO, "ppo.num_cycles=4", "checkpoint.best_metric=episode_return",
-                                "checkpoint.best_mode=min", "logging.tensorboard=true", "logging.progress=none",
-                                "logging.report=false", f"logging.run_root={tmp_path}", "logging.run_name=r"])
+                                "checkpoint.best_mode=min", "checkpoint.best_episodes=1",  # each cycle's own value
+                                "logging.tensorboard=true", "logging.progress=none", "logging.report=false",
+                                f"logging.run_root={tmp_path}", "logging.run_name=r"])
     returns = [record["episode_return"] for record in run.history]
     assert len(set(returns)) > 1, "the cycles differ, so best and latest can too"
     assert aj.load_agent(run.run_dir, "best").cycle == 1 + int(np.argmin(returns))

@@ -103,6 +103,9 @@ def command_evaluate(args: argparse.Namespace) -> int:
                                      batch=args.batch, workers=args.workers, path=args.path,
                                      env_overrides=args.env_option)
         meta = result.meta
+        if checkpoint == "best" and meta["checkpoint"] == "latest":
+            print(f"{args.run_dir} keeps no best checkpoint (no best metric, or fewer than checkpoint.best_episodes "
+                  "episodes ended while it trained): its latest is evaluated.", file=sys.stderr)
         actions = "sampled" if args.stochastic else "deterministic (mode)"
         threads = f", {meta['workers']} threads stepping physics" if meta["workers"] > 1 else ""
         print(f"{args.run_dir}, checkpoint of cycle {meta['cycle']}, {args.episodes} episodes on {meta['physics']} "

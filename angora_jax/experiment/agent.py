@@ -118,11 +118,18 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
     env, network, head, template, compiled = acting_parts(config)
     checkpoints = Checkpoints(Path(run_dir) / CHECKPOINTS, config.checkpoint, create=False)
     try:
-        which = "latest" if checkpoint == "best" and not checkpoints.steps("best") else checkpoint
-        state = checkpoints.restore(template, which, partial=True).state
+        state = checkpoints.restore(template, read_checkpoint(run_dir, checkpoint), partial=True).state
     finally:
         checkpoints.close()
     return Agent(config, env, network, head, state, int(state.cycle), compiled)
+
+
+def read_checkpoint(run_dir: str | Path, checkpoint: str | int) -> str | int:
+    """The checkpoint that `load_agent` reads for `checkpoint`: "latest" for "best" when the run keeps no best (its
+    best metric is null, or fewer than `checkpoint.best_episodes` episodes had ended)."""
+    best = Path(run_dir) / CHECKPOINTS / "best"
+    kept = best.is_dir() and any(path.name.isdigit() for path in best.iterdir())
+    return "latest" if checkpoint == "best" and not kept else checkpoint
 
 
 def snapshot_cycles(run_dir: str | Path) -> list[int]:

@@ -130,9 +130,23 @@ class Checkpoints:
         self._quiet: _QuietWriters | None = None  # while they are written
         best = self._managers["best"].latest_step()
         try:
-            self.best_value = None if best is None else self._read_meta("best", best)["metrics"].get(config.best_metric)
+            meta = None if best is None else self._read_meta("best", best)
+            # Checkpoints saved before best_episodes recorded the cycle's own value.
+            self.best_value = None if meta is None else meta.get("best_value", meta["metrics"].get(config.best_metric))
         except CheckpointError:  # a damaged best checkpoint: the next improvement saves a new one
             self.best_value = None
+        self._recent: list[list[float]] = []  # [value, episodes] of the cycles the best metric pools, oldest first
+
+    def continue_from(self, cycle: int) -> None:
+        """Take up the best metric's pool of recent episodes as it was after `cycle`, from a checkpoint of that cycle
+        (a run resumed from it then picks its best as if it had not stopped)."""
+        for kind in KINDS:
+            if cycle in self._managers[kind].all_steps():
+                try:
+                    self._recent = [list(entry) for entry in self._read_meta(kind, cycle).get("best_pool", [])]
+                    return
+                except CheckpointError:  # a damaged copy of that cycle: another kind may hold it whole
+                    continue
 
     def steps(self, kind: str) -> list[int]:
         """Cycles at which checkpoints of `kind` ("latest", "best", "snapshots") exist, ascending."""
@@ -158,10 +172,12 @@ class Checkpoints:
         before are finished first, and a full disk met by either raises DiskFullError here."""
         self.finish()
         cycle = int(state.cycle)
-        meta = {"cycle": cycle, "env_steps": metrics.get("env_steps"), "metrics": _finite(metrics), "config": config}
+        value = self._best_candidate(metrics)
+        meta = {"cycle": cycle, "env_steps": metrics.get("env_steps"), "metrics": _finite(metrics), "config": config,
+                "best_value": value if math.isfinite(value) else None, "best_pool": [list(e) for e in self._recent]}
         due = {
             "latest": final or cycle % self.config.every == 0,
-            "best": self._improves(metrics),
+            "best": self.config.best_metric is not None and improves(value, self.best_value, self.config.best_mode),
             "snapshots": self.config.snapshot_every > 0 and cycle % self.config.snapshot_every == 0,
         }
         saved = []
@@ -179,7 +195,7 @@ class Checkpoints:
                 self._writing.append((kind, cycle))
                 saved.append(kind)
         if "best" in saved:
-            self.best_value = metrics[self.config.best_metric]
+            self.best_value = value
         if final:
             self.finish()
         return saved
@@ -420,10 +436,26 @@ class Checkpoints:
                 f"Checkpoint {self._directory / kind / str(cycle)} cannot be read ({type(error).__name__}: {error}). "
                 "It is corrupt or incomplete; `angora-jax check RUN_DIR` lists the intact checkpoints.") from error
 
-    def _improves(self, metrics: dict[str, float]) -> bool:
+    def _best_candidate(self, metrics: dict[str, float]) -> float:
+        """This cycle's value of the best metric as `improves` compares it: a held-out `eval/` value as it is, a
+        training value pooled over the latest `best_episodes` episodes (this cycle's first, then the cycles before
+        it, the oldest in part), NaN until that many have ended (`CheckpointConfig.best_episodes` says why)."""
         name = self.config.best_metric
-        return improves(metrics.get(name, math.nan) if name is not None else math.nan, self.best_value,
-                        self.config.best_mode)
+        value = metrics.get(name, math.nan) if name is not None else math.nan
+        if name is None or name.startswith("eval/"):
+            return value
+        episodes = metrics.get("episodes", 1.0)  # a cycle's record counts them; other callers give one value each
+        if math.isfinite(value) and math.isfinite(episodes) and episodes > 0:
+            self._recent.append([value, episodes])
+        need, total, pooled = self.config.best_episodes, 0.0, 0.0
+        for start in range(len(self._recent) - 1, -1, -1):
+            past, count = self._recent[start]
+            taken = min(count, need - total)
+            pooled, total = pooled + past * taken, total + taken
+            if total >= need:
+                self._recent = self._recent[start:]
+                return pooled / need
+        return math.nan
 
 
 def improves(value: float, best: float | None, mode: str) -> bool:

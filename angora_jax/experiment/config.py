@@ -200,6 +200,12 @@ class CheckpointConfig:
         best_metric: keep the state of the cycle with the best value of this per-cycle metric ("episode_return",
             "episode_length" or "metric/<task metric>"); None keeps no best checkpoint.
         best_mode: "max" or "min".
+        best_episodes: the training metric is compared over this many of the latest episodes: the cycle's own when
+            at least this many ended in it (the cube at 16,384 envs: hundreds), else pooled with the cycles before it
+            (weighted by the episodes that ended in each), and no best until this many have ended. With few
+            environments a cycle ends an episode or two, and a cycle whose one episode succeeded by chance (success
+            1.0, which nothing later can beat) would otherwise stay the best for good. `eval/` metrics are held-out
+            evaluations of their own size (`evaluation.episodes`) and are compared as they are. 1: each cycle's own.
         snapshot_every: keep a snapshot every this many cycles for good, for probing later; 0 for none.
         lean: the kinds of checkpoint ("latest", "best", "snapshots") saved without the environments' states (physics,
             recurrent carries, episode accumulators): parameters, optimizer, normalisers, PRNG key and cycle only, a
@@ -214,6 +220,7 @@ class CheckpointConfig:
     every: int = count_field(10, why="cycles between latest checkpoints")
     best_metric: str | None = "episode_return"
     best_mode: str = "max"
+    best_episodes: int = count_field(32, why="the episodes the best metric is compared over")
     snapshot_every: int = count_field(0, low=0, why="cycles between snapshots; 0: none")
     lean: tuple[str, ...] = ("best", "snapshots")
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch, batch_functions
-from angora_jax.experiment.agent import Agent, load_agent
+from angora_jax.experiment.agent import Agent, load_agent, read_checkpoint
 from angora_jax.experiment.config import to_dict
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
 from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths
@@ -128,6 +128,7 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     if path not in PATHS:
         raise ValueError(f"Unknown evaluation path {path!r}; choose one of {PATHS}.")
     agent = load_agent(run_dir, checkpoint, env_overrides)
+    checkpoint = read_checkpoint(run_dir, checkpoint)  # named as read: a run without a best evaluates its latest
     changed = {"env_overrides": list(env_overrides)} if env_overrides else {}
     if path == "batched" or getattr(agent.env, "on_host", False):  # a Gymnasium task has its own simulator only
         return _evaluate_batched(agent, run_dir, checkpoint, episodes, stochastic, seed, save, changed)

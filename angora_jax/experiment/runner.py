@@ -332,6 +332,8 @@ def _run(
     history: list[dict[str, Any]] = []
     resolved = to_dict(config)
     checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint)
+    if state is not None and not new:
+        checkpoints.continue_from(int(state.cycle))
     if is_main_process() and checkpoints.removed_unfinished:
         cut_short = "; ".join(f"{kind} of cycle {', '.join(map(str, cycles))}"
                               for kind, cycles in checkpoints.removed_unfinished.items())
