@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import yaml
+from episode_pools import pooled_means
 from jax_events import jax_events
 from tiny import TINY_PPO
 
@@ -150,8 +151,9 @@ def test_a_run_stopped_at_its_target_trains_on_past_it_when_asked(runs, tmp_path
     environments (nothing continues them) and says how to go on; `resume --no-stop-at` trains it to its
     `ppo.num_cycles`, bit for bit the run without a target, and removes the target from its config.yaml."""
     whole = runs[0]
-    early = aj.train(aj.load_config("cartpole", [*TINY, "ppo.stop_at={metric: episode_return, value: -1.0e9}",
-                                                 f"logging.run_root={tmp_path}", "logging.run_name=early"]))
+    target = "ppo.stop_at={metric: episode_return, value: -1.0e9, episodes: 1}"  # the first cycle's own return
+    early = aj.train(aj.load_config("cartpole", [*TINY, target, f"logging.run_root={tmp_path}",
+                                                 "logging.run_name=early"]))
     assert early.stopped_at is not None and int(early.state.cycle) == 1
     restores, restore = [], Checkpoints.restore
     monkeypatch.setattr(Checkpoints, "restore", lambda self, template, which="latest", partial=False: (
@@ -328,17 +330,7 @@ def test_checkpoint_kinds_and_monitor_records(runs, tmp_path):
     assert checkpoints.steps("latest") == [4] and checkpoints.steps("snapshots") == [2, 4]
     # The best cycle's return pooled over the latest 4 episodes (the cycle's own, then the cycles before it, the
     # oldest in part) beats every earlier cycle's.
-    pooled, recent = {}, []
-    for record in whole.history:
-        if record["episodes"] > 0:
-            recent.append((record["episode_return"], record["episodes"]))
-        total = weighted = 0.0
-        for value, count in reversed(recent):
-            taken = min(count, 4 - total)
-            total, weighted = total + taken, weighted + value * taken
-            if total >= 4:
-                break
-        pooled[record["cycle"]] = weighted / 4 if total >= 4 else np.nan
+    pooled = pooled_means(whole.history, "episode_return", 4)
     finite = [cycle for cycle, value in pooled.items() if np.isfinite(value)]
     assert finite and len(finite) < len(pooled), f"the first cycle ends under 4 episodes, so this run pools: {pooled}"
     assert checkpoints.steps("best") == [max(finite, key=lambda c: (pooled[c], -c))], pooled

@@ -9,6 +9,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from episode_pools import pooled_means
 from quick_compile import compile_quickly
 from tensorboardX.proto import event_pb2
 from tiny import TINY_PPO
@@ -81,19 +82,31 @@ def test_best_mode_min_keeps_the_lowest_cycle_and_tensorboard_gets_every_cycles_
 
 @pytest.mark.slow
 def test_stop_at_ends_the_run_with_a_checkpoint_after_the_first_cycle_that_reaches_the_value(tmp_path):
+    """The target is compared over the latest `episodes` episodes (here 8, pooled across cycles: a cycle ends a few),
+    also by a run resumed before it: one lucky episode does not end a run."""
     common = [*TINY_PPO, "ppo.num_cycles=8", "logging.progress=none", "logging.report=false",
               f"logging.run_root={tmp_path}"]
-    returns = [r["episode_return"] for r in aj.train("cartpole", [*common, "logging.run_name=all"]).history]
-    value = max(returns[:-1])
-    assert value > returns[0], f"the returns must rise before the last cycle for this test: {returns}"
-    first = next(cycle for cycle, r in enumerate(returns, 1) if r >= value)
-    run = aj.train("cartpole", [*common, "logging.run_name=stop",
-                                f"ppo.stop_at={{metric: episode_return, value: {value!r}}}"])
-    assert run.finished and int(run.state.cycle) == first < len(returns)
+    history = aj.train("cartpole", [*common, "logging.run_name=all"]).history
+    returns = [r["episode_return"] for r in history]
+    pooled = pooled_means(history, "episode_return", 8)
+    # A target that the pooled return first reaches at a cycle `first` before the last, which an earlier cycle's own
+    # return reached already: compared cycle by cycle, the run would stop there.
+    first = next((c for c, v in pooled.items() if c < len(returns) and np.isfinite(v) and max(returns[:c - 1]) >= v
+                  and all(not u >= v for d, u in pooled.items() if d < c)), None)
+    assert first is not None, f"this test needs such a target: {returns}, {pooled}"
+    value = pooled[first]
+    target = f"ppo.stop_at={{metric: episode_return, value: {value!r}, episodes: 8}}"
+    run = aj.train("cartpole", [*common, "logging.run_name=stop", target])
+    assert run.finished and int(run.state.cycle) == first
     assert run.stopped_at == f"episode_return {value:.4g} >= {value:g}"
     assert [r["episode_return"] for r in run.history] == returns[:first], "the same run, cut short"
     assert aj.experiment.Checkpoints(run.run_dir / "checkpoints", load_config("cartpole").checkpoint,
                                      create=False).steps("latest") == [first]
+    # Trained to the cycle before, then on: that stop needs the episodes of the cycles before the resume.
+    pieces = aj.train("cartpole", [*common, "logging.run_name=pieces", target, f"ppo.num_cycles={first - 1}"])
+    assert int(pieces.state.cycle) == first - 1 and pieces.stopped_at is None
+    resumed = aj.resume(pieces.run_dir, num_cycles=len(returns))
+    assert int(resumed.state.cycle) == first and resumed.stopped_at == run.stopped_at
 
 
 def test_held_out_work_is_due_every_n_cycles_and_after_the_last():

@@ -32,6 +32,7 @@ from angora_jax.experiment.config import CheckpointConfig
 from angora_jax.experiment.distributed import is_main_process
 from angora_jax.experiment.manifest import MANIFEST_FILE, verify, write_manifest
 from angora_jax.experiment.run_dir import DiskFullError, RunDirError, is_disk_full
+from angora_jax.ppo.episode_pool import Pool, pool_episodes
 
 
 def to_storable(state: Any) -> dict[str, jax.Array]:
@@ -135,7 +136,7 @@ class Checkpoints:
             self.best_value = None if meta is None else meta.get("best_value", meta["metrics"].get(config.best_metric))
         except CheckpointError:  # a damaged best checkpoint: the next improvement saves a new one
             self.best_value = None
-        self._recent: list[list[float]] = []  # [value, episodes] of the cycles the best metric pools, oldest first
+        self._recent: Pool = []  # the cycles that the best metric's next value pools
 
     def continue_from(self, cycle: int) -> None:
         """Take up the best metric's pool of recent episodes as it was after `cycle`, from a checkpoint of that cycle
@@ -438,24 +439,15 @@ class Checkpoints:
 
     def _best_candidate(self, metrics: dict[str, float]) -> float:
         """This cycle's value of the best metric as `improves` compares it: a held-out `eval/` value as it is, a
-        training value pooled over the latest `best_episodes` episodes (this cycle's first, then the cycles before
-        it, the oldest in part), NaN until that many have ended (`CheckpointConfig.best_episodes` says why)."""
+        training value over the latest `best_episodes` episodes (`pool_episodes`; NaN until that many have ended)."""
         name = self.config.best_metric
         value = metrics.get(name, math.nan) if name is not None else math.nan
         if name is None or name.startswith("eval/"):
             return value
-        episodes = metrics.get("episodes", 1.0)  # a cycle's record counts them; other callers give one value each
-        if math.isfinite(value) and math.isfinite(episodes) and episodes > 0:
-            self._recent.append([value, episodes])
-        need, total, pooled = self.config.best_episodes, 0.0, 0.0
-        for start in range(len(self._recent) - 1, -1, -1):
-            past, count = self._recent[start]
-            taken = min(count, need - total)
-            pooled, total = pooled + past * taken, total + taken
-            if total >= need:
-                self._recent = self._recent[start:]
-                return pooled / need
-        return math.nan
+        # A cycle's record counts its episodes; other callers give one value each.
+        pooled, self._recent = pool_episodes(self._recent, value, metrics.get("episodes", 1.0),
+                                             self.config.best_episodes)
+        return pooled
 
 
 def improves(value: float, best: float | None, mode: str) -> bool:

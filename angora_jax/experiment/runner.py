@@ -31,7 +31,7 @@ from angora_jax.experiment.cpu_sizing import cpu_note
 from angora_jax.experiment.distributed import ProcessFailed, agree_to_stop, is_main_process, shared_run_dir
 from angora_jax.experiment.doctor import devices, versions
 from angora_jax.experiment.held_out import held_out_evaluation
-from angora_jax.experiment.monitor import Monitor, ended_by_stop_at, logged_cycles, set_aside_after
+from angora_jax.experiment.monitor import Monitor, ended_by_stop_at, logged_cycles, set_aside_after, stop_at_pool
 from angora_jax.experiment.programs import cycle_programs, initial_state_shape
 from angora_jax.experiment.progress import Progress
 from angora_jax.experiment.resume_plan import plan_resume, set_aside_checkpoints_after, set_aside_outputs
@@ -329,6 +329,8 @@ def _run(
     # A run that its ppo.stop_at ended is as complete as one that did all its cycles (`ended`: what ended it).
     finished = state is not None and (int(state.cycle) >= config.ppo.num_cycles or ended is not None)
     stop_at, stopped_at = config.ppo.stop_at, ended
+    # The cycles whose episodes the target's next comparison pools, taken up where a resumed run stopped.
+    stop_pool = stop_at_pool(run_dir, stop_at, int(state.cycle))[1] if stop_at and state is not None and not new else []
     history: list[dict[str, Any]] = []
     resolved = to_dict(config)
     checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint)
@@ -415,7 +417,8 @@ def _run(
                     raise ProcessFailed(decision.failed, int(metrics["cycle"]), run_dir)
                 # The compiled cycle reduces its metrics over every device, so all processes decide this alike.
                 if stop_at is not None:
-                    stopped_at = stop_at.ended(metrics)
+                    value, stop_pool = stop_at.compared(stop_pool, metrics)
+                    stopped_at = stop_at.ended(value)
                 finished = record["cycle"] == config.ppo.num_cycles or stopped_at is not None
                 stopping = decision.signum is not None or decision.out_of_time
                 _save_together(checkpoints, state, record, resolved, stopping or finished, run_dir)

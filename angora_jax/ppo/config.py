@@ -17,6 +17,7 @@ from angora_jax.nets.cortical import area_sizes
 from angora_jax.nets.models import RECURRENT_CELLS
 from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.distributions import list_heads
+from angora_jax.ppo.episode_pool import Pool, pool_episodes
 
 # Counts (cycles, environments, steps, units) become int32 in JAX's arrays and loops (x64 is off), so they must fit.
 INT32_MAX = 2**31 - 1
@@ -224,13 +225,18 @@ class StopAt:
     Attributes:
         metric: a per-cycle metric, as `checkpoint.best_metric` names them ("episode_return", "metric/goals_reached").
         value: the value to reach, in the metric's units.
-        mode: "max" stops when the metric is >= value, "min" when it is <= value. A cycle in which no episode ended has
-            no value (NaN) and never stops the run.
+        mode: "max" stops when the metric is >= value, "min" when it is <= value.
+        episodes: a training metric is compared over this many of the latest episodes, as the best checkpoint's
+            (`checkpoint.best_episodes`): the cycle's own when that many ended in it (hundreds on a GPU), else pooled
+            with the cycles before it, and never before that many have ended, so that one lucky episode of a run
+            with few environments does not end it. `eval/` metrics are compared as they are. 1: each cycle's own
+            (a cycle in which no episode ended has no value and never stops the run).
     """
 
     metric: str = "episode_return"
     value: float = bounded(0.0, why="the metric's units")
     mode: str = "max"
+    episodes: int = count_field(32, why="the episodes the metric is compared over")
 
     def validate(self) -> StopAt:
         """Raise a ValueError naming the field when a setting cannot apply; return self."""
@@ -240,17 +246,20 @@ class StopAt:
             raise ValueError(f"ppo.stop_at.value must be a finite number, got {self.value!r}.")
         return self
 
-    def reached(self, metrics: dict[str, float]) -> bool:
-        """Whether this cycle's `metrics` reach the value."""
+    def compared(self, pool: Pool, metrics: dict[str, float]) -> tuple[float, Pool]:
+        """The value of this cycle's `metrics` that the target is compared with (`episodes` says which), and the pool
+        of cycles that the next cycle's value continues (`pool_episodes`)."""
         value = float(metrics.get(self.metric, math.nan))
-        return value >= self.value if self.mode == "max" else value <= self.value
+        if self.metric.startswith("eval/"):
+            return value, pool
+        return pool_episodes(pool, value, float(metrics.get("episodes", 1.0)), self.episodes)
 
-    def ended(self, metrics: dict[str, float]) -> str | None:
-        """What ended the run after the cycle of `metrics` ("metric/goals_reached 30.4 >= 30"), None when they do not
-        reach the value."""
-        if not self.reached(metrics):
+    def ended(self, value: float) -> str | None:
+        """What ended the run at a cycle whose compared `value` reaches the target ("metric/goals_reached 30.4 >=
+        30"), None when it does not."""
+        if not (value >= self.value if self.mode == "max" else value <= self.value):
             return None
-        return f"{self.metric} {float(metrics[self.metric]):.4g} {'>=' if self.mode == 'max' else '<='} {self.value:g}"
+        return f"{self.metric} {value:.4g} {'>=' if self.mode == 'max' else '<='} {self.value:g}"
 
 
 @dataclass(frozen=True)
