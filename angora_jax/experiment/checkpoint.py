@@ -32,7 +32,7 @@ from angora_jax.experiment.config import CheckpointConfig
 from angora_jax.experiment.distributed import is_main_process
 from angora_jax.experiment.manifest import MANIFEST_FILE, verify, write_manifest
 from angora_jax.experiment.run_dir import DiskFullError, RunDirError, is_disk_full
-from angora_jax.ppo.episode_pool import Pool, pool_episodes
+from angora_jax.ppo.episode_pool import Pool, compared_value
 
 
 def to_storable(state: Any) -> dict[str, jax.Array]:
@@ -438,16 +438,11 @@ class Checkpoints:
                 "It is corrupt or incomplete; `angora-jax check RUN_DIR` lists the intact checkpoints.") from error
 
     def _best_candidate(self, metrics: dict[str, float]) -> float:
-        """This cycle's value of the best metric as `improves` compares it: a held-out `eval/` value as it is, a
-        training value over the latest `best_episodes` episodes (`pool_episodes`; NaN until that many have ended)."""
-        name = self.config.best_metric
-        value = metrics.get(name, math.nan) if name is not None else math.nan
-        if name is None or name.startswith("eval/"):
-            return value
-        # A cycle's record counts its episodes; other callers give one value each.
-        pooled, self._recent = pool_episodes(self._recent, value, metrics.get("episodes", 1.0),
-                                             self.config.best_episodes)
-        return pooled
+        """This cycle's value of the best metric as `improves` compares it (`compared_value`; NaN without one)."""
+        if self.config.best_metric is None:
+            return math.nan
+        value, self._recent = compared_value(self._recent, metrics, self.config.best_metric, self.config.best_episodes)
+        return value
 
 
 def improves(value: float, best: float | None, mode: str) -> bool:

@@ -121,18 +121,20 @@ def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
 def ended_by_stop_at(run_dir: str | Path, stop_at: StopAt | None, cycle: int | None) -> str | None:
     """What ended `run_dir` under its `ppo.stop_at` at `cycle` ("metric/goals_reached 30.4 >= 30"), read from the
     records up to that cycle; None when it has no target, no such record, or the record does not reach it."""
-    if stop_at is None or cycle is None or cycle not in logged_cycles(run_dir):
+    if stop_at is None or cycle is None:
         return None
     return stop_at.ended(stop_at_pool(run_dir, stop_at, cycle)[0])
 
 
 def stop_at_pool(run_dir: str | Path, stop_at: StopAt, cycle: int) -> tuple[float, Pool]:
-    """The value that `stop_at` compared at `cycle` and the pool the next cycle continues (`StopAt.compared`), from
-    `run_dir`'s records of the cycles up to `cycle`: a resumed run compares as if it had not stopped."""
+    """The value that `stop_at` compared at `cycle` (NaN without that cycle's record) and the pool the next cycle
+    continues (`StopAt.compared`), from `run_dir`'s records of the cycles up to `cycle`: a resumed run compares as if
+    it had not stopped."""
     value, pool = math.nan, []
     for _, row in _parse_metrics(Path(run_dir) / METRICS_FILE)[0]:
         if row["cycle"] <= cycle:
-            value, pool = stop_at.compared(pool, _with_nans(row))
+            compared, pool = stop_at.compared(pool, _with_nans(row))
+            value = compared if row["cycle"] == cycle else math.nan
     return value, pool
 
 

@@ -17,7 +17,7 @@ from angora_jax.nets.cortical import area_sizes
 from angora_jax.nets.models import RECURRENT_CELLS
 from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.distributions import list_heads
-from angora_jax.ppo.episode_pool import Pool, pool_episodes
+from angora_jax.ppo.episode_pool import Pool, compared_value
 
 # Counts (cycles, environments, steps, units) become int32 in JAX's arrays and loops (x64 is off), so they must fit.
 INT32_MAX = 2**31 - 1
@@ -248,11 +248,8 @@ class StopAt:
 
     def compared(self, pool: Pool, metrics: dict[str, float]) -> tuple[float, Pool]:
         """The value of this cycle's `metrics` that the target is compared with (`episodes` says which), and the pool
-        of cycles that the next cycle's value continues (`pool_episodes`)."""
-        value = float(metrics.get(self.metric, math.nan))
-        if self.metric.startswith("eval/"):
-            return value, pool
-        return pool_episodes(pool, value, float(metrics.get("episodes", 1.0)), self.episodes)
+        of cycles that the next cycle's value continues (`compared_value`)."""
+        return compared_value(pool, metrics, self.metric, self.episodes)
 
     def ended(self, value: float) -> str | None:
         """What ended the run at a cycle whose compared `value` reaches the target ("metric/goals_reached 30.4 >=

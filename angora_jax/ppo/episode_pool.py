@@ -24,3 +24,14 @@ def pool_episodes(pool: Pool, value: float, episodes: float, need: int) -> tuple
         if total >= need:
             return weighted / need, pool[start:]
     return math.nan, pool
+
+
+def compared_value(pool: Pool, metrics: dict[str, float], name: str, need: int) -> tuple[float, Pool]:
+    """The value of metric `name` in a cycle's `metrics` that a target or the best checkpoint compares, with the pool
+    the next cycle continues: a held-out `eval/` value as it is (an evaluation of its own size), a training value over
+    the latest `need` episodes (`pool_episodes`; a cycle's record counts its episodes, other callers give one value
+    each)."""
+    value = float(metrics.get(name, math.nan))
+    if name.startswith("eval/"):
+        return value, pool
+    return pool_episodes(pool, value, float(metrics.get("episodes", 1.0)), need)
