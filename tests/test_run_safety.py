@@ -453,12 +453,43 @@ def test_a_damaged_or_lost_config_is_written_again_from_the_checkpoints_copy(who
     assert (run / "config.yaml.damaged").read_text().endswith("\n  [")
     assert main(["resume", str(run)]) == 0 and main(["evaluate", str(run), "--episodes", "1"]) == 0
     assert main(["check", str(run), "--restore-config"]) == 0
-    assert "loads; nothing was restored" in capsys.readouterr().out
+    assert "loads and holds the settings the run was trained with; nothing was restored" in capsys.readouterr().out
     config.unlink()
     assert f"has checkpoints but no config.yaml: `angora-jax check {run} --restore-config`" in exits_2(
         ["resume", str(run)], capsys)
     assert main(["check", str(run), "--restore-config"]) == 0 and config.is_file()
     assert not (run / "config.yaml-2.damaged").exists(), "nothing to keep: there was no file"
+
+
+def test_an_edited_config_is_refused_by_resume_found_by_check_and_put_back(whole, tmp_path, capsys):
+    """A config.yaml whose task or learning settings were edited after training (it still loads) would make one run's
+    records of two: resume refuses it, naming each change and both ways on, before anything changes; check reports it;
+    `check --restore-config` puts those settings back, keeps the edited file and the settings a run may change between
+    sessions, and the run resumes. What resume itself records (--num-cycles) is no edit."""
+    run = copy_of(whole, tmp_path)
+    config = run / "config.yaml"
+    original = aj.load_config(config)
+    edited = config.read_text().replace("learning_rate: 0.001", "learning_rate: 0.0001")
+    edited = edited.replace("num_envs: 4", "num_envs: 2").replace("every: 2", "every: 3")
+    assert edited.count("0.0001") == 1 and "num_envs: 2" in edited and "every: 3" in edited
+    config.write_text(edited)
+    before = {path: path.stat().st_mtime_ns for path in run.rglob("*") if path.is_file()}
+    err = exits_2(["resume", str(run), "--num-cycles", str(CYCLES + 2)], capsys)
+    assert f"{config} was edited after the latest checkpoint of cycle {CYCLES} was saved" in err
+    assert "ppo.learning_rate: 0.001 -> 0.0001" in err and "ppo.num_envs: 4 -> 2" in err
+    assert "checkpoint.every" not in err, "checkpoints may be kept otherwise from one session to the next"
+    assert f"angora-jax check {run} --restore-config" in err and f"ppo.init_from={run}:latest" in err
+    assert {path: path.stat().st_mtime_ns for path in run.rglob("*") if path.is_file()} == before
+    assert main(["check", str(run)]) == 2 and "resume refuses" in capsys.readouterr().out
+    assert main(["check", str(run), "--restore-config"]) == 0
+    assert "the edited file is kept as" in capsys.readouterr().out
+    assert (run / "config.yaml.edited").read_text() == edited
+    restored = aj.load_config(config)
+    assert restored.ppo == original.ppo and restored.env == original.env
+    assert restored.checkpoint.every == 3, "settings a run may change between sessions stay as edited"
+    assert main(["resume", str(run), "--num-cycles", str(CYCLES + 1)]) == 0
+    capsys.readouterr()
+    assert main(["check", str(run)]) == 0, "the length that resume recorded is no edit"
 
 
 def test_a_run_whose_checkpoints_will_not_fit_says_so_before_training(whole, tmp_path, monkeypatch, capsys):

@@ -72,7 +72,8 @@ def add_check(commands: argparse._SubParsersAction) -> None:
     check.add_argument(
         "--restore-config", action="store_true",
         help="write a damaged or missing config.yaml again from the copy saved with the newest intact checkpoint "
-             "(the damaged file is kept beside it as config.yaml.damaged)")
+             "(the damaged file is kept beside it as config.yaml.damaged), or put back task and learning settings "
+             "(env, ppo) edited after training (kept as config.yaml.edited)")
     check.set_defaults(handler=command_check)
 
 

@@ -2,17 +2,27 @@
 
 Reads only: the config (does it load and fit this version), the writer lock, metrics.jsonl (damaged lines, and each
 cycle logged once and in order), every checkpoint against its manifest, and the resume plan (`resume_plan`).
-`restore_config` (`check --restore-config`) is its one repair: a damaged config.yaml written again from the copy
-that the checkpoints keep.
+`restore_config` (`check --restore-config`) is its one repair: a damaged config.yaml, or one whose task or learning
+settings were edited after training, written again from the copy that the checkpoints keep. `edited_settings` finds
+such an edit; `resume` refuses to continue through one.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 from angora_jax.experiment.checkpoint import KINDS, Checkpoints
-from angora_jax.experiment.config import CheckpointConfig, Config, ConfigError, load_config, validate
+from angora_jax.experiment.config import (
+    CheckpointConfig,
+    Config,
+    ConfigError,
+    flatten,
+    load_config,
+    to_dict,
+    validate,
+)
 from angora_jax.experiment.monitor import damaged_metric_lines, ended_by_stop_at, logged_cycles
 from angora_jax.experiment.resume_plan import plan_resume
 from angora_jax.experiment.run_dir import (
@@ -26,6 +36,65 @@ from angora_jax.experiment.run_dir import (
     write_run_config,
 )
 from angora_jax.experiment.run_lock import RunLock
+
+# The settings that make a run what it is: the task and the learning. The others (logging, checkpoint, distribution,
+# evaluation, imports) may change between sessions; so may the two that `resume` itself records (--num-cycles,
+# --no-stop-at).
+LEARNING_SETTINGS = ("env.", "ppo.")
+RECORDED_BY_RESUME = ("ppo.num_cycles", "ppo.stop_at")
+
+
+@dataclass(frozen=True)
+class EditedSettings:
+    """Task or learning settings of a run's config.yaml that differ from those its checkpoints were trained with.
+
+    Attributes:
+        kind, cycle: the checkpoint whose saved config was compared (the newest intact one).
+        saved: the config saved with that checkpoint.
+        changes: one "key: saved -> now" line per setting that differs.
+    """
+
+    kind: str
+    cycle: int
+    saved: Config
+    changes: tuple[str, ...]
+
+    def describe(self, run_dir: Path) -> str:
+        shown = "; ".join(self.changes[:6]) + (f"; and {len(self.changes) - 6} more" if len(self.changes) > 6 else "")
+        return (f"{run_dir / CONFIG_FILE} was edited after the {self.kind} checkpoint of cycle {self.cycle} was "
+                f"saved: {shown}")
+
+
+def edited_settings(run_dir: str | Path, config: Config) -> EditedSettings | None:
+    """Where `config` (the run's config.yaml as loaded) differs from the config saved with `run_dir`'s newest intact
+    checkpoint in its task or learning settings (`env.*`, `ppo.*` but `ppo.num_cycles` and `ppo.stop_at`); None when
+    they agree, or no checkpoint keeps a copy that loads with this version."""
+    run_dir = Path(run_dir)
+    if not has_checkpoints(run_dir):
+        return None
+    checkpoints = Checkpoints(run_dir / CHECKPOINTS, CheckpointConfig(), create=False)
+    try:
+        found = checkpoints.saved_config()
+    finally:
+        checkpoints.close()
+    if found is None:
+        return None
+    kind, cycle, data = found
+    try:
+        saved = load_config(data)
+    except ConfigError:  # saved by a version whose config this one cannot read: nothing to compare
+        return None
+    before, now = flatten(to_dict(saved)), flatten(to_dict(config))
+    changes = tuple(f"{key}: {_shown(before.get(key))} -> {_shown(now.get(key))}"
+                    for key in sorted(before.keys() | now.keys())
+                    if key.startswith(LEARNING_SETTINGS) and not key.startswith(RECORDED_BY_RESUME)
+                    and before.get(key) != now.get(key))
+    return EditedSettings(kind, cycle, saved, changes) if changes else None
+
+
+def _shown(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 @dataclass
@@ -59,6 +128,10 @@ def check_run(run_dir: str | Path) -> RunCheck:
                                f"{config.ppo.num_cycles} cycles")
     except ConfigError as error:
         result.problems.append(f"config.yaml does not run with this version of angora_jax: {error}")
+    edited = edited_settings(run_dir, config)
+    if edited is not None:
+        result.problems.append(f"{edited.describe(run_dir)}. resume refuses to continue the run with other settings; "
+                               f"`angora-jax check {run_dir} --restore-config` puts them back")
 
     holder = RunLock(run_dir).holder()
     gone = holder is not None and holder.is_gone()
@@ -148,10 +221,11 @@ def restore_config(run_dir: str | Path) -> str:
     path = run_dir / CONFIG_FILE
     if path.is_file():
         try:
-            read_run_config(run_dir)
-            return f"{path} loads; nothing was restored."
+            config = read_run_config(run_dir)
         except RunDirError:
             pass
+        else:
+            return _undo_edit(run_dir, config)
     checkpoints_dir = run_dir / CHECKPOINTS
     if not has_checkpoints(run_dir):
         raise RunDirError(f"{run_dir} has no checkpoint that keeps a copy of its config: restore {path} from a copy "
@@ -182,6 +256,28 @@ def restore_config(run_dir: str | Path) -> str:
     finally:
         lock.release()
     return f"Restored {path} from the config saved with the {kind} checkpoint of cycle {cycle}{kept}."
+
+
+def _undo_edit(run_dir: Path, config: Config) -> str:
+    """Put back the task and learning settings of a config.yaml that loads but was edited after training (keeping
+    its other settings, and the file as it was beside it); what was done."""
+    path = run_dir / CONFIG_FILE
+    lock = RunLock(run_dir)
+    lock.acquire()
+    try:
+        edited = edited_settings(run_dir, config)
+        if edited is None:
+            return f"{path} loads and holds the settings the run was trained with; nothing was restored."
+        saved = edited.saved
+        restored = replace(config, env=saved.env, ppo=replace(saved.ppo, num_cycles=config.ppo.num_cycles,
+                                                              stop_at=config.ppo.stop_at))
+        aside = next(name for name in numbered_paths(run_dir, CONFIG_FILE, ".edited") if not name.exists())
+        path.rename(aside)
+        write_run_config(run_dir, restored)
+    finally:
+        lock.release()
+    return (f"Put back in {path} the settings saved with the {edited.kind} checkpoint of cycle {edited.cycle} "
+            f"({'; '.join(edited.changes)}); the edited file is kept as {aside}.")
 
 
 def _runs(cycles: list[int], every: bool = False) -> str:

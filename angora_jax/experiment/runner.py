@@ -35,6 +35,7 @@ from angora_jax.experiment.monitor import Monitor, ended_by_stop_at, logged_cycl
 from angora_jax.experiment.programs import cycle_programs, initial_state_shape
 from angora_jax.experiment.progress import Progress
 from angora_jax.experiment.resume_plan import plan_resume, set_aside_checkpoints_after, set_aside_outputs
+from angora_jax.experiment.run_check import edited_settings
 from angora_jax.experiment.run_dir import (
     CHECKPOINTS,
     EVALUATIONS,
@@ -181,7 +182,7 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     """
     compilation_cache.enable()
     run_dir = Path(run_dir)
-    config = read_run_config(run_dir)
+    config = on_disk = read_run_config(run_dir)
     before = config.ppo
     if num_cycles is not None:
         config = _lengthened(config, num_cycles, run_dir)
@@ -191,6 +192,8 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     lock = _lock_together(run_dir, force)
     try:
         plan = plan_resume(run_dir, config, start_from, from_scratch)
+        if plan.cycle is not None:
+            _refuse_edited(run_dir, on_disk)
         if config.ppo != before:
             if plan.cycle is not None and config.ppo.num_cycles < plan.cycle:
                 raise ConfigError(f"--num-cycles {config.ppo.num_cycles} is below cycle {plan.cycle}, where {run_dir} "
@@ -232,6 +235,18 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     finally:
         if lock is not None:
             lock.release()
+
+
+def _refuse_edited(run_dir: Path, config: Config) -> None:
+    """ConfigError when the run's config.yaml (`config`) holds other task or learning settings than its checkpoints
+    were trained with: continuing would make one run's records of two (`run_check.edited_settings`)."""
+    edited = edited_settings(run_dir, config)
+    if edited is not None:
+        raise ConfigError(
+            f"{edited.describe(run_dir)}. resume continues a run with the settings it was trained with, so that its "
+            f"records stay one run's. To continue it, put them back: `angora-jax check {run_dir} --restore-config` "
+            f"(the edited file is kept beside it). To train with the new settings, start a new run from its policy: "
+            f"`angora-jax train CONFIG ppo.init_from={run_dir}:latest`.")
 
 
 def _kept(moved: Path) -> str:
