@@ -149,7 +149,8 @@ def test_a_finished_run_trained_longer_ends_as_the_longer_run_and_records_its_ne
 def test_a_run_stopped_at_its_target_trains_on_past_it_when_asked(runs, tmp_path, capsys, monkeypatch):
     """A run that `ppo.stop_at` ended is complete: `resume` leaves it as it is, reads its checkpoint without the
     environments (nothing continues them) and says how to go on; `resume --no-stop-at` trains it to its
-    `ppo.num_cycles`, bit for bit the run without a target, and removes the target from its config.yaml."""
+    `ppo.num_cycles`, bit for bit the run without a target, and removes the target from its config.yaml. `--num-cycles`
+    alone is refused before it records anything: it would train nothing."""
     whole = runs[0]
     target = "ppo.stop_at={metric: episode_return, value: -1.0e9, episodes: 1}"  # the first cycle's own return
     early = aj.train(aj.load_config("cartpole", [*TINY, target, f"logging.run_root={tmp_path}",
@@ -166,6 +167,10 @@ def test_a_run_stopped_at_its_target_trains_on_past_it_when_asked(runs, tmp_path
     assert f"To train on past it: angora-jax resume {early.run_dir} --no-stop-at" in out
     assert main(["check", str(early.run_dir)]) == 0
     assert "ppo.stop_at ended it (episode_return" in capsys.readouterr().out
+    recorded = (early.run_dir / "config.yaml").read_text()
+    assert main(["resume", str(early.run_dir), "--num-cycles", "6"]) == 2, "a longer length alone trains nothing"
+    assert "add --no-stop-at to train it on to 6 cycles" in capsys.readouterr().err
+    assert (early.run_dir / "config.yaml").read_text() == recorded, "a refused length must not be recorded"
     assert main(["resume", str(early.run_dir), "--no-stop-at"]) == 0
     captured = capsys.readouterr()
     assert "ppo.stop_at removed, recorded in its config.yaml" in captured.err and "4 cycles done (3" in captured.out

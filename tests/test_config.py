@@ -94,6 +94,8 @@ BAD = {
     "stop at a metric the task lacks": (["ppo.stop_at={metric: metric/goals_reached, value: 30}"],
                                         r"ppo.stop_at.metric.*episode_return"),
     "stop at an unknown mode": (["ppo.stop_at={value: 30, mode: above}"], r"ppo.stop_at.mode must be 'max' or 'min'"),
+    "stop at no value": (["ppo.stop_at={metric: episode_return}"],
+                         r"ppo.stop_at needs value \(the metric's value that ends the run\)"),
     "negative evaluation interval": (["evaluation.every=-1"], r"evaluation.every must be >= 0"),
     "huge integer for a number": (["ppo.gamma=1" + "0" * 400], r"ppo.gamma must be a finite number, got a 401-digit"),
     "integer too long to read": (["ppo.seed=1" + "0" * 5000], r"Override 'ppo.seed=10.*the integer on line 1 has 5,001 "

@@ -33,8 +33,9 @@ GRAPH = ["ppo.network.name=areas", "ppo.network.width=null",
          "policy: M1}"]
 # Sections that are null by default, set so that their keys are read; those CartPole cannot have (a visual area, a
 # video) are refused whatever the key's value, which still checks that every value is refused cleanly.
-CONTEXT = {"ppo.network.graph.": GRAPH, "ppo.stop_at.": ["ppo.stop_at={}"], "logging.wandb.": ["logging.wandb={}"],
-           "ppo.network.visual.": ["ppo.network.visual={}"], "evaluation.video.": ["evaluation.video={}"]}
+CONTEXT = {"ppo.network.graph.": GRAPH, "ppo.stop_at.": ["ppo.stop_at={value: 1}"],
+           "logging.wandb.": ["logging.wandb={}"], "ppo.network.visual.": ["ppo.network.visual={}"],
+           "evaluation.video.": ["evaluation.video={}"]}
 
 
 @dataclasses.dataclass(frozen=True)

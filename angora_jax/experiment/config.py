@@ -595,10 +595,12 @@ def _build(cls: type, data: Any, path: str) -> Any:
             guesses = close or [prefix + below for below in _paths_below(cls, str(key))]
             hint = f" Did you mean {' or '.join(map(repr, guesses))}?" if guesses else ""
             raise ConfigError(f"Unknown key {full!r}.{hint} Keys of {where}: {', '.join(names)}.")
-    required = [f.name for f in dataclasses.fields(cls)
+    required = [f for f in dataclasses.fields(cls)
                 if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING and f.name not in data]
     if required:
-        raise ConfigError(f"{where} needs {', '.join(required)} (keys of {where}: {', '.join(names)}).")
+        needed = ", ".join(f.name + (f" ({f.metadata['bounds'].why})" if "bounds" in f.metadata else "")
+                           for f in required)
+        raise ConfigError(f"{where} needs {needed} (keys of {where}: {', '.join(names)}).")
     hints = typing.get_type_hints(cls)
     values = {}
     for key, value in data.items():

@@ -194,6 +194,11 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
         plan = plan_resume(run_dir, config, start_from, from_scratch)
         if plan.cycle is not None:
             _refuse_edited(run_dir, on_disk)
+        ended = None if plan.fresh_start else ended_by_stop_at(run_dir, config.ppo.stop_at, plan.cycle)
+        if ended is not None and config.ppo.num_cycles != before.num_cycles:
+            raise ConfigError(f"ppo.stop_at ended {run_dir} at cycle {plan.cycle} ({ended}), so --num-cycles alone "
+                              f"would train nothing: add --no-stop-at to train it on to {config.ppo.num_cycles} "
+                              "cycles.")
         if config.ppo != before:
             if plan.cycle is not None and config.ppo.num_cycles < plan.cycle:
                 raise ConfigError(f"--num-cycles {config.ppo.num_cycles} is below cycle {plan.cycle}, where {run_dir} "
@@ -206,7 +211,6 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
                 print(f"{run_dir}: {', '.join(changes)}, recorded in its config.yaml.", file=sys.stderr, flush=True)
         if plan.cycle is None:  # a start from cycle 0 reads its saved starting values (ppo.init_from, pretrained)
             check_sources(config, env)
-        ended = None if plan.fresh_start else ended_by_stop_at(run_dir, config.ppo.stop_at, plan.cycle)
         state = None
         if plan.cycle is not None:
             checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)

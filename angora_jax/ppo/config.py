@@ -223,8 +223,8 @@ class StopAt:
     `--stop-early`).
 
     Attributes:
-        metric: a per-cycle metric, as `checkpoint.best_metric` names them ("episode_return", "metric/goals_reached").
         value: the value to reach, in the metric's units.
+        metric: a per-cycle metric, as `checkpoint.best_metric` names them ("episode_return", "metric/goals_reached").
         mode: "max" stops when the metric is >= value, "min" when it is <= value.
         episodes: a training metric is compared over this many of the latest episodes, as the best checkpoint's
             (`checkpoint.best_episodes`): the cycle's own when that many ended in it (hundreds on a GPU), else pooled
@@ -233,8 +233,9 @@ class StopAt:
             (a cycle in which no episode ended has no value and never stops the run).
     """
 
+    # No default value: a target left out would be 0, which most runs reach in their first cycle.
+    value: float = bounded(why="the metric's value that ends the run")
     metric: str = "episode_return"
-    value: float = bounded(0.0, why="the metric's units")
     mode: str = "max"
     episodes: int = count_field(32, why="the episodes the metric is compared over")
 
