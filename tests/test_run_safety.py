@@ -492,6 +492,31 @@ def test_an_edited_config_is_refused_by_resume_found_by_check_and_put_back(whole
     assert main(["check", str(run)]) == 0, "the length that resume recorded is no edit"
 
 
+def test_a_checkpoint_without_its_manifest_is_read_whole_by_check_and_a_damaged_one_is_one_line(whole, tmp_path,
+                                                                                                 capfd):
+    """A checkpoint without a manifest (cut off between Orbax's save and the manifest, or its manifest lost) cannot be
+    verified by one: `check` reads it whole instead, passes it when it reads and reports it when it does not. Reading a
+    damaged one ends in one message naming resume's --from, without Orbax's and TensorStore's tracebacks and specs
+    (dozens to thousands of lines)."""
+    run = copy_of(whole, tmp_path)
+    latest = run / "checkpoints" / "latest" / str(CYCLES)
+    (latest / "manifest.json").unlink()
+    assert main(["check", str(run)]) == 0, capfd.readouterr()
+    assert "without a manifest, unverifiable: cycle" in capfd.readouterr().out
+    largest = max((path for path in (latest / "state").rglob("*") if path.is_file()), key=lambda p: p.stat().st_size)
+    with largest.open("r+b") as file:
+        file.truncate(10)
+    assert main(["check", str(run)]) == 2
+    out, err = capfd.readouterr()
+    assert f"PROBLEM: checkpoint latest/{CYCLES} has no manifest and cannot be read" in out, out
+    assert err == "", err[:2000]
+    for verb in (["resume", str(run)], ["evaluate", str(run), "--checkpoint", "latest", "--episodes", "1"]):
+        assert main(verb) == 2
+        err = capfd.readouterr().err
+        assert err.count("\n") == 1 and f"latest/{CYCLES} cannot be read (" in err, err[:2000]
+        assert "TensorStore" not in err and "or to resume's --from" in err
+
+
 def test_a_run_whose_checkpoints_will_not_fit_says_so_before_training(whole, tmp_path, monkeypatch, capsys):
     run = copy_of(whole, tmp_path)
     monkeypatch.setattr(runner.shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(1 << 30, 1 << 30, 1 << 10))

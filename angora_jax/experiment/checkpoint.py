@@ -13,12 +13,16 @@ have changed since saving.
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import logging
 import math
+import os
 import shutil
 import sys
+import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -292,28 +296,51 @@ class Checkpoints:
         )
         manager = self._managers[kind]
         self.check_intact(kind, cycle)
+        failure = None
         try:
             stored = manager.item_metadata(cycle)["state"].tree
             _check_fits(self._directory / kind / str(cycle), stored, abstract, partial)
-            restored = manager.restore(
-                cycle,
-                args=ocp.args.Composite(
-                    state=ocp.args.PyTreeRestore(
-                        abstract, ocp.checkpoint_utils.construct_restore_args(abstract), partial_restore=partial
-                    ),
-                    meta=ocp.args.JsonRestore(),
-                ),
-            )
         except CheckpointError:
             raise
         except Exception as error:  # Orbax and TensorStore raise many types for unreadable files; all mean the same
+            failure = _briefly(error)
+        else:
+            args = ocp.args.Composite(
+                state=ocp.args.PyTreeRestore(
+                    abstract, ocp.checkpoint_utils.construct_restore_args(abstract), partial_restore=partial
+                ),
+                meta=ocp.args.JsonRestore(),
+            )
+            with _silenced_while_reading():
+                try:
+                    restored = manager.restore(cycle, args=args)
+                except Exception as error:
+                    failure = _briefly(error)
+                _collect_if(failure)
+        if failure is not None:
+            _drop_failed_read_reports()
             existing = {k: self.steps(k) for k in KINDS}
             raise CheckpointError(
-                f"Checkpoint {self._directory / kind / str(cycle)} cannot be read ({type(error).__name__}: {error}). "
-                f"It is corrupt, incomplete or from an incompatible version of angora_jax. Use another one "
-                f"(saved cycles: {existing}; pass its cycle to --checkpoint), or delete this one."
-            ) from error
+                f"Checkpoint {self._directory / kind / str(cycle)} cannot be read ({failure}). It is corrupt, "
+                f"incomplete or from an incompatible version of angora_jax. Use another one (saved cycles: "
+                f"{existing}; pass its cycle to --checkpoint, or to resume's --from), or delete this one."
+            )
         return Restored(from_storable(template, restored["state"]), dict(restored["meta"]))
+
+    def unreadable(self, kind: str, cycle: int) -> str | None:
+        """Why checkpoint `kind`/`cycle` cannot be read whole (every array read as it was saved, without a template),
+        None when it can: the check left for one without a manifest to verify it by."""
+        failure = None
+        with _silenced_while_reading():
+            try:
+                self._managers[kind].restore(cycle, args=ocp.args.Composite(
+                    state=ocp.args.PyTreeRestore(), meta=ocp.args.JsonRestore()))
+            except Exception as error:  # as in `restore`: any failure to read means the same
+                failure = _briefly(error)
+            _collect_if(failure)
+        if failure is not None:
+            _drop_failed_read_reports()
+        return failure
 
     def holds_environments(self, which: str | int = "latest") -> bool:
         """Whether checkpoint `which` holds the environments' states (not `checkpoint.lean`), so that resuming from
@@ -508,6 +535,61 @@ class _QuietWriters:
         sys.unraisablehook, sys.excepthook = self._unraisable, self._excepthook
         for logger in self._loggers:
             logger.removeFilter(self._echo)
+
+
+def _briefly(error: BaseException) -> str:
+    """An Orbax or TensorStore error in one line: its type and first sentence, without the TensorStore spec (dozens of
+    lines) that some append."""
+    text = str(error).split(" See full TensorStore details")[0].strip().splitlines()
+    first = text[0].rstrip(". ") if text else ""
+    return f"{type(error).__name__}: {first[:300]}"
+
+
+@contextlib.contextmanager
+def _silenced_while_reading() -> Iterator[None]:
+    """Standard error (the file descriptor, for TensorStore's threads, and Python's stream) into /dev/null while a
+    checkpoint is read: when a read fails, Orbax's and TensorStore's threads and left-over coroutines print a traceback
+    per array (thousands of lines, "Event loop is closed") around the one message the user should get."""
+    sys.stderr.flush()
+    kept_fd, kept_stream, kept_hook = os.dup(2), sys.stderr, sys.unraisablehook
+    sink = open(os.devnull, "w")  # noqa: SIM115 (closed below, after the descriptor is put back)
+    os.dup2(sink.fileno(), 2)
+    sys.stderr, sys.unraisablehook = sink, (lambda unraisable: None)
+    try:
+        yield
+    finally:
+        os.dup2(kept_fd, 2)
+        os.close(kept_fd)
+        sys.stderr, sys.unraisablehook = kept_stream, kept_hook
+        sink.close()
+
+
+def _collect_if(failure: str | None) -> None:
+    """After a failed read (inside `_silenced_while_reading`): collect its left-over coroutines and give the threads
+    a moment for their last reports, so that they print into the sink; those still held (finalized when the process
+    exits) are dropped by a filter on the hook that reports them (`_drop_failed_read_reports`)."""
+    if failure is not None:
+        gc.collect()
+        time.sleep(0.2)
+
+
+def _drop_failed_read_reports() -> None:
+    """From a failed read on, drop the "Exception ignored" reports of Orbax's array-reading coroutines that it left
+    behind (and the warning that one was never awaited), and asyncio's "exception was never retrieved" for its
+    reading tasks; every other report goes where it went. Installed once."""
+    previous = sys.unraisablehook
+    if getattr(previous, "drops_failed_reads", False):
+        return
+
+    def hook(unraisable: Any) -> None:
+        if "_read_array_index_and_device_put" not in repr(unraisable.object):
+            previous(unraisable)
+
+    hook.drops_failed_reads = True
+    sys.unraisablehook = hook
+    warnings.filterwarnings("ignore", message="coroutine '_read_array_index_and_device_put' was never awaited")
+    logging.getLogger("asyncio").addFilter(lambda record: not (
+        "never retrieved" in record.getMessage() and "while reading array index" in record.getMessage()))
 
 
 def disk_needed(config: CheckpointConfig, state: Any, cycles_left: int) -> int:

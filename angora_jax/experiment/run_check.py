@@ -181,6 +181,10 @@ def check_run(run_dir: str | Path) -> RunCheck:
             result.findings.append(f"checkpoints/{kind}: {'; '.join(kept) or 'none'}")
             result.problems += [f"checkpoint {kind}/{cycle} is damaged: {damage}" for cycle, damage in verdicts.items()
                                 if damage not in (None, "no manifest")]
+            if not live:  # nothing to verify them by: read them whole instead
+                result.problems += [f"checkpoint {kind}/{cycle} has no manifest and cannot be read ({why}); resume "
+                                    f"--from another checkpoint, or restore the folder from a copy"
+                                    for cycle in unverified if (why := checkpoints.unreadable(kind, cycle))]
         latest = checkpoints.steps("latest")
     finally:
         checkpoints.close()
