@@ -567,7 +567,7 @@ def test_a_gpu_sized_config_started_without_a_gpu_says_so_before_compiling(capsy
     assert "Note: no GPU found, and this config is sized for one: 16,384 envs x 32 steps = 524,288 env steps" in out
     assert "about 3.3 hours per cycle at the 44 env steps/s" in out
     override = re.search(r"For a CPU run, add: (.*?);", out).group(1).split()
-    assert override == ["ppo.num_envs=64", "ppo.minibatch_size=512"]
+    assert override == ["ppo.num_envs=32", "ppo.minibatch_size=256"], "at most 32: docs/troubleshooting.md"
     validate(load_config("shadow_ihom", override))
     assert cpu_note(load_config("shadow_ihom", override), {"engine": "MuJoCo MJX (JAX implementation)"}, False) is None
     assert cpu_note(load_config("shadow_ihom"), {"engine": "MuJoCo MJX (MuJoCo Warp implementation)"}, True) is None

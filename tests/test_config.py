@@ -124,6 +124,9 @@ BAD = {
                                r"env.options.max_episode_steps must be a finite number, got inf"),
     "option beyond int32": (["env.options.max_episode_steps=2147483648"],
                             r"max_episode_steps must be a whole number from 1 to 2,147,483,647"),
+    "a minibatch larger than the batch, with a size that fits": (
+        ["ppo.num_envs=2", "ppo.rollout_length=32", "ppo.minibatch_size=512"],
+        r"minibatch_size \(512\) must .* divide num_envs \* rollout_length \(64\), e.g. ppo.minibatch_size=64 \(1 "),
     "best by an evaluation that never runs": (
         ["checkpoint.best_metric=eval/episode_return"],
         r"checkpoint.best_metric='eval/episode_return' names a held-out .* set evaluation.every=N",

@@ -28,7 +28,7 @@ def add_config(commands: argparse._SubParsersAction) -> None:
     show = config_commands.add_parser("show", help="print the resolved config (YAML) of CONFIG with the overrides, "
                                                    "checked as train checks it, without running anything")
     show.add_argument("config", help="YAML path or the name of a shipped config (see list-configs)")
-    show.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. ppo.num_envs=64")
+    show.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. ppo.num_envs=32")
     show.set_defaults(handler=command_config_show)
     reference = config_commands.add_parser("reference", help="print every config key with its type, default and "
                                                              "description (Markdown; docs/config.md)")

@@ -12,7 +12,9 @@ CPU_ENV_STEPS_PER_S = {"ShadowHandReach": 1715.0, "ShadowHandFreeReach": 1715.0,
                        "ShadowHandReachSequential": 1715.0, "ShadowHandFreeReachSequential": 1715.0}
 # Past this many env steps per cycle, a task without a measured rate is called GPU-sized.
 GPU_SIZED_STEPS = 65536
-CPU_ENVS = 64
+# At most 32: more hand environments in one program deadlocked XLA's CPU thread pool on 2 cores
+# (docs/troubleshooting.md).
+CPU_ENVS = 32
 
 
 def cpu_note(config: Config, physics: dict, on_gpu: bool) -> str | None:

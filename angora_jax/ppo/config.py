@@ -375,6 +375,18 @@ class PPOConfig:
         """A copy with `changes` applied (frozen dataclasses cannot be edited in place)."""
         return dataclasses.replace(self, **changes)
 
+    def _minibatch_hint(self) -> str:
+        """", e.g. ppo.minibatch_size=M": a size that fits this batch, as few minibatches as the run's own (or 4),
+        for a message; "" when none does."""
+        batch = self.num_envs * self.rollout_length
+        wanted = max(1, round(batch / self.minibatch_size)) if self.minibatch_size else 4
+        for count in sorted(range(1, min(batch, 4096) + 1), key=lambda k: (abs(k - wanted), k)):
+            size = batch // count
+            if batch % count == 0 and size % self.chunk_length == 0 and tile_shape(
+                    dataclasses.replace(self, minibatch_size=size)) is not None:
+                return f", e.g. ppo.minibatch_size={size} ({count} minibatch{'es' if count > 1 else ''})"
+        return ""
+
     def validate(self) -> PPOConfig:
         """Raise a ValueError naming the field when a setting is out of range or inconsistent; return self."""
         check_bounds(self, "PPOConfig")
@@ -400,7 +412,7 @@ class PPOConfig:
         if self.minibatch_size % self.chunk_length or batch % self.minibatch_size:
             raise ValueError(
                 f"PPOConfig.minibatch_size ({self.minibatch_size}) must be a multiple of chunk_length "
-                f"({self.chunk_length}) and divide num_envs * rollout_length ({batch})."
+                f"({self.chunk_length}) and divide num_envs * rollout_length ({batch}){self._minibatch_hint()}."
             )
         if tile_shape(self) is None:
             raise ValueError(
