@@ -248,6 +248,10 @@ def test_missing_and_corrupt_checkpoints_exit_2_naming_cause_and_fix(run_dir, tm
     assert f"Checkpoint {corrupt / 'checkpoints' / 'latest'}" in err and "is damaged: " in err, err
     assert "The newest intact checkpoint is" in err and "--checkpoint" in err, err
     assert not (corrupt / "evaluation").exists()
+    shutil.rmtree(corrupt / "checkpoints" / "latest")
+    assert main(["evaluate", str(corrupt), "--checkpoint", "latest", "--episodes", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "No checkpoint 'latest'" in err and "ask for 'best' or a cycle (" in err, "not the kind that is missing"
     shutil.rmtree(corrupt / "checkpoints")
     assert main(["evaluate", str(corrupt), "--episodes", "1"]) == 2
     assert "saved none yet" in capsys.readouterr().err

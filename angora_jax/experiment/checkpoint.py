@@ -407,9 +407,11 @@ class Checkpoints:
                 f"No checkpoints in {self._directory}: the run has saved none yet (it saves one every "
                 f"checkpoint.every cycles and at its end). Continue it with `angora-jax resume` or train it again."
             )
-        raise FileNotFoundError(
-            f"No checkpoint {which!r}. Saved cycles: {existing}; ask for 'latest', 'best' or one of them."
-        )
+        saved = {kind: cycles for kind, cycles in existing.items() if cycles}
+        kinds = [repr(kind) for kind in ("latest", "best") if kind in saved]
+        cycles = sorted({cycle for found in saved.values() for cycle in found})
+        choices = " or ".join([*kinds, f"a cycle ({', '.join(map(str, cycles[-8:]))})"])
+        raise FileNotFoundError(f"No checkpoint {which!r}. Saved cycles: {saved}; ask for {choices}.")
 
     def damage(self, kind: str, cycle: int) -> str | None:
         """What is wrong with checkpoint `kind`/`cycle` by its manifest (`manifest.verify`), None when intact; "no
