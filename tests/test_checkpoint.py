@@ -357,6 +357,17 @@ def test_a_run_directory_is_never_overwritten(runs, tmp_path):
     with pytest.raises(RunDirError, match="already exists and is left untouched.*angora-jax resume"):
         aj.train(config(whole.run_dir.parent, "whole"))
     assert {p: p.stat().st_mtime_ns for p in whole.run_dir.rglob("*")} == before
+    # A name taken by something that is no run gets no advice to resume it (resume would refuse it).
+    (tmp_path / "afile").write_text("notes")
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "starting").mkdir()
+    (tmp_path / "starting" / "writer.lock").write_text("{}")
+    for name, said in (("afile", "is a file, not a run directory"), ("empty", "exists and is not a run"),
+                       ("starting", "Another process is starting a run in")):
+        with pytest.raises(RunDirError, match=said) as refused:
+            aj.train(config(tmp_path, name))
+        assert "resume" not in str(refused.value) and "another logging.run_name" in str(refused.value)
+    assert (tmp_path / "afile").read_text() == "notes" and not any((tmp_path / "empty").iterdir())
 
 
 def test_records_after_the_checkpoint_are_set_aside_not_lost(tmp_path):

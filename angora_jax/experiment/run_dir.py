@@ -85,9 +85,20 @@ def create_run_dir(config: Config, claim: Callable[[Path], None] | None = None) 
         try:
             path.mkdir()
         except FileExistsError:
+            new_name = "start a new run with another logging.run_name (or none, for a dated name)"
+            if path.is_file():
+                raise RunDirError(f"{path} is a file, not a run directory; it is left untouched: {new_name}.") from None
+            if not (path / CONFIG_FILE).is_file():
+                from angora_jax.experiment.run_lock import LOCK_FILE  # run_lock builds on this module
+
+                if (path / LOCK_FILE).exists():
+                    raise RunDirError(f"Another process is starting a run in {path} (its writer lock is there) and "
+                                      f"it is left to it: {new_name}.") from None
+                raise RunDirError(f"{path} exists and is not a run (no {CONFIG_FILE}); it is left untouched: "
+                                  f"{new_name}, or move it away.") from None
             raise RunDirError(
                 f"Run directory {path} already exists and is left untouched. Continue it with `angora-jax resume "
-                f"{path}`, or start a new run with another logging.run_name (or none, for a dated name)."
+                f"{path}`, or {new_name}."
             ) from None
     else:
         stem = f"{config.env.task}-{config.ppo.network.name}-{time.strftime('%Y%m%d-%H%M%S')}"
