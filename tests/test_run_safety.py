@@ -24,7 +24,7 @@ from tiny import TINY_PPO
 import angora_jax as aj
 from angora_jax.cli import main
 from angora_jax.experiment import checkpoint as checkpoint_module
-from angora_jax.experiment import read_metrics, resume, runner
+from angora_jax.experiment import read_metrics, resume, resume_plan, runner
 from angora_jax.experiment.checkpoint import Checkpoints, disk_needed
 from angora_jax.experiment.manifest import MANIFEST_FILE
 from angora_jax.experiment.run_check import check_run
@@ -152,7 +152,22 @@ def test_resume_never_starts_over_by_itself(whole, tmp_path, capsys):
     assert (run / "previous-1" / "metrics.jsonl").read_text() == metrics
     assert not any(path.exists() for path in made)
     assert all((run / "previous-1" / path.relative_to(run)).exists() for path in made)
+    assert (run / "previous-1" / "config.yaml").read_text() == (run / "config.yaml").read_text(), "a run of its own"
     assert untimed(read_metrics(run)) == untimed(whole.history) and fresh.finished
+
+
+def test_ctrl_c_while_a_fresh_start_compiles_says_the_run_starts_over_and_where_the_earlier_training_is(
+        whole, tmp_path, monkeypatch, capsys):
+    """Interrupted before its first cycle, a `--from-scratch` start holds no checkpoint (the earlier ones moved to
+    previous-N): the message says where they are and that resume starts from cycle 0, not that it continues."""
+    run = copy_of(whole, tmp_path)
+    resume_plan.set_aside_outputs(run)
+    monkeypatch.setattr(runner.os, "_exit", lambda code: (_ for _ in ()).throw(SystemExit(code)))
+    with pytest.raises(SystemExit) as ended:
+        runner._exit_while_preparing(signal.SIGINT, run, new=False)
+    err = capsys.readouterr().err
+    assert ended.value.code == 130 and f"the earlier training is kept in {run / 'previous-1'}" in err, err
+    assert "starts it from cycle 0 again" in err and "keeps its checkpoints" not in err
 
 
 def test_records_after_the_checkpoint_continued_from_move_to_a_side_file_with_damaged_lines(whole, tmp_path, capsys):

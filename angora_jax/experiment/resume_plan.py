@@ -16,7 +16,16 @@ from angora_jax.experiment.checkpoint import KINDS, Checkpoints
 from angora_jax.experiment.config import Config
 from angora_jax.experiment.manifest import verify
 from angora_jax.experiment.monitor import logged_cycles
-from angora_jax.experiment.run_dir import CHECKPOINTS, EVALUATIONS, METRICS_FILE, VIDEOS, RunDirError, numbered_paths
+from angora_jax.experiment.run_dir import (
+    CHECKPOINTS,
+    CONFIG_FILE,
+    EVALUATIONS,
+    HYPERPARAMETERS_FILE,
+    METRICS_FILE,
+    VIDEOS,
+    RunDirError,
+    numbered_paths,
+)
 
 # What a fresh start moves aside (into RUN_DIR/previous-N/): everything the earlier training wrote but its config and
 # the session log, which goes on, and what was made from its checkpoints (evaluations, `analyze ablate`'s default
@@ -115,9 +124,14 @@ def set_aside_checkpoints_after(run_dir: Path, cycle: int) -> Path | None:
 
 
 def set_aside_outputs(run_dir: Path) -> Path:
-    """Move the run's training outputs (`TRAINING_OUTPUTS`) into a new `RUN_DIR/previous-N/` and return it."""
+    """Move the run's training outputs (`TRAINING_OUTPUTS`) into a new `RUN_DIR/previous-N/` with a copy of its
+    config, so that the earlier training stays a run of its own (`evaluate`, `report`, `check` read it), and return
+    it."""
     target = next(path for path in (run_dir / f"previous-{n}" for n in range(1, 10_000)) if not path.exists())
     target.mkdir()
+    for name in (CONFIG_FILE, HYPERPARAMETERS_FILE):
+        if (run_dir / name).is_file():
+            shutil.copy2(run_dir / name, target / name)
     for name in TRAINING_OUTPUTS:
         if (run_dir / name).exists():
             shutil.move(run_dir / name, target / name)
