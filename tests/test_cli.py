@@ -104,11 +104,17 @@ def test_bad_input_exits_2_with_the_cause(argv, message, capsys, tmp_path, monke
 def test_a_path_in_or_above_a_run_names_the_run_directory(capsys, tmp_path, monkeypatch):
     """A run's config.yaml or checkpoints folder given for the run, or the folder of runs, names the run directory
     to give instead (relative as typed); a missing path says it does not exist; a run given for a recording says to
-    record it."""
+    record it; an exported policy or a recording given for a run says what it is and what to do instead."""
     monkeypatch.chdir(tmp_path)
     (tmp_path / "runs" / "a" / "checkpoints").mkdir(parents=True)
     (tmp_path / "runs" / "a" / "config.yaml").write_text("env: {task: CartPole}\n")
+    (tmp_path / "policy.msgpack").write_bytes(b"")
+    (tmp_path / "act.nc").write_bytes(b"")
     for argv, said in [
+        (["evaluate", "policy.msgpack"], "policy.msgpack is an exported policy (`angora-jax export`), not the run "
+                                         "directory this command reads: act with it in Python, `aj.load_policy"),
+        (["analyze", "ablate", "act.nc", "--lesion", "network.M1"], "act.nc is a recording (`angora-jax record`) or "
+                                                                   "an analysis's numbers, not the run directory"),
         (["evaluate", "runs/a/config.yaml"], "runs/a/config.yaml is a file, not a run directory. It is inside the run "
                                              "directory runs/a: give that."),
         (["check", "runs/a/checkpoints"], "runs/a/checkpoints is not a run directory: it has no config.yaml. It is "

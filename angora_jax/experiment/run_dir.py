@@ -144,6 +144,14 @@ def read_run_config(run_dir: str | Path) -> Config:
         raise RunDirError(f"{path} does not load with this version of angora_jax: {error}{copy}") from None
 
 
+# Files the commands write that a user may give where a run directory belongs: what each is, and what to do instead.
+KNOWN_FILES = {
+    ".msgpack": ("an exported policy (`angora-jax export`)", "act with it in Python, `aj.load_policy(file)`, whose "
+                 "`.agent` evaluates and is probed (docs/evaluation.md, Export a policy)"),
+    ".nc": ("a recording (`angora-jax record`) or an analysis's numbers", "give the run it was recorded from"),
+}
+
+
 def not_a_run_dir(path: str | Path, otherwise: str = "") -> str:
     """Why `path` is not a run directory, and the run directory it is in or holds, where there is one (a run's
     config.yaml or checkpoints folder given for the run is a slip worth naming); else `otherwise` is added."""
@@ -155,6 +163,9 @@ def not_a_run_dir(path: str | Path, otherwise: str = "") -> str:
     run = next((parent for parent in resolved.parents if (parent / CONFIG_FILE).is_file()), None)
     if run is not None:
         return f"{said} It is inside the run directory {_as_given(path, run)}: give that."
+    if resolved.is_file() and resolved.suffix in KNOWN_FILES:
+        what, instead = KNOWN_FILES[resolved.suffix]
+        return f"{path} is {what}, not the run directory this command reads: {instead}."
     if resolved.is_dir():
         runs = sorted(child.name for child in resolved.iterdir() if (child / CONFIG_FILE).is_file())
         if runs:
