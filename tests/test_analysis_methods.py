@@ -513,7 +513,8 @@ def test_fixed_point_of_a_relu_graph_area_given_its_input_layers_explicitly():
 @pytest.mark.slow
 def test_analyze_dynamics_finds_a_graph_area_s_fixed_points_without_inputs(tmp_path, monkeypatch, capsys):
     """`angora-jax analyze dynamics --run RUN --recurrent network.PMC`: the area's inputs come from the graph, and
-    the point is the tanh area's (the run is the agent above: loading a run is not under test)."""
+    the point is the tanh area's (the run is the agent above: loading a run is not under test); the weights are those
+    of the recorded cycle."""
     from angora_jax import cli
     from angora_jax.analysis import save_activity
 
@@ -521,8 +522,22 @@ def test_analyze_dynamics_finds_a_graph_area_s_fixed_points_without_inputs(tmp_p
                          "PMC": {"size": 5, "inputs": ("S1", "proprioception"), "cell": "rnn"}})
     recording = graph_recording({"network.S1": 3, "network.PMC.0": 5, "network.PMC.1": 5})
     path = save_activity(recording, tmp_path / "graph.nc")
-    monkeypatch.setattr(cli.analysis, "load_agent", lambda run, checkpoint: agent)
+    asked = []
+    monkeypatch.setattr(cli.analysis, "load_agent",
+                        lambda run, checkpoint, options=(): asked.append(checkpoint) or agent)
     assert cli.main(["analyze", "dynamics", str(path), "--run", "RUN", "--recurrent", "network.PMC"]) == 0
     assert "network.PMC: 15 of 15 starts reached a fixed point" in capsys.readouterr().out
+    assert asked == ["best"], "a recording that names no cycle: the best checkpoint"
+    # A recording names its cycle: its weights are loaded by default, and others are refused.
+    recording.attrs["cycle"] = agent.cycle
+    path = save_activity(recording, tmp_path / "graph-cycle0.nc")
+    assert cli.main(["analyze", "dynamics", str(path), "--run", "RUN", "--recurrent", "network.PMC"]) == 0
+    assert asked[-1] == 0
+    recording.attrs["cycle"] = 7
+    path = save_activity(recording, tmp_path / "graph-cycle7.nc")
+    capsys.readouterr()
+    assert cli.main(["analyze", "dynamics", str(path), "--run", "RUN", "--recurrent", "network.PMC",
+                     "--checkpoint", "best"]) == 2
+    assert "The recording was made from cycle 7, and --checkpoint best of RUN is cycle 0" in capsys.readouterr().err
     assert cli.main(["analyze", "dynamics", str(path), "--inputs", "network.S1"]) == 2
     assert "need --run and --recurrent together, and --inputs only with them" in capsys.readouterr().err

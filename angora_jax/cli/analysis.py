@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -57,7 +59,8 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     dynamics.add_argument("--layers", nargs="*", help="layer names (default: all)")
     dynamics.add_argument("--components", type=positive_int, default=10)
     dynamics.add_argument("--run", default=None, help="the recorded run (for fixed points)")
-    dynamics.add_argument("--checkpoint", default="best", help="the recorded checkpoint (default: best)")
+    dynamics.add_argument("--checkpoint", default=None,
+                               help="the recorded checkpoint (default: the cycle the recording was made from)")
     dynamics.add_argument("--recurrent", default=None, help="recurrent layer, e.g. network.PMC")
     dynamics.add_argument("--inputs", nargs="+", default=None,
                           help="the recorded layer(s) feeding it, e.g. network.PMC_in (default, for an area of a "
@@ -70,7 +73,8 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     crosscorrelation.add_argument("--max-lag", type=positive_int, default=20, help="policy steps (default: 20)")
     seeing = analysis("visual", "inside the visual area: filters, feature maps, saliency, preferred stimuli")
     seeing.add_argument("--run", required=True, help="the recorded run (one that sees camera images)")
-    seeing.add_argument("--checkpoint", default="best", help="the recorded checkpoint (default: best)")
+    seeing.add_argument("--checkpoint", default=None,
+                             help="the recorded checkpoint (default: the cycle the recording was made from)")
     seeing.add_argument("--frames", type=positive_int, default=4, help="frames of the first episode (default: 4)")
     seeing.add_argument("--camera", type=int, default=0, help="which camera's frames (default: 0, the first)")
     seeing.add_argument("--units", type=positive_int, default=4, help="units per layer to show (default: 4)")
@@ -107,7 +111,8 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
                                                "beside the random-weights control's")
     muscles.add_argument("--run", default=None, help="the recorded run: its network with random weights replays the "
                                                      "recording as the control")
-    muscles.add_argument("--checkpoint", default="best", help="the recorded checkpoint (default: best)")
+    muscles.add_argument("--checkpoint", default=None,
+                              help="the recorded checkpoint (default: the cycle the recording was made from)")
     muscles.add_argument("--layers", nargs="*", help="layer names (default: all)")
     muscles.add_argument("--muscles", nargs="+", default=["task_muscle_force", "task_muscle_activation"],
                          help="muscle variables (default: task_muscle_force task_muscle_activation)")
@@ -149,6 +154,19 @@ def command_decode(args: argparse.Namespace) -> int:
                     plot_decoding, summary, stem="decoding")
 
 
+def _recorded_agent(args: argparse.Namespace, data: Any, env_options: Sequence[str] = ()) -> Agent:
+    """The agent of `--run` at the checkpoint the recording `data` was made from (its `cycle`), unless --checkpoint
+    names one; ValueError when that holds another cycle than the recording's: fixed points, controls and filters of
+    other weights than those that made the activity would be read as if they were the same."""
+    recorded = data.attrs.get("cycle")
+    which = checkpoint_of(args.checkpoint) if args.checkpoint else "best" if recorded is None else int(recorded)
+    agent = load_agent(args.run, which, env_options)
+    if recorded is not None and agent.cycle != int(recorded):
+        raise ValueError(f"The recording was made from cycle {int(recorded)}, and --checkpoint {which} of {args.run} "
+                         f"is cycle {agent.cycle}: give --checkpoint {int(recorded)}, or leave it out.")
+    return agent
+
+
 def command_analysis(args: argparse.Namespace) -> int:
     """similarity, dynamics, timescales, crosscorrelation, tuning, sindy, synergies and muscles-or-movements of a
     recording."""
@@ -177,15 +195,14 @@ def command_analysis(args: argparse.Namespace) -> int:
             if not 0 <= args.camera < cameras:
                 raise ValueError(f"--camera must be in [0, {cameras}): the recording has {cameras} cameras.")
             images = data["input_vision"].values[0, : args.frames, args.camera]
-            agent = load_agent(args.run, checkpoint_of(args.checkpoint), args.env_option)
+            agent = _recorded_agent(args, data, args.env_option)
             return analysis.visual_analysis(agent, images, args.units, args.steps)
         if args.analysis == "synergies":
             return analysis.synergies(data, args.max_synergies, args.threshold, args.variable)
         if args.analysis == "muscles-or-movements":
             control = None
             if args.run:
-                agent = load_agent(args.run, checkpoint_of(args.checkpoint))
-                control = analysis.replay_activity(analysis.with_random_weights(agent), data)
+                control = analysis.replay_activity(analysis.with_random_weights(_recorded_agent(args, data)), data)
             return analysis.muscles_or_movements(data, control, args.layers, args.muscles, args.movements,
                                                  args.folds)
         if args.analysis == "sindy":
@@ -195,9 +212,7 @@ def command_analysis(args: argparse.Namespace) -> int:
             raise ValueError("Fixed points need --run and --recurrent together, and --inputs only with them (not "
                              "needed for a recurrent area of a brain-area graph: its inputs come from the recording).")
         if args.run:
-            checkpoint = checkpoint_of(args.checkpoint)
-            fixed.update(analysis.agent_fixed_points(load_agent(args.run, checkpoint), data, args.recurrent,
-                                                     args.inputs))
+            fixed.update(analysis.agent_fixed_points(_recorded_agent(args, data), data, args.recurrent, args.inputs))
         return analysis.principal_components(data, args.layers, args.components)
 
     def plot(result, path):
