@@ -56,6 +56,17 @@ def test_rdms_are_symmetric_with_zero_diagonal_and_match_the_encoded_variable():
         similarity(synthetic(), "metric_y")
 
 
+def test_a_one_unit_layer_is_left_out_of_correlation_rsa_unless_named_and_then_refused_in_our_words():
+    """The correlation between two conditions' mean patterns of one unit is undefined: such a layer (the value
+    output) gave an all-NaN RDM, stored as 0 similarity or ending in rsatoolbox's "different nan positions"."""
+    data = synthetic().assign(activity_value=(("episode", "time", "value_unit"), np.ones((20, 50, 1))))
+    result = similarity(data, "metric_x", bins=4)
+    assert list(result["layer"].values) == ["code", "noise"] and np.isfinite(result["rdm"].values).all()
+    with pytest.raises(ValueError, match=r"The correlation RDM of value \(1 unit\) is undefined.*--layers"):
+        similarity(data, "metric_x", layers=["code", "value"], bins=4)
+    assert "value" in similarity(data, "metric_x", bins=4, method="euclidean")["layer"].values
+
+
 def test_decoding_with_one_fold_is_refused_in_our_words():
     with pytest.raises(ValueError, match=r"at least 2 folds \(--folds\), got 1"):
         decode(synthetic(episodes=4, steps=5), ["code"], ["metric_x"], folds=1)

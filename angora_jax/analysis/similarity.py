@@ -52,10 +52,21 @@ def layer_rdms(dataset: xr.Dataset, labels: np.ndarray, layers: Sequence[str] | 
     Args:
         method: any of rsatoolbox's `calc_rdm` methods ("correlation", "euclidean", ...).
     """
-    layers = list(layers or recorded_layers(dataset))
+    def units(layer: str) -> int:
+        return int(np.prod(dataset[f"activity_{layer}"].shape[2:]))
+
+    # The correlation between two conditions' mean patterns needs at least two units: a one-unit layer (the value
+    # output) has none, so it is left out unless named.
+    layers = list(layers or [layer for layer in recorded_layers(dataset)
+                             if method != "correlation" or units(layer) > 1])
     alive = labels.reshape(-1) >= 0
     rdms = [calc_rdm(_patterns(dataset[f"activity_{layer}"], labels, alive), method=method, descriptor="condition")
             for layer in layers]
+    undefined = [layer for layer, rdm in zip(layers, rdms, strict=True) if np.isnan(rdm.dissimilarities).any()]
+    if undefined:
+        why = ", ".join(f"{layer} ({units(layer)} unit{'s' * (units(layer) > 1)})" for layer in undefined)
+        raise ValueError(f"The {method} RDM of {why} is undefined: some condition's mean pattern has one unit or is "
+                         "constant across its units. Leave the layer out (--layers), or use another method.")
     result = RDMs(np.concatenate([r.dissimilarities for r in rdms]), dissimilarity_measure=method,
                   rdm_descriptors={"layer": layers}, pattern_descriptors=rdms[0].pattern_descriptors)
     return result
