@@ -90,7 +90,7 @@ BAD = {
                                       r"file systems allow 255"),
     "run root too long": (["logging.run_root=" + "/abc" * 1100], r"logging.run_root=.* is 4,400 bytes long; file "
                                                                  r"systems allow paths of 4,095"),
-    "override without =": (["ppo.num_cycles"], r"must look like key.sub=value"),
+    "override without =": (["ppo.num_cycles"], r"must look like key.sub=value, e.g. ppo.num_cycles=VALUE"),
     "stop at a metric the task lacks": (["ppo.stop_at={metric: metric/goals_reached, value: 30}"],
                                         r"ppo.stop_at.metric.*episode_return"),
     "stop at an unknown mode": (["ppo.stop_at={value: 30, mode: above}"], r"ppo.stop_at.mode must be 'max' or 'min'"),
@@ -124,6 +124,9 @@ BAD = {
                                r"env.options.max_episode_steps must be a finite number, got inf"),
     "option beyond int32": (["env.options.max_episode_steps=2147483648"],
                             r"max_episode_steps must be a whole number from 1 to 2,147,483,647"),
+    "a misspelled task option": (["env.options.max_episode_step=10"],
+                                 r"no option 'max_episode_step' \(did you mean 'max_episode_steps'\?\); its "
+                                 r"options: max_episode_steps\."),
     "a minibatch larger than the batch, with a size that fits": (
         ["ppo.num_envs=2", "ppo.rollout_length=32", "ppo.minibatch_size=512"],
         r"minibatch_size \(512\) must .* divide num_envs \* rollout_length \(64\), e.g. ppo.minibatch_size=64 \(1 "),
