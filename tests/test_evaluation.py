@@ -381,3 +381,18 @@ def test_render_shows_a_trained_reach_policy_acting(cortical_reach, tmp_path, op
     import imageio.v3 as iio
 
     assert iio.imread(out).shape == (len(frames), 48, 64, 3)
+
+
+def test_an_mp4_is_written_without_jaxs_warning_that_forking_will_deadlock(tmp_path):
+    """imageio-ffmpeg forks to exec ffmpeg (no Python runs in the child), and JAX warned at every such fork that it
+    "will likely lead to a deadlock": on every MP4 `render`, beside a real hang elsewhere, it misled."""
+    import warnings
+
+    from angora_jax.experiment.video import write_video
+
+    jnp.ones(3).block_until_ready()  # JAX's threads are running, as in any command that renders a policy
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        write_video([np.zeros((16, 16, 3), np.uint8)] * 4, tmp_path / "v.mp4", fps=10)
+    assert (tmp_path / "v.mp4").stat().st_size > 0
+    assert not [w for w in caught if "os.fork()" in str(w.message)], [str(w.message) for w in caught]

@@ -9,6 +9,7 @@ Rendering needs an OpenGL backend (see `angora_jax.envs.rendering`: MUJOCO_GL=eg
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -101,7 +102,10 @@ def write_video(frames: list[np.ndarray], out: str | Path, fps: float) -> Path:
             iio.imwrite(draft, np.stack(frames), duration=1000.0 / fps, loop=0)
         else:
             try:
-                iio.imwrite(draft, np.stack(frames), fps=fps, macro_block_size=1)
+                with warnings.catch_warnings():
+                    # JAX warns at every fork; imageio-ffmpeg forks only to exec ffmpeg, which runs no Python code.
+                    warnings.filterwarnings("ignore", message="os.fork\\(\\) was called", category=RuntimeWarning)
+                    iio.imwrite(draft, np.stack(frames), fps=fps, macro_block_size=1)
             except (ImportError, RuntimeError, OSError) as error:
                 raise RenderError(
                     f"Cannot encode {out} ({error}). MP4 needs the imageio-ffmpeg package (`pip install -c "
