@@ -34,6 +34,8 @@ from angora_jax.whole_files import written_whole
 
 CONFIG_FILE = "config.yaml"
 HYPERPARAMETERS_FILE = "hyperparameters.json"
+# The writer lock of a run (`run_lock`): a process that trains the run holds it.
+LOCK_FILE = "writer.lock"
 METRICS_FILE = "metrics.jsonl"
 CHECKPOINTS = "checkpoints"
 SESSIONS_FILE = "sessions.jsonl"
@@ -89,8 +91,6 @@ def create_run_dir(config: Config, claim: Callable[[Path], None] | None = None) 
             if path.is_file():
                 raise RunDirError(f"{path} is a file, not a run directory; it is left untouched: {new_name}.") from None
             if not (path / CONFIG_FILE).is_file():
-                from angora_jax.experiment.run_lock import LOCK_FILE  # run_lock builds on this module
-
                 if (path / LOCK_FILE).exists():
                     raise RunDirError(f"Another process is starting a run in {path} (its writer lock is there) and "
                                       f"it is left to it: {new_name}.") from None

@@ -18,9 +18,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from angora_jax.experiment.run_dir import RunDirError
-
-LOCK_FILE = "writer.lock"
+from angora_jax.experiment.run_dir import LOCK_FILE, RunDirError
 
 
 class RunLockedError(RunDirError):
