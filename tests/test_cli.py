@@ -571,7 +571,9 @@ def test_a_gpu_sized_config_started_without_a_gpu_says_so_before_compiling(capsy
         runner.train("shadow_ihom", ["logging.progress=lines"])
     out = capsys.readouterr().out
     assert "Note: no GPU found, and this config is sized for one: 16,384 envs x 32 steps = 524,288 env steps" in out
-    assert "about 3.3 hours per cycle at the 44 env steps/s" in out
+    assert "about 3.3 hours per cycle (276 days for its 2,000 cycles) at the 44 env steps/s" in out
+    reach = load_config("shadow_reach_cortical")  # 38 s a cycle, but 1.6 hours in all: said too
+    assert "(1.6 hours for its 150 cycles)" in cpu_note(reach, {"engine": "MuJoCo MJX (JAX implementation)"}, False)
     override = re.search(r"For a CPU run, add: (.*?);", out).group(1).split()
     assert override == ["ppo.num_envs=32", "ppo.minibatch_size=256"], "at most 32: docs/troubleshooting.md"
     validate(load_config("shadow_ihom", override))

@@ -19,21 +19,24 @@ CPU_ENVS = 32
 
 def cpu_note(config: Config, physics: dict, on_gpu: bool) -> str | None:
     """A warning for a run on MJX (`physics`: `Env.physics_info()`) without a GPU whose cycle would take more than
-    5 minutes at the measured CPU rate (or, for tasks without one, more than `GPU_SIZED_STEPS` env steps): the env
-    steps per cycle, the estimated time per cycle and a CPU-sized override (`ppo.num_envs`, `ppo.minibatch_size`).
+    5 minutes, or whose cycles more than an hour with more than `CPU_ENVS` environments, at the measured CPU rate
+    (or, for tasks without one, more than `GPU_SIZED_STEPS` env steps): the env steps per cycle, the estimated time
+    per cycle and in all, and a CPU-sized override (`ppo.num_envs`, `ppo.minibatch_size`).
     None on a GPU, on the eager C MuJoCo path, or for a run small enough."""
     if on_gpu or not physics.get("engine", "").startswith("MuJoCo MJX"):
         return None
     ppo = config.ppo
     steps = ppo.num_envs * ppo.rollout_length
     rate = CPU_ENV_STEPS_PER_S.get(config.env.task)
-    if (steps / rate < 300) if rate else steps <= GPU_SIZED_STEPS:
+    long = ppo.num_cycles * steps / rate >= 3600 and ppo.num_envs > CPU_ENVS if rate else False  # the override helps
+    if (steps / rate < 300 and not long) if rate else steps <= GPU_SIZED_STEPS:
         return None
     envs = min(CPU_ENVS, ppo.num_envs)
     minibatch = envs // (4 if envs % 4 == 0 else 1) * ppo.rollout_length  # 4 minibatches of whole trajectories
     override = f"ppo.num_envs={envs} ppo.minibatch_size={minibatch}"
     cost = "" if rate is None else (
-        f", about {_duration(steps / rate)} per cycle at the {rate:,.0f} env steps/s that 2 CPU cores ran "
+        f", about {_duration(steps / rate)} per cycle ({_duration(ppo.num_cycles * steps / rate)} for its "
+        f"{ppo.num_cycles:,} cycles) at the {rate:,.0f} env steps/s that 2 CPU cores ran "
         "(benchmarks/results/physics_throughput/physics_throughput_cpu.json; "
         f"{_duration(envs * ppo.rollout_length / rate)} with the override)")
     return (f"Note: no GPU found, and this config is sized for one: {ppo.num_envs:,} envs x {ppo.rollout_length} steps "
@@ -42,9 +45,11 @@ def cpu_note(config: Config, physics: dict, on_gpu: bool) -> str | None:
 
 
 def _duration(seconds: float) -> str:
-    """`seconds` in the largest fitting unit, e.g. '3.3 hours', '47 s'."""
+    """`seconds` in the largest fitting unit, e.g. '276 days', '3.3 hours', '47 s', '0.3 s'."""
+    if seconds >= 3 * 86400:
+        return f"{seconds / 86400:,.0f} days"
     if seconds >= 5400:
         return f"{seconds / 3600:.1f} hours"
     if seconds >= 90:
         return f"{seconds / 60:.0f} minutes"
-    return f"{seconds:.0f} s"
+    return f"{seconds:.0f} s" if seconds >= 10 else f"{seconds:.1f} s"
