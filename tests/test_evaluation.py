@@ -291,6 +291,10 @@ def test_evaluation_in_a_changed_task_records_the_change(run_dir, tmp_path, caps
                  "--env-option", "max_episode_steps=20", "--out", str(out)]) == 0
     recording = xr.open_dataset(out)
     assert recording.attrs["env_overrides"] == "max_episode_steps=20"
+    capsys.readouterr()
+    assert main(["record", str(run_dir), "--episodes", "2", "--out", str(tmp_path / "act.png")]) == 2
+    assert "give --out a name ending in .nc (e.g. " in capsys.readouterr().err, "NetCDF under another name"
+    assert not (tmp_path / "act.png").exists()
     assert recording["alive"].values[:, 20:].sum() == 0, "no episode outlives its changed limit"
 
 

@@ -154,6 +154,10 @@ def command_record(args: argparse.Namespace) -> int:
     from angora_jax.analysis import record_activity, save_activity
 
     out = Path(args.out)
+    if out.suffix.lower() != ".nc":
+        print(f"angora-jax record: a recording is a NetCDF file: give --out a name ending in .nc (e.g. "
+              f"{out.with_suffix('.nc')}), not {out.name}.", file=sys.stderr)
+        return EXIT_USAGE
     if refused_existing("record", out, "recordings"):
         return EXIT_USAGE
     checkpoint = checkpoint_of(args.checkpoint)
