@@ -193,6 +193,20 @@ def test_timescales_of_ar1_units_and_white_noise():
     assert float(noise["timescale_median"].item()) / DT == pytest.approx(1 - 1 / np.e, abs=0.03)
 
 
+def test_analyze_crosscorrelation_prints_every_layer_s_column(tmp_path, capsys):
+    """The lag table of many layers was printed through pandas' own repr, which hides the columns past 80 characters
+    behind "..." (15 of the reach model's 17 layers)."""
+    from angora_jax import cli
+    from angora_jax.analysis import save_activity
+
+    base = synthetic()
+    layers = {f"activity_area_with_a_long_name_{i}": base["activity_code"] + i for i in range(12)}
+    path = save_activity(base.assign(layers), tmp_path / "many.nc")
+    assert cli.main(["analyze", "crosscorrelation", str(path)]) == 0
+    said = capsys.readouterr().out
+    assert "..." not in said and all(f"area_with_a_long_name_{i}" in said.split("\n")[1] for i in range(12)), said
+
+
 def test_analyze_timescales_says_why_a_layer_has_none(tmp_path, capsys):
     """A layer slower than --max-lag and a constant layer have NaN timescales: the summary says which, not "nan"."""
     from angora_jax import cli

@@ -154,6 +154,12 @@ def command_decode(args: argparse.Namespace) -> int:
                     plot_decoding, summary, stem="decoding")
 
 
+def _table(array: Any, digits: int) -> str:
+    """A 2-D result as a table with every row and column (pandas' own printing hides those past the terminal's
+    width behind "...")."""
+    return array.to_pandas().round(digits).to_string()
+
+
 def _recorded_agent(args: argparse.Namespace, data: Any, env_options: Sequence[str] = ()) -> Agent:
     """The agent of `--run` at the checkpoint the recording `data` was made from (its `cycle`), unless --checkpoint
     names one; ValueError when that holds another cycle than the recording's: fixed points, controls and filters of
@@ -226,11 +232,11 @@ def command_analysis(args: argparse.Namespace) -> int:
 
     def summary(result):
         if args.analysis == "similarity":
-            yield f"Layer x layer RDM similarity (Spearman):\n{result['layer_similarity'].to_pandas().round(2)}"
+            yield f"Layer x layer RDM similarity (Spearman):\n{_table(result['layer_similarity'], 2)}"
             if "model_similarity" in result:
-                yield f"Layer x variable (Spearman):\n{result['model_similarity'].to_pandas().round(2)}"
+                yield f"Layer x variable (Spearman):\n{_table(result['model_similarity'], 2)}"
         elif args.analysis == "crosscorrelation":
-            yield f"Lag of the peak |correlation| (s; > 0: the row leads):\n{result['peak_lag'].to_pandas().round(3)}"
+            yield f"Lag of the peak |correlation| (s; > 0: the row leads):\n{_table(result['peak_lag'], 3)}"
         elif args.analysis == "timescales":
             yield from (f"{layer}: {_timescale_said(result, layer)}" for layer in result["layer"].values)
         elif args.analysis == "visual":
