@@ -193,6 +193,19 @@ def test_timescales_of_ar1_units_and_white_noise():
     assert float(noise["timescale_median"].item()) / DT == pytest.approx(1 - 1 / np.e, abs=0.03)
 
 
+def test_a_recurrent_cell_is_no_dense_layer_and_its_lesion_names_what_to_lesion_instead():
+    """A recurrent area's kernels (a GRU's gates `network.PMC.hn`, ...; here an Elman cell's `i` and `h`) were offered
+    as lesionable layers, and asking for the area itself named them: zeroing one is no lesion of the area."""
+    from angora_jax.analysis import dense_layers, lesion
+
+    agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
+                         "PMC": {"size": 5, "inputs": ("S1",), "cell": "rnn"}})
+    layers = dense_layers(agent)
+    assert "network.S1" in layers and not [name for name in layers if name.startswith("network.PMC.")], layers
+    with pytest.raises(ValueError, match="'network.PMC' is a recurrent cell: .* Lesion the layers feeding it"):
+        lesion(agent, "network.PMC", [0])
+
+
 def test_analyze_crosscorrelation_prints_every_layer_s_column(tmp_path, capsys):
     """The lag table of many layers was printed through pandas' own repr, which hides the columns past 80 characters
     behind "..." (15 of the reach model's 17 layers)."""

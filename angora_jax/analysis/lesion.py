@@ -27,20 +27,45 @@ from angora_jax.analysis.recording import episode_outcomes
 from angora_jax.envs.core import Env, Sensation, State
 from angora_jax.experiment.agent import Agent
 
+# The kernels inside flax's recurrent cells, by their names: SimpleCell's input and hidden kernels, the GRU's and
+# OptimizedLSTMCell's gate pre-activations. They are parts of one step of the cell rather than layers (recordings
+# leave them out too); zeroing one is no lesion of the area.
+CELL_PARTS = ({"i", "h"}, {"ir", "iz", "in", "hr", "hz", "hn"}, {"ii", "if", "ig", "io", "hi", "hf", "hg", "ho"})
+
+
+def _kernels(agent: Agent) -> dict[tuple[str, ...], int]:
+    """Every 2-D `kernel` of `agent`'s parameters: its module path -> its number of output units."""
+    found = {}
+    for path, leaf in jax.tree_util.tree_flatten_with_path(agent.params)[0]:
+        names = tuple(str(getattr(p, "key", p)) for p in path)
+        if names[-1] == "kernel" and leaf.ndim == 2:
+            found[names[:-1]] = int(leaf.shape[-1])
+    return found
+
+
+def recurrent_cells(agent: Agent) -> list[str]:
+    """The recurrent cells of `agent` (module paths, e.g. `network.PMC`): modules whose kernels are a cell's parts."""
+    parts: dict[tuple[str, ...], set[str]] = {}
+    for path in _kernels(agent):
+        parts.setdefault(path[:-1], set()).add(path[-1])
+    return sorted(".".join(path) for path, names in parts.items() if names in CELL_PARTS)
+
 
 def dense_layers(agent: Agent) -> dict[str, int]:
     """The lesionable layers of `agent`: dense layer name (module path, as in recordings) -> its number of units."""
-    found = {}
-    for path, leaf in jax.tree_util.tree_flatten_with_path(agent.params)[0]:
-        names = [str(getattr(p, "key", p)) for p in path]
-        if names[-1] == "kernel" and leaf.ndim == 2:
-            found[".".join(names[:-1])] = int(leaf.shape[-1])
-    return found
+    cells = set(recurrent_cells(agent))
+    return {".".join(path): units for path, units in _kernels(agent).items() if ".".join(path[:-1]) not in cells}
 
 
 def lesion(agent: Agent, layer: str, units: Sequence[int] | np.ndarray) -> Agent:
     """`agent` with `units` (indices) of dense layer `layer` silenced; ValueError naming the layers when unknown."""
     layers = dense_layers(agent)
+    if layer in recurrent_cells(agent):
+        feeding = [name for name in layers if name == f"{layer}_in"]
+        instead = f"its input layer ({feeding[0]})" if feeding else "the layers feeding it"
+        raise ValueError(f"{layer!r} is a recurrent cell: its units feed back through gates, so there is no dense "
+                         f"output to silence. Lesion {instead} or the areas it feeds instead; the agent's dense "
+                         f"layers: {sorted(layers)}.")
     if layer not in layers:
         raise ValueError(f"No dense layer {layer!r} to lesion; the agent's dense layers: {sorted(layers)}.")
     units = np.asarray(units, int)
