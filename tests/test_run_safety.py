@@ -532,6 +532,24 @@ def test_a_checkpoint_without_its_manifest_is_read_whole_by_check_and_a_damaged_
         assert "TensorStore" not in err and "or to resume's --from" in err
 
 
+def test_a_lost_record_is_reported_with_the_resume_that_logs_every_cycle_again(whole, tmp_path, capsys):
+    """A record lost from metrics.jsonl (a damaged line that resume set aside) failed `check` for good, with no way
+    on: check names the resume from the checkpoint before the gap, after which every cycle is logged again."""
+    run = copy_of(whole, tmp_path)
+    lines = (run / "metrics.jsonl").read_text().splitlines(keepends=True)
+    (run / "metrics.jsonl").write_text("".join(lines[:4] + lines[5:]))  # cycle 5's record is gone
+    assert main(["check", str(run)]) == 2
+    out = capsys.readouterr().out
+    said = out.split("does not log each cycle once")[1]
+    assert "(1-4, 6): records were lost" in said and f"angora-jax resume {run} --from " in said, out
+    start = int(said.split("--from ")[1].split("`")[0])
+    assert start < 5
+    assert main(["resume", str(run), "--from", str(start)]) == 0
+    capsys.readouterr()
+    assert main(["check", str(run)]) == 0, capsys.readouterr().out
+    assert [record["cycle"] for record in read_metrics(run)] == list(range(1, CYCLES + 1))
+
+
 def test_a_run_whose_checkpoints_will_not_fit_says_so_before_training(whole, tmp_path, monkeypatch, capsys):
     run = copy_of(whole, tmp_path)
     monkeypatch.setattr(runner.shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(1 << 30, 1 << 30, 1 << 10))

@@ -153,14 +153,13 @@ def check_run(run_dir: str | Path) -> RunCheck:
         result.problems.append(f"{METRICS_FILE} lines {', '.join(map(str, damaged[:10]))} hold no cycle's record "
                                "(edited or cut short); resume moves them to a side file")
     expected = list(range(cycles[0], cycles[0] + len(cycles))) if cycles else []
-    if cycles and (cycles != expected or cycles[0] != 1):
-        result.problems.append(f"{METRICS_FILE} does not log each cycle once and in order from cycle 1 "
-                               f"({_runs(cycles)}): records were lost or two processes wrote the run")
+    uneven = bool(cycles) and (cycles != expected or cycles[0] != 1)
     sides = sorted(p.name for p in run_dir.glob("metrics.after-cycle-*.jsonl"))
     if sides:
         result.findings.append(f"set aside by earlier resumes: {', '.join(sides)}")
 
     checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)
+    sound: set[int] = set()
     try:
         for kind in KINDS:
             verdicts = {cycle: checkpoints.damage(kind, cycle) for cycle in checkpoints.steps(kind)}
@@ -169,6 +168,7 @@ def check_run(run_dir: str | Path) -> RunCheck:
                             if (run_dir / CHECKPOINTS / kind / str(cycle)).is_dir()}
             intact = [cycle for cycle, damage in verdicts.items() if damage is None]
             unverified = [cycle for cycle, damage in verdicts.items() if damage == "no manifest"]
+            sound.update(intact)
             kept = [f"intact: cycle {_runs(intact, every=True)}"] * bool(intact)
             kept += [f"without a manifest{' yet (the writer adds it once the save is whole)' if live else ''}, "
                      f"unverifiable: cycle {_runs(unverified, every=True)}"] * bool(unverified)
@@ -188,6 +188,10 @@ def check_run(run_dir: str | Path) -> RunCheck:
         latest = checkpoints.steps("latest")
     finally:
         checkpoints.close()
+    if uneven:
+        result.problems.append(f"{METRICS_FILE} does not log each cycle once and in order from cycle 1 "
+                               f"({_runs(cycles)}): records were lost or two processes wrote the run"
+                               + _relog(run_dir, cycles, sound))
     if latest and cycles and latest[-1] > cycles[-1]:
         result.problems.append(f"the latest checkpoint (cycle {latest[-1]}) is newer than the last cycle logged "
                                f"({cycles[-1]}): records were lost")
@@ -199,6 +203,20 @@ def check_run(run_dir: str | Path) -> RunCheck:
         result.resume = f"refuses: {refusal}"
         result.problems.append("resume cannot continue as it is: see above")
     return result
+
+
+def _relog(run_dir: Path, cycles: list[int], sound: set[int]) -> str:
+    """How to log every cycle again where records were lost (cycles missing, each logged once and in order): train
+    again from the newest intact checkpoint before the first missing cycle; "" when the records are otherwise out of
+    order (two writers), which no resume mends."""
+    if len(set(cycles)) != len(cycles) or cycles != sorted(cycles):
+        return ""
+    missing = next(cycle for cycle in range(1, cycles[-1] + 1) if cycle not in set(cycles))
+    before = [cycle for cycle in sound if cycle < missing]
+    if not before:
+        return f"; `angora-jax resume {run_dir} --from-scratch` trains it again with each cycle logged"
+    return (f"; `angora-jax resume {run_dir} --from {max(before)}` trains again from the checkpoint before cycle "
+            f"{missing}, so that each cycle is logged (the later records and checkpoints are kept aside)")
 
 
 def _ended(run_dir: Path, config: Config, cycle: int | None) -> str:
