@@ -304,21 +304,15 @@ class Checkpoints:
             raise
         except Exception as error:  # Orbax and TensorStore raise many types for unreadable files; all mean the same
             failure = _briefly(error)
+            _drop_failed_read_reports()
         else:
-            args = ocp.args.Composite(
+            restored, failure = _read_quietly(manager, cycle, ocp.args.Composite(
                 state=ocp.args.PyTreeRestore(
                     abstract, ocp.checkpoint_utils.construct_restore_args(abstract), partial_restore=partial
                 ),
                 meta=ocp.args.JsonRestore(),
-            )
-            with _silenced_while_reading():
-                try:
-                    restored = manager.restore(cycle, args=args)
-                except Exception as error:
-                    failure = _briefly(error)
-                _collect_if(failure)
+            ))
         if failure is not None:
-            _drop_failed_read_reports()
             existing = {k: self.steps(k) for k in KINDS}
             raise CheckpointError(
                 f"Checkpoint {self._directory / kind / str(cycle)} cannot be read ({failure}). It is corrupt, "
@@ -330,17 +324,8 @@ class Checkpoints:
     def unreadable(self, kind: str, cycle: int) -> str | None:
         """Why checkpoint `kind`/`cycle` cannot be read whole (every array read as it was saved, without a template),
         None when it can: the check left for one without a manifest to verify it by."""
-        failure = None
-        with _silenced_while_reading():
-            try:
-                self._managers[kind].restore(cycle, args=ocp.args.Composite(
-                    state=ocp.args.PyTreeRestore(), meta=ocp.args.JsonRestore()))
-            except Exception as error:  # as in `restore`: any failure to read means the same
-                failure = _briefly(error)
-            _collect_if(failure)
-        if failure is not None:
-            _drop_failed_read_reports()
-        return failure
+        return _read_quietly(self._managers[kind], cycle, ocp.args.Composite(
+            state=ocp.args.PyTreeRestore(), meta=ocp.args.JsonRestore()))[1]
 
     def holds_environments(self, which: str | int = "latest") -> bool:
         """Whether checkpoint `which` holds the environments' states (not `checkpoint.lean`), so that resuming from
@@ -566,13 +551,20 @@ def _silenced_while_reading() -> Iterator[None]:
         sink.close()
 
 
-def _collect_if(failure: str | None) -> None:
-    """After a failed read (inside `_silenced_while_reading`): collect its left-over coroutines and give the threads
-    a moment for their last reports, so that they print into the sink; those still held (finalized when the process
-    exits) are dropped by a filter on the hook that reports them (`_drop_failed_read_reports`)."""
-    if failure is not None:
+def _read_quietly(manager: ocp.CheckpointManager, cycle: int, args: Any) -> tuple[Any, str | None]:
+    """`manager.restore(cycle, args)` as (what it read, None), or (None, why it failed in one line, `_briefly`). A
+    failed read's Orbax and TensorStore reports go nowhere: those printed while it fails into the sink of
+    `_silenced_while_reading`, where its left-over coroutines are collected and its threads given a moment to finish;
+    those still held, finalized when the process exits, are dropped by `_drop_failed_read_reports`."""
+    with _silenced_while_reading():
+        try:
+            return manager.restore(cycle, args=args), None
+        except Exception as error:  # Orbax and TensorStore raise many types for unreadable files; all mean the same
+            failure = _briefly(error)
         gc.collect()
         time.sleep(0.2)
+    _drop_failed_read_reports()
+    return None, failure
 
 
 def _drop_failed_read_reports() -> None:

@@ -508,15 +508,15 @@ def _exit_while_preparing(signum: signal.Signals, run_dir: Path, new: bool) -> N
     if new and is_main_process():
         shutil.rmtree(run_dir, ignore_errors=True)
         outcome = f"nothing was trained yet, so the new run directory {run_dir} was removed"
-    elif not has_checkpoints(run_dir):  # a --from-scratch start, or a run that saved none yet
-        release_own_lock(run_dir)
-        earlier = sorted(run_dir.glob("previous-*"), key=lambda path: path.stat().st_mtime)
-        kept = f"; the earlier training is kept in {earlier[-1]}" if earlier else ""
-        outcome = (f"{run_dir} holds no checkpoint of this training{kept}; `angora-jax resume {run_dir}` starts it "
-                   "from cycle 0 again")
     else:
         release_own_lock(run_dir)
-        outcome = f"the run directory {run_dir} keeps its checkpoints; continue with: angora-jax resume {run_dir}"
+        if has_checkpoints(run_dir):
+            outcome = f"the run directory {run_dir} keeps its checkpoints; continue with: angora-jax resume {run_dir}"
+        else:  # a --from-scratch start, or a run that saved none yet
+            earlier = sorted(run_dir.glob("previous-*"), key=lambda path: path.stat().st_mtime)
+            kept = f"; the earlier training is kept in {earlier[-1]}" if earlier else ""
+            outcome = (f"{run_dir} holds no checkpoint of this training{kept}; `angora-jax resume {run_dir}` starts "
+                       "it from cycle 0 again")
     print(f"\nInterrupted by {signum.name} before the first cycle ended (while compiling or running it): {outcome}.",
           file=sys.stderr, flush=True)
     os._exit(128 + signum)
