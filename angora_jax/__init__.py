@@ -6,6 +6,7 @@ The notebook API: `make_env(task, **options)`, `load_config(path_or_name, overri
 policy exported with `angora-jax export`, no run directory needed).
 """
 
+from angora_jax import opengl_backend  # noqa: F401  (imports MuJoCo first, naming a MUJOCO_GL that cannot load)
 from angora_jax.envs import list_tasks, make
 from angora_jax.envs.gym_view import register_gymnasium_envs
 from angora_jax.experiment import list_configs, load_agent, load_config, resume, train

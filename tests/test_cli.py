@@ -327,6 +327,22 @@ def test_distributed_outside_a_cluster_without_its_settings_exits_2_naming_them(
     assert usage.value.code == 2 and "must be host:port, e.g. node01:12355" in capsys.readouterr().err
 
 
+def test_an_opengl_backend_that_cannot_load_exits_2_naming_it_and_fails_the_import_with_its_name():
+    """MuJoCo loads MUJOCO_GL's backend when it is imported, so an unknown or missing one failed every command (and
+    `import angora_jax`) with a traceback from inside PyOpenGL or MuJoCo. In processes of their own: MuJoCo is imported
+    once per process."""
+    environment = os.environ | {"MUJOCO_GL": "nonesuch"}
+    for command in (["-m", "angora_jax.cli", "list-tasks"], ["-c", "from angora_jax.cli import main; main()"]):
+        done = subprocess.run([sys.executable, *command], capture_output=True, text=True, env=environment, timeout=300)
+        if command[0] == "-m":
+            assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr[-2000:]
+            assert done.stderr.startswith("angora-jax: MuJoCo cannot be imported with MUJOCO_GL=nonesuch (RuntimeError")
+            assert "unset MUJOCO_GL where nothing is rendered" in done.stderr and "MUJOCO_GL=egl" in done.stderr
+        else:  # Python that imports the package: an ImportError with the same words, not an exit
+            assert done.returncode == 1 and "OpenGLBackendError: MuJoCo cannot be imported with MUJOCO_GL=nonesuch" \
+                in done.stderr, done.stderr[-2000:]
+
+
 def start_training(argv: list[str]) -> tuple[subprocess.Popen, str]:
     """`angora-jax` ARGV in a process of its own; returns it once it announces that it compiles, with that line."""
     process = subprocess.Popen([sys.executable, "-m", "angora_jax.cli", *argv], stdout=subprocess.PIPE,

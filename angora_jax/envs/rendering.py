@@ -12,10 +12,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-GL_HINT = (
-    "Rendering needs an OpenGL backend: on a machine without a display install `libegl1 libegl-mesa0` and set "
-    "MUJOCO_GL=egl, or install `libosmesa6` and set MUJOCO_GL=osmesa, before starting Python."
-)
+from angora_jax.opengl_backend import GL_HINT
 
 
 class RenderError(RuntimeError):

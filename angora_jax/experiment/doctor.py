@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import jax
 
 from angora_jax.envs.mjx_env import WARP_REQUIREMENT, choose_impl, on_gpu
+from angora_jax.opengl_backend import GL_HINT
 from angora_jax.ppo.memory import GIB, device_memory
 
 # myo-sim (optional) holds the MyoHand's muscles and tendons: a run of a MyoHand task depends on its version.
@@ -121,8 +122,6 @@ def _physics(report: Diagnosis, installed: dict[str, str | None]) -> None:
 
 def _rendering(report: Diagnosis) -> None:
     import mujoco
-
-    from angora_jax.envs.rendering import GL_HINT
 
     backend = f"MUJOCO_GL={os.environ.get('MUJOCO_GL', 'unset (GLFW, needs a display)')}"
     model = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom size='0.1'/></worldbody></mujoco>")
