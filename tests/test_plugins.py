@@ -114,6 +114,117 @@ def test_a_module_that_cannot_be_imported_exits_2_naming_it_where_it_came_from_a
     assert not (tmp_path / "runs").exists() and not any(tmp_path.glob("CartPole-*"))
 
 
+# CartPole with one part of its step changed (CHANGE), registered as BrokenCartPole.
+BROKEN_TASK = """
+import jax.numpy as jnp
+from angora_jax.envs import register
+from angora_jax.envs.classic.cartpole import CartPole
+
+class BrokenCartPole(CartPole):
+    def _step(self, physics, info, action, key):
+        physics, obs, reward, terminated, info, metrics = super()._step(physics, info, action, key)
+        CHANGE
+        return physics, obs, reward, terminated, info, metrics
+
+register("BrokenCartPole", BrokenCartPole)
+"""
+
+
+@pytest.mark.parametrize("change, message", [
+    ("reward = jnp.stack([reward, reward])", "its _step returned a reward of shape (2,): one number per environment"),
+    ("terminated = jnp.zeros((1,), bool)", "its _step returned a terminated of shape (1,)"),
+    ("metrics = {'upright': reward}", "its _step returned the metrics ['upright'], and its metric_names are []"),
+    ("obs = obs.replace(proprioception=jnp.concatenate([obs.proprioception] * 2))",
+     "its observation after _step differs from _reset's (.proprioception: (4,) float32 before, (8,) float32 after)"),
+    ("info = {**info, 'timer': reward}",
+     "its info after _step differs from _reset's (keys [] before, ['timer'] after)"),
+    ("reward = 1 / 0", "its _step (given an action of shape ()) raised ZeroDivisionError: division by zero"),
+])
+def test_a_task_that_breaks_its_contract_exits_2_naming_the_part_before_anything_compiles(
+        change, message, user_code, tmp_path, capsys):
+    """A reward of shape (2,) or a step that changed a shape used to fail inside JAX's tracing of the compiled
+    loop, with a traceback about broadcasting or scan carries, and exit 1."""
+    module = user_code("user_broken_task", BROKEN_TASK.replace("CHANGE", change))
+    assert main(["train", "cartpole", "env.task=BrokenCartPole", f"logging.run_root={tmp_path}", "--import",
+                 module]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("angora-jax train: Task 'BrokenCartPole' (user_broken_task.BrokenCartPole) breaks the task "
+                          "contract (docs/tutorials/custom-task.md") and message in err and "Traceback" not in err, err
+    assert [path.name for path in tmp_path.iterdir()] == ["user_code"], "no run directory is made"
+
+
+# A task with privileged inputs (CartPole's state, again, as `asymmetric`) and networks of the user's, each breaking
+# one part of the network contract.
+BROKEN_NETWORKS = """
+import flax.linen as nn
+import jax.numpy as jnp
+from angora_jax.envs import register
+from angora_jax.envs.classic.cartpole import CartPole
+from angora_jax.nets import register_network
+
+class PrivilegedCartPole(CartPole):
+    def _reset(self, key):
+        physics, obs, info = super()._reset(key)
+        return physics, obs.replace(asymmetric=physics), info
+
+    def _step(self, physics, info, action, key):
+        physics, obs, *rest = super()._step(physics, info, action, key)
+        return physics, obs.replace(asymmetric=physics), *rest
+
+class Net(nn.Module):
+    carry_size: int = 3
+    value_axis: bool = False
+    reads_asymmetric: bool = False
+
+    def initial_carry(self, batch_size):
+        return jnp.zeros((batch_size, 3))
+
+    @nn.compact
+    def __call__(self, carry, obs):
+        seen = obs.proprioception + (obs.asymmetric if self.reads_asymmetric else 0)
+        features = nn.Dense(8)(seen)
+        value = nn.Dense(1)(jnp.concatenate([obs.proprioception, obs.asymmetric], -1))
+        return jnp.zeros((carry.shape[0], self.carry_size)), features, value if self.value_axis else value[:, 0]
+
+class NoCarry(nn.Module):
+    @nn.compact
+    def __call__(self, carry, obs):
+        return carry, nn.Dense(8)(obs.proprioception), nn.Dense(1)(obs.proprioception)[:, 0]
+
+register("PrivilegedCartPole", PrivilegedCartPole)
+register_network("user_fine", lambda network: Net())
+register_network("user_value_axis", lambda network: Net(value_axis=True))
+register_network("user_carry_grows", lambda network: Net(carry_size=5))
+register_network("user_reads_asymmetric", lambda network: Net(reads_asymmetric=True))
+register_network("user_no_carry", lambda network: NoCarry())
+register_network("user_class", lambda network: Net)
+register_network("user_no_argument", lambda: Net())
+"""
+
+
+@pytest.mark.parametrize("network, message", [
+    ("user_value_axis", "its value for 2 environments has shape (2, 1): (B,) is expected (squeeze the last axis"),
+    ("user_carry_grows", "the carry it returns differs from initial_carry's (it: (2, 3) float32 before, (2, 5)"),
+    ("user_reads_asymmetric", "its policy features change with obs.asymmetric, the privileged inputs only the value"),
+    ("user_no_carry", "NoCarry has no initial_carry(batch_size) method"),
+    ("user_class", "its builder returned the class Net, not a module: return Net(...)"),
+    ("user_no_argument", "its builder, called with the run's ppo.network section, raised TypeError: <lambda>() takes"),
+])
+def test_a_network_that_breaks_its_contract_exits_2_naming_the_part_before_anything_compiles(
+        network, message, user_code, tmp_path, capsys):
+    """A value of shape (B, 1), a growing carry or a builder without its argument failed inside JAX with exit 1; a
+    policy reading the value function's privileged inputs trained silently."""
+    module = user_code("user_broken_networks", BROKEN_NETWORKS)
+    argv = ["train", "cartpole", "env.task=PrivilegedCartPole", f"logging.run_root={tmp_path}", "--import", module]
+    assert main([*argv, f"ppo.network.name={network}"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"angora-jax train: Network '{network}' (user_broken_networks.<lambda>) breaks the network "
+                          "contract (docs/tutorials/custom-model.md") and message in err and "Traceback" not in err, err
+    assert [path.name for path in tmp_path.iterdir()] == ["user_code"], "no run directory is made"
+    assert main(["config", "show", "cartpole", "env.task=PrivilegedCartPole", "ppo.network.name=user_fine",
+                 "--import", module]) == 0, "the network that keeps the contract passes"
+
+
 def test_installed_plugins_load_at_the_first_registry_lookup_and_a_broken_one_is_named(user_code, monkeypatch):
     user_code("user_plugin", "from angora_jax.envs import make, register\n\ndef setup():\n"
                              "    register('PluginCartPole', lambda **options: make('CartPole', **options))\n")

@@ -31,6 +31,7 @@ from angora_jax.envs.core import Env
 from angora_jax.envs.mujoco_task import MujocoEnv
 from angora_jax.envs.registry import TASKS, is_gymnasium, list_tasks, make
 from angora_jax.envs.rendering import CAMERAS, RenderError, SceneRenderer
+from angora_jax.experiment.contracts import check_own_code
 from angora_jax.experiment.wandb_logging import WANDB_INSTALL, WANDB_MODES, WandbConfig
 from angora_jax.nets.registry import list_networks
 from angora_jax.ppo.config import (
@@ -389,6 +390,8 @@ def validate(config: Config, new_run: bool = True) -> Env:
 
     Raises:
         ConfigError: naming the key (e.g. `ppo.minibatch_size`), the allowed values and the fix.
+        UserCodeError: a task or network of one's own that cannot be imported or breaks its contract
+            (`contracts.check_own_code`: traced, not run).
     """
     try:  # first: the user's modules register the tasks and networks that the checks below look up
         import_modules(config.imports, "listed under imports in the config; a run's config.yaml lists those it "
@@ -412,6 +415,7 @@ def validate(config: Config, new_run: bool = True) -> Env:
         raise ConfigError(f"Task {config.env.task!r} cannot be made: {error}") from None
     if config.ppo.network.name not in list_networks():
         raise ConfigError(_unknown("ppo.network.name", config.ppo.network.name, list_networks(), "networks") + YOUR_OWN)
+    check_own_code(config.env.task, config.ppo.network, env)
     try:
         config.ppo.validate_for(env)
     except ValueError as error:
