@@ -150,8 +150,9 @@ def test_custom_head_can_be_registered_and_made():
     head = make_head("test_narrow_gaussian", BOX)
     assert head.sample(jnp.zeros((2, 3)), jax.random.key(0)).shape == (2, 3)
     PPOConfig(head="test_narrow_gaussian").validate_for(Pendulum())
-    with pytest.raises(ValueError, match="already registered"):
-        register_head("test_narrow_gaussian", Deterministicish)
+    register_head("test_narrow_gaussian", Deterministicish)  # the same definition again (a cell run twice): replaced
+    with pytest.raises(ValueError, match=r"already registered \(by test_heads\..*Deterministicish\): choose another"):
+        register_head("test_narrow_gaussian", type("Other", (Deterministicish,), {}))
     with pytest.raises(ValueError, match="Unknown policy head 'nope'"):
         make_head("nope", BOX)
 

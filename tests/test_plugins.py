@@ -19,6 +19,7 @@ import angora_jax as aj
 from angora_jax.cli import main
 from angora_jax.envs.registry import TASKS
 from angora_jax.experiment.run_dir import read_run_config
+from angora_jax.nets import register_network
 from angora_jax.nets.registry import NETWORKS
 from angora_jax.ppo.distributions import HEADS
 from angora_jax.registry import plugins
@@ -89,6 +90,13 @@ def test_a_run_records_its_imports_and_resume_and_evaluate_import_them_again(use
     forget(module, "user_simple")
     assert main(["evaluate", str(run_dir), "--episodes", "2"]) == 0
     assert "episode_return" in capsys.readouterr().out
+    forget(module, "user_simple")
+    (tmp_path / "user_code" / f"{module}.py").unlink()
+    assert main(["check", str(run_dir)]) == 0, "its code not importable here damages nothing in the run"
+    out = capsys.readouterr().out
+    assert f"config: CartPole, user_simple network, 1 cycles; its own code cannot be used here, so resume and " \
+           f"evaluate cannot either (the checks below do not need it): Module '{module}'" in out, out
+    assert out.rstrip().endswith("OK: nothing is damaged or missing.")
 
 
 @pytest.mark.parametrize("where", ["config", "option"])
@@ -112,6 +120,22 @@ def test_a_module_that_cannot_be_imported_exits_2_naming_it_where_it_came_from_a
               else "--import")
     assert err.startswith("angora-jax train: ") and message.format(source=source) in err and "Traceback" not in err
     assert not (tmp_path / "runs").exists() and not any(tmp_path.glob("CartPole-*"))
+
+
+def test_a_cell_run_again_registers_its_network_again_and_another_definition_of_the_name_is_refused(user_code):
+    """A notebook cell that registers a network refused to run a second time (editing a model meant restarting the
+    kernel); a second definition under a registered name is still refused, naming the first."""
+    cell = ("from angora_jax.nets import register_network\n"
+            "from angora_jax.nets.registry import NETWORKS\n"
+            "register_network('user_cell', lambda network: NETWORKS.get('simple')(network))\n")
+    notebook = {"__name__": "__main__"}
+    exec(cell, notebook)
+    first = NETWORKS.get("user_cell")
+    exec(cell, notebook)
+    assert NETWORKS.get("user_cell") is not first, "the cell's new definition replaced its old one"
+    with pytest.raises(ValueError, match=r"^Network 'user_cell' is already registered \(by __main__.<lambda>\): "
+                                         r"choose another name$"):
+        register_network("user_cell", NETWORKS.get("simple"))
 
 
 # CartPole with one part of its step changed (CHANGE), registered as BrokenCartPole.

@@ -36,6 +36,7 @@ from angora_jax.experiment.run_dir import (
     write_run_config,
 )
 from angora_jax.experiment.run_lock import RunLock
+from angora_jax.registry.plugins import UserCodeError
 
 # The settings that make a run what it is: the task and the learning. The others (logging, checkpoint, distribution,
 # evaluation, imports) may change between sessions; so may the two that `resume` itself records (--num-cycles,
@@ -122,12 +123,15 @@ def check_run(run_dir: str | Path) -> RunCheck:
     run_dir = Path(run_dir)
     result = RunCheck()
     config = read_run_config(run_dir)  # RunDirError: not a run directory, or a config this version cannot read
+    described = f"config: {config.env.task}, {config.ppo.network.name} network, {config.ppo.num_cycles} cycles"
     try:
         validate(config, new_run=False)
-        result.findings.append(f"config: {config.env.task}, {config.ppo.network.name} network, "
-                               f"{config.ppo.num_cycles} cycles")
+        result.findings.append(described)
     except ConfigError as error:
         result.problems.append(f"config.yaml does not run with this version of angora_jax: {error}")
+    except UserCodeError as error:  # the run's own code, not the run: nothing in it is damaged
+        result.findings.append(f"{described}; its own code cannot be used here, so resume and evaluate cannot either "
+                               f"(the checks below do not need it): {error}")
     edited = edited_settings(run_dir, config)
     if edited is not None:
         result.problems.append(f"{edited.describe(run_dir)}. resume refuses to continue the run with other settings; "

@@ -20,9 +20,12 @@ class Registry(Generic[F]):
         self._factories: dict[str, F] = {}
 
     def register(self, name: str, factory: F) -> None:
-        """Make `factory` available as `name`; a name can be registered once."""
-        if name in self._factories:
-            raise ValueError(f"{self.kind.capitalize()} {name!r} is already registered.")
+        """Make `factory` available as `name`. A name is registered once, except by the same definition again (the
+        same module and qualified name), which replaces it: a notebook cell or a reloaded module run a second time."""
+        registered = self._factories.get(name)
+        if registered is not None and _definition(registered) != _definition(factory):
+            raise ValueError(f"{self.kind.capitalize()} {name!r} is already registered (by {_definition(registered)}): "
+                             "choose another name")
         self._factories[name] = factory
 
     def names(self, plugins: bool = True) -> list[str]:
@@ -45,3 +48,8 @@ class Registry(Generic[F]):
             return self._factories[name]
         except KeyError:
             raise ValueError(f"Unknown {self.kind} {name!r}. Known {self.plural}: {', '.join(self.names())}.") from None
+
+
+def _definition(factory: Callable) -> str:
+    """Where `factory` was defined: module and qualified name (a lambda's is `<lambda>` in its function or module)."""
+    return f"{getattr(factory, '__module__', '?')}.{getattr(factory, '__qualname__', type(factory).__qualname__)}"

@@ -76,5 +76,6 @@ def load_plugins() -> None:
 
 
 def _raised(name: str, source: str, error: Exception) -> UserCodeError:
-    return UserCodeError(f"Importing {name!r} ({source}) failed: {type(error).__name__}: {error}. Fix that module "
+    return UserCodeError(f"Importing {name!r} ({source}) failed: {type(error).__name__}: {str(error).rstrip('.')}. "
+                         "Fix that module "
                          "(python -c 'import " + name.split(":")[0] + "' shows where it fails).")
