@@ -173,10 +173,17 @@ def test_a_port_outside_0_to_65535_is_a_usage_error(port, capsys):
 
 
 def test_train_then_evaluate_exit_0(capsys, tmp_path):
-    argv = ["train", "cartpole", *TINY, "ppo.num_cycles=3", f"logging.run_root={tmp_path}", "logging.run_name=r"]
+    argv = ["train", "cartpole", *TINY, "ppo.num_cycles=3", f"logging.run_root={tmp_path}", "logging.run_name=r",
+            "checkpoint.best_metric=episode_length"]
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert "cycle 3/3" in out and "Run " in out and "angora-jax evaluate" in out
+    records = read_metrics(tmp_path / "r")
+    # The return, then the run's best_metric (the task's own measure), first cycle against last (3 cycles: a tenth is 1)
+    assert f"Episode return: {records[0]['episode_return']:.1f} in the first tenth of cycles, " \
+           f"{records[-1]['episode_return']:.1f} in the last tenth.\n" \
+           f"episode_length: {records[0]['episode_length']:.4g} in the first tenth of cycles, " \
+           f"{records[-1]['episode_length']:.4g} in the last tenth.\n" in out, out
     session = read_sessions(tmp_path / "r")[0]  # what the run ran on, for later readers of the run directory
     assert session["start_cycle"] == 0 and session["physics"]["engine"] == "pure JAX" and session["versions"]["jax"]
     assert main(["evaluate", str(tmp_path / "r"), "--checkpoint", "latest", "--num-envs", "2"]) == 0

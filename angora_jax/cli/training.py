@@ -17,6 +17,7 @@ from angora_jax.cli.arguments import (
 from angora_jax.experiment import ConfigError, TrainingRun, read_metrics, resume, train
 from angora_jax.experiment.distributed import initialize, is_main_process
 from angora_jax.experiment.run_check import check_run, restore_config
+from angora_jax.experiment.run_dir import read_run_config
 from angora_jax.experiment.runner import signals_exit_while_preparing
 
 
@@ -132,11 +133,19 @@ def print_finished(run: TrainingRun) -> None:
               f"angora-jax resume {run.run_dir}")
     elif not run.history and run.stopped_at is None:
         print(f"It was already complete; to train it longer: angora-jax resume {run.run_dir} --num-cycles N")
-    returns = [r["episode_return"] for r in read_metrics(run.run_dir) if math.isfinite(r["episode_return"])]
-    if len(returns) >= 2:
-        tenth = max(1, len(returns) // 10)
-        first, last = sum(returns[:tenth]) / tenth, sum(returns[-tenth:]) / tenth
-        print(f"Episode return: {first:.1f} in the first tenth of cycles, {last:.1f} in the last tenth.")
+    records = read_metrics(run.run_dir)
+    # The task's own measure too (the best checkpoint's): where a step costs reward, longer and better episodes can
+    # score a lower return, and the first cycle's episodes start part-way through (ppo/cycle.py, the episode clocks).
+    shown = read_run_config(run.run_dir).checkpoint.best_metric
+    for name in dict.fromkeys(["episode_return", shown]):
+        values = [r[name] for r in records if isinstance(r.get(name), float | int) and math.isfinite(r[name])]
+        if len(values) >= 2:
+            tenth = max(1, len(values) // 10)
+            first, last = sum(values[:tenth]) / tenth, sum(values[-tenth:]) / tenth
+            if name == "episode_return":
+                print(f"Episode return: {first:.1f} in the first tenth of cycles, {last:.1f} in the last tenth.")
+            else:
+                print(f"{name}: {first:.4g} in the first tenth of cycles, {last:.4g} in the last tenth.")
     report = run.run_dir / "report" / "index.html"
     if report.exists():
         print(f"Report: {report}")
