@@ -484,6 +484,17 @@ def normalised(recording, alive):
     return np.clip((raw - mean) / np.sqrt(var + 1e-8), -10.0, 10.0)[alive].mean(0)
 
 
+def test_a_cell_of_one_s_own_is_refused_for_fixed_points_naming_the_cells_searched_and_the_pca_without_them():
+    """A user's leaky-integrator cell (parameters `input`, `recurrent`) got only 'is not a recurrent cell'."""
+    from angora_jax.analysis.dynamics import _cell_kind
+
+    with pytest.raises(ValueError, match=r"^'network.M1' is not a recurrent cell of angora_jax's \(its parameters: "
+                                         r"\['input', 'recurrent'\]\): fixed points are searched in an LSTM, GRU or "
+                                         r"Elman \(rnn\) cell's update.*Without --run and --recurrent, analyze "
+                                         r"dynamics gives the PCA of every layer"):
+        _cell_kind({"input": {}, "recurrent": {}}, "network.M1")
+
+
 @pytest.mark.slow
 def test_fixed_point_of_a_graph_area_reading_two_inputs_with_tanh():
     """An Elman area reading a dense area and a modality: the inputs come from the recording, in the order the graph

@@ -163,7 +163,10 @@ def _cell_kind(params: Any, layer: str) -> str:
     for kind, keys in (("lstm", {"hi", "hf", "hg", "ho"}), ("gru", {"hr", "hz", "hn"}), ("rnn", {"h", "i"})):
         if keys <= names:
             return kind
-    raise ValueError(f"{layer!r} is not a recurrent cell (its parameters: {sorted(names)}).")
+    raise ValueError(f"{layer!r} is not a recurrent cell of angora_jax's (its parameters: {sorted(names)}): fixed "
+                     "points are searched in an LSTM, GRU or Elman (rnn) cell's update, as the built-in networks and "
+                     "brain-area graphs use them. Without --run and --recurrent, analyze dynamics gives the PCA of "
+                     "every layer, a network of one's own included.")
 
 
 def _cell_size(params: Any, kind: str) -> int:

@@ -266,9 +266,10 @@ def command_analysis(args: argparse.Namespace) -> int:
                    f"{float(result['r2_one_step']):.3f} (next = current {float(result['baseline_r2_one_step']):.3f}); "
                    f"RMSE after {args.horizon} steps {error:.3g} (next = current {baseline:.3g}) PC1 std")
         else:
-            yield from (f"{layer}: {result['dimensionality'].sel(layer=layer).item()} components for 90% of the "
-                        f"variance, participation ratio {result['participation_ratio'].sel(layer=layer).item():.1f}"
-                        for layer in result["layer"].values)
+            for layer in result["layer"].values:
+                count = result["dimensionality"].sel(layer=layer).item()
+                yield (f"{layer}: {count} component{'' if count == 1 else 's'} for 90% of the variance, "
+                       f"participation ratio {result['participation_ratio'].sel(layer=layer).item():.1f}")
             if fixed:
                 yield (f"{args.recurrent}: {int(fixed['fixed'].sum())} of {len(fixed['fixed'])} starts reached a "
                        f"fixed point; largest |eigenvalue| median {np.median(np.abs(fixed['eigenvalues'][:, 0])):.3f}")

@@ -38,8 +38,9 @@ def add_evaluate(commands: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--batch", type=positive_int, default=evaluation.DEFAULT_BATCH,
                           help="episodes run at once (default: %(default)s); results do not depend on it")
     evaluate.add_argument("--path", choices=evaluation.PATHS, default="cpu",
-                          help="cpu: the eager C MuJoCo path (default); batched: all episodes at once on the "
-                               "training path (MJX, the GPU when there is one)")
+                          help="cpu: the eager path on the host (default): C MuJoCo for MuJoCo tasks, a task's "
+                               "own JAX steps for others; batched: all episodes at once on the training path (MJX, "
+                               "the GPU when there is one)")
     evaluate.add_argument("--workers", type=positive_int, default=1,
                           help="threads stepping C MuJoCo physics (default: 1); results do not depend on it")
     add_env_option(evaluate)
