@@ -206,11 +206,18 @@ def test_a_second_writer_is_refused_and_a_dead_holder_is_taken_over(whole, tmp_p
     try:
         lock = {"host": socket.gethostname(), "pid": alive.pid, "process_start": None, "since": time.time()}
         (run / LOCK_FILE).write_text(json.dumps(lock))
-        for argv in (["resume", str(run)], ["resume", str(run), "--from-scratch"]):
+        # --force too: it took over a live trainer's lock on this host, wrote beside it and released its lock.
+        for argv in (["resume", str(run)], ["resume", str(run), "--from-scratch"], ["resume", str(run), "--force"]):
             err = exits_2(argv, capsys)
             assert f"is being trained by process {alive.pid} on host {socket.gethostname()}" in err
-            assert f"kill {alive.pid}" in err
+            assert f"kill {alive.pid}" in err and "--force takes over only a lock this host cannot check" in err
+        err = exits_2(["train", "cartpole", f"logging.run_root={run.parent}", f"logging.run_name={run.name}"], capsys)
+        assert "a process holds its writer lock (training it now, unless it ended without releasing it" in err, err
         assert main(["evaluate", str(run), "--episodes", "1"]) == 0, "readers take no lock"
+        capsys.readouterr()
+        assert main(["check", str(run)]) == 0
+        assert f"writer: process {alive.pid} on host {socket.gethostname()}, since " in (out := capsys.readouterr().out)
+        assert "(running on this host: resume is refused until it stops)" in out, out
         assert json.loads((run / LOCK_FILE).read_text())["pid"] == alive.pid
     finally:
         alive.kill()
@@ -222,6 +229,9 @@ def test_a_second_writer_is_refused_and_a_dead_holder_is_taken_over(whole, tmp_p
     # Held on another host: never broken without --force.
     (run / LOCK_FILE).write_text(json.dumps({**lock, "host": "elsewhere"}))
     assert "resume with --force" in exits_2(["resume", str(run)], capsys)
+    assert main(["check", str(run)]) == 0
+    assert "(on another host, so this one cannot tell whether it runs: resume is refused, --force takes the lock " \
+           "over once that process is certainly gone)" in capsys.readouterr().out
     assert main(["resume", str(run), "--force"]) == 0
     assert "forced (--force)" in capsys.readouterr().err
 

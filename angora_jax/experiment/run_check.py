@@ -144,7 +144,9 @@ def check_run(run_dir: str | Path) -> RunCheck:
     else:
         state = ("ended, so resume takes the lock over" if gone else
                  "cannot tell whether it runs: resume --force takes the lock over" if holder.pid < 0 else
-                 "running, or on another host")
+                 "running on this host: resume is refused until it stops" if holder.runs_here() else
+                 "on another host, so this one cannot tell whether it runs: resume is refused, --force takes the "
+                 "lock over once that process is certainly gone")
         result.findings.append(f"writer: {holder.describe()} ({state})")
     # While a writer may be training the run, its newest saves are still being written, not cut short.
     live = holder is not None and holder.pid >= 0 and not gone

@@ -96,6 +96,11 @@ def create_run_dir(config: Config, claim: Callable[[Path], None] | None = None) 
                                       f"it is left to it: {new_name}.") from None
                 raise RunDirError(f"{path} exists and is not a run (no {CONFIG_FILE}); it is left untouched: "
                                   f"{new_name}, or move it away.") from None
+            if (path / LOCK_FILE).exists():
+                raise RunDirError(
+                    f"Run directory {path} already exists and is left untouched; a process holds its writer lock "
+                    f"(training it now, unless it ended without releasing it: `angora-jax check {path}` says which). "
+                    f"Leave it to that process, or {new_name}.") from None
             raise RunDirError(
                 f"Run directory {path} already exists and is left untouched. Continue it with `angora-jax resume "
                 f"{path}`, or {new_name}."

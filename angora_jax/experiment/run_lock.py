@@ -4,7 +4,8 @@
 sessions.jsonl); in a multi-process job, process 0 holds it for all. Readers (`evaluate`, `report`, `monitor`,
 `record`, `check`) take no lock. A second writer is refused with `RunLockedError`, which names the holder. A lock
 whose holder is gone (same host, process ended: killed, or the machine rebooted) is taken over with a message; a
-lock held on another host is never broken without `force`, since this host cannot see whether that process lives.
+lock held on another host is never broken without `force`, since this host cannot see whether that process lives,
+and a lock whose process runs on this host is never broken, `force` or not.
 """
 
 from __future__ import annotations
@@ -40,6 +41,10 @@ class LockHolder:
         if self.pid < 0:
             return f"an unknown process (the lock file is unreadable: edited or damaged; written {since})"
         return f"process {self.pid} on host {self.host}, since {since}"
+
+    def runs_here(self) -> bool:
+        """True when the holder is a process of this host that this host sees alive: no `force` takes its lock."""
+        return self.pid >= 0 and self.host == socket.gethostname() and not self.is_gone()
 
     def is_gone(self) -> bool:
         """True when this host can tell the holder has ended (it runs here, and no such process lives, or only as a
@@ -101,7 +106,8 @@ class RunLock:
 
     def acquire(self, force: bool = False) -> None:
         """Take the lock, or raise RunLockedError naming its holder and the fix. A holder that is gone (see module
-        docstring) is replaced with a message on stderr; `force` also replaces a holder this host cannot check."""
+        docstring) is replaced with a message on stderr; `force` also replaces a holder this host cannot check (on
+        another host, or an unreadable lock file), never one alive on this host."""
         me = {"host": socket.gethostname(), "pid": os.getpid(), "process_start": _process_start(os.getpid()),
               "since": time.time()}
         # Written whole beside the lock, then linked into place: the link fails if the lock exists, so two processes
@@ -121,7 +127,7 @@ class RunLock:
                     raise RunLockedError(f"{self.path.parent} is already being written by this process (a second "
                                          "train or resume of the same run in one notebook?).")
                 gone = holder.is_gone()
-                if not (gone or force):
+                if not (gone or force) or holder.runs_here():
                     raise RunLockedError(self._refusal(holder))
                 reason = "its process has ended" if gone else "forced (--force)"
                 print(f"Taking over the writer lock of {self.path.parent} from {holder.describe()}: {reason}.",
@@ -136,7 +142,8 @@ class RunLock:
         if holder.pid < 0:
             fix = "if no process trains it now, resume with --force to take the lock over"
         elif holder.host == socket.gethostname():
-            fix = f"wait for it to finish or stop it (Ctrl-C or kill {holder.pid}; it saves a checkpoint), then resume"
+            fix = (f"wait for it to finish or stop it (Ctrl-C or kill {holder.pid}; it saves a checkpoint), then "
+                   "resume (--force takes over only a lock this host cannot check: this process runs here)")
         else:
             fix = ("if that process is certainly gone (its job ended, the machine is down), resume with --force to "
                    "take the lock over")
