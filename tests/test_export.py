@@ -14,6 +14,7 @@ import angora_jax as aj
 from angora_jax.cli import main
 from angora_jax.experiment import RunDirError
 from angora_jax.experiment.export import export_policy
+from angora_jax.experiment.run_dir import CHECKPOINTS
 
 sys.path.insert(0, str(BENCHMARKS))
 import exported_policy  # noqa: E402
@@ -41,8 +42,13 @@ def test_an_exported_policy_acts_as_the_run_does_without_the_run(lstm_run, tmp_p
     agent = aj.load_agent(lstm_run)
     expected = rollout(lambda c, o: agent.act(c, o)[:2], agent.initial_carry(3), agent.env)
     out = tmp_path / "policy.msgpack"
-    assert main(["export", str(lstm_run), "--out", str(out)]) == 0
-    assert f"Policy: {out}" in capsys.readouterr().out
+    assert not any((lstm_run / CHECKPOINTS / "best").glob("[0-9]*")), "2 cycles: too few episodes for a best"
+    assert main(["export", str(lstm_run), "--out", str(out)]) == 0  # --checkpoint best, the default
+    assert "Policy of the latest checkpoint (the run keeps no best checkpoint: its checkpoint.best_metric is null, " \
+           f"or too few episodes had ended when it saved): {out} (load it with" in capsys.readouterr().out, \
+        "not silently another checkpoint than the one asked for"
+    assert main(["export", str(lstm_run), "--out", str(tmp_path / "latest.msgpack"), "--checkpoint", "latest"]) == 0
+    assert f"Policy of the latest checkpoint: {tmp_path / 'latest.msgpack'} (load it" in capsys.readouterr().out
     moved = shutil.move(lstm_run, tmp_path / "elsewhere")  # loading reads the file alone
     try:
         policy = aj.load_policy(out)

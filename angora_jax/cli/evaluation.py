@@ -18,6 +18,7 @@ from angora_jax.cli.arguments import (
 )
 from angora_jax.envs.rendering import CAMERAS, RenderError
 from angora_jax.experiment import ConfigError, RunDirError, evaluation, snapshot_cycles
+from angora_jax.experiment.agent import read_checkpoint
 
 
 def add_evaluate(commands: argparse._SubParsersAction) -> None:
@@ -141,12 +142,16 @@ def command_render(args: argparse.Namespace) -> int:
 def command_export(args: argparse.Namespace) -> int:
     from angora_jax.experiment.export import export_policy
 
+    asked = checkpoint_of(args.checkpoint)
     try:
-        out = export_policy(args.run_dir, args.out, checkpoint_of(args.checkpoint))
+        out = export_policy(args.run_dir, args.out, asked)
     except FileExistsError as error:
         print(f"angora-jax export: {error}", file=sys.stderr)
         return EXIT_USAGE
-    print(f"Policy: {out} (load it with angora_jax.load_policy)")
+    used = read_checkpoint(args.run_dir, asked)
+    instead = (" (the run keeps no best checkpoint: its checkpoint.best_metric is null, or too few episodes had ended "
+               "when it saved)") if used != asked else ""
+    print(f"Policy of the {used} checkpoint{instead}: {out} (load it with angora_jax.load_policy)")
     return EXIT_OK
 
 

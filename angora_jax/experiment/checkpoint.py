@@ -396,7 +396,9 @@ class Checkpoints:
         kinds = [repr(kind) for kind in ("latest", "best") if kind in saved]
         cycles = sorted({cycle for found in saved.values() for cycle in found})
         choices = " or ".join([*kinds, f"a cycle ({', '.join(map(str, cycles[-8:]))})"])
-        raise FileNotFoundError(f"No checkpoint {which!r}. Saved cycles: {saved}; ask for {choices}.")
+        listed = "; ".join(f"{kind} of cycle{'s' if len(found) > 1 else ''} {', '.join(map(str, found))}"
+                           for kind, found in saved.items())
+        raise FileNotFoundError(f"No checkpoint {which!r}. Saved: {listed}; ask for {choices}.")
 
     def damage(self, kind: str, cycle: int) -> str | None:
         """What is wrong with checkpoint `kind`/`cycle` by its manifest (`manifest.verify`), None when intact; "no
