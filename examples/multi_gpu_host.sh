@@ -18,7 +18,18 @@ set -euo pipefail
 TARGET=${1:?usage: examples/multi_gpu_host.sh CONFIG [KEY=VALUE ...]  (COMMAND=resume: RUN_DIR)}
 shift
 COMMAND=${COMMAND:-train}
-GPUS=${GPUS:-$(nvidia-smi -L | wc -l)}
+if ! command -v angora-jax > /dev/null; then
+    echo "multi_gpu_host.sh: angora-jax is not on PATH: activate the environment it is installed in (in a clone:" \
+         "source .venv/bin/activate, after make gpu)." >&2
+    exit 2
+fi
+if [ -z "${GPUS:-}" ]; then
+    if ! GPUS=$(nvidia-smi -L 2> /dev/null | grep -c '^GPU'); then
+        echo "multi_gpu_host.sh: no NVIDIA GPU found (nvidia-smi lists none): this script starts one process per GPU." \
+             "Set GPUS=N to start N processes anyway (on the CPU they share its cores; for trying the layout)." >&2
+        exit 2
+    fi
+fi
 PORT=${PORT:-12355}
 extra=()
 if [ "$COMMAND" = train ]; then

@@ -463,6 +463,26 @@ def test_a_second_run_reads_every_program_from_the_compilation_cache(tmp_path, m
         jax.config.update("jax_compilation_cache_dir", ours)
 
 
+def test_the_host_launcher_without_angora_jax_on_path_or_without_gpus_exits_2_saying_what_to_do(tmp_path):
+    """It ended with 'nvidia-smi: command not found' (exit 127) on a machine without NVIDIA's driver, and with
+    'angora-jax: command not found' from every process outside the environment."""
+    script = Path(__file__).resolve().parents[1] / "examples" / "multi_gpu_host.sh"
+    no_gpu = tmp_path / "bin"
+    no_gpu.mkdir()
+    (no_gpu / "nvidia-smi").write_text("#!/bin/sh\necho 'NVIDIA-SMI has failed' >&2\nexit 9\n")
+    (no_gpu / "nvidia-smi").chmod(0o755)
+    system = "/usr/bin:/bin"
+    environment = {k: v for k, v in os.environ.items() if k != "GPUS"}
+    done = subprocess.run(["bash", str(script), "cartpole"], env=environment | {"PATH": system}, capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 2 and "angora-jax is not on PATH: activate the environment" in done.stderr, done.stderr
+    path = f"{no_gpu}:{Path(sys.executable).parent}:{system}"
+    done = subprocess.run(["bash", str(script), "cartpole"], env=environment | {"PATH": path}, capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 2 and "no NVIDIA GPU found (nvidia-smi lists none)" in done.stderr, done.stderr
+    assert "Set GPUS=N to start N processes anyway" in done.stderr and "NVIDIA-SMI has failed" not in done.stderr
+
+
 @pytest.mark.slow
 def test_one_process_per_device_through_the_command_and_the_host_launcher(tmp_path):
     """examples/multi_gpu_host.sh starts `angora-jax train ... --distributed --coordinator --num-processes

@@ -28,7 +28,7 @@ from angora_jax.experiment import read_metrics, resume, resume_plan, runner
 from angora_jax.experiment.checkpoint import Checkpoints, disk_needed
 from angora_jax.experiment.manifest import MANIFEST_FILE
 from angora_jax.experiment.run_check import check_run
-from angora_jax.experiment.run_dir import CHECKPOINTS, EVALUATIONS, VIDEOS, DiskFullError
+from angora_jax.experiment.run_dir import CHECKPOINTS, CONFIG_FILE, EVALUATIONS, VIDEOS, DiskFullError
 from angora_jax.experiment.run_lock import LOCK_FILE, RunLock, RunLockedError, _process_start, _process_state
 from angora_jax.whole_files import written_whole
 
@@ -234,6 +234,20 @@ def test_a_second_writer_is_refused_and_a_dead_holder_is_taken_over(whole, tmp_p
            "over once that process is certainly gone)" in capsys.readouterr().out
     assert main(["resume", str(run), "--force"]) == 0
     assert "forced (--force)" in capsys.readouterr().err
+
+
+def test_a_run_trained_on_more_devices_than_this_machine_has_is_told_where_its_device_count_lives(
+        whole, tmp_path, capsys):
+    """resume takes no KEY=VALUE, so 'use num_devices<=1' alone left a run trained on 2 forced CPU devices (or 4
+    GPUs) with no way on here."""
+    run = copy_of(whole, tmp_path)
+    config = (run / CONFIG_FILE).read_text()
+    assert "  num_devices: 1\n" in config
+    (run / CONFIG_FILE).write_text(config.replace("  num_devices: 1\n", "  num_devices: 64\n"))
+    err = exits_2(["resume", str(run)], capsys)
+    assert "distribution.num_devices=64 but JAX sees only" in err
+    assert "A run's device count is distribution.num_devices in its config.yaml: edit it there (resume lays the run " \
+           "out again on the devices it gets" in err, err
 
 
 def test_the_lock_is_taken_by_one_of_two_processes_at_once(tmp_path):

@@ -454,14 +454,22 @@ def validate(config: Config, new_run: bool = True) -> Env:
                               "evaluation.every=N (evaluate every N cycles).")
         raise ConfigError(_unknown(key, name, allowed, "metrics"))
     try:
-        per_device(config.ppo, num_devices(config))
+        devices = num_devices(config)
+    except ConfigError as error:
+        if new_run:
+            raise
+        raise ConfigError(f"{error} A run's device count is distribution.num_devices in its config.yaml: edit it there "
+                          "(resume lays the run out again on the devices it gets; only its env and ppo settings must "
+                          "stay as trained).") from None
+    try:
+        per_device(config.ppo, devices)
     except ValueError as error:
         raise ConfigError(str(error)) from None
-    memory = estimate_memory(config.ppo, env, num_devices(config))
+    memory = estimate_memory(config.ppo, env, devices)
     if not memory.fits():
         raise ConfigError(
             f"ppo.num_envs={config.ppo.num_envs:,} with ppo.rollout_length={config.ppo.rollout_length} cannot fit: "
-            f"it needs {memory.describe()}. Use ppo.num_envs <= {memory.max_envs * num_devices(config):,} (or a "
+            f"it needs {memory.describe()}. Use ppo.num_envs <= {memory.max_envs * devices:,} (or a "
             "shorter rollout, or more devices with distribution.num_devices)."
         )
     return env
