@@ -1,5 +1,6 @@
 """The `angora-jax` command: exit codes, messages, SIGTERM on a real process, and the progress display."""
 
+import argparse
 import io
 import json
 import os
@@ -20,7 +21,7 @@ from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax import cli
-from angora_jax.cli import main
+from angora_jax.cli import main, parser
 from angora_jax.cli.errors import device_memory_message
 from angora_jax.experiment import compilation_cache, runner
 from angora_jax.experiment.config import load_config, validate
@@ -170,6 +171,21 @@ def test_a_port_outside_0_to_65535_is_a_usage_error(port, capsys):
     with pytest.raises(SystemExit) as stop:
         main(["monitor", "no/such/run", f"--port={port}"])
     assert stop.value.code == 2 and "must be a port from 0 (any free one) to 65535" in capsys.readouterr().err
+
+
+def test_every_argument_of_every_command_says_what_it_is():
+    """The command-line reference (docs/cli.md) is the commands' --help: 28 arguments (render's --width, run's
+    --seed, resume's RUN_DIR, ...) showed a bare name and no default."""
+
+    def unexplained(command: argparse.ArgumentParser, prog: str):
+        for action in command._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    yield from unexplained(sub, f"{prog} {name}")
+            elif not isinstance(action, argparse._HelpAction) and not (action.help or "").strip():
+                yield f"{prog} {'/'.join(action.option_strings) or action.dest}"
+
+    assert list(unexplained(parser(), "angora-jax")) == []
 
 
 def test_train_then_evaluate_exit_0(capsys, tmp_path):

@@ -31,7 +31,8 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     decoding.add_argument("recording", help="a NetCDF file from angora-jax record")
     decoding.add_argument("--layers", nargs="*", help="layer names (default: all)")
     decoding.add_argument("--variables", nargs="*", help="variables (default: every input_*, task_* and metric_*)")
-    decoding.add_argument("--folds", type=positive_int, default=5)
+    decoding.add_argument("--folds", type=positive_int, default=5,
+                          help="cross-validation folds, split by episode (default: 5)")
     decoding.add_argument("--lags", nargs="*", type=int, default=None,
                           help="policy steps k: decode the variable k steps after the activity (k < 0: before), "
                                "e.g. --lags -4 0 4 8 16")
@@ -52,12 +53,13 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     similar = analysis("similarity", "representational similarity (RSA): RDMs per layer over bins of a variable")
     similar.add_argument("--condition", required=True, help="variable whose quantile bins are the conditions")
     similar.add_argument("--feature", type=int, default=None, help="component of a vector condition variable")
-    similar.add_argument("--bins", type=positive_int, default=8)
+    similar.add_argument("--bins", type=positive_int, default=8, help="quantile bins of the condition (default: 8)")
     similar.add_argument("--layers", nargs="*", help="layer names (default: all)")
     similar.add_argument("--variables", nargs="*", default=[], help="variables to compare with as model RDMs")
     dynamics = analysis("dynamics", "PCA per layer; with --run, fixed points of a recurrent layer")
     dynamics.add_argument("--layers", nargs="*", help="layer names (default: all)")
-    dynamics.add_argument("--components", type=positive_int, default=10)
+    dynamics.add_argument("--components", type=positive_int, default=10,
+                          help="principal components per layer (default: 10)")
     dynamics.add_argument("--run", default=None, help="the recorded run (for fixed points)")
     dynamics.add_argument("--checkpoint", default=None,
                                help="the recorded checkpoint (default: the cycle the recording was made from)")
@@ -81,10 +83,10 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     seeing.add_argument("--steps", type=positive_int, default=256, help="steps of activation maximization")
     add_env_option(seeing)
     tuning = analysis("tuning", "unit responses as functions of a task variable")
-    tuning.add_argument("--layer", required=True)
-    tuning.add_argument("--variable", required=True)
+    tuning.add_argument("--layer", required=True, help="a recorded layer, e.g. network.SSC_2")
+    tuning.add_argument("--variable", required=True, help="a recorded variable, e.g. metric_goal_distance")
     tuning.add_argument("--feature", type=int, default=None, help="component of a vector variable")
-    tuning.add_argument("--bins", type=positive_int, default=10)
+    tuning.add_argument("--bins", type=positive_int, default=10, help="quantile bins of the variable (default: 10)")
     equations = analysis("sindy", "equations of a layer's dynamics in its leading principal components (SINDy), "
                                   "scored on held-out episodes against next = current")
     equations.add_argument("--layer", required=True, help="e.g. network.PMC.1, the premotor cell's output")
@@ -118,10 +120,11 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
                          help="muscle variables (default: task_muscle_force task_muscle_activation)")
     muscles.add_argument("--movements", nargs="+", default=["task_joint_angles", "task_joint_velocities"],
                          help="kinematic variables (default: task_joint_angles task_joint_velocities)")
-    muscles.add_argument("--folds", type=positive_int, default=5)
+    muscles.add_argument("--folds", type=positive_int, default=5,
+                         help="cross-validation folds, split by episode (default: 5)")
     ablate = analyses.add_parser("ablate", help="task outcomes of a run with areas, modalities, units or actions "
                                                    "silenced")
-    ablate.add_argument("run_dir")
+    ablate.add_argument("run_dir", help="the run whose network is lesioned (its files are not changed)")
     ablate.add_argument("--lesion", nargs="*", default=[], metavar="AREA", help="dense layers or areas to silence")
     ablate.add_argument("--silence", nargs="*", default=[], metavar="MODALITY", help="input modalities to silence")
     ablate.add_argument("--fraction", nargs="*", default=[], metavar="AREA:F",
@@ -129,7 +132,8 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     ablate.add_argument("--action", nargs="*", default=[], metavar="I",
                         help="action components to silence, each on its own (on a muscle hand: muscle I's "
                              "excitation held at 0; a muscle's name, e.g. FPL_r, names it too)")
-    ablate.add_argument("--episodes", type=positive_int, default=256)
+    ablate.add_argument("--episodes", type=positive_int, default=256,
+                        help="episodes per condition, from the same starts, the intact network included (default: 256)")
     ablate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
     ablate.add_argument("--out", default=None,
                         help="PNG and NetCDF; never overwritten (default: RUN_DIR/ablation.png, else the next free "

@@ -111,7 +111,8 @@ def add_import_option(command: argparse.ArgumentParser) -> None:
     command.add_argument(
         "--import", dest="imports", action="append", default=[], metavar="MODULE",
         help="import this Python module first (its folder on PYTHONPATH, or installed), so that the tasks and models "
-             "it registers can be named; repeatable; train records it in the run (the config's imports)")
+             "it registers can be named; repeatable; a run that train starts records it (the config's imports), so "
+             "later commands on the run import it again")
 
 
 def config_with_imports(args: argparse.Namespace) -> Config:

@@ -63,10 +63,10 @@ def add_list_models(commands: argparse._SubParsersAction) -> None:
 def add_run(commands: argparse._SubParsersAction) -> None:
     """The `run` verb: its arguments and its handler."""
     run = commands.add_parser("run", help="roll out a random policy in a batch of environments (smoke test)")
-    run.add_argument("--task", default="ShadowHandReach", help="task name (see list-tasks)")
-    run.add_argument("--num-envs", type=positive_int, default=8)
-    run.add_argument("--steps", type=positive_int, default=100, help="policy steps per environment")
-    run.add_argument("--seed", type=seed, default=0)
+    run.add_argument("--task", default="ShadowHandReach", help="task name (see list-tasks; default: ShadowHandReach)")
+    run.add_argument("--num-envs", type=positive_int, default=8, help="environments stepped at once (default: 8)")
+    run.add_argument("--steps", type=positive_int, default=100, help="policy steps per environment (default: 100)")
+    run.add_argument("--seed", type=seed, default=0, help="seed of the resets and the random actions (default: 0)")
     run.set_defaults(handler=command_run)
 
 

@@ -13,7 +13,7 @@ from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, port, positive_float
 def add_report(commands: argparse._SubParsersAction) -> None:
     """The `report` verb: its arguments and its handler."""
     report = commands.add_parser("report", help="PNG learning curves and an HTML page comparing runs")
-    report.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
+    report.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="one or more runs, drawn together")
     report.add_argument(
         "--out", default=None, help="default: RUN_DIR/report for one run, else report/ beside the first run"
     )
@@ -23,7 +23,7 @@ def add_report(commands: argparse._SubParsersAction) -> None:
 def add_monitor(commands: argparse._SubParsersAction) -> None:
     """The `monitor` verb: its arguments and its handler."""
     monitor = commands.add_parser("monitor", help="the HTML report of runs while they train, regenerated and served")
-    monitor.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
+    monitor.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="one or more runs, training or done")
     monitor.add_argument("--out", default=None, help="where the page is written (default: as for report)")
     monitor.add_argument("--every", type=positive_float, default=30.0, help="seconds between updates (default: 30)")
     monitor.add_argument("--port", type=port, default=8000, help="HTTP port (default: 8000; 0: any free port)")

@@ -34,7 +34,7 @@ def add_train(commands: argparse._SubParsersAction) -> None:
 def add_resume(commands: argparse._SubParsersAction) -> None:
     """The `resume` verb: its arguments and its handler."""
     resume = commands.add_parser("resume", help="continue a run from its latest checkpoint, exactly")
-    resume.add_argument("run_dir")
+    resume.add_argument("run_dir", help="the run directory to continue (runs/<name>)")
     resume.add_argument(
         "--exact", action="store_true",
         help="refuse to continue unless bit for bit: a lean latest checkpoint (checkpoint.lean), or one saved on "
@@ -69,7 +69,7 @@ def add_check(commands: argparse._SubParsersAction) -> None:
     check = commands.add_parser(
         "check", help="verify a run directory (checkpoints against their manifests, metrics.jsonl, config, lock) and "
                       "say what resume would do; exit 2 when something is damaged")
-    check.add_argument("run_dir")
+    check.add_argument("run_dir", help="the run directory to check (nothing in it is changed without --restore-config)")
     check.add_argument(
         "--restore-config", action="store_true",
         help="write a damaged or missing config.yaml again from the copy saved with the newest intact checkpoint "

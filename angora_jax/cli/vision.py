@@ -23,17 +23,18 @@ def add_pretrain_vision(commands: argparse._SubParsersAction) -> None:
                                                      "network goes beside it, suffix .pose.msgpack; never overwritten)")
     vision.add_argument("--samples", type=positive_int, default=20000, help="renders (default: 20000)")
     vision.add_argument("--size", type=positive_int, default=64, help="image width and height in pixels")
-    vision.add_argument("--cameras", nargs="+", default=["front", "side", "top"], choices=sorted(CAMERAS))
+    vision.add_argument("--cameras", nargs="+", default=["front", "side", "top"], choices=sorted(CAMERAS),
+                        help="the views the encoder sees (default: front side top)")
     vision.add_argument("--renderer", default="cpu", choices=["cpu", "warp"],
                         help="cpu: mujoco.Renderer (OpenGL); warp: MuJoCo Warp's batched ray tracer (GPU)")
     vision.add_argument("--encoder", default="cornet_z", help="cornet_z or impala")
     vision.add_argument("--widths", type=positive_int, nargs="+", default=None, help="channels per stage")
-    vision.add_argument("--features", type=positive_int, default=256)
+    vision.add_argument("--features", type=positive_int, default=256, help="the encoder's output size (default: 256)")
     vision.add_argument("--steps", type=positive_int, default=5000, help="Adam steps (default: 5000)")
-    vision.add_argument("--batch", type=positive_int, default=64)
+    vision.add_argument("--batch", type=positive_int, default=64, help="samples per Adam step (default: 64)")
     vision.add_argument("--orientation", default="6d", choices=list(ORIENTATIONS),
                         help="how the pose head outputs the cube's orientation (default: 6d, continuous)")
-    vision.add_argument("--seed", type=seed, default=0)
+    vision.add_argument("--seed", type=seed, default=0, help="seed of the poses and the weights (default: 0)")
     vision.set_defaults(handler=command_pretrain_vision)
 
 
