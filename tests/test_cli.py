@@ -264,6 +264,23 @@ def test_run_rolls_out_a_random_policy_and_names_an_unknown_task(capsys):
     assert "CartPole" in capsys.readouterr().err
 
 
+def test_run_says_no_episode_ended_instead_of_a_nan_metric(capsys, monkeypatch):
+    from angora_jax.envs.classic.cartpole import CartPole
+    from angora_jax.envs.registry import TASKS
+
+    class Tilted(CartPole):
+        metric_names = ("angle",)
+
+        def _step(self, physics, info, action, key):
+            *step, _ = super()._step(physics, info, action, key)
+            return *step, {"angle": physics[2]}
+
+    monkeypatch.setattr(TASKS, "_factories", {**TASKS._factories, "Tilted": Tilted})
+    assert main(["run", "--task", "Tilted", "--num-envs", "2", "--steps", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "episodes_ended: 0\n" in out and "episode_angle: - (no episode ended: more --steps)\n" in out, out
+
+
 def test_another_process_failing_to_save_stops_this_one_after_its_own_save(tmp_path, monkeypatch):
     """A save that fails on one process of several must stop all: the others would wait in the next cycle."""
     calls = []
@@ -630,6 +647,7 @@ def test_a_gpu_sized_config_started_without_a_gpu_says_so_before_compiling(capsy
         runner.train("shadow_ihom", ["logging.progress=lines"])
     out = capsys.readouterr().out
     assert "Note: no GPU found, and this config is sized for one: 16,384 envs x 32 steps = 524,288 env steps" in out
+    assert out.index("Note: no GPU found") < out.index("compiling the first cycle"), "the note first: said before"
     assert "about 3.3 hours per cycle (276 days for its 2,000 cycles) at the 44 env steps/s" in out
     reach = load_config("shadow_reach_cortical")  # 38 s a cycle, but 1.6 hours in all: said too
     assert "(1.6 hours for its 150 cycles)" in cpu_note(reach, {"engine": "MuJoCo MJX (JAX implementation)"}, False)

@@ -218,7 +218,8 @@ def test_the_small_graph_of_the_bad_cases_is_valid_and_loops_through_recurrence(
 
 
 def test_bad_files_fail_clearly(tmp_path: Path):
-    with pytest.raises(ConfigError, match="not found. Give a YAML path or the name of a shipped config: .*cartpole"):
+    with pytest.raises(ConfigError, match=r"not found. Did you mean 'cartpole'\? Give a YAML path or the name of a "
+                                          r"shipped config: .*cartpole"):
         load_config("cartpol")
     broken = tmp_path / "broken.yaml"
     broken.write_text("ppo: {num_cycles: 3\n")
@@ -275,6 +276,8 @@ def test_a_config_extends_another_by_name_or_relative_path(tmp_path: Path):
     ("extends: missing.yaml\n", r"Config file 'missing.yaml' not found \(extended by .*run.yaml\)"),
     ("extends: run.yaml\n", r"extends goes round in a circle: .*run.yaml -> .*run.yaml"),
     ("extends: [cartpole]\n", r"extends names one config .*got \['cartpole'\]"),
+    ("extends: shadow_rech\n", r"Config file 'shadow_rech' not found \(extended by .*run.yaml\)\. Did you mean "
+                               r"'shadow_reach'\? Give a YAML path"),
 ])
 def test_a_bad_extends_fails_naming_the_file(tmp_path: Path, text, message):
     (tmp_path / "run.yaml").write_text(text)

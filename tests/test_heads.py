@@ -162,11 +162,11 @@ def test_config_rejects_bad_heads_and_minibatch_shapes():
         PPOConfig(head="beta").validate_for(CartPole())
     with pytest.raises(ValueError, match="head='categorical' needs discrete actions"):
         PPOConfig(head="categorical").validate_for(Pendulum())
-    with pytest.raises(ValueError, match="PPOConfig.minibatch_size"):
+    with pytest.raises(ValueError, match="ppo.minibatch_size"):
         PPOConfig(num_envs=4, rollout_length=32, chunk_length=16, minibatch_size=48).validate()
-    with pytest.raises(ValueError, match="PPOConfig.chunk_length"):
+    with pytest.raises(ValueError, match="ppo.chunk_length"):
         PPOConfig(rollout_length=100, chunk_length=16).validate()
-    with pytest.raises(ValueError, match="PPOConfig.head must be"):
+    with pytest.raises(ValueError, match="ppo.head must be"):
         PPOConfig(head="poisson").validate()
     with pytest.raises(ValueError, match="PPOConfig.gamma"):
         PPOConfig(gamma=1.5).validate()

@@ -4,6 +4,7 @@ to float rounding, and resuming a 4-device run is bit for bit; indivisible total
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -109,3 +110,15 @@ def test_single_device_config_is_unchanged():
 def test_indivisible_totals_fail_naming_the_keys(changes, message):
     with pytest.raises(ValueError, match=message):
         per_device(PPOConfig().replace(**changes), 4)
+
+
+def test_a_suggested_fix_fits_the_devices_itself():
+    """9 envs with 48-sample minibatches (3 chunks: no tile 4 devices can share) were told ppo.num_envs=12, which
+    then failed on the tile rule: the suggestion names both settings, and both together fit."""
+    config = PPOConfig().replace(num_envs=9, minibatch_size=48, chunk_length=16)
+    with pytest.raises(ValueError, match=r"must be a multiple of 4; use e.g. ppo.num_envs=(\d+) ppo.minibatch_size="
+                                         r"(\d+)\.$") as refused:
+        per_device(config, 4)
+    num_envs, minibatch_size = map(int, re.search(r"num_envs=(\d+) ppo.minibatch_size=(\d+)",
+                                                  str(refused.value)).groups())
+    assert per_device(config.replace(num_envs=num_envs, minibatch_size=minibatch_size), 4).num_envs == num_envs // 4

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 
@@ -136,5 +137,6 @@ def run_random(task: str, num_envs: int, num_steps: int, seed: int) -> dict[str,
         result[f"episode_{name}"] = float(episode_mean(values, dones))
     print(f"{task}: random policy, {num_envs} envs x {num_steps} steps on {jax.devices()[0].platform}")
     for name, value in result.items():
-        print(f"  {name:>24}: {value:,.4g}")
+        shown = "- (no episode ended: more --steps)" if math.isnan(value) else f"{value:,.4g}"
+        print(f"  {name:>24}: {shown}")
     return result

@@ -85,7 +85,9 @@ def reference_markdown() -> str:
         rows.append(f"| `{key.key}` | `{key.type}` | `{key.default}` | {_outside_code(key.description)} |")
     return ("# Config reference\n\nEvery key of an experiment config (`angora_jax.experiment.config.Config`), "
             "generated from the typed dataclasses by `angora-jax config reference`. A YAML file gives any of them "
-            "(missing keys take these defaults); `angora-jax config show CONFIG` prints what a run would use.\n\n"
+            "(missing keys take these defaults); `angora-jax config show CONFIG` prints what a run would use. One "
+            "top-level key is no setting: `extends: NAME` starts the file from another config (a shipped name, or a "
+            "YAML path relative to the file) and sets the file's keys on top of it, section by section.\n\n"
             + "\n".join(rows) + "\n")
 
 

@@ -388,15 +388,13 @@ def _run(
             plan = f"nothing to train (cycle {start} of {config.ppo.num_cycles}: already complete)"
         else:
             plan = f"compiling the first cycle (from cycle {start} of {config.ppo.num_cycles}) ..."
-        announcement = f"{run_dir}: {config.env.task} on {describe_physics(physics)}; {plan}"
-        note = cpu_note(config, physics, on_gpu())
-        if note:
-            announcement += "\n" + note
+        notes = [note] if (note := cpu_note(config, physics, on_gpu())) else []
         if physics.get("impl") == "warp" and devices_used > 1 and jax.process_count() == 1 and on_gpu():
-            announcement += ("\nNote: one process driving several GPUs on MuJoCo Warp is measured over whole runs on "
-                             "2 H100s but for 10 cycles only on 4 (3.87x); one process per GPU is measured over whole "
-                             "runs on 2 and 4 (3.94x on 4 H100s): examples/multi_gpu_host.sh, or --distributed under "
-                             "SLURM.")
+            notes.append("Note: one process driving several GPUs on MuJoCo Warp is measured over whole runs on 2 "
+                         "H100s but for 10 cycles only on 4 (3.87x); one process per GPU is measured over whole runs "
+                         "on 2 and 4 (3.94x on 4 H100s): examples/multi_gpu_host.sh, or --distributed under SLURM.")
+        # The notes first: the line that says it compiles is the last before the (long) compile.
+        announcement = "\n".join([*notes, f"{run_dir}: {config.env.task} on {describe_physics(physics)}; {plan}"])
     try:
         # The wake-up fd first: a signal that finds the stop handlers installed then also reaches the watcher.
         with _preparation(run_dir, new) as prepared, _stop_requests() as stop:

@@ -394,29 +394,29 @@ class PPOConfig:
         if self.stop_at is not None:
             self.stop_at.validate()
         if self.head != "auto" and self.head not in list_heads():
-            raise ValueError(f"PPOConfig.head must be 'auto' or one of {list_heads()}, got {self.head!r}.")
+            raise ValueError(f"ppo.head must be 'auto' or one of {list_heads()}, got {self.head!r}.")
         if self.init_from is not None and (not isinstance(self.init_from, str) or not self.init_from):
-            raise ValueError(f"PPOConfig.init_from names a saved run, RUN_DIR[:best|latest|<cycle>]; got "
+            raise ValueError(f"ppo.init_from names a saved run, RUN_DIR[:best|latest|<cycle>]; got "
                              f"{self.init_from!r}.")
         if self.target_kl is not None and self.lr_decay:
-            raise ValueError("PPOConfig.target_kl adapts the learning rate and lr_decay decays it: set one of them "
+            raise ValueError("ppo.target_kl adapts the learning rate and lr_decay decays it: set one of them "
                              "(lr_decay: false, or target_kl: null).")
         if self.target_kl is not None and not self.lr_min <= self.learning_rate <= self.lr_max:
-            raise ValueError(f"PPOConfig.learning_rate ({self.learning_rate}) is where the KL-adaptive rate starts: "
+            raise ValueError(f"ppo.learning_rate ({self.learning_rate}) is where the KL-adaptive rate starts: "
                              f"it must lie within [lr_min, lr_max] = [{self.lr_min}, {self.lr_max}].")
         if self.rollout_length % self.chunk_length:
             raise ValueError(
-                f"PPOConfig.chunk_length ({self.chunk_length}) must divide rollout_length ({self.rollout_length})."
+                f"ppo.chunk_length ({self.chunk_length}) must divide rollout_length ({self.rollout_length})."
             )
         batch = self.num_envs * self.rollout_length
         if self.minibatch_size % self.chunk_length or batch % self.minibatch_size:
             raise ValueError(
-                f"PPOConfig.minibatch_size ({self.minibatch_size}) must be a multiple of chunk_length "
+                f"ppo.minibatch_size ({self.minibatch_size}) must be a multiple of chunk_length "
                 f"({self.chunk_length}) and divide num_envs * rollout_length ({batch}){self._minibatch_hint()}."
             )
         if tile_shape(self) is None:
             raise ValueError(
-                f"PPOConfig.minibatch_size ({self.minibatch_size}) admits no tile of n trajectories x m chunks with n "
+                f"ppo.minibatch_size ({self.minibatch_size}) admits no tile of n trajectories x m chunks with n "
                 f"dividing num_envs ({self.num_envs}) and m dividing the {self.rollout_length // self.chunk_length} "
                 "chunks per trajectory; pick a minibatch_size of (divisor of num_envs) * (divisor of chunks) * "
                 "chunk_length."
@@ -454,7 +454,7 @@ class PPOConfig:
         head = self.head_for(env)
         if env.action_spec.discrete and head in ("multicategorical", "gaussian", "beta"):
             raise ValueError(
-                f"PPOConfig.head={head!r} needs continuous actions, but {type(env).__name__} has "
+                f"ppo.head={head!r} needs continuous actions, but {type(env).__name__} has "
                 f"{env.action_spec.num_actions} discrete actions; use head='categorical' or 'auto'."
             )
         images = env.sees_images
@@ -467,7 +467,7 @@ class PPOConfig:
                              "vision option (env.options.vision) or remove ppo.network.visual.")
         if not env.action_spec.discrete and head == "categorical":
             raise ValueError(
-                f"PPOConfig.head='categorical' needs discrete actions, but {type(env).__name__} has continuous "
+                f"ppo.head='categorical' needs discrete actions, but {type(env).__name__} has continuous "
                 "actions; use 'gaussian', 'beta', 'multicategorical' or 'auto'."
             )
         return self

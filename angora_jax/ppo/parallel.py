@@ -108,7 +108,7 @@ def per_device(config: PPOConfig, num_devices: int) -> PPOConfig:
         if total % num_devices:
             raise ValueError(
                 f"ppo.{name}={total} is a run total split over distribution.num_devices={num_devices} devices, so it "
-                f"must be a multiple of {num_devices}; use e.g. ppo.{name}={(total // num_devices + 1) * num_devices}."
+                f"must be a multiple of {num_devices}; {_fix(config, name, num_devices)}."
             )
     trajectories, chunks = tile_shape(config.validate())
     if trajectories % num_devices:
@@ -121,6 +121,30 @@ def per_device(config: PPOConfig, num_devices: int) -> PPOConfig:
             f"multiple of {num_devices}; {fix}."
         )
     return config.replace(num_envs=config.num_envs // num_devices, minibatch_size=config.minibatch_size // num_devices)
+
+
+def _fix(config: PPOConfig, name: str, num_devices: int) -> str:
+    """Settings that make `config` fit `num_devices` devices, starting from the multiple of `num_devices` nearest to
+    its `name` (num_envs or minibatch_size), with a shareable minibatch size beside it where that alone does not do:
+    a suggestion that fails on the next rule helps nobody."""
+
+    def fits(**settings: int) -> bool:
+        try:
+            per_device(config.replace(**settings), num_devices)
+        except ValueError:
+            return False
+        return True
+
+    total = getattr(config, name)
+    nearest = sorted(range(num_devices, 4 * total + num_devices, num_devices), key=lambda n: (abs(n - total), -n))
+    single = next((n for n in nearest if fits(**{name: n})), None)
+    if single is not None:
+        return f"use e.g. ppo.{name}={single}"
+    if name == "num_envs":
+        minibatch = _shareable_minibatch_size(config.replace(num_envs=nearest[0]), num_devices)
+        if minibatch and fits(num_envs=nearest[0], minibatch_size=minibatch):
+            return f"use e.g. ppo.num_envs={nearest[0]} ppo.minibatch_size={minibatch}"
+    return f"use a multiple of {num_devices} that also fits the minibatch rules"
 
 
 def _shareable_minibatch_size(config: PPOConfig, num_devices: int) -> int | None:
