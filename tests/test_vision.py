@@ -462,3 +462,25 @@ def test_cameras_the_garbage_collector_drops_are_closed_later_never_inside_the_c
     again = cameras_module.HostCameras(task.model, task.vision)
     assert not cameras_module._dropped and gl._shutdown, "the dropped cameras' GL thread was not closed"
     again.close()
+
+
+def test_no_display_is_one_message_naming_glfw_s_first_warning_and_no_warnings_before_it(monkeypatch):
+    """Without MUJOCO_GL and a display, GLFW printed two warning blocks before the message that says what to do."""
+    import warnings
+
+    from angora_jax.envs import rendering
+
+    def glfw_without_display(*args, **kwargs):
+        warnings.warn("(65550) b'X11: The DISPLAY environment variable is missing'", UserWarning, stacklevel=2)
+        warnings.warn("(65537) b'The GLFW library is not initialized'", UserWarning, stacklevel=2)
+        raise mujoco.FatalError("an OpenGL platform library has not been loaded into this process")
+
+    monkeypatch.setattr(rendering.mujoco, "Renderer", glfw_without_display)
+    model = mujoco.MjModel.from_xml_string("<mujoco/>")
+    with warnings.catch_warnings(record=True) as leaked:
+        warnings.simplefilter("always")
+        with pytest.raises(rendering.RenderError, match=r"cannot render with MUJOCO_GL=.*has not been loaded into this "
+                                                        r"process \(first, \(65550\) b'X11: The DISPLAY environment "
+                                                        r"variable is missing'\)\. Rendering needs an OpenGL backend"):
+            rendering.SceneRenderer(model, None, rendering.CAMERAS["front"])
+    assert leaked == [], [str(w.message) for w in leaked]

@@ -7,6 +7,7 @@ Rendering needs an OpenGL backend chosen by `MUJOCO_GL` before MuJoCo is importe
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 
 import mujoco
@@ -77,10 +78,15 @@ class SceneRenderer:
     def __init__(self, model: mujoco.MjModel, camera_body: str | None, camera: Camera | str, width: int = 320,
                  height: int = 240):
         try:
-            self._renderer = mujoco.Renderer(model, height, width)
+            # GLFW warns (on stderr, before the message below) of each step that fails without a display: its first
+            # warning, the cause, goes into the message instead.
+            with warnings.catch_warnings(record=True) as warned:
+                warnings.simplefilter("always")
+                self._renderer = mujoco.Renderer(model, height, width)
         except Exception as error:  # MuJoCo raises different types per backend when no GL context can be made
             backend = os.environ.get("MUJOCO_GL", "unset (GLFW, needs a display)")
-            raise RenderError(f"MuJoCo cannot render with MUJOCO_GL={backend}: {error}. {GL_HINT}") from error
+            cause = f" (first, {warned[0].message})" if warned else ""
+            raise RenderError(f"MuJoCo cannot render with MUJOCO_GL={backend}: {error}{cause}. {GL_HINT}") from error
         self._model = model
         self._body = camera_body
         self._camera = camera
