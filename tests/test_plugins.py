@@ -215,8 +215,12 @@ class NoCarry(nn.Module):
     def __call__(self, carry, obs):
         return carry, nn.Dense(8)(obs.proprioception), nn.Dense(1)(obs.proprioception)[:, 0]
 
+class ClaimsSequences(Net):
+    runs_sequences = True
+
 register("PrivilegedCartPole", PrivilegedCartPole)
 register_network("user_fine", lambda network: Net())
+register_network("user_claims_sequences", lambda network: ClaimsSequences())
 register_network("user_value_axis", lambda network: Net(value_axis=True))
 register_network("user_carry_grows", lambda network: Net(carry_size=5))
 register_network("user_reads_asymmetric", lambda network: Net(reads_asymmetric=True))
@@ -233,6 +237,8 @@ register_network("user_no_argument", lambda: Net())
     ("user_no_carry", "NoCarry has no initial_carry(batch_size) method"),
     ("user_class", "its builder returned the class Net, not a module: return Net(...)"),
     ("user_no_argument", "its builder, called with the run's ppo.network section, raised TypeError: <lambda>() takes"),
+    ("user_claims_sequences", "its call on a training chunk (runs_sequences = True: carry, obs of (3, 2, size), resets "
+                              "(3, 2), initial carry) raised TypeError"),
 ])
 def test_a_network_that_breaks_its_contract_exits_2_naming_the_part_before_anything_compiles(
         network, message, user_code, tmp_path, capsys):

@@ -131,8 +131,34 @@ def check_network(builder: Callable[[NetworkSettings], Any], settings: NetworkSe
     if value.shape != (BATCH,):
         raise broken(f"its value for {BATCH} environments has shape {value.shape}: (B,) is expected"
                      + (" (squeeze the last axis: value[..., 0])" if value.shape == (BATCH, 1) else ""))
+    if getattr(network, "runs_sequences", False):
+        _check_sequences(network, params, carry, obs, broken)
     if one.asymmetric.shape[-1]:
         _check_policy_ignores_asymmetric(network, obs, carry, broken)
+
+
+# Steps of the abstract training chunk a network that runs sequences is traced with.
+STEPS = 3
+
+
+def _check_sequences(network: nn.Module, params: Any, carry: Any, obs: Sensation,
+                     broken: Callable[[str], UserCodeError]) -> None:
+    """A network that sets `runs_sequences` must also take a training chunk: `(carry, obs, resets, initial)` with obs
+    leaves `(s, B, size)` and resets `(s, B)`, returning (final carry, `(s, B, F)`, `(s, B)`)."""
+    chunk = jax.tree.map(lambda leaf: jax.ShapeDtypeStruct((STEPS, *leaf.shape), leaf.dtype), obs)
+    resets = jax.ShapeDtypeStruct((STEPS, BATCH), jnp.bool_)
+    output = _traced(lambda: jax.eval_shape(network.apply, params, carry, chunk, resets, carry), broken,
+                     f"its call on a training chunk (runs_sequences = True: carry, obs of ({STEPS}, {BATCH}, size), "
+                     f"resets ({STEPS}, {BATCH}), initial carry)")
+    if not (isinstance(output, tuple) and len(output) == 3):
+        raise broken("on a training chunk its __call__ must return (final carry, policy_features, values)")
+    carry_after, features, values = output
+    mismatch = _mismatch(carry, carry_after)
+    if mismatch:
+        raise broken(f"the final carry of a training chunk differs from initial_carry's ({mismatch})")
+    if len(features.shape) != 3 or features.shape[:2] != (STEPS, BATCH) or values.shape != (STEPS, BATCH):
+        raise broken(f"on a training chunk of {STEPS} steps x {BATCH} environments it returned policy features of "
+                     f"shape {features.shape} and values of shape {values.shape}: (s, B, F) and (s, B) are expected")
 
 
 def _check_policy_ignores_asymmetric(network: nn.Module, shapes: Sensation, carry: Any,
