@@ -18,8 +18,8 @@ import pytest
 import angora_jax
 
 # "api": the package itself (`import angora_jax as aj`), the public API its __init__ gathers.
-LAYERS = {"registry": 0, "whole_files": 0, "envs": 1, "nets": 2, "ppo": 3, "experiment": 4, "vision": 5, "analysis": 6,
-          "api": 7, "cli": 8}
+LAYERS = {"registry": 0, "whole_files": 0, "opengl_backend": 0, "envs": 1, "nets": 2, "ppo": 3, "experiment": 4,
+          "vision": 5, "analysis": 6, "api": 7, "cli": 8}
 PACKAGE = Path(angora_jax.__file__).parent
 
 

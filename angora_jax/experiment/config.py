@@ -46,7 +46,7 @@ from angora_jax.ppo.config import (
 )
 from angora_jax.ppo.memory import estimate_memory
 from angora_jax.ppo.parallel import per_device, resolve_num_devices
-from angora_jax.registry.plugins import import_modules
+from angora_jax.registry.plugins import ModuleNameError, import_modules
 
 # Named configs (`load_config("cartpole")`) ship inside the package (the repository's configs/ links here), so a
 # name is found from any working directory and in an installed wheel.
@@ -394,9 +394,12 @@ def validate(config: Config, new_run: bool = True) -> Env:
             (`contracts.check_own_code`: traced, not run).
     """
     # First: the user's modules register the tasks and networks that the checks below look up (UserCodeError: one
-    # that cannot be imported here, which says nothing of the config itself).
-    import_modules(config.imports,
-                   "listed under imports in the config; a run's config.yaml lists those it trained with")
+    # that cannot be imported here, which says nothing of the config itself; a name no module can have does).
+    try:
+        import_modules(config.imports,
+                       "listed under imports in the config; a run's config.yaml lists those it trained with")
+    except ModuleNameError as error:
+        raise ConfigError(str(error)) from None
     try:  # load_config checks these too; a Config made in Python comes here unchecked
         check_bounds(config, "")
     except ValueError as error:

@@ -28,6 +28,11 @@ class UserCodeError(ValueError):
     named (a config key, an option, an installed package) and the fix."""
 
 
+class ModuleNameError(UserCodeError):
+    """A name given as a module that no module can have (a file path, an empty name): a mistake in the setting, not
+    in the code it names."""
+
+
 def import_modules(names: Iterable[str], source: str) -> None:
     """Import each module of `names` (dotted names, e.g. "mytasks.hand"), so that what it defines registers.
 
@@ -36,12 +41,12 @@ def import_modules(names: Iterable[str], source: str) -> None:
         source: where the names came from, for the message (e.g. "the config's imports").
 
     Raises:
-        UserCodeError: a name that is not a module name, a module that is not found (put its folder on PYTHONPATH or
-            install it), or a module that raises while importing (its error, named).
+        UserCodeError: a name that is not a module name (ModuleNameError), a module that is not found (put its
+            folder on PYTHONPATH or install it), or a module that raises while importing (its error, named).
     """
     for name in names:
         if not all(part.isidentifier() for part in name.split(".")):
-            raise UserCodeError(f"{name!r} ({source}) is not a module name: give the dotted name Python imports "
+            raise ModuleNameError(f"{name!r} ({source}) is not a module name: give the dotted name Python imports "
                                 "(e.g. my_tasks or lab.hand_tasks, not a file path), with its folder on PYTHONPATH.")
         try:
             importlib.import_module(name)
