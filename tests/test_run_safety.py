@@ -105,7 +105,9 @@ def test_a_damaged_checkpoint_is_named_with_the_newest_intact_one_by_every_verb(
                  ["record", str(run), "--checkpoint", "latest", "--episodes", "1", "--out", str(tmp_path / "a.nc")]):
         err = exits_2(argv, capsys)
         assert f"Checkpoint {folder} is damaged: {victim}" in err, err
-        assert "The newest intact checkpoint is snapshots of cycle 6: read it with --checkpoint 6" in err, err
+        # Of cycle 6's intact checkpoints, best before snapshots (the order of latest, best, snapshots).
+        assert "The newest intact checkpoint is best of cycle 6: read it with --checkpoint best (resume: --from " \
+               "best)" in err, err
     assert sorted(p.relative_to(run) for p in run.rglob("*")) == before, "a refused command changed the run"
     assert main(["check", str(run)]) == 2
     out = capsys.readouterr().out
@@ -124,10 +126,10 @@ def test_the_newest_intact_checkpoint_is_found_without_verifying_the_older_ones(
     monkeypatch.setattr(checkpoint_module, "verify",
                         lambda path: verified.append(path.relative_to(run)) or verify(path))
     kept = Checkpoints(run / CHECKPOINTS, aj.load_config("cartpole").checkpoint, create=False)
-    verified.clear()  # opening the checkpoints verifies the best one, to read its value
-    try:
-        assert kept.newest_intact() == ("snapshots", 6) and len(verified) == 1, verified
-        assert kept.newest_intact(skip=("snapshots", 6)) == ("latest", 6) and len(verified) == 2, verified
+    assert verified == [], "a reader does not read the best one's value (a writer's business)"
+    try:  # of one cycle's checkpoints latest first, then best and snapshots
+        assert kept.newest_intact() == ("latest", 6) and len(verified) == 1, verified
+        assert kept.newest_intact(skip=("latest", 6)) == ("best", 6) and len(verified) == 2, verified
     finally:
         kept.close()
 
@@ -248,6 +250,20 @@ def test_a_run_trained_on_more_devices_than_this_machine_has_is_told_where_its_d
     assert "distribution.num_devices=64 but JAX sees only" in err
     assert "A run's device count is distribution.num_devices in its config.yaml: edit it there (resume lays the run " \
            "out again on the devices it gets" in err, err
+
+
+def test_resume_verifies_the_checkpoint_it_continues_from_once(whole, tmp_path, monkeypatch):
+    """Verifying hashes every file of a checkpoint (the cube's latest: 301 MB); resume verified the latest three times
+    (planning, comparing the saved config, taking up the best metric's pool: each with a reader of its own), and a
+    snapshot of the same cycle, which it never reads. The best (lean by default: parameters only) the writer reads."""
+    run = copy_of(whole, tmp_path)
+    verified = []
+    real = checkpoint_module.verify
+    monkeypatch.setattr(checkpoint_module, "verify",
+                        lambda path: verified.append(f"{Path(path).parent.name}/{Path(path).name}") or real(path))
+    aj.resume(run, num_cycles=CYCLES + 1)
+    assert verified.count(f"latest/{CYCLES}") == 1, verified
+    assert verified == [f"latest/{CYCLES}", f"best/{CYCLES}"], "the best's value, read by the writer; no snapshot"
 
 
 def test_the_lock_is_taken_by_one_of_two_processes_at_once(tmp_path):

@@ -22,7 +22,7 @@ import shutil
 import sys
 import time
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -104,8 +104,11 @@ class Checkpoints:
     the fast cube (benchmarks/results/cube_multi_gpu/ihom_4gpu_warp_graphs_4xh100.md); the copy to host frees them.
     """
 
-    def __init__(self, directory: Path, config: CheckpointConfig, create: bool = True):
-        """directory: the run's checkpoints folder; create=False to only read an existing run's checkpoints."""
+    def __init__(self, directory: Path, config: CheckpointConfig, create: bool = True,
+                 verified: Mapping[tuple[str, int], str | None] | None = None):
+        """directory: the run's checkpoints folder; create=False to only read an existing run's checkpoints;
+        verified: what another reader of this folder found of its checkpoints (`Checkpoints.verified`), while this
+        process held the run's lock, so that they are not hashed again."""
         self.config = config
         self._directory = Path(directory).resolve()
         # Read before the managers below remove them, so that the writer can say what it removed.
@@ -129,11 +132,12 @@ class Checkpoints:
         }
         # Each checkpoint's verification (checksums of all its files, gigabytes for the cube) is done once per object:
         # resuming asks about the same checkpoint when planning, locating, reading its metadata and restoring it.
-        self._damage: dict[tuple[str, int], str | None] = {}
+        self._damage: dict[tuple[str, int], str | None] = dict(verified or {})
         self._writing: list[tuple[str, int]] = []  # saves returned but still being written, in the order started
         self._failed = False  # a save failed and `finish` said so
         self._quiet: _QuietWriters | None = None  # while they are written
-        best = self._managers["best"].latest_step()
+        # A writer compares each cycle with the best so far; a reader never does, and reading it means verifying it.
+        best = self._managers["best"].latest_step() if create else None
         try:
             meta = None if best is None else self._read_meta("best", best)
             # Checkpoints saved before best_episodes recorded the cycle's own value.
@@ -383,9 +387,10 @@ class Checkpoints:
                 return which, step
         elif isinstance(which, int):
             holding = [kind for kind in KINDS if which in self._managers[kind].all_steps()]
-            sound = [kind for kind in holding if self.damage(kind, which) in (None, "no manifest")]
+            # The first sound one, verified in turn: the others of that cycle need not be hashed.
+            sound = next((kind for kind in holding if self.damage(kind, which) in (None, "no manifest")), None)
             if holding:
-                return (sound or holding)[0], which
+                return sound or holding[0], which
         existing = {kind: self.steps(kind) for kind in KINDS}
         if not any(existing.values()):
             raise FileNotFoundError(
@@ -399,6 +404,10 @@ class Checkpoints:
         listed = "; ".join(f"{kind} of cycle{'s' if len(found) > 1 else ''} {', '.join(map(str, found))}"
                            for kind, found in saved.items())
         raise FileNotFoundError(f"No checkpoint {which!r}. Saved: {listed}; ask for {choices}.")
+
+    def verified(self) -> dict[tuple[str, int], str | None]:
+        """What this reader found of the checkpoints it verified: (kind, cycle) -> damage (None: intact)."""
+        return dict(self._damage)
 
     def damage(self, kind: str, cycle: int) -> str | None:
         """What is wrong with checkpoint `kind`/`cycle` by its manifest (`manifest.verify`), None when intact; "no
@@ -425,7 +434,9 @@ class Checkpoints:
         """The kind and cycle of the newest checkpoint not found damaged (its manifest holds, or it has none to check;
         `skip` left out), or None. Newest first, stopping at the first intact one: verifying means hashing every file,
         and a run's older checkpoints (the cube's are 301 MB each) need not be read to name it."""
-        saved = sorted(((cycle, kind) for kind in KINDS for cycle in self.steps(kind)), reverse=True)
+        # Of one cycle's checkpoints, latest first (then best, snapshots): the one a caller most likely verified.
+        saved = sorted(((cycle, kind) for kind in KINDS for cycle in self.steps(kind)),
+                       key=lambda entry: (-entry[0], KINDS.index(entry[1])))
         for cycle, kind in saved:
             if (kind, cycle) != skip and self.damage(kind, cycle) in (None, "no manifest"):
                 return kind, cycle

@@ -55,17 +55,21 @@ class ResumePlan:
     describe: str
 
 
-def plan_resume(run_dir: Path, config: Config, start_from: str | int = "latest", from_scratch: bool = False
-                ) -> ResumePlan:
+def plan_resume(run_dir: Path, config: Config, start_from: str | int = "latest", from_scratch: bool = False,
+                checkpoints: Checkpoints | None = None) -> ResumePlan:
     """Decide where `resume` continues `run_dir` from; raise RunDirError (CheckpointError for a damaged checkpoint)
-    naming what is missing and the choices when it cannot continue as asked. Reads only."""
+    naming what is missing and the choices when it cannot continue as asked. Reads only. `checkpoints`: the run's,
+    opened by the caller to restore from next (each checkpoint's files are then verified once, gigabytes for the
+    cube); None opens and closes them here."""
     if from_scratch:
         if start_from != "latest":
             raise RunDirError("--from-scratch trains again from cycle 0: it cannot be combined with --from.")
         return ResumePlan(None, None, True, f"train again from cycle 0; the earlier {', '.join(TRAINING_OUTPUTS)} "
                                             f"move to {run_dir}/previous-N/")
     logged = logged_cycles(run_dir)
-    checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)
+    own = checkpoints is None
+    if own:
+        checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)
     try:
         if start_from == "latest":
             latest = checkpoints.steps("latest")
@@ -97,7 +101,8 @@ def plan_resume(run_dir: Path, config: Config, start_from: str | int = "latest",
                           (f"; the {len(later)} cycles logged after it, and later checkpoints with their "
                            "evaluations and videos, are set aside" if later else ""))
     finally:
-        checkpoints.close()
+        if own:
+            checkpoints.close()
 
 
 def set_aside_checkpoints_after(run_dir: Path, cycle: int) -> Path | None:

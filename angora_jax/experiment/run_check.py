@@ -66,18 +66,21 @@ class EditedSettings:
                 f"saved: {shown}")
 
 
-def edited_settings(run_dir: str | Path, config: Config) -> EditedSettings | None:
+def edited_settings(run_dir: str | Path, config: Config, checkpoints: Checkpoints | None = None
+                    ) -> EditedSettings | None:
     """Where `config` (the run's config.yaml as loaded) differs from the config saved with `run_dir`'s newest intact
     checkpoint in its task or learning settings (`env.*`, `ppo.*` but `ppo.num_cycles` and `ppo.stop_at`); None when
-    they agree, or no checkpoint keeps a copy that loads with this version."""
+    they agree, or no checkpoint keeps a copy that loads with this version. `checkpoints`: the run's, opened by the
+    caller (None: opened and closed here)."""
     run_dir = Path(run_dir)
     if not has_checkpoints(run_dir):
         return None
-    checkpoints = Checkpoints(run_dir / CHECKPOINTS, CheckpointConfig(), create=False)
+    reader = checkpoints or Checkpoints(run_dir / CHECKPOINTS, CheckpointConfig(), create=False)
     try:
-        found = checkpoints.saved_config()
+        found = reader.saved_config()
     finally:
-        checkpoints.close()
+        if checkpoints is None:
+            reader.close()
     if found is None:
         return None
     kind, cycle, data = found

@@ -191,10 +191,12 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
         config = replace(config, ppo=replace(config.ppo, stop_at=None))
     env = validate(config, new_run=False)
     lock = _lock_together(run_dir, force)
+    # One reader of the checkpoints for planning and restoring, so that the one resumed from is verified once.
+    checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)
     try:
-        plan = plan_resume(run_dir, config, start_from, from_scratch)
+        plan = plan_resume(run_dir, config, start_from, from_scratch, checkpoints)
         if plan.cycle is not None:
-            _refuse_edited(run_dir, on_disk)
+            _refuse_edited(run_dir, on_disk, checkpoints)
         ended = None if plan.fresh_start else ended_by_stop_at(run_dir, config.ppo.stop_at, plan.cycle)
         if ended is not None and config.ppo.num_cycles != before.num_cycles:
             raise ConfigError(f"ppo.stop_at ended {run_dir} at cycle {plan.cycle} ({ended}), so --num-cycles alone "
@@ -214,13 +216,12 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
             check_sources(config, env)
         state = None
         if plan.cycle is not None:
-            checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)
-            try:
-                finished = plan.cycle >= config.ppo.num_cycles or ended is not None
-                state = _restore_to_continue(checkpoints, plan.cycle, initial_state_shape(config, env), exact, run_dir,
-                                             finished)
-            finally:
-                checkpoints.close()
+            finished = plan.cycle >= config.ppo.num_cycles or ended is not None
+            state = _restore_to_continue(checkpoints, plan.cycle, initial_state_shape(config, env), exact, run_dir,
+                                         finished)
+        verified = checkpoints.verified()
+        checkpoints.close()  # before the checkpoints after plan.cycle are moved aside, and the writer opens them
+        checkpoints = None
         if is_main_process():
             if plan.fresh_start:
                 print(f"Training {run_dir} again from cycle 0; the earlier outputs are kept in "
@@ -236,16 +237,19 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
                 if side is not None:
                     print(f"Records after cycle {plan.cycle} are kept in {side}.", file=sys.stderr, flush=True)
         _together(f"angora_jax resume {run_dir}")
-        return _run(config, env, run_dir, state=state, on_cycle=on_cycle, minutes=minutes, ended=ended)
+        return _run(config, env, run_dir, state=state, on_cycle=on_cycle, minutes=minutes, ended=ended,
+                    verified=verified)
     finally:
+        if checkpoints is not None:
+            checkpoints.close()
         if lock is not None:
             lock.release()
 
 
-def _refuse_edited(run_dir: Path, config: Config) -> None:
+def _refuse_edited(run_dir: Path, config: Config, checkpoints: Checkpoints) -> None:
     """ConfigError when the run's config.yaml (`config`) holds other task or learning settings than its checkpoints
     were trained with: continuing would make one run's records of two (`run_check.edited_settings`)."""
-    edited = edited_settings(run_dir, config)
+    edited = edited_settings(run_dir, config, checkpoints)
     if edited is not None:
         raise ConfigError(
             f"{edited.describe(run_dir)}. resume continues a run with the settings it was trained with, so that its "
@@ -342,6 +346,7 @@ def _run(
     minutes: float | None = None,
     new: bool = False,
     ended: str | None = None,
+    verified: dict[tuple[str, int], str | None] | None = None,
 ) -> TrainingRun:
     if minutes is not None and minutes <= 0:
         raise ValueError(f"minutes (the call's time limit) must be > 0, got {minutes}.")
@@ -353,7 +358,7 @@ def _run(
     stop_pool = stop_at_pool(run_dir, stop_at, int(state.cycle))[1] if stop_at and state is not None and not new else []
     history: list[dict[str, Any]] = []
     resolved = to_dict(config)
-    checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint)
+    checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, verified=verified)
     if state is not None and not new:
         checkpoints.continue_from(int(state.cycle))
     if is_main_process() and checkpoints.removed_unfinished:
