@@ -140,6 +140,7 @@ def test_resume_never_starts_over_by_itself(whole, tmp_path, capsys):
     metrics = (run / "metrics.jsonl").read_text()
     err = exits_2(["resume", str(run)], capsys)
     assert "has no latest checkpoint to resume from" in err and f"logged {CYCLES} cycles" in err
+    assert f"and keeps checkpoints (best of cycle {CYCLES}; snapshots of cycles 3, 6). Resuming now" in err, err
     assert "`--from 6` continues from the newest intact checkpoint" in err and "`--from-scratch`" in err
     assert (run / "metrics.jsonl").read_text() == metrics
     shutil.rmtree(run / CHECKPOINTS)  # no checkpoint at all: the same

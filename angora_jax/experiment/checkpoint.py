@@ -89,6 +89,12 @@ class Restored:
 _REPLACED_RETRIES = 5
 
 
+def describe_saved(saved: Mapping[str, list[int]]) -> str:
+    """`{"latest": [6], "snapshots": [3, 6]}` in words: "latest of cycle 6; snapshots of cycles 3, 6"."""
+    return "; ".join(f"{kind} of cycle{'s' if len(cycles) > 1 else ''} {', '.join(map(str, cycles))}"
+                     for kind, cycles in saved.items() if cycles)
+
+
 class Checkpoints:
     """The checkpoints of one run directory: decides what to save after a cycle, and restores.
 
@@ -401,9 +407,7 @@ class Checkpoints:
         kinds = [repr(kind) for kind in ("latest", "best") if kind in saved]
         cycles = sorted({cycle for found in saved.values() for cycle in found})
         choices = " or ".join([*kinds, f"a cycle ({', '.join(map(str, cycles[-8:]))})"])
-        listed = "; ".join(f"{kind} of cycle{'s' if len(found) > 1 else ''} {', '.join(map(str, found))}"
-                           for kind, found in saved.items())
-        raise FileNotFoundError(f"No checkpoint {which!r}. Saved: {listed}; ask for {choices}.")
+        raise FileNotFoundError(f"No checkpoint {which!r}. Saved: {describe_saved(saved)}; ask for {choices}.")
 
     def verified(self) -> dict[tuple[str, int], str | None]:
         """What this reader found of the checkpoints it verified: (kind, cycle) -> damage (None: intact)."""

@@ -12,7 +12,7 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-from angora_jax.experiment.checkpoint import KINDS, Checkpoints
+from angora_jax.experiment.checkpoint import KINDS, Checkpoints, describe_saved
 from angora_jax.experiment.config import Config
 from angora_jax.experiment.manifest import verify
 from angora_jax.experiment.monitor import logged_cycles
@@ -85,7 +85,8 @@ def plan_resume(run_dir: Path, config: Config, start_from: str | int = "latest",
                 raise RunDirError(
                     f"{run_dir} has no latest checkpoint to resume from (checkpoints/latest is empty or missing), "
                     f"but it logged {len(logged)} cycles (up to cycle {max(logged, default=0)}) in {METRICS_FILE}"
-                    f"{f' and keeps {saved}' if saved else ''}. Resuming now would start over and lose that curve, "
+                    f"{f' and keeps checkpoints ({describe_saved(saved)})' if saved else ''}. Resuming now would start "
+                    "over and lose that curve, "
                     f"so nothing was changed. Choose: {choice}`--from-scratch` trains again from cycle 0 with the "
                     f"earlier files moved to {run_dir}/previous-N/. `angora-jax check {run_dir}` shows what the run "
                     "holds.")
