@@ -590,3 +590,23 @@ def test_analyze_dynamics_finds_a_graph_area_s_fixed_points_without_inputs(tmp_p
     assert "The recording was made from cycle 7, and --checkpoint best of RUN is cycle 0" in capsys.readouterr().err
     assert cli.main(["analyze", "dynamics", str(path), "--inputs", "network.S1"]) == 2
     assert "need --run and --recurrent together, and --inputs only with them" in capsys.readouterr().err
+
+
+def test_a_layer_or_variable_the_recording_lacks_is_named_with_the_nearest_and_a_single_name_is_one_layer():
+    """timescales, cross_correlation and similarity's variables raised xarray's KeyError deep inside; decode listed
+    every variable with the activity_ prefix the user never typed; layers="network.M1" was read letter by letter."""
+    data = graph_recording({"network.M1": 3, "network.PMC.0": 4, "network.PMC.1": 4})
+    for analysis in (timescales, cross_correlation, principal_components, decode):
+        with pytest.raises(ValueError, match=r"^Not in the recording: no layer 'network.m1' \(did you mean "
+                                             r"'network.M1'\?\)\. Its layers: network.M1, network.PMC.0, "
+                                             r"network.PMC.1\. Its variables: alive, input_proprioception\.$"):
+            analysis(data, layers=["network.m1"])
+    with pytest.raises(ValueError, match=r"no layer 'network.PMC' \(module network.PMC records network.PMC.0, "
+                                         r"network.PMC.1: name one of those\)"):
+        timescales(data, layers=["network.PMC"])
+    with pytest.raises(ValueError, match=r"no layer 'activity_network.M1' \(layers are named without the activity_ "
+                                         r"prefix: 'network.M1'\)"):
+        timescales(data, layers=["activity_network.M1"])
+    assert list(timescales(data, layers="network.M1")["layer"].values) == ["network.M1"], "one name, one layer"
+    with pytest.raises(ValueError, match=r"no variable 'input_proprio' \(did you mean 'input_proprioception'\?\)"):
+        similarity(data, "input_proprioception", variables="input_proprio")

@@ -117,7 +117,8 @@ def test_a_driven_rnn_is_predicted_from_its_input_layer_at_the_step_it_enters():
 
 def test_bad_input_names_the_cause_and_the_fix():
     data = recording(linear_trajectories(LINEAR_RNN, episodes=4, steps=10), units=5)
-    with pytest.raises(ValueError, match=r"Not in the recording: \['activity_cortex'\]"):
+    with pytest.raises(ValueError, match=r"Not in the recording: no layer 'cortex'.* Its layers: rnn\. Its "
+                                         r"variables: "):
         sindy(data, "cortex")
     with pytest.raises(ValueError, match="6 components of 'rnn', which has 5 units: ask for at most 5"):
         sindy(data, "rnn", components=6, horizon=5)

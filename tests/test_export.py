@@ -87,3 +87,23 @@ def test_the_exported_policy_benchmark_reproduces_evaluates_episodes_in_a_loop_o
     for row in rows.values():  # CartPole on the CPU: the plain loop rounds as evaluate's program does
         assert row["equal_episodes"] == 1.0 and row["agree"] and row["exported"] == row["evaluate"]
     assert np.ptp(batched.episodes["episode_length"]) > 0, "episodes differ: the comparison is not of constants"
+
+
+def test_act_names_an_observation_or_carry_that_does_not_fit(lstm_run):
+    """A NumPy array, an unbatched observation, another task's widths or a carry for another batch size failed deep
+    inside JAX (or, on a feed-forward model, gave a scalar action silently)."""
+    agent = aj.load_agent(lstm_run)
+    obs = jax.vmap(agent.env.reset)(jax.random.split(jax.random.key(0), 4)).obs
+    carry = agent.initial_carry(4)
+    assert agent.act(carry, obs)[1].shape == (4,)
+    with pytest.raises(TypeError, match=r"obs must be a Sensation .* got ndarray"):
+        agent.act(carry, np.zeros((4, 4), np.float32))
+    with pytest.raises(ValueError, match=r"obs.proprioception has shape \(4,\); this agent \(CartPole\) reads \(B, 4\) "
+                                         r"for a batch of B environments: batch one observation with obs\[None\]"):
+        agent.act(agent.initial_carry(1), agent.env.reset(jax.random.key(0)).obs)
+    wide = obs.replace(proprioception=np.zeros((4, 7), np.float32))
+    with pytest.raises(ValueError, match=r"obs.proprioception has shape \(4, 7\).*observations of another task\?"):
+        agent.act(carry, wide)
+    with pytest.raises(ValueError, match=r"The carry is for a batch of 2 environments and obs for 4: start it with "
+                                         r"agent.initial_carry\(4\)"):
+        agent.act(agent.initial_carry(2), obs)

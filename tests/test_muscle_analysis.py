@@ -202,4 +202,4 @@ def test_the_analyze_verbs_write_plots_and_numbers_and_exit_2_on_a_recording_wit
     assert "muscles.synergies.nc is NetCDF but not a recording" in capsys.readouterr().err
     assert main(["analyze", "tuning", str(tmp_path / "joints.nc"), "--layer", "nosuch", "--variable",
                  "task_joint_angles"]) == 2
-    assert "Not in the recording: ['activity_nosuch']" in capsys.readouterr().err
+    assert "Not in the recording: no layer 'nosuch'. Its layers: " in capsys.readouterr().err

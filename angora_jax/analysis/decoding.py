@@ -18,6 +18,7 @@ of learning; compare areas, variables that must be computed, and that control.
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Sequence
 
 import numpy as np
@@ -125,8 +126,9 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
             have the same widths as the network it controls for, so the same baseline). The noise baseline is one draw
             per layer width, shared by layers of that width.
     """
-    layers = list(layers or recorded_layers(dataset))
-    variables = list(variables or [n for n in dataset.data_vars if n.startswith(("input_", "task_", "metric_"))])
+    layers = chosen_layers(dataset, layers)
+    variables = ([variables] if isinstance(variables, str) else list(variables)) if variables else [
+        n for n in dataset.data_vars if n.startswith(("input_", "task_", "metric_"))]
     require(dataset, layers, variables)
     steps = dataset.sizes["time"]
     if lags is not None and any(abs(k) >= steps for k in lags):
@@ -194,18 +196,40 @@ def _decode_lags(dataset: xr.Dataset, layers: list[str], variables: list[str], f
     return result
 
 
-def require(dataset: xr.Dataset, layers: Sequence[str], variables: Sequence[str] = ()) -> None:
-    """Raise a ValueError naming what of `layers` (as in `activity_<name>`) and `variables` the recording lacks, with
-    what it has."""
-    missing = [v for v in [*(f"activity_{n}" for n in layers), *variables] if v not in dataset.data_vars]
-    if missing:
+def chosen_layers(dataset: xr.Dataset, layers: str | Sequence[str] | None) -> list[str]:
+    """The layers an analysis of `dataset` takes: every recorded one for None, one name given as a string, else
+    `layers`; a ValueError (`require`) for one the recording lacks."""
+    chosen = recorded_layers(dataset) if layers is None else [layers] if isinstance(layers, str) else list(layers)
+    require(dataset, chosen)
+    return chosen
+
+
+def require(dataset: xr.Dataset, layers: str | Sequence[str], variables: str | Sequence[str] = ()) -> None:
+    """Raise a ValueError naming what of `layers` (names as `record` gives them, e.g. network.PMC.1: the recording
+    keeps each as `activity_<name>`) and `variables` the recording lacks, with the nearest name and what it has."""
+    layers = [layers] if isinstance(layers, str) else list(layers)
+    variables = [variables] if isinstance(variables, str) else list(variables)
+    recorded = recorded_layers(dataset)
+    problems = []
+    for name in layers:
+        if f"activity_{name}" in dataset.data_vars:
+            continue
         # A recurrent module records its outputs by index (e.g. network.PMC.1, the cell's output).
-        outputs = {name: [layer for layer in recorded_layers(dataset) if layer.startswith(f"{name}.")]
-                   for name in layers}
-        hint = "; ".join(f"module {name} records {', '.join(found)}: name one of those"
-                         for name, found in outputs.items() if found and f"activity_{name}" in missing)
-        raise ValueError(f"Not in the recording: {missing}; it has {sorted(dataset.data_vars)}."
-                         + (f" ({hint})" if hint else ""))
+        outputs = [layer for layer in recorded if layer.startswith(f"{name}.")]
+        close = difflib.get_close_matches(name.removeprefix("activity_"), recorded, n=1)
+        problems.append(f"no layer {name!r}" + (
+            f" (module {name} records {', '.join(outputs)}: name one of those)" if outputs else
+            f" (layers are named without the activity_ prefix: {name.removeprefix('activity_')!r})"
+            if name.startswith("activity_") and name.removeprefix("activity_") in recorded else
+            f" (did you mean {close[0]!r}?)" if close else ""))
+    names = sorted(v for v in dataset.data_vars if not str(v).startswith("activity_"))
+    for name in variables:
+        if name not in dataset.data_vars:
+            close = difflib.get_close_matches(name, names, n=1)
+            problems.append(f"no variable {name!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+    if problems:
+        raise ValueError(f"Not in the recording: {'; '.join(problems)}. Its layers: {', '.join(recorded)}. Its "
+                         f"variables: {', '.join(names)}.")
 
 
 def lagged_steps(steps: int, lag: int) -> tuple[slice, slice]:

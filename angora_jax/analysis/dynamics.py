@@ -21,7 +21,7 @@ import optax
 import xarray as xr
 from sklearn.decomposition import PCA
 
-from angora_jax.analysis.decoding import recorded_layers, require
+from angora_jax.analysis.decoding import chosen_layers, recorded_layers
 from angora_jax.analysis.parallel import map_in_threads
 from angora_jax.experiment.agent import Agent
 from angora_jax.nets.activations import ACTIVATION_RANGES, ACTIVATIONS
@@ -37,8 +37,7 @@ def principal_components(dataset: xr.Dataset, layers: Sequence[str] | None = Non
     (sum l)^2 / sum l^2 as `participation_ratio`) and `trajectory_<layer>` (episode x time x component: the
     activity projected on the leading components, NaN where the episode is not alive). At most as many components as
     the widest layer has units."""
-    layers = list(layers or recorded_layers(dataset))
-    require(dataset, layers)
+    layers = chosen_layers(dataset, layers)
     # No layer has more components than units: asking for more would only pad the trajectories with NaN, at
     # episodes x steps x components floats (12 GB for 1,000 components of a 1.5M-step recording).
     components = min(components, max(dataset[f"activity_{layer}"].shape[-1] for layer in layers))

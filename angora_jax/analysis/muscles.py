@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 import xarray as xr
 
-from angora_jax.analysis.decoding import MAX_SAMPLES, decode, recorded_layers
+from angora_jax.analysis.decoding import MAX_SAMPLES, chosen_layers, decode
 
 MUSCLE_VARIABLES = ("task_muscle_force", "task_muscle_activation")
 MOVEMENT_VARIABLES = ("task_joint_angles", "task_joint_velocities")
@@ -49,7 +49,7 @@ def muscles_or_movements(recording: xr.Dataset, control: xr.Dataset | None = Non
     Raises:
         ValueError: a variable or layer the recording lacks, or a control of other episodes or layers.
     """
-    layers = list(layers or recorded_layers(recording))
+    layers = chosen_layers(recording, layers)
     variables = [*muscles, *movements]
     if not muscles or not movements:
         raise ValueError("Give at least one muscle variable and one movement variable to compare.")

@@ -17,7 +17,7 @@ import xarray as xr
 from rsatoolbox.data import Dataset
 from rsatoolbox.rdm import RDMs, calc_rdm, compare
 
-from angora_jax.analysis.decoding import recorded_layers
+from angora_jax.analysis.decoding import chosen_layers, recorded_layers, require
 
 
 def condition_labels(dataset: xr.Dataset, variable: str, bins: int = 8, feature: int | None = None) -> np.ndarray:
@@ -57,8 +57,8 @@ def layer_rdms(dataset: xr.Dataset, labels: np.ndarray, layers: Sequence[str] | 
 
     # The correlation between two conditions' mean patterns needs at least two units: a one-unit layer (the value
     # output) has none, so it is left out unless named.
-    layers = list(layers or [layer for layer in recorded_layers(dataset)
-                             if method != "correlation" or units(layer) > 1])
+    layers = chosen_layers(dataset, layers) if layers else [
+        layer for layer in recorded_layers(dataset) if method != "correlation" or units(layer) > 1]
     alive = labels.reshape(-1) >= 0
     rdms = [calc_rdm(_patterns(dataset[f"activity_{layer}"], labels, alive), method=method, descriptor="condition")
             for layer in layers]
@@ -87,6 +87,8 @@ def similarity(dataset: xr.Dataset, condition: str, layers: Sequence[str] | None
     """RSA of `layers` (default all) over bins of `condition` (see `condition_labels`), as a Dataset with `rdm`
     (layer x condition x condition_), `layer_similarity` (layer x layer_: Spearman correlation of their RDMs) and,
     for `variables`, `model_similarity` (layer x variable: each layer's RDM against the variable's model RDM)."""
+    variables = [variables] if isinstance(variables, str) else list(variables)
+    require(dataset, (), variables)
     labels = condition_labels(dataset, condition, bins, feature)
     rdms = layer_rdms(dataset, labels, layers, method)
     layers = rdms.rdm_descriptors["layer"]

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 import xarray as xr
 
-from angora_jax.analysis.decoding import lagged_steps, recorded_layers
+from angora_jax.analysis.decoding import chosen_layers, lagged_steps
 from angora_jax.analysis.parallel import map_in_threads
 
 
@@ -61,7 +61,7 @@ def cross_correlation(dataset: xr.Dataset, layers: Sequence[str] | None = None, 
     other, in s) is the lag of the largest |correlation|. `max_lag` stops at the recording's steps less one."""
     from sklearn.decomposition import PCA
 
-    layers = list(layers or recorded_layers(dataset))
+    layers = chosen_layers(dataset, layers)
     max_lag = _lags_within(dataset, max_lag)
     alive = dataset["alive"].values > 0
     leading = {}
@@ -86,7 +86,7 @@ def timescales(dataset: xr.Dataset, layers: Sequence[str] | None = None, max_lag
     first lag, linearly interpolated, where its autocorrelation drops below 1/e; NaN when it stays above within
     `max_lag` or the unit is constant) summarised as `timescale_median` and `timescale_iqr_low/high` (layer).
     `max_lag` stops at the recording's steps less one."""
-    layers = list(layers or recorded_layers(dataset))
+    layers = chosen_layers(dataset, layers)
     max_lag = _lags_within(dataset, max_lag)
     dt = float(dataset.attrs.get("policy_step_s", 1.0))
     curves, medians, low, high = [], [], [], []

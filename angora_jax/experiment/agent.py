@@ -12,6 +12,7 @@ from typing import Any
 
 import flax.linen as nn
 import jax
+import jax.numpy as jnp
 
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.experiment.checkpoint import Checkpoints
@@ -75,14 +76,42 @@ class Agent:
         Returns `(carry, policy_params, value)`; `apply_options` go to flax's `apply`, e.g.
         `capture_intermediates=True` to also return every layer's activations for probing.
         """
+        self._check_inputs(carry, obs)
         norm = self.config.ppo.normalization
         if norm.observations:
             obs = normalize_observation(self.state.obs_stats, obs, norm.clip)
         return self.model.apply({"params": self.params}, carry, obs, **apply_options)
 
+    def _check_inputs(self, carry: Any, obs: Sensation) -> None:
+        """ValueError (TypeError for no Sensation) naming what does not fit, before JAX fails deep inside the model:
+        observations of another task or unbatched, or a carry made for another batch size. Shapes only: it costs
+        nothing, under jit too."""
+        if not isinstance(obs, Sensation):
+            raise TypeError(f"obs must be a Sensation (a batch of the task's observations: jax.vmap(env.reset)(keys)"
+                            f".obs, or a state's .obs), got {type(obs).__name__}.")
+        sizes = {name: stats.mean.shape[-1] for name, stats in vars(self.state.obs_stats).items()}
+        batch = None
+        for name, leaf in vars(obs).items():
+            shape = jnp.shape(leaf)
+            images = sizes[name] == 0 and len(shape) == 5  # (B, cameras, height, width, channels): no stats
+            if len(shape) < 2 or (not images and shape[-1] != sizes[name]):
+                raise ValueError(
+                    f"obs.{name} has shape {shape}; this agent ({self.config.env.task}) reads (B, {sizes[name]}) for "
+                    f"a batch of B environments" + (": batch one observation with obs[None] or jax.vmap(env.reset)"
+                                                    if len(shape) < 2 else ": observations of another task?"))
+            batch = shape[0] if batch is None else batch
+        carried = {jnp.shape(leaf)[0] for leaf in jax.tree.leaves(carry) if jnp.ndim(leaf)}
+        if batch is not None and carried and carried != {batch}:
+            raise ValueError(f"The carry is for a batch of {sorted(carried)[0]} environments and obs for {batch}: "
+                             f"start it with agent.initial_carry({batch}).")
+
     def act(self, carry: Any, obs: Sensation, key: jax.Array | None = None) -> tuple[Any, jax.Array, jax.Array]:
-        """Choose actions for a batch: the head's mode, or a sample when `key` is given. Returns
-        `(carry, env_actions, values)` with actions ready for `jax.vmap(env.step)`."""
+        """Choose actions for a batch of B environments: the head's mode, or a sample when `key` is given.
+
+        carry: `initial_carry(B)` at episodes' starts, then what the previous call returned; obs: a Sensation of raw
+        observations, leaves `(B, size)` (`jax.vmap(env.reset)(keys).obs`). Returns `(carry, env_actions, values)`:
+        actions `(B, *action_shape)` ready for `jax.vmap(env.step)` (`(B,)` integers for discrete actions), values
+        `(B,)` in the task's reward units (discounted return)."""
         carry, policy_params, value = self.apply(carry, obs)
         action = self.head.mode(policy_params) if key is None else self.head.sample(policy_params, key)
         return carry, self.head.env_action(action), value
