@@ -2,8 +2,8 @@
 
 The notebook API: `make_env(task, **options)`, `load_config(path_or_name, overrides)`, `train(config)` (what
 `angora-jax train` does: run directory, checkpoints, metrics, report), `load_agent(run_dir)`, `evaluate(run_dir)`
-(episode statistics on the eager CPU path), `render_frames(run_dir)` (video frames) and `load_policy(file)` (a
-policy exported with `angora-jax export`, no run directory needed).
+(episode statistics on the eager CPU path), `render_frames(run_dir)` (video frames), `export_policy(run_dir, file)`
+and `load_policy(file)` (the policy in one file, used without the run directory; `angora-jax export` writes it too).
 """
 
 from angora_jax import opengl_backend  # noqa: F401  (imports MuJoCo first, naming a MUJOCO_GL that cannot load)
@@ -11,7 +11,7 @@ from angora_jax.envs import list_tasks, make
 from angora_jax.envs.gym_view import register_gymnasium_envs
 from angora_jax.experiment import list_configs, load_agent, load_config, resume, train
 from angora_jax.experiment.evaluation import evaluate
-from angora_jax.experiment.export import load_policy
+from angora_jax.experiment.export import export_policy, load_policy
 from angora_jax.experiment.video import render_frames
 from angora_jax.vision import estimator as _registers_the_pose_estimator_reader  # noqa: F401  (see envs.shadow_hand)
 
@@ -19,6 +19,6 @@ make_env = make
 register_gymnasium_envs()
 
 __all__ = [
-    "evaluate", "list_configs", "list_tasks", "load_agent", "load_config", "load_policy", "make", "make_env",
-    "render_frames", "resume", "train",
+    "evaluate", "export_policy", "list_configs", "list_tasks", "load_agent", "load_config", "load_policy", "make",
+    "make_env", "render_frames", "resume", "train",
 ]

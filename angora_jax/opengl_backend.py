@@ -24,6 +24,23 @@ class OpenGLBackendError(ImportError):
     """MuJoCo cannot be imported with the OpenGL backend `MUJOCO_GL` names."""
 
 
+# The backend MuJoCo loaded when it was imported: setting MUJOCO_GL later (a notebook cell after the import) changes
+# nothing until Python restarts.
+LOADED = os.environ.get("MUJOCO_GL")
+
+
+def changed_since_import() -> str | None:
+    """Why rendering cannot use the `MUJOCO_GL` set now, when it was set or changed after MuJoCo was imported (it
+    loaded another backend then); None when it is the one loaded."""
+    now = os.environ.get("MUJOCO_GL")
+    if now == LOADED:
+        return None
+    return (f"MUJOCO_GL={now} was set after MuJoCo was imported, which loaded "
+            f"{'MUJOCO_GL=' + LOADED if LOADED else 'its default (GLFW, which needs a display)'} then and keeps it: "
+            f"set MUJOCO_GL={now} before importing angora_jax (in a notebook: restart the kernel and set it in the "
+            "first cell, or in the environment that starts Jupyter)")
+
+
 def import_mujoco() -> None:
     """Import MuJoCo; when the backend `MUJOCO_GL` names cannot load, exit 2 with the cause and the fix under the
     `angora-jax` command, or raise OpenGLBackendError in Python (a notebook's `import angora_jax`)."""

@@ -217,6 +217,11 @@ def test_the_small_graph_of_the_bad_cases_is_valid_and_loops_through_recurrence(
     validate(load_config("cartpole", [*GRAPH, f"{AREA}.S1.inputs=[proprioception, M1]", f"{AREA}.M1.cell=gru"]))
 
 
+def test_one_override_given_as_a_string_is_one_override():
+    """aj.train("cartpole", "ppo.num_cycles=1") read the string letter by letter: "Override 'p' must look like ..."."""
+    assert load_config("cartpole", "ppo.num_cycles=1").ppo.num_cycles == 1
+
+
 def test_bad_files_fail_clearly(tmp_path: Path):
     with pytest.raises(ConfigError, match=r"not found. Did you mean 'cartpole'\? Give a YAML path or the name of a "
                                           r"shipped config: .*cartpole"):

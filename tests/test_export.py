@@ -107,3 +107,14 @@ def test_act_names_an_observation_or_carry_that_does_not_fit(lstm_run):
     with pytest.raises(ValueError, match=r"The carry is for a batch of 2 environments and obs for 4: start it with "
                                          r"agent.initial_carry\(4\)"):
         agent.act(agent.initial_carry(2), obs)
+
+
+def test_a_notebook_shows_an_agent_and_a_run_in_a_line_and_exports_from_python(lstm_run, tmp_path):
+    """`agent` or `run` ending a cell printed 20 KB and 69 KB of arrays; export was only a command."""
+    agent = aj.load_agent(lstm_run)
+    assert repr(agent) == "Agent(task='CartPole', network='lstm', head=Categorical, cycle=2)"
+    run = aj.resume(lstm_run)  # complete: trains nothing, returns the run
+    assert repr(run) == (f"TrainingRun(run_dir={str(lstm_run)!r}, cycle=2, cycles_this_call=0, finished=True, "
+                         "stopped_at=None)")
+    out = aj.export_policy(lstm_run, tmp_path / "p.msgpack", checkpoint="latest")
+    assert aj.load_policy(out).agent.cycle == 2

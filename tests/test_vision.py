@@ -484,3 +484,20 @@ def test_no_display_is_one_message_naming_glfw_s_first_warning_and_no_warnings_b
                                                         r"variable is missing'\)\. Rendering needs an OpenGL backend"):
             rendering.SceneRenderer(model, None, rendering.CAMERAS["front"])
     assert leaked == [], [str(w.message) for w in leaked]
+
+
+def test_mujoco_gl_set_after_the_import_is_named_as_such(monkeypatch):
+    """A notebook that sets MUJOCO_GL=egl in a later cell was told to set MUJOCO_GL=egl: MuJoCo had loaded GLFW."""
+    from angora_jax import opengl_backend
+    from angora_jax.envs import rendering
+
+    def no_context(*args, **kwargs):
+        raise mujoco.FatalError("an OpenGL platform library has not been loaded into this process")
+
+    monkeypatch.setattr(rendering.mujoco, "Renderer", no_context)
+    monkeypatch.setattr(opengl_backend, "LOADED", None)
+    monkeypatch.setenv("MUJOCO_GL", "egl")
+    message = (r"^MuJoCo cannot render: MUJOCO_GL=egl was set after MuJoCo was imported, which loaded its default "
+               r"\(GLFW, which needs a display\) then and keeps it: set MUJOCO_GL=egl before importing angora_jax")
+    with pytest.raises(rendering.RenderError, match=message):
+        rendering.SceneRenderer(mujoco.MjModel.from_xml_string("<mujoco/>"), None, rendering.CAMERAS["front"])

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from angora_jax.opengl_backend import GL_HINT
+from angora_jax.opengl_backend import GL_HINT, changed_since_import
 
 
 class RenderError(RuntimeError):
@@ -84,6 +84,9 @@ class SceneRenderer:
                 warnings.simplefilter("always")
                 self._renderer = mujoco.Renderer(model, height, width)
         except Exception as error:  # MuJoCo raises different types per backend when no GL context can be made
+            changed = changed_since_import()
+            if changed:
+                raise RenderError(f"MuJoCo cannot render: {changed}.") from error
             backend = os.environ.get("MUJOCO_GL", "unset (GLFW, needs a display)")
             cause = f" (first, {warned[0].message})" if warned else ""
             raise RenderError(f"MuJoCo cannot render with MUJOCO_GL={backend}: {error}{cause}. {GL_HINT}") from error

@@ -51,6 +51,11 @@ class Agent:
     cycle: int
     compiled: dict[Any, Any] = field(default_factory=dict, repr=False, compare=False)
 
+    def __repr__(self) -> str:
+        # A notebook shows this for a cell ending in `agent`: not every parameter array.
+        return (f"Agent(task={self.config.env.task!r}, network={self.config.ppo.network.name!r}, "
+                f"head={type(self.head).__name__}, cycle={self.cycle})")
+
     def compiled_once(self, key: Any, build: Callable[[], Any]) -> Any:
         """`compiled[key]`, made by `build()` the first time (a jitted or compiled function of the agent's kind)."""
         if key not in self.compiled:

@@ -323,13 +323,13 @@ def load_config(source: str | Path | dict | None = None, overrides: typing.Itera
     Args:
         source: a YAML file path, the name of a shipped config (`list_configs()`, e.g. "cartpole"), a dict with the
             same structure, or None for the defaults.
-        overrides: strings `key.sub=value`, the value in YAML syntax.
+        overrides: strings `key.sub=value`, the value in YAML syntax (one such string alone is one override).
 
     Raises:
         ConfigError: a missing file, bad YAML, an unknown key or a value of the wrong type.
     """
     data = _read(source)
-    for override in overrides:
+    for override in [overrides] if isinstance(overrides, str) else overrides:
         _apply_override(data, override)
     return _build(Config, data, "")
 

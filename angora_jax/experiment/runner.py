@@ -72,6 +72,11 @@ class TrainingRun:
     finished: bool = True
     stopped_at: str | None = None
 
+    def __repr__(self) -> str:
+        # A notebook shows this for a cell ending in `run`: not the parameters and every environment's state.
+        return (f"TrainingRun(run_dir={str(self.run_dir)!r}, cycle={int(self.state.cycle)}, cycles_this_call="
+                f"{len(self.history)}, finished={self.finished}, stopped_at={self.stopped_at!r})")
+
 
 class TrainingInterrupted(Exception):
     """Training stopped on SIGINT (Ctrl-C) or SIGTERM after saving a checkpoint; `resume(run_dir)` continues."""
