@@ -610,3 +610,25 @@ def test_a_layer_or_variable_the_recording_lacks_is_named_with_the_nearest_and_a
     assert list(timescales(data, layers="network.M1")["layer"].values) == ["network.M1"], "one name, one layer"
     with pytest.raises(ValueError, match=r"no variable 'input_proprio' \(did you mean 'input_proprioception'\?\)"):
         similarity(data, "input_proprioception", variables="input_proprio")
+
+
+def test_probing_calls_from_python_name_a_wrong_argument_before_numpy_or_jax_fail_on_it():
+    """Notebook trial: record_activity(episodes=0) failed inside NumPy, ablation({"SSC": "network.SSC_2"}) with
+    "'str' object has no attribute 'compiled_once'", replaying another task's recording with a broadcasting error,
+    and a misspelt area of a graph was called no graph area at all."""
+    from angora_jax.analysis import ablation, agent_fixed_points, record_activity, replay_activity
+
+    agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
+                         "PMC": {"size": 4, "inputs": ("S1",), "cell": "rnn"}})
+    with pytest.raises(ValueError, match=r"^episodes must be a whole number of at least 1, got 0\.$"):
+        record_activity(agent, episodes=0)
+    with pytest.raises(ValueError, match=r"lesions must map a name to a lesioned Agent, e.g. .*; got dict holding "
+                                         r"\['str'\]\.$"):
+        ablation(agent, {"SSC": "network.SSC_2"})
+    other = graph_recording({"network.S1": 3}).assign_attrs(task="ShadowHandReach")
+    with pytest.raises(ValueError, match=r"^The recording is of ShadowHandReach, and this agent acts in CartPole"):
+        replay_activity(agent, other)
+    with pytest.raises(ValueError, match=r"^This agent's brain-area graph has no area 'network.PMX' \(did you mean "
+                                         r"'network.PMC'\?\); its recurrent areas: network.PMC\.$"):
+        agent_fixed_points(agent, graph_recording({"network.S1": 3, "network.PMC.0": 4, "network.PMC.1": 4}),
+                           "network.PMX")

@@ -220,6 +220,9 @@ def test_the_small_graph_of_the_bad_cases_is_valid_and_loops_through_recurrence(
 def test_one_override_given_as_a_string_is_one_override():
     """aj.train("cartpole", "ppo.num_cycles=1") read the string letter by letter: "Override 'p' must look like ..."."""
     assert load_config("cartpole", "ppo.num_cycles=1").ppo.num_cycles == 1
+    with pytest.raises(ConfigError, match=r"Override 'ppo.num_cycles 1' must look like key.sub=value, e.g. "
+                                          r"ppo.num_cycles=1\.$"):
+        load_config("cartpole", ["ppo.num_cycles 1"])  # it suggested "ppo.num_cycles 1=VALUE"
 
 
 def test_bad_files_fail_clearly(tmp_path: Path):

@@ -11,6 +11,7 @@ uses the area's activation.
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -207,6 +208,13 @@ def area_input(agent: Agent, dataset: xr.Dataset, layer: str) -> dict[str, np.nd
     the fixed points are those of the area with the loop through other areas opened (they follow the area's mean
     input, not its own state); an area that reads itself reads its own state (None: see `recurrent_step`)."""
     area = _graph_area(agent, layer)
+    graph = getattr(agent.network, "graph", None)
+    if area is None and isinstance(graph, AreaGraph):
+        recurrent = [f"network.{n}" for n, spec in graph.areas.items() if spec.cell is not None]
+        close = difflib.get_close_matches(layer, [f"network.{n}" for n in graph.areas], n=1)
+        raise ValueError(f"This agent's brain-area graph has no area {layer!r}"
+                         + (f" (did you mean {close[0]!r}?)" if close else "")
+                         + f"; its recurrent areas: {', '.join(recurrent) or 'none'}.")
     if area is None:
         raise ValueError(f"{layer!r} is not an area of a brain-area graph (network.name: areas), so its inputs are not "
                          "known: give the recorded layer(s) that feed it (inputs=..., angora-jax analyze dynamics "

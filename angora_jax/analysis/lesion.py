@@ -211,6 +211,13 @@ def ablation(agent: Agent, lesions: Mapping[str, Agent], episodes: int = 256, st
     `mean`, `sem` (dims lesion x outcome), and the per-episode values `outcome_values` (lesion x outcome x episode).
     On a CPU an unchanged agent gives bit-identical outcomes; on a GPU, runs of the same program differ slightly
     (XLA's GPU reductions are not deterministic unless XLA_FLAGS=--xla_gpu_deterministic_ops=true)."""
+    if not isinstance(lesions, Mapping) or not all(isinstance(v, Agent) for v in lesions.values()):
+        raise ValueError("lesions must map a name to a lesioned Agent, e.g. {'SSC lesioned': lesion_area(agent, "
+                         f"'network.SSC_2')}}; got {type(lesions).__name__}" + (
+                             f" holding {sorted({type(v).__name__ for v in lesions.values()})}"
+                             if isinstance(lesions, Mapping) else "") + ".")
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes must be a whole number of at least 1, got {episodes!r}.")
     variants = {"intact": agent, **lesions}
     values = {name: episode_outcomes(variant, episodes, steps, seed) for name, variant in variants.items()}
     outcomes = list(values["intact"])

@@ -94,6 +94,9 @@ def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | 
     and return the dataset described in the module docstring; `images` keeps camera images (`input_vision`) of a
     task that sees through cameras. With a cube policy reading a pose estimator (`pose_estimator=FILE`), the
     estimate (`input_vision`) lies beside the true pose (`task_cube_position`, `task_cube_orientation`)."""
+    for name, value in (("episodes", episodes), ("steps", steps)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise ValueError(f"{name} must be a whole number of at least 1, got {value!r}.")
     if isinstance(agent, Agent):
         if env_overrides:
             raise ValueError("env_overrides apply when a run is loaded: give the run directory, or load the agent with "
@@ -222,6 +225,10 @@ def replay_activity(agent: Agent, recording: xr.Dataset) -> xr.Dataset:
     """`recording` with its `activity_*` replaced by `agent`'s layer activity on the recorded inputs (each episode
     from the initial carry, step by step): another network's response to the same observations, e.g. the untrained
     control of `with_random_weights`, whose own behaviour would otherwise present other inputs."""
+    recorded_task = recording.attrs.get("task")
+    if recorded_task and recorded_task != agent.config.env.task:
+        raise ValueError(f"The recording is of {recorded_task}, and this agent acts in {agent.config.env.task}: "
+                         "replay a recording of its own task.")
     if recording.attrs.get("camera_images") and "input_vision" not in recording:
         raise ValueError("The agent saw camera images, which this recording did not keep: record it with "
                          "images=True (angora-jax record --images) to replay it.")

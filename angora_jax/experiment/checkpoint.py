@@ -400,8 +400,10 @@ class Checkpoints:
         existing = {kind: self.steps(kind) for kind in KINDS}
         if not any(existing.values()):
             raise FileNotFoundError(
-                f"No checkpoints in {self._directory}: the run has saved none yet (it saves one every "
-                f"checkpoint.every cycles and at its end). Continue it with `angora-jax resume` or train it again."
+                f"No checkpoints in {self._directory}: the run saved none yet (it saves one every checkpoint.every "
+                "cycles and at its end), or they were deleted. `angora-jax check RUN_DIR` says which and what resume "
+                "would do (with cycles logged and no checkpoint left: `resume --from-scratch`, in Python "
+                "aj.resume(run_dir, from_scratch=True), trains it again and keeps the earlier files)."
             )
         saved = {kind: cycles for kind, cycles in existing.items() if cycles}
         kinds = [repr(kind) for kind in ("latest", "best") if kind in saved]

@@ -584,7 +584,9 @@ def _unknown_option(task: str, options: dict[str, Any]) -> str | None:
 def _apply_override(data: dict[str, Any], override: str) -> None:
     key, sep, text = override.partition("=")
     if not sep or not key or any(not part for part in key.split(".")):
-        example = f"{key}=VALUE" if key and not sep and all(key.split(".")) else "ppo.num_cycles=20"
+        spaced = override.split(None, 1)
+        example = ("=".join(spaced) if not sep and len(spaced) == 2 else
+                   f"{key}=VALUE" if key and not sep and all(key.split(".")) else "ppo.num_cycles=20")
         raise ConfigError(f"Override {override!r} must look like key.sub=value, e.g. {example}.")
     try:
         value = load_yaml(text)
