@@ -120,12 +120,7 @@ def check_network(builder: Callable[[NetworkSettings], Any], settings: NetworkSe
     params = _traced(lambda: jax.eval_shape(network.init, key, carry, obs), broken,
                      "its first call (init) on a batch of observations")
     output = _traced(lambda: jax.eval_shape(network.apply, params, carry, obs), broken, "its first step")
-    if not (isinstance(output, tuple) and len(output) == 3):
-        raise broken("its __call__ must return (carry, policy_features, value)")
-    carry_after, features, value = output
-    mismatch = _mismatch(carry, carry_after)
-    if mismatch:
-        raise broken(f"the carry it returns differs from initial_carry's ({mismatch}): the trainer scans it over time")
+    features, value = _returned(output, carry, "after a step", broken)
     if len(features.shape) != 2 or features.shape[0] != BATCH:
         raise broken(f"its policy features for {BATCH} environments have shape {features.shape}: (B, F) is expected")
     if value.shape != (BATCH,):
@@ -150,15 +145,22 @@ def _check_sequences(network: nn.Module, params: Any, carry: Any, obs: Sensation
     output = _traced(lambda: jax.eval_shape(network.apply, params, carry, chunk, resets, carry), broken,
                      f"its call on a training chunk (runs_sequences = True: carry, obs of ({STEPS}, {BATCH}, size), "
                      f"resets ({STEPS}, {BATCH}), initial carry)")
-    if not (isinstance(output, tuple) and len(output) == 3):
-        raise broken("on a training chunk its __call__ must return (final carry, policy_features, values)")
-    carry_after, features, values = output
-    mismatch = _mismatch(carry, carry_after)
-    if mismatch:
-        raise broken(f"the final carry of a training chunk differs from initial_carry's ({mismatch})")
+    features, values = _returned(output, carry, "after a training chunk", broken)
     if len(features.shape) != 3 or features.shape[:2] != (STEPS, BATCH) or values.shape != (STEPS, BATCH):
         raise broken(f"on a training chunk of {STEPS} steps x {BATCH} environments it returned policy features of "
                      f"shape {features.shape} and values of shape {values.shape}: (s, B, F) and (s, B) are expected")
+
+
+def _returned(output: Any, carry: Any, when: str, broken: Callable[[str], UserCodeError]) -> tuple[Any, Any]:
+    """The policy features and values of a network call's `output`, once it is (carry, features, values) with the
+    carry's shapes kept (the trainer scans the carry over time)."""
+    if not (isinstance(output, tuple) and len(output) == 3):
+        raise broken(f"its __call__ must return (carry, policy_features, value) {when}")
+    mismatch = _mismatch(carry, output[0])
+    if mismatch:
+        raise broken(f"the carry it returns differs from initial_carry's ({mismatch}) {when}: the trainer scans it "
+                     "over time")
+    return output[1], output[2]
 
 
 def _check_policy_ignores_asymmetric(network: nn.Module, shapes: Sensation, carry: Any,
