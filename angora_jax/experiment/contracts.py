@@ -21,6 +21,7 @@ from angora_jax.envs.core import ActionSpec, Env, Sensation
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.registry import TASKS, is_gymnasium
 from angora_jax.nets.registry import NETWORKS, NetworkSettings
+from angora_jax.registry import definition
 from angora_jax.registry.plugins import UserCodeError
 
 # Environments in the abstract batch the network is traced with: two, so that a batch axis mixed up with another
@@ -34,9 +35,9 @@ def check_own_code(task: str, network: NetworkSettings, env: Env) -> None:
     """Check the task `task` (built as `env`) and the network `network.name` against their contracts, unless
     angora_jax ships them; UserCodeError names what breaks a contract."""
     if not is_gymnasium(task) and not _shipped(factory := TASKS.get(task)):
-        check_task(env, f"Task {task!r} ({_origin(factory)})")
+        check_task(env, f"Task {task!r} ({definition(factory)})")
     if not _shipped(builder := NETWORKS.get(network.name)):
-        check_network(builder, network, env, f"Network {network.name!r} ({_origin(builder)})")
+        check_network(builder, network, env, f"Network {network.name!r} ({definition(builder)})")
 
 
 def check_task(env: Env, name: str) -> None:
@@ -224,7 +225,3 @@ def _mismatch(before: Any, after: Any) -> str | None:
 
 def _shipped(factory: Callable) -> bool:
     return getattr(factory, "__module__", "").startswith("angora_jax.")
-
-
-def _origin(factory: Callable) -> str:
-    return f"{getattr(factory, '__module__', '?')}.{getattr(factory, '__qualname__', type(factory).__name__)}"

@@ -23,8 +23,8 @@ class Registry(Generic[F]):
         """Make `factory` available as `name`. A name is registered once, except by the same definition again (the
         same module and qualified name), which replaces it: a notebook cell or a reloaded module run a second time."""
         registered = self._factories.get(name)
-        if registered is not None and _definition(registered) != _definition(factory):
-            raise ValueError(f"{self.kind.capitalize()} {name!r} is already registered (by {_definition(registered)}): "
+        if registered is not None and definition(registered) != definition(factory):
+            raise ValueError(f"{self.kind.capitalize()} {name!r} is already registered (by {definition(registered)}): "
                              "choose another name")
         self._factories[name] = factory
 
@@ -50,6 +50,6 @@ class Registry(Generic[F]):
             raise ValueError(f"Unknown {self.kind} {name!r}. Known {self.plural}: {', '.join(self.names())}.") from None
 
 
-def _definition(factory: Callable) -> str:
+def definition(factory: Callable) -> str:
     """Where `factory` was defined: module and qualified name (a lambda's is `<lambda>` in its function or module)."""
     return f"{getattr(factory, '__module__', '?')}.{getattr(factory, '__qualname__', type(factory).__qualname__)}"
