@@ -122,7 +122,8 @@ def test_a_path_in_or_above_a_run_names_the_run_directory(capsys, tmp_path, monk
                                           "inside the run directory runs/a: give that."),
         (["report", "runs"], "runs is not a run directory: it has no config.yaml. It holds run directories (a): give "
                              "one of them, e.g. runs/a."),
-        (["resume", "runs/b"], "runs/b is not a run directory: it does not exist. Start runs with `angora-jax train`."),
+        (["resume", "runs/b"], "runs/b is not a run directory: it does not exist. Start runs with `angora-jax "
+                               "train` (in Python: aj.train)."),
         (["analyze", "decode", "runs/a"], "runs/a is a run directory, not a recording: record its activity first, "
                                           "angora-jax record runs/a --out a.nc, then analyze that file."),
     ]:
@@ -209,7 +210,8 @@ def test_train_then_evaluate_exit_0(capsys, tmp_path):
     assert returns == written["per_episode"]["episode_length"], "CartPole pays 1 per step"
     assert written["summary"]["episode_return"]["mean"] == sum(returns) / 2
     assert main(argv) == 2  # the run directory exists: refused, untouched
-    assert "already exists" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "already exists" in err and f"(in Python: aj.resume({str(tmp_path / 'r')!r}))" in err, err
 
 
 @pytest.mark.slow

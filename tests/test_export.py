@@ -66,8 +66,12 @@ def test_export_never_overwrites_and_load_policy_refuses_other_files(lstm_run, t
     assert "never overwrites" in capsys.readouterr().err and taken.read_bytes() == b"keep me"
     with pytest.raises(RunDirError, match="is not an exported policy"):
         aj.load_policy(taken)
-    with pytest.raises(FileNotFoundError, match="angora-jax export RUN_DIR --out FILE"):
+    with pytest.raises(FileNotFoundError, match=r"aj.export_policy\(RUN_DIR, FILE\) or angora-jax export RUN_DIR"):
         aj.load_policy(tmp_path / "missing.msgpack")
+    # A run directory given for a policy file: the notebook trial was told only of the command.
+    with pytest.raises(FileNotFoundError, match=rf"{lstm_run} is a run directory, not an exported policy: "
+                                                rf"aj.load_agent\('{lstm_run}'\) loads its policy"):
+        aj.load_policy(lstm_run)
 
 
 @pytest.mark.slow

@@ -18,7 +18,7 @@ from flax import serialization
 from angora_jax.envs.core import Sensation
 from angora_jax.experiment.agent import Agent, acting_parts, load_agent
 from angora_jax.experiment.config import load_config, to_dict
-from angora_jax.experiment.run_dir import RunDirError
+from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError
 from angora_jax.whole_files import written_whole
 
 FORMAT = "angora_jax.policy/1"
@@ -69,8 +69,13 @@ def load_policy(path: str | Path) -> Policy:
     """The policy in a file written by `export_policy` (or `angora-jax export`). Raises FileNotFoundError when there
     is no such file and RunDirError when the file is not an exported policy."""
     path = Path(path)
+    if path.is_dir() and (path / CONFIG_FILE).is_file():
+        raise FileNotFoundError(f"{path} is a run directory, not an exported policy: aj.load_agent({str(path)!r}) "
+                                f"loads its policy, or aj.export_policy({str(path)!r}, FILE) writes one to load here "
+                                "(angora-jax export RUN_DIR --out FILE).")
     if not path.is_file():
-        raise FileNotFoundError(f"No exported policy at {path}: write one with angora-jax export RUN_DIR --out FILE.")
+        raise FileNotFoundError(f"No exported policy at {path}: write one with aj.export_policy(RUN_DIR, FILE) or "
+                                "angora-jax export RUN_DIR --out FILE.")
     try:
         content = serialization.msgpack_restore(path.read_bytes())
     except Exception as error:  # msgpack raises several types for a file that is not msgpack

@@ -103,7 +103,7 @@ def create_run_dir(config: Config, claim: Callable[[Path], None] | None = None) 
                     f"Leave it to that process, or {new_name}.") from None
             raise RunDirError(
                 f"Run directory {path} already exists and is left untouched. Continue it with `angora-jax resume "
-                f"{path}`, or {new_name}."
+                f"{path}` (in Python: aj.resume({str(path)!r})), or {new_name}."
             ) from None
     else:
         stem = f"{config.env.task}-{config.ppo.network.name}-{time.strftime('%Y%m%d-%H%M%S')}"
@@ -140,7 +140,7 @@ def read_run_config(run_dir: str | Path) -> Config:
         if has_checkpoints(run_dir):
             raise RunDirError(f"{run_dir} has checkpoints but no {CONFIG_FILE}: `angora-jax check {run_dir} "
                               "--restore-config` writes it again from the copy they keep.")
-        raise RunDirError(not_a_run_dir(run_dir, "Start runs with `angora-jax train`."))
+        raise RunDirError(not_a_run_dir(run_dir, "Start runs with `angora-jax train` (in Python: aj.train)."))
     try:
         return load_config(path)
     except ConfigError as error:

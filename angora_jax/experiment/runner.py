@@ -85,7 +85,7 @@ class TrainingInterrupted(Exception):
         self.signum, self.run_dir, self.cycle = signum, run_dir, cycle
         super().__init__(
             f"Interrupted by {signal.Signals(signum).name} after cycle {cycle}; a checkpoint of that cycle is saved. "
-            f"Continue with: angora-jax resume {run_dir}"
+            f"Continue with: angora-jax resume {run_dir} (in Python: aj.resume({str(run_dir)!r}))"
         )
 
 
