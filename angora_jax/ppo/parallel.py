@@ -129,11 +129,14 @@ def _fix(config: PPOConfig, name: str, num_devices: int) -> str:
     a suggestion that fails on the next rule helps nobody."""
 
     def fits(**settings: int) -> bool:
-        try:
-            per_device(config.replace(**settings), num_devices)
-        except ValueError:
+        # per_device's rules without its messages: building them suggests settings in turn, which for every
+        # candidate here took seconds (4,095 envs) to minutes on the way to one refusal.
+        candidate = config.replace(**settings)
+        if (candidate.num_envs % num_devices or candidate.minibatch_size % num_devices
+                or candidate.minibatch_size % candidate.chunk_length):
             return False
-        return True
+        tile = tile_shape(candidate)  # n x m whole chunks make the minibatch, so it divides the rollout's batch
+        return tile is not None and tile[0] % num_devices == 0
 
     total = getattr(config, name)
     nearest = sorted(range(num_devices, 4 * total + num_devices, num_devices), key=lambda n: (abs(n - total), -n))
