@@ -127,7 +127,7 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
             per layer width, shared by layers of that width.
     """
     layers = chosen_layers(dataset, layers)
-    variables = ([variables] if isinstance(variables, str) else list(variables)) if variables else [
+    variables = as_names(variables) if variables else [
         n for n in dataset.data_vars if n.startswith(("input_", "task_", "metric_"))]
     require(dataset, layers, variables)
     steps = dataset.sizes["time"]
@@ -196,10 +196,15 @@ def _decode_lags(dataset: xr.Dataset, layers: list[str], variables: list[str], f
     return result
 
 
+def as_names(names: str | Sequence[str]) -> list[str]:
+    """A name or names as a list: one name given as a string is one name, not its letters."""
+    return [names] if isinstance(names, str) else list(names)
+
+
 def chosen_layers(dataset: xr.Dataset, layers: str | Sequence[str] | None) -> list[str]:
     """The layers an analysis of `dataset` takes: every recorded one for None, one name given as a string, else
     `layers`; a ValueError (`require`) for one the recording lacks."""
-    chosen = recorded_layers(dataset) if layers is None else [layers] if isinstance(layers, str) else list(layers)
+    chosen = recorded_layers(dataset) if layers is None else as_names(layers)
     require(dataset, chosen)
     return chosen
 
@@ -207,8 +212,7 @@ def chosen_layers(dataset: xr.Dataset, layers: str | Sequence[str] | None) -> li
 def require(dataset: xr.Dataset, layers: str | Sequence[str], variables: str | Sequence[str] = ()) -> None:
     """Raise a ValueError naming what of `layers` (names as `record` gives them, e.g. network.PMC.1: the recording
     keeps each as `activity_<name>`) and `variables` the recording lacks, with the nearest name and what it has."""
-    layers = [layers] if isinstance(layers, str) else list(layers)
-    variables = [variables] if isinstance(variables, str) else list(variables)
+    layers, variables = as_names(layers), as_names(variables)
     recorded = recorded_layers(dataset)
     problems = []
     for name in layers:

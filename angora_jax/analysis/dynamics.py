@@ -22,7 +22,7 @@ import optax
 import xarray as xr
 from sklearn.decomposition import PCA
 
-from angora_jax.analysis.decoding import chosen_layers, recorded_layers
+from angora_jax.analysis.decoding import as_names, chosen_layers, recorded_layers
 from angora_jax.analysis.parallel import map_in_threads
 from angora_jax.experiment.agent import Agent
 from angora_jax.nets.activations import ACTIVATION_RANGES, ACTIVATIONS
@@ -287,7 +287,7 @@ def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: st
     if inputs is None:
         pieces = list(area_input(agent, dataset, layer).values())
     else:
-        names = [inputs] if isinstance(inputs, str) else list(inputs)
+        names = as_names(inputs)
         pieces = [_recorded(dataset, name, layer)[alive].mean(0) for name in names]
     carry_names = sorted(n for n in recorded_layers(dataset) if n.startswith(f"{layer}.0"))
     if not carry_names:

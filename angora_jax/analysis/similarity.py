@@ -17,7 +17,7 @@ import xarray as xr
 from rsatoolbox.data import Dataset
 from rsatoolbox.rdm import RDMs, calc_rdm, compare
 
-from angora_jax.analysis.decoding import chosen_layers, recorded_layers, require
+from angora_jax.analysis.decoding import as_names, chosen_layers, recorded_layers, require
 
 
 def condition_labels(dataset: xr.Dataset, variable: str, bins: int = 8, feature: int | None = None) -> np.ndarray:
@@ -87,7 +87,7 @@ def similarity(dataset: xr.Dataset, condition: str, layers: Sequence[str] | None
     """RSA of `layers` (default all) over bins of `condition` (see `condition_labels`), as a Dataset with `rdm`
     (layer x condition x condition_), `layer_similarity` (layer x layer_: Spearman correlation of their RDMs) and,
     for `variables`, `model_similarity` (layer x variable: each layer's RDM against the variable's model RDM)."""
-    variables = [variables] if isinstance(variables, str) else list(variables)
+    variables = as_names(variables)
     require(dataset, (), variables)
     labels = condition_labels(dataset, condition, bins, feature)
     rdms = layer_rdms(dataset, labels, layers, method)
