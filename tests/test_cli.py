@@ -411,6 +411,24 @@ def test_a_signal_while_compiling_stops_at_once_and_removes_the_new_run_dir(sign
 
 
 @pytest.mark.slow
+def test_sigterm_while_python_compiles_ends_the_process_at_once(tmp_path):
+    """`aj.train` in a script under a scheduler: SIGTERM during a minutes-long compile waited for the first cycle, and
+    the scheduler's SIGKILL came first. It now ends the process as the command does (SIGINT, a notebook's interrupt,
+    still stops after the first cycle)."""
+    script = f"import angora_jax as aj; aj.train('shadow_reach', {[*TINY, f'logging.run_root={tmp_path}']!r} + " \
+             "['logging.run_name=new'])"
+    process = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
+    while "compiling the first cycle" not in (line := process.stdout.readline()):
+        assert line, process.communicate()
+    started = time.monotonic()
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=30)
+    assert process.returncode == 128 + signal.SIGTERM and time.monotonic() - started < 10, err
+    assert "Interrupted by SIGTERM before the first cycle ended" in err and not (tmp_path / "new").exists()
+
+
+@pytest.mark.slow
 def test_sigterm_stops_the_command_with_a_checkpoint(tmp_path):
     command = [sys.executable, "-m", "angora_jax.cli", "train", "cartpole", *TINY]
     command += ["ppo.num_cycles=100000", f"logging.run_root={tmp_path}", "logging.run_name=long"]

@@ -474,8 +474,10 @@ def signals_exit_while_preparing() -> Iterator[None]:
     """Inside this context (the `angora-jax` command), SIGINT or SIGTERM before a run's first cycle has ended ends
     the process at once with exit code 128 + signal number, instead of after the first cycle: compiling and the first
     cycle can take minutes and nothing is saved yet. A new run's directory is removed; a resumed run keeps its
-    checkpoints. Outside it (notebooks: an interrupt must not kill the kernel) the first signal stops after the
-    current cycle, as it does later in every run."""
+    checkpoints. Outside it (Python: notebooks, scripts) only SIGTERM does so, the request of a scheduler or `kill`
+    to end the process, which would otherwise wait out the compile and be killed before it saves; SIGINT (a
+    notebook's interrupt, which must not kill the kernel) stops after the current cycle, as it does later in every
+    run."""
     token = _EXIT_WHILE_PREPARING.set(True)
     try:
         yield
@@ -485,13 +487,14 @@ def signals_exit_while_preparing() -> Iterator[None]:
 
 @contextlib.contextmanager
 def _preparation(run_dir: Path, new: bool) -> Iterator[Callable[[], None]]:
-    """Yield a function to call when the first cycle has ended. Before that, under `signals_exit_while_preparing`,
-    a thread woken by Python's signal wake-up fd (the main thread may be inside a compile for minutes and runs no
-    Python until it returns) exits the process on SIGINT or SIGTERM."""
+    """Yield a function to call when the first cycle has ended. Before that, a thread woken by Python's signal
+    wake-up fd (the main thread may be inside a compile for minutes and runs no Python until it returns) exits the
+    process on SIGTERM, and on SIGINT too under `signals_exit_while_preparing`."""
     preparing = threading.Event()
-    if not _EXIT_WHILE_PREPARING.get() or threading.current_thread() is not threading.main_thread():
+    if threading.current_thread() is not threading.main_thread():
         yield preparing.set
         return
+    exits = (signal.SIGINT, signal.SIGTERM) if _EXIT_WHILE_PREPARING.get() else (signal.SIGTERM,)
     receive, send = socket.socketpair()
     send.setblocking(False)
     previous = signal.set_wakeup_fd(send.fileno(), warn_on_full_buffer=False)
@@ -499,7 +502,7 @@ def _preparation(run_dir: Path, new: bool) -> Iterator[Callable[[], None]]:
     def watch():
         with contextlib.suppress(OSError):
             while (data := receive.recv(1)) and not preparing.is_set():
-                if data[0] in (signal.SIGINT, signal.SIGTERM):
+                if data[0] in exits:
                     _exit_while_preparing(signal.Signals(data[0]), run_dir, new)
 
     threading.Thread(target=watch, name="angora_jax signal watch", daemon=True).start()
@@ -519,12 +522,13 @@ def _exit_while_preparing(signum: signal.Signals, run_dir: Path, new: bool) -> N
     else:
         release_own_lock(run_dir)
         if has_checkpoints(run_dir):
-            outcome = f"the run directory {run_dir} keeps its checkpoints; continue with: angora-jax resume {run_dir}"
+            outcome = (f"the run directory {run_dir} keeps its checkpoints; continue with: angora-jax resume {run_dir} "
+                       f"(in Python: aj.resume({str(run_dir)!r}))")
         else:  # a --from-scratch start, or a run that saved none yet
             earlier = sorted(run_dir.glob("previous-*"), key=lambda path: path.stat().st_mtime)
             kept = f"; the earlier training is kept in {earlier[-1]}" if earlier else ""
-            outcome = (f"{run_dir} holds no checkpoint of this training{kept}; `angora-jax resume {run_dir}` starts "
-                       "it from cycle 0 again")
+            outcome = (f"{run_dir} holds no checkpoint of this training{kept}; `angora-jax resume {run_dir}` (in "
+                       f"Python: aj.resume({str(run_dir)!r})) starts it from cycle 0 again")
     print(f"\nInterrupted by {signum.name} before the first cycle ended (while compiling or running it): {outcome}.",
           file=sys.stderr, flush=True)
     os._exit(128 + signum)
