@@ -25,7 +25,8 @@ import angora_jax as aj
 from angora_jax.cli import main
 from angora_jax.experiment import checkpoint as checkpoint_module
 from angora_jax.experiment import read_metrics, resume, resume_plan, runner
-from angora_jax.experiment.checkpoint import Checkpoints, disk_needed
+from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, disk_needed
+from angora_jax.experiment.config import CheckpointConfig
 from angora_jax.experiment.manifest import MANIFEST_FILE
 from angora_jax.experiment.run_check import check_run
 from angora_jax.experiment.run_dir import CHECKPOINTS, CONFIG_FILE, EVALUATIONS, VIDEOS, DiskFullError
@@ -546,6 +547,42 @@ def test_an_edited_config_is_refused_by_resume_found_by_check_and_put_back(whole
     assert main(["resume", str(run), "--num-cycles", str(CYCLES + 1)]) == 0
     capsys.readouterr()
     assert main(["check", str(run)]) == 0, "the length that resume recorded is no edit"
+
+
+def test_an_emptied_checkpoint_folder_is_damage_that_check_lists_and_resume_from_gets_past(whole, tmp_path, capsys):
+    """An empty `latest/N` (no manifest, no meta) passed as an unverifiable old checkpoint, then reading its saved
+    config failed: `check` printed one line and listed nothing, and every resume, `--from` included, was refused."""
+    run = copy_of(whole, tmp_path)
+    latest = run / CHECKPOINTS / "latest" / str(CYCLES)
+    shutil.rmtree(latest)
+    latest.mkdir()
+    assert main(["check", str(run)]) == 2
+    out = capsys.readouterr().out
+    assert f"PROBLEM: checkpoint latest/{CYCLES} is damaged: {latest / 'meta'} is missing or empty" in out, out
+    assert f"checkpoints/best: intact: cycle {CYCLES}" in out and "checkpoints/snapshots: intact: cycle 3-6" in out
+    err = exits_2(["resume", str(run)], capsys)
+    assert f"latest/{CYCLES} is damaged" in err and "(resume: --from best)" in err, err
+    assert main(["resume", str(run), "--from", "best", "--num-cycles", str(CYCLES + 1)]) == 0
+
+
+def test_the_saved_config_comes_from_the_next_checkpoint_when_the_newest_cannot_be_read(whole, monkeypatch):
+    """While a run trains, `check` compared its config with the newest latest checkpoint's, which the writer removed
+    as it was read: check failed with that checkpoint "corrupt or incomplete" (3 of 10 tries in a user's trial)."""
+    read = Checkpoints._read_meta
+
+    def removed_first(self, kind, cycle):
+        if (kind, cycle) == ("latest", CYCLES):
+            raise CheckpointError("cannot be read (FileNotFoundError): removed by the writer")
+        return read(self, kind, cycle)
+
+    monkeypatch.setattr(Checkpoints, "_read_meta", removed_first)
+    checkpoints = Checkpoints(whole.run_dir / CHECKPOINTS, CheckpointConfig(), create=False)
+    try:
+        kind, cycle, config = checkpoints.saved_config()
+    finally:
+        checkpoints.close()
+    assert (kind, cycle) == ("best", CYCLES) and config["env"]["task"] == "CartPole"
+    assert check_run(whole.run_dir).problems == []
 
 
 def test_a_checkpoint_without_its_manifest_is_read_whole_by_check_and_a_damaged_one_is_one_line(whole, tmp_path,

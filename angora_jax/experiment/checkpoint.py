@@ -440,10 +440,7 @@ class Checkpoints:
         """The kind and cycle of the newest checkpoint not found damaged (its manifest holds, or it has none to check;
         `skip` left out), or None. Newest first, stopping at the first intact one: verifying means hashing every file,
         and a run's older checkpoints (the cube's are 301 MB each) need not be read to name it."""
-        # Of one cycle's checkpoints, latest first (then best, snapshots): the one a caller most likely verified.
-        saved = sorted(((cycle, kind) for kind in KINDS for cycle in self.steps(kind)),
-                       key=lambda entry: (-entry[0], KINDS.index(entry[1])))
-        for cycle, kind in saved:
+        for cycle, kind in self._newest_first():
             if (kind, cycle) != skip and self.damage(kind, cycle) in (None, "no manifest"):
                 return kind, cycle
         return None
@@ -451,14 +448,21 @@ class Checkpoints:
     def saved_config(self) -> tuple[str, int, dict[str, Any]] | None:
         """The run's config as saved with its newest intact checkpoint, as (kind, cycle, the config's dict), or None
         when no checkpoint keeps one."""
-        newest = self.newest_intact()
-        if newest is None:
-            return None
-        # Of that cycle's checkpoints, the first intact one of latest, best, snapshots: the one a user knows best.
-        kind = next(kind for kind in KINDS if newest[1] in self.steps(kind)
-                    and self.damage(kind, newest[1]) in (None, "no manifest"))
-        config = self._read_meta(kind, newest[1]).get("config")
-        return (kind, newest[1], config) if isinstance(config, dict) and config else None
+        for cycle, kind in self._newest_first():
+            if self.damage(kind, cycle) not in (None, "no manifest"):
+                continue
+            try:
+                config = self._read_meta(kind, cycle).get("config")
+            except CheckpointError:  # unreadable without a manifest to say so, or removed by a live writer meanwhile
+                continue
+            return (kind, cycle, config) if isinstance(config, dict) and config else None
+        return None
+
+    def _newest_first(self) -> list[tuple[int, str]]:
+        """Every saved (cycle, kind), newest first; of one cycle's, latest, best, snapshots: the one a caller most
+        likely verified, and the one a user knows best."""
+        return sorted(((cycle, kind) for kind in KINDS for cycle in self.steps(kind)),
+                      key=lambda entry: (-entry[0], KINDS.index(entry[1])))
 
     def _read_meta(self, kind: str, cycle: int) -> dict[str, Any]:
         self.check_intact(kind, cycle)

@@ -42,9 +42,12 @@ def write_manifest(folder: Path) -> None:
 def verify(folder: Path) -> str | None:
     """What is wrong with the checkpoint in `folder` by its manifest (the first damaged file and how), None when every
     listed file is there with its size and checksum; "no manifest" when it has none (saved by an angora_jax before
-    manifests, or stopped between Orbax's save and the manifest: then it cannot be checked)."""
+    manifests, or stopped between Orbax's save and the manifest: then it cannot be checked), unless it lacks even the
+    `meta` item that every checkpoint is saved with (a folder emptied or made by hand)."""
     path = folder / MANIFEST_FILE
     if not path.is_file():
+        if not any((folder / "meta").glob("*")):
+            return f"{folder / 'meta'} is missing or empty (a folder emptied or cut short) and it has no manifest"
         return "no manifest"
     try:
         files = json.loads(path.read_text())["files"]
