@@ -403,8 +403,30 @@ def test_a_record_cut_short_by_a_full_disk_is_removed(whole, tmp_path):
     log._file.write = lambda data: real_write(data[:20])  # the disk filled after 20 bytes
     with pytest.raises(DiskFullError, match="Cannot write the record of cycle 7 .* records and checkpoints written"):
         log.record({"cycle": 7, "env_steps": 1.0}, whole.state)
+
+    def too_large(data):
+        raise OSError(errno.EFBIG, os.strerror(errno.EFBIG))
+
+    log._file.write = too_large
+    with pytest.raises(DiskFullError, match=r"size this process may write .*raise the limit \(`ulimit -f unlimited`"):
+        log.record({"cycle": 7, "env_steps": 1.0}, whole.state)
     log.close()
     assert (run / "metrics.jsonl").read_bytes() == before
+
+
+@pytest.mark.slow
+def test_a_checkpoint_past_the_file_size_limit_ends_in_one_message_naming_the_limit(tmp_path):
+    """`ulimit -f` (a job's file-size limit): Orbax's save failed with EFBIG inside an OUT_OF_RANGE ValueError, and the
+    command ended in 836 lines of tracebacks with exit 1, the code of a diverged run."""
+    import resource
+
+    limit = lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (20 * 1024, 20 * 1024))  # noqa: E731
+    argv = ["train", "cartpole", *settings(tmp_path, "limited")]
+    done = subprocess.run([sys.executable, "-m", "angora_jax.cli", *argv], capture_output=True, text=True,
+                          timeout=300, preexec_fn=limit)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr[-3000:]
+    assert done.stderr.startswith("angora-jax train: A file grew past the size this process may write") and \
+        "`ulimit -f unlimited`" in done.stderr, done.stderr
 
 
 def mounted_tmpfs(path: Path, size: str) -> bool:

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import errno
 
+from angora_jax.experiment.run_dir import NO_ROOM
+
 # What to do about the errors the operating system reports, by errno.
 OS_ERROR_FIXES = {
     errno.ENOSPC: "free space on that disk (or move the run root to a larger one)",
     errno.EDQUOT: "free space within your disk quota (or move the run root)",
+    errno.EFBIG: "a file reached this process's file-size limit: raise it (`ulimit -f unlimited`, or the job's limit)",
     errno.EROFS: "the file system is read-only: choose a writable place (logging.run_root, --out)",
     errno.EACCES: "you may not write or read there: choose another place or fix its permissions",
     errno.EPERM: "you may not write or read there: choose another place or fix its permissions",
@@ -25,7 +28,7 @@ def os_error_message(error: OSError) -> str:
     saved before (`angora-jax check RUN_DIR`, then `resume`)."""
     where = f" ({error.filename})" if error.filename else ""
     fix = OS_ERROR_FIXES.get(error.errno, "fix the cause and retry")
-    during_a_run = error.errno in (errno.ENOSPC, errno.EDQUOT, errno.EIO)
+    during_a_run = error.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO)
     return f"{error.strerror or error}{where}: {fix}." + (
         " A run stopped by it keeps every checkpoint saved before: `angora-jax check RUN_DIR` shows them, "
         "`angora-jax resume RUN_DIR` continues." if during_a_run else "")
@@ -47,7 +50,8 @@ def device_memory_message(error: BaseException) -> str | None:
     on_gpu = jax.default_backend() == "gpu"
     while error is not None:
         text = str(error)
-        if type(error).__name__ in ("JaxRuntimeError", "XlaRuntimeError") and "No space left on device" not in text:
+        if type(error).__name__ in ("JaxRuntimeError", "XlaRuntimeError") and not any(
+                words in text for words, *_ in NO_ROOM.values()):
             if any(sign in text for sign in _OUT_OF_MEMORY):
                 line = next(line for line in text.splitlines() if any(sign in line for sign in _OUT_OF_MEMORY))
                 what = f"the {'GPU' if on_gpu else 'machine'} ran out of memory ({line.strip()[:200]})"

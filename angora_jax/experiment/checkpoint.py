@@ -14,6 +14,7 @@ have changed since saving.
 from __future__ import annotations
 
 import contextlib
+import errno
 import gc
 import logging
 import math
@@ -35,7 +36,7 @@ from angora_jax.experiment.config import CHECKPOINT_KINDS as KINDS
 from angora_jax.experiment.config import CheckpointConfig
 from angora_jax.experiment.distributed import is_main_process
 from angora_jax.experiment.manifest import MANIFEST_FILE, verify, write_manifest
-from angora_jax.experiment.run_dir import DiskFullError, RunDirError, is_disk_full
+from angora_jax.experiment.run_dir import NO_ROOM, DiskFullError, RunDirError, is_disk_full, no_room
 from angora_jax.ppo.episode_pool import Pool, compared_value
 
 
@@ -272,12 +273,13 @@ class Checkpoints:
             + [f"the {kind} checkpoint of cycle {cycle} was saved, but not its manifest (it reads as unverifiable)"
                for kind, cycle in unlisted])
         run_dir = self._directory.parent
-        then = (f"The checkpoints saved before are intact ({kept}). Free space (or move the run to a larger disk), "
-                f"then continue with `angora-jax resume {run_dir}`" if kept else
-                "No checkpoint was saved before, so the run cannot continue: free space, then train it again with "
+        happened, fix = no_room(error) or NO_ROOM[errno.ENOSPC][1:]
+        then = (f"The checkpoints saved before are intact ({kept}). {fix[0].upper()}{fix[1:]}, then continue with "
+                f"`angora-jax resume {run_dir}`" if kept else
+                f"No checkpoint was saved before, so the run cannot continue: {fix}, then train it again with "
                 f"`angora-jax resume {run_dir} --from-scratch` (the cycles logged so far are kept aside)")
         return DiskFullError(
-            f"The disk is full: {what} in {self._directory} ({free / 2**20:.1f} MiB free; {type(error).__name__}). "
+            f"{happened}: {what} in {self._directory} ({free / 2**20:.1f} MiB free; {type(error).__name__}). "
             f"{then}.")
 
     def restore(self, template: Any, which: str | int = "latest", partial: bool = False) -> Restored:
@@ -494,7 +496,7 @@ def improves(value: float, best: float | None, mode: str) -> bool:
 
 # What Orbax's and TensorStore's writer threads print when a save fails, each thread for itself and some after the save
 # has raised (their callbacks find the save's event loop closed): the failure, which the save raises once anyway.
-_ECHOES = ("No space left on device", "Disk quota exceeded", "Event loop is closed", "RESOURCE_EXHAUSTED")
+_ECHOES = (*(words for words, *_ in NO_ROOM.values()), "Event loop is closed", "RESOURCE_EXHAUSTED")
 
 
 def _is_echo(text: str) -> bool:

@@ -24,7 +24,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from angora_jax.experiment.run_dir import METRICS_FILE, DiskFullError, RunDirError, is_disk_full
+from angora_jax.experiment.run_dir import METRICS_FILE, DiskFullError, RunDirError, no_room
 from angora_jax.experiment.wandb_logging import WandbConfig, WandbLog
 from angora_jax.ppo.config import StopAt
 from angora_jax.ppo.cycle import TrainState
@@ -86,10 +86,12 @@ class Monitor:
         except OSError as error:
             with contextlib.suppress(OSError):
                 os.ftruncate(self._file.fileno(), end)  # no half line for the next write to follow
-            cause = DiskFullError if is_disk_full(error) else RunDirError
-            raise cause(f"Cannot write the record of cycle {record.get('cycle')} to {self.path}: "
-                        f"{error.strerror or error}. The records and checkpoints written before are intact; fix the "
-                        f"cause (free space); `angora-jax check {self.path.parent}` says how to continue.") from None
+            room = no_room(error)
+            raise (DiskFullError if room else RunDirError)(
+                f"Cannot write the record of cycle {record.get('cycle')} to {self.path}: "
+                f"{room[0] if room else error.strerror or error} ({error.strerror or error}). The records and "
+                f"checkpoints written before are intact; {room[1] if room else 'fix the cause'}, then `angora-jax "
+                f"check {self.path.parent}` says how to continue.") from None
         if self._writer is not None:
             step = int(metrics["env_steps"])
             for key, value in record.items():

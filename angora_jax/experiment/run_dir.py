@@ -48,19 +48,35 @@ class RunDirError(ValueError):
 
 
 class DiskFullError(RunDirError):
-    """A run's file could not be written for want of space; what was saved before is intact."""
+    """A run's file could not be written for want of room (a full disk, a used-up quota, the file-size limit); what
+    was saved before is intact."""
+
+
+# The errors that say a file could not be written for want of room: the OS's words for each (which Orbax and
+# TensorStore keep, some only in their messages), what happened in the user's terms, and the fix.
+NO_ROOM = {
+    errno.ENOSPC: ("No space left on device", "The disk is full", "free space (or move the run to a larger disk)"),
+    errno.EDQUOT: ("Disk quota exceeded", "The disk quota is used up", "free space within the quota or ask for more"),
+    errno.EFBIG: ("File too large", "A file grew past the size this process may write (its file-size limit, ulimit "
+                  "-f)", "raise the limit (`ulimit -f unlimited`, or the job's file-size limit)"),
+}
+
+
+def no_room(error: BaseException | None) -> tuple[str, str] | None:
+    """What happened and its fix, when `error` or an error it was raised from says a file could not be written for
+    want of room (a full disk, a used-up quota, the file-size limit); None otherwise."""
+    while error is not None:
+        for number, (words, what, fix) in NO_ROOM.items():
+            if (isinstance(error, OSError) and error.errno == number) or words in str(error):
+                return what, fix
+        error = error.__cause__ or error.__context__
+    return None
 
 
 def is_disk_full(error: BaseException) -> bool:
-    """Whether `error`, or an error it was raised from, says the disk (or the user's quota) is full: Orbax and
-    TensorStore wrap the OSError in their own types, some only in the message."""
-    while error is not None:
-        if isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT):
-            return True
-        if "No space left on device" in str(error) or "Disk quota exceeded" in str(error):
-            return True
-        error = error.__cause__ or error.__context__
-    return False
+    """Whether `error`, or an error it was raised from, says a file could not be written for want of room
+    (`no_room`)."""
+    return no_room(error) is not None
 
 
 def create_run_dir(config: Config, claim: Callable[[Path], None] | None = None) -> Path:
