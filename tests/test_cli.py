@@ -31,6 +31,7 @@ from angora_jax.experiment.distributed import ProcessFailed, StopDecision
 from angora_jax.experiment.live_report import LiveReport
 from angora_jax.experiment.monitor import read_metrics
 from angora_jax.experiment.progress import Progress, progress_line
+from angora_jax.experiment.run_check import check_run
 from angora_jax.experiment.run_dir import read_sessions
 
 TINY = [
@@ -429,7 +430,9 @@ def test_sigterm_while_python_compiles_ends_the_process_at_once(tmp_path):
 
 
 @pytest.mark.slow
-def test_sigterm_stops_the_command_with_a_checkpoint(tmp_path):
+def test_sigterm_stops_the_command_with_a_checkpoint_and_a_second_one_does_not_cut_its_save_short(tmp_path):
+    """A second SIGTERM (a launcher forwarding one that the process group got too) killed the process mid-save, with no
+    message, half-written checkpoints and its lock left behind, and exit 143 that says a checkpoint was saved."""
     command = [sys.executable, "-m", "angora_jax.cli", "train", "cartpole", *TINY]
     command += ["ppo.num_cycles=100000", f"logging.run_root={tmp_path}", "logging.run_name=long"]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -439,9 +442,13 @@ def test_sigterm_stops_the_command_with_a_checkpoint(tmp_path):
         assert process.poll() is None and time.monotonic() < deadline, process.communicate()
         time.sleep(0.2)
     process.send_signal(signal.SIGTERM)
+    time.sleep(0.1)
+    process.send_signal(signal.SIGTERM)
     out, err = process.communicate(timeout=120)
     assert process.returncode == 128 + signal.SIGTERM, err
     assert "Interrupted by SIGTERM" in err and f"angora-jax resume {tmp_path / 'long'}" in err
+    assert "SIGTERM again: still finishing the cycle and saving its checkpoint" in err, err
+    assert not (tmp_path / "long" / "writer.lock").exists() and check_run(tmp_path / "long").problems == []
     cycles = len(read_metrics(tmp_path / "long"))
     agent = aj.load_agent(tmp_path / "long", "latest")
     assert agent.cycle == cycles >= 2

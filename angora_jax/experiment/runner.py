@@ -588,8 +588,11 @@ class _StopRequest:
 @contextlib.contextmanager
 def _stop_requests() -> Iterator[_StopRequest]:
     """Turn the first SIGINT or SIGTERM into a request to stop after the current cycle (the compiled cycle cannot
-    be stopped halfway, and stopping between cycles lets the run save a checkpoint). A second signal acts as usual,
-    at once. Signal handlers can only be set from the main thread; elsewhere signals are left alone."""
+    be stopped halfway, and stopping between cycles lets the run save a checkpoint). A second Ctrl-C acts as usual,
+    at once. A second SIGTERM does not cut the stopping save short: one signal often arrives twice (a launcher
+    forwards it to a process that its process group's signal reached already), and SIGKILL remains for a user who
+    means it; in the command, whose process ends after the stop, it is not restored to kill the process on its way
+    out. Signal handlers can only be set from the main thread; elsewhere signals are left alone."""
     request = _StopRequest()
     if threading.current_thread() is not threading.main_thread():
         yield request
@@ -597,15 +600,21 @@ def _stop_requests() -> Iterator[_StopRequest]:
     signals = (signal.SIGINT, signal.SIGTERM)
     previous = {signum: signal.getsignal(signum) for signum in signals}
 
+    def again(signum, frame):
+        print("SIGTERM again: still finishing the cycle and saving its checkpoint, then the run stops; kill -9 "
+              "(SIGKILL) ends it at once, keeping the checkpoints saved before.", file=sys.stderr, flush=True)
+        signal.signal(signal.SIGTERM, lambda signum, frame: None)  # said once
+
     def handle(signum, frame):
         request.signum = signum
-        for other, handler in previous.items():
-            signal.signal(other, handler)
+        signal.signal(signal.SIGINT, previous[signal.SIGINT])
+        signal.signal(signal.SIGTERM, again)
 
     for signum in signals:
         signal.signal(signum, handle)
     try:
         yield request
     finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+        signal.signal(signal.SIGINT, previous[signal.SIGINT])
+        if request.signum is None or not _EXIT_WHILE_PREPARING.get():
+            signal.signal(signal.SIGTERM, previous[signal.SIGTERM])
