@@ -107,6 +107,28 @@ def test_a_checkpoint_replaced_while_it_is_read_gives_way_to_the_one_that_replac
     with pytest.raises(CheckpointError, match=r"latest/5 was removed while it was read: a process training the run "
                                               r"replaced it with cycle 6.*Read latest again"):
         reader.restore(whole.state, 5)
+    # Removed mid-read, Orbax raises FileNotFoundError (a user's export: "a folder on the way does not exist ... check
+    # the path"), and listing the steps again may meet the next removal: both are read again.
+    reader = Checkpoints(run / CHECKPOINTS, config(tmp_path, "live").checkpoint, create=False)
+    writer = Checkpoints(run / CHECKPOINTS, config(tmp_path, "live").checkpoint)
+    writer.save(whole.state.replace(cycle=whole.state.cycle + 3), {"cycle": 7}, {}, final=True)
+    writer.close()
+    restore, reload, failures = reader._restore, reader._managers["latest"].reload, []
+
+    def gone_once(template, kind, cycle, partial):
+        if not failures:
+            failures.append(cycle)
+            raise FileNotFoundError(2, "No such file or directory", str(run / CHECKPOINTS / kind / str(cycle)))
+        return restore(template, kind, cycle, partial)
+
+    def listing_meets_a_removal():
+        if len(failures) == 1:
+            failures.append("reload")
+            raise FileNotFoundError(2, "No such file or directory")
+        return reload()
+
+    reader._restore, reader._managers["latest"].reload = gone_once, listing_meets_a_removal
+    assert reader.restore(whole.state, "latest").meta["cycle"] == 7 and failures == [6, "reload"]
 
 
 def test_a_finished_run_trained_longer_ends_as_the_longer_run_and_records_its_new_length(runs, tmp_path, capsys):

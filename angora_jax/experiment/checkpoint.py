@@ -91,9 +91,23 @@ _REPLACED_RETRIES = 5
 
 
 def describe_saved(saved: Mapping[str, list[int]]) -> str:
-    """`{"latest": [6], "snapshots": [3, 6]}` in words: "latest of cycle 6; snapshots of cycles 3, 6"."""
-    return "; ".join(f"{kind} of cycle{'s' if len(cycles) > 1 else ''} {', '.join(map(str, cycles))}"
+    """`{"latest": [6], "snapshots": [3, 6, 9]}` in words: "latest of cycle 6; snapshots of cycles 3-9 every 3"."""
+    return "; ".join(f"{kind} of cycle{'s' if len(cycles) > 1 else ''} {cycle_ranges(sorted(cycles), every=True)}"
                      for kind, cycles in saved.items() if cycles)
+
+
+def cycle_ranges(cycles: list[int], every: bool = False) -> str:
+    """Cycles as ranges in order, e.g. "1-5, 3-8" (two in a row as "3, 4"), at most eight; every: a range may step by
+    the first difference (snapshots: "20-380 every 20")."""
+    step = cycles[1] - cycles[0] if every and len(cycles) > 1 and cycles[1] > cycles[0] else 1
+    spans, start = [], 0
+    for i in range(1, len(cycles) + 1):
+        if i == len(cycles) or cycles[i] != cycles[i - 1] + step:
+            first, last = cycles[start], cycles[i - 1]
+            spans.append(str(first) if first == last else f"{first}, {last}" if i - start == 2 else
+                         f"{first}-{last}" + (f" every {step}" if step > 1 else ""))
+            start = i
+    return ", ".join(spans[:8]) + (", ..." if len(spans) > 8 else "")
 
 
 class Checkpoints:
@@ -118,6 +132,8 @@ class Checkpoints:
         process held the run's lock, so that they are not hashed again."""
         self.config = config
         self._directory = Path(directory).resolve()
+        if not create:  # a reader of a run being trained meets checkpoints mid-removal; `_read_newest` handles them
+            logging.getLogger("absl").addFilter(_mid_removal)
         # Read before the managers below remove them, so that the writer can say what it removed.
         self.removed_unfinished = {kind: cycles for kind in KINDS if create and (cycles := self.unfinished(kind))}
         keep = {"latest": 1, "best": 1, "snapshots": None}
@@ -328,8 +344,9 @@ class Checkpoints:
             existing = {k: self.steps(k) for k in KINDS}
             raise CheckpointError(
                 f"Checkpoint {self._directory / kind / str(cycle)} cannot be read ({failure}). It is corrupt, "
-                f"incomplete or from an incompatible version of angora_jax. Use another one (saved cycles: "
-                f"{existing}; pass its cycle to --checkpoint, or to resume's --from), or delete this one."
+                f"incomplete or from an incompatible version of angora_jax. Use another one (saved: "
+                f"{describe_saved(existing)}; pass its cycle to --checkpoint, or to resume's --from), or delete "
+                "this one."
             )
         return Restored(from_storable(template, restored["state"]), dict(restored["meta"]))
 
@@ -352,7 +369,7 @@ class Checkpoints:
             kind, cycle = self.locate(which)
             try:
                 return read(kind, cycle)
-            except CheckpointError:
+            except (CheckpointError, FileNotFoundError):  # Orbax lists a step's files, then finds one gone
                 newer = self._replaced(kind, cycle)
                 if newer is None:
                     raise
@@ -368,7 +385,12 @@ class Checkpoints:
         object listed them, else None."""
         if kind == "snapshots":  # kept for good: a failed read is the checkpoint's own
             return None
-        self._managers[kind].reload()
+        for _ in range(_REPLACED_RETRIES):
+            try:
+                self._managers[kind].reload()
+                break
+            except FileNotFoundError:  # a step removed while Orbax listed the steps: list them again
+                time.sleep(0.05)
         newer = max(self._managers[kind].all_steps(), default=None)
         return newer if newer is not None and newer > cycle else None
 
@@ -499,6 +521,10 @@ def improves(value: float, best: float | None, mode: str) -> bool:
 _ECHOES = (*(words for words, *_ in NO_ROOM.values()), "Event loop is closed", "RESOURCE_EXHAUSTED")
 
 
+def _mid_removal(record: logging.LogRecord) -> bool:
+    return not record.getMessage().startswith("Metadata file does not exist")
+
+
 def _is_echo(text: str) -> bool:
     return any(echo in text for echo in _ECHOES)
 
@@ -606,6 +632,11 @@ def _drop_failed_read_reports() -> None:
 
     hook.drops_failed_reads = True
     sys.unraisablehook = hook
+    # TensorStore's callbacks that find the failed read's event loop closed print through sys.excepthook.
+    excepthook = sys.excepthook
+    sys.excepthook = lambda kind, error, traceback: (
+        None if isinstance(error, RuntimeError) and str(error) == "Event loop is closed"
+        else excepthook(kind, error, traceback))
     warnings.filterwarnings("ignore", message="coroutine '_read_array_index_and_device_put' was never awaited")
     logging.getLogger("asyncio").addFilter(lambda record: not (
         "never retrieved" in record.getMessage() and "while reading array index" in record.getMessage()))

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from angora_jax.experiment.checkpoint import KINDS, Checkpoints
+from angora_jax.experiment.checkpoint import KINDS, Checkpoints, cycle_ranges
 from angora_jax.experiment.config import (
     CheckpointConfig,
     Config,
@@ -178,15 +178,15 @@ def check_run(run_dir: str | Path) -> RunCheck:
             intact = [cycle for cycle, damage in verdicts.items() if damage is None]
             unverified = [cycle for cycle, damage in verdicts.items() if damage == "no manifest"]
             sound.update(intact)
-            kept = [f"intact: cycle {_runs(intact, every=True)}"] * bool(intact)
+            kept = [f"intact: cycle {cycle_ranges(intact, every=True)}"] * bool(intact)
             kept += [f"without a manifest{' yet (the writer adds it once the save is whole)' if live else ''}, "
-                     f"unverifiable: cycle {_runs(unverified, every=True)}"] * bool(unverified)
+                     f"unverifiable: cycle {cycle_ranges(unverified, every=True)}"] * bool(unverified)
             damaged = [cycle for cycle in verdicts if cycle not in intact and cycle not in unverified]
-            kept += [f"damaged: cycle {_runs(damaged, every=True)}"] * bool(damaged)
+            kept += [f"damaged: cycle {cycle_ranges(damaged, every=True)}"] * bool(damaged)
             unfinished = checkpoints.unfinished(kind)
             stopped = ("being written now" if live else
                        "its writer stopped mid-save; never a checkpoint, resume removes it")
-            kept += [f"unfinished ({stopped}): cycle {_runs(unfinished, every=True)}"] * bool(unfinished)
+            kept += [f"unfinished ({stopped}): cycle {cycle_ranges(unfinished, every=True)}"] * bool(unfinished)
             result.findings.append(f"checkpoints/{kind}: {'; '.join(kept) or 'none'}")
             result.problems += [f"checkpoint {kind}/{cycle} is damaged: {damage}" for cycle, damage in verdicts.items()
                                 if damage not in (None, "no manifest")]
@@ -199,7 +199,7 @@ def check_run(run_dir: str | Path) -> RunCheck:
         checkpoints.close()
     if uneven:
         result.problems.append(f"{METRICS_FILE} does not log each cycle once and in order from cycle 1 "
-                               f"({_runs(cycles)}): records were lost or two processes wrote the run"
+                               f"({cycle_ranges(cycles)}): records were lost or two processes wrote the run"
                                + _relog(run_dir, cycles, sound))
     if latest and cycles and latest[-1] > cycles[-1]:
         result.problems.append(f"the latest checkpoint (cycle {latest[-1]}) is newer than the last cycle logged "
@@ -309,16 +309,3 @@ def _undo_edit(run_dir: Path, config: Config) -> str:
         lock.release()
     return (f"Put back in {path} the settings saved with the {edited.kind} checkpoint of cycle {edited.cycle} "
             f"({'; '.join(edited.changes)}); the edited file is kept as {aside}.")
-
-
-def _runs(cycles: list[int], every: bool = False) -> str:
-    """Cycles as ranges in order, e.g. "1-5, 3-8"; every: a range may step by the first difference (snapshots:
-    "20-380 every 20")."""
-    step = cycles[1] - cycles[0] if every and len(cycles) > 1 and cycles[1] > cycles[0] else 1
-    spans, start = [], 0
-    for i in range(1, len(cycles) + 1):
-        if i == len(cycles) or cycles[i] != cycles[i - 1] + step:
-            first, last = cycles[start], cycles[i - 1]
-            spans.append(str(first) if first == last else f"{first}-{last}" + (f" every {step}" if step > 1 else ""))
-            start = i
-    return ", ".join(spans[:8]) + (", ..." if len(spans) > 8 else "")
