@@ -587,6 +587,21 @@ def test_an_emptied_checkpoint_folder_is_damage_that_check_lists_and_resume_from
     assert main(["resume", str(run), "--from", "best", "--num-cycles", str(CYCLES + 1)]) == 0
 
 
+def test_a_file_where_a_checkpoint_kind_keeps_its_folder_is_named_before_anything_changes(whole, tmp_path, capsys):
+    """`checkpoints/latest` replaced by a file: resume printed Orbax's traceback from a background thread, after it had
+    already recorded a new --num-cycles in config.yaml (and with --num-cycles trained cycles before it failed)."""
+    run = copy_of(whole, tmp_path)
+    shutil.rmtree(run / CHECKPOINTS / "latest")
+    (run / CHECKPOINTS / "latest").write_text("x")
+    before = {path: path.read_bytes() for path in run.rglob("*") if path.is_file()}
+    assert main(["check", str(run)]) == 2
+    assert "PROBLEM: checkpoints/latest is a file, where the run keeps its latest checkpoints" in capsys.readouterr().out
+    for argv in (["--from", "best", "--num-cycles", str(CYCLES + 2)], ["--from-scratch"]):
+        err = exits_2(["resume", str(run), *argv], capsys)
+        assert err.count("\n") == 1 and "checkpoints/latest is a file" in err and "Move the file away" in err, err
+    assert {path: path.read_bytes() for path in run.rglob("*") if path.is_file()} == before
+
+
 def test_the_saved_config_comes_from_the_next_checkpoint_when_the_newest_cannot_be_read(whole, monkeypatch):
     """While a run trains, `check` compared its config with the newest latest checkpoint's, which the writer removed
     as it was read: check failed with that checkpoint "corrupt or incomplete" (3 of 10 tries in a user's trial)."""

@@ -90,6 +90,17 @@ class Restored:
 _REPLACED_RETRIES = 5
 
 
+def refuse_files_in_place(directory: Path) -> None:
+    """CheckpointError when a file stands where the run's checkpoints folder `directory` keeps a kind's folder: a
+    writer's Orbax managers fail on it with a traceback from a background thread."""
+    for kind in KINDS:
+        if (Path(directory) / kind).exists() and not (Path(directory) / kind).is_dir():
+            raise CheckpointError(
+                f"{Path(directory) / kind} is a file, where the run keeps its {kind} checkpoints in a folder of that "
+                "name: nothing was changed. Move the file away (it is not a checkpoint; a copy of the run's folder "
+                "from a backup restores the checkpoints it replaced).")
+
+
 def describe_saved(saved: Mapping[str, list[int]]) -> str:
     """`{"latest": [6], "snapshots": [3, 6, 9]}` in words: "latest of cycle 6; snapshots of cycles 3-9 every 3"."""
     return "; ".join(f"{kind} of cycle{'s' if len(cycles) > 1 else ''} {cycle_ranges(sorted(cycles), every=True)}"
@@ -134,6 +145,8 @@ class Checkpoints:
         self._directory = Path(directory).resolve()
         if not create:  # a reader of a run being trained meets checkpoints mid-removal; `_read_newest` handles them
             logging.getLogger("absl").addFilter(_mid_removal)
+        if create:
+            refuse_files_in_place(self._directory)
         # Read before the managers below remove them, so that the writer can say what it removed.
         self.removed_unfinished = {kind: cycles for kind in KINDS if create and (cycles := self.unfinished(kind))}
         keep = {"latest": 1, "best": 1, "snapshots": None}

@@ -188,6 +188,9 @@ def check_run(run_dir: str | Path) -> RunCheck:
                        "its writer stopped mid-save; never a checkpoint, resume removes it")
             kept += [f"unfinished ({stopped}): cycle {cycle_ranges(unfinished, every=True)}"] * bool(unfinished)
             result.findings.append(f"checkpoints/{kind}: {'; '.join(kept) or 'none'}")
+            if (run_dir / CHECKPOINTS / kind).exists() and not (run_dir / CHECKPOINTS / kind).is_dir():
+                result.problems.append(f"checkpoints/{kind} is a file, where the run keeps its {kind} checkpoints in "
+                                       "a folder: resume refuses to write beside it; move it away")
             result.problems += [f"checkpoint {kind}/{cycle} is damaged: {damage}" for cycle, damage in verdicts.items()
                                 if damage not in (None, "no manifest")]
             if not live:  # nothing to verify them by: read them whole instead

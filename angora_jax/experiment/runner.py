@@ -25,7 +25,7 @@ from jax.experimental import multihost_utils
 from angora_jax.envs.core import Env
 from angora_jax.envs.mjx_env import on_gpu
 from angora_jax.experiment import compilation_cache
-from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, disk_needed
+from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, disk_needed, refuse_files_in_place
 from angora_jax.experiment.config import Config, ConfigError, load_config, num_devices, to_dict, validate
 from angora_jax.experiment.cpu_sizing import cpu_note
 from angora_jax.experiment.distributed import ProcessFailed, agree_to_stop, is_main_process, shared_run_dir
@@ -199,6 +199,7 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     # One reader of the checkpoints for planning and restoring, so that the one resumed from is verified once.
     checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)
     try:
+        refuse_files_in_place(run_dir / CHECKPOINTS)  # before anything changes, not when the writer opens them
         plan = plan_resume(run_dir, config, start_from, from_scratch, checkpoints)
         if plan.cycle is not None:
             _refuse_edited(run_dir, on_disk, checkpoints)
