@@ -595,11 +595,22 @@ def test_a_file_where_a_checkpoint_kind_keeps_its_folder_is_named_before_anythin
     (run / CHECKPOINTS / "latest").write_text("x")
     before = {path: path.read_bytes() for path in run.rglob("*") if path.is_file()}
     assert main(["check", str(run)]) == 2
-    assert "PROBLEM: checkpoints/latest is a file, where the run keeps its latest checkpoints" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "PROBLEM: checkpoints/latest is a file, where the run keeps its latest checkpoints" in out, out
     for argv in (["--from", "best", "--num-cycles", str(CYCLES + 2)], ["--from-scratch"]):
         err = exits_2(["resume", str(run), *argv], capsys)
         assert err.count("\n") == 1 and "checkpoints/latest is a file" in err and "Move the file away" in err, err
     assert {path: path.read_bytes() for path in run.rglob("*") if path.is_file()} == before
+
+
+def test_check_names_a_deleted_or_emptied_metrics_file_of_a_run_with_checkpoints(whole, tmp_path):
+    """The training curve deleted (or emptied) passed as "0 cycles logged ... OK: nothing is damaged"."""
+    run = copy_of(whole, tmp_path)
+    (run / "metrics.jsonl").write_text("")
+    found = check_run(run).format()
+    assert f"PROBLEM: metrics.jsonl is empty, but checkpoints were saved up to cycle {CYCLES}" in found, found
+    (run / "metrics.jsonl").unlink()
+    assert "PROBLEM: metrics.jsonl is missing, but checkpoints" in check_run(run).format()
 
 
 def test_the_saved_config_comes_from_the_next_checkpoint_when_the_newest_cannot_be_read(whole, monkeypatch):

@@ -207,6 +207,11 @@ def check_run(run_dir: str | Path) -> RunCheck:
     if latest and cycles and latest[-1] > cycles[-1]:
         result.problems.append(f"the latest checkpoint (cycle {latest[-1]}) is newer than the last cycle logged "
                                f"({cycles[-1]}): records were lost")
+    elif (saved := max(sound, default=0)) and not cycles:
+        state = "is empty" if (run_dir / METRICS_FILE).exists() else "is missing"
+        result.problems.append(f"{METRICS_FILE} {state}, but checkpoints were saved up to cycle {saved}: the training "
+                               "curve's records were lost. Put the file back from a copy if there is one; resume "
+                               "would continue and log only the cycles after it")
 
     try:
         plan = plan_resume(run_dir, config)
