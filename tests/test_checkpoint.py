@@ -479,3 +479,20 @@ def test_the_best_state_is_written_in_the_cycle_that_reaches_it(runs, tmp_path):
     restored = saver.restore(jax.eval_shape(lambda: whole.state.without_environments()), "best")
     assert restored.meta["cycle"] == 4 and not restored.meta["environments"]
     saver.close()
+
+
+def test_after_a_failed_read_the_closed_event_loop_reports_are_dropped_and_others_kept(monkeypatch):
+    """TensorStore's callbacks that outlive a failed read (a checkpoint removed by the run's writer mid-read) report
+    "Event loop is closed" with no object: 60 tracebacks around one exported policy."""
+    import sys
+    import types
+
+    from angora_jax.experiment import checkpoint
+
+    reported = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda unraisable: reported.append(str(unraisable.exc_value)))
+    checkpoint._drop_failed_read_reports()
+    for error, obj in ((RuntimeError("Event loop is closed"), None), (RuntimeError("another failure"), "something")):
+        sys.unraisablehook(types.SimpleNamespace(exc_type=type(error), exc_value=error, exc_traceback=None,
+                                                 err_msg=None, object=obj))
+    assert reported == ["another failure"]

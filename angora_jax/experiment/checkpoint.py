@@ -640,16 +640,13 @@ def _drop_failed_read_reports() -> None:
         return
 
     def hook(unraisable: Any) -> None:
-        if "_read_array_index_and_device_put" not in repr(unraisable.object):
+        # TensorStore's callbacks that find the failed read's event loop closed report it with no object.
+        closed = isinstance(unraisable.exc_value, RuntimeError) and str(unraisable.exc_value) == "Event loop is closed"
+        if "_read_array_index_and_device_put" not in repr(unraisable.object) and not closed:
             previous(unraisable)
 
     hook.drops_failed_reads = True
     sys.unraisablehook = hook
-    # TensorStore's callbacks that find the failed read's event loop closed print through sys.excepthook.
-    excepthook = sys.excepthook
-    sys.excepthook = lambda kind, error, traceback: (
-        None if isinstance(error, RuntimeError) and str(error) == "Event loop is closed"
-        else excepthook(kind, error, traceback))
     warnings.filterwarnings("ignore", message="coroutine '_read_array_index_and_device_put' was never awaited")
     logging.getLogger("asyncio").addFilter(lambda record: not (
         "never retrieved" in record.getMessage() and "while reading array index" in record.getMessage()))
