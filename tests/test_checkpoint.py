@@ -1,10 +1,12 @@
 """Checkpoints: a run stopped by SIGTERM saves a loadable checkpoint, and `resume` continues bit-for-bit like
 an uninterrupted run; best and snapshot checkpoints are kept; run directories are never overwritten."""
 
+import errno
 import json
 import os
 import shutil
 import signal
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -401,6 +403,33 @@ def test_records_after_the_checkpoint_are_set_aside_not_lost(tmp_path):
     assert [r["cycle"] for r in read_metrics(tmp_path)] == [1, 2, 3]
     assert side.name == "metrics.after-cycle-3.jsonl" and side.read_text().splitlines() == lines[3:]
     assert set_aside_after(tmp_path, 3) is None  # nothing later than cycle 3 any more
+
+
+def test_a_set_aside_that_fails_leaves_the_log_and_no_side_file_or_draft(tmp_path, monkeypatch):
+    """A resume on a full disk wrote the side file, failed to rewrite metrics.jsonl and left its draft; each retry then
+    set the same records aside again (metrics.after-cycle-8-2 ... -9.jsonl). The lock's draft stayed behind too."""
+    from angora_jax.experiment.run_lock import RunLock
+
+    lines = [json.dumps({"cycle": c}) for c in range(1, 6)]
+    (tmp_path / "metrics.jsonl").write_text("\n".join(lines) + "\n")
+    write_text = Path.write_text
+
+    def full_disk_for_the_log_and_lock(path, text, *args, **kwargs):
+        log_draft = path.name.startswith(".metrics.") and not path.name.startswith(".metrics.after")
+        if not (log_draft or path.suffix == ".tmp"):  # the side file is written, the log's and the lock's drafts not
+            return write_text(path, text, *args, **kwargs)
+        write_text(path, text[:3], *args, **kwargs)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_text", full_disk_for_the_log_and_lock)
+    for _ in range(2):
+        with pytest.raises(OSError, match="No space left"):
+            set_aside_after(tmp_path, 3)
+    with pytest.raises(OSError, match="No space left"):
+        RunLock(tmp_path).acquire()
+    monkeypatch.undo()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["metrics.jsonl"]
+    assert (tmp_path / "metrics.jsonl").read_text().splitlines() == lines
 
 
 def test_a_save_is_written_behind_the_next_cycle_and_whole_when_it_is_final(runs, tmp_path):

@@ -30,6 +30,7 @@ from angora_jax.ppo.config import StopAt
 from angora_jax.ppo.cycle import TrainState
 from angora_jax.ppo.episode_pool import Pool
 from angora_jax.ppo.parallel import host_copy
+from angora_jax.whole_files import written_whole
 
 
 def normalizer_summary(state: TrainState) -> dict[str, float]:
@@ -205,10 +206,16 @@ def set_aside_after(run_dir: str | Path, cycle: int) -> Path | None:
     while side.exists():
         index += 1
         side = path.with_name(f"metrics.after-cycle-{cycle}-{index}.jsonl")
-    side.write_text("\n".join(later) + "\n")
-    kept = path.with_name(METRICS_FILE + ".tmp")
-    kept.write_text("".join(line + "\n" for line in kept_lines))
-    kept.replace(path)
+    # Each file whole or not at all, and the side file only beside a log that no longer holds its records: a resume
+    # that fails here (a full disk) and is run again must not pile up copies of the same records.
+    with written_whole(side, replace=False) as draft:
+        draft.write_text("\n".join(later) + "\n")
+    try:
+        with written_whole(path) as draft:
+            draft.write_text("".join(line + "\n" for line in kept_lines))
+    except BaseException:
+        side.unlink()
+        raise
     return side
 
 

@@ -113,8 +113,8 @@ class RunLock:
         # Written whole beside the lock, then linked into place: the link fails if the lock exists, so two processes
         # cannot both take it, and nobody reads a half-written lock.
         draft = self.path.with_name(f"{LOCK_FILE}.{me['pid']}.{me['host']}.tmp")
-        draft.write_text(json.dumps(me) + "\n")
         try:
+            draft.write_text(json.dumps(me) + "\n")
             for _ in range(2):
                 with contextlib.suppress(FileExistsError):
                     os.link(draft, self.path)
