@@ -41,6 +41,20 @@ def test_each_run_writes_its_report(runs):
     assert (report / "episode_return.png").read_bytes().startswith(b"\x89PNG\r\n\x1a\n")
 
 
+def test_a_file_where_the_report_goes_is_a_warning_after_training_and_a_named_refusal_of_report(runs, tmp_path, capsys):
+    """The run trained and saved, then ended in exit 2 saying "choose another path (logging.run_root, --out)"."""
+    run = tmp_path / "run"
+    shutil.copytree(runs[0].run_dir, run)
+    shutil.rmtree(run / "report")
+    (run / "report").write_text("notes")
+    assert aj.resume(run, num_cycles=4).finished
+    err = capsys.readouterr().err
+    assert f"Warning: the run's report was not written ({run / 'report'} is a file, where the report's folder goes" \
+        in err and f"`angora-jax report {run}` draws it" in err, err
+    assert main(["report", str(run)]) == 2 and (run / "report").read_text() == "notes"
+    assert "is a file, where the report's folder goes: move it away, or give another --out" in capsys.readouterr().err
+
+
 @pytest.fixture(scope="module")
 def comparison(runs, tmp_path_factory):
     out = tmp_path_factory.mktemp("report")

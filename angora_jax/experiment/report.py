@@ -163,6 +163,8 @@ def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_second
         distinct.setdefault(Path(run_dir).resolve(), run_dir)
     runs = [load_run(d) for d in distinct.values()]
     out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise RunDirError(f"{out} is a file, where the report's folder goes: move it away, or give another --out")
     out.mkdir(parents=True, exist_ok=True)
     images = []
     for name in curve_names(runs):

@@ -40,6 +40,7 @@ from angora_jax.experiment.run_dir import (
     CHECKPOINTS,
     EVALUATIONS,
     VIDEOS,
+    RunDirError,
     create_run_dir,
     has_checkpoints,
     read_run_config,
@@ -463,7 +464,11 @@ def _run(
     if config.logging.report and main:
         from angora_jax.experiment.report import write_report  # matplotlib is loaded only when a report is made
 
-        write_report([run_dir], run_dir / "report")
+        try:
+            write_report([run_dir], run_dir / "report")
+        except (OSError, RunDirError) as error:  # the run is saved; its report can be drawn again at any time
+            print(f"Warning: the run's report was not written ({error}). The run is saved: fix the cause, then "
+                  f"`angora-jax report {run_dir}` draws it.", file=sys.stderr, flush=True)
     return TrainingRun(run_dir, state, history, finished, stopped_at)
 
 
