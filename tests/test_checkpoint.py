@@ -525,3 +525,18 @@ def test_after_a_failed_read_the_closed_event_loop_reports_are_dropped_and_other
         sys.unraisablehook(types.SimpleNamespace(exc_type=type(error), exc_value=error, exc_traceback=None,
                                                  err_msg=None, object=obj))
     assert reported == ["another failure"]
+
+
+def test_a_best_checkpoint_from_the_first_half_of_the_run_is_named_when_an_agent_is_loaded(runs, tmp_path, capsys):
+    """A best metric that never rose (a success rate of 0 in a short CPU run) keeps cycle 1 as best: record, ablate and
+    dynamics then probed the untrained network, saying nothing (a user's trial of the probing page)."""
+    run = tmp_path / "early"
+    shutil.copytree(runs[0].run_dir, run)
+    shutil.rmtree(run / CHECKPOINTS / "best")
+    (run / CHECKPOINTS / "best").mkdir()
+    shutil.copytree(run / CHECKPOINTS / "snapshots" / "2", run / CHECKPOINTS / "best" / "2")
+    assert aj.load_agent(run).cycle == 2
+    err = capsys.readouterr().err
+    assert f"Note: the best checkpoint of {run} is cycle 2, from the first half of its 4 cycles" in err, err
+    assert "--checkpoint latest; in Python checkpoint='latest') holds cycle 4" in err
+    assert aj.load_agent(run, "latest").cycle == 4 and capsys.readouterr().err == ""

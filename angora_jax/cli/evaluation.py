@@ -180,6 +180,6 @@ def command_record(args: argparse.Namespace) -> int:
     save_activity(dataset, out)
     layers = [n.removeprefix("activity_") for n in dataset.data_vars if n.startswith("activity_")]
     print(f"Recorded {dataset.sizes['episode']} episodes x {dataset.sizes['time']} steps of {len(layers)} layers "
-          f"({', '.join(layers)}): {out}")
+          f"({', '.join(layers)}) of the network at cycle {dataset.attrs['cycle']}: {out}")
     return EXIT_OK
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import importlib.util
 import json
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -153,8 +154,15 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
     checkpoints = Checkpoints(Path(run_dir) / CHECKPOINTS, config.checkpoint, create=False)
     try:
         state = checkpoints.restore(template, read_checkpoint(run_dir, checkpoint), partial=True).state
+        latest = max(checkpoints.steps("latest"), default=0)
     finally:
         checkpoints.close()
+    if read_checkpoint(run_dir, checkpoint) == "best" and int(state.cycle) <= latest / 2:
+        # Probing an early network unawares: a best metric that never rose (a success rate of 0) keeps cycle 1.
+        print(f"Note: the best checkpoint of {run_dir} is cycle {int(state.cycle)}, from the first half of its "
+              f"{latest} cycles: its {config.checkpoint.best_metric} was not beaten after it (one that never rose "
+              f"keeps an early cycle). The latest checkpoint (--checkpoint latest; in Python checkpoint='latest') "
+              f"holds cycle {latest}.", file=sys.stderr, flush=True)
     return Agent(config, env, network, head, state, int(state.cycle), compiled)
 
 
