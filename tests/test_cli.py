@@ -15,7 +15,9 @@ from pathlib import Path
 
 import jax
 import mujoco
+import numpy as np
 import pytest
+from flax import serialization
 from quick_compile import QUICK_SUBPROCESS
 from tiny import TINY_PPO
 
@@ -110,11 +112,14 @@ def test_a_path_in_or_above_a_run_names_the_run_directory(capsys, tmp_path, monk
     monkeypatch.chdir(tmp_path)
     (tmp_path / "runs" / "a" / "checkpoints").mkdir(parents=True)
     (tmp_path / "runs" / "a" / "config.yaml").write_text("env: {task: CartPole}\n")
-    (tmp_path / "policy.msgpack").write_bytes(b"")
+    (tmp_path / "policy.msgpack").write_bytes(serialization.msgpack_serialize({"format": 1, "state": {"a": 1}}))
+    (tmp_path / "encoder.msgpack").write_bytes(serialization.msgpack_serialize({"IT": {"bias": np.zeros(2)}}))
     (tmp_path / "act.nc").write_bytes(b"")
     for argv, said in [
         (["evaluate", "policy.msgpack"], "policy.msgpack is an exported policy (`angora-jax export`), not the run "
                                          "directory this command reads: act with it in Python, `aj.load_policy"),
+        (["evaluate", "encoder.msgpack"], "encoder.msgpack is a network component (`angora-jax pretrain-vision "
+                                          "--out OUT` writes its encoder as OUT;"),
         (["analyze", "ablate", "act.nc", "--lesion", "network.M1"], "act.nc is a recording (`angora-jax record`) or "
                                                                    "an analysis's numbers, not the run directory"),
         (["evaluate", "runs/a/config.yaml"], "runs/a/config.yaml is a file, not a run directory. It is inside the run "

@@ -5,6 +5,7 @@ and the fix, before it compiles anything or makes a run directory; never a trace
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from flax import serialization
 from quick_compile import quick_compilation
@@ -116,7 +117,7 @@ def test_a_source_run_that_cannot_be_read_is_refused_naming_the_key_and_the_caus
     err = refused(capsys, tmp_path, f"{key}={value}")
     assert f"{key}" in err and str(run) in err
     cause = {"no checkpoint": "No checkpoints", "damaged checkpoint": "checkpoint", "no config": "no config.yaml",
-             "missing": "names no saved run"}[problem]
+             "missing": "is neither a file nor a run directory: it does not exist"}[problem]
     assert cause in err
 
 
@@ -126,3 +127,23 @@ def test_sources_that_fit_pass_the_check(source_run, tmp_path):
     config = aj.load_config("cartpole", [*TINY, f"ppo.init_from={source_run}", "ppo.network.frozen=[network.value]",
                                          f"ppo.network.pretrained={{network.value: {file}}}"])
     check_sources(config, validate(config))
+
+
+def test_a_pose_estimator_and_a_component_given_for_each_other_are_named_as_what_they_are(source_run, tmp_path):
+    """`pose_estimator=encoder.msgpack` (pretrain-vision's first file) ended in KeyError 'encoder_options'; a file that
+    is no msgpack in "unpack(b) received extra data"; a pose estimator given as a component in a list of sizes."""
+    from angora_jax.nets.components import read_component_file
+    from angora_jax.vision.estimator import PoseEstimator
+
+    component = save_component(aj.load_agent(source_run).params, "network", tmp_path / "encoder.msgpack")
+    with pytest.raises(ValueError, match=r"encoder.msgpack is a network component .* not a pose estimator: give the "
+                                         r"OUT.pose.msgpack"):
+        PoseEstimator.load(component)
+    (tmp_path / "config.yaml").write_text("env: {task: CartPole}\n")
+    with pytest.raises(ValueError, match=r"config.yaml is no file of angora_jax \(not msgpack"):
+        PoseEstimator.load(tmp_path / "config.yaml")
+    pose = tmp_path / "encoder.pose.msgpack"
+    pose.write_bytes(serialization.msgpack_serialize({"params": {"IT": {"bias": np.zeros(2)}}, "encoder_options": {}}))
+    with pytest.raises(ValueError, match=r"is a pose estimator .*, not a component file: give it as "
+                                         r"env.options.pose_estimator=FILE"):
+        read_component_file(pose)

@@ -319,7 +319,7 @@ def test_a_new_run_fine_tunes_a_saved_policy_in_a_changed_task(run_dir, tmp_path
     assert not np.array_equal(tuned.params["policy_head"]["kernel"], saved.params["policy_head"]["kernel"]), "trained"
     with pytest.raises(ValueError, match="init_from .*network parameters do not fit.*policy_cell"):
         make_cycle(env, None, config.ppo.replace(network=replace(config.ppo.network, width=8)))[0](jax.random.key(0))
-    with pytest.raises(FileNotFoundError, match="names no saved run"):
+    with pytest.raises(FileNotFoundError, match="is neither a file nor a run directory"):
         make_cycle(env, None, config.ppo.replace(init_from=str(tmp_path / "gone")))[0](jax.random.key(0))
 
 

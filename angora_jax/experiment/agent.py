@@ -190,8 +190,8 @@ def saved_policy(source: str | Path) -> PolicyState:
     run directory."""
     run_dir, which = run_source(source)
     if not Path(run_dir).is_dir():
-        raise FileNotFoundError(f"{str(source)!r} names no saved run (no directory {run_dir!r}): give "
-                                "RUN_DIR[:best|latest|<cycle>] (network.pretrained also takes a component file).")
+        raise FileNotFoundError(f"{str(source)!r} is neither a file nor a run directory: it does not exist. Give a "
+                                "component file, or a run as RUN_DIR[:best|latest|<cycle>].")
     return load_agent(run_dir, which).state
 
 

@@ -30,6 +30,7 @@ from pathlib import Path
 import yaml
 
 from angora_jax.experiment.config import Config, ConfigError, flatten, load_config, to_dict
+from angora_jax.saved_files import USE, msgpack_kind
 from angora_jax.whole_files import written_whole
 
 CONFIG_FILE = "config.yaml"
@@ -167,8 +168,6 @@ def read_run_config(run_dir: str | Path) -> Config:
 
 # Files the commands write that a user may give where a run directory belongs: what each is, and what to do instead.
 KNOWN_FILES = {
-    ".msgpack": ("an exported policy (`angora-jax export`)", "act with it in Python, `aj.load_policy(file)`, whose "
-                 "`.agent` evaluates and is probed (docs/evaluation.md, Export a policy)"),
     ".nc": ("a recording (`angora-jax record`) or an analysis's numbers", "give the run it was recorded from"),
 }
 
@@ -184,6 +183,8 @@ def not_a_run_dir(path: str | Path, otherwise: str = "") -> str:
     run = next((parent for parent in resolved.parents if (parent / CONFIG_FILE).is_file()), None)
     if run is not None:
         return f"{said} It is inside the run directory {_as_given(path, run)}: give that."
+    if resolved.is_file() and (kind := msgpack_kind(resolved)) is not None:
+        return f"{path} is {kind}, not the run directory this command reads: {USE[kind]}."
     if resolved.is_file() and resolved.suffix in KNOWN_FILES:
         what, instead = KNOWN_FILES[resolved.suffix]
         return f"{path} is {what}, not the run directory this command reads: {instead}."
