@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from angora_jax.cli import main
+from angora_jax.experiment.config import ConfigError
 from angora_jax.nets.components import load_component
 from angora_jax.nets.visual import VISUAL_ENCODERS, make_visual_encoder
 from angora_jax.vision import PoseEstimator, PoseRenderer, pretrain_pose_encoder, render_pose_dataset
@@ -242,7 +243,8 @@ def test_a_pose_estimator_gives_the_policy_the_pose_it_reads_from_the_cameras(tm
     # that used it can be probed anywhere), and refuses when it would render.
     warp_file = dataclasses.replace(estimator, renderer="warp").save(tmp_path / "warp.pose.msgpack")
     warp_trained = aj.make("ShadowHandCube", pose_estimator=str(warp_file), start_pool=8, backend="cpu")
-    with pytest.raises(ValueError, match="trained on MuJoCo Warp's images.*evaluate --path batched"):
+    with pytest.raises(ValueError, match="trained on MuJoCo Warp's images.*evaluate: --path batched --env-option "
+                                         "physics.impl=warp"):
         warp_trained.reset(jax.random.key(3))
     assert np.abs(np.asarray(state.obs.vision) - true_pose).max() > 0.01, "the estimate, not the true pose"
     batched = jax.jit(aj.make("ShadowHandCube", pose_estimator=str(file), start_pool=8).reset)(jax.random.key(3))
@@ -318,8 +320,12 @@ def test_the_brain_area_model_trains_from_pixels_through_a_pretrained_frozen_vis
     # A pixel policy trained on Warp's frames is refused OpenGL's, unless the option is lifted.
     sessions = run.run_dir / "sessions.jsonl"
     sessions.write_text(sessions.read_text().replace('"impl": "jax"', '"impl": "warp"'))
-    with pytest.raises(ValueError, match="trained on MuJoCo Warp's images"):
+    with pytest.raises(ConfigError, match="trained on MuJoCo Warp's images"):  # before compiling: exit 2, no traceback
         aj.evaluate(run.run_dir, episodes=2, batch=2, save=False)
+    from angora_jax.analysis import record_activity
+
+    with pytest.raises(ValueError, match="trained on MuJoCo Warp's images"):
+        record_activity(run.run_dir, episodes=2, steps=2)
     lifted = aj.load_agent(run.run_dir, env_overrides=["vision.renderer=null"])
     assert lifted.config.env.options["vision"]["renderer"] is None
 

@@ -108,8 +108,16 @@ class CameraVision:
             raise ValueError(
                 f"These camera frames are read by something trained on {RENDERERS[self.renderer]}'s images, but this "
                 f"path renders with {RENDERERS[renderer]}, which draws them differently: "
-                + ("run it on a GPU with MuJoCo Warp (evaluate --path batched, physics.impl warp)."
+                + ("run it with MuJoCo Warp (evaluate: --path batched --env-option physics.impl=warp; record and "
+                   "analyze: --env-option physics.impl=warp; train: env.options.physics.impl=warp), on a GPU (the CPU "
+                   "renders with it too, slowly)."
                    if self.renderer == "warp" else "run it on the CPU paths or MJX's JAX implementation (OpenGL)."))
+
+    def check_path(self, env: Any, batched: bool) -> None:
+        """`check_renderer` for the frames `env` renders on the batched path (MuJoCo Warp's renderer when it runs on
+        Warp, else OpenGL) or the eager CPU path (OpenGL): for the commands that run episodes to call before they
+        compile, where inside a program the same error surfaces from a host callback."""
+        self.check_renderer("warp" if batched and getattr(env, "impl", None) == "warp" else "cpu")
 
     @property
     def channels(self) -> int:

@@ -24,7 +24,7 @@ import numpy as np
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.experiment.agent import Agent, load_agent, read_checkpoint
-from angora_jax.experiment.config import to_dict
+from angora_jax.experiment.config import ConfigError, to_dict
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
 from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths
 from angora_jax.ppo.evaluate import make_evaluate
@@ -130,9 +130,15 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     agent = load_agent(run_dir, checkpoint, env_overrides)
     checkpoint = read_checkpoint(run_dir, checkpoint)  # named as read: a run without a best evaluates its latest
     changed = {"env_overrides": list(env_overrides)} if env_overrides else {}
-    if path == "batched" or getattr(agent.env, "on_host", False):  # a Gymnasium task has its own simulator only
-        return _evaluate_batched(agent, run_dir, checkpoint, episodes, stochastic, seed, save, changed)
+    batched = path == "batched" or getattr(agent.env, "on_host", False)  # a Gymnasium task has its own simulator only
     vision = getattr(getattr(agent.env, "task", None), "vision", None)
+    if vision is not None:
+        try:
+            vision.check_path(agent.env, batched)
+        except ValueError as error:
+            raise ConfigError(str(error)) from None
+    if batched:
+        return _evaluate_batched(agent, run_dir, checkpoint, episodes, stochastic, seed, save, changed)
     # A known training renderer is enforced where the frames are drawn (`CameraVision.renderer`); warn of the unknown.
     if vision is not None and vision.renderer is None and getattr(agent.env, "impl", None) == "warp":
         warnings.warn("This agent sees camera images, and here they are rendered by MuJoCo Warp on the training path; "
