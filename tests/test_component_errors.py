@@ -139,6 +139,9 @@ def test_a_pose_estimator_and_a_component_given_for_each_other_are_named_as_what
     with pytest.raises(ValueError, match=r"encoder.msgpack is a network component .* not a pose estimator: give the "
                                          r"OUT.pose.msgpack"):
         PoseEstimator.load(component)
+    with pytest.raises(FileNotFoundError, match=r"No pose estimator at gone.pose.msgpack \(a relative path, read from "
+                                                r"the current directory .*give the file's full path"):
+        PoseEstimator.load("gone.pose.msgpack")
     (tmp_path / "config.yaml").write_text("env: {task: CartPole}\n")
     with pytest.raises(ValueError, match=r"config.yaml is no file of angora_jax \(not msgpack"):
         PoseEstimator.load(tmp_path / "config.yaml")

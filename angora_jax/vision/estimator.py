@@ -139,8 +139,11 @@ class PoseEstimator:
         """The estimator that `save` (or `angora-jax pretrain-vision`, as `<out>.pose.msgpack`) wrote to `file`."""
         file = Path(file)
         if not file.is_file():
-            raise FileNotFoundError(f"No pose estimator at {file}: angora-jax pretrain-vision --out ENCODER writes "
-                                    "one beside the encoder, as ENCODER with the suffix .pose.msgpack.")
+            relative = ("" if file.is_absolute() else f" (a relative path, read from the current directory "
+                        f"{Path.cwd()}: a run keeps the path as it was given, so run from where it was trained, or "
+                        "give the file's full path, e.g. --env-option pose_estimator=/full/path)")
+            raise FileNotFoundError(f"No pose estimator at {file}{relative}: angora-jax pretrain-vision --out ENCODER "
+                                    "writes one beside the encoder, as ENCODER with the suffix .pose.msgpack.")
         kind = msgpack_kind(file)
         if kind != POSE_ESTIMATOR:
             raise ValueError(f"{file} is {kind or 'no file of angora_jax (not msgpack, or damaged or cut short)'}, "
