@@ -574,6 +574,7 @@ def test_analyze_dynamics_finds_a_graph_area_s_fixed_points_without_inputs(tmp_p
     asked = []
     monkeypatch.setattr(cli.analysis, "load_agent",
                         lambda run, checkpoint, options=(): asked.append(checkpoint) or agent)
+    monkeypatch.setattr(cli.analysis, "read_run_config", lambda run: agent.config)
     assert cli.main(["analyze", "dynamics", str(path), "--run", "RUN", "--recurrent", "network.PMC"]) == 0
     assert "network.PMC: 15 of 15 starts reached a fixed point" in capsys.readouterr().out
     assert asked == ["best"], "a recording that names no cycle: the best checkpoint"
@@ -588,6 +589,17 @@ def test_analyze_dynamics_finds_a_graph_area_s_fixed_points_without_inputs(tmp_p
     assert cli.main(["analyze", "dynamics", str(path), "--run", "RUN", "--recurrent", "network.PMC",
                      "--checkpoint", "best"]) == 2
     assert "The recording was made from cycle 7, and --checkpoint best of RUN is cycle 0" in capsys.readouterr().err
+    # A recording of another run: its cycle has no checkpoint there ("No checkpoint 7" said only that), or another task.
+    monkeypatch.setattr(cli.analysis, "load_agent", lambda run, checkpoint, options=(): (_ for _ in ()).throw(
+        FileNotFoundError("No checkpoint 7. Saved: latest of cycle 2")))
+    assert cli.main(["analyze", "dynamics", str(path), "--run", "RUN", "--recurrent", "network.PMC"]) == 2
+    assert "The recording was made from the network at cycle 7, and RUN keeps no checkpoint of that cycle (No " \
+           "checkpoint 7. Saved: latest of cycle 2): give --run the run it was recorded from" in capsys.readouterr().err
+    recording.attrs["task"] = "MyoHandPose"
+    path = save_activity(recording, tmp_path / "graph-myo.nc")
+    assert cli.main(["analyze", "dynamics", str(path), "--run", "RUN", "--recurrent", "network.PMC"]) == 2
+    assert f"The recording is of MyoHandPose, and RUN was trained on {agent.config.env.task}: give --run the run it " \
+           "was recorded from" in capsys.readouterr().err
     assert cli.main(["analyze", "dynamics", str(path), "--inputs", "network.S1"]) == 2
     assert "need --run and --recurrent together, and --inputs only with them" in capsys.readouterr().err
 

@@ -19,7 +19,7 @@ from angora_jax.cli.arguments import (
     refused_existing,
 )
 from angora_jax.experiment import Agent, load_agent
-from angora_jax.experiment.run_dir import CONFIG_FILE, numbered_paths
+from angora_jax.experiment.run_dir import CONFIG_FILE, numbered_paths, read_run_config
 from angora_jax.whole_files import written_whole
 
 
@@ -170,7 +170,18 @@ def _recorded_agent(args: argparse.Namespace, data: Any, env_options: Sequence[s
     other weights than those that made the activity would be read as if they were the same."""
     recorded = data.attrs.get("cycle")
     which = checkpoint_of(args.checkpoint) if args.checkpoint else "best" if recorded is None else int(recorded)
-    agent = load_agent(args.run, which, env_options)
+    task = read_run_config(args.run).env.task
+    if data.attrs.get("task", task) != task:
+        raise ValueError(f"The recording is of {data.attrs['task']}, and {args.run} was trained on {task}: give "
+                         "--run the run it was recorded from.")
+    try:
+        agent = load_agent(args.run, which, env_options)
+    except FileNotFoundError as error:
+        if args.checkpoint or recorded is None:
+            raise
+        raise ValueError(f"The recording was made from the network at cycle {int(recorded)}, and {args.run} keeps no "
+                         f"checkpoint of that cycle ({error}): give --run the run it was recorded from, or "
+                         "--checkpoint to read another of its checkpoints on purpose.") from None
     if recorded is not None and agent.cycle != int(recorded):
         raise ValueError(f"The recording was made from cycle {int(recorded)}, and --checkpoint {which} of {args.run} "
                          f"is cycle {agent.cycle}: give --checkpoint {int(recorded)}, or leave it out.")
