@@ -98,6 +98,15 @@ def test_a_run_of_another_width_is_refused_naming_the_setting_that_differs(sourc
     assert "ppo.network.width=64" in err, "the saved run's setting that makes the difference"
 
 
+def test_a_run_of_another_task_is_refused_naming_the_task_not_a_width(source_run, capsys, tmp_path):
+    """A cube run given to init_from in a reach run: the message suggested the saved run's width, which cannot make
+    165 observations fit 68, and never said the saved run was of another task."""
+    code = main(["train", "pendulum", *TINY, f"logging.run_root={tmp_path}", f"ppo.init_from={source_run}"])
+    err = capsys.readouterr().err
+    assert code == 2 and "The saved run was trained on CartPole and this run is Pendulum" in err, err
+    assert "start from a run of Pendulum" in err and "ppo.network.width" not in err
+
+
 @pytest.mark.parametrize("key", ["ppo.init_from", "ppo.network.pretrained"])
 @pytest.mark.parametrize("problem", ["no checkpoint", "damaged checkpoint", "no config", "missing"])
 def test_a_source_run_that_cannot_be_read_is_refused_naming_the_key_and_the_cause(problem, key, source_run, capsys,

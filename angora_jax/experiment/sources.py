@@ -31,6 +31,9 @@ def _trained_otherwise(config: Config) -> str:
     """What the run `ppo.init_from` names was trained with that `config` sets otherwise: its network settings, or
     where those are the same, its task (whose observations then differ in shape)."""
     saved = read_run_config(run_source(config.ppo.init_from)[0])
+    if saved.env.task != config.env.task:  # no network setting makes its observations fit: say so, not the widths
+        return (f" The saved run was trained on {saved.env.task} and this run is {config.env.task}, whose "
+                f"observations differ: start from a run of {config.env.task}.")
     ours, theirs = flatten(to_dict(config)), flatten(to_dict(saved))
     network = [key for key in sorted(ours.keys() | theirs.keys()) if key.startswith("ppo.network.")
                and not key.startswith(("ppo.network.pretrained", "ppo.network.frozen"))]
