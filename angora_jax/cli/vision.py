@@ -22,13 +22,14 @@ def add_pretrain_vision(commands: argparse._SubParsersAction) -> None:
     vision.add_argument("--out", required=True, help="file for the trained encoder (a component; the whole pose "
                                                      "network goes beside it, suffix .pose.msgpack; never overwritten)")
     vision.add_argument("--samples", type=positive_int, default=20000, help="renders (default: 20000)")
-    vision.add_argument("--size", type=positive_int, default=64, help="image width and height in pixels")
+    vision.add_argument("--size", type=positive_int, default=64, help="image width and height in pixels (default: 64)")
     vision.add_argument("--cameras", nargs="+", default=["front", "side", "top"], choices=sorted(CAMERAS),
                         help="the views the encoder sees (default: front side top)")
     vision.add_argument("--renderer", default="cpu", choices=["cpu", "warp"],
                         help="cpu: mujoco.Renderer (OpenGL); warp: MuJoCo Warp's batched ray tracer (GPU)")
-    vision.add_argument("--encoder", default="cornet_z", help="cornet_z or impala")
-    vision.add_argument("--widths", type=positive_int, nargs="+", default=None, help="channels per stage")
+    vision.add_argument("--encoder", default="cornet_z", help="cornet_z or impala (default: cornet_z)")
+    vision.add_argument("--widths", type=positive_int, nargs="+", default=None,
+                        help="channels per stage (default: the encoder's own: cornet_z 32 64 128 256, impala 16 32 32)")
     vision.add_argument("--features", type=positive_int, default=256, help="the encoder's output size (default: 256)")
     vision.add_argument("--steps", type=positive_int, default=5000, help="Adam steps (default: 5000)")
     vision.add_argument("--batch", type=positive_int, default=64, help="samples per Adam step (default: 64)")
