@@ -604,6 +604,16 @@ def test_analyze_dynamics_finds_a_graph_area_s_fixed_points_without_inputs(tmp_p
     assert "need --run and --recurrent together, and --inputs only with them" in capsys.readouterr().err
 
 
+def test_a_recurrent_area_named_without_its_module_path_is_suggested_with_it():
+    """`--recurrent PMC` said only "no carry of 'PMC'", not that the recording names it network.PMC."""
+    from angora_jax.analysis.dynamics import agent_fixed_points
+
+    recording = graph_recording({"network.S1": 3, "network.PMC.0": 5, "network.PMC.1": 5})
+    with pytest.raises(ValueError, match=r"no carry of 'PMC' .*; did you mean 'network.PMC'\? Recurrent modules "
+                                         r"recorded: network.PMC\."):
+        agent_fixed_points(None, recording, "PMC", inputs=["network.S1"])
+
+
 def test_a_layer_or_variable_the_recording_lacks_is_named_with_the_nearest_and_a_single_name_is_one_layer():
     """timescales, cross_correlation and similarity's variables raised xarray's KeyError deep inside; decode listed
     every variable with the activity_ prefix the user never typed; layers="network.M1" was read letter by letter."""

@@ -291,7 +291,11 @@ def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: st
         pieces = [_recorded(dataset, name, layer)[alive].mean(0) for name in names]
     carry_names = sorted(n for n in recorded_layers(dataset) if n.startswith(f"{layer}.0"))
     if not carry_names:
-        raise ValueError(f"The recording has no carry of {layer!r} (looked for activity_{layer}.0...).")
+        modules = sorted({n.rsplit(".", 1)[0] for n in recorded_layers(dataset) if n.endswith(".0")})
+        near = [m for m in modules if m.endswith(f".{layer}")] or difflib.get_close_matches(layer, modules, n=1)
+        raise ValueError(f"The recording has no carry of {layer!r} (looked for activity_{layer}.0...)"
+                         + (f"; did you mean {near[0]!r}?" if near else ".")
+                         + f" Recurrent modules recorded: {', '.join(modules) or 'none'}.")
     visited = np.concatenate([np.asarray(dataset[f"activity_{n}"].values)[alive] for n in carry_names], axis=-1)
     rows = np.random.default_rng(seed).choice(len(visited), size=min(starts, len(visited)), replace=False)
     step, size = recurrent_step(agent, layer, pieces)
