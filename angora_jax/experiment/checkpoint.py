@@ -90,6 +90,31 @@ class Restored:
 _REPLACED_RETRIES = 5
 
 
+def _manager(directory: Path, kind: str, create: bool) -> ocp.CheckpointManager:
+    """Orbax's manager of one kind's checkpoints. Opening one lists its steps and reads each one's time: a reader of a
+    run being trained meets a step that the writer removes meanwhile, and lists them again."""
+    for attempt in range(_REPLACED_RETRIES):
+        try:
+            return ocp.CheckpointManager(
+                directory,
+                options=ocp.CheckpointManagerOptions(
+                    max_to_keep={"latest": 1, "best": 1}.get(kind), create=create, enable_async_checkpointing=create,
+                    # A writer killed mid-save leaves Orbax's unfinished folder (never a checkpoint): the next writer
+                    # removes it before anything else, instead of Orbax warning when it saves that cycle again.
+                    cleanup_tmp_directories=create,
+                    # The kinds' background writes run at once; across processes each needs barriers of its own.
+                    multiprocessing_options=ocp.options.MultiprocessingOptions(barrier_sync_key_prefix=kind),
+                ),
+                # Handlers named up front: the stored shapes can be read (item_metadata) before anything is restored.
+                item_handlers={"state": ocp.PyTreeCheckpointHandler(), "meta": ocp.JsonCheckpointHandler()},
+            )
+        except FileNotFoundError:
+            if create or attempt == _REPLACED_RETRIES - 1:
+                raise
+            time.sleep(0.05)
+    raise AssertionError("unreachable")
+
+
 def refuse_files_in_place(directory: Path) -> None:
     """CheckpointError when a file stands where the run's checkpoints folder `directory` keeps a kind's folder: a
     writer's Orbax managers fail on it with a traceback from a background thread."""
@@ -149,23 +174,7 @@ class Checkpoints:
             refuse_files_in_place(self._directory)
         # Read before the managers below remove them, so that the writer can say what it removed.
         self.removed_unfinished = {kind: cycles for kind in KINDS if create and (cycles := self.unfinished(kind))}
-        keep = {"latest": 1, "best": 1, "snapshots": None}
-        self._managers = {
-            kind: ocp.CheckpointManager(
-                self._directory / kind,
-                options=ocp.CheckpointManagerOptions(
-                    max_to_keep=keep[kind], create=create, enable_async_checkpointing=create,
-                    # A writer killed mid-save leaves Orbax's unfinished folder (never a checkpoint): the next writer
-                    # removes it before anything else, instead of Orbax warning when it saves that cycle again.
-                    cleanup_tmp_directories=create,
-                    # The kinds' background writes run at once; across processes each needs barriers of its own.
-                    multiprocessing_options=ocp.options.MultiprocessingOptions(barrier_sync_key_prefix=kind),
-                ),
-                # Handlers named up front: the stored shapes can be read (item_metadata) before anything is restored.
-                item_handlers={"state": ocp.PyTreeCheckpointHandler(), "meta": ocp.JsonCheckpointHandler()},
-            )
-            for kind in KINDS
-        }
+        self._managers = {kind: _manager(self._directory / kind, kind, create) for kind in KINDS}
         # Each checkpoint's verification (checksums of all its files, gigabytes for the cube) is done once per object:
         # resuming asks about the same checkpoint when planning, locating, reading its metadata and restoring it.
         self._damage: dict[tuple[str, int], str | None] = dict(verified or {})
