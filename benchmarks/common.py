@@ -209,11 +209,18 @@ def study_folder(study: str) -> str:
 def write_results(name: str, config: dict, rows: list[dict], out: str | None = None, *, study: str,
                   extra: dict | None = None) -> str:
     """Write rows with device, versions and config as JSON to `out` (default:
-    results/<study>/<name>_<platform>.json), with `extra`'s keys beside them (e.g. statistics over rows)."""
+    results/<study>/<name>_<platform>.json), with `extra`'s keys beside them (e.g. statistics over rows). An existing
+    file is never replaced (a committed measurement, a user's earlier run): the rows go to the next free name,
+    NAME-2.json, NAME-3.json, ..., and the path written is returned."""
     path = out or os.path.join(study_folder(study), f"{name}_{jax.devices()[0].platform}.json")
+    stem, suffix = os.path.splitext(path)
+    taken = 1
+    while os.path.exists(path):
+        taken += 1
+        path = f"{stem}-{taken}{suffix}"
     record = {"benchmark": name, "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
               "device": device(), "versions": versions(), "config": config, "results": rows, **(extra or {})}
-    with open(path, "w") as f:
+    with open(path, "x") as f:  # "x": a file made meanwhile by another run is not replaced either
         json.dump(record, f, indent=2)
     return path
 

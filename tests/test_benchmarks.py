@@ -578,3 +578,15 @@ def test_suite_profile_accounts_every_test_its_compiles_and_its_subprocesses(tmp
         files = sum(row[measure] for (scope, _), row in rows.items() if scope == "file")
         assert suite[measure] == pytest.approx(files, abs=0.05), measure
     assert suite["tests"] == len(reported) and suite["pytest_cpu_s"] >= suite["cpu_s"] + suite["subprocess_cpu_s"]
+
+
+def test_a_benchmark_never_replaces_an_existing_result(tmp_path):
+    """path_agreement.py, as the evaluation page runs it, replaced the committed
+    results/path_agreement/path_agreement_ShadowHandReach_cpu.json with a user's run."""
+    import common
+
+    out = tmp_path / "result.json"
+    out.write_text("committed")
+    written = [common.write_results("x", {}, [{"run": i}], str(out), study="test") for i in range(2)]
+    assert written == [str(tmp_path / "result-2.json"), str(tmp_path / "result-3.json")]
+    assert out.read_text() == "committed" and json.loads(open(written[1]).read())["results"] == [{"run": 1}]
