@@ -423,3 +423,12 @@ def test_reach_touch_reads_thumb_and_finger_pressed_together_and_nothing_in_the_
     # its forces differ between the implementations' contact models (measured: 5.0 N in C MuJoCo, 6.8 N in MJX).
     np.testing.assert_array_equal(np.flatnonzero(mjx_touch), np.flatnonzero(touch))
     np.testing.assert_allclose(mjx_touch, touch, rtol=0.5)
+
+
+def test_a_quoted_no_for_a_true_or_false_task_option_is_refused_not_taken_as_true():
+    """`touch: "no"` (a non-empty string) switched ShadowHandReach's 97 touch sensors on without a word."""
+    from angora_jax.envs.registry import make
+
+    for value in ("no", "false", 0):
+        with pytest.raises(ValueError, match=f"ShadowHandReach's option touch must be true or false, got {value!r}"):
+            make("ShadowHandReach", touch=value)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
+from typing import Any
 
 from angora_jax.envs.core import Env
 from angora_jax.envs.host import PREFIX, make_gymnasium
@@ -26,7 +28,23 @@ def make(name: str, **options) -> Env:
     `gym:<id>` is any Gymnasium environment, simulated on the host (`angora_jax.envs.host`)."""
     if is_gymnasium(name):
         return make_gymnasium(name, **options)
-    return TASKS.get(name)(**options)
+    constructor = TASKS.get(name)
+    _refuse_non_bools(name, constructor, options)
+    return constructor(**options)
+
+
+def _refuse_non_bools(name: str, constructor: Any, options: dict[str, Any]) -> None:
+    """ValueError for an option its constructor declares `bool` given anything else: a quoted "no" or "false" from
+    YAML is a non-empty string, so `touch: "no"` silently switched 97 touch sensors on."""
+    try:
+        parameters = inspect.signature(constructor).parameters
+    except (TypeError, ValueError):  # a callable without a signature to read: nothing to check
+        return
+    for key, value in options.items():
+        declared = parameters[key].annotation if key in parameters else None
+        if declared in (bool, "bool") and not isinstance(value, bool):
+            raise ValueError(f"{name}'s option {key} must be true or false, got {value!r} ({type(value).__name__}); "
+                             "in YAML write it unquoted: true or false.")
 
 
 def is_gymnasium(name: str) -> bool:
