@@ -284,7 +284,8 @@ def test_evaluation_in_a_changed_task_records_the_change(run_dir, tmp_path, caps
     assert written["task_options"]["max_episode_steps"] == 20, "the options evaluated with, not only the change"
     assert max(written["per_episode"]["episode_length"]) <= 20
     assert main([*args[:-1], "max_episode_steps"]) == 2
-    assert "must look like key.sub=value" in capsys.readouterr().err
+    assert "A task option is given as KEY=VALUE, e.g. max_episode_steps=20" in capsys.readouterr().err, \
+        "not the config's 'env.options.max_episode_steps=VALUE', which --env-option refused"
     # Recordings take changed options too (e.g. the estimated pose beside the true one).
     out = tmp_path / "changed.nc"
     assert main(["record", str(run_dir), "--checkpoint", "latest", "--episodes", "2", "--steps", "30",

@@ -16,8 +16,8 @@ import jax
 import jax.numpy as jnp
 
 from angora_jax.envs.core import Env, Sensation
-from angora_jax.experiment.checkpoint import Checkpoints
-from angora_jax.experiment.config import Config, DistributionConfig, load_config, to_dict, validate
+from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints
+from angora_jax.experiment.config import Config, ConfigError, DistributionConfig, load_config, to_dict, validate
 from angora_jax.experiment.programs import initial_state_shape
 from angora_jax.experiment.run_dir import CHECKPOINTS, read_run_config, read_sessions, run_source
 from angora_jax.nets import ActorCritic, make_network
@@ -149,11 +149,27 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
     """
     config = _seeing_as_trained(read_run_config(run_dir), run_dir)
     if env_overrides:
-        config = load_config(to_dict(config), [f"env.options.{override}" for override in env_overrides])
+        for override in env_overrides:
+            if "=" not in override:
+                raise ConfigError(f"A task option is given as KEY=VALUE, e.g. max_episode_steps=20 (--env-option "
+                                  f"max_episode_steps=20; in Python env_overrides=['max_episode_steps=20']), got "
+                                  f"{override!r}.")
+        # Given with the prefix that config files use (env.options.touch=true), an option means the same.
+        config = load_config(to_dict(config), [f"env.options.{override.removeprefix('env.options.')}"
+                                               for override in env_overrides])
     env, network, head, template, compiled = acting_parts(config)
     checkpoints = Checkpoints(Path(run_dir) / CHECKPOINTS, config.checkpoint, create=False)
     try:
-        state = checkpoints.restore(template, read_checkpoint(run_dir, checkpoint), partial=True).state
+        try:
+            state = checkpoints.restore(template, read_checkpoint(run_dir, checkpoint), partial=True).state
+        except CheckpointError as error:
+            if not (env_overrides and error.misfits):
+                raise
+            # The network's inputs changed with the options, not the run's config (which the message would blame).
+            raise CheckpointError(
+                f"The task options {', '.join(env_overrides)} change what the network reads, so its checkpoint does "
+                f"not fit them ({error.misfits}): give only options that keep the observations' sizes (e.g. "
+                "randomization, reward, pose_estimator), or train a run with them.", misfits=error.misfits) from None
         latest = max(checkpoints.steps("latest"), default=0)
     finally:
         checkpoints.close()
