@@ -42,8 +42,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     checkpoint = int(args.checkpoint) if args.checkpoint.isdigit() else args.checkpoint
 
-    cpu = aj.evaluate(args.run_dir, checkpoint, episodes=args.episodes, seed=args.seed, save=False, batch=args.batch,
-                      workers=args.workers)
+    try:
+        cpu = aj.evaluate(args.run_dir, checkpoint, episodes=args.episodes, seed=args.seed, save=False,
+                          batch=args.batch, workers=args.workers)
+    except (FileNotFoundError, ValueError) as error:  # no such run or checkpoint, a damaged one, a bad option
+        print(f"path_agreement.py: {error}", file=sys.stderr)
+        return 2
     agent = aj.load_agent(args.run_dir, checkpoint)
     start = time.perf_counter()
     evaluate = make_evaluate(agent.env, agent.network, agent.config.ppo, args.episodes, per_episode=True)

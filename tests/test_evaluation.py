@@ -192,6 +192,11 @@ def test_cpu_and_batched_paths_agree_by_the_path_agreement_tool(run_dir, tmp_pat
     # Both paths start episode i from the same key and act with the mode: the means differ by far less than the bound.
     assert abs(rows["episode_return"]["diff"]) < 3 * rows["episode_return"]["stderr_diff"]
     assert rows["episode_return"]["cpu_stderr"] > 0 and rows["episode_return"]["mjx_stderr"] > 0
+    # A checkpoint or run that is not there: exit 2 and the cause, as the evaluation page says (it was a traceback).
+    for argv in ([str(run_dir), "--checkpoint", "999"], [str(tmp_path / "nope")]):
+        assert path_agreement.main([*argv, "--episodes", "2", "--out", str(tmp_path / "x.json")]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("path_agreement.py: ") and ("No checkpoint 999" in err or "does not exist" in err), err
 
 
 @pytest.mark.slow
