@@ -185,6 +185,9 @@ BAD_GRAPHS = {
                                             r"network.graph.areas.R1 reaches neither head"),
     "policy that no input reaches": ([f"{AREA}={{R1: {{size: 4, inputs: [M1], cell: rnn}}, M1: {{size: 4, "
                                       "inputs: [R1]}}"], r"policy='M1': no input modality reaches it"),
+    "policy that reads only what the task does not give": (  # trained silently on inputs of width 0
+        [f"{AREA}.S1.inputs=[touch]"], r"policy='M1' reads only goal, touch, which CartPole gives nothing of with "
+                                       r"these options .*list one it gives \(proprioception\)"),
     "area that reads asymmetric": ([f"{AREA}.S1.inputs=[proprioception, asymmetric]"],
                                    r"network.graph.areas.S1 reads 'asymmetric', which only the value function"),
     "unknown activation": ([f"{AREA}.S1.activation=sigmoid"],

@@ -98,6 +98,13 @@ def area_inputs(graph: AreaGraph) -> dict[str, tuple[str, ...]]:
             for name, spec in graph.areas.items()}
 
 
+def policy_modalities(graph: AreaGraph) -> set[str]:
+    """The modalities that reach the policy: those read by its area or any area on the way to it."""
+    reads = area_inputs(graph)
+    side = {graph.policy, *upstream(reads, graph.policy)}
+    return {source for area in side for source in graph.areas[area].inputs if source in POLICY_MODALITIES}
+
+
 def upstream(reads: dict[str, tuple[str, ...]], area: str) -> set[str]:
     """Every area that `area` depends on through `reads` (area -> areas it reads), at any depth; `area` itself only
     when it lies on a cycle."""

@@ -12,9 +12,9 @@ import math
 from dataclasses import dataclass, field
 
 from angora_jax.envs.core import Env
-from angora_jax.nets.area_graph import AreaGraph, AreaSpec, ValueSpec, check_graph
+from angora_jax.nets.area_graph import AreaGraph, AreaSpec, ValueSpec, check_graph, policy_modalities
 from angora_jax.nets.cortical import area_sizes
-from angora_jax.nets.models import RECURRENT_CELLS
+from angora_jax.nets.models import POLICY_MODALITIES, RECURRENT_CELLS
 from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.distributions import list_heads
 from angora_jax.ppo.episode_pool import Pool, compared_value
@@ -454,12 +454,12 @@ class PPOConfig:
         head = self.head_for(env)
         if env.action_spec.discrete and head in ("multicategorical", "gaussian", "beta"):
             raise ValueError(
-                f"ppo.head={head!r} needs continuous actions, but {type(env).__name__} has "
+                f"ppo.head={head!r} needs continuous actions, but {_task_name(env)} has "
                 f"{env.action_spec.num_actions} discrete actions; use head='categorical' or 'auto'."
             )
         images = env.sees_images
         if images and self.network.visual is None:
-            raise ValueError(f"The task renders camera images ({type(env).__name__}'s vision is "
+            raise ValueError(f"The task renders camera images ({_task_name(env)}'s vision is "
                              f"{env.observation_shapes().vision.shape} uint8), which the network needs a visual area "
                              "to see: set ppo.network.visual (e.g. {encoder: cornet_z, features: 64}).")
         if not images and self.network.visual is not None:
@@ -467,9 +467,19 @@ class PPOConfig:
                              "vision option (env.options.vision) or remove ppo.network.visual.")
         if not env.action_spec.discrete and head == "categorical":
             raise ValueError(
-                f"ppo.head='categorical' needs discrete actions, but {type(env).__name__} has continuous "
+                f"ppo.head='categorical' needs discrete actions, but {_task_name(env)} has continuous "
                 "actions; use 'gaussian', 'beta', 'multicategorical' or 'auto'."
             )
+        if self.network.graph is not None:
+            shapes = env.observation_shapes()
+            given = [m for m in POLICY_MODALITIES if math.prod(getattr(shapes, m).shape)]
+            read = policy_modalities(self.network.graph)
+            if not read & set(given):
+                raise ValueError(
+                    f"ppo.network.graph.policy={self.network.graph.policy!r} reads only {', '.join(sorted(read))}, "
+                    f"which {_task_name(env)} gives nothing of with these options (a modality switched off, e.g. "
+                    f"touch): list one it gives ({', '.join(given)}) in the inputs of an area on the way to the "
+                    "policy, or switch the modality on.")
         return self
 
     def head_for(self, env: Env) -> str:
@@ -491,3 +501,8 @@ def tile_shape(config: PPOConfig) -> tuple[int, int] | None:
         if config.num_envs % n == 0 and per_minibatch % n == 0 and chunks % (per_minibatch // n) == 0:
             return n, per_minibatch // n
     return None
+
+
+def _task_name(env: Env) -> str:
+    """The task's class name (Reach, Pendulum), not the physics path's (MjxEnv) that holds it."""
+    return type(getattr(env, "task", env)).__name__
