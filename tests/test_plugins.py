@@ -347,3 +347,15 @@ def test_a_plugin_package_installed_in_a_fresh_venv_trains_and_evaluates_from_th
     check = "import angora_jax, angora_jax.registry.plugins as p; print(p._loaded)"
     done = subprocess.run([python, "-c", check], capture_output=True, text=True, env=environment)
     assert done.stdout.split() == ["False"], "import angora_jax loads no plugin"
+
+
+def test_a_folder_named_like_the_module_is_named_not_taken_for_it(tmp_path, monkeypatch):
+    """A folder `leaky/` where Python looks (a notebook's current folder) imported as an empty namespace package, so
+    the run's own network was "unknown: list the module under imports", which the run did."""
+    (tmp_path / "ghost_module_of_a_test").mkdir()
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "ghost_module_of_a_test", raising=False)
+    with pytest.raises(plugins.UserCodeError, match=r"'ghost_module_of_a_test' \(the run\) imported as the folder .*"
+                                            r"ghost_module_of_a_test, which holds no ghost_module_of_a_test.py"):
+        plugins.import_modules(["ghost_module_of_a_test"], "the run")
+    sys.modules.pop("ghost_module_of_a_test", None)

@@ -49,7 +49,7 @@ def import_modules(names: Iterable[str], source: str) -> None:
             raise ModuleNameError(f"{name!r} ({source}) is not a module name: give the dotted name Python imports "
                                 "(e.g. my_tasks or lab.hand_tasks, not a file path), with its folder on PYTHONPATH.")
         try:
-            importlib.import_module(name)
+            module = importlib.import_module(name)
         except ModuleNotFoundError as error:
             if error.name is None or not (name == error.name or name.startswith(error.name + ".")):
                 raise _raised(name, source, error) from error  # the module imports something missing
@@ -59,6 +59,13 @@ def import_modules(names: Iterable[str], source: str) -> None:
                 f"pip install the package that provides it.") from None
         except Exception as error:  # user code may raise anything while importing; each one is named
             raise _raised(name, source, error) from error
+        if getattr(module, "__file__", None) is None and hasattr(module, "__path__"):
+            # A folder of that name where Python looks (the current one in Python) imports as an empty namespace
+            # package, and the names that the module would register are then "unknown".
+            raise UserCodeError(
+                f"Module {name!r} ({source}) imported as the folder {', '.join(module.__path__)}, which holds no "
+                f"{name.rsplit('.', 1)[-1]}.py or __init__.py: not the module that registers your code. Run from "
+                "another folder, or put the module's own folder first on PYTHONPATH.")
 
 
 def load_plugins() -> None:
