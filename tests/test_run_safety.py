@@ -596,7 +596,7 @@ def test_a_file_where_a_checkpoint_kind_keeps_its_folder_is_named_before_anythin
     before = {path: path.read_bytes() for path in run.rglob("*") if path.is_file()}
     assert main(["check", str(run)]) == 2
     out = capsys.readouterr().out
-    assert "PROBLEM: checkpoints/latest is a file, where the run keeps its latest checkpoints" in out, out
+    assert f"PROBLEM: {run / CHECKPOINTS / 'latest'} is a file, where the run keeps its latest checkpoints" in out, out
     for argv in (["--from", "best", "--num-cycles", str(CYCLES + 2)], ["--from-scratch"]):
         err = exits_2(["resume", str(run), *argv], capsys)
         assert err.count("\n") == 1 and "checkpoints/latest is a file" in err and "Move the file away" in err, err

@@ -159,9 +159,10 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
                                                for override in env_overrides])
     env, network, head, template, compiled = acting_parts(config)
     checkpoints = Checkpoints(Path(run_dir) / CHECKPOINTS, config.checkpoint, create=False)
+    which = read_checkpoint(run_dir, checkpoint)
     try:
         try:
-            state = checkpoints.restore(template, read_checkpoint(run_dir, checkpoint), partial=True).state
+            state = checkpoints.restore(template, which, partial=True).state
         except CheckpointError as error:
             if not (env_overrides and error.misfits):
                 raise
@@ -173,7 +174,7 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
         latest = max(checkpoints.steps("latest"), default=0)
     finally:
         checkpoints.close()
-    if read_checkpoint(run_dir, checkpoint) == "best" and int(state.cycle) <= latest / 2:
+    if which == "best" and int(state.cycle) <= latest / 2:
         # Probing an early network unawares: a best metric that never rose (a success rate of 0) keeps cycle 1.
         print(f"Note: the best checkpoint of {run_dir} is cycle {int(state.cycle)}, from the first half of its "
               f"{latest} cycles: its {config.checkpoint.best_metric} was not beaten after it (one that never rose "

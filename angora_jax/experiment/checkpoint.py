@@ -168,10 +168,10 @@ class Checkpoints:
         process held the run's lock, so that they are not hashed again."""
         self.config = config
         self._directory = Path(directory).resolve()
-        if not create:  # a reader of a run being trained meets checkpoints mid-removal; `_read_newest` handles them
-            logging.getLogger("absl").addFilter(_mid_removal)
         if create:
             refuse_files_in_place(self._directory)
+        else:  # a reader of a run being trained meets checkpoints mid-removal; `_read_newest` handles them
+            logging.getLogger("absl").addFilter(_mid_removal)
         # Read before the managers below remove them, so that the writer can say what it removed.
         self.removed_unfinished = {kind: cycles for kind in KINDS if create and (cycles := self.unfinished(kind))}
         self._managers = {kind: _manager(self._directory / kind, kind, create) for kind in KINDS}

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from angora_jax.experiment.checkpoint import KINDS, Checkpoints, cycle_ranges
+from angora_jax.experiment.checkpoint import KINDS, CheckpointError, Checkpoints, cycle_ranges, refuse_files_in_place
 from angora_jax.experiment.config import (
     CheckpointConfig,
     Config,
@@ -167,6 +167,10 @@ def check_run(run_dir: str | Path) -> RunCheck:
     if sides:
         result.findings.append(f"set aside by earlier resumes: {', '.join(sides)}")
 
+    try:
+        refuse_files_in_place(run_dir / CHECKPOINTS)
+    except CheckpointError as error:  # resume refuses it too
+        result.problems.append(str(error))
     checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)
     sound: set[int] = set()
     try:
@@ -188,9 +192,6 @@ def check_run(run_dir: str | Path) -> RunCheck:
                        "its writer stopped mid-save; never a checkpoint, resume removes it")
             kept += [f"unfinished ({stopped}): cycle {cycle_ranges(unfinished, every=True)}"] * bool(unfinished)
             result.findings.append(f"checkpoints/{kind}: {'; '.join(kept) or 'none'}")
-            if (run_dir / CHECKPOINTS / kind).exists() and not (run_dir / CHECKPOINTS / kind).is_dir():
-                result.problems.append(f"checkpoints/{kind} is a file, where the run keeps its {kind} checkpoints in "
-                                       "a folder: resume refuses to write beside it; move it away")
             result.problems += [f"checkpoint {kind}/{cycle} is damaged: {damage}" for cycle, damage in verdicts.items()
                                 if damage not in (None, "no manifest")]
             if not live:  # nothing to verify them by: read them whole instead
