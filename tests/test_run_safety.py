@@ -422,8 +422,12 @@ def test_a_checkpoint_past_the_file_size_limit_ends_in_one_message_naming_the_li
 
     limit = lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (20 * 1024, 20 * 1024))  # noqa: E731
     argv = ["train", "cartpole", *settings(tmp_path, "limited")]
+    # The compilation cache off (the suite's, shared through JAX_COMPILATION_CACHE_DIR, and ours): under the limit
+    # its entries would be written cut short, for later tests to read.
+    environment = {key: value for key, value in os.environ.items() if key != "JAX_COMPILATION_CACHE_DIR"}
+    environment["ANGORA_JAX_CACHE"] = "off"
     done = subprocess.run([sys.executable, "-m", "angora_jax.cli", *argv], capture_output=True, text=True,
-                          timeout=300, preexec_fn=limit)
+                          timeout=300, preexec_fn=limit, env=environment)
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr[-3000:]
     assert done.stderr.startswith("angora-jax train: A file grew past the size this process may write") and \
         "`ulimit -f unlimited`" in done.stderr, done.stderr
