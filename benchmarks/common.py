@@ -207,20 +207,21 @@ def study_folder(study: str) -> str:
 
 
 def write_results(name: str, config: dict, rows: list[dict], out: str | None = None, *, study: str,
-                  extra: dict | None = None) -> str:
+                  extra: dict | None = None, replace: bool = False) -> str:
     """Write rows with device, versions and config as JSON to `out` (default:
     results/<study>/<name>_<platform>.json), with `extra`'s keys beside them (e.g. statistics over rows). An existing
     file is never replaced (a committed measurement, a user's earlier run): the rows go to the next free name,
-    NAME-2.json, NAME-3.json, ..., and the path written is returned."""
+    NAME-2.json, NAME-3.json, ..., and the path written is returned. `replace`: `out` is this run's own file, written
+    before with its earlier rows (a script that saves as it goes), and is written again."""
     path = out or os.path.join(study_folder(study), f"{name}_{jax.devices()[0].platform}.json")
     stem, suffix = os.path.splitext(path)
     taken = 1
-    while os.path.exists(path):
+    while os.path.exists(path) and not replace:
         taken += 1
         path = f"{stem}-{taken}{suffix}"
     record = {"benchmark": name, "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
               "device": device(), "versions": versions(), "config": config, "results": rows, **(extra or {})}
-    with open(path, "x") as f:  # "x": a file made meanwhile by another run is not replaced either
+    with open(path, "w" if replace else "x") as f:  # "x": a file made meanwhile by another run is not replaced
         json.dump(record, f, indent=2)
     return path
 

@@ -590,3 +590,6 @@ def test_a_benchmark_never_replaces_an_existing_result(tmp_path):
     written = [common.write_results("x", {}, [{"run": i}], str(out), study="test") for i in range(2)]
     assert written == [str(tmp_path / "result-2.json"), str(tmp_path / "result-3.json")]
     assert out.read_text() == "committed" and json.loads(open(written[1]).read())["results"] == [{"run": 1}]
+    # A script that saves as it goes (throughput_ladder) rewrites the file it chose, and only that one.
+    common.write_results("x", {}, [{"run": 1}, {"run": 2}], written[1], study="test", replace=True)
+    assert json.loads(open(written[1]).read())["results"] == [{"run": 1}, {"run": 2}]
