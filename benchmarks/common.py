@@ -206,23 +206,31 @@ def study_folder(study: str) -> str:
     return path
 
 
+# Result path asked for -> the file this process chose for it: its later saves (a script that saves as it goes, so
+# that a run cut short keeps its rows) rewrite that file, never another.
+_CHOSEN: dict[str, str] = {}
+
+
 def write_results(name: str, config: dict, rows: list[dict], out: str | None = None, *, study: str,
-                  extra: dict | None = None, replace: bool = False) -> str:
+                  extra: dict | None = None) -> str:
     """Write rows with device, versions and config as JSON to `out` (default:
-    results/<study>/<name>_<platform>.json), with `extra`'s keys beside them (e.g. statistics over rows). An existing
-    file is never replaced (a committed measurement, a user's earlier run): the rows go to the next free name,
-    NAME-2.json, NAME-3.json, ..., and the path written is returned. `replace`: `out` is this run's own file, written
-    before with its earlier rows (a script that saves as it goes), and is written again."""
-    path = out or os.path.join(study_folder(study), f"{name}_{jax.devices()[0].platform}.json")
-    stem, suffix = os.path.splitext(path)
-    taken = 1
-    while os.path.exists(path) and not replace:
-        taken += 1
-        path = f"{stem}-{taken}{suffix}"
+    results/<study>/<name>_<platform>.json), with `extra`'s keys beside them (e.g. statistics over rows). A file that
+    this process did not write is never replaced (a committed measurement, a user's earlier run): the rows go to the
+    next free name, NAME-2.json, NAME-3.json, ..., which this process's later saves rewrite; the path written is
+    returned."""
+    asked = out or os.path.join(study_folder(study), f"{name}_{jax.devices()[0].platform}.json")
+    path = _CHOSEN.get(asked)
+    if path is None:
+        path, (stem, suffix), taken = asked, os.path.splitext(asked), 1
+        while os.path.exists(path):
+            taken += 1
+            path = f"{stem}-{taken}{suffix}"
     record = {"benchmark": name, "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
               "device": device(), "versions": versions(), "config": config, "results": rows, **(extra or {})}
-    with open(path, "w" if replace else "x") as f:  # "x": a file made meanwhile by another run is not replaced
+    # "x" the first time: a file made meanwhile by another run is not replaced either.
+    with open(path, "w" if asked in _CHOSEN else "x") as f:
         json.dump(record, f, indent=2)
+    _CHOSEN[asked] = path
     return path
 
 

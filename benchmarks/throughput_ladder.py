@@ -174,16 +174,9 @@ def main() -> None:
     # This process touches the device only to name it in the results: without preallocation, it leaves the
     # device's memory to the measuring processes.
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
-    written: list[str] = []  # the file this run chose, rewritten as rows finish
-
-    def save(done: list[dict]) -> str:
-        path = write_results("throughput_ladder", config, done, written[0] if written else args.out,
-                             study="env_train_throughput", replace=bool(written))
-        written[:1] = [path]
-        return path
-
-    rows = ladder(tasks, sizes, settings, args.jobs, on_row=save)
-    path = save(rows)
+    rows = ladder(tasks, sizes, settings, args.jobs, on_row=lambda done: write_results(
+        "throughput_ladder", config, done, args.out, study="env_train_throughput"))
+    path = write_results("throughput_ladder", config, rows, args.out, study="env_train_throughput")
     print(markdown_table(rows, COLUMNS))
     print(f"wrote {path}")
 

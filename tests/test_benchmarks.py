@@ -580,16 +580,19 @@ def test_suite_profile_accounts_every_test_its_compiles_and_its_subprocesses(tmp
     assert suite["tests"] == len(reported) and suite["pytest_cpu_s"] >= suite["cpu_s"] + suite["subprocess_cpu_s"]
 
 
-def test_a_benchmark_never_replaces_an_existing_result(tmp_path):
+def test_a_benchmark_never_replaces_an_existing_result(tmp_path, monkeypatch):
     """path_agreement.py, as the evaluation page runs it, replaced the committed
-    results/path_agreement/path_agreement_ShadowHandReach_cpu.json with a user's run."""
+    results/path_agreement/path_agreement_ShadowHandReach_cpu.json with a user's run. A script that saves as it goes
+    (probe_trained, time_to_solve, throughput_ladder) rewrites the file it chose, and only that one."""
     import common
 
     out = tmp_path / "result.json"
     out.write_text("committed")
-    written = [common.write_results("x", {}, [{"run": i}], str(out), study="test") for i in range(2)]
-    assert written == [str(tmp_path / "result-2.json"), str(tmp_path / "result-3.json")]
-    assert out.read_text() == "committed" and json.loads(open(written[1]).read())["results"] == [{"run": 1}]
-    # A script that saves as it goes (throughput_ladder) rewrites the file it chose, and only that one.
-    common.write_results("x", {}, [{"run": 1}, {"run": 2}], written[1], study="test", replace=True)
-    assert json.loads(open(written[1]).read())["results"] == [{"run": 1}, {"run": 2}]
+    monkeypatch.setattr(common, "_CHOSEN", {})
+    assert common.write_results("x", {}, [{"run": 1}], str(out), study="test") == str(tmp_path / "result-2.json")
+    assert common.write_results("x", {}, [{"run": 1}, {"run": 2}], str(out), study="test") == str(
+        tmp_path / "result-2.json")
+    assert json.loads((tmp_path / "result-2.json").read_text())["results"] == [{"run": 1}, {"run": 2}]
+    monkeypatch.setattr(common, "_CHOSEN", {})  # another process
+    assert common.write_results("x", {}, [], str(out), study="test") == str(tmp_path / "result-3.json")
+    assert out.read_text() == "committed"
