@@ -30,6 +30,11 @@ def msgpack_kind(file: str | Path) -> str | None:
         content = serialization.msgpack_restore(Path(file).read_bytes())
     except (OSError, ValueError, TypeError):  # msgpack and flax raise these on bytes that are no msgpack
         return None
+    return content_kind(content)
+
+
+def content_kind(content: object) -> str | None:
+    """`msgpack_kind` of a file's contents already read (`flax.serialization.msgpack_restore`)."""
     if not isinstance(content, dict) or not content:
         return None
     if {"format", "state"} <= content.keys():

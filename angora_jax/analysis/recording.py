@@ -43,6 +43,7 @@ import numpy as np
 import xarray as xr
 from flax import linen as nn
 
+from angora_jax.envs.cameras import check_path_renderer
 from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.nets import ActorCritic
@@ -106,8 +107,7 @@ def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | 
     if images and not any(is_image(leaf) for leaf in jax.tree.leaves(agent.env.observation_shapes())):
         raise ValueError(f"images=True (--images) keeps camera images, but {agent.config.env.task} sees through no "
                          "camera (no image modality in its observations): record without it.")
-    if (vision := getattr(getattr(agent.env, "task", None), "vision", None)) is not None:
-        vision.check_path(agent.env, batched=True)  # recording runs the training path
+    check_path_renderer(agent.env, batched=True)  # recording runs the training path
     record = _run_episodes(agent, episodes, steps, seed)
     return _dataset(agent, record, agent.env.dt, images).assign_attrs(env_overrides="; ".join(env_overrides))
 

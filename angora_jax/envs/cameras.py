@@ -113,12 +113,6 @@ class CameraVision:
                    "renders with it too, slowly)."
                    if self.renderer == "warp" else "run it on the CPU paths or MJX's JAX implementation (OpenGL)."))
 
-    def check_path(self, env: Any, batched: bool) -> None:
-        """`check_renderer` for the frames `env` renders on the batched path (MuJoCo Warp's renderer when it runs on
-        Warp, else OpenGL) or the eager CPU path (OpenGL): for the commands that run episodes to call before they
-        compile, where inside a program the same error surfaces from a host callback."""
-        self.check_renderer("warp" if batched and getattr(env, "impl", None) == "warp" else "cpu")
-
     @property
     def channels(self) -> int:
         return 3 * self.rgb + self.depth
@@ -271,3 +265,13 @@ class WarpCameras:
                 channels.append(self.vision.depth_to_uint8(metres))
             out.append(jnp.concatenate(channels, axis=-1))
         return jnp.stack(out)
+
+
+def check_path_renderer(env: Any, batched: bool) -> None:
+    """`CameraVision.check_renderer` for the frames that `env`'s task (if it sees through cameras) renders on the
+    batched path (MuJoCo Warp's renderer when it runs on Warp, else OpenGL) or the eager CPU path (OpenGL): for the
+    commands that run episodes to call before they compile, where inside a program the same error surfaces from a
+    host callback."""
+    vision = getattr(getattr(env, "task", None), "vision", None)
+    if vision is not None:
+        vision.check_renderer("warp" if batched and getattr(env, "impl", None) == "warp" else "cpu")

@@ -21,6 +21,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from angora_jax.envs.cameras import check_path_renderer
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.experiment.agent import Agent, load_agent, read_checkpoint
@@ -131,15 +132,14 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     checkpoint = read_checkpoint(run_dir, checkpoint)  # named as read: a run without a best evaluates its latest
     changed = {"env_overrides": list(env_overrides)} if env_overrides else {}
     batched = path == "batched" or getattr(agent.env, "on_host", False)  # a Gymnasium task has its own simulator only
-    vision = getattr(getattr(agent.env, "task", None), "vision", None)
-    if vision is not None:
-        try:
-            vision.check_path(agent.env, batched)
-        except ValueError as error:
-            raise ConfigError(str(error)) from None
+    try:
+        check_path_renderer(agent.env, batched)
+    except ValueError as error:
+        raise ConfigError(str(error)) from None
     if batched:
         return _evaluate_batched(agent, run_dir, checkpoint, episodes, stochastic, seed, save, changed)
-    # A known training renderer is enforced where the frames are drawn (`CameraVision.renderer`); warn of the unknown.
+    # A known training renderer is enforced above (`CameraVision.renderer`); warn of the unknown.
+    vision = getattr(getattr(agent.env, "task", None), "vision", None)
     if vision is not None and vision.renderer is None and getattr(agent.env, "impl", None) == "warp":
         warnings.warn("This agent sees camera images, and here they are rendered by MuJoCo Warp on the training path; "
                       "the CPU path draws them with OpenGL, which shades them differently (envs/cameras.py): use "

@@ -20,7 +20,7 @@ import numpy as np
 import optax
 from flax import serialization
 
-from angora_jax.saved_files import COMPONENT, USE, msgpack_kind
+from angora_jax.saved_files import COMPONENT, USE, content_kind
 from angora_jax.whole_files import written_whole
 
 # How a component file is written, for messages about files that are not one.
@@ -140,7 +140,7 @@ def read_component_file(file: str | Path) -> dict[str, Any]:
     if not isinstance(values, dict) or not values:
         raise ValueError(f"{file} is not a component file ({cause}): it is damaged, cut short or another kind of "
                          f"file; {WRITE_COMPONENTS}, or give a run directory.")
-    if (kind := msgpack_kind(file)) != COMPONENT:
+    if (kind := content_kind(values)) != COMPONENT:
         raise ValueError(f"{file} is {kind}, not a component file: {USE[kind]}. {WRITE_COMPONENTS[0].upper()}"
                          f"{WRITE_COMPONENTS[1:]}, or give a run directory.")
     return values

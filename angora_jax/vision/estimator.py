@@ -29,7 +29,7 @@ from jax.scipy.spatial.transform import Rotation
 
 from angora_jax.envs.shadow_hand import register_pose_estimator_reader
 from angora_jax.nets.visual import make_visual_encoder
-from angora_jax.saved_files import POSE_ESTIMATOR, msgpack_kind
+from angora_jax.saved_files import POSE_ESTIMATOR, content_kind
 from angora_jax.whole_files import written_whole
 
 ORIENTATIONS = {"quaternion": 4, "6d": 6}  # the head's outputs per orientation representation
@@ -144,12 +144,14 @@ class PoseEstimator:
                         "give the file's full path, e.g. --env-option pose_estimator=/full/path)")
             raise FileNotFoundError(f"No pose estimator at {file}{relative}: angora-jax pretrain-vision --out ENCODER "
                                     "writes one beside the encoder, as ENCODER with the suffix .pose.msgpack.")
-        kind = msgpack_kind(file)
-        if kind != POSE_ESTIMATOR:
+        try:
+            state = serialization.msgpack_restore(file.read_bytes())
+        except (ValueError, TypeError):  # what msgpack and flax raise on bytes that are no msgpack
+            state = None
+        if (kind := content_kind(state)) != POSE_ESTIMATOR:
             raise ValueError(f"{file} is {kind or 'no file of angora_jax (not msgpack, or damaged or cut short)'}, "
                              "not a pose estimator: give the OUT.pose.msgpack that `angora-jax pretrain-vision --out "
                              "OUT` writes beside its encoder OUT.")
-        state = serialization.msgpack_restore(file.read_bytes())
         # msgpack returns sequences as lists; the encoders' sizes are tuples
         options = {k: tuple(v) if isinstance(v, list) else v for k, v in state["encoder_options"].items()}
         return cls(state["params"], state["encoder"], options, state["orientation"], tuple(state["cameras"]),
