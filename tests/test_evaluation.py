@@ -348,6 +348,24 @@ def test_cli_render_writes_a_video_and_refuses_to_overwrite(run_dir, tmp_path, c
     assert "no MuJoCo scene" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("name", ["video.xyz", "video", "video.png", "video.MP4.txt"])
+def test_render_refuses_an_out_that_is_not_mp4_or_gif_before_rendering(name, tmp_path, capsys, monkeypatch):
+    """An --out of another suffix (or none) reached imageio after every frame was rendered: a TIFF writer's
+    TypeError traceback for no suffix or .xyz, one still picture for .png. Refused first, naming the two suffixes."""
+    import angora_jax.experiment.video as video
+
+    def never_renders(*args, **kwargs):
+        raise AssertionError("rendered, although the --out was refusable before")
+
+    monkeypatch.setattr(video, "render_episodes", never_renders)
+    assert main(["render", "--task", "ShadowHandReach", "--out", str(tmp_path / name)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and ".mp4" in err and ".gif" in err and name in err, err
+    assert list(tmp_path.iterdir()) == [], "nothing written"
+    with pytest.raises(ValueError, match="MP4 or GIF"):
+        video.write_video([np.zeros((16, 16, 3), np.uint8)], tmp_path / name, fps=10)
+
+
 def test_no_gl_backend_is_reported_with_the_package_to_install(monkeypatch):
     def fail(*args, **kwargs):
         raise mujoco.FatalError("gladLoadGL error")

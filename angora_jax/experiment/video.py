@@ -23,6 +23,25 @@ from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
 from angora_jax.whole_files import written_whole
 
+# The files `write_video` writes, by suffix: MP4 through imageio-ffmpeg, GIF through Pillow. Any other suffix (or none)
+# made imageio pick a still-image writer (TIFF for none, PNG for .png) after every frame had been rendered: a traceback,
+# or one picture where a video was asked for.
+VIDEO_SUFFIXES = (".mp4", ".gif")
+
+
+def check_video_path(out: str | Path) -> Path:
+    """`out` as a Path when a video can be written there: ValueError naming the suffixes otherwise, FileExistsError
+    when a file or folder is there already (nothing is overwritten). Checked before rendering, which takes minutes
+    for long episodes, so that a mistyped --out costs nothing."""
+    out = Path(out)
+    if out.exists():
+        raise FileExistsError(f"{out} exists already and is left untouched; choose another --out path.")
+    if out.suffix.lower() not in VIDEO_SUFFIXES:
+        suffix = f"ends in {out.suffix!r}" if out.suffix else "has no suffix"
+        raise ValueError(f"--out {out} {suffix}, but a video is written as MP4 or GIF: give a name ending in .mp4 "
+                         f"(imageio-ffmpeg) or .gif (Pillow), e.g. {out.with_suffix('.mp4')}.")
+    return out
+
 
 def render_frames(run_dir: str | Path | None = None, *, task: str | None = None, checkpoint: str | int = "best",
                   episodes: int = 1, camera: str = "front", width: int = 320, height: int = 240, seed: int = 0,
@@ -79,21 +98,19 @@ def render_episodes(run_dir: str | Path | Agent | None, task: str | None, checkp
 def render_video(out: str | Path, run_dir: str | Path | None = None, *, task: str | None = None,
                  **options: Any) -> Path:
     """Render as `render_frames(run_dir, task=task, **options)` and write the frames to `out` at real-time speed
-    (`1 / env.dt` frames per second). Refuses an existing `out` before rendering anything."""
-    if Path(out).exists():
-        raise FileExistsError(f"{out} exists already and is left untouched; choose another --out path.")
+    (`1 / env.dt` frames per second). Refuses an existing `out`, or one that is neither .mp4 nor .gif, before
+    rendering anything (`check_video_path`)."""
+    check_video_path(out)
     frames, dt = render_episodes(run_dir, task, **options)
     return write_video(frames, out, 1.0 / dt)
 
 
 def write_video(frames: list[np.ndarray], out: str | Path, fps: float) -> Path:
     """Write `frames` to `out` (`.mp4` through imageio-ffmpeg, `.gif` through Pillow) at `fps` frames per second.
-    Refuses to overwrite an existing file (FileExistsError)."""
+    Refuses to overwrite an existing file (FileExistsError) and other suffixes (ValueError, `check_video_path`)."""
     import imageio.v3 as iio
 
-    out = Path(out)
-    if out.exists():
-        raise FileExistsError(f"{out} exists already and is left untouched; choose another --out path.")
+    out = check_video_path(out)
     if not frames:
         raise ValueError("No frames to write.")
     out.parent.mkdir(parents=True, exist_ok=True)
