@@ -76,6 +76,17 @@ def test_a_recording_without_steps_ends_with_its_longest_episode(agent, monkeypa
         np.testing.assert_array_equal(until_ended[name].values, fixed[name].values)
 
 
+def test_a_recording_larger_than_memory_is_refused_before_anything_compiles(agent):
+    """`record --episodes 1000000` of CartPole (737 GiB) ran for over 5 minutes on 2 cores without reaching the
+    memory check, which read the size of the first chunk once it had been computed; the chunk's shapes are now traced
+    and checked before XLA compiles or allocates anything."""
+    from jax_events import jax_events
+
+    with jax_events("backend_compile_duration") as compiles, pytest.raises(ValueError, match="more than this machine"):
+        record_activity(agent, episodes=1_000_000, steps=1_000_000)
+    assert compiles == [], "refused before compiling"
+
+
 def test_recording_is_labelled_episode_by_time_by_unit(agent, recording):
     assert recording.sizes["episode"] == 10 and recording.sizes["time"] == 40
     activity = recording[f"activity_{LAYER}"]

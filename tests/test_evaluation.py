@@ -21,7 +21,7 @@ from tiny import TINY_PPO
 import angora_jax as aj
 from angora_jax.cli import main
 from angora_jax.envs.core import Sensation
-from angora_jax.envs.cpu_env import CpuEnv
+from angora_jax.envs.cpu_env import CpuEnv, eager
 from angora_jax.envs.eager_batch import EagerBatch
 from angora_jax.envs.rendering import RenderError
 from angora_jax.experiment import evaluation, snapshot_cycles
@@ -348,14 +348,15 @@ def test_cli_render_writes_a_video_and_refuses_to_overwrite(run_dir, tmp_path, c
     assert "no MuJoCo scene" in capsys.readouterr().err
 
 
+def never_renders(*args, **kwargs):
+    raise AssertionError("rendered, although the arguments were refusable before")
+
+
 @pytest.mark.parametrize("name", ["video.xyz", "video", "video.png", "video.MP4.txt"])
 def test_render_refuses_an_out_that_is_not_mp4_or_gif_before_rendering(name, tmp_path, capsys, monkeypatch):
     """An --out of another suffix (or none) reached imageio after every frame was rendered: a TIFF writer's
     TypeError traceback for no suffix or .xyz, one still picture for .png. Refused first, naming the two suffixes."""
     import angora_jax.experiment.video as video
-
-    def never_renders(*args, **kwargs):
-        raise AssertionError("rendered, although the --out was refusable before")
 
     monkeypatch.setattr(video, "render_episodes", never_renders)
     assert main(["render", "--task", "ShadowHandReach", "--out", str(tmp_path / name)]) == 2
@@ -364,6 +365,60 @@ def test_render_refuses_an_out_that_is_not_mp4_or_gif_before_rendering(name, tmp
     assert list(tmp_path.iterdir()) == [], "nothing written"
     with pytest.raises(ValueError, match="MP4 or GIF"):
         video.write_video([np.zeros((16, 16, 3), np.uint8)], tmp_path / name, fps=10)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["evaluate", "RUN", "--episodes", "1000000000"], "--episodes/--num-envs: must be a whole number from 1 to "
+                                                      "1,000,000, got '1000000000'; run more episodes as several"),
+    (["evaluate", "RUN", "--episodes", "-1"], "from 1 to 1,000,000, got '-1'"),
+    (["record", "RUN", "--out", "a.nc", "--episodes", "0"], "--episodes: must be a whole number from 1 to"),
+    (["render", "RUN", "--out", "v.gif", "--episodes", "10**9"], "got '10**9'"),
+    (["analyze", "ablate", "RUN", "--episodes", "1000001"], "from 1 to 1,000,000, got '1000001'"),
+    (["render", "--task", "ShadowHandReach", "--out", "v.gif", "--width", "100000"],
+     "--width: must be a whole number from 16 to 4,096, got '100000'; a frame that large is 50 MB"),
+    (["render", "--task", "ShadowHandReach", "--out", "v.gif", "--height", "0"], "from 16 to 4,096, got '0'"),
+])
+def test_absurd_episode_counts_and_frame_sizes_are_usage_errors(argv, message, capsys):
+    """`evaluate --episodes 1000000000` split a thousand million keys and was killed by the kernel (exit 137, no
+    message); `render --width 100000` loaded the task and then blamed the OpenGL backend; 0 and negative counts were
+    refused already. Now argparse refuses each (exit 2) before anything is loaded."""
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and message in err and "Traceback" not in err, err
+
+
+def test_render_refuses_frames_larger_than_memory_before_rendering(tmp_path, capsys, monkeypatch):
+    """Every frame is held until the video is written: 100 episodes at 4,096 x 4,096 pixels (5 TB) rendered for
+    as long as they took, then were killed by the kernel. Refused first, naming --episodes, --width and --height."""
+    import angora_jax.experiment.video as video
+
+    monkeypatch.setattr(video, "SceneRenderer", never_renders)
+    out = tmp_path / "v.gif"
+    assert main(["render", "--task", "ShadowHandReach", "--out", str(out), "--episodes", "100", "--width", "4096",
+                 "--height", "4096"]) == 2
+    err = capsys.readouterr().err
+    assert "more than this machine's" in err and "(--episodes) or smaller frames (--width, --height)" in err, err
+    assert not out.exists()
+
+
+def test_frames_larger_than_the_models_framebuffer_are_rendered(opengl):
+    """MuJoCo draws into the model's offscreen framebuffer (640 x 480 unless its XML says otherwise) and refused
+    larger frames, a refusal `render` reported as a missing OpenGL backend; the renderer now enlarges its own copy's
+    framebuffer, and the task's model is left as it was."""
+    from angora_jax.envs.rendering import CAMERAS, SceneRenderer
+
+    env = eager(aj.make("ShadowHandReach", max_episode_steps=1))
+    framebuffer = (env.model.vis.global_.offwidth, env.model.vis.global_.offheight)
+    renderer = SceneRenderer(env.model, env.task.camera_body, CAMERAS["front"], framebuffer[0] + 16, 40)
+    try:
+        data = mujoco.MjData(env.model)
+        mujoco.mj_forward(env.model, data)
+        frame = renderer.render(data)
+    finally:
+        renderer.close()
+    assert frame.shape == (40, framebuffer[0] + 16, 3) and frame.std() > 10
+    assert (env.model.vis.global_.offwidth, env.model.vis.global_.offheight) == framebuffer
 
 
 def test_no_gl_backend_is_reported_with_the_package_to_install(monkeypatch):

@@ -15,6 +15,7 @@ from angora_jax.cli.arguments import (
     EXIT_USAGE,
     add_env_option,
     checkpoint_of,
+    episode_count,
     positive_int,
     refused_existing,
 )
@@ -132,7 +133,7 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     ablate.add_argument("--action", nargs="*", default=[], metavar="I",
                         help="action components to silence, each on its own (on a muscle hand: muscle I's "
                              "excitation held at 0; a muscle's name, e.g. FPL_r, names it too)")
-    ablate.add_argument("--episodes", type=positive_int, default=256,
+    ablate.add_argument("--episodes", type=episode_count, default=256,
                         help="episodes per condition, from the same starts, the intact network included (default: 256)")
     ablate.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
     ablate.add_argument("--out", default=None,

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from angora_jax.experiment.config import Config, load_config
@@ -26,6 +27,39 @@ def positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
     return int(text)
 
+
+
+# The most episodes one command runs (evaluate, render, record, analyze ablate). Each episode's reset and acting keys
+# and its results are held in memory: `evaluate --episodes 1000000000` needed 16 GB for its keys alone and was killed
+# by the kernel without a word. A million is hours even of CartPole on the CPU path; more is several commands, each
+# with its own --seed.
+MAX_EPISODES = 1_000_000
+# The frame sizes `render` takes, a side: below 16 pixels a frame shows nothing of the scene; at 4,096 x 4,096 a frame
+# is 50 MB in memory, an episode of 1,000 steps 50 GB (what memory holds is checked too, before rendering).
+FRAME_SIDE = (16, 4096)
+
+
+def bounded_int(low: int, high: int, fix: str) -> Callable[[str], int]:
+    """An argparse type: a whole number from `low` to `high`. Outside them argparse exits 2, naming the option, the
+    range and `fix` (what to do instead), before anything is loaded or compiled: an absurd size otherwise reached
+    XLA or NumPy as an allocation the kernel killed the process for."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be a whole number from {low:,} to {high:,}, got {text[:40]!r}"
+                                             f"{'' if value is None or value < low else f'; {fix}'}")
+        return value
+
+    parse.__name__ = f"whole number from {low} to {high}"
+    return parse
+
+
+episode_count = bounded_int(1, MAX_EPISODES, "run more episodes as several commands, each with its own --seed")
+frame_side = bounded_int(*FRAME_SIDE, "a frame that large is 50 MB in memory, an episode's video tens of GB")
 
 
 def port(text: str) -> int:

@@ -12,6 +12,8 @@ from angora_jax.cli.arguments import (
     EXIT_USAGE,
     add_env_option,
     checkpoint_of,
+    episode_count,
+    frame_side,
     positive_int,
     refused_existing,
     seed,
@@ -30,8 +32,8 @@ def add_evaluate(commands: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--checkpoint", default="best",
                           help="best, latest, a cycle number, or snapshots: each snapshot the run keeps in turn, "
                                "to follow its policy over training (default: best)")
-    evaluate.add_argument("--episodes", "--num-envs", type=positive_int, default=480,
-                          help="episodes to run (default: 480)")
+    evaluate.add_argument("--episodes", "--num-envs", type=episode_count, default=480,
+                          help="episodes to run, at most 1,000,000 (default: 480)")
     evaluate.add_argument("--seed", type=seed, default=0,
                           help="seed of the episodes' starts and goals (default: 0); the same seed gives the same "
                                "episodes to every checkpoint")
@@ -57,10 +59,13 @@ def add_render(commands: argparse._SubParsersAction) -> None:
     render.add_argument("--out", required=True, help="video path: .mp4 (imageio-ffmpeg) or .gif; never overwritten")
     render.add_argument("--task", help="render this task with random actions instead of a run's policy")
     render.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
-    render.add_argument("--episodes", type=positive_int, default=1, help="episodes, one after another (default: 1)")
+    render.add_argument("--episodes", type=episode_count, default=1,
+                        help="episodes, one after another (default: 1; their frames must fit in memory)")
     render.add_argument("--camera", default="front", choices=sorted(CAMERAS), help="view of the hand (default: front)")
-    render.add_argument("--width", type=positive_int, default=320, help="frame width in pixels (default: 320)")
-    render.add_argument("--height", type=positive_int, default=240, help="frame height in pixels (default: 240)")
+    render.add_argument("--width", type=frame_side, default=320,
+                        help="frame width in pixels, 16 to 4,096 (default: 320)")
+    render.add_argument("--height", type=frame_side, default=240,
+                        help="frame height in pixels, 16 to 4,096 (default: 240)")
     render.add_argument("--seed", type=seed, default=0, help="seed of the episodes' starts and goals (default: 0)")
     render.add_argument("--stochastic", action="store_true", help="sample actions instead of taking the mode")
     render.set_defaults(handler=command_render)
@@ -81,7 +86,8 @@ def add_record(commands: argparse._SubParsersAction) -> None:
                                                 "as NetCDF (angora_jax.analysis)")
     record.add_argument("run_dir", help="the run whose network is recorded")
     record.add_argument("--out", required=True, help="NetCDF file to write (never overwritten)")
-    record.add_argument("--episodes", type=positive_int, default=64, help="episodes recorded (default: 64)")
+    record.add_argument("--episodes", type=episode_count, default=64,
+                        help="episodes recorded (default: 64; the recording must fit in memory)")
     record.add_argument("--steps", type=positive_int, default=None,
                         help="policy steps (default: until every episode has ended, at most the episode length)")
     record.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")

@@ -6,6 +6,7 @@ Rendering needs an OpenGL backend chosen by `MUJOCO_GL` before MuJoCo is importe
 
 from __future__ import annotations
 
+import copy
 import os
 import warnings
 from dataclasses import dataclass
@@ -77,6 +78,14 @@ class SceneRenderer:
 
     def __init__(self, model: mujoco.MjModel, camera_body: str | None, camera: Camera | str, width: int = 320,
                  height: int = 240):
+        framebuffer = model.vis.global_
+        if width > framebuffer.offwidth or height > framebuffer.offheight:
+            # MuJoCo draws into an offscreen framebuffer of the model's size (640 x 480 unless its XML says otherwise)
+            # and refused larger frames with "specify a larger offscreen framebuffer in the model XML", which the
+            # user of `render --width` cannot do: this renderer's copy of the model gets one that fits instead.
+            model = copy.copy(model)
+            model.vis.global_.offwidth = max(width, framebuffer.offwidth)
+            model.vis.global_.offheight = max(height, framebuffer.offheight)
         try:
             # GLFW warns (on stderr, before the message below) of each step that fails without a display: its first
             # warning, the cause, goes into the message instead.

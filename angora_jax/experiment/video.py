@@ -13,6 +13,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
 
 from angora_jax.envs.cpu_env import CpuEnv
@@ -21,6 +22,7 @@ from angora_jax.envs.registry import make
 from angora_jax.envs.rendering import RenderError, SceneRenderer, camera_named
 from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
+from angora_jax.ppo.memory import device_memory
 from angora_jax.whole_files import written_whole
 
 # The files `write_video` writes, by suffix: MP4 through imageio-ffmpeg, GIF through Pillow. Any other suffix (or none)
@@ -80,6 +82,7 @@ def render_episodes(run_dir: str | Path | Agent | None, task: str | None, checkp
         else:
             env = make(task, **(task_options or {}))
             policy, carry, compiled = random_policy(env), None, None
+        check_frames_fit(episodes, max_steps or env.max_episode_steps, width, height)
         with EagerBatch(env, 1, compiled=compiled) as batch:
             if not isinstance(batch.env, CpuEnv):
                 raise RenderError(f"Task {type(batch.env).__name__} has no MuJoCo scene to render; only MuJoCo tasks "
@@ -93,6 +96,23 @@ def render_episodes(run_dir: str | Path | Agent | None, task: str | None, checkp
             finally:
                 renderer.close()
     return frames, batch.env.dt
+
+
+def check_frames_fit(episodes: int, steps: int, width: int, height: int) -> None:
+    """ValueError, before anything renders, when the frames of `episodes` episodes of up to `steps` policy steps at
+    `width` x `height` would not fit in this machine's memory: every frame is held until the video is written, and
+    stacked into one array then (twice the frames). Without it a long video of large frames ran for as long as the
+    episodes took and was then killed by the kernel, with no message and nothing written."""
+    if width < 1 or height < 1:
+        raise ValueError(f"Frames must be at least 1 x 1 pixels, got {width} x {height}.")
+    frames = episodes * (steps + 1)
+    needed = 2 * frames * width * height * 3
+    memory = device_memory(jax.devices("cpu")[0])
+    if memory is not None and needed > memory:
+        raise ValueError(f"{episodes:,} episodes of up to {steps:,} steps at {width} x {height} pixels are up to "
+                         f"{frames:,} frames, {needed / 2 / 1e9:,.1f} GB held in memory and twice that while the "
+                         f"video is written, more than this machine's {memory / 1e9:,.0f} GB: render fewer episodes "
+                         "(--episodes) or smaller frames (--width, --height).")
 
 
 def render_video(out: str | Path, run_dir: str | Path | None = None, *, task: str | None = None,
