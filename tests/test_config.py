@@ -57,6 +57,9 @@ BAD = {
     "frozen not a list": (["ppo.network.frozen=network.M1"], r"ppo.network.frozen must be a list"),
     "unknown cortical area": (["ppo.network.name=cortical", "ppo.network.areas={V9: 3}"],
                               r"Unknown areas \['V9'\] in network.areas.*SSC_1"),
+    "misspelt cortical area": (["ppo.network.name=cortical", "ppo.network.areas.SCC_1=3"],
+                               r"Unknown areas \['SCC_1'\] in network.areas. Did you mean 'SSC_1'\? The cortical "
+                               r"model's areas: \['SSC_1', 'SSC_2'"),
     "unknown network": (["ppo.network.name=lsmt"], r"ppo.network.name.*'lstm'.*Allowed networks: .*simple"),
     "unknown task": (["env.task=Cartpole"], r"env.task.*Did you mean 'CartPole'.*Pendulum"),
     "unknown env option": (["env.options.gravity_scale=2"], r"env.options do not fit task 'CartPole'.*gravity_scale"),
@@ -197,6 +200,16 @@ BAD_GRAPHS = {
                           r"network.graph.areas.S1.size must be >= 1, got 0 \(allowed: integers from 1 to "
                           r"2,147,483,647: the area's units\)"),
     "size missing": ([f"{AREA}.S1={{inputs: [proprioception]}}"], r"ppo.network.graph.areas.S1 needs size"),
+    # A misspelt area in an override made a new area, refused for what it lacked ("needs inputs", "reaches neither
+    # head") without a word about the area the user meant.
+    "override of a misspelt area": ([f"{AREA}.S_1.size=8"],
+                                    r"ppo.network.graph.areas.S_1 needs inputs .*Did you mean "
+                                    r"ppo.network.graph.areas.S1\? 'S_1' is not one of .*entries \(S1, M1\)"),
+    "misspelt area made whole that reaches nothing": (
+        [f"{AREA}.S_1={{size: 4, inputs: [proprioception]}}"],
+        r"areas.S_1 reaches neither head.*If you meant the area 'S1', an override of a name that is not an area's "
+        r"makes a new area: the areas are S1, M1"),
+    "size missing from a new area named unlike any": ([f"{AREA}.Q={{inputs: [S1]}}"], r"areas.Q needs size[^?]*$"),
     "no inputs": ([f"{AREA}.S1.inputs=[]"], r"network.graph.areas.S1.inputs is empty"),
     "input listed twice": ([f"{AREA}.M1.inputs=[S1, goal, S1]"], r"network.graph.areas.M1.inputs lists S1 more than"),
     "area named like a modality": ([f"{AREA}.goal={{size: 4, inputs: [S1]}}"], r"'goal' names an input modality"),

@@ -677,7 +677,24 @@ def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
         for name in value:
             _check_text(f"{key} key", name)
         item = typing.get_args(kind)[1]
-        return {name: _convert(item, entry, f"{key}.{name}") for name, entry in value.items()}
+        converted = {}
+        for name, entry in value.items():
+            try:
+                converted[name] = _convert(item, entry, f"{key}.{name}")
+            except ConfigError as error:
+                # A misspelt name in an override (`graph.areas.PCM.size=8` for PMC) makes a new entry, which then
+                # lacks keys the real one has: name the entry it most likely meant (only then, so that an error
+                # inside an entry that is whole is not blamed on its name).
+                others = [other for other in value if other != name]
+                partial = dataclasses.is_dataclass(item) and isinstance(entry, dict) and any(
+                    field.name not in entry for field in dataclasses.fields(item)
+                    if field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING)
+                misspelt = difflib.get_close_matches(name, others, n=1) if partial else []
+                if not misspelt:
+                    raise
+                raise ConfigError(f"{error} Did you mean {key}.{misspelt[0]}? {name!r} is not one of {key}'s "
+                                  f"entries ({', '.join(others)}), so an override of it makes a new one.") from None
+        return converted
     if kind is bool and isinstance(value, bool):
         return value
     if kind is int and isinstance(value, int) and not isinstance(value, bool):

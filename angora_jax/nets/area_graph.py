@@ -186,10 +186,15 @@ def check_graph(graph: AreaGraph | None) -> AreaGraph:
     used = heads.union(*(upstream(reads, area) for area in heads))
     for name, spec in graph.areas.items():
         if name not in used:
+            # Most often a misspelt override (`areas.PMC_In=...` for PMC_in) that made a new area: say so first.
+            others = [other for other in graph.areas if other != name]
+            misspelt = difflib.get_close_matches(name, others, n=1)
+            hint = (f" If you meant the area {misspelt[0]!r}, an override of a name that is not an area's makes a new "
+                    f"area: the areas are {', '.join(others)}.") if misspelt else ""
             raise ValueError(
                 f"network.graph.areas.{name} reaches neither head: no area on the way to the policy "
                 f"({graph.policy}) or the value net reads it, so its inputs ({', '.join(spec.inputs)}) reach nothing. "
-                f"List {name} in the inputs of such an area or in network.graph.value.inputs, or remove it.")
+                f"List {name} in the inputs of such an area or in network.graph.value.inputs, or remove it.{hint}")
     policy_side = sorted({graph.policy, *upstream(reads, graph.policy)})
     if not any(source in POLICY_MODALITIES for area in policy_side for source in graph.areas[area].inputs):
         raise ValueError(

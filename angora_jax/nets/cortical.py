@@ -23,6 +23,7 @@ modalities and `asymmetric`, and the areas serve the policy alone. Either way no
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Mapping
 
 from angora_jax.nets.area_graph import VALUE_MODALITIES, AreaGraph, AreaSpec, ValueSpec
@@ -44,7 +45,10 @@ def area_sizes(overrides: Mapping[str, int] | None = None) -> dict[str, int]:
     overrides = dict(overrides or {})
     unknown = sorted(set(overrides) - set(AREA_SIZES))
     if unknown:
-        raise ValueError(f"Unknown areas {unknown} in network.areas; the cortical model's areas: {list(AREA_SIZES)}.")
+        guesses = [close[0] for name in unknown if (close := difflib.get_close_matches(name, AREA_SIZES, n=1))]
+        hint = f" Did you mean {' and '.join(map(repr, guesses))}?" if guesses else ""
+        raise ValueError(f"Unknown areas {unknown} in network.areas.{hint} The cortical model's areas: "
+                         f"{list(AREA_SIZES)}.")
     bad = {name: size for name, size in overrides.items() if not isinstance(size, int) or size < 1}
     if bad:
         raise ValueError(f"Area sizes must be positive integers, got {bad}.")
