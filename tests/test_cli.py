@@ -691,6 +691,20 @@ def test_a_gpu_sized_config_started_without_a_gpu_says_so_before_compiling(capsy
     assert cpu_note(load_config("cartpole", ["ppo.num_envs=100000"]), {"engine": "pure JAX"}, False) is None
 
 
+@pytest.mark.parametrize("override, message", [
+    ("ppo.init_from={gone}", "ppo.init_from='{gone}': '{gone}' is neither a file nor a run directory: it does not "
+                             "exist. Give a component file, or a run as RUN_DIR[:best|latest|<cycle>]."),
+    ("ppo.network.frozen=[network.policy_trunc]", "did you mean 'network.policy_trunk'?"),
+])
+def test_config_show_checks_the_saved_sources_as_train_does(override, message, capsys, tmp_path):
+    """`config show` ran `validate` but not the sources' check that `train` makes next: a missing ppo.init_from or a
+    misspelt frozen module printed the config and exit 0, and the job failed only when it started."""
+    gone = tmp_path / "no_such_run"
+    assert main(["config", "show", "cartpole", override.format(gone=gone)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and message.format(gone=gone) in captured.err and "Traceback" not in captured.err
+
+
 @pytest.mark.slow
 def test_config_show_prints_the_resolved_config_a_run_would_use(capsys, tmp_path):
     """`config show` prints every key of the resolved config as YAML that trains the same run when saved, and a bad

@@ -18,6 +18,7 @@ from angora_jax.envs.random_rollout import batched_reset, episode_mean, make_ran
 from angora_jax.experiment import list_configs
 from angora_jax.experiment.config import to_dict, validate
 from angora_jax.experiment.config_reference import reference_markdown
+from angora_jax.experiment.sources import check_sources
 from angora_jax.nets import list_networks
 from angora_jax.ppo import list_heads
 
@@ -27,7 +28,9 @@ def add_config(commands: argparse._SubParsersAction) -> None:
     config = commands.add_parser("config", help="show the config a run would use, every key resolved")
     config_commands = config.add_subparsers(dest="config_command", required=True)
     show = config_commands.add_parser("show", help="print the resolved config (YAML) of CONFIG with the overrides, "
-                                                   "checked as train checks it, without running anything")
+                                                   "checked as train checks it before making a run directory "
+                                                   "(saved sources such as ppo.init_from included), without running "
+                                                   "anything")
     show.add_argument("config", help="YAML path or the name of a shipped config (see list-configs)")
     show.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. ppo.num_envs=32")
     show.set_defaults(handler=command_config_show)
@@ -72,8 +75,13 @@ def add_run(commands: argparse._SubParsersAction) -> None:
 
 
 def command_config_show(args: argparse.Namespace) -> int:
+    """Print the config `train` would use after the checks `train` makes before it makes a run directory: `validate`
+    and the saved sources (`check_sources`: ppo.init_from, ppo.network.pretrained and ppo.network.frozen read and
+    fitted to the network, traced but not compiled). Without the sources' check a missing init_from passed here and
+    failed only when the job started. What it cannot check is the run directory itself: `train` refuses a
+    logging.run_name taken when the job starts, which may differ from now."""
     config = config_with_imports(args)
-    validate(config)
+    check_sources(config, validate(config))
     print(f"# {args.config} {' '.join(args.overrides)}".rstrip() + ": what `angora-jax train` would use")
     print(yaml.safe_dump(to_dict(config), sort_keys=False), end="")
     return EXIT_OK
