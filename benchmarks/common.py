@@ -206,32 +206,47 @@ def study_folder(study: str) -> str:
     return path
 
 
-# Result path asked for -> the file this process chose for it: its later saves (a script that saves as it goes, so
-# that a run cut short keeps its rows) rewrite that file, never another.
+# Result path (or stem) asked for -> the one this process chose for it: its later saves (a script that saves as it
+# goes, so that a run cut short keeps its rows) rewrite that file, never another.
 _CHOSEN: dict[str, str] = {}
+
+
+def fresh_stem(stem: str, suffixes: tuple[str, ...]) -> tuple[str, bool]:
+    """The stem this process writes `stem + suffix` for each of `suffixes` under, and whether it chose it before. A
+    result that this process did not write is never replaced (a committed measurement, a user's earlier run): the
+    first free one of STEM, STEM-2, STEM-3, ... with none of `suffixes` taken, so that a result's JSON and figure keep
+    one name; later calls in this process return the same stem."""
+    key = stem + "|".join(suffixes)
+    if key in _CHOSEN:
+        return _CHOSEN[key], True
+    chosen, taken = stem, 1
+    while any(os.path.exists(chosen + suffix) for suffix in suffixes):
+        taken += 1
+        chosen = f"{stem}-{taken}"
+    _CHOSEN[key] = chosen
+    return chosen, False
+
+
+def write_json(stem: str, record: dict, suffixes: tuple[str, ...] = (".json",), indent: int | None = 2) -> str:
+    """Write `record` to `fresh_stem(stem, suffixes)` + ".json" and return that stem (the caller writes its other
+    files, e.g. the figure, under it). The first write in a process refuses a file made meanwhile by another run."""
+    chosen, before = fresh_stem(stem, suffixes)
+    with open(chosen + ".json", "w" if before else "x") as file:
+        json.dump(record, file, indent=indent)
+    return chosen
 
 
 def write_results(name: str, config: dict, rows: list[dict], out: str | None = None, *, study: str,
                   extra: dict | None = None) -> str:
     """Write rows with device, versions and config as JSON to `out` (default:
     results/<study>/<name>_<platform>.json), with `extra`'s keys beside them (e.g. statistics over rows). A file that
-    this process did not write is never replaced (a committed measurement, a user's earlier run): the rows go to the
-    next free name, NAME-2.json, NAME-3.json, ..., which this process's later saves rewrite; the path written is
-    returned."""
+    this process did not write is never replaced (`fresh_stem`): the rows go to the next free name, NAME-2.json,
+    NAME-3.json, ..., which this process's later saves rewrite; the path written is returned."""
     asked = out or os.path.join(study_folder(study), f"{name}_{jax.devices()[0].platform}.json")
-    path = _CHOSEN.get(asked)
-    if path is None:
-        path, (stem, suffix), taken = asked, os.path.splitext(asked), 1
-        while os.path.exists(path):
-            taken += 1
-            path = f"{stem}-{taken}{suffix}"
+    stem, suffix = os.path.splitext(asked)
     record = {"benchmark": name, "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
               "device": device(), "versions": versions(), "config": config, "results": rows, **(extra or {})}
-    # "x" the first time: a file made meanwhile by another run is not replaced either.
-    with open(path, "w" if asked in _CHOSEN else "x") as f:
-        json.dump(record, f, indent=2)
-    _CHOSEN[asked] = path
-    return path
+    return write_json(stem, record, (suffix,)) + suffix
 
 
 def rolling_peak(values, window: int) -> tuple[int, float, float]:

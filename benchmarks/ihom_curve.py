@@ -55,7 +55,7 @@ import scipy.stats
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from common import markdown_table, rolling_peak, study_folder  # noqa: E402
+from common import markdown_table, rolling_peak, study_folder, write_json  # noqa: E402
 
 CGR = "metric/goals_reached"
 MILESTONES = (1, 5, 10, 20, 30)
@@ -317,8 +317,7 @@ def main(argv: list[str] | None = None) -> int:
                                                           "episode_return", "episode_length", CGR, "metric/dropped",
                                                           "metric/timed_out", "metric/goal_distance", "entropy")}
                                   for r in rows] for rows in seeds] for label, seeds in runs.items()}}
-    with open(stem + ".json", "w") as file:
-        json.dump(record, file, indent=1)
+    stem = write_json(stem, record, (".json", ".png"), indent=1)
     plot(runs, f"ShadowHandCube (IHOM) on {args.device}", stem + ".png")
     for label, seeds in runs.items():
         for rows, held in zip(seeds, stable[label], strict=True):

@@ -52,7 +52,7 @@ import scipy.stats
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from common import RESULTS, TARGETS, device, markdown_table, versions  # noqa: E402
+from common import RESULTS, TARGETS, device, markdown_table, versions, write_json  # noqa: E402
 
 import angora_jax as aj  # noqa: E402
 from angora_jax.envs.registry import is_gymnasium, list_tasks  # noqa: E402
@@ -282,13 +282,12 @@ def write_figure(figure: str, runs: list[dict], missing: dict, config: dict, nam
     comparison = {task: compare_heads([r for r in runs if r["task"] == task])
                   for task in dict.fromkeys(r["task"] for r in runs)}
     os.makedirs(out, exist_ok=True)
-    png = os.path.join(out, f"{name}.png")
-    kind = where["kind"]
-    plot_figure(figure, runs, comparison, png, kind if isinstance(kind, str) else " and ".join(kind))
     record = {"benchmark": "paper_figures", "figure": figure, "device": where, "versions": made_with,
               "config": config, "comparison": comparison, "missing": missing, "runs": runs}
-    with open(f"{png[:-4]}.json", "w") as file:
-        json.dump(record, file)  # not indented: Fig. 9's curves, diagnostics and task metrics indented pass 2 MiB
+    # Not indented: Fig. 9's curves, diagnostics and task metrics indented pass 2 MiB.
+    png = write_json(os.path.join(out, name), record, (".json", ".png"), indent=None) + ".png"
+    kind = where["kind"]
+    plot_figure(figure, runs, comparison, png, kind if isinstance(kind, str) else " and ".join(kind))
     table = [{"task": r["task"], "head": r["head"], "seed": r["seed"], "device": r["device"],
               "final": r["final_return"],
               "steps": r["env_steps"], "wall": r["wall_seconds"],

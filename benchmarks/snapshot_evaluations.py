@@ -27,7 +27,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from common import RESULTS, markdown_table  # noqa: E402
+from common import RESULTS, markdown_table, write_json  # noqa: E402
 
 
 def read_run(run_dir: Path) -> tuple[list[dict], dict[int, dict], dict]:
@@ -121,9 +121,7 @@ def main(argv: list[str] | None = None) -> None:
               "runs": {label: {"run_dir": run_dirs[label], "snapshots": snapshots}
                        for label, (_, snapshots) in runs.items()}}
     os.makedirs(args.out, exist_ok=True)
-    stem = os.path.join(args.out, f"snapshot_evaluations_{args.name}")
-    with open(stem + ".json", "w") as file:
-        json.dump(record, file, indent=2)
+    stem = write_json(os.path.join(args.out, f"snapshot_evaluations_{args.name}"), record, (".json", ".png"))
     plot(runs, f"{', '.join(sorted(tasks))}: training mean vs evaluated snapshots ({first['devices'][0]['kind']})",
          stem + ".png")
     print(f"wrote {stem}.json and {stem}.png")

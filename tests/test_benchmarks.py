@@ -243,6 +243,14 @@ def test_ihom_curve_joins_pieces_by_cycle_and_finds_the_milestones(tmp_path, mon
     (curve,) = record["curves"]["run"]  # one list of rows per run of the label
     assert record["training_device"] == "cpu" and len(curve) == 4
     assert (tmp_path / "ihom_curve_t.png").read_bytes()[:4] == b"\x89PNG"
+    # Run again by another process (a committed result is there): a new name for the JSON and its figure together.
+    import common
+
+    monkeypatch.setattr(common, "_CHOSEN", {})
+    written = {path: path.read_bytes() for path in tmp_path.glob("ihom_curve_t.*")}
+    assert ihom_curve.main([pieces, "--device", "cpu", "--name", "t"]) == 0
+    assert {path: path.read_bytes() for path in tmp_path.glob("ihom_curve_t.*")} == written
+    assert (tmp_path / "ihom_curve_t-2.png").exists() and json.loads((tmp_path / "ihom_curve_t-2.json").read_text())
     # A fine-tuned run continues its base's curve; time its route spent elsewhere first goes on its wall clock.
     tuned = tmp_path / "tuned.jsonl"
     tuned.write_text(json.dumps(row(1, 20.0, 900.0, compile=1.5)) + "\n")
