@@ -245,7 +245,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("runs", nargs="+", metavar="LABEL=PATH[,PATH...]",
                         help="a run's label and its metrics files or run directories, in the order written")
     parser.add_argument("--device", required=True, help="the device the runs trained on, e.g. 'NVIDIA H100 80GB HBM3'")
-    parser.add_argument("--name", default="ShadowHandCube", help="results/<study>/ihom_curve_<name>.json and .png")
+    parser.add_argument("--name", default="ShadowHandCube", help="results/<study>/ihom_curve_<name>.json and .png "
+                             "(NAME-2, NAME-3, ... when taken: nothing is replaced)")
     parser.add_argument("--study", default="cube_one_gpu",
                         help="the results folder the curve belongs to (cube_one_gpu, cube_multi_gpu, cube_paper, "
                              "cube_cortical, cube_pixels; default: %(default)s)")

@@ -93,7 +93,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", metavar="LABEL=RUN_DIR")
     parser.add_argument("--name", required=True,
-                        help="results name: results/snapshot_evaluations/snapshot_evaluations_<name>.{json,png}")
+                        help="results name: results/snapshot_evaluations/snapshot_evaluations_<name>.{json,png} "
+                             "(NAME-2, ... when taken: nothing is replaced)")
     parser.add_argument("--out", default=os.path.join(RESULTS, "snapshot_evaluations"))
     args = parser.parse_args(argv)
     runs, run_dirs, sessions, tasks, table = {}, {}, {}, set(), []
