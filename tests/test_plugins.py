@@ -105,12 +105,17 @@ def test_a_run_records_its_imports_and_resume_and_evaluate_import_them_again(use
     ("raises", "Importing 'user_raises' ({source}) failed: RuntimeError: no GPU here"),
     ("needs", "Importing 'user_needs' ({source}) failed: ModuleNotFoundError: No module named 'not_installed_x'"),
     ("path", "'user_code/mine.py' ({source}) is not a module name"),
+    # Its file's name, the module importable: not "not found, put its folder on PYTHONPATH" (it is there).
+    ("file", "'user_plain.py' ({source}) is not a module name: give the module's name, user_plain (imports: "
+             "[user_plain], or --import user_plain), with its folder on PYTHONPATH: PYTHONPATH="),
 ])
 def test_a_module_that_cannot_be_imported_exits_2_naming_it_where_it_came_from_and_the_fix(
         where, problem, message, user_code, tmp_path, capsys):
     user_code("user_raises", "raise RuntimeError('no GPU here')\n")
     user_code("user_needs", "import not_installed_x\n")
-    module = {"missing": "user_missing", "path": "user_code/mine.py"}.get(problem, f"user_{problem}")
+    user_code("user_plain", "")
+    module = {"missing": "user_missing", "path": "user_code/mine.py", "file": "user_plain.py"}.get(
+        problem, f"user_{problem}")
     config = tmp_path / "c.yaml"
     config.write_text(f"extends: cartpole\nimports: ['{module}']\n" if where == "config" else "extends: cartpole\n")
     argv = ["train", str(config), f"logging.run_root={tmp_path}"] + (["--import", module] if where == "option" else [])

@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+import shlex
 import types
 from collections.abc import Iterable
+from pathlib import Path
 
 GROUP = "angora_jax.plugins"
 _loaded = False
@@ -45,9 +47,11 @@ def import_modules(names: Iterable[str], source: str) -> None:
             folder on PYTHONPATH or install it), or a module that raises while importing (its error, named).
     """
     for name in names:
-        if not all(part.isidentifier() for part in name.split(".")):
-            raise ModuleNameError(f"{name!r} ({source}) is not a module name: give the dotted name Python imports "
-                                "(e.g. my_tasks or lab.hand_tasks, not a file path), with its folder on PYTHONPATH.")
+        # A file's name or path (`thumbs_up.py`, `./thumbs_up.py`) is the usual slip: "thumbs_up.py" even passes as a
+        # dotted name, and Python then imports thumbs_up and fails on its submodule "py", which read "not found" with
+        # the advice to put on PYTHONPATH the folder already there.
+        if name.endswith(".py") or not all(part.isidentifier() for part in name.split(".")):
+            raise ModuleNameError(f"{name!r} ({source}) is not a module name: {_as_module(name)}")
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as error:
@@ -85,6 +89,18 @@ def load_plugins() -> None:
         except Exception as error:  # as for import_modules: whatever the plugin raised, named
             raise UserCodeError(f"{_raised(entry.value, source, error)} Or uninstall it: pip uninstall {package}.") \
                 from error
+
+
+def _as_module(name: str) -> str:
+    """What to give instead of `name`, which is no module name: for a Python file's name or path, its module name
+    and the folder to put on PYTHONPATH (absolute, as the command may run from another folder later)."""
+    file = Path(name)
+    if file.suffix == ".py" and file.stem.isidentifier():
+        folder = file.parent.resolve()
+        return (f"give the module's name, {file.stem} (imports: [{file.stem}], or --import {file.stem}), with its "
+                f"folder on PYTHONPATH: PYTHONPATH={shlex.quote(str(folder))} angora-jax ...")
+    return ("give the dotted name Python imports (e.g. my_tasks or lab.hand_tasks, not a file path), with its folder "
+            "on PYTHONPATH.")
 
 
 def _raised(name: str, source: str, error: Exception) -> UserCodeError:
