@@ -99,6 +99,35 @@ def test_a_run_records_its_imports_and_resume_and_evaluate_import_them_again(use
     assert out.rstrip().endswith("OK: nothing is damaged or missing.")
 
 
+def test_a_run_s_module_not_found_is_named_with_the_folder_it_was_imported_from(user_code, tmp_path, capsys,
+                                                                            monkeypatch):
+    """Own-task trial: a run trained with PYTHONPATH=. and evaluated from another folder, or after its module moved,
+    was told only "Put the folder that holds it on PYTHONPATH (e.g. PYTHONPATH=/path/to/folder ...)"."""
+    module = user_code("user_net_moved", USER_NETWORK)
+    run_dir = tmp_path / "r"
+    assert main(["train", "cartpole", *TINY_PPO, "ppo.num_cycles=1", "ppo.network.name=user_simple",
+                 f"logging.run_root={tmp_path}", "logging.run_name=r", "logging.report=false",
+                 "logging.progress=none", "--import", module]) == 0
+    capsys.readouterr()
+    folder = tmp_path / "user_code"
+    # A new process, from another folder: the module's folder is not on its path.
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p not in ("", str(folder), os.getcwd())])
+    forget(module, "user_simple")
+    assert main(["evaluate", str(run_dir), "--episodes", "2"]) == 2
+    err = capsys.readouterr().err
+    assert f"Module '{module}'" in err and f"The run imported it from {folder / module}.py when it last trained: " \
+           f"put that folder on PYTHONPATH (PYTHONPATH={folder} angora-jax ...)" in err, err
+    monkeypatch.chdir(folder)  # beside the module, without PYTHONPATH=.
+    assert main(["resume", str(run_dir)]) == 2
+    assert (f"It is in the current folder, which the command does not search: run it with that folder on PYTHONPATH "
+            f"(PYTHONPATH={folder} angora-jax ...; PYTHONPATH=. from here)") in capsys.readouterr().err
+    monkeypatch.chdir(tmp_path)
+    (folder / f"{module}.py").rename(tmp_path / f"{module}.py.moved")
+    assert main(["evaluate", str(run_dir)]) == 2
+    assert f"{folder / module}.py when it last trained, and that file is no longer there (moved or deleted)" \
+           in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("where", ["config", "option"])
 @pytest.mark.parametrize("problem, message", [
     ("missing", "Module 'user_missing' ({source}) is not found. Put the folder that holds it on PYTHONPATH"),

@@ -4,7 +4,8 @@
     RUN_DIR/hyperparameters.json  the same config flattened to dotted keys, for tables and filters
     RUN_DIR/metrics.jsonl         one JSON object per cycle (see `monitor`)
     RUN_DIR/sessions.jsonl        one JSON object per train/resume call: start time and cycle, host, package
-                                  versions, devices, and the physics it ran on (engine, MJX implementation and why)
+                                  versions, devices, the physics it ran on (engine, MJX implementation and why), and
+                                  the file and SHA-256 of each module of its `imports`
     RUN_DIR/checkpoints/          Orbax checkpoints, each with its manifest (see `checkpoint`)
     RUN_DIR/writer.lock           the process that trains the run now (see `run_lock`)
     RUN_DIR/metrics.after-cycle-N.jsonl, RUN_DIR/set-aside/, RUN_DIR/previous-N/
@@ -30,6 +31,7 @@ from pathlib import Path
 import yaml
 
 from angora_jax.experiment.config import Config, ConfigError, flatten, load_config, to_dict
+from angora_jax.registry.plugins import remember_files
 from angora_jax.saved_files import USE, msgpack_kind
 from angora_jax.whole_files import written_whole
 
@@ -159,11 +161,27 @@ def read_run_config(run_dir: str | Path) -> Config:
                               "--restore-config` writes it again from the copy they keep.")
         raise RunDirError(not_a_run_dir(run_dir, "Start runs with `angora-jax train` (in Python: aj.train)."))
     try:
-        return load_config(path)
+        config = load_config(path)
     except ConfigError as error:
         copy = (f" Its checkpoints keep a copy of it: `angora-jax check {run_dir} --restore-config` writes that back "
                 "(the file as it is now is kept beside it).") if has_checkpoints(run_dir) else ""
         raise RunDirError(f"{path} does not load with this version of angora_jax: {error}{copy}") from None
+    # Where the run found its own modules, so that one not found here (another folder, a moved file) is named with
+    # its folder when the config's imports are imported (`plugins.import_modules`).
+    remember_files(recorded_import_files(run_dir))
+    return config
+
+
+def recorded_import_files(run_dir: str | Path) -> dict[str, str]:
+    """Module name -> the file it was imported from, as the run's latest session that recorded it says (runs made
+    before sessions recorded them: {})."""
+    files: dict[str, str] = {}
+    for session in read_sessions(run_dir):
+        imports = session.get("imports")
+        if isinstance(imports, dict):
+            files.update({name: entry["file"] for name, entry in imports.items()
+                          if isinstance(entry, dict) and isinstance(entry.get("file"), str)})
+    return files
 
 
 # Files the commands write that a user may give where a run directory belongs: what each is, and what to do instead.

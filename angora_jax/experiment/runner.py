@@ -52,6 +52,7 @@ from angora_jax.experiment.sources import check_sources
 from angora_jax.ppo.cycle import TrainState
 from angora_jax.ppo.parallel import per_device
 from angora_jax.ppo.train import training_cycles
+from angora_jax.registry.plugins import module_files
 
 
 @dataclass
@@ -393,7 +394,7 @@ def _run(
         record_session(run_dir, {"time": time.time(), "start_cycle": start, "num_cycles": config.ppo.num_cycles,
                                  "host": socket.gethostname(),
                                  "processes": jax.process_count(), "devices": devices(), "versions": versions(),
-                                 "physics": physics})
+                                 "physics": physics, "imports": module_files(config.imports)})
         if ended:
             plan = f"nothing to train (ppo.stop_at ended it at cycle {start})"
         elif finished:

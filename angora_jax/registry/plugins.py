@@ -14,15 +14,21 @@ exported policy, `aj.make`) asks a registry first, so each sees the plugins with
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import importlib.metadata
 import shlex
+import sys
 import types
 from collections.abc import Iterable
 from pathlib import Path
 
 GROUP = "angora_jax.plugins"
 _loaded = False
+# Module name -> the file a run read in this process recorded it was imported from when it last trained
+# (`remember_files`): a module not found then is named with that file, so that a command run from another folder, or
+# after the file moved, says which folder to put on PYTHONPATH instead of "/path/to/folder".
+_recorded_files: dict[str, str] = {}
 
 
 class UserCodeError(ValueError):
@@ -57,10 +63,7 @@ def import_modules(names: Iterable[str], source: str) -> None:
         except ModuleNotFoundError as error:
             if error.name is None or not (name == error.name or name.startswith(error.name + ".")):
                 raise _raised(name, source, error) from error  # the module imports something missing
-            raise UserCodeError(
-                f"Module {name!r} ({source}) is not found. Put the folder that holds it on PYTHONPATH (e.g. "
-                f"PYTHONPATH=/path/to/folder angora-jax ...; the current folder is not searched by the command) or "
-                f"pip install the package that provides it.") from None
+            raise UserCodeError(f"Module {name!r} ({source}) is not found. {_where_to_find(name)}") from None
         except Exception as error:  # user code may raise anything while importing; each one is named
             raise _raised(name, source, error) from error
         if getattr(module, "__file__", None) is None and hasattr(module, "__path__"):
@@ -70,6 +73,55 @@ def import_modules(names: Iterable[str], source: str) -> None:
                 f"Module {name!r} ({source}) imported as the folder {', '.join(module.__path__)}, which holds no "
                 f"{name.rsplit('.', 1)[-1]}.py or __init__.py: not the module that registers your code. Run from "
                 "another folder, or put the module's own folder first on PYTHONPATH.")
+
+
+def module_files(names: Iterable[str]) -> dict[str, dict[str, str]]:
+    """The file each imported module of `names` was loaded from and its SHA-256, for a run's session record: a later
+    command that cannot find the module names that file's folder, and one that finds the file changed says so.
+    Modules that are not imported, or have no file, are left out."""
+    files = {}
+    for name in names:
+        file = getattr(sys.modules.get(name), "__file__", None)
+        if file is not None and Path(file).is_file():
+            files[name] = {"file": str(Path(file).resolve()),
+                           "sha256": hashlib.sha256(Path(file).read_bytes()).hexdigest()}
+    return files
+
+
+def remember_files(files: dict[str, str]) -> None:
+    """Record module name -> file, as a run's session records them (`module_files`), for the message of a module
+    that is not found."""
+    _recorded_files.update(files)
+
+
+def _root(name: str, file: Path) -> Path:
+    """The folder to put on PYTHONPATH for module `name` loaded from `file` (a.b from ROOT/a/b.py, or a package's
+    ROOT/a/__init__.py)."""
+    folder = file.parent if file.name == "__init__.py" else file
+    for _ in name.split("."):
+        folder = folder.parent
+    return folder
+
+
+def _where_to_find(name: str) -> str:
+    """The fix for module `name` that is not found: its folder, where the current folder or the run's record knows
+    it, else the general advice."""
+    relative = Path(*name.split("."))
+    here = Path.cwd()
+    if (here / relative.with_suffix(".py")).is_file() or (here / relative / "__init__.py").is_file():
+        return (f"It is in the current folder, which the command does not search: run it with that folder on "
+                f"PYTHONPATH (PYTHONPATH={shlex.quote(str(here))} angora-jax ...; PYTHONPATH=. from here).")
+    recorded = _recorded_files.get(name)
+    if recorded is not None:
+        folder = _root(name, Path(recorded))
+        if Path(recorded).is_file():
+            return (f"The run imported it from {recorded} when it last trained: put that folder on PYTHONPATH "
+                    f"(PYTHONPATH={shlex.quote(str(folder))} angora-jax ...).")
+        return (f"The run imported it from {recorded} when it last trained, and that file is no longer there (moved "
+                f"or deleted): put the folder that holds it now on PYTHONPATH (PYTHONPATH=/path/to/folder "
+                f"angora-jax ...), or restore it there.")
+    return ("Put the folder that holds it on PYTHONPATH (e.g. PYTHONPATH=/path/to/folder angora-jax ...; the current "
+            "folder is not searched by the command) or pip install the package that provides it.")
 
 
 def load_plugins() -> None:
