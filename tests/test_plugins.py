@@ -18,6 +18,7 @@ from tiny import TINY_PPO
 import angora_jax as aj
 from angora_jax.cli import main
 from angora_jax.envs.registry import TASKS
+from angora_jax.experiment import agent, programs
 from angora_jax.experiment.run_dir import read_run_config
 from angora_jax.nets import register_network
 from angora_jax.nets.registry import NETWORKS
@@ -126,6 +127,32 @@ def test_a_run_s_module_not_found_is_named_with_the_folder_it_was_imported_from(
     assert main(["evaluate", str(run_dir)]) == 2
     assert f"{folder / module}.py when it last trained, and that file is no longer there (moved or deleted)" \
            in capsys.readouterr().err
+
+
+def test_a_checkpoint_that_no_longer_fits_its_edited_own_code_names_the_module_not_the_config(user_code, tmp_path,
+                                                                                              capsys):
+    """Own-task trial: the run's module edited after training (an observation widened), evaluate and resume said
+    "the run's config.yaml (ppo.network, env) was changed after training. Restore the config", which was not."""
+    module = user_code("user_net_edited", USER_NETWORK)
+    run_dir = tmp_path / "r"
+    assert main(["train", "cartpole", *TINY_PPO, "ppo.num_cycles=1", "ppo.network.name=user_simple",
+                 f"logging.run_root={tmp_path}", "logging.run_name=r", "logging.report=false",
+                 "logging.progress=none", "--import", module]) == 0
+    capsys.readouterr()
+    forget(module, "user_simple")
+    # A new process would have no programs or acting parts made for the module as it was.
+    programs._programs.clear()
+    agent._acting_parts.cache_clear()
+    # The same network name, built 8 units wide instead of the config's 64.
+    user_code(module, USER_NETWORK.replace('NETWORKS.get("simple"))', 'lambda network: NETWORKS.get("simple")('
+                                           'dataclasses.replace(network, width=8)))\nimport dataclasses'))
+    file = tmp_path / "user_code" / f"{module}.py"
+    for argv in (["evaluate", str(run_dir)], ["resume", str(run_dir), "--num-cycles", "2"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.splitlines()[-1]
+        assert "do not fit what its own code builds now" in err and f"{module} ({file}) changed since the run " \
+               "last trained" in err and "config.yaml" not in err, err
+        forget(module, "user_simple")
 
 
 @pytest.mark.parametrize("where", ["config", "option"])

@@ -19,7 +19,7 @@ from angora_jax.envs.core import Env, Sensation
 from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints
 from angora_jax.experiment.config import Config, ConfigError, DistributionConfig, load_config, to_dict, validate
 from angora_jax.experiment.programs import initial_state_shape
-from angora_jax.experiment.run_dir import CHECKPOINTS, read_run_config, read_sessions, run_source
+from angora_jax.experiment.run_dir import CHECKPOINTS, own_code_misfit, read_run_config, read_sessions, run_source
 from angora_jax.nets import ActorCritic, make_network
 from angora_jax.nets.components import register_run_reader
 from angora_jax.ppo.cycle import build_head, build_model
@@ -164,6 +164,9 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
         try:
             state = checkpoints.restore(template, which, partial=True).state
         except CheckpointError as error:
+            # The run's own module edited since training (an observation widened) would be blamed on its config.yaml.
+            if error.misfits and (changed := own_code_misfit(run_dir, error.misfits)) is not None:
+                raise CheckpointError(changed, misfits=error.misfits) from None
             if not (env_overrides and error.misfits):
                 raise
             # The network's inputs changed with the options, not the run's config (which the message would blame).

@@ -31,7 +31,7 @@ from pathlib import Path
 import yaml
 
 from angora_jax.experiment.config import Config, ConfigError, flatten, load_config, to_dict
-from angora_jax.registry.plugins import remember_files
+from angora_jax.registry.plugins import module_files, remember_files
 from angora_jax.saved_files import USE, msgpack_kind
 from angora_jax.whole_files import written_whole
 
@@ -170,6 +170,32 @@ def read_run_config(run_dir: str | Path) -> Config:
     # its folder when the config's imports are imported (`plugins.import_modules`).
     remember_files(recorded_import_files(run_dir))
     return config
+
+
+def changed_imports(run_dir: str | Path) -> list[str]:
+    """The modules of the run's imports, as imported in this process, whose file is not the one the run's latest
+    session recorded (another path, or the same path edited since: another SHA-256), as "name (file)"."""
+    recorded: dict[str, dict] = {}
+    for session in read_sessions(run_dir):
+        if isinstance(session.get("imports"), dict):
+            recorded = session["imports"]
+    now = module_files(recorded)
+    return [f"{name} ({now[name]['file']})" for name, entry in recorded.items()
+            if name in now and isinstance(entry, dict)
+            and (entry.get("file"), entry.get("sha256")) != (now[name]["file"], now[name]["sha256"])]
+
+
+def own_code_misfit(run_dir: str | Path, misfits: str) -> str | None:
+    """Why a checkpoint of `run_dir` whose parameters do not fit (`misfits`, as CheckpointError lists them) when the
+    run's own modules changed since it trained, or None when they did not: the usual cause then is the config, which
+    the checkpoint's own message names."""
+    changed = changed_imports(run_dir)
+    if not changed:
+        return None
+    return (f"The checkpoints of {run_dir} do not fit what its own code builds now ({misfits}): "
+            f"{', '.join(changed)} changed since the run last trained (sessions.jsonl records the file and SHA-256 "
+            "each session imported). Put back the version it trained with (e.g. from version control) to evaluate "
+            "or resume it; to train the edited task or network, start a new run: angora-jax train CONFIG.")
 
 
 def recorded_import_files(run_dir: str | Path) -> dict[str, str]:

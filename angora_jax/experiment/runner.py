@@ -43,6 +43,7 @@ from angora_jax.experiment.run_dir import (
     RunDirError,
     create_run_dir,
     has_checkpoints,
+    own_code_misfit,
     read_run_config,
     record_session,
     write_run_config,
@@ -225,8 +226,14 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
         state = None
         if plan.cycle is not None:
             finished = plan.cycle >= config.ppo.num_cycles or ended is not None
-            state = _restore_to_continue(checkpoints, plan.cycle, initial_state_shape(config, env), exact, run_dir,
-                                         finished)
+            try:
+                state = _restore_to_continue(checkpoints, plan.cycle, initial_state_shape(config, env), exact,
+                                             run_dir, finished)
+            except CheckpointError as error:
+                # Its own module edited since (an observation widened): not its config.yaml, as the error would say.
+                if error.misfits and (changed := own_code_misfit(run_dir, error.misfits)) is not None:
+                    raise CheckpointError(changed, misfits=error.misfits) from None
+                raise
         verified = checkpoints.verified()
         checkpoints.close()  # before the checkpoints after plan.cycle are moved aside, and the writer opens them
         checkpoints = None
