@@ -153,6 +153,8 @@ def test_a_checkpoint_that_no_longer_fits_its_edited_own_code_names_the_module_n
         assert "do not fit what its own code builds now" in err and f"{module} ({file}) changed since the run " \
                "last trained" in err and "config.yaml" not in err, err
         forget(module, "user_simple")
+    # The refused resume changed nothing: it had recorded --num-cycles 2 in config.yaml before its restore failed.
+    assert "recorded in its config.yaml" not in err and read_run_config(run_dir).ppo.num_cycles == 1
 
 
 @pytest.mark.parametrize("where", ["config", "option"])

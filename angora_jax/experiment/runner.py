@@ -211,16 +211,9 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
             raise ConfigError(f"ppo.stop_at ended {run_dir} at cycle {plan.cycle} ({ended}), so --num-cycles alone "
                               f"would train nothing: add --no-stop-at to train it on to {config.ppo.num_cycles} "
                               "cycles.")
-        if config.ppo != before:
-            if plan.cycle is not None and config.ppo.num_cycles < plan.cycle:
-                raise ConfigError(f"--num-cycles {config.ppo.num_cycles} is below cycle {plan.cycle}, where {run_dir} "
-                                  "continues: ask for at least that many.")
-            if is_main_process():
-                write_run_config(run_dir, config)
-                changes = [f"ppo.num_cycles {before.num_cycles} -> {config.ppo.num_cycles}"] * (
-                    config.ppo.num_cycles != before.num_cycles) + ["ppo.stop_at removed"] * (
-                    config.ppo.stop_at != before.stop_at)
-                print(f"{run_dir}: {', '.join(changes)}, recorded in its config.yaml.", file=sys.stderr, flush=True)
+        if config.ppo != before and plan.cycle is not None and config.ppo.num_cycles < plan.cycle:
+            raise ConfigError(f"--num-cycles {config.ppo.num_cycles} is below cycle {plan.cycle}, where {run_dir} "
+                              "continues: ask for at least that many.")
         if plan.cycle is None:  # a start from cycle 0 reads its saved starting values (ppo.init_from, pretrained)
             check_sources(config, env)
         state = None
@@ -234,6 +227,14 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
                 if error.misfits and (changed := own_code_misfit(run_dir, error.misfits)) is not None:
                     raise CheckpointError(changed, misfits=error.misfits) from None
                 raise
+        # Recorded only once the run can continue: a resume refused above changes nothing in the run.
+        if config.ppo != before:
+            if is_main_process():
+                write_run_config(run_dir, config)
+                changes = [f"ppo.num_cycles {before.num_cycles} -> {config.ppo.num_cycles}"] * (
+                    config.ppo.num_cycles != before.num_cycles) + ["ppo.stop_at removed"] * (
+                    config.ppo.stop_at != before.stop_at)
+                print(f"{run_dir}: {', '.join(changes)}, recorded in its config.yaml.", file=sys.stderr, flush=True)
         verified = checkpoints.verified()
         checkpoints.close()  # before the checkpoints after plan.cycle are moved aside, and the writer opens them
         checkpoints = None
