@@ -12,6 +12,7 @@ import textwrap
 import venv
 from pathlib import Path
 
+import jax
 import pytest
 from tiny import TINY_PPO
 
@@ -199,6 +200,30 @@ def test_a_cell_run_again_registers_its_network_again_and_another_definition_of_
     with pytest.raises(ValueError, match=r"^Network 'user_cell' is already registered \(by __main__.<lambda>\): "
                                          r"choose another name$"):
         register_network("user_cell", NETWORKS.get("simple"))
+
+
+def test_a_cell_edited_and_run_again_trains_and_loads_its_new_network_not_the_compiled_old_one(user_code, tmp_path):
+    """The compiled programs of a process are kept by config (`cycle_programs`, `_acting_parts`), and a config names a
+    network, not its code: after a notebook cell that registers a network was edited and run again, training the
+    same config reused the old network's programs (its widths), and loading the run failed in Flax."""
+    def cell(width: int) -> None:
+        exec("import dataclasses\n"
+             "from angora_jax.nets import register_network\n"
+             "from angora_jax.nets.registry import NETWORKS\n"
+             "register_network('user_edit',\n"
+             f"                 lambda n: NETWORKS.get('simple')(dataclasses.replace(n, width={width})))\n",
+             {"__name__": "__main__"})
+
+    def trained(name: str) -> int:
+        assert main(["train", "cartpole", *TINY_PPO, "ppo.num_cycles=1", "ppo.network.name=user_edit",
+                     f"logging.run_root={tmp_path}", f"logging.run_name={name}", "logging.report=false",
+                     "logging.progress=none"]) == 0
+        return sum(leaf.size for leaf in jax.tree.leaves(aj.load_agent(tmp_path / name).params))
+
+    cell(8)
+    narrow = trained("narrow")
+    cell(16)
+    assert trained("wide") > narrow, "the edited cell's wider network was trained and loaded"
 
 
 # CartPole with one part of its step changed (CHANGE), registered as BrokenCartPole.

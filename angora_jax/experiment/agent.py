@@ -26,6 +26,7 @@ from angora_jax.ppo.cycle import build_head, build_model
 from angora_jax.ppo.distributions import PolicyHead
 from angora_jax.ppo.evaluate import PolicyState, make_evaluate
 from angora_jax.ppo.normalization import normalize_observation
+from angora_jax.registry import generation
 
 
 @dataclass(frozen=True)
@@ -229,7 +230,7 @@ def acting_parts(config: Config) -> tuple[Env, nn.Module, PolicyHead, PolicyStat
         distribution=DistributionConfig(),
         logging=replace(config.logging, tensorboard=False, wandb=None),
     )
-    return _acting_parts(json.dumps(to_dict(_acting_config(here)), sort_keys=True))
+    return _acting_parts(json.dumps(to_dict(_acting_config(here)), sort_keys=True), generation())
 
 
 def _acting_config(config: Config) -> Config:
@@ -240,10 +241,12 @@ def _acting_config(config: Config) -> Config:
 
 
 @functools.lru_cache(maxsize=8)
-def _acting_parts(config_json: str) -> tuple[Env, nn.Module, PolicyHead, PolicyState, dict[Any, Any]]:
+def _acting_parts(config_json: str, definitions: int) -> tuple[Env, nn.Module, PolicyHead, PolicyState,
+                                                               dict[Any, Any]]:
     """Environment, network, head, checkpoint template and the shared `Agent.compiled` of one acting config (a
-    JSON text, hashable): made once per process, so that loading agents of one kind again builds and compiles
-    nothing again."""
+    JSON text, hashable) and generation of registered definitions (`registry.generation()`: a task or network
+    registered again after an edit builds anew): made once per process, so that loading agents of one kind again
+    builds and compiles nothing again."""
     config = load_config(json.loads(config_json))
     env = validate(config, new_run=False)
     shape = initial_state_shape(config, env)

@@ -14,6 +14,7 @@ import jax
 from angora_jax.envs.core import Env
 from angora_jax.experiment.config import Config, num_devices, to_dict
 from angora_jax.ppo.cycle import TrainState, make_cycle
+from angora_jax.registry import generation
 
 
 def initial_state_shape(config: Config, env: Env) -> TrainState:
@@ -42,7 +43,8 @@ def cycle_programs(config: Config, env: Env) -> tuple[Callable, Callable]:
         return make_cycle(env, None, ppo, num_devices(config))
     settings = to_dict(config)
     key = json.dumps({"env": settings["env"], "ppo": {**settings["ppo"], "seed": None},
-                      "distribution": settings["distribution"], "devices": num_devices(config)}, sort_keys=True)
+                      "distribution": settings["distribution"], "devices": num_devices(config),
+                      "definitions": generation()}, sort_keys=True)
     if key not in _programs:
         _programs[key] = make_cycle(env, None, ppo, num_devices(config))
         if len(_programs) > _PROGRAMS_KEPT:

@@ -11,6 +11,17 @@ from angora_jax.registry.plugins import load_plugins
 
 F = TypeVar("F", bound=Callable)
 
+# How many times a registered name has been given another definition in this process (a notebook cell run again
+# after an edit, a reloaded module). Caches of built or compiled programs key on it beside the config: the config
+# names a task or network, not its code, and a program traced from the old definition would otherwise be reused.
+_replacements = 0
+
+
+def generation() -> int:
+    """A number that changes whenever a task, network or head registered under a name is replaced by another
+    definition in this process: part of the key of every cache of programs built from registered factories."""
+    return _replacements
+
 
 class Registry(Generic[F]):
     """Factories by name; `kind` (e.g. "task") and `plural` name them in error messages."""
@@ -21,11 +32,15 @@ class Registry(Generic[F]):
 
     def register(self, name: str, factory: F) -> None:
         """Make `factory` available as `name`. A name is registered once, except by the same definition again (the
-        same module and qualified name), which replaces it: a notebook cell or a reloaded module run a second time."""
+        same module and qualified name), which replaces it: a notebook cell or a reloaded module run a second time.
+        A replacement changes `generation()`, so that programs compiled from the old definition are not reused."""
+        global _replacements
         registered = self._factories.get(name)
         if registered is not None and definition(registered) != definition(factory):
             raise ValueError(f"{self.kind.capitalize()} {name!r} is already registered (by {definition(registered)}): "
                              "choose another name")
+        if registered is not None and registered is not factory:
+            _replacements += 1
         self._factories[name] = factory
 
     def names(self, plugins: bool = True) -> list[str]:
