@@ -306,6 +306,11 @@ class NoCarry(nn.Module):
 class ClaimsSequences(Net):
     runs_sequences = True
 
+class TouchOnly(Net):
+    @nn.compact
+    def __call__(self, carry, obs):
+        return carry, nn.Dense(8)(obs.touch), nn.Dense(1)(obs.proprioception)[:, 0]
+
 register("PrivilegedCartPole", PrivilegedCartPole)
 register_network("user_fine", lambda network: Net())
 register_network("user_claims_sequences", lambda network: ClaimsSequences())
@@ -315,6 +320,7 @@ register_network("user_reads_asymmetric", lambda network: Net(reads_asymmetric=T
 register_network("user_no_carry", lambda network: NoCarry())
 register_network("user_class", lambda network: Net)
 register_network("user_no_argument", lambda: Net())
+register_network("user_touch_only", lambda network: TouchOnly())
 """
 
 
@@ -327,6 +333,7 @@ register_network("user_no_argument", lambda: Net())
     ("user_no_argument", "its builder, called with the run's ppo.network section, raised TypeError: <lambda>() takes"),
     ("user_claims_sequences", "its call on a training chunk (runs_sequences = True: carry, obs of (3, 2, size), resets "
                               "(3, 2), initial carry) raised TypeError"),
+    ("user_touch_only", "no values in obs.touch"),
 ])
 def test_a_network_that_breaks_its_contract_exits_2_naming_the_part_before_anything_compiles(
         network, message, user_code, tmp_path, capsys):

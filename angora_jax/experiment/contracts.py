@@ -118,9 +118,21 @@ def check_network(builder: Callable[[NetworkSettings], Any], settings: NetworkSe
     one = env.observation_shapes()
     obs = jax.tree.map(lambda leaf: jax.ShapeDtypeStruct((BATCH, *leaf.shape), leaf.dtype), one)
     key = jax.random.key(0)
-    params = _traced(lambda: jax.eval_shape(network.init, key, carry, obs), broken,
+    empty = [jax.tree_util.keystr(path) for path, leaf in jax.tree_util.tree_flatten_with_path(one)[0]
+             if 0 in leaf.shape]
+
+    def broken_reading(problem: str) -> UserCodeError:
+        # A network that reads only modalities this task leaves empty fails inside its layers (a division by a fan-in
+        # of 0, a reshape): name the empty inputs, the likely cause, beside what it raised.
+        if not empty:
+            return broken(problem)
+        return broken(f"{problem}. This task's observation has no values in {', '.join(f'obs{p}' for p in empty)}: "
+                      "a network that reads only those has no input (read the task's other modalities, or "
+                      "switch the sense on in env.options)")
+
+    params = _traced(lambda: jax.eval_shape(network.init, key, carry, obs), broken_reading,
                      "its first call (init) on a batch of observations")
-    output = _traced(lambda: jax.eval_shape(network.apply, params, carry, obs), broken, "its first step")
+    output = _traced(lambda: jax.eval_shape(network.apply, params, carry, obs), broken_reading, "its first step")
     features, value = _returned(output, carry, "after a step", broken)
     if len(features.shape) != 2 or features.shape[0] != BATCH:
         raise broken(f"its policy features for {BATCH} environments have shape {features.shape}: (B, F) is expected")
