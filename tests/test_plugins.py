@@ -226,6 +226,24 @@ def test_a_cell_edited_and_run_again_trains_and_loads_its_new_network_not_the_co
     assert trained("wide") > narrow, "the edited cell's wider network was trained and loaded"
 
 
+def test_a_run_of_a_task_defined_in_a_notebook_says_to_move_it_into_a_module_when_a_command_reads_it(
+        user_code, tmp_path, capsys):
+    """`angora-jax evaluate` of a run whose task a notebook cell registered said to list 'the module' under imports,
+    when there was none: the code lived in the notebook. The run records where its task and network were defined."""
+    exec("from angora_jax.envs import make, register\n"
+         "register('NotebookCartPole', lambda **options: make('CartPole', **options))\n", {"__name__": "__main__"})
+    assert main(["train", "cartpole", *TINY_PPO, "ppo.num_cycles=1", "env.task=NotebookCartPole",
+                 f"logging.run_root={tmp_path}", "logging.run_name=nb", "logging.report=false",
+                 "logging.progress=none"]) == 0
+    TASKS._factories.pop("NotebookCartPole")  # as in a new process: the command's
+    capsys.readouterr()
+    assert main(["evaluate", str(tmp_path / "nb"), "--episodes", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "The run's 'NotebookCartPole' was defined in a notebook or script (__main__.<lambda>) when it trained, " \
+           "which a command cannot import: put that definition in a module file, give it with --import MODULE" in err
+    assert "Traceback" not in err, err
+
+
 # CartPole with one part of its step changed (CHANGE), registered as BrokenCartPole.
 BROKEN_TASK = """
 import jax.numpy as jnp

@@ -46,7 +46,7 @@ from angora_jax.ppo.config import (
 )
 from angora_jax.ppo.memory import estimate_memory
 from angora_jax.ppo.parallel import per_device, resolve_num_devices
-from angora_jax.registry.plugins import ModuleNameError, import_modules
+from angora_jax.registry.plugins import ModuleNameError, defined_in_a_notebook, import_modules
 
 # Named configs (`load_config("cartpole")`) ship inside the package (the repository's configs/ links here), so a
 # name is found from any working directory and in an installed wheel.
@@ -406,7 +406,8 @@ def validate(config: Config, new_run: bool = True) -> Env:
         raise ConfigError(str(error)) from None
     if config.env.task not in list_tasks() and not is_gymnasium(config.env.task):
         raise ConfigError(_unknown("env.task", config.env.task, list_tasks(), "tasks") +
-                          " Any Gymnasium environment: gym:<id>, e.g. gym:LunarLander-v3." + YOUR_OWN)
+                          " Any Gymnasium environment: gym:<id>, e.g. gym:LunarLander-v3." +
+                          (defined_in_a_notebook(config.env.task) or YOUR_OWN))
     _check_options(config.env.options, "env.options")
     try:
         env = make(config.env.task, **config.env.options)
@@ -416,7 +417,8 @@ def validate(config: Config, new_run: bool = True) -> Env:
     except ModuleNotFoundError as error:  # an optional package the task needs (its message names the install)
         raise ConfigError(f"Task {config.env.task!r} cannot be made: {error}") from None
     if config.ppo.network.name not in list_networks():
-        raise ConfigError(_unknown("ppo.network.name", config.ppo.network.name, list_networks(), "networks") + YOUR_OWN)
+        raise ConfigError(_unknown("ppo.network.name", config.ppo.network.name, list_networks(), "networks") +
+                          (defined_in_a_notebook(config.ppo.network.name) or YOUR_OWN))
     check_own_code(config.env.task, config.ppo.network, env)
     try:
         config.ppo.validate_for(env)

@@ -5,7 +5,8 @@
     RUN_DIR/metrics.jsonl         one JSON object per cycle (see `monitor`)
     RUN_DIR/sessions.jsonl        one JSON object per train/resume call: start time and cycle, host, package
                                   versions, devices, the physics it ran on (engine, MJX implementation and why), and
-                                  the file and SHA-256 of each module of its `imports`
+                                  the file and SHA-256 of each module of its `imports`, and where its task and network
+                                  were defined
     RUN_DIR/checkpoints/          Orbax checkpoints, each with its manifest (see `checkpoint`)
     RUN_DIR/writer.lock           the process that trains the run now (see `run_lock`)
     RUN_DIR/metrics.after-cycle-N.jsonl, RUN_DIR/set-aside/, RUN_DIR/previous-N/
@@ -31,7 +32,7 @@ from pathlib import Path
 import yaml
 
 from angora_jax.experiment.config import Config, ConfigError, flatten, load_config, to_dict
-from angora_jax.registry.plugins import module_files, remember_files
+from angora_jax.registry.plugins import module_files, remember_definitions, remember_files
 from angora_jax.saved_files import USE, msgpack_kind
 from angora_jax.whole_files import written_whole
 
@@ -169,6 +170,9 @@ def read_run_config(run_dir: str | Path) -> Config:
     # Where the run found its own modules, so that one not found here (another folder, a moved file) is named with
     # its folder when the config's imports are imported (`plugins.import_modules`).
     remember_files(recorded_import_files(run_dir))
+    remember_definitions({name: where for session in read_sessions(run_dir)
+                          if isinstance(definitions := session.get("definitions"), dict)
+                          for name, where in definitions.items() if isinstance(where, str)})
     return config
 
 

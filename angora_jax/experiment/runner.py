@@ -24,6 +24,7 @@ from jax.experimental import multihost_utils
 
 from angora_jax.envs.core import Env
 from angora_jax.envs.mjx_env import on_gpu
+from angora_jax.envs.registry import TASKS
 from angora_jax.experiment import compilation_cache
 from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, disk_needed, refuse_files_in_place
 from angora_jax.experiment.config import Config, ConfigError, load_config, num_devices, to_dict, validate
@@ -50,10 +51,22 @@ from angora_jax.experiment.run_dir import (
 )
 from angora_jax.experiment.run_lock import RunLock, RunLockedError, release_own_lock
 from angora_jax.experiment.sources import check_sources
+from angora_jax.nets.registry import NETWORKS
 from angora_jax.ppo.cycle import TrainState
 from angora_jax.ppo.parallel import per_device
 from angora_jax.ppo.train import training_cycles
+from angora_jax.registry import definition
 from angora_jax.registry.plugins import module_files
+
+
+def _definitions(config: Config) -> dict[str, str]:
+    """Where the run's task and network were defined (`registry.definition`): recorded so that a command reading the
+    run later says, of a name defined in a notebook (`__main__`), to move it into a module."""
+    found = {}
+    for name, registry in ((config.env.task, TASKS), (config.ppo.network.name, NETWORKS)):
+        if name in registry.names(plugins=False):
+            found[name] = definition(registry.get(name))
+    return found
 
 
 @dataclass
@@ -402,7 +415,8 @@ def _run(
         record_session(run_dir, {"time": time.time(), "start_cycle": start, "num_cycles": config.ppo.num_cycles,
                                  "host": socket.gethostname(),
                                  "processes": jax.process_count(), "devices": devices(), "versions": versions(),
-                                 "physics": physics, "imports": module_files(config.imports)})
+                                 "physics": physics, "imports": module_files(config.imports),
+                                 "definitions": _definitions(config)})
         if ended:
             plan = f"nothing to train (ppo.stop_at ended it at cycle {start})"
         elif finished:

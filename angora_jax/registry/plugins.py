@@ -29,6 +29,9 @@ _loaded = False
 # (`remember_files`): a module not found then is named with that file, so that a command run from another folder, or
 # after the file moved, says which folder to put on PYTHONPATH instead of "/path/to/folder".
 _recorded_files: dict[str, str] = {}
+# Task or network name -> where a run read in this process recorded its definition (`remember_definitions`): a name
+# defined in a notebook (`__main__`) is not found by a command, and its message says to move it into a module.
+_recorded_definitions: dict[str, str] = {}
 
 
 class UserCodeError(ValueError):
@@ -92,6 +95,23 @@ def remember_files(files: dict[str, str]) -> None:
     """Record module name -> file, as a run's session records them (`module_files`), for the message of a module
     that is not found."""
     _recorded_files.update(files)
+
+
+def remember_definitions(definitions: dict[str, str]) -> None:
+    """Record task or network name -> its definition (`registry.definition`), as a run's session records them."""
+    _recorded_definitions.update(definitions)
+
+
+def defined_in_a_notebook(name: str) -> str:
+    """The advice for a task or network `name` that is not registered here when a run read in this process recorded
+    it as defined in `__main__` (a notebook or a script: no command can import it); "" otherwise."""
+    where = _recorded_definitions.get(name, "")
+    if not where.startswith("__main__."):
+        return ""
+    return (f" The run's {name!r} was defined in a notebook or script ({where}) when it trained, which a command "
+            "cannot import: put that definition in a module file, give it with --import MODULE (its folder on "
+            "PYTHONPATH), and list it under imports in later configs; in the notebook that defined it, "
+            "aj.load_agent and aj.evaluate work as they are.")
 
 
 def _root(name: str, file: Path) -> Path:
