@@ -269,6 +269,7 @@ register("BrokenCartPole", BrokenCartPole)
     ("info = {**info, 'timer': reward}",
      "its info after _step differs from _reset's (keys [] before, ['timer'] after)"),
     ("reward = 1 / 0", "its _step (given an action of shape ()) raised ZeroDivisionError: division by zero"),
+    ("raise ValueError('goal out of range.')", "raised ValueError: goal out of range.\n"),  # one full stop
 ])
 def test_a_task_that_breaks_its_contract_exits_2_naming_the_part_before_anything_compiles(
         change, message, user_code, tmp_path, capsys):

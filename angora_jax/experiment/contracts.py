@@ -47,7 +47,7 @@ def check_task(env: Env, name: str) -> None:
     `metric_names`, or state (physics, observation, info) that changes its shapes from reset to step."""
 
     def broken(problem: str) -> UserCodeError:
-        return UserCodeError(f"{name} breaks the task contract ({TASK_CONTRACT}): {problem}.")
+        return UserCodeError(f"{name} breaks the task contract ({TASK_CONTRACT}): {problem.rstrip('.')}.")
 
     for attribute, what in (("action_spec", "an ActionSpec: the actions' bounds, or their number"),
                             ("max_episode_steps", "the policy steps per episode"),
@@ -97,7 +97,7 @@ def check_network(builder: Callable[[NetworkSettings], Any], settings: NetworkSe
     `(B, F)`, a value that is not `(B,)`, or policy features that read `obs.asymmetric`."""
 
     def broken(problem: str) -> UserCodeError:
-        return UserCodeError(f"{name} breaks the network contract ({NETWORK_CONTRACT}): {problem}.")
+        return UserCodeError(f"{name} breaks the network contract ({NETWORK_CONTRACT}): {problem.rstrip('.')}.")
 
     network = _traced(lambda: builder(settings), broken, "its builder, called with the run's ppo.network section,")
 
@@ -126,7 +126,8 @@ def check_network(builder: Callable[[NetworkSettings], Any], settings: NetworkSe
         # of 0, a reshape): name the empty inputs, the likely cause, beside what it raised.
         if not empty:
             return broken(problem)
-        return broken(f"{problem}. This task's observation has no values in {', '.join(f'obs{p}' for p in empty)}: "
+        inputs = ", ".join(f"obs{path}" for path in empty)
+        return broken(f"{problem.rstrip('.')}. This task's observation has no values in {inputs}: "
                       "a network that reads only those has no input (read the task's other modalities, or "
                       "switch the sense on in env.options)")
 
