@@ -86,6 +86,14 @@ def resolve_num_devices(setting: int | str) -> int:
         return available
     if isinstance(setting, bool) or not isinstance(setting, int) or setting < 1:
         raise ValueError(f"distribution.num_devices must be a positive integer or 'all', got {setting!r}.")
+    if jax.process_count() > 1 and setting != available:
+        # Under jax.distributed each process would otherwise train alone on its first devices and write the same run
+        # directory: the others' devices are not in its mesh, and the first checkpoint fails to save their arrays.
+        raise ValueError(
+            f"distribution.num_devices={setting} in a jax.distributed job of {jax.process_count()} processes, which "
+            f"has {available} devices: every process trains on all of them, so set distribution.num_devices=all (a "
+            "run being resumed: that line of RUN_DIR/config.yaml), or train without --distributed."
+        )
     if setting > available:
         raise ValueError(
             f"distribution.num_devices={setting} but JAX sees only {available} device(s) ({jax.devices()}); use "
