@@ -9,9 +9,14 @@ into one decision.
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -71,6 +76,30 @@ def shared_run_dir(config: Config, create: Callable[[Config], Path]) -> Path:
     if agree_to_stop(None, failure is not None).failed:
         raise failure or RunDirError(f"Process 0 could not create the run directory {path}; its output says why.")
     return path
+
+
+def agree_on_settings(settings: dict[str, Any], fix: str) -> None:
+    """ConfigError on every process unless every process of the job was given the same `settings` (the same keys on
+    all; values that JSON writes, or their str). Nothing checks this otherwise: processes started with other overrides
+    would train one run with, e.g., two discount factors while config.yaml records process 0's, and processes given
+    other run names wait for each other's checkpoint folders (orbax gives up after 10 minutes, and then the job still
+    hangs). One tiny all-gather of a 32-bit digest per key; `fix` ends the message. Every process must call it at the
+    same point."""
+    if jax.process_count() == 1:
+        return
+    keys = sorted(settings)
+    digests = np.array([int.from_bytes(hashlib.sha256(json.dumps(settings[key], sort_keys=True, default=str)
+                                                      .encode()).digest()[:4], "little", signed=True) for key in keys],
+                       np.int32)
+    gathered = multihost_utils.process_allgather(digests)
+    differ = [i for i in range(len(gathered)) if not np.array_equal(gathered[i], gathered[0])]
+    if differ:
+        which = sorted({keys[k] for i in differ for k in np.flatnonzero(gathered[i] != gathered[0])})
+        raise ConfigError(
+            f"The {jax.process_count()} processes of this jax.distributed job were not given the same settings: "
+            f"process(es) {', '.join(map(str, differ))} differ from process 0 in {', '.join(which)} (this process "
+            f"is process {jax.process_index()}). {fix}"
+        )
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,13 @@ from angora_jax.experiment import compilation_cache
 from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, disk_needed, refuse_files_in_place
 from angora_jax.experiment.config import Config, ConfigError, load_config, num_devices, to_dict, validate
 from angora_jax.experiment.cpu_sizing import cpu_note
-from angora_jax.experiment.distributed import ProcessFailed, agree_to_stop, is_main_process, shared_run_dir
+from angora_jax.experiment.distributed import (
+    ProcessFailed,
+    agree_on_settings,
+    agree_to_stop,
+    is_main_process,
+    shared_run_dir,
+)
 from angora_jax.experiment.doctor import devices, versions
 from angora_jax.experiment.held_out import held_out_evaluation
 from angora_jax.experiment.monitor import Monitor, ended_by_stop_at, logged_cycles, set_aside_after, stop_at_pool
@@ -138,6 +144,11 @@ def train(
         config = load_config(config, overrides)
     elif overrides:
         raise ValueError("Overrides apply to a config loaded from a file or dict; change a Config with replace().")
+    # Per key one level into each section (the dataclass fields, the same on every process), so the message names it.
+    agree_on_settings({f"{section}.{key}" if key else section: value for section, values in to_dict(config).items()
+                       for key, value in (values.items() if isinstance(values, dict) else [("", values)])},
+                      "Start every process with the same command: the same CONFIG, KEY=VALUE overrides and "
+                      "logging.run_name (examples/slurm_train.sh, examples/multi_gpu_host.sh).")
     env = validate(config)
     check_sources(config, env)
     lock = None
@@ -204,6 +215,10 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     """
     compilation_cache.enable()
     run_dir = Path(run_dir)
+    agree_on_settings({"RUN_DIR": str(run_dir.absolute()), "--from": start_from, "--from-scratch": from_scratch,
+                       "--num-cycles": num_cycles, "--no-stop-at": no_stop_at, "--exact": exact, "--force": force},
+                      f"Start every process with the same command: angora-jax resume {run_dir} --distributed, with "
+                      "the same options.")
     config = on_disk = read_run_config(run_dir)
     before = config.ppo
     if num_cycles is not None:
