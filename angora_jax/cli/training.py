@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 
 from angora_jax.cli.arguments import (
     EXIT_OK,
@@ -80,6 +81,11 @@ def add_check(commands: argparse._SubParsersAction) -> None:
 
 def start_distributed(args: argparse.Namespace) -> None:
     if args.distributed:
+        # JAX waits silently (5 minutes, then an abort) for processes that never join: say what is waited for.
+        where = args.coordinator or "the cluster's coordinator"
+        of = f"process {args.process_id} of {args.num_processes}" if args.num_processes is not None else "a process"
+        print(f"Joining the jax.distributed job at {where} as {of} (JAX waits up to 5 minutes for all of them) ...",
+              file=sys.stderr, flush=True)
         try:
             initialize(args.coordinator, args.num_processes, args.process_id, args.local_devices)
         except ValueError as error:  # JAX's checks of the job's settings, before it connects to anything

@@ -34,7 +34,7 @@ import orbax.checkpoint as ocp
 
 from angora_jax.experiment.config import CHECKPOINT_KINDS as KINDS
 from angora_jax.experiment.config import CheckpointConfig
-from angora_jax.experiment.distributed import is_main_process
+from angora_jax.experiment.distributed import LOST_PEER, is_main_process
 from angora_jax.experiment.manifest import MANIFEST_FILE, verify, write_manifest
 from angora_jax.experiment.run_dir import NO_ROOM, DiskFullError, RunDirError, is_disk_full, no_room
 from angora_jax.ppo.episode_pool import Pool, compared_value
@@ -540,7 +540,10 @@ def improves(value: float, best: float | None, mode: str) -> bool:
 
 # What Orbax's and TensorStore's writer threads print when a save fails, each thread for itself and some after the save
 # has raised (their callbacks find the save's event loop closed): the failure, which the save raises once anyway.
-_ECHOES = (*(words for words, *_ in NO_ROOM.values()), "Event loop is closed", "RESOURCE_EXHAUSTED")
+# A process of a multi-process run killed mid-save: the others' writer threads time out at Orbax's commit barrier
+# (their echo), and the process stops with the CLI's one message (distributed.lost_process_exit).
+_ECHOES = (*(words for words, *_ in NO_ROOM.values()), "Event loop is closed", "RESOURCE_EXHAUSTED",
+           "async_write_complete", *LOST_PEER)
 
 
 def _mid_removal(record: logging.LogRecord) -> bool:

@@ -136,3 +136,31 @@ class ProcessFailed(RuntimeError):
             "the error), so this process stops too, without a checkpoint of that cycle; after fixing the cause, "
             f"continue with: angora-jax resume {run_dir} --distributed"
         )
+
+
+# Exit code 1, the CLI's EXIT_FAILED (another process of the run failed); not imported: the CLI imports this module.
+EXIT_FAILED = 1
+
+# How a collective fails, on CPU (gloo) and GPUs (NCCL), when another process of the job is gone.
+LOST_PEER = ("Gloo", "Connection closed by peer", "Connection reset by peer", "NCCL", "heartbeat")
+
+
+def lost_process_cause(error: BaseException) -> str | None:
+    """The first line of `error` when it says that a collective of a multi-process job lost a process (else None)."""
+    text = str(error)
+    if jax.process_count() == 1 or not any(marker in text for marker in LOST_PEER):
+        return None
+    return text.splitlines()[0][:300]
+
+
+def lost_process_exit(cause: str) -> None:
+    """Say that another process of the job is gone and end this one with exit code 1 at once. os._exit, because an
+    ordinary exit runs jax.distributed's shutdown, which waits for the gone process until the heartbeat timeout and
+    then aborts with a C++ stack trace (exit 134); nothing is left to save, as no collective can finish without it."""
+    print(f"angora-jax: Another process of this jax.distributed job is gone ({cause}): it was killed (kill -9, out of "
+          "memory, a lost node; its output or the scheduler's log says which) or cannot reach this one. This process "
+          "cannot go on without it and stops too, without a checkpoint of the cycle in progress; the checkpoints "
+          "saved before are intact. Continue with every process: angora-jax resume RUN_DIR --distributed",
+          file=sys.stderr, flush=True)
+    sys.stdout.flush()
+    os._exit(EXIT_FAILED)
