@@ -10,6 +10,7 @@ import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import jax
@@ -19,9 +20,10 @@ from quick_compile import QUICK_SUBPROCESS
 from tiny import TINY_PPO
 
 import angora_jax as aj
-from angora_jax.experiment import Checkpoints, read_metrics, resume, runner
+from angora_jax.experiment import Checkpoints, ConfigError, distributed, read_metrics, resume, runner
 from angora_jax.experiment.distributed import ProcessFailed, StopDecision
 from angora_jax.experiment.run_dir import CHECKPOINTS
+from angora_jax.ppo import parallel
 
 TESTS = Path(__file__).resolve().parent
 BENCHMARKS = TESTS.parent / "benchmarks"
@@ -130,3 +132,79 @@ def test_scaling_benchmark_runs_one_and_two_devices_at_smoke_size(tmp_path, weak
         assert double["max_param_difference"] < 1e-5
         np.testing.assert_allclose(list(double["final"].values()), list(single["final"].values()), rtol=1e-5,
                                    atol=1e-5)
+
+
+def _free_address() -> str:
+    with socket.socket() as probe:  # a free port for the coordinator
+        probe.bind(("localhost", 0))
+        return f"localhost:{probe.getsockname()[1]}"
+
+
+def _two_cli_processes(tmp_path: Path, overrides: list[list[str]]) -> list[subprocess.Popen]:
+    """`angora-jax train cartpole --distributed` as processes 0 and 1 of one localhost job, one CPU device each,
+    process i with `overrides[i]` after the shared tiny settings."""
+    address = _free_address()
+    shared = [*TINY_PPO, "ppo.num_envs=8", "ppo.minibatch_size=64", "logging.progress=none", "logging.report=false",
+              f"logging.run_root={tmp_path}"]
+    return [subprocess.Popen(
+        [sys.executable, "-m", "angora_jax.cli", "train", "cartpole", "--distributed", "--coordinator", address,
+         "--num-processes", "2", "--process-id", str(index), *shared, *overrides[index]],
+        cwd=TESTS, env=os.environ | QUICK_SUBPROCESS, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for index in range(2)]
+
+
+@pytest.mark.slow
+def test_processes_started_with_other_settings_exit_2_naming_the_key_before_making_a_run_directory(tmp_path):
+    # Before: process 1's ppo.gamma=0.9 trained silently into a run whose config.yaml says 0.99, and processes given
+    # other run names waited for each other's checkpoint folders past orbax's 10 minutes.
+    processes = _two_cli_processes(tmp_path, [["distribution.num_devices=all", "logging.run_name=one"],
+                                              ["distribution.num_devices=all", "logging.run_name=two",
+                                               "ppo.gamma=0.9"]])
+    outputs = [process.communicate(timeout=180) for process in processes]
+    assert [process.returncode for process in processes] == [2, 2], [err[-2000:] for _, err in outputs]
+    for index, (_, err) in enumerate(outputs):
+        assert "Traceback" not in err
+        assert (f"process(es) 1 differ from process 0 in logging.run_name, ppo.gamma (this process is process {index})"
+                in err and "the same CONFIG, KEY=VALUE overrides and logging.run_name" in err)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_agree_on_settings_names_the_keys_another_process_was_given_otherwise(monkeypatch):
+    # What the all-gather returns when process 1 has another value of "b" (the real one: the test above).
+    monkeypatch.setattr(distributed.jax, "process_count", lambda: 2)
+    monkeypatch.setattr(distributed.multihost_utils, "process_allgather",
+                        lambda digests: np.stack([digests, digests + np.array([0, 1, 0], np.int32)]))
+    with pytest.raises(ConfigError, match=r"process\(es\) 1 differ from process 0 in b \(this process is process 0\)"):
+        distributed.agree_on_settings({"c": [3], "a": 1, "b": "x"}, "fix")
+    monkeypatch.setattr(distributed.multihost_utils, "process_allgather", lambda digests: np.stack([digests] * 2))
+    distributed.agree_on_settings({"c": [3], "a": 1, "b": "x"}, "fix")
+
+
+def test_a_multi_process_job_needs_num_devices_all(monkeypatch):
+    # Before: with the default num_devices=1 each process trained alone on its own device into one run directory,
+    # and the first checkpoint failed with orbax's traceback ("Cannot serialize host local jax.Array").
+    monkeypatch.setattr(parallel.jax, "process_count", lambda: 2)
+    monkeypatch.setattr(parallel.jax, "device_count", lambda: 4)  # 2 devices per process
+    for setting in (1, 2):
+        with pytest.raises(ValueError, match=rf"num_devices={setting} in a jax.distributed job of 2 processes, which "
+                                             r"has 4 devices.*num_devices=all"):
+            parallel.resolve_num_devices(setting)
+    assert parallel.resolve_num_devices("all") == parallel.resolve_num_devices(4) == 4
+
+
+@pytest.mark.slow
+def test_a_process_killed_mid_run_ends_the_other_with_exit_1_and_a_message_not_a_traceback(tmp_path):
+    # Before: the survivor printed the Gloo all-gather's ValueError with a traceback, waited out the heartbeat
+    # timeout at jax.distributed's shutdown and aborted (exit 134, a C++ stack trace).
+    processes = _two_cli_processes(tmp_path, [["distribution.num_devices=all", "logging.run_name=killed",
+                                               "ppo.num_cycles=100000"]] * 2)
+    metrics = tmp_path / "killed" / "metrics.jsonl"
+    deadline = time.monotonic() + 240
+    while not (metrics.exists() and len(metrics.read_text().splitlines()) >= 2) and time.monotonic() < deadline:
+        time.sleep(0.5)
+    processes[1].kill()
+    _, err = processes[0].communicate(timeout=120)
+    processes[1].communicate()
+    assert processes[0].returncode == 1, err[-3000:]
+    assert "Traceback" not in err and "Check failure" not in err, err[-6000:]
+    assert "Another process of this jax.distributed job is gone" in err and "resume RUN_DIR --distributed" in err
