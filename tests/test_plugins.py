@@ -70,6 +70,14 @@ def forget(module: str, network: str) -> None:
     NETWORKS._factories.pop(network)
 
 
+def trained_with(module: str, tmp_path: Path) -> Path:
+    """tmp_path/r: a one-cycle CartPole run of the user's `user_simple` network, which `module` registers."""
+    assert main(["train", "cartpole", *TINY_PPO, "ppo.num_cycles=1", "ppo.network.name=user_simple",
+                 f"logging.run_root={tmp_path}", "logging.run_name=r", "logging.report=false",
+                 "logging.progress=none", "--import", module]) == 0
+    return tmp_path / "r"
+
+
 def test_the_config_key_and_the_option_import_user_code_and_config_show_lists_both(user_code, tmp_path, capsys):
     task, network = user_code("user_task_a", USER_TASK), user_code("user_net_a", USER_NETWORK)
     config = tmp_path / "user.yaml"
@@ -82,10 +90,7 @@ def test_the_config_key_and_the_option_import_user_code_and_config_show_lists_bo
 
 def test_a_run_records_its_imports_and_resume_and_evaluate_import_them_again(user_code, tmp_path, capsys):
     module = user_code("user_net_b", USER_NETWORK)
-    run_dir = tmp_path / "r"
-    assert main(["train", "cartpole", *TINY_PPO, "ppo.num_cycles=1", "ppo.network.name=user_simple",
-                 f"logging.run_root={tmp_path}", "logging.run_name=r", "logging.report=false",
-                 "logging.progress=none", "--import", module]) == 0
+    run_dir = trained_with(module, tmp_path)
     assert read_run_config(run_dir).imports == (module,)
     forget(module, "user_simple")
     assert main(["resume", str(run_dir)]) == 0, "a finished run, loaded with its network"
@@ -106,10 +111,7 @@ def test_a_run_s_module_not_found_is_named_with_the_folder_it_was_imported_from(
     """Own-task trial: a run trained with PYTHONPATH=. and evaluated from another folder, or after its module moved,
     was told only "Put the folder that holds it on PYTHONPATH (e.g. PYTHONPATH=/path/to/folder ...)"."""
     module = user_code("user_net_moved", USER_NETWORK)
-    run_dir = tmp_path / "r"
-    assert main(["train", "cartpole", *TINY_PPO, "ppo.num_cycles=1", "ppo.network.name=user_simple",
-                 f"logging.run_root={tmp_path}", "logging.run_name=r", "logging.report=false",
-                 "logging.progress=none", "--import", module]) == 0
+    run_dir = trained_with(module, tmp_path)
     capsys.readouterr()
     folder = tmp_path / "user_code"
     # A new process, from another folder: the module's folder is not on its path.
@@ -135,10 +137,7 @@ def test_a_checkpoint_that_no_longer_fits_its_edited_own_code_names_the_module_n
     """Own-task trial: the run's module edited after training (an observation widened), evaluate and resume said
     "the run's config.yaml (ppo.network, env) was changed after training. Restore the config", which was not."""
     module = user_code("user_net_edited", USER_NETWORK)
-    run_dir = tmp_path / "r"
-    assert main(["train", "cartpole", *TINY_PPO, "ppo.num_cycles=1", "ppo.network.name=user_simple",
-                 f"logging.run_root={tmp_path}", "logging.run_name=r", "logging.report=false",
-                 "logging.progress=none", "--import", module]) == 0
+    run_dir = trained_with(module, tmp_path)
     capsys.readouterr()
     forget(module, "user_simple")
     # A new process would have no programs or acting parts made for the module as it was.
