@@ -28,6 +28,7 @@ import shutil
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -169,20 +170,28 @@ def read_run_config(run_dir: str | Path) -> Config:
         raise RunDirError(f"{path} does not load with this version of angora_jax: {error}{copy}") from None
     # Where the run found its own modules, so that one not found here (another folder, a moved file) is named with
     # its folder when the config's imports are imported (`plugins.import_modules`).
-    remember_files(recorded_import_files(run_dir))
-    remember_definitions({name: where for session in read_sessions(run_dir)
-                          if isinstance(definitions := session.get("definitions"), dict)
-                          for name, where in definitions.items() if isinstance(where, str)})
+    sessions = read_sessions(run_dir)
+    remember_files({name: entry["file"] for name, entry in _recorded(sessions, "imports").items()
+                    if isinstance(entry, dict) and isinstance(entry.get("file"), str)})
+    remember_definitions({name: where for name, where in _recorded(sessions, "definitions").items()
+                          if isinstance(where, str)})
     return config
+
+
+def _recorded(sessions: list[dict], key: str) -> dict[str, Any]:
+    """Name -> the latest record of it under the sessions' `key` ("imports": a module's file and SHA-256;
+    "definitions": where a task or network was defined); runs made before sessions recorded them: {}."""
+    found: dict[str, Any] = {}
+    for session in sessions:
+        if isinstance(entries := session.get(key), dict):
+            found.update(entries)
+    return found
 
 
 def changed_imports(run_dir: str | Path) -> list[str]:
     """The modules of the run's imports, as imported in this process, whose file is not the one the run's latest
     session recorded (another path, or the same path edited since: another SHA-256), as "name (file)"."""
-    recorded: dict[str, dict] = {}
-    for session in read_sessions(run_dir):
-        if isinstance(session.get("imports"), dict):
-            recorded = session["imports"]
+    recorded = _recorded(read_sessions(run_dir), "imports")
     now = module_files(recorded)
     return [f"{name} ({now[name]['file']})" for name, entry in recorded.items()
             if name in now and isinstance(entry, dict)
@@ -200,18 +209,6 @@ def own_code_misfit(run_dir: str | Path, misfits: str) -> str | None:
             f"{', '.join(changed)} changed since the run last trained (sessions.jsonl records the file and SHA-256 "
             "each session imported). Put back the version it trained with (e.g. from version control) to evaluate "
             "or resume it; to train the edited task or network, start a new run: angora-jax train CONFIG.")
-
-
-def recorded_import_files(run_dir: str | Path) -> dict[str, str]:
-    """Module name -> the file it was imported from, as the run's latest session that recorded it says (runs made
-    before sessions recorded them: {})."""
-    files: dict[str, str] = {}
-    for session in read_sessions(run_dir):
-        imports = session.get("imports")
-        if isinstance(imports, dict):
-            files.update({name: entry["file"] for name, entry in imports.items()
-                          if isinstance(entry, dict) and isinstance(entry.get("file"), str)})
-    return files
 
 
 # Files the commands write that a user may give where a run directory belongs: what each is, and what to do instead.
