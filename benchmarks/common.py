@@ -228,10 +228,11 @@ def fresh_stem(stem: str, suffixes: tuple[str, ...]) -> tuple[str, bool]:
 
 
 def write_json(stem: str, record: dict, suffixes: tuple[str, ...] = (".json",), indent: int | None = 2) -> str:
-    """Write `record` to `fresh_stem(stem, suffixes)` + ".json" and return that stem (the caller writes its other
-    files, e.g. the figure, under it). The first write in a process refuses a file made meanwhile by another run."""
+    """Write `record` to `fresh_stem(stem, suffixes)` + `suffixes[0]` (the JSON's suffix, as asked) and return that
+    stem (the caller writes its other files, e.g. the figure, under it). The first write in a process refuses a file
+    made meanwhile by another run."""
     chosen, before = fresh_stem(stem, suffixes)
-    with open(chosen + ".json", "w" if before else "x") as file:
+    with open(chosen + suffixes[0], "w" if before else "x") as file:
         json.dump(record, file, indent=indent)
     return chosen
 

@@ -604,3 +604,8 @@ def test_a_benchmark_never_replaces_an_existing_result(tmp_path, monkeypatch):
     monkeypatch.setattr(common, "_CHOSEN", {})  # another process
     assert common.write_results("x", {}, [], str(out), study="test") == str(tmp_path / "result-3.json")
     assert out.read_text() == "committed"
+    # An --out with another suffix, or none, is written where asked: not beside it as .json.
+    for asked in ("rows.txt", "rows"):
+        written = common.write_results("x", {}, [{"run": 1}], str(tmp_path / asked), study="test")
+        assert written == str(tmp_path / asked)
+        assert json.loads((tmp_path / asked).read_text())["results"] == [{"run": 1}]
