@@ -24,8 +24,9 @@
 #   STAGE2_MINUTES    of 45 minutes reaches on one H200, so the minutes end each stage (5); a ppo.num_cycles override
 #                     caps both
 #   CHECKPOINT        the checkpoint of a stage carried on: stage 2 starts from stage 1's, and stage 2's is evaluated
-#                     and recorded (best: by checkpoint.best_metric, metric/success for myohand_pose, so while no
-#                     episode has succeeded it is the first cycle that ended episodes; latest then)
+#                     and recorded (latest; best is by checkpoint.best_metric, metric/success for myohand_pose, so
+#                     while no episode has succeeded it stays at the first cycle that ended episodes: on a GPU a
+#                     stage 1 that never succeeded handed its cycle 1 of 227 to stage 2 that way)
 #   EPISODES          evaluation episodes (480); EVALUATE_OPTIONS: more `angora-jax evaluate` options, e.g.
 #                     "--workers 8" or "--path batched"
 #   RECORD_EPISODES   episodes recorded for the analyses (64; at least 5, the analyses' folds)
@@ -47,7 +48,7 @@ CONFIG=${CONFIG:-myohand_pose}
 SPREAD=${SPREAD:-0.4}
 STAGE1_MINUTES=${STAGE1_MINUTES:-5}
 STAGE2_MINUTES=${STAGE2_MINUTES:-5}
-CHECKPOINT=${CHECKPOINT:-best}
+CHECKPOINT=${CHECKPOINT:-latest}
 EPISODES=${EPISODES:-480}
 RECORD_EPISODES=${RECORD_EPISODES:-64}
 read -r -a evaluate_options <<< "${EVALUATE_OPTIONS:-}"

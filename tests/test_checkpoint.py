@@ -527,19 +527,41 @@ def test_after_a_failed_read_the_closed_event_loop_reports_are_dropped_and_other
     assert reported == ["another failure"]
 
 
-def test_a_best_checkpoint_from_the_first_half_of_the_run_is_named_when_an_agent_is_loaded(runs, tmp_path, capsys):
-    """A best metric that never rose (a success rate of 0 in a short CPU run) keeps cycle 1 as best: record, ablate and
-    dynamics then probed the untrained network, saying nothing (a user's trial of the probing page)."""
-    run = tmp_path / "early"
-    shutil.copytree(runs[0].run_dir, run)
+def early_best_run(source: Path, run: Path) -> Path:
+    """A copy of the 4-cycle run `source` whose best checkpoint is cycle 2 (its snapshot), as a best metric that
+    never rose keeps an early cycle."""
+    shutil.copytree(source, run)
     shutil.rmtree(run / CHECKPOINTS / "best")
     (run / CHECKPOINTS / "best").mkdir()
     shutil.copytree(run / CHECKPOINTS / "snapshots" / "2", run / CHECKPOINTS / "best" / "2")
+    return run
+
+
+def test_a_best_checkpoint_from_the_first_half_of_the_run_is_named_when_an_agent_is_loaded(runs, tmp_path, capsys):
+    """A best metric that never rose (a success rate of 0 in a short CPU run) keeps cycle 1 as best: record, ablate and
+    dynamics then probed the untrained network, saying nothing (a user's trial of the probing page)."""
+    run = early_best_run(runs[0].run_dir, tmp_path / "early")
     assert aj.load_agent(run).cycle == 2
     err = capsys.readouterr().err
     assert f"Note: the best checkpoint of {run} is cycle 2, from the first half of its 4 cycles" in err, err
     assert "--checkpoint latest; in Python checkpoint='latest') holds cycle 4" in err
     assert aj.load_agent(run, "latest").cycle == 4 and capsys.readouterr().err == ""
+
+
+def test_a_run_started_from_an_early_best_is_told_once_how_to_start_from_the_latest(runs, tmp_path, capsys):
+    """`ppo.init_from=RUN` reads RUN's best checkpoint. A MyoHandPose curriculum on a GPU handed stage 2 stage 1's
+    cycle 1 of 227 (no episode had succeeded, so best stayed at cycle 1): the note said `--checkpoint latest`, which
+    `init_from` has no use for, and came twice (the check before compiling, then the start)."""
+    from angora_jax.experiment.agent import saved_policy
+
+    run = early_best_run(runs[0].run_dir, tmp_path / "early")
+    saved_policy(str(run))
+    saved_policy(str(run))
+    err = capsys.readouterr().err
+    assert err.count(f"Note: the best checkpoint of {run} is cycle 2, from the first half of its 4 cycles") == 1, err
+    assert f"The latest checkpoint (name it as {run}:latest, e.g. ppo.init_from={run}:latest) holds cycle 4" in err
+    saved_policy(f"{run}:latest")
+    assert capsys.readouterr().err == ""
 
 
 def test_a_reader_opens_a_run_whose_writer_removes_a_step_while_orbax_lists_them(runs, monkeypatch):

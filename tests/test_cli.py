@@ -602,7 +602,7 @@ def run_curriculum(arguments: list[str], cwd: Path, path: str, **environment: st
 @pytest.mark.slow
 def test_the_myohand_pose_curriculum_trains_two_stages_then_evaluates_records_and_analyzes(tmp_path):
     """examples/myohand_pose_curriculum.sh on the CPU, shrunk (TINY_POSE; 3 evaluation and 5 recorded episodes; about
-    70 s of CPU): stage 1's config.yaml holds start_spread 0.4, stage 2's 1.0 and stage 1's best checkpoint as
+    70 s of CPU): stage 1's config.yaml holds start_spread 0.4, stage 2's 1.0 and stage 1's latest checkpoint as
     init_from; the evaluation JSON (of start_spread 1), the recording and both analyses' numbers exist, parse and are
     printed where they went. Run again on the same ROOT it exits 2 naming the existing run, and changes nothing."""
     pytest.importorskip("myo_sim")
@@ -615,7 +615,7 @@ def test_the_myohand_pose_curriculum_trains_two_stages_then_evaluates_records_an
     assert done.returncode == 0, done.stderr[-3000:]
     first, second = (load_config(root / stage / "config.yaml") for stage in ("stage1", "stage2"))
     assert first.env.options["start_spread"] == 0.4 and first.ppo.init_from is None
-    assert second.env.options["start_spread"] == 1.0 and second.ppo.init_from == f"{root / 'stage1'}:best"
+    assert second.env.options["start_spread"] == 1.0 and second.ppo.init_from == f"{root / 'stage1'}:latest"
     assert [[record["cycle"] for record in read_metrics(root / stage)] for stage in ("stage1", "stage2")] == [[1], [1]]
     (evaluation,) = (root / "stage2" / "evaluation").glob("*.json")
     record = json.loads(evaluation.read_text())

@@ -148,6 +148,13 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
     Raises:
         CheckpointError: the parameters do not fit the config's network.
     """
+    agent, latest = _restore_agent(run_dir, checkpoint, env_overrides)
+    _note_early_best(run_dir, checkpoint, agent, latest, "--checkpoint latest; in Python checkpoint='latest'")
+    return agent
+
+
+def _restore_agent(run_dir: str | Path, checkpoint: str | int, env_overrides: Sequence[str]) -> tuple[Agent, int]:
+    """`load_agent`'s agent, and the cycle of the run's latest checkpoint (0 when it keeps none)."""
     config = _seeing_as_trained(read_run_config(run_dir), run_dir)
     if env_overrides:
         for override in env_overrides:
@@ -178,13 +185,23 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
         latest = max(checkpoints.steps("latest"), default=0)
     finally:
         checkpoints.close()
-    if which == "best" and int(state.cycle) <= latest / 2:
-        # Probing an early network unawares: a best metric that never rose (a success rate of 0) keeps cycle 1.
-        print(f"Note: the best checkpoint of {run_dir} is cycle {int(state.cycle)}, from the first half of its "
-              f"{latest} cycles: its {config.checkpoint.best_metric} was not beaten after it (one that never rose "
-              f"keeps an early cycle). The latest checkpoint (--checkpoint latest; in Python checkpoint='latest') "
-              f"holds cycle {latest}.", file=sys.stderr, flush=True)
-    return Agent(config, env, network, head, state, int(state.cycle), compiled)
+    return Agent(config, env, network, head, state, int(state.cycle), compiled), latest
+
+
+_noted_early_best: set[tuple[str, int]] = set()
+
+
+def _note_early_best(run_dir: str | Path, checkpoint: str | int, agent: Agent, latest: int, how: str) -> None:
+    """Once per run and cycle in a process: a note when the best checkpoint read is from the first half of the run
+    (`how` names the way to read the latest instead)."""
+    key = (str(Path(run_dir).resolve()), agent.cycle)
+    if read_checkpoint(run_dir, checkpoint) != "best" or agent.cycle > latest / 2 or key in _noted_early_best:
+        return
+    _noted_early_best.add(key)
+    # Using an early network unawares: a best metric that never rose (a success rate of 0) keeps cycle 1.
+    print(f"Note: the best checkpoint of {run_dir} is cycle {agent.cycle}, from the first half of its {latest} "
+          f"cycles: its {agent.config.checkpoint.best_metric} was not beaten after it (one that never rose keeps an "
+          f"early cycle). The latest checkpoint ({how}) holds cycle {latest}.", file=sys.stderr, flush=True)
 
 
 def read_checkpoint(run_dir: str | Path, checkpoint: str | int) -> str | int:
@@ -213,7 +230,9 @@ def saved_policy(source: str | Path) -> PolicyState:
     if not Path(run_dir).is_dir():
         raise FileNotFoundError(f"{str(source)!r} is neither a file nor a run directory: it does not exist. Give a "
                                 "component file, or a run as RUN_DIR[:best|latest|<cycle>].")
-    return load_agent(run_dir, which).state
+    agent, latest = _restore_agent(run_dir, which, ())
+    _note_early_best(run_dir, which, agent, latest, f"name it as {run_dir}:latest, e.g. ppo.init_from={run_dir}:latest")
+    return agent.state
 
 
 register_run_reader(saved_policy)
