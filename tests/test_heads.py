@@ -79,6 +79,31 @@ def test_gaussian_log_prob_matches_scipy_and_std_is_state_independent():
     np.testing.assert_allclose(out[0, 3:], np.full(3, -0.5))
 
 
+@pytest.mark.parametrize("init_mean", [0.5, 0.1, 0.02, 0.9])
+def test_the_beta_heads_initial_policy_has_the_mean_asked_for_and_stays_unimodal(init_mean):
+    """`ppo.beta_init_mean`: the output layer's bias puts the untrained policy's mean action at that fraction of each
+    range (a muscle hand started at 0.5 on every excitation co-contracts), with alpha and beta above 1."""
+    head = make_head("beta", BOX, init_mean=init_mean)
+    module = head.module()
+    variables = module.init(jax.random.key(0), jnp.zeros((2, 16)))
+    params = module.apply(variables, jax.random.normal(jax.random.key(1), (BATCH, 16)))
+    alpha, beta = np.split(np.logaddexp(0.0, np.asarray(params, np.float64)) + 1.0, 2, axis=-1)
+    assert (alpha > 1).all() and (beta > 1).all()
+    # The kernel starts at 0.01 scale, so the features move the mean by well under a percent of the range.
+    np.testing.assert_allclose(alpha / (alpha + beta), init_mean, rtol=0.02)
+    low, high = np.asarray(LOW), np.asarray(HIGH)
+    samples = jax.vmap(lambda key: head.sample(params, key))(jax.random.split(jax.random.key(2), 64))
+    np.testing.assert_allclose(((np.asarray(samples) - low) / (high - low)).mean(), init_mean, atol=0.01)
+    if init_mean == 0.5:  # the middle is the zero bias that the head always had
+        np.testing.assert_array_equal(variables["params"]["bias"], 0.0)
+
+
+def test_the_configs_beta_init_mean_reaches_the_head():
+    from angora_jax.ppo.cycle import build_head
+
+    assert build_head(Pendulum(), PPOConfig(head="beta", beta_init_mean=0.1)).init_mean == 0.1
+
+
 def test_beta_log_prob_and_entropy_match_scipy_scaled_to_bounds():
     head = make_head("beta", BOX)
     params = random_params(head)

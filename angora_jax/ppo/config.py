@@ -317,6 +317,8 @@ class PPOConfig:
         normalize_advantages: standardise the advantages of each minibatch (mean 0, std 1).
         bins: bins per action dimension of the multicategorical head.
         init_log_std: initial log standard deviation of the Gaussian head.
+        beta_init_mean: the Beta head's initial mean action, as a fraction of each action's range (0.5: the middle;
+            0.1 starts a muscle's excitation near rest).
         network: the network (`NetworkConfig`).
         normalization: running normalisation of observations and rewards (`NormalizationConfig`).
         head: "categorical" (discrete), "multicategorical" (continuous, `bins` per dimension), "gaussian", "beta", or
@@ -366,6 +368,7 @@ class PPOConfig:
     head: str = "auto"
     bins: int = count_field(11, low=2, why="bins per action dimension")
     init_log_std: float = bounded(0.0, -20, 20, why="the log of the Gaussian head's std; exp(20) is 5e8")
+    beta_init_mean: float = bounded(0.5, 0.01, 0.99, why="a fraction of each action's range")
     network: NetworkConfig = field(default_factory=NetworkConfig)
     normalization: NormalizationConfig = field(default_factory=NormalizationConfig)
     stop_at: StopAt | None = None

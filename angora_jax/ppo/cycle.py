@@ -109,7 +109,8 @@ def average_gradients(grads: Any, axis: str | None = None) -> Any:
 def build_head(env: Env, config: PPOConfig) -> PolicyHead:
     """The policy head named by `config.head` for `env`'s action space, with the config's head options."""
     name = config.head_for(env)
-    options = {"multicategorical": {"bins": config.bins}, "gaussian": {"init_log_std": config.init_log_std}}
+    options = {"multicategorical": {"bins": config.bins}, "gaussian": {"init_log_std": config.init_log_std},
+               "beta": {"init_mean": config.beta_init_mean}}
     return make_head(name, env.action_spec, **options.get(name, {}))
 
 

@@ -138,13 +138,37 @@ class Gaussian(PolicyHead):
 class Beta(PolicyHead):
     """Beta distribution per dimension with alpha, beta = softplus(.) + 1 > 1 (unimodal), scaled affinely from
     [0, 1] to [low, high]. Stored actions are in the bounds; they are kept a hair inside them so that the log
-    density stays finite."""
+    density stays finite.
+
+    `init_mean` in (0, 1) is the initial policy's mean action as a fraction of each dimension's range (0.5: the
+    middle). The output layer's bias starts where alpha and beta have that mean, the nearer side's parameter at
+    1 + log 2 (its value at 0.5), so a mean away from the middle is also a narrower start: a muscle hand whose 39
+    excitations all start at 0.5 co-contracts and drives the pose away before it learns to relax
+    (benchmarks/results/myohand/README.md)."""
 
     _EDGE = 1e-6
+
+    def __init__(self, action_spec: ActionSpec, init_mean: float = 0.5):
+        super().__init__(action_spec)
+        self.init_mean = init_mean
 
     @property
     def num_params(self) -> int:
         return 2 * self.action_spec.size
+
+    def module(self) -> nn.Module:
+        return nn.Dense(self.num_params, kernel_init=_HEAD_INIT, bias_init=self._bias_init, name="policy_head")
+
+    def _bias_init(self, key: jax.Array, shape: tuple[int, ...], dtype=jnp.float32) -> jax.Array:
+        m = self.init_mean
+        if m == 0.5:  # alpha = beta = softplus(0) + 1: a zero bias, as the other heads start
+            return jnp.zeros(shape, dtype)
+        near = 1.0 + jnp.log(2.0)
+        alpha, beta = (near, near * (1 - m) / m) if m <= 0.5 else (near * m / (1 - m), near)
+        # The inverse of softplus(x) + 1: x = log(exp(p - 1) - 1), written to stay finite for large p.
+        inverse = [p - 1 + jnp.log(-jnp.expm1(-(p - 1))) for p in (alpha, beta)]
+        size = self.action_spec.size
+        return jnp.concatenate([jnp.full(size, inverse[0]), jnp.full(size, inverse[1])]).astype(dtype).reshape(shape)
 
     def distribution(self, params: jax.Array) -> distrax.Distribution:
         alpha, beta = jnp.split(jax.nn.softplus(params) + 1.0, 2, axis=-1)
