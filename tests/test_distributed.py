@@ -211,3 +211,18 @@ def test_a_process_killed_mid_run_ends_the_other_with_exit_1_and_a_message_not_a
     assert processes[0].returncode == 1, err[-3000:]
     assert "Traceback" not in err and "Check failure" not in err, err[-6000:]
     assert "Another process of this jax.distributed job is gone" in err and "resume RUN_DIR --distributed" in err
+
+
+@pytest.mark.parametrize(("message", "lost"), [
+    ("INTERNAL: external/xla/xla/service/gpu/nccl_utils.cc:216: NCCL operation async_err failed: remote process exited "
+     "or there was a network error", True),
+    ("Gloo AllReduce failed: Connection closed by peer [127.0.0.1]:4242", True),
+    ("INTERNAL: NCCL operation ncclCommInitRank(&comm, nranks, id, rank) failed: unhandled cuda error", False),
+    ("RESOURCE_EXHAUSTED: Out of memory while trying to allocate 12.00GiB (NCCL buffers)", False),
+])
+def test_only_a_collective_that_lost_its_peer_is_reported_as_a_lost_process(monkeypatch, message, lost):
+    """Any error mentioning NCCL was reported as "another process of this job is gone": a GPU's own failure (an
+    unhandled cuda error at NCCL's set-up, memory) sent the user looking for a killed process."""
+    monkeypatch.setattr(distributed.jax, "process_count", lambda: 2)
+    cause = distributed.lost_process_cause(RuntimeError(message))
+    assert (cause == message) if lost else cause is None

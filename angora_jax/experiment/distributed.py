@@ -141,8 +141,12 @@ class ProcessFailed(RuntimeError):
 # Exit code 1, the CLI's EXIT_FAILED (another process of the run failed); not imported: the CLI imports this module.
 EXIT_FAILED = 1
 
-# How a collective fails, on CPU (gloo) and GPUs (NCCL), when another process of the job is gone.
-LOST_PEER = ("Gloo", "Connection closed by peer", "Connection reset by peer", "NCCL", "heartbeat")
+# How a collective fails, on CPU (gloo) and GPUs (NCCL's ncclRemoteError, as XLA reports it: "NCCL operation ...
+# failed: remote process exited or there was a network error"), when another process of the job is gone. Not any
+# NCCL error: "unhandled cuda error" or a failed ncclCommInitRank is this process's own failure, which the user must
+# see as it is rather than as a lost process.
+LOST_PEER = ("Gloo", "Connection closed by peer", "Connection reset by peer",
+             "remote process exited or there was a network error", "ncclRemoteError", "heartbeat")
 
 
 def lost_process_cause(error: BaseException) -> str | None:
