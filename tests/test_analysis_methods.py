@@ -654,3 +654,24 @@ def test_probing_calls_from_python_name_a_wrong_argument_before_numpy_or_jax_fai
                                          r"'network.PMC'\?\); its recurrent areas: network.PMC\.$"):
         agent_fixed_points(agent, graph_recording({"network.S1": 3, "network.PMC.0": 4, "network.PMC.1": 4}),
                            "network.PMX")
+
+
+def test_the_similarity_plot_of_many_layers_wraps_its_rdms_into_rows(tmp_path):
+    """The brain-area model's 15 layers and the two comparison matrices were 17 panels in one row, a figure 44 inches
+    wide in which nothing could be read; the RDMs now wrap at six a row, with the matrices below them."""
+    import matplotlib.image
+
+    from angora_jax.analysis import plot_similarity
+
+    layers = [f"network.area_{i}" for i in range(15)]
+    rng = np.random.default_rng(0)
+    result = xr.Dataset(
+        {"rdm": (("layer", "condition", "condition_"), rng.random((15, 8, 8))),
+         "layer_similarity": (("layer", "layer_"), rng.uniform(-1, 1, (15, 15))),
+         "model_similarity": (("layer", "variable"), rng.uniform(-1, 1, (15, 3)))},
+        coords={"layer": layers, "layer_": layers, "variable": ["a", "b", "c"], "condition": np.arange(8),
+                "condition_": np.arange(8)}, attrs={"condition": "goal"})
+    path = tmp_path / "similarity.png"
+    plot_similarity(result, str(path))
+    height, width = matplotlib.image.imread(path).shape[:2]
+    assert width <= 1600 and width / height < 1.5, (width, height)

@@ -111,7 +111,8 @@ def _patterns(array: xr.DataArray, labels: np.ndarray, alive: np.ndarray) -> Dat
 
 
 def plot_similarity(result: xr.Dataset, path: str) -> None:
-    """One panel per layer's RDM, then the layer x layer similarity (and layer x variable, when computed)."""
+    """One panel per layer's RDM, up to six a row, then the layer x layer similarity (and layer x variable, when
+    computed) below them, larger: the brain-area model's 15 layers in one row made a figure 44 inches wide."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -119,13 +120,18 @@ def plot_similarity(result: xr.Dataset, path: str) -> None:
 
     layers = list(result["layer"].values)
     extra = ["layer_similarity"] + (["model_similarity"] if "model_similarity" in result else [])
-    fig, axes = plt.subplots(1, len(layers) + len(extra), figsize=(2.6 * (len(layers) + len(extra)), 2.9),
-                             squeeze=False)
-    for ax, layer in zip(axes[0], layers, strict=False):
+    columns = max(min(6, len(layers)), len(extra))
+    rows = -(-len(layers) // columns)
+    fig = plt.figure(figsize=(2.6 * columns, 2.6 * rows + 5.0))
+    grid = fig.add_gridspec(rows + 1, columns, height_ratios=[1.0] * rows + [2.0])
+    for i, layer in enumerate(layers):
+        ax = fig.add_subplot(grid[i // columns, i % columns])
         ax.imshow(result["rdm"].sel(layer=layer).values, cmap="viridis")
         ax.set_title(layer.removeprefix("network."), fontsize=8)
         ax.set_xlabel(f"{result.attrs['condition']} bin", fontsize=7)
-    for ax, name in zip(axes[0][len(layers):], extra, strict=True):
+    span = columns // len(extra)
+    for i, name in enumerate(extra):
+        ax = fig.add_subplot(grid[rows, i * span:(i + 1) * span])
         values = result[name].values
         ax.imshow(values, vmin=-1, vmax=1, cmap="RdBu_r")
         ticks = [str(t).removeprefix("network.") for t in result[name][result[name].dims[1]].values]
