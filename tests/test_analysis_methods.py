@@ -675,3 +675,19 @@ def test_the_similarity_plot_of_many_layers_wraps_its_rdms_into_rows(tmp_path):
     plot_similarity(result, str(path))
     height, width = matplotlib.image.imread(path).shape[:2]
     assert width <= 1600 and width / height < 1.5, (width, height)
+
+
+def test_decodings_printout_says_a_constant_variable_has_nothing_to_decode():
+    """`analyze decode` printed "metric_solved nan (noise nan)" for a variable that never changed in the recording,
+    with no word of why."""
+    from angora_jax.cli.analysis import decoding_lines
+
+    rng = np.random.default_rng(0)
+    episodes, steps = 8, 20
+    data = xr.Dataset({"activity_trunk": (("episode", "time", "unit"), rng.standard_normal((episodes, steps, 6))),
+                       "input_goal": (("episode", "time", "feature"), rng.standard_normal((episodes, steps, 2))),
+                       "metric_solved": (("episode", "time"), np.zeros((episodes, steps))),
+                       "alive": (("episode", "time"), np.ones((episodes, steps)))})
+    (line,) = decoding_lines(decode(data, folds=2))
+    assert line.startswith("trunk: input_goal ") and "(noise " in line
+    assert "metric_solved - (constant in the recording: nothing to decode)" in line and "nan" not in line

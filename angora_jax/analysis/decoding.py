@@ -108,7 +108,8 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
            folds: int = 5, seed: int = 0, lags: Sequence[int] | None = None,
            max_samples: int = MAX_SAMPLES, baseline: bool = True) -> xr.Dataset:
     """R^2 of every layer x variable, with the noise baseline and 95% intervals, as a Dataset with variables `r2`,
-    `r2_low`, `r2_high`, `baseline` (dims layer x variable).
+    `r2_low`, `r2_high`, `baseline` (dims layer x variable). A variable constant over the steps used (a metric that
+    never changes in the recording, or an input held fixed) has nothing to decode: its cells are NaN.
 
     Args:
         layers: names as in `activity_<name>` (default: all).

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -146,17 +146,22 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
 def command_decode(args: argparse.Namespace) -> int:
     from angora_jax.analysis import decode, plot_decoding
 
-    def summary(result):
-        for lag in (result["lag"].values if "lag" in result.dims else [None]):
-            at = result if lag is None else result.sel(lag=lag)
-            for layer in result["layer"].values:
-                yield ("" if lag is None else f"lag {lag}: ") + f"{layer}: " + ", ".join(
-                    f"{v} {at['r2'].sel(layer=layer, variable=v).item():.2f} "
-                    f"(noise {at['baseline'].sel(layer=layer, variable=v).item():.2f})"
-                    for v in result["variable"].values)
-
     return _analyze(args, lambda data: decode(data, args.layers, args.variables, args.folds, lags=args.lags),
-                    plot_decoding, summary, stem="decoding")
+                    plot_decoding, decoding_lines, stem="decoding")
+
+
+def decoding_lines(result: Any) -> Iterator[str]:
+    """One line per layer (and lag) of a `decode` result: each variable's R^2 and its noise baseline; a variable that
+    is constant over the recording's steps says so rather than printing "nan"."""
+    for lag in (result["lag"].values if "lag" in result.dims else [None]):
+        at = result if lag is None else result.sel(lag=lag)
+        for layer in result["layer"].values:
+            cells = []
+            for v in result["variable"].values:
+                r2 = at["r2"].sel(layer=layer, variable=v).item()
+                cells.append(f"{v} - (constant in the recording: nothing to decode)" if np.isnan(r2) else
+                             f"{v} {r2:.2f} (noise {at['baseline'].sel(layer=layer, variable=v).item():.2f})")
+            yield ("" if lag is None else f"lag {lag}: ") + f"{layer}: " + ", ".join(cells)
 
 
 def _table(array: Any, digits: int) -> str:
