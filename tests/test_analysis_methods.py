@@ -691,3 +691,20 @@ def test_decodings_printout_says_a_constant_variable_has_nothing_to_decode():
     (line,) = decoding_lines(decode(data, folds=2))
     assert line.startswith("trunk: input_goal ") and "(noise " in line
     assert "metric_solved - (constant in the recording: nothing to decode)" in line and "nan" not in line
+
+
+def test_analyze_crosscorrelation_says_when_a_peak_sits_at_the_windows_edge(tmp_path, capsys):
+    """A layer that follows another by 8 steps, read with --max-lag 3, had its "peak" at the last lag asked for,
+    printed like any other peak: a bound, not a peak. The printout now names the pair and the fix."""
+    from angora_jax import cli
+    from angora_jax.analysis import save_activity
+
+    lead = ar1_recording(0.9, episodes=60, steps=40)
+    follower = lead["activity_unit"].shift(time=8).fillna(0.0)
+    path = save_activity(lead.assign(activity_follower=follower), tmp_path / "rec.nc")
+    assert cli.main(["analyze", "crosscorrelation", str(path), "--max-lag", "3"]) == 0
+    said = capsys.readouterr().out
+    assert f"At the window's edge (+-{3 * DT:.3g} s, --max-lag): unit -> follower, follower -> unit." in said, said
+    assert "give a larger --max-lag" in said
+    assert cli.main(["analyze", "crosscorrelation", str(path), "--max-lag", "12"]) == 0
+    assert "At the window's edge" not in capsys.readouterr().out

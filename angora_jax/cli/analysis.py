@@ -164,6 +164,20 @@ def decoding_lines(result: Any) -> Iterator[str]:
             yield ("" if lag is None else f"lag {lag}: ") + f"{layer}: " + ", ".join(cells)
 
 
+def _peaks_at_the_edge(result: Any) -> str | None:
+    """A note naming the layer pairs whose peak lag is the window's last (the largest lag asked for): the largest
+    |correlation| may lie beyond it, so that lag is a bound, not a peak. None when no pair's is."""
+    edge = float(np.abs(result["lag"].values).max())
+    peaks = result["peak_lag"]
+    pairs = [f"{a} -> {b}" for a in peaks["layer"].values for b in peaks["other"].values
+             if a != b and np.isfinite(lag := peaks.sel(layer=a, other=b).item()) and abs(lag) >= edge * (1 - 1e-9)]
+    if not pairs:
+        return None
+    more = f" and {len(pairs) - 6} more" if len(pairs) > 6 else ""
+    return (f"At the window's edge (+-{edge:.3g} s, --max-lag): {', '.join(pairs[:6])}{more}. Their correlation "
+            "still grows there, so the peak may lie beyond it: give a larger --max-lag.")
+
+
 def _table(array: Any, digits: int) -> str:
     """A 2-D result as a table with every row and column (pandas' own printing hides those past the terminal's
     width behind "...")."""
@@ -258,6 +272,8 @@ def command_analysis(args: argparse.Namespace) -> int:
                 yield f"Layer x variable (Spearman):\n{_table(result['model_similarity'], 2)}"
         elif args.analysis == "crosscorrelation":
             yield f"Lag of the peak |correlation| (s; > 0: the row leads):\n{_table(result['peak_lag'], 3)}"
+            if edge := _peaks_at_the_edge(result):
+                yield edge
         elif args.analysis == "timescales":
             yield from (f"{layer}: {_timescale_said(result, layer)}" for layer in result["layer"].values)
         elif args.analysis == "visual":
