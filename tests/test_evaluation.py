@@ -479,3 +479,11 @@ def test_an_mp4_is_written_without_jaxs_warning_that_forking_will_deadlock(tmp_p
         write_video([np.zeros((16, 16, 3), np.uint8)] * 4, tmp_path / "v.mp4", fps=10)
     assert (tmp_path / "v.mp4").stat().st_size > 0
     assert not [w for w in caught if "os.fork()" in str(w.message)], [str(w.message) for w in caught]
+
+
+def test_the_box_plots_titles_write_large_numbers_whole():
+    """Three significant digits wrote a cube policy's mean return of 1,316 as "1.32e+03" in the box plot's title."""
+    from angora_jax.experiment.evaluation import _number
+
+    assert [_number(x) for x in (1316.3, -365.2, 45.89, 0.4923, 2.5e-4, 0.0)] == [
+        "1,316", "-365", "45.9", "0.492", "0.00025", "0"]

@@ -218,6 +218,12 @@ def save_evaluation(result: Evaluation, directory: Path) -> Evaluation:
     return replace(result, json_path=json_path, plot_path=plot_path)
 
 
+def _number(value: float) -> str:
+    """`value` for a plot title: whole from 100 up (a cube return of 1,316, which three significant digits wrote as
+    1.32e+03), three significant digits below."""
+    return f"{value:,.0f}" if abs(value) >= 100 else f"{value:.3g}"
+
+
 def box_plot(result: Evaluation, path: Path) -> None:
     """One box per quantity (return, length, each task metric) over episodes, with the mean marked, as in AngoraPy's
     Figure 7 (right); titles give mean, median and mode."""
@@ -232,7 +238,8 @@ def box_plot(result: Evaluation, path: Path) -> None:
         stats = result.summary[name]
         ax.boxplot(result.episodes[name], showmeans=True, widths=0.5)
         ax.set_xticks([1], [name.removeprefix("metric/")])
-        ax.set_title(f"mean {stats['mean']:.3g}  median {stats['median']:.3g}\nmode {stats['mode']:.3g}", fontsize=9)
+        ax.set_title(f"mean {_number(stats['mean'])}  median {_number(stats['median'])}\n"
+                     f"mode {_number(stats['mode'])}", fontsize=9)
     meta = result.meta
     figure.suptitle(f"{meta['task']}, cycle {meta['cycle']}, {meta['episodes']} episodes, "
                     f"{'sampled' if meta['stochastic'] else 'mode'} actions", fontsize=10)
