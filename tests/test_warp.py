@@ -85,6 +85,9 @@ def test_a_warp_run_evaluates_on_the_batched_path_as_on_c_mujoco(two_devices, qu
     assert batched["path"] == "batched" and "MjxEnv (warp)" in batched["physics"]
     np.testing.assert_array_equal(batched["per_episode"]["episode_length"], cpu.episodes["episode_length"])
     np.testing.assert_allclose(batched["per_episode"]["episode_return"], cpu.episodes["episode_return"], rtol=1e-2)
+    # One order on both paths (the batched path's came back from JAX sorted by name: episode_length first).
+    assert list(batched["per_episode"]) == list(cpu.episodes) == list(cpu.summary)
+    assert list(cpu.episodes) == ["episode_return", "episode_length", "metric/goal_distance", "metric/success"]
 
 
 @pytest.fixture(scope="module")

@@ -154,7 +154,17 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     physics = "C MuJoCo (mujoco.mj_step)" if isinstance(envs.env, CpuEnv) else "JAX (jitted, batched)"
     meta = _record(agent, run_dir, checkpoint, episodes, stochastic, seed, wall, changed,
                    {"physics": physics, "batch": envs.size, "workers": envs.workers})
-    result = Evaluation(per_episode, {name: summarize(v) for name, v in per_episode.items()}, meta)
+    return _evaluation(per_episode, meta, run_dir, save)
+
+
+def _evaluation(per_episode: dict[str, np.ndarray], meta: dict[str, Any], run_dir: str | Path,
+                save: bool) -> Evaluation:
+    """The `Evaluation` of `per_episode`, its quantities in one order whichever path made them (the batched path's
+    come back from JAX sorted by name, the CPU path's in the task's order): return, length, then the task's metrics
+    by name. Saved in the run's evaluation folder when `save`."""
+    first = [name for name in ("episode_return", "episode_length") if name in per_episode]
+    ordered = {name: per_episode[name] for name in first + sorted(set(per_episode) - set(first))}
+    result = Evaluation(ordered, {name: summarize(v) for name, v in ordered.items()}, meta)
     return save_evaluation(result, Path(run_dir) / EVALUATIONS) if save else result
 
 
@@ -172,8 +182,7 @@ def _evaluate_batched(agent: Agent, run_dir: str | Path, checkpoint: str | int, 
     physics = f"batched {type(env).__name__} ({getattr(env, 'impl', 'jax')}) on {jax.devices()[0].device_kind}"
     meta = _record(agent, run_dir, checkpoint, episodes, stochastic, seed, wall, changed,
                    {"physics": physics, "path": "batched", "batch": episodes, "workers": 1})
-    result = Evaluation(per_episode, {name: summarize(v) for name, v in per_episode.items()}, meta)
-    return save_evaluation(result, Path(run_dir) / EVALUATIONS) if save else result
+    return _evaluation(per_episode, meta, run_dir, save)
 
 
 def _record(agent: Agent, run_dir: str | Path, checkpoint: str | int, episodes: int, stochastic: bool, seed: int,
