@@ -26,8 +26,10 @@ MARKED = re.compile(r"<!-- docs-test -->\n```(?P<language>\w+)\n(?P<code>.*?)\n`
 SHRINK = {
     "quickstart.md": [("angora-jax train cartpole logging.run_name=quickstart",
                        "angora-jax train cartpole logging.run_name=quickstart ppo.num_cycles=2")],
+    "training.md": [('aj.load_config("cartpole", ["ppo.num_cycles=30"])',
+                     'aj.load_config("cartpole", ["ppo.num_cycles=2"])')],
 }
-EXECUTED_PAGES = ["quickstart.md", "tutorials/custom-task.md", "tutorials/custom-model.md"]
+EXECUTED_PAGES = ["quickstart.md", "training.md", "tutorials/custom-task.md", "tutorials/custom-model.md"]
 # The site's pages: docs/, the changelog it includes, and the study notes that docs/tools/results_hook.py publishes
 # from benchmarks/results.
 PAGE_SOURCES = [*sorted(DOCS.rglob("*.md")), ROOT / "CHANGELOG.md",
