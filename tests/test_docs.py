@@ -157,6 +157,18 @@ def test_lists_follow_a_blank_line():
     assert {path: lines for path, lines in found.items() if lines} == {}
 
 
+def test_page_links_resolve_as_files():
+    """Every relative link of the site's Markdown names a file or folder of the checkout from where the page is, so
+    the pages also read right as files (on GitHub, in an editor), not only on the built site: a page links a result
+    as `../benchmarks/results/...`, which docs/tools/results_hook.py points at the site's `results/` copy."""
+    link = re.compile(r"\]\((?P<target>[^)\s#]+)(?:#[^)\s]*)?\)")
+    code = re.compile(r"```.*?```|`[^`\n]*`", re.DOTALL)
+    broken = [f"{path.relative_to(ROOT).as_posix()}: {match['target']}"
+              for path in PAGE_SOURCES for match in link.finditer(code.sub("", path.read_text()))
+              if not re.match(r"[a-z]+:|/", match["target"]) and not (path.parent / match["target"]).exists()]
+    assert broken == []
+
+
 def test_model_diagrams_draw_their_graphs():
     """The Models page's diagrams are SVGs drawn once from the shipped graphs (docs/tools/model_diagrams.py) and
     committed: each still draws its graph's edges, all and only those, so a changed graph fails here until they are
@@ -172,14 +184,14 @@ def test_model_diagrams_draw_their_graphs():
 
 
 def test_home_page_shows_the_readmes_headline_results():
-    """The site's home page and the README show the same headline table (the site links results/, where
-    docs/tools/results_hook.py publishes benchmarks/results), and the same animation."""
+    """The site's home page and the README show the same headline table (each links benchmarks/results from where it
+    is; docs/tools/results_hook.py points the site's links at its copy under results/), and the same animation."""
 
     def headline(text: str) -> str:
         return text.split("## Headline results", 1)[1].split("\n\n", 2)[1]
 
     readme, home = (ROOT / "README.md").read_text(), (DOCS / "index.md").read_text()
-    assert headline(home) == headline(readme).replace("](benchmarks/results/", "](results/")
+    assert headline(home) == headline(readme).replace("](benchmarks/results/", "](../benchmarks/results/")
     assert "](docs/assets/cube.gif)" in readme and "](assets/cube.gif)" in home
 
 

@@ -1,5 +1,9 @@
 """MkDocs hook: the site shows `benchmarks/results/` as `results/`, and a page cites a result with a marker.
 
+Pages link to results by their place in the repository (`../benchmarks/results/<study>/<file>` from docs/), so the
+links also work where the Markdown is read as files (on GitHub, in an editor); the hook points each such link at the
+published copy under `results/`.
+
 Results sit in one folder per study (`benchmarks/results/<study>/`, each with a README.md that says which files are
 current). `<!-- result: <study>/<name> -->` (a file in benchmarks/results) becomes, for a picture, the picture and a
 caption; for any other file, a source line. Both say where the numbers were measured, read from the result itself
@@ -20,6 +24,8 @@ from mkdocs.structure.files import File, Files
 RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
 SITE_FOLDER = "results"
 MARKER = re.compile(r"<!--\s*result:\s*(?P<name>[\w.\-/]+)(?:\s+from\s+(?P<meta>[\w.\-/]+))?\s*-->")
+# An inline Markdown link's relative target, and its anchor.
+LINK = re.compile(r"\]\((?P<target>(?:\.\./)+benchmarks/results/[^)\s#]*)(?P<anchor>#[^)\s]*)?\)")
 # The packages whose versions decide the numbers; others a result records are on its file.
 KEY_PACKAGES = ("jax", "mujoco", "mujoco-mjx", "warp-lang", "brax")
 
@@ -37,7 +43,19 @@ def on_files(files: Files, config: Any) -> Files:
 def on_page_markdown(markdown: str, page: Any, config: Any, files: Files) -> str:
     depth = page.file.src_uri.count("/")
     prefix = "../" * depth + SITE_FOLDER
+    markdown = LINK.sub(lambda match: published(match, page.file.abs_src_path, prefix), markdown)
     return MARKER.sub(lambda match: cite(match["name"], match["meta"], prefix), markdown)
+
+
+def published(link: re.Match, source: str | None, prefix: str) -> str:
+    """A link from a page to a file of benchmarks/results, pointed at its copy under results/; a link that does not
+    land in benchmarks/results from the page's own file is left as written (the strict build then reports it)."""
+    if source is None:
+        return link[0]
+    target = (Path(source).parent / link["target"]).resolve()
+    if not target.is_relative_to(RESULTS):
+        return link[0]
+    return f"]({prefix}/{target.relative_to(RESULTS).as_posix()}{link['anchor'] or ''})"
 
 
 def cite(name: str, meta: str | None, prefix: str) -> str:
