@@ -690,7 +690,7 @@ def test_decodings_printout_says_a_constant_variable_has_nothing_to_decode():
                        "alive": (("episode", "time"), np.ones((episodes, steps)))})
     (line,) = decoding_lines(decode(data, folds=2))
     assert line.startswith("trunk: input_goal ") and "(noise " in line
-    assert "metric_solved - (constant in the recording: nothing to decode)" in line and "nan" not in line
+    assert "metric_solved - (constant over the steps decoded: nothing to decode)" in line and "nan" not in line
 
 
 def test_analyze_crosscorrelation_says_when_a_peak_sits_at_the_windows_edge(tmp_path, capsys):

@@ -482,8 +482,9 @@ def test_an_mp4_is_written_without_jaxs_warning_that_forking_will_deadlock(tmp_p
 
 
 def test_the_box_plots_titles_write_large_numbers_whole():
-    """Three significant digits wrote a cube policy's mean return of 1,316 as "1.32e+03" in the box plot's title."""
+    """Three significant digits wrote a cube policy's mean return of 1,316 as "1.32e+03" in the box plot's title, and
+    CartPole's 499.9 as 500, a perfect score it did not reach."""
     from angora_jax.experiment.evaluation import _number
 
-    assert [_number(x) for x in (1316.3, -365.2, 45.89, 0.4923, 2.5e-4, 0.0)] == [
-        "1,316", "-365", "45.9", "0.492", "0.00025", "0"]
+    assert [_number(x) for x in (499.9, 1316.3, -365.2, 45.89, 0.4923, 2.5e-4, 0.0, 123456.7)] == [
+        "499.9", "1,316.3", "-365.2", "45.89", "0.4923", "0.00025", "0", "123,457"]

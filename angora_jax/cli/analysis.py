@@ -152,14 +152,15 @@ def command_decode(args: argparse.Namespace) -> int:
 
 def decoding_lines(result: Any) -> Iterator[str]:
     """One line per layer (and lag) of a `decode` result: each variable's R^2 and its noise baseline; a variable that
-    is constant over the recording's steps says so rather than printing "nan"."""
+    is constant over the steps decoded (at that lag: e.g. a success that no episode reaches 16 steps on) says so
+    rather than printing "nan"."""
     for lag in (result["lag"].values if "lag" in result.dims else [None]):
         at = result if lag is None else result.sel(lag=lag)
         for layer in result["layer"].values:
             cells = []
             for v in result["variable"].values:
                 r2 = at["r2"].sel(layer=layer, variable=v).item()
-                cells.append(f"{v} - (constant in the recording: nothing to decode)" if np.isnan(r2) else
+                cells.append(f"{v} - (constant over the steps decoded: nothing to decode)" if np.isnan(r2) else
                              f"{v} {r2:.2f} (noise {at['baseline'].sel(layer=layer, variable=v).item():.2f})")
             yield ("" if lag is None else f"lag {lag}: ") + f"{layer}: " + ", ".join(cells)
 

@@ -228,9 +228,11 @@ def save_evaluation(result: Evaluation, directory: Path) -> Evaluation:
 
 
 def _number(value: float) -> str:
-    """`value` for a plot title: whole from 100 up (a cube return of 1,316, which three significant digits wrote as
-    1.32e+03), three significant digits below."""
-    return f"{value:,.0f}" if abs(value) >= 100 else f"{value:.3g}"
+    """`value` for a plot title, never rounded to look like a round score or in powers of ten: three significant
+    digits wrote CartPole's mean return of 499.9 as 500, a perfect score, and a cube return of 1,316 as 1.32e+03."""
+    if abs(value) >= 1e4:
+        return f"{value:,.0f}"
+    return f"{value:,.1f}" if abs(value) >= 100 else f"{value:.4g}"
 
 
 def box_plot(result: Evaluation, path: Path) -> None:
