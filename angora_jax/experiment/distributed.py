@@ -9,10 +9,15 @@ into one decision.
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import hashlib
 import json
 import os
+import selectors
+import socket
 import sys
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,6 +54,86 @@ def initialize(
     """
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(coordinator_address, num_processes, process_id, local_device_ids=local_device_ids)
+    watch_the_other_processes()
+
+
+# The key under which process 0 tells the others the port that it watches them on.
+_WATCH_KEY = "angora_jax/process_watch_port"
+# A process that ends normally says so on its connection first (atexit), so that its end is not taken for a loss.
+_BYE = b"bye"
+
+
+def watch_the_other_processes() -> None:
+    """End this process with the lost-process message (`lost_process_exit`) as soon as another process of the job is
+    gone, from a background thread, wherever this one is: JAX learns of a killed process only at its heartbeat timeout
+    (100 s) unless a Gloo or NCCL collective meets the closed connection first, and then ends every process itself
+    with a C++ abort (exit 134) that no Python code can intercept (`get_distributed_runtime_client`'s
+    `missed_heartbeat_callback` aborts with std::bad_cast in jaxlib 0.10 before calling Python). Process 0 waiting at
+    Orbax's checkpoint barriers when process 1 was killed mid-save aborted so after 80 to 100 s.
+
+    Each process keeps one TCP connection to process 0 open (its port in the job's key-value store), on which nothing
+    is sent until the process exits normally and says goodbye: the system closes it when a process dies (kill -9, out
+    of memory), which the other end sees at once. When process 0 itself is killed the others see it at the same moment
+    as JAX's coordination client, which then often aborts first. Best effort: nothing is watched where the connection
+    cannot be made (a firewall between hosts), and a host that vanishes without closing its connections is left to
+    JAX's heartbeat timeout."""
+    if jax.process_count() == 1:
+        return
+    try:
+        state = jax._src.distributed.global_state  # Orbax uses its client likewise: the job's key-value store
+        if jax.process_index() == 0:
+            family = socket.AF_INET6 if socket.has_dualstack_ipv6() else socket.AF_INET
+            server = socket.create_server(("", 0), family=family, dualstack_ipv6=family == socket.AF_INET6)
+            state.client.key_value_set(_WATCH_KEY, str(server.getsockname()[1]))
+            watched = {}
+        else:
+            port = int(state.client.blocking_key_value_get(_WATCH_KEY, 60_000))
+            connection = socket.create_connection((state.coordinator_address.rsplit(":", 1)[0].strip("[]"), port),
+                                                  timeout=30)
+            connection.sendall(jax.process_index().to_bytes(4, "little"))
+            connection.settimeout(None)
+            server, watched = None, {connection: 0}
+    except Exception:  # noqa: BLE001 (unwatched: JAX's own detection, as before)
+        return
+    atexit.register(_say_goodbye, watched)
+    threading.Thread(target=_watch, args=(server, watched), daemon=True, name="angora-jax process watch").start()
+
+
+def _watch(server: socket.socket | None, watched: dict[socket.socket, int]) -> None:
+    """Process 0: accept the others' connections on `server` into `watched` (connection: process index); every
+    process: end with the lost-process message when a watched connection closes without a goodbye."""
+    selector = selectors.DefaultSelector()
+    for connection in [server, *watched]:
+        if connection is not None:
+            selector.register(connection, selectors.EVENT_READ)
+    while True:
+        for key, _ in selector.select():
+            if key.fileobj is server:
+                try:
+                    accepted, _ = server.accept()
+                    accepted.settimeout(30)
+                    index = int.from_bytes(accepted.recv(4, socket.MSG_WAITALL), "little")
+                    accepted.settimeout(None)
+                except OSError:
+                    continue
+                watched[accepted] = index
+                selector.register(accepted, selectors.EVENT_READ)
+                continue
+            try:
+                received = key.fileobj.recv(len(_BYE), socket.MSG_WAITALL)
+            except OSError:
+                received = b""
+            selector.unregister(key.fileobj)
+            if received != _BYE:
+                lost_process_exit(f"process {watched[key.fileobj]}{' (the coordinator)' * (server is None)} closed "
+                                  "its connection to this one without ending normally")
+
+
+def _say_goodbye(watched: dict[socket.socket, int]) -> None:
+    """At a normal exit: tell the processes watching this one that its connection closes because it ended."""
+    for connection in list(watched):
+        with contextlib.suppress(OSError):
+            connection.sendall(_BYE)
 
 
 def is_main_process() -> bool:
