@@ -282,3 +282,34 @@ def test_a_process_that_ends_normally_before_the_other_is_not_taken_for_a_lost_o
     outputs = [process.communicate(timeout=120) for process in processes]
     assert [process.returncode for process in processes] == [0, 0], [err[-3000:] for _, err in outputs]
     assert not any("is gone" in err for _, err in outputs)
+
+
+def test_the_process_watch_takes_only_the_jobs_own_connections_for_processes(monkeypatch):
+    """Process 0's watch listens on a port of every interface: a port scanner or stray client that connected and
+    closed was taken for a lost process and ended the run. Only a connection opening with the job's token (from the
+    job's key-value store) is watched; a watched one that says goodbye is no loss either."""
+    import threading
+
+    lost = []
+    monkeypatch.setattr(distributed, "lost_process_exit", lost.append)
+    token = b"t" * distributed._TOKEN_BYTES
+    server = socket.create_server(("127.0.0.1", 0))
+    threading.Thread(target=distributed._watch, args=(server, {}, token), daemon=True).start()
+
+    def connect(opening: bytes, goodbye: bool = False) -> None:
+        with socket.create_connection(server.getsockname(), timeout=10) as client:
+            client.sendall(opening)
+            if goodbye:
+                client.sendall(distributed._BYE)
+            time.sleep(0.3)  # accepted and watched before it closes
+
+    connect(b"GET / HTTP/1.0\r\n\r\n")
+    connect(b"x" * distributed._TOKEN_BYTES + (1).to_bytes(4, "little"))
+    connect(token + (2).to_bytes(4, "little"), goodbye=True)
+    time.sleep(0.5)
+    assert lost == []
+    connect(token + (3).to_bytes(4, "little"))
+    deadline = time.monotonic() + 10
+    while not lost and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert lost == ["process 3 closed its connection to this one without ending normally"]

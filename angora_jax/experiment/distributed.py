@@ -14,6 +14,7 @@ import contextlib
 import hashlib
 import json
 import os
+import secrets
 import selectors
 import socket
 import sys
@@ -57,8 +58,11 @@ def initialize(
     watch_the_other_processes()
 
 
-# The key under which process 0 tells the others the port that it watches them on.
+# The key under which process 0 tells the others the port that it watches them on, and the job's token: a connection
+# that does not open with the token (a port scanner, a stray client) is no process of the job and is not watched,
+# so its close cannot end the run.
 _WATCH_KEY = "angora_jax/process_watch_port"
+_TOKEN_BYTES = 16
 # A process that ends normally says so on its connection first (atexit), so that its end is not taken for a loss.
 _BYE = b"bye"
 
@@ -84,24 +88,28 @@ def watch_the_other_processes() -> None:
         if jax.process_index() == 0:
             family = socket.AF_INET6 if socket.has_dualstack_ipv6() else socket.AF_INET
             server = socket.create_server(("", 0), family=family, dualstack_ipv6=family == socket.AF_INET6)
-            state.client.key_value_set(_WATCH_KEY, str(server.getsockname()[1]))
+            token = secrets.token_bytes(_TOKEN_BYTES)
+            state.client.key_value_set(_WATCH_KEY, f"{server.getsockname()[1]} {token.hex()}")
             watched = {}
         else:
-            port = int(state.client.blocking_key_value_get(_WATCH_KEY, 60_000))
-            connection = socket.create_connection((state.coordinator_address.rsplit(":", 1)[0].strip("[]"), port),
-                                                  timeout=30)
-            connection.sendall(jax.process_index().to_bytes(4, "little"))
+            port, token_hex = state.client.blocking_key_value_get(_WATCH_KEY, 60_000).split()
+            token = bytes.fromhex(token_hex)
+            connection = socket.create_connection((state.coordinator_address.rsplit(":", 1)[0].strip("[]"),
+                                                   int(port)), timeout=30)
+            connection.sendall(token + jax.process_index().to_bytes(4, "little"))
             connection.settimeout(None)
             server, watched = None, {connection: 0}
     except Exception:  # noqa: BLE001 (unwatched: JAX's own detection, as before)
         return
     atexit.register(_say_goodbye, watched)
-    threading.Thread(target=_watch, args=(server, watched), daemon=True, name="angora-jax process watch").start()
+    threading.Thread(target=_watch, args=(server, watched, token), daemon=True,
+                     name="angora-jax process watch").start()
 
 
-def _watch(server: socket.socket | None, watched: dict[socket.socket, int]) -> None:
-    """Process 0: accept the others' connections on `server` into `watched` (connection: process index); every
-    process: end with the lost-process message when a watched connection closes without a goodbye."""
+def _watch(server: socket.socket | None, watched: dict[socket.socket, int], token: bytes) -> None:
+    """Process 0: accept the others' connections on `server` into `watched` (connection: process index), each only
+    once it has sent the job's `token`; every process: end with the lost-process message when a watched connection
+    closes without a goodbye."""
     selector = selectors.DefaultSelector()
     for connection in [server, *watched]:
         if connection is not None:
@@ -111,12 +119,19 @@ def _watch(server: socket.socket | None, watched: dict[socket.socket, int]) -> N
             if key.fileobj is server:
                 try:
                     accepted, _ = server.accept()
-                    accepted.settimeout(30)
-                    index = int.from_bytes(accepted.recv(4, socket.MSG_WAITALL), "little")
-                    accepted.settimeout(None)
                 except OSError:
                     continue
-                watched[accepted] = index
+                try:
+                    # A stray client cannot hold the watch up for long: 5 s to send the token and the index.
+                    accepted.settimeout(5)
+                    opening = accepted.recv(len(token) + 4, socket.MSG_WAITALL)
+                    accepted.settimeout(None)
+                except OSError:
+                    opening = b""
+                if len(opening) != len(token) + 4 or not secrets.compare_digest(opening[:len(token)], token):
+                    accepted.close()
+                    continue
+                watched[accepted] = int.from_bytes(opening[len(token):], "little")
                 selector.register(accepted, selectors.EVENT_READ)
                 continue
             try:
