@@ -6,7 +6,9 @@ The notebook API: `make_env(task, **options)`, `load_config(path_or_name, overri
 and `load_policy(file)` (the policy in one file, used without the run directory; `angora-jax export` writes it too).
 """
 
-from angora_jax import opengl_backend  # noqa: F401  (imports MuJoCo first, naming a MUJOCO_GL that cannot load)
+# First: cpu_threads sizes XLA's CPU thread pool before anything starts JAX; opengl_backend imports MuJoCo, naming a
+# MUJOCO_GL that cannot load.
+from angora_jax import cpu_threads, opengl_backend  # noqa: F401
 from angora_jax.envs import list_tasks, make
 from angora_jax.envs.gym_view import register_gymnasium_envs
 from angora_jax.experiment import list_configs, load_agent, load_config, resume, train
