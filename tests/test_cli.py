@@ -684,7 +684,7 @@ def test_a_gpu_sized_config_started_without_a_gpu_says_so_before_compiling(capsy
     reach = load_config("shadow_reach_cortical")  # 38 s a cycle, but 1.6 hours in all: said too
     assert "(1.6 hours for its 150 cycles)" in cpu_note(reach, {"engine": "MuJoCo MJX (JAX implementation)"}, False)
     override = re.search(r"For a CPU run, add: (.*?);", out).group(1).split()
-    assert override == ["ppo.num_envs=32", "ppo.minibatch_size=256"], "at most 32: docs/troubleshooting.md"
+    assert override == ["ppo.num_envs=32", "ppo.minibatch_size=256"], "at most 32 (cpu_sizing.CPU_ENVS)"
     validate(load_config("shadow_ihom", override))
     assert cpu_note(load_config("shadow_ihom", override), {"engine": "MuJoCo MJX (JAX implementation)"}, False) is None
     assert cpu_note(load_config("shadow_ihom"), {"engine": "MuJoCo MJX (MuJoCo Warp implementation)"}, True) is None

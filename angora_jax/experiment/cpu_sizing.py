@@ -12,8 +12,8 @@ CPU_ENV_STEPS_PER_S = {"ShadowHandReach": 1715.0, "ShadowHandFreeReach": 1715.0,
                        "ShadowHandReachSequential": 1715.0, "ShadowHandFreeReachSequential": 1715.0}
 # Past this many env steps per cycle, a task without a measured rate is called GPU-sized.
 GPU_SIZED_STEPS = 65536
-# At most 32: more hand environments in one program deadlocked XLA's CPU thread pool on 2 cores
-# (docs/troubleshooting.md).
+# At most 32 environments for a CPU run: a hand task's cycle stays within seconds to a minute on 2 cores. (More once
+# deadlocked XLA's CPU thread pool on 2 cores; angora_jax/cpu_threads.py has the cause and sizes the pool against it.)
 CPU_ENVS = 32
 
 
