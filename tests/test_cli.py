@@ -681,6 +681,7 @@ def test_a_gpu_sized_config_started_without_a_gpu_says_so_before_compiling(capsy
     assert "Note: no GPU found, and this config is sized for one: 16,384 envs x 32 steps = 524,288 env steps" in out
     assert out.index("Note: no GPU found") < out.index("compiling the first cycle"), "the note first: said before"
     assert "about 3.3 hours per cycle (276 days for its 2,000 cycles) at the 44 env steps/s" in out
+    assert "compiling the first cycle adds about a minute" in out, "a newcomer waited a minute it did not mention"
     reach = load_config("shadow_reach_cortical")  # 38 s a cycle, but 1.6 hours in all: said too
     assert "(1.6 hours for its 150 cycles)" in cpu_note(reach, {"engine": "MuJoCo MJX (JAX implementation)"}, False)
     override = re.search(r"For a CPU run, add: (.*?);", out).group(1).split()

@@ -38,7 +38,8 @@ def cpu_note(config: Config, physics: dict, on_gpu: bool) -> str | None:
         f", about {_duration(steps / rate)} per cycle ({_duration(ppo.num_cycles * steps / rate)} for its "
         f"{ppo.num_cycles:,} cycles) at the {rate:,.0f} env steps/s that 2 CPU cores ran "
         "(benchmarks/results/physics_throughput/physics_throughput_cpu.json; "
-        f"{_duration(envs * ppo.rollout_length / rate)} with the override)")
+        f"{_duration(envs * ppo.rollout_length / rate)} with the override; compiling the first cycle adds about a "
+        "minute, 53 s for the cube from an empty compilation cache)")
     return (f"Note: no GPU found, and this config is sized for one: {ppo.num_envs:,} envs x {ppo.rollout_length} steps "
             f"= {steps:,} env steps per cycle on {physics['engine']} on the CPU{cost}. For a CPU run, add: {override}; "
             "for the GPU, install JAX's CUDA build and warp-lang (README, `angora-jax doctor`).")
