@@ -148,13 +148,15 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
     Raises:
         CheckpointError: the parameters do not fit the config's network.
     """
-    agent, latest = _restore_agent(run_dir, checkpoint, env_overrides)
-    _note_early_best(run_dir, checkpoint, agent, latest, "--checkpoint latest; in Python checkpoint='latest'")
+    agent, read, latest = _restore_agent(run_dir, checkpoint, env_overrides)
+    _note_early_best(run_dir, read, agent, latest, "--checkpoint latest; in Python checkpoint='latest'")
     return agent
 
 
-def _restore_agent(run_dir: str | Path, checkpoint: str | int, env_overrides: Sequence[str]) -> tuple[Agent, int]:
-    """`load_agent`'s agent, and the cycle of the run's latest checkpoint (0 when it keeps none)."""
+def _restore_agent(run_dir: str | Path, checkpoint: str | int,
+                   env_overrides: Sequence[str]) -> tuple[Agent, str | int, int]:
+    """`load_agent`'s agent, the checkpoint read (`read_checkpoint`) and the cycle of the run's latest checkpoint (0
+    when it keeps none)."""
     config = _seeing_as_trained(read_run_config(run_dir), run_dir)
     if env_overrides:
         for override in env_overrides:
@@ -185,17 +187,17 @@ def _restore_agent(run_dir: str | Path, checkpoint: str | int, env_overrides: Se
         latest = max(checkpoints.steps("latest"), default=0)
     finally:
         checkpoints.close()
-    return Agent(config, env, network, head, state, int(state.cycle), compiled), latest
+    return Agent(config, env, network, head, state, int(state.cycle), compiled), which, latest
 
 
 _noted_early_best: set[tuple[str, int]] = set()
 
 
-def _note_early_best(run_dir: str | Path, checkpoint: str | int, agent: Agent, latest: int, how: str) -> None:
-    """Once per run and cycle in a process: a note when the best checkpoint read is from the first half of the run
-    (`how` names the way to read the latest instead)."""
+def _note_early_best(run_dir: str | Path, read: str | int, agent: Agent, latest: int, how: str) -> None:
+    """Once per run and cycle in a process: a note when the checkpoint `read` is the best and from the first half of
+    the run (`how` names the way to read the latest instead)."""
     key = (str(Path(run_dir).resolve()), agent.cycle)
-    if read_checkpoint(run_dir, checkpoint) != "best" or agent.cycle > latest / 2 or key in _noted_early_best:
+    if read != "best" or agent.cycle > latest / 2 or key in _noted_early_best:
         return
     _noted_early_best.add(key)
     # Using an early network unawares: a best metric that never rose (a success rate of 0) keeps cycle 1.
@@ -230,8 +232,8 @@ def saved_policy(source: str | Path) -> PolicyState:
     if not Path(run_dir).is_dir():
         raise FileNotFoundError(f"{str(source)!r} is neither a file nor a run directory: it does not exist. Give a "
                                 "component file, or a run as RUN_DIR[:best|latest|<cycle>].")
-    agent, latest = _restore_agent(run_dir, which, ())
-    _note_early_best(run_dir, which, agent, latest, f"name it as {run_dir}:latest, e.g. ppo.init_from={run_dir}:latest")
+    agent, read, latest = _restore_agent(run_dir, which, ())
+    _note_early_best(run_dir, read, agent, latest, f"name it as {run_dir}:latest, e.g. ppo.init_from={run_dir}:latest")
     return agent.state
 
 
