@@ -437,8 +437,9 @@ def test_evaluating_the_snapshots_follows_the_policy_over_training(run_dir, tmp_
     assert main(["evaluate", str(run_dir), "--checkpoint", "snapshots", "--episodes", "3"]) == 0
     out = capsys.readouterr().out
     assert "checkpoint of cycle 10," in out and "checkpoint of cycle 20," in out and "Over the snapshots:" in out
-    written = sorted(json.loads(p.read_text())["cycle"] for p in (run_dir / "evaluation").glob("10-*.json"))
-    assert written == [10], "each snapshot's evaluation is written as a single one would be"
+    written = {p.name: json.loads(p.read_text())["cycle"] for p in (run_dir / "evaluation").glob("cycle*.json")}
+    assert written == {"cycle10-mode-seed0.json": 10, "cycle20-mode-seed0.json": 20}, \
+        "each snapshot's evaluation is written as a single one would be, its cycle named once"
     bare = tmp_path / "bare"
     shutil.copytree(run_dir, bare)
     shutil.rmtree(bare / "checkpoints" / "snapshots")

@@ -193,8 +193,8 @@ def test_records_after_the_checkpoint_continued_from_move_to_a_side_file_with_da
     assert f"Checkpoints, evaluations and videos after cycle 3 are kept in {aside}." in capsys.readouterr().err
     assert sorted(p.name for p in (aside / EVALUATIONS).iterdir()) == ["latest-cycle6-mode-seed0.json",
                                                                        "latest-cycle6-mode-seed0.png"]
-    assert sorted(p.name for p in (run / EVALUATIONS).iterdir()) == ["3-cycle3-mode-seed0.json",
-                                                                     "3-cycle3-mode-seed0.png"]
+    assert sorted(p.name for p in (run / EVALUATIONS).iterdir()) == ["cycle3-mode-seed0.json",
+                                                                     "cycle3-mode-seed0.png"]
     assert [p.name for p in (aside / VIDEOS).iterdir()] == ["cycle_000006.gif"]
     assert [p.name for p in (run / VIDEOS).iterdir()] == ["cycle_000003.gif"]
     assert [r["cycle"] for r in read_metrics(run)] == list(range(1, CYCLES + 1))

@@ -114,9 +114,9 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
         episodes: episodes to run.
         stochastic: sample actions instead of taking the policy's mode.
         seed: picks the episodes' initial states and goals (those of `Agent.evaluate` with the same seed).
-        save: write `RUN_DIR/evaluation/<checkpoint>-cycle<N>-<mode>-seed<S>.json` (with `-batched` before `.json` for
-            that path) and a box plot `.png` of the same name (a `-2`, `-3`, ... suffix when taken: nothing is
-            overwritten).
+        save: write `RUN_DIR/evaluation/<checkpoint>-cycle<N>-<mode>-seed<S>.json` (`cycle<N>-...` alone for a
+            checkpoint chosen by its cycle; with `-batched` before `.json` for that path) and a box plot `.png` of
+            the same name (a `-2`, `-3`, ... suffix when taken: nothing is overwritten).
         batch: episodes run at once on the CPU path (at most `episodes`).
         workers: threads stepping the C MuJoCo physics of the batch (at most `batch`; see `EagerBatch`).
         path: "cpu" (the eager path) or "batched" (all episodes at once on the training path, each one at most the
@@ -210,7 +210,9 @@ def save_evaluation(result: Evaluation, directory: Path) -> Evaluation:
     directory.mkdir(parents=True, exist_ok=True)
     meta = result.meta
     actions = "stochastic" if meta["stochastic"] else "mode"
-    stem = f"{meta['checkpoint']}-cycle{meta['cycle']}-{actions}-seed{meta['seed']}"
+    # A checkpoint chosen by its cycle (`--checkpoint 100`, or each of `--checkpoint snapshots`) is named once.
+    named = "" if str(meta["checkpoint"]).isdigit() else f"{meta['checkpoint']}-"
+    stem = f"{named}cycle{meta['cycle']}-{actions}-seed{meta['seed']}"
     stem += "-batched" if meta.get("path") == "batched" else ""
     stem += "-changed" if meta.get("env_overrides") else ""
     record = {**meta, "summary": result.summary, "per_episode": {k: v.tolist() for k, v in result.episodes.items()}}
