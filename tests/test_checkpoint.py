@@ -240,6 +240,20 @@ def test_other_env_options_get_programs_of_their_own():
     assert longer[0] is not short[0] and longer[1] is not short[1]
 
 
+
+def test_a_longer_run_of_the_same_settings_reuses_the_programs_unless_a_schedule_ends_at_its_last_cycle():
+    """`resume --num-cycles N` (or the same config asked for more cycles) in the same process reuses the programs:
+    the cycle count reaches them only through the learning-rate decay and the entropy schedule, which end at the
+    last cycle, so with either of those on, another count gets programs of its own."""
+
+    def programs(*overrides):
+        config = aj.load_config("cartpole", [*TINY, *overrides])
+        return cycle_programs(config, validate(config, new_run=False))
+
+    assert programs("ppo.num_cycles=9") is programs("ppo.num_cycles=4")
+    for schedule in ("ppo.lr_decay=true", "ppo.entropy_coef_final=0.0"):
+        assert programs(schedule, "ppo.num_cycles=9")[1] is not programs(schedule, "ppo.num_cycles=4")[1], schedule
+
 @pytest.mark.slow
 def test_sigterm_saves_a_loadable_checkpoint_and_restores_the_handler(runs):
     _, stopped, at_interrupt, *_ = runs

@@ -33,7 +33,8 @@ _programs: OrderedDict[str, tuple[Callable, Callable]] = OrderedDict()
 
 def cycle_programs(config: Config, env: Env) -> tuple[Callable, Callable]:
     """The run's jitted `init` and `cycle` (`make_cycle`), the same two functions for every run of this process
-    whose task, PPO settings and devices are the same (the seed aside: it only picks the first key). A run resumed
+    whose task, PPO settings and devices are the same (the seed aside: it only picks the first key, and the cycle
+    count unless a schedule ends at the last cycle: `ppo.lr_decay`, `ppo.entropy_coef_final`). A run resumed
     or trained in pieces in one process, or the same config trained again in a notebook, then reuses the traced and
     compiled programs: JAX's persistent cache saves only the compiling, and never holds MuJoCo Warp's programs (each
     trace gives them a new call id). Runs that read saved values when they start (`ppo.init_from`, pretrained
@@ -42,7 +43,11 @@ def cycle_programs(config: Config, env: Env) -> tuple[Callable, Callable]:
     if ppo.init_from or ppo.network.pretrained:
         return make_cycle(env, None, ppo, num_devices(config))
     settings = to_dict(config)
-    key = json.dumps({"env": settings["env"], "ppo": {**settings["ppo"], "seed": None},
+    # The cycle count reaches the programs only through the schedules that end at the last cycle, so without them
+    # a `resume --num-cycles N` in the same process reuses the programs instead of tracing and compiling them again.
+    scheduled = ppo.lr_decay or ppo.entropy_coef_final is not None
+    key = json.dumps({"env": settings["env"],
+                      "ppo": {**settings["ppo"], "seed": None, **({} if scheduled else {"num_cycles": None})},
                       "distribution": settings["distribution"], "devices": num_devices(config),
                       "definitions": generation()}, sort_keys=True)
     if key not in _programs:
