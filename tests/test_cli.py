@@ -137,6 +137,21 @@ def test_a_path_in_or_above_a_run_names_the_run_directory(capsys, tmp_path, monk
         assert said in capsys.readouterr().err, argv
 
 
+@pytest.mark.parametrize("size", [0, 12, 100, 2000])
+def test_a_recording_cut_short_is_named_as_unreadable_not_a_traceback(size, capsys, tmp_path):
+    """A recording cut short (a copy interrupted, a full disk) fails in scipy's NetCDF reader with ValueError, or
+    with IndexError where its header is cut: both are a file this machine cannot read, exit 2."""
+    import xarray as xr
+
+    whole = tmp_path / "whole.nc"
+    xr.Dataset({"alive": (("episode", "time"), np.ones((2, 50), bool)),
+                "network.M1": (("episode", "time", "unit"), np.zeros((2, 50, 8), np.float32))}).to_netcdf(whole)
+    (tmp_path / "act.nc").write_bytes(whole.read_bytes()[:size])
+    assert main(["analyze", "timescales", str(tmp_path / "act.nc")]) == 2
+    assert "act.nc is not a recording that this machine can read" in capsys.readouterr().err
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["act.nc", "whole.nc"]
+
+
 def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys, tmp_path, monkeypatch):
     def fail(config, minutes=None):
         raise ProcessFailed((1,), 3, tmp_path / "run")

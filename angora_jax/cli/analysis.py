@@ -331,10 +331,12 @@ def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None 
         return EXIT_USAGE
     try:
         data = xr.load_dataset(recording)
-    except (ValueError, OSError, TypeError) as error:  # xarray's and its readers' ways to say "not NetCDF"
+    except Exception as error:  # a file that is not NetCDF, or cut short or damaged: xarray's readers raise
+        # ValueError, OSError or TypeError, and scipy's reader IndexError or KeyError for a header cut short
+        cause = (str(error).splitlines() or [""])[0]
         print(f"angora-jax analyze {args.analysis}: {recording} is not a recording that this machine can read (a "
-              f"NetCDF file from angora-jax record): {type(error).__name__}: {str(error).splitlines()[0]}. Make one "
-              "with angora-jax record RUN_DIR --out FILE.nc.", file=sys.stderr)
+              f"NetCDF file from angora-jax record): {type(error).__name__}: {cause}. Make one with angora-jax "
+              "record RUN_DIR --out FILE.nc.", file=sys.stderr)
         return EXIT_USAGE
     if not {"episode", "time"} <= set(data.dims) or "alive" not in data:
         print(f"angora-jax analyze {args.analysis}: {recording} is NetCDF but not a recording (it lacks the episode "
