@@ -137,19 +137,36 @@ def test_a_path_in_or_above_a_run_names_the_run_directory(capsys, tmp_path, monk
         assert said in capsys.readouterr().err, argv
 
 
+def write_recording(path: Path) -> Path:
+    """A small recording's layout (the episode and time dimensions, the alive mask, one layer) as NetCDF."""
+    import xarray as xr
+
+    xr.Dataset({"alive": (("episode", "time"), np.ones((8, 50), bool)),
+                "network.M1": (("episode", "time", "unit"), np.zeros((8, 50, 4), np.float32))}).to_netcdf(path)
+    return path
+
+
 @pytest.mark.parametrize("size", [0, 12, 100, 2000])
 def test_a_recording_cut_short_is_named_as_unreadable_not_a_traceback(size, capsys, tmp_path):
     """A recording cut short (a copy interrupted, a full disk) fails in scipy's NetCDF reader with ValueError, or
     with IndexError where its header is cut: both are a file this machine cannot read, exit 2."""
-    import xarray as xr
-
-    whole = tmp_path / "whole.nc"
-    xr.Dataset({"alive": (("episode", "time"), np.ones((2, 50), bool)),
-                "network.M1": (("episode", "time", "unit"), np.zeros((2, 50, 8), np.float32))}).to_netcdf(whole)
+    whole = write_recording(tmp_path / "whole.nc")
     (tmp_path / "act.nc").write_bytes(whole.read_bytes()[:size])
     assert main(["analyze", "timescales", str(tmp_path / "act.nc")]) == 2
     assert "act.nc is not a recording that this machine can read" in capsys.readouterr().err
     assert sorted(path.name for path in tmp_path.iterdir()) == ["act.nc", "whole.nc"]
+
+
+@pytest.mark.parametrize("out", ["act.decode.nc", "decoding", "plot.xyz"])
+def test_an_analysis_out_that_is_no_image_is_refused_before_the_analysis(out, capsys, tmp_path):
+    """--out names the plot, whose format matplotlib takes from the suffix, and the numbers are written beside it as
+    .nc: a name ending in .nc (plot and numbers one file), or in no image format, failed in matplotlib's savefig
+    after the analysis was computed, a traceback and exit 1."""
+    write_recording(tmp_path / "act.nc")
+    for analysis in ("decode", "timescales"):
+        assert main(["analyze", analysis, str(tmp_path / "act.nc"), "--out", str(tmp_path / out)]) == 2
+        assert f"give e.g. {tmp_path / Path(out).with_suffix('.png')}, not {out}." in capsys.readouterr().err
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["act.nc"]
 
 
 def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys, tmp_path, monkeypatch):

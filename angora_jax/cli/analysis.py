@@ -362,6 +362,15 @@ def output_path(analysis: str, given: str | None, directory: Path, stem: str) ->
     the first's results."""
     if given:
         out = Path(given)
+        from matplotlib.backend_bases import FigureCanvasBase
+
+        # The plot's format comes from the suffix, and the numbers take the suffix .nc: a name ending in .nc, or in
+        # no image format, failed in matplotlib after the analysis had been computed.
+        if out.suffix[1:].lower() not in set(FigureCanvasBase.get_supported_filetypes()) - {"nc"}:
+            print(f"angora-jax analyze {analysis}: --out names the plot, an image (.png, .pdf, .svg ...), and its "
+                  f"numbers are written beside it as .nc: give e.g. {out.with_suffix('.png')}, not {out.name}.",
+                  file=sys.stderr)
+            return None
         taken = any(refused_existing(f"analyze {analysis}", path, "analyses") for path in (out, out.with_suffix(".nc")))
         return None if taken else out
     return next(path for path in numbered_paths(directory, stem, ".png")
