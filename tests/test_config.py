@@ -247,8 +247,14 @@ def test_bad_files_fail_clearly(tmp_path: Path):
         load_config("cartpol")
     broken = tmp_path / "broken.yaml"
     broken.write_text("ppo: {num_cycles: 3\n")
-    with pytest.raises(ConfigError, match="broken.yaml is not valid YAML"):
+    with pytest.raises(ConfigError, match=r"broken.yaml is not valid YAML: .* \(line 2, column 1\): fix that line"):
         load_config(broken)
+    tabbed = tmp_path / "tabbed.yaml"  # PyYAML's "found character '\t' that cannot start any token": name the fix
+    tabbed.write_text("extends: cartpole\nppo:\n\tnum_envs: 4\n")
+    with pytest.raises(ConfigError, match=r"\(line 3, column 1\): YAML indents with spaces, never tabs: replace the "
+                                          r"tabs on that line with spaces") as refused:
+        load_config(tabbed)
+    assert "\n" not in str(refused.value)
     listed = tmp_path / "list.yaml"
     listed.write_text("- ppo\n")
     with pytest.raises(ConfigError, match="must hold a mapping of sections"):

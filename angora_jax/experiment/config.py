@@ -502,6 +502,20 @@ def num_devices(config: Config) -> int:
         raise ConfigError(str(error)) from None
 
 
+def _yaml_problem(error: yaml.YAMLError) -> str:
+    """PyYAML's error as one sentence with its line, and the fix for a tab (YAML indents with spaces only), which
+    PyYAML calls "found character '\\t' that cannot start any token" and leaves the reader to work out."""
+    mark = getattr(error, "problem_mark", None)
+    problem = getattr(error, "problem", None)
+    if mark is None or problem is None:
+        return str(error)
+    where = f"{problem} (line {mark.line + 1}, column {mark.column + 1})"
+    if "'\\t'" in problem:
+        return (f"{where}: YAML indents with spaces, never tabs: replace the tabs on that line with spaces (an "
+                "editor's 'convert indentation to spaces' does the whole file).")
+    return f"{where}: fix that line or the one before it (a missing ':', bracket or quote is usual)."
+
+
 def _read(source: str | Path | dict | None, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
     if source is None:
         return {}
@@ -529,7 +543,7 @@ def _read(source: str | Path | dict | None, chain: tuple[Path, ...] = ()) -> dic
                           f"{CONFIGS / 'cartpole.yaml'}, or the name of a shipped config (angora-jax list-configs)."
                           ) from None
     except yaml.YAMLError as error:
-        raise ConfigError(f"{path} is not valid YAML: {error}") from None
+        raise ConfigError(f"{path} is not valid YAML: {_yaml_problem(error)}") from None
     if data is None:
         raise ConfigError(f"{path} holds no settings (it is empty or only comments). Name a shipped config instead "
                           f"({', '.join(list_configs())}), or start the file with `{EXTENDS}: NAME` and the keys to "
