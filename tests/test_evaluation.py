@@ -448,6 +448,25 @@ def test_evaluating_the_snapshots_follows_the_policy_over_training(run_dir, tmp_
     assert "keeps no snapshots" in err and "checkpoint.snapshot_every=N" in err
 
 
+
+def test_evaluate_out_writes_into_another_folder_and_nothing_into_the_run(run_dir, tmp_path, capsys):
+    """`evaluate --out FOLDER` (for a run on a share one may not write to) writes its JSON and box plot there, named as
+    in the run, adds nothing to the run, and never overwrites an earlier evaluation in that folder."""
+    before = sorted(p.relative_to(run_dir) for p in run_dir.rglob("*"))
+    elsewhere = tmp_path / "mine" / "evaluations"
+    for _ in range(2):
+        assert main(["evaluate", str(run_dir), "--checkpoint", "latest", "--episodes", "2",
+                     "--out", str(elsewhere)]) == 0
+    assert sorted(p.relative_to(run_dir) for p in run_dir.rglob("*")) == before
+    assert sorted(p.name for p in elsewhere.iterdir()) == [
+        "latest-cycle20-mode-seed0-2.json", "latest-cycle20-mode-seed0-2.png",
+        "latest-cycle20-mode-seed0.json", "latest-cycle20-mode-seed0.png"]
+    assert str(elsewhere / "latest-cycle20-mode-seed0.json") in capsys.readouterr().out
+    in_the_way = tmp_path / "a-file"
+    in_the_way.write_text("")
+    assert main(["evaluate", str(run_dir), "--episodes", "1", "--out", str(in_the_way)]) == 2
+    assert "choose another path" in capsys.readouterr().err
+
 def test_render_shows_a_trained_reach_policy_acting(cortical_reach, tmp_path, opengl):
     """`angora-jax render RUN_DIR` on the session's trained reach run (the policy branch of experiment/video.py): the
     episode `evaluate` plays with the same seed, one frame at its reset and one per step, from the start that random

@@ -11,7 +11,8 @@ OS_ERROR_FIXES = {
     errno.ENOSPC: "free space on that disk (or move the run root to a larger one)",
     errno.EDQUOT: "free space within your disk quota (or move the run root)",
     errno.EFBIG: "a file reached this process's file-size limit: raise it (`ulimit -f unlimited`, or the job's limit)",
-    errno.EROFS: "the file system is read-only: choose a writable place (logging.run_root, --out)",
+    errno.EROFS: "the file system is read-only: choose a writable place (logging.run_root, --out; evaluating a run "
+                 "there: evaluate --out FOLDER)",
     errno.EACCES: "you may not write or read there: choose another place or fix its permissions",
     errno.EPERM: "you may not write or read there: choose another place or fix its permissions",
     errno.ENAMETOOLONG: "shorten the path or name",

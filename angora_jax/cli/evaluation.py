@@ -46,6 +46,9 @@ def add_evaluate(commands: argparse._SubParsersAction) -> None:
                           help="cpu: the eager path on the host (default): C MuJoCo for MuJoCo tasks, a task's "
                                "own JAX steps for others; batched: all episodes at once on the training path (MJX, "
                                "the GPU when there is one)")
+    evaluate.add_argument("--out", default=None, metavar="FOLDER",
+                          help="the folder for the evaluation's JSON and box plot (default: RUN_DIR/evaluation), "
+                          "e.g. for a run on a share you may not write to; nothing in it is overwritten")
     evaluate.add_argument("--workers", type=positive_int, default=1,
                           help="threads stepping C MuJoCo physics (default: 1); results do not depend on it")
     add_env_option(evaluate)
@@ -111,7 +114,7 @@ def command_evaluate(args: argparse.Namespace) -> int:
     for checkpoint in checkpoints:
         result = evaluation.evaluate(args.run_dir, checkpoint, args.episodes, args.stochastic, args.seed,
                                      batch=args.batch, workers=args.workers, path=args.path,
-                                     env_overrides=args.env_option)
+                                     env_overrides=args.env_option, save=args.out or True)
         meta = result.meta
         if checkpoint == "best" and meta["checkpoint"] == "latest":
             print(f"{args.run_dir} keeps no best checkpoint (no best metric, or fewer than checkpoint.best_episodes "

@@ -102,7 +102,7 @@ PATHS = ("cpu", "batched")
 
 
 def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int = 480, stochastic: bool = False,
-             seed: int = 0, save: bool = True, batch: int = DEFAULT_BATCH, workers: int = 1,
+             seed: int = 0, save: bool | str | Path = True, batch: int = DEFAULT_BATCH, workers: int = 1,
              path: str = "cpu", env_overrides: Sequence[str] = ()) -> Evaluation:
     """Evaluate the policy saved in `run_dir` for `episodes` episodes.
 
@@ -116,7 +116,8 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
         seed: picks the episodes' initial states and goals (those of `Agent.evaluate` with the same seed).
         save: write `RUN_DIR/evaluation/<checkpoint>-cycle<N>-<mode>-seed<S>.json` (`cycle<N>-...` alone for a
             checkpoint chosen by its cycle; with `-batched` before `.json` for that path) and a box plot `.png` of
-            the same name (a `-2`, `-3`, ... suffix when taken: nothing is overwritten).
+            the same name (a `-2`, `-3`, ... suffix when taken: nothing is overwritten); a folder instead of True
+            writes them there (a run on a share you may not write to), False writes nothing.
         batch: episodes run at once on the CPU path (at most `episodes`).
         workers: threads stepping the C MuJoCo physics of the batch (at most `batch`; see `EagerBatch`).
         path: "cpu" (the eager path) or "batched" (all episodes at once on the training path, each one at most the
@@ -158,18 +159,20 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
 
 
 def _evaluation(per_episode: dict[str, np.ndarray], meta: dict[str, Any], run_dir: str | Path,
-                save: bool) -> Evaluation:
+                save: bool | str | Path) -> Evaluation:
     """The `Evaluation` of `per_episode`, its quantities in one order whichever path made them (the batched path's
     come back from JAX sorted by name, the CPU path's in the task's order): return, length, then the task's metrics
-    by name. Saved in the run's evaluation folder when `save`."""
+    by name. Saved in the run's evaluation folder when `save` is True, in the folder `save` names if it is one."""
     first = [name for name in ("episode_return", "episode_length") if name in per_episode]
     ordered = {name: per_episode[name] for name in first + sorted(set(per_episode) - set(first))}
     result = Evaluation(ordered, {name: summarize(v) for name, v in ordered.items()}, meta)
-    return save_evaluation(result, Path(run_dir) / EVALUATIONS) if save else result
+    if not save:
+        return result
+    return save_evaluation(result, Path(run_dir) / EVALUATIONS if save is True else Path(save))
 
 
 def _evaluate_batched(agent: Agent, run_dir: str | Path, checkpoint: str | int, episodes: int, stochastic: bool,
-                      seed: int, save: bool, changed: dict[str, Any]) -> Evaluation:
+                      seed: int, save: bool | str | Path, changed: dict[str, Any]) -> Evaluation:
     """`evaluate` on the batched training path: one compiled program runs all `episodes` at once."""
     compiled = agent.compiled_once(("batched", episodes, stochastic), lambda: make_evaluate(
         agent.env, agent.network, agent.config.ppo, episodes, not stochastic, per_episode=True
