@@ -137,6 +137,25 @@ def test_a_path_in_or_above_a_run_names_the_run_directory(capsys, tmp_path, monk
         assert said in capsys.readouterr().err, argv
 
 
+@pytest.mark.parametrize("text", ["", "# only a comment\n", "env: {task: [CartPole\n", "- env\n"])
+def test_a_run_whose_config_is_empty_or_damaged_is_answered_with_the_runs_fix(text, capsys, tmp_path):
+    """A run's config.yaml emptied, cut short or holding no mapping is answered, on every command that reads the run,
+    with `check --restore-config` first, not with `train`'s advice to name one of the shipped configs; a run without
+    checkpoints (nothing keeps a copy) says so."""
+    run = tmp_path / "run"
+    (run / "checkpoints" / "latest" / "3").mkdir(parents=True)  # what `has_checkpoints` looks for
+    (run / "config.yaml").write_text(text)
+    for verb in (["evaluate"], ["resume"], ["check"], ["export", "--out", str(tmp_path / "p.msgpack")]):
+        assert main([*verb, str(run)]) == 2, verb
+        err = capsys.readouterr().err
+        assert f"{run / 'config.yaml'} is damaged: `angora-jax check {run} --restore-config` writes it again" in err
+        assert "shipped config" not in err and "cartpole" not in err and "Traceback" not in err, err
+    assert (run / "config.yaml").read_text() == text
+    shutil.rmtree(run / "checkpoints")
+    assert main(["evaluate", str(run)]) == 2
+    assert f"{run} has no checkpoint that keeps a copy of it" in capsys.readouterr().err
+
+
 def write_recording(path: Path) -> Path:
     """A small recording's layout (the episode and time dimensions, the alive mask, one layer) as NetCDF."""
     import xarray as xr

@@ -528,7 +528,7 @@ def test_a_damaged_or_lost_config_is_written_again_from_the_checkpoints_copy(who
     config.write_text(original[: len(original) // 2] + "\n  [")
     for verb in (["resume"], ["evaluate", "--episodes", "1"]):
         err = exits_2([*verb, str(run)], capsys)
-        assert "config.yaml does not load" in err and f"angora-jax check {run} --restore-config" in err
+        assert f"config.yaml is damaged: `angora-jax check {run} --restore-config` writes it again" in err
     assert main(["check", str(run), "--restore-config"]) == 0
     out = capsys.readouterr().out
     assert f"Restored {config} from the config saved with the latest checkpoint of cycle {CYCLES}" in out

@@ -64,6 +64,16 @@ class ConfigError(ValueError):
     """A config that cannot run; the message names the key, what is allowed and how to fix it."""
 
 
+class UnreadableConfigError(ConfigError):
+    """A config file that holds no settings at all: not UTF-8, not valid YAML, empty (or only comments), or no
+    mapping. `cause` says which without the fix for a config given to `train` (name a shipped one), so that a run's
+    config.yaml can be answered with the run's own fix (`check --restore-config`, `run_dir.read_run_config`)."""
+
+    def __init__(self, message: str, cause: str) -> None:
+        super().__init__(message)
+        self.cause = cause
+
+
 # Far above any real config (the largest shipped one has under 200 YAML nodes and nests 7 levels deep), far below what
 # hangs: a few hundred bytes of aliases of aliases ("billion laughs") expand to 10**9 values, which copying, checking
 # or printing the config would each walk.
@@ -539,17 +549,22 @@ def _read(source: str | Path | dict | None, chain: tuple[Path, ...] = ()) -> dic
     except YAMLRefused as error:
         raise ConfigError(f"{path}: {error}") from None
     except UnicodeDecodeError:
-        raise ConfigError(f"{path} is not a text file (not UTF-8): a config is a YAML file such as "
-                          f"{CONFIGS / 'cartpole.yaml'}, or the name of a shipped config (angora-jax list-configs)."
-                          ) from None
+        raise UnreadableConfigError(
+            f"{path} is not a text file (not UTF-8): a config is a YAML file such as {CONFIGS / 'cartpole.yaml'}, or "
+            "the name of a shipped config (angora-jax list-configs).", "it is not a text file (not UTF-8).") from None
     except yaml.YAMLError as error:
-        raise ConfigError(f"{path} is not valid YAML: {_yaml_problem(error)}") from None
+        problem = _yaml_problem(error)
+        raise UnreadableConfigError(f"{path} is not valid YAML: {problem}",
+                                    f"it is not valid YAML: {problem.rstrip('.')}.") from None
     if data is None:
-        raise ConfigError(f"{path} holds no settings (it is empty or only comments). Name a shipped config instead "
-                          f"({', '.join(list_configs())}), or start the file with `{EXTENDS}: NAME` and the keys to "
-                          "change.")
+        raise UnreadableConfigError(
+            f"{path} holds no settings (it is empty or only comments). Name a shipped config instead "
+            f"({', '.join(list_configs())}), or start the file with `{EXTENDS}: NAME` and the keys to change.",
+            "it holds no settings (it is empty or only comments).")
     if not isinstance(data, dict):
-        raise ConfigError(f"{path} must hold a mapping of sections (env, ppo, ...), got {type(data).__name__}.")
+        raise UnreadableConfigError(
+            f"{path} must hold a mapping of sections (env, ppo, ...), got {type(data).__name__}.",
+            f"it holds a {type(data).__name__}, not a mapping of sections (env, ppo, ...).")
     if EXTENDS not in data:
         return data
     # `extends: NAME` (a shipped config or a path relative to this file): that config with this file's keys on top.

@@ -32,7 +32,7 @@ from typing import Any
 
 import yaml
 
-from angora_jax.experiment.config import Config, ConfigError, flatten, load_config, to_dict
+from angora_jax.experiment.config import Config, ConfigError, UnreadableConfigError, flatten, load_config, to_dict
 from angora_jax.registry.plugins import module_files, remember_definitions, remember_files
 from angora_jax.saved_files import USE, msgpack_kind
 from angora_jax.whole_files import written_whole
@@ -164,6 +164,14 @@ def read_run_config(run_dir: str | Path) -> Config:
         raise RunDirError(not_a_run_dir(run_dir, "Start runs with `angora-jax train` (in Python: aj.train)."))
     try:
         config = load_config(path)
+    except UnreadableConfigError as error:  # the run's fix first: `train`'s (name a shipped config) is no fix here
+        if has_checkpoints(run_dir):
+            raise RunDirError(f"{path} is damaged: `angora-jax check {run_dir} --restore-config` writes it again from "
+                              "the copy its checkpoints keep (the file as it is now is kept beside it). What is wrong "
+                              f"with it: {error.cause}") from None
+        raise RunDirError(f"{path} is damaged and {run_dir} has no checkpoint that keeps a copy of it: write it back "
+                          "from a copy of your own, or start the run again with `angora-jax train CONFIG`. What is "
+                          f"wrong with it: {error.cause}") from None
     except ConfigError as error:
         copy = (f" Its checkpoints keep a copy of it: `angora-jax check {run_dir} --restore-config` writes that back "
                 "(the file as it is now is kept beside it).") if has_checkpoints(run_dir) else ""
