@@ -74,6 +74,30 @@ def test_export_never_overwrites_and_load_policy_refuses_other_files(lstm_run, t
         aj.load_policy(lstm_run)
 
 
+def test_export_into_a_folder_writes_the_runs_name_there_and_another_suffix_is_refused(lstm_run, tmp_path, capsys,
+                                                                                       monkeypatch):
+    """`--out newdir/` wrote a file named newdir, `--out` an existing folder failed as an existing file, and `--out
+    x.txt` was accepted: a folder (existing, or a name ending in '/') gets RUN_NAME.msgpack inside it, and a name not
+    ending in .msgpack is refused before the run is read, with the name to give; nothing is written for it."""
+    (tmp_path / "existing").mkdir()
+    for out, written in [(f"{tmp_path / 'newdir'}/", tmp_path / "newdir" / "lstm.msgpack"),
+                         (str(tmp_path / "existing"), tmp_path / "existing" / "lstm.msgpack")]:
+        assert main(["export", str(lstm_run), "--out", out, "--checkpoint", "latest"]) == 0, capsys.readouterr().err
+        assert f"Policy of the latest checkpoint: {written} (load it" in capsys.readouterr().out
+        assert aj.load_policy(written).agent.cycle == 2
+    assert main(["export", str(lstm_run), "--out", str(tmp_path / "existing")]) == 2, "its lstm.msgpack is kept"
+    assert f"{tmp_path / 'existing' / 'lstm.msgpack'} exists" in capsys.readouterr().err
+    before = sorted(tmp_path.rglob("*"))
+    for out, said in [("x.txt", "give --out a name ending in .msgpack (e.g. x.msgpack), not x.txt."),
+                      ("policy", "(e.g. policy.msgpack), or policy/ to write policy/lstm.msgpack, not policy.")]:
+        monkeypatch.chdir(tmp_path)
+        assert main(["export", str(lstm_run), "--out", out]) == 2
+        assert said in capsys.readouterr().err
+    with pytest.raises(ValueError, match="an exported policy is a msgpack file"):
+        export_policy(lstm_run, tmp_path / "x.txt")
+    assert sorted(tmp_path.rglob("*")) == before
+
+
 @pytest.mark.slow
 def test_the_exported_policy_benchmark_reproduces_evaluates_episodes_in_a_loop_of_its_own(lstm_run, tmp_path):
     policy_file = tmp_path / "policy.msgpack"

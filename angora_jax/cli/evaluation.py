@@ -78,7 +78,9 @@ def add_export(commands: argparse._SubParsersAction) -> None:
     """The `export` verb: its arguments and its handler."""
     export = commands.add_parser("export", help="a trained policy in one file (aj.load_policy reads it)")
     export.add_argument("run_dir", help="the run whose policy is exported")
-    export.add_argument("--out", required=True, help="the file to write (msgpack); never overwritten")
+    export.add_argument("--out", required=True, help="the file to write, ending in .msgpack, or a folder to write "
+                                                     "RUN_NAME.msgpack in (an existing one, or a name ending in /); "
+                                                     "never overwritten")
     export.add_argument("--checkpoint", default="best", help="best, latest or a cycle number (default: best)")
     export.set_defaults(handler=command_export)
 
@@ -151,11 +153,16 @@ def command_render(args: argparse.Namespace) -> int:
 
 
 def command_export(args: argparse.Namespace) -> int:
-    from angora_jax.experiment.export import export_policy
+    from angora_jax.experiment.export import export_policy, policy_path
 
     asked = checkpoint_of(args.checkpoint)
+    try:  # before the run is read: a name that is no .msgpack file, refused with the name to give
+        out = policy_path(args.out, args.run_dir)
+    except ValueError as error:
+        print(f"angora-jax export: {error}", file=sys.stderr)
+        return EXIT_USAGE
     try:
-        out = export_policy(args.run_dir, args.out, asked)
+        out = export_policy(args.run_dir, out, asked)
     except FileExistsError as error:
         print(f"angora-jax export: {error}", file=sys.stderr)
         return EXIT_USAGE

@@ -8,6 +8,7 @@ and the `PolicyState` (network parameters, observation normaliser, training cycl
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,16 +19,37 @@ from flax import serialization
 from angora_jax.envs.core import Sensation
 from angora_jax.experiment.agent import Agent, acting_parts, load_agent
 from angora_jax.experiment.config import load_config, to_dict
-from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError
+from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError, run_source
 from angora_jax.whole_files import written_whole
 
 FORMAT = "angora_jax.policy/1"
 
 
-def export_policy(run_dir: str | Path, out: str | Path, checkpoint: str | int = "best") -> Path:
-    """Write the policy of `run_dir`'s checkpoint ("best", "latest" or a cycle, as `load_agent` takes it) to `out`;
-    an existing `out` is never overwritten (FileExistsError). Returns the path written."""
+SUFFIX = ".msgpack"
+
+
+def policy_path(out: str | Path, run_dir: str | Path) -> Path:
+    """Where `export_policy(run_dir, out)` writes: `out` itself when it names a .msgpack file; inside the folder `out`
+    when it is one, or ends with '/' (then made), as `<folder>/<run name>.msgpack` (as `cp` copies into a folder).
+    ValueError, naming the name to give, for any other name (`x.txt`, `policy`): the file is msgpack, whatever its
+    name, and a name without a suffix may have meant a folder."""
+    text = str(out)
+    if Path(out).is_dir() or text.endswith(("/", os.sep)):
+        return Path(out) / f"{Path(run_source(run_dir)[0]).resolve().name}{SUFFIX}"
     out = Path(out)
+    if out.suffix.lower() != SUFFIX:
+        into = f", or {text}/ to write {Path(text, Path(run_source(run_dir)[0]).resolve().name + SUFFIX)}" if (
+            not out.suffix) else ""
+        raise ValueError(f"an exported policy is a msgpack file: give --out a name ending in {SUFFIX} (e.g. "
+                         f"{out.with_suffix(SUFFIX) if out.name else 'policy' + SUFFIX}){into}, not {out.name}.")
+    return out
+
+
+def export_policy(run_dir: str | Path, out: str | Path, checkpoint: str | int = "best") -> Path:
+    """Write the policy of `run_dir`'s checkpoint ("best", "latest" or a cycle, as `load_agent` takes it) to `out`
+    (a .msgpack file, or a folder to write `<run name>.msgpack` in: `policy_path`; ValueError for another name); an
+    existing file is never overwritten (FileExistsError). Returns the path written."""
+    out = policy_path(out, run_dir)
     if out.exists():
         raise FileExistsError(f"{out} exists; exporting never overwrites a file: give another --out.")
     agent = load_agent(run_dir, checkpoint)
