@@ -269,6 +269,14 @@ def test_bad_files_fail_clearly(tmp_path: Path):
             load_config(tmp_path / "empty.yaml")
     with pytest.raises(ConfigError, match="is a directory; give a config's YAML file"):
         load_config(tmp_path)
+    # A dotted key in a file is one key of that name to YAML: say to nest it, not only that it is unknown.
+    for text, nested in [('extends: cartpole\n"ppo.num_envs": 8\n', r"\(`ppo:` then `  num_envs: 8`\); dotted keys "
+                          r"are for command-line overrides \(ppo.num_envs=8\)\.$"),
+                         ("ppo:\n  network.name: lstm\n", r"\(`ppo:` then `  network:` then `    name: lstm`\)")]:
+        (tmp_path / "dotted.yaml").write_text(text)
+        with pytest.raises(ConfigError, match=r"^Unknown key 'ppo\.(num_envs|network\.name)': in a YAML file, write it "
+                                              rf"nested {nested}"):
+            load_config(tmp_path / "dotted.yaml")
 
 
 def test_shipped_configs_are_found_by_name_from_any_directory(tmp_path: Path, monkeypatch):

@@ -659,6 +659,8 @@ def _build(cls: type, data: Any, path: str) -> Any:
                               f"such as {names[0]!r} (keys of {where}: {', '.join(names)}); quote it if it is one.")
         if key not in names:
             full = f"{path}.{key}" if path else str(key)
+            if "." in key and key.split(".")[0] in names:
+                raise ConfigError(_dotted_key(full, data[key]))
             prefix = f"{path}." if path else ""
             close = [prefix + name for name in difflib.get_close_matches(str(key), names, n=1)]
             guesses = close or [prefix + below for below in _paths_below(cls, str(key))]
@@ -682,6 +684,18 @@ def _build(cls: type, data: Any, path: str) -> Any:
             except ValueError as error:
                 raise ConfigError(str(error)) from None
     return cls(**values)
+
+
+def _dotted_key(full: str, value: Any) -> str:
+    """The message for a dotted key in a file (`ppo.num_envs: 8`), which YAML reads as one key named so: the file's
+    way to write it (nested), and where a dotted key belongs (an override)."""
+    shown = yaml.safe_dump(value, default_flow_style=True, width=1000).strip().removesuffix("...").strip()
+    shown = shown if len(shown) <= 60 and "\n" not in shown else "VALUE"
+    *sections, leaf = full.split(".")
+    lines = [f"`{'  ' * depth}{section}:`" for depth, section in enumerate(sections)]
+    nested = " then ".join([*lines, f"`{'  ' * len(sections)}{leaf}: {shown}`"])
+    return (f"Unknown key {full!r}: in a YAML file, write it nested ({nested}); dotted keys are for command-line "
+            f"overrides ({full}={shown}).")
 
 
 def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
