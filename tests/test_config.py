@@ -93,6 +93,13 @@ BAD = {
                                       r"file systems allow 255"),
     "run root too long": (["logging.run_root=" + "/abc" * 1100], r"logging.run_root=.* is 4,400 bytes long; file "
                                                                  r"systems allow paths of 4,095"),
+    "override value not YAML": (["ppo.num_envs=[1"], r"^Override 'ppo.num_envs=\[1': its value is not valid YAML "
+                                                     r"\(expected ',' or '\]', but got '<stream end>' at character "
+                                                     r"3\); add the missing '\]' \('ppo.num_envs=\[1\]'\) or quote "
+                                                     r"the value to give it as text \('ppo.num_envs=\"\[1\"'\)\.$"),
+    "override value no token": (["env.task=@x"], r"^Override 'env.task=@x': its value is not valid YAML \(found "
+                                                 r"character '@' that cannot start any token at character 1\); quote "
+                                                 r"the value to give it as text \('env.task=\"@x\"'\)\.$"),
     "override without =": (["ppo.num_cycles"], r"must look like key.sub=value, e.g. ppo.num_cycles=VALUE"),
     "stop at a metric the task lacks": (["ppo.stop_at={metric: metric/goals_reached, value: 30}"],
                                         r"ppo.stop_at.metric.*episode_return"),

@@ -14,10 +14,12 @@ import difflib
 import importlib.util
 import inspect
 import itertools
+import json
 import math
 import os
 import re
 import reprlib
+import shlex
 import types
 import typing
 from dataclasses import dataclass, field
@@ -515,15 +517,56 @@ def num_devices(config: Config) -> int:
 def _yaml_problem(error: yaml.YAMLError) -> str:
     """PyYAML's error as one sentence with its line, and the fix for a tab (YAML indents with spaces only), which
     PyYAML calls "found character '\\t' that cannot start any token" and leaves the reader to work out."""
-    mark = getattr(error, "problem_mark", None)
-    problem = getattr(error, "problem", None)
-    if mark is None or problem is None:
+    if (parts := _yaml_parts(error)) is None:
         return str(error)
+    problem, mark = parts
     where = f"{problem} (line {mark.line + 1}, column {mark.column + 1})"
     if "'\\t'" in problem:
         return (f"{where}: YAML indents with spaces, never tabs: replace the tabs on that line with spaces (an "
                 "editor's 'convert indentation to spaces' does the whole file).")
     return f"{where}: fix that line or the one before it (a missing ':', bracket or quote is usual)."
+
+
+def _yaml_parts(error: yaml.YAMLError) -> tuple[str, Any] | None:
+    """PyYAML's problem (its last line, without the snippet and caret) and where it is; None when it names none."""
+    mark = getattr(error, "problem_mark", None)
+    problem = getattr(error, "problem", None)
+    return None if mark is None or problem is None else (problem, mark)
+
+
+def _override_problem(override: str, key: str, text: str, error: yaml.YAMLError) -> str:
+    """A value of an override that is not valid YAML (`ppo.num_envs=[1`) in one sentence: PyYAML's problem and the
+    character it is at, what closes a bracket or quote left open (when that makes it valid), and the override with
+    the value quoted as text. Each fix is written as a shell takes it (quoted where the shell would otherwise change
+    it), the way the override was most likely given."""
+    parts = _yaml_parts(error)
+    problem = (f"{parts[0]} at character {parts[1].column + 1}" if parts and parts[1].line == 0 else
+               parts[0] if parts else str(error).splitlines()[-1].strip())
+    closer = _closing(text)
+    closes = ""
+    if closer:
+        with contextlib.suppress(yaml.YAMLError, YAMLRefused):
+            load_yaml(text + closer)
+            closes = f"add the missing {closer!r} ({shlex.quote(f'{key}={text}{closer}')}) or "
+    quoted = shlex.quote(f"{key}={json.dumps(text, ensure_ascii=False)}")
+    return (f"Override {_shorten(override)}: its value is not valid YAML ({problem}); {closes}quote the value to give "
+            f"it as text ({quoted}).")
+
+
+def _closing(text: str) -> str:
+    """What closes the quote and the brackets that `text` leaves open, innermost first ("" when none is open)."""
+    stack: list[str] = []
+    quote = None
+    for char in text:
+        if quote is not None:
+            quote = None if char == quote else quote
+        elif char in "\"'":
+            quote = char
+        elif char in "[{":
+            stack.append("]" if char == "[" else "}")
+        elif stack and char == stack[-1]:
+            stack.pop()
+    return (quote or "") + "".join(reversed(stack))
 
 
 def _read(source: str | Path | dict | None, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
@@ -624,7 +667,7 @@ def _apply_override(data: dict[str, Any], override: str) -> None:
     except YAMLRefused as error:
         raise ConfigError(f"Override {_shorten(override)}: {error}") from None
     except yaml.YAMLError as error:
-        raise ConfigError(f"Override {override!r}: the value is not valid YAML ({error}).") from None
+        raise ConfigError(_override_problem(override, key, text, error)) from None
     *sections, leaf = key.split(".")
     node = data
     for depth, section in enumerate(sections):
