@@ -110,6 +110,7 @@ BAD = {
     "huge integer for a number": (["ppo.gamma=1" + "0" * 400], r"ppo.gamma must be a finite number, got a 401-digit"),
     "integer too long to read": (["ppo.seed=1" + "0" * 5000], r"Override 'ppo.seed=10.*the integer on line 1 has 5,001 "
                                                               r"digits"),
+    "not an integer, tagged as one": (["ppo.num_envs=!!int x"], r"'x' on line 1 is tagged !!int but is no integer"),
     "negative seed": (["ppo.seed=-1"], r"ppo.seed must be >= 0, got -1 \(allowed: integers from 0 to 4,294,967,295"),
     "seed beyond 32 bits": (["ppo.seed=100000000000000000000000"],
                             r"ppo.seed must be <= 4,294,967,295, got 100000000000000000000000 .*low 32 bits"),

@@ -144,9 +144,12 @@ class ConfigLoader(yaml.SafeLoader):
         try:
             return super().construct_yaml_int(node)
         except ValueError:
-            raise YAMLRefused(f"the integer on line {node.start_mark.line + 1} has "
-                              f"{sum(c.isdigit() for c in node.value):,} digits, more than any setting takes: give "
-                              "a number in the key's range.") from None
+            digits = sum(c.isdigit() for c in node.value)
+            if digits <= 4300:  # a value tagged !!int that is no integer at all
+                raise YAMLRefused(f"{node.value!r} on line {node.start_mark.line + 1} is tagged !!int but is no "
+                                  "integer: give a whole number, without the tag.") from None
+            raise YAMLRefused(f"the integer on line {node.start_mark.line + 1} has {digits:,} digits, more than any "
+                              "setting takes: give a number in the key's range.") from None
 
 
 ConfigLoader.add_constructor("tag:yaml.org,2002:int", ConfigLoader.construct_yaml_int)
