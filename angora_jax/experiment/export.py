@@ -33,13 +33,15 @@ def policy_path(out: str | Path, run_dir: str | Path) -> Path:
     when it is one, or ends with '/' (then made), as `<folder>/<run name>.msgpack` (as `cp` copies into a folder).
     ValueError, naming the name to give, for any other name (`x.txt`, `policy`): the file is msgpack, whatever its
     name, and a name without a suffix may have meant a folder."""
-    text = str(out)
-    if Path(out).is_dir() or text.endswith(("/", os.sep)):
-        return Path(out) / f"{Path(run_source(run_dir)[0]).resolve().name}{SUFFIX}"
-    out = Path(out)
+    text, out = str(out), Path(out)
+
+    def in_folder() -> Path:
+        return out / f"{Path(run_source(run_dir)[0]).resolve().name}{SUFFIX}"
+
+    if out.is_dir() or text.endswith(("/", os.sep)):
+        return in_folder()
     if out.suffix.lower() != SUFFIX:
-        into = f", or {text}/ to write {Path(text, Path(run_source(run_dir)[0]).resolve().name + SUFFIX)}" if (
-            not out.suffix) else ""
+        into = f", or {text}/ to write {in_folder()}" if not out.suffix else ""
         raise ValueError(f"an exported policy is a msgpack file: give --out a name ending in {SUFFIX} (e.g. "
                          f"{out.with_suffix(SUFFIX) if out.name else 'policy' + SUFFIX}){into}, not {out.name}.")
     return out

@@ -14,6 +14,7 @@ import jax
 from angora_jax.envs.core import Env
 from angora_jax.experiment.config import Config, num_devices, to_dict
 from angora_jax.ppo.cycle import TrainState, make_cycle
+from angora_jax.ppo.step_size import spanning_schedules
 from angora_jax.registry import generation
 
 
@@ -45,7 +46,7 @@ def cycle_programs(config: Config, env: Env) -> tuple[Callable, Callable]:
     settings = to_dict(config)
     # The cycle count reaches the programs only through the schedules that end at the last cycle, so without them
     # a `resume --num-cycles N` in the same process reuses the programs instead of tracing and compiling them again.
-    scheduled = ppo.lr_decay or ppo.entropy_coef_final is not None
+    scheduled = bool(spanning_schedules(ppo))
     key = json.dumps({"env": settings["env"],
                       "ppo": {**settings["ppo"], "seed": None, **({} if scheduled else {"num_cycles": None})},
                       "distribution": settings["distribution"], "devices": num_devices(config),

@@ -60,6 +60,7 @@ from angora_jax.experiment.sources import check_sources
 from angora_jax.nets.registry import NETWORKS
 from angora_jax.ppo.cycle import TrainState
 from angora_jax.ppo.parallel import per_device
+from angora_jax.ppo.step_size import spanning_schedules
 from angora_jax.ppo.train import training_cycles
 from angora_jax.registry import definition
 from angora_jax.registry.plugins import module_files
@@ -313,8 +314,7 @@ def _lengthened(config: Config, num_cycles: int, run_dir: Path) -> Config:
     """`config` trained to `num_cycles` cycles in all; ConfigError where its schedules span its length."""
     if num_cycles == config.ppo.num_cycles:
         return config
-    spanning = [name for name, on in (("ppo.lr_decay", config.ppo.lr_decay),
-                                      ("ppo.entropy_coef_final", config.ppo.entropy_coef_final is not None)) if on]
+    spanning = spanning_schedules(config.ppo)
     if spanning:
         raise ConfigError(
             f"{run_dir} anneals over its ppo.num_cycles ({' and '.join(spanning)}), so another length would change "

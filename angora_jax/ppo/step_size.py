@@ -42,6 +42,13 @@ def make_optimizer(
     return clipped_adam(schedule(config, updates_per_cycle))
 
 
+def spanning_schedules(config: PPOConfig) -> list[str]:
+    """The settings whose schedules end at the run's last cycle (`ppo.lr_decay`, `ppo.entropy_coef_final`): the only
+    way `num_cycles` reaches the compiled programs, and why such a run cannot be lengthened mid-run."""
+    return [name for name, on in (("ppo.lr_decay", config.lr_decay),
+                                  ("ppo.entropy_coef_final", config.entropy_coef_final is not None)) if on]
+
+
 def schedule(config: PPOConfig, updates_per_cycle: int) -> optax.Schedule:
     """The learning rate as a function of the update count, for runs without `target_kl`."""
     if config.lr_decay:
