@@ -2,6 +2,7 @@
 a message that names the key and what is allowed."""
 
 import dataclasses
+import re
 import time
 import tracemalloc
 import typing
@@ -284,6 +285,14 @@ def test_bad_files_fail_clearly(tmp_path: Path):
         (tmp_path / "dotted.yaml").write_text(text)
         with pytest.raises(ConfigError, match=r"^Unknown key 'ppo\.(num_envs|network\.name)': in a YAML file, write it "
                                               rf"nested {nested}"):
+            load_config(tmp_path / "dotted.yaml")
+    # A misspelt part is named at once, not after the user has nested the key as told.
+    for text, misspelt in [('extends: cartpole\n"ppo.num_envz": 8\n', "there is no key 'ppo.num_envz': did you mean "
+                            "'ppo.num_envs'?"),
+                           ('extends: cartpole\n"ppo.stop_at.valeu": 3\n', "there is no key 'ppo.stop_at.valeu': did "
+                            "you mean 'ppo.stop_at.value'?")]:
+        (tmp_path / "dotted.yaml").write_text(text)
+        with pytest.raises(ConfigError, match=re.escape(f"Nested, it is still unknown: {misspelt}")):
             load_config(tmp_path / "dotted.yaml")
 
 

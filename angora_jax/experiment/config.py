@@ -706,7 +706,7 @@ def _build(cls: type, data: Any, path: str) -> Any:
         if key not in names:
             full = f"{path}.{key}" if path else str(key)
             if "." in key and key.split(".")[0] in names:
-                raise ConfigError(_dotted_key(full, data[key]))
+                raise ConfigError(_dotted_key(full, data[key]) + _misspelt_below(cls, key, path))
             prefix = f"{path}." if path else ""
             close = [prefix + name for name in difflib.get_close_matches(str(key), names, n=1)]
             guesses = close or [prefix + below for below in _paths_below(cls, str(key))]
@@ -742,6 +742,25 @@ def _dotted_key(full: str, value: Any) -> str:
     nested = " then ".join([*lines, f"`{'  ' * len(sections)}{leaf}: {shown}`"])
     return (f"Unknown key {full!r}: in a YAML file, write it nested ({nested}); dotted keys are for command-line "
             f"overrides ({full}={shown}).")
+
+
+def _misspelt_below(cls: type, dotted: str, path: str) -> str:
+    """For a dotted key in a file: whether nesting it alone would fix it, or a part of it is no key either
+    (`ppo.num_envz`), said now rather than after the user has nested it."""
+    prefix = f"{path}." if path else ""
+    for part in dotted.split("."):
+        names = [f.name for f in dataclasses.fields(cls)]
+        if part not in names:
+            close = difflib.get_close_matches(part, names, n=1)
+            guess = f": did you mean {prefix + close[0]!r}?" if close else f" (keys there: {', '.join(names)})."
+            return f" Nested, it is still unknown: there is no key {prefix + part!r}{guess}"
+        kind = typing.get_type_hints(cls)[part]
+        options = [kind, *typing.get_args(kind)]  # an optional section (`StopAt | None`)
+        sections = [option for option in options if dataclasses.is_dataclass(option)]
+        if not sections:
+            return ""
+        cls, prefix = sections[0], f"{prefix}{part}."
+    return ""
 
 
 def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
