@@ -486,6 +486,47 @@ def test_render_shows_a_trained_reach_policy_acting(cortical_reach, tmp_path, op
     assert iio.imread(out).shape == (len(frames), 48, 64, 3)
 
 
+def ffmpeg_with_a_full_disk(monkeypatch, size: int) -> None:
+    """The ffmpeg that imageio-ffmpeg starts may write no more than `size` bytes to a file (EFBIG past them, as a disk
+    that fills up answers ENOSPC): its process's file-size limit, set in the child only."""
+    import resource
+    import signal
+
+    import imageio_ffmpeg._io as ffmpeg_io
+
+    popen_kwargs = ffmpeg_io._popen_kwargs
+
+    def limited(*args, **kwargs):
+        chosen = popen_kwargs(*args, **kwargs)
+        before = chosen["preexec_fn"]
+
+        def start():
+            if before is not None:
+                before()
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails instead of killing ffmpeg
+            resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+
+        return chosen | {"preexec_fn": start}
+
+    monkeypatch.setattr(ffmpeg_io, "_popen_kwargs", limited)
+
+
+def test_an_mp4_that_ffmpeg_could_not_finish_is_refused_not_written(tmp_path, capsys, monkeypatch):
+    """A disk that filled up while ffmpeg wrote an MP4: ffmpeg printed "Error writing trailer: No space left on
+    device" and exited with an error, which imageio-ffmpeg ignores; `render` printed "Video: v.mp4" with exit 0 and
+    left a file cut short that no player opens. Now it exits 2 naming the cause and the fix, and writes nothing."""
+    import angora_jax.experiment.video as video
+
+    frames = list(np.random.default_rng(0).integers(0, 256, (20, 64, 64, 3), dtype=np.uint8))
+    monkeypatch.setattr(video, "render_episodes", lambda *args, **kwargs: (frames, 0.1))
+    ffmpeg_with_a_full_disk(monkeypatch, 20_000)
+    out = tmp_path / "v.mp4"
+    assert main(["render", "--task", "ShadowHandReach", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"ffmpeg could not finish {out}" in err and "free space on that disk" in err, err
+    assert "Traceback" not in err and list(tmp_path.iterdir()) == [], "nothing written, no draft left"
+
+
 def test_an_mp4_is_written_without_jaxs_warning_that_forking_will_deadlock(tmp_path):
     """imageio-ffmpeg forks to exec ffmpeg (no Python runs in the child), and JAX warned at every such fork that it
     "will likely lead to a deadlock": on every MP4 `render`, beside a real hang elsewhere, it misled."""

@@ -9,6 +9,8 @@ Rendering needs an OpenGL backend (see `angora_jax.envs.rendering`: MUJOCO_GL=eg
 
 from __future__ import annotations
 
+import importlib.util
+import struct
 import warnings
 from pathlib import Path
 from typing import Any
@@ -144,9 +146,41 @@ def write_video(frames: list[np.ndarray], out: str | Path, fps: float) -> Path:
                     warnings.filterwarnings("ignore", message="os.fork\\(\\) was called", category=RuntimeWarning)
                     iio.imwrite(draft, np.stack(frames), fps=fps, macro_block_size=1)
             except (ImportError, RuntimeError, OSError) as error:
+                if isinstance(error, OSError) and error.errno is not None:
+                    raise  # the system's own (a read-only folder): the command names the file and the fix
+                if importlib.util.find_spec("imageio_ffmpeg") is not None:
+                    raise RenderError(_ffmpeg_failed(out, str(error).splitlines()[0])) from None
                 raise RenderError(
                     f"Cannot encode {out} ({error}). MP4 needs the imageio-ffmpeg package (`pip install -c "
                     f"constraints.txt -e .` installs it); or write a .gif, which needs only Pillow."
                 ) from error
+            if not whole_mp4(draft):
+                raise RenderError(_ffmpeg_failed(out, "the file it wrote is cut short"))
     return out
+
+
+def _ffmpeg_failed(out: Path, why: str) -> str:
+    return (f"ffmpeg could not finish {out} ({why}; ffmpeg's own error is printed above: a full disk is the usual "
+            "cause), and nothing was written: free space on that disk, or choose another --out, and render again.")
+
+
+def whole_mp4(path: Path) -> bool:
+    """Whether `path` is a whole MP4 file: top-level boxes that end exactly where the file ends, its index (`moov`)
+    among them. imageio-ffmpeg ignores ffmpeg's exit status, so a file ffmpeg could not finish (a full disk or a
+    file-size limit while it wrote: 'Error writing trailer') was renamed into place, cut short, and `render` said
+    'Video: ...' with exit 0."""
+    size, at, kinds = path.stat().st_size, 0, set()
+    with path.open("rb") as file:
+        while at + 8 <= size:
+            file.seek(at)
+            length, kind = struct.unpack(">I4s", file.read(8))
+            if length == 1:  # a 64-bit size follows the type
+                length = struct.unpack(">Q", file.read(8))[0]
+            elif length == 0:  # the box runs to the end of the file
+                length = size - at
+            if length < 8:
+                return False
+            kinds.add(kind)
+            at += length
+    return at == size and b"moov" in kinds
 
