@@ -31,3 +31,13 @@ def written_whole(path: str | Path, replace: bool = True) -> Iterator[Path]:
         raise
     finally:
         draft.unlink(missing_ok=True)
+
+
+def unwritable_folder(out: str | Path) -> str | None:
+    """Why no file can be written at `out`, or None: the nearest existing folder on its way (its own, or the one its
+    missing folders would be made in) is a file, or is not writable. Asked before work that takes minutes (rendering
+    a video, training an encoder), which otherwise ended only then, in "[Errno 17] File exists: 'notes.txt'"."""
+    folder = next(parent for parent in Path(out).absolute().parents if parent.exists())
+    if not folder.is_dir():
+        return f"{folder} is a file, not a folder"
+    return None if os.access(folder, os.W_OK) else f"{folder} is not writable"

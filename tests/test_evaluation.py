@@ -367,6 +367,27 @@ def test_render_refuses_an_out_that_is_not_mp4_or_gif_before_rendering(name, tmp
         video.write_video([np.zeros((16, 16, 3), np.uint8)], tmp_path / name, fps=10)
 
 
+@pytest.mark.parametrize("out", ["notes.txt/v.gif", "notes.txt/new/v.mp4", "read-only/v.gif"])
+def test_render_refuses_an_out_in_a_file_or_a_folder_it_cannot_write_before_rendering(out, tmp_path, capsys,
+                                                                                      monkeypatch):
+    """`render --out notes.txt/v.gif` (a file where the folder goes) rendered every frame, minutes for long episodes,
+    then said only "[Errno 17] File exists: 'notes.txt'", as if the video existed; a read-only folder was found only
+    then too. Refused first now, naming the file in the way or the folder."""
+    import angora_jax.experiment.video as video
+
+    monkeypatch.setattr(video, "render_episodes", never_renders)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.txt").write_text("mine")
+    (tmp_path / "read-only").mkdir()
+    writable = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode: "read-only" not in str(path) and writable(path, mode))
+    assert main(["render", "--task", "ShadowHandReach", "--out", out]) == 2
+    err = capsys.readouterr().err
+    why = f"{tmp_path / 'read-only'} is not writable" if "read-only" in out else f"{tmp_path / 'notes.txt'} is a file"
+    assert f"--out {out}: {why}" in err and "Traceback" not in err, err
+    assert (tmp_path / "notes.txt").read_text() == "mine" and not any((tmp_path / "read-only").iterdir())
+
+
 @pytest.mark.parametrize("argv, message", [
     (["evaluate", "RUN", "--episodes", "1000000000"], "--episodes/--num-envs: must be a whole number from 1 to "
                                                       "1,000,000, got '1000000000'; run more episodes as several"),

@@ -98,6 +98,24 @@ def test_export_into_a_folder_writes_the_runs_name_there_and_another_suffix_is_r
     assert sorted(tmp_path.rglob("*")) == before
 
 
+@pytest.mark.parametrize("out", ["notes.txt/policy.msgpack", "notes.txt/sub/", "notes.txt"])
+def test_export_into_a_file_or_a_folder_it_cannot_write_is_refused_naming_the_folder(out, tmp_path, capsys,
+                                                                                     monkeypatch):
+    """`--out notes.txt/policy.msgpack` (a file where a folder goes) loaded the run, then said only "[Errno 17] File
+    exists: 'notes.txt'", as if the policy existed; refused now before the run is read (none here), naming the file
+    in the way; a folder one may not write to likewise."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.txt").write_text("mine")
+    if out == "notes.txt":  # a writable file's folder, made read-only (root writes anywhere: os.access says)
+        out = "policy.msgpack"
+        monkeypatch.setattr("os.access", lambda path, mode: False)
+    assert main(["export", "no-run", "--out", out]) == 2
+    err = capsys.readouterr().err
+    in_the_way = f"{tmp_path} is not writable" if out == "policy.msgpack" else f"{tmp_path / 'notes.txt'} is a file"
+    assert f"--out {out}: {in_the_way}" in err and "give a path in a folder you can write to" in err, err
+    assert sorted(tmp_path.iterdir()) == [tmp_path / "notes.txt"] and (tmp_path / "notes.txt").read_text() == "mine"
+
+
 @pytest.mark.slow
 def test_the_exported_policy_benchmark_reproduces_evaluates_episodes_in_a_loop_of_its_own(lstm_run, tmp_path):
     policy_file = tmp_path / "policy.msgpack"

@@ -12,7 +12,7 @@ import jax
 from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, positive_int, refused_existing, seed
 from angora_jax.envs.rendering import CAMERAS, RenderError
 from angora_jax.vision.estimator import ORIENTATIONS
-from angora_jax.whole_files import written_whole
+from angora_jax.whole_files import unwritable_folder, written_whole
 
 
 def add_pretrain_vision(commands: argparse._SubParsersAction) -> None:
@@ -41,7 +41,6 @@ def add_pretrain_vision(commands: argparse._SubParsersAction) -> None:
 
 def command_pretrain_vision(args: argparse.Namespace) -> int:
     import json
-    import os
 
     from angora_jax.nets.components import save_component
     from angora_jax.nets.visual import VISUAL_ENCODERS
@@ -64,10 +63,8 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     # The outputs are written after hours of rendering and training: their folder is checked first (the folders
     # missing under the nearest existing one are made then).
-    folder = next(parent for parent in out.absolute().parents if parent.exists())
-    if not folder.is_dir() or not os.access(folder, os.W_OK):
-        why = "is not writable" if folder.is_dir() else "is a file"
-        print(f"angora-jax pretrain-vision: --out {out}: {folder} {why}; give a file in a folder you can write to.",
+    if (why := unwritable_folder(out)) is not None:
+        print(f"angora-jax pretrain-vision: --out {out}: {why}; give a file in a folder you can write to.",
               file=sys.stderr)
         return EXIT_USAGE
     options = {"features": args.features} | ({"widths": tuple(args.widths)} if args.widths else {})

@@ -25,7 +25,7 @@ from angora_jax.envs.rendering import RenderError, SceneRenderer, camera_named
 from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
 from angora_jax.ppo.memory import device_memory
-from angora_jax.whole_files import written_whole
+from angora_jax.whole_files import unwritable_folder, written_whole
 
 # The files `write_video` writes, by suffix: MP4 through imageio-ffmpeg, GIF through Pillow. Any other suffix (or none)
 # made imageio pick a still-image writer (TIFF for none, PNG for .png) after every frame had been rendered: a traceback,
@@ -34,8 +34,9 @@ VIDEO_SUFFIXES = (".mp4", ".gif")
 
 
 def check_video_path(out: str | Path) -> Path:
-    """`out` as a Path when a video can be written there: ValueError naming the suffixes otherwise, FileExistsError
-    when a file or folder is there already (nothing is overwritten). Checked before rendering, which takes minutes
+    """`out` as a Path when a video can be written there: ValueError naming the suffixes otherwise, or the folder
+    that is a file or not writable (`unwritable_folder`), FileExistsError when a file or folder is there already
+    (nothing is overwritten). Checked before rendering, which takes minutes
     for long episodes, so that a mistyped --out costs nothing."""
     out = Path(out)
     if out.exists():
@@ -44,6 +45,8 @@ def check_video_path(out: str | Path) -> Path:
         suffix = f"ends in {out.suffix!r}" if out.suffix else "has no suffix"
         raise ValueError(f"--out {out} {suffix}, but a video is written as MP4 or GIF: give a name ending in .mp4 "
                          f"(imageio-ffmpeg) or .gif (Pillow), e.g. {out.with_suffix('.mp4')}.")
+    if (why := unwritable_folder(out)) is not None:
+        raise ValueError(f"--out {out}: {why}; give a path in a folder you can write to.")
     return out
 
 
