@@ -26,7 +26,9 @@ def written_whole(path: str | Path, replace: bool = True) -> Iterator[Path]:
             raise FileExistsError(f"{path} exists and is never overwritten.")
         os.replace(draft, path)
     except OSError as error:
-        if error.filename == str(draft):  # the message names the file asked for, not the draft
+        # The system's message names the file asked for, not the draft: writers name the draft as a str or a Path
+        # (imageio), or not at all (a full disk met when Pillow flushes). Errors of our own (errno None) keep theirs.
+        if error.errno is not None and (error.filename is None or Path(os.fsdecode(error.filename)).name == draft.name):
             error.filename = str(path)
         raise
     finally:

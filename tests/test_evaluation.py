@@ -548,6 +548,36 @@ def test_an_mp4_that_ffmpeg_could_not_finish_is_refused_not_written(tmp_path, ca
     assert "Traceback" not in err and list(tmp_path.iterdir()) == [], "nothing written, no draft left"
 
 
+def test_a_gif_that_meets_a_full_disk_is_named_as_asked_with_no_traceback(tmp_path, capsys, monkeypatch):
+    """A disk that filled up while a GIF was written: the message named no file ("No space left on device: free
+    space on that disk"), and Pillow's plugin met the error again when it was collected, printing "Exception ignored
+    in: <function PluginV3.__del__ ...>" and a traceback after it; a read-only folder was named by the hidden draft's
+    name (.v.1234.partial.gif). Here this process's file-size limit (EFBIG) stands for the full disk."""
+    import gc
+    import resource
+    import signal
+
+    import angora_jax.experiment.video as video
+
+    frames = list(np.random.default_rng(0).integers(0, 256, (20, 64, 64, 3), dtype=np.uint8))
+    monkeypatch.setattr(video, "render_episodes", lambda *args, **kwargs: (frames, 0.1))
+    ignored = []
+    monkeypatch.setattr(sys, "unraisablehook", ignored.append)
+    out = tmp_path / "v.gif"
+    limits = resource.getrlimit(resource.RLIMIT_FSIZE)
+    handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, limits[1]))
+    try:
+        code = main(["render", "--task", "ShadowHandReach", "--out", str(out)])
+        gc.collect()
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, limits)
+        signal.signal(signal.SIGXFSZ, handler)
+    err = capsys.readouterr().err
+    assert code == 2 and f"File too large ({out}):" in err and ".partial" not in err, err
+    assert ignored == [] and list(tmp_path.iterdir()) == [], "no traceback at collection, no draft left"
+
+
 def test_an_mp4_is_written_without_jaxs_warning_that_forking_will_deadlock(tmp_path):
     """imageio-ffmpeg forks to exec ffmpeg (no Python runs in the child), and JAX warned at every such fork that it
     "will likely lead to a deadlock": on every MP4 `render`, beside a real hang elsewhere, it misled."""

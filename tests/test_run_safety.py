@@ -5,6 +5,7 @@ import errno
 import json
 import os
 import random
+import re
 import shutil
 import signal
 import socket
@@ -705,7 +706,8 @@ def test_a_result_file_is_written_whole_or_not_at_all_and_never_over_a_kept_one(
     assert list(tmp_path.iterdir()) == [], "neither the file nor its draft is left"
     with written_whole(path) as draft:
         draft.write_text("{}")
-    with pytest.raises(FileExistsError), written_whole(path, replace=False) as draft:
+    with pytest.raises(FileExistsError, match=f"^{re.escape(str(path))} exists and is never overwritten"), \
+            written_whole(path, replace=False) as draft:  # as a second render to the same --out is told
         draft.write_text('{"new": 1}')
     assert path.read_text() == "{}" and list(tmp_path.iterdir()) == [path]
     elsewhere = tmp_path / "no such folder" / "result.json"

@@ -141,7 +141,10 @@ def write_video(frames: list[np.ndarray], out: str | Path, fps: float) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     with written_whole(out, replace=False) as draft:
         if out.suffix.lower() == ".gif":
-            iio.imwrite(draft, np.stack(frames), duration=1000.0 / fps, loop=0)
+            # Encoded in memory, then written: Pillow writing to the file itself met a full disk when it flushed, and
+            # again when its plugin was collected, which printed a traceback ("Exception ignored in ...") at exit.
+            draft.write_bytes(iio.imwrite("<bytes>", np.stack(frames), extension=".gif", duration=1000.0 / fps,
+                                          loop=0))
         else:
             try:
                 with warnings.catch_warnings():
