@@ -442,6 +442,19 @@ def test_an_opengl_backend_that_cannot_load_exits_2_naming_it_and_fails_the_impo
                 in done.stderr, done.stderr[-2000:]
 
 
+def test_a_jax_platforms_this_machine_cannot_start_exits_2_naming_it_even_in_doctor():
+    """`JAX_PLATFORMS=cuda` (a cluster's job script) where JAX has no CUDA plugin: JAX's bare AssertionError, then
+    another while the CLI asked whether a process of a distributed job was lost, two tracebacks and exit 1, in
+    `doctor` too, the verb that says what to install; `rocm` likewise with JAX's RuntimeError. In a process of its
+    own: JAX starts its backends once per process."""
+    platform = "rocm" if jax.default_backend() == "gpu" else "cuda"
+    done = subprocess.run([sys.executable, "-m", "angora_jax.cli", "doctor"], capture_output=True, text=True,
+                          env=os.environ | {"JAX_PLATFORMS": platform}, timeout=300)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr[-2000:]
+    assert done.stderr.startswith(f"angora-jax doctor: JAX cannot start the platform that JAX_PLATFORMS={platform} "
+                                  "names on this machine (") and "unset JAX_PLATFORMS" in done.stderr, done.stderr
+
+
 def start_training(argv: list[str]) -> tuple[subprocess.Popen, str]:
     """`angora-jax` ARGV in a process of its own; returns it once it announces that it compiles, with that line."""
     process = subprocess.Popen([sys.executable, "-m", "angora_jax.cli", *argv], stdout=subprocess.PIPE,

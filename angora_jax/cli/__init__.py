@@ -36,7 +36,7 @@ import sys
 
 from angora_jax.cli import analysis, configs, evaluation, reports, training, vision
 from angora_jax.cli.arguments import EXIT_FAILED, EXIT_USAGE, add_import_option
-from angora_jax.cli.errors import device_memory_message, os_error_message
+from angora_jax.cli.errors import device_memory_message, os_error_message, platform_message
 from angora_jax.experiment import ConfigError, RunDirError, TrainingInterrupted
 from angora_jax.experiment.distributed import ProcessFailed, lost_process_cause, lost_process_exit
 from angora_jax.ppo import TrainingDivergedError
@@ -110,6 +110,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"angora-jax {args.command}: {error}", file=sys.stderr)
         return EXIT_FAILED
     except Exception as error:
+        platform = platform_message(error)  # first: asking for the process count would fail again, with a traceback
+        if platform is not None:
+            print(f"angora-jax {args.command}: {platform}", file=sys.stderr)
+            return EXIT_USAGE
         lost = lost_process_cause(error)
         if lost is not None:  # a process of the job is gone (kill -9): no traceback, no wait at the shutdown
             lost_process_exit(lost)

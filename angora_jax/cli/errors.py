@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import errno
+import os
+import traceback
 
+from angora_jax.experiment.doctor import CUDA_INSTALL
 from angora_jax.experiment.run_dir import NO_ROOM
 
 # What to do about the errors the operating system reports, by errno.
@@ -73,3 +76,19 @@ def device_memory_message(error: BaseException) -> str | None:
               f"starting it (XLA_PYTHON_CLIENT_MEM_FRACTION=0.45 for two). Alone on the GPU, use {fewer}. ")
     return (f"{what}. {advice}A run stopped by it keeps every checkpoint saved before: `angora-jax check RUN_DIR` "
             "shows them, `angora-jax resume RUN_DIR` continues.")
+
+
+def platform_message(error: BaseException) -> str | None:
+    """The sentence for JAX failing to start the platform that `JAX_PLATFORMS` names (a GPU platform on a machine or
+    an installation without one: `JAX_PLATFORMS=cuda` copied from a cluster's job script), None for every other
+    error. JAX raises it where it starts its backends (xla_bridge), as RuntimeError "Unable to initialize backend" for
+    some names and as a bare AssertionError for others (`cuda` without JAX's CUDA plugin, jax 0.10): both ended even
+    `angora-jax doctor` in a traceback."""
+    chosen = os.environ.get("JAX_PLATFORMS")
+    frames = traceback.extract_tb(error.__traceback__)
+    if not chosen or not frames or os.path.basename(frames[-1].filename) != "xla_bridge.py":
+        return None
+    cause = str(error).split(" (set JAX_PLATFORMS")[0] or f"JAX raised {type(error).__name__}"
+    return (f"JAX cannot start the platform that JAX_PLATFORMS={chosen} names on this machine ({cause[:300]}): unset "
+            "JAX_PLATFORMS to let JAX use what this machine has (`angora-jax doctor` then lists its devices); for an "
+            f"NVIDIA GPU, JAX needs its CUDA build: {CUDA_INSTALL}.")
