@@ -1,6 +1,7 @@
 """The `angora-jax` command: exit codes, messages, SIGTERM on a real process, and the progress display."""
 
 import argparse
+import errno
 import io
 import json
 import os
@@ -24,7 +25,7 @@ from tiny import TINY_PPO
 import angora_jax as aj
 from angora_jax import cli
 from angora_jax.cli import main, parser
-from angora_jax.cli.errors import device_memory_message
+from angora_jax.cli.errors import device_memory_message, os_error_message
 from angora_jax.experiment import compilation_cache, runner
 from angora_jax.experiment.config import load_config, validate
 from angora_jax.experiment.config_reference import reference_markdown
@@ -440,6 +441,17 @@ def test_an_opengl_backend_that_cannot_load_exits_2_naming_it_and_fails_the_impo
         else:  # Python that imports the package: an ImportError with the same words, not an exit
             assert done.returncode == 1 and "OpenGLBackendError: MuJoCo cannot be imported with MUJOCO_GL=nonesuch" \
                 in done.stderr, done.stderr[-2000:]
+
+
+def test_a_full_disk_tells_of_the_runs_checkpoints_only_under_a_verb_that_trains():
+    """render, export or report meeting a full disk ended with "A run stopped by it keeps every checkpoint saved
+    before: `angora-jax check RUN_DIR` shows them", though they stop no run: the user went looking for harm."""
+    full = OSError(errno.ENOSPC, "No space left on device", "v.gif")
+    for command in ("train", "resume"):
+        assert "A run stopped by it keeps every checkpoint saved before" in os_error_message(full, command)
+    for command in ("render", "export", "report", "evaluate"):
+        message = os_error_message(full, command)
+        assert message.startswith("No space left on device (v.gif): free space") and "run stopped" not in message
 
 
 def test_a_jax_platforms_this_machine_cannot_start_exits_2_naming_it_even_in_doctor():

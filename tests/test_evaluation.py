@@ -575,6 +575,7 @@ def test_a_gif_that_meets_a_full_disk_is_named_as_asked_with_no_traceback(tmp_pa
         signal.signal(signal.SIGXFSZ, handler)
     err = capsys.readouterr().err
     assert code == 2 and f"File too large ({out}):" in err and ".partial" not in err, err
+    assert "A run stopped by it" not in err, "render stops no run: told so, users looked for harm to their run"
     assert ignored == [] and list(tmp_path.iterdir()) == [], "no traceback at collection, no draft left"
 
 

@@ -94,10 +94,11 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, RunDirError, FileNotFoundError) as error:
         # The system's own FileNotFoundError names a path and an errno; ours carry their whole message.
         system = isinstance(error, FileNotFoundError) and error.errno is not None
-        print(f"angora-jax {args.command}: {os_error_message(error) if system else error}", file=sys.stderr)
+        print(f"angora-jax {args.command}: {os_error_message(error, args.command) if system else error}",
+              file=sys.stderr)
         return EXIT_USAGE
     except OSError as error:  # a full disk, a read-only or lost mount, permissions: the machine's, not a bug
-        print(f"angora-jax {args.command}: {os_error_message(error)}", file=sys.stderr)
+        print(f"angora-jax {args.command}: {os_error_message(error, args.command)}", file=sys.stderr)
         return EXIT_USAGE
     except TrainingInterrupted as stop:
         print(f"angora-jax {args.command}: {stop}", file=sys.stderr)

@@ -27,12 +27,18 @@ OS_ERROR_FIXES = {
 }
 
 
-def os_error_message(error: OSError) -> str:
-    """An OSError as one sentence: what failed, on which file, and the fix; a run interrupted this way keeps what it
-    saved before (`angora-jax check RUN_DIR`, then `resume`)."""
+# The verbs that train: a run they stop is continued by `resume`. Other verbs (render, export, report, ...) stop no
+# run, and told that "a run stopped by it keeps every checkpoint" a user looked for harm to their training run.
+TRAINING_VERBS = ("train", "resume")
+
+
+def os_error_message(error: OSError, command: str = "train") -> str:
+    """An OSError as one sentence: what failed, on which file, and the fix; under a verb that trains (`command` in
+    TRAINING_VERBS), that a run interrupted this way keeps what it saved before (`angora-jax check RUN_DIR`, then
+    `resume`)."""
     where = f" ({error.filename})" if error.filename else ""
     fix = OS_ERROR_FIXES.get(error.errno, "fix the cause and retry")
-    during_a_run = error.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO)
+    during_a_run = command in TRAINING_VERBS and error.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO)
     return f"{error.strerror or error}{where}: {fix}." + (
         " A run stopped by it keeps every checkpoint saved before: `angora-jax check RUN_DIR` shows them, "
         "`angora-jax resume RUN_DIR` continues." if during_a_run else "")
