@@ -232,6 +232,16 @@ def test_a_port_outside_0_to_65535_is_a_usage_error(port, capsys):
     assert stop.value.code == 2 and "must be a port from 0 (any free one) to 65535" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("every", ["inf", "1e300", "86401"])
+def test_a_monitor_interval_no_timer_can_wait_is_a_usage_error(every, capsys):
+    """`monitor --every inf` ended in an OverflowError traceback at the first update (exit 1); `--every 1e300` killed
+    the updating thread with a traceback while the monitor went on waiting, its page never updated again."""
+    with pytest.raises(SystemExit) as stop:
+        main(["monitor", "no/such/run", f"--every={every}", "--no-serve"])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and f"--every: must be at most 86,400 seconds (a day), got '{every}'" in err, err
+
+
 def test_every_argument_of_every_command_says_what_it_is():
     """The command-line reference (docs/cli.md) is the commands' --help: 28 arguments (render's --width, run's
     --seed, resume's RUN_DIR, ...) showed a bare name and no default."""

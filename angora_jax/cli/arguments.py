@@ -76,6 +76,21 @@ def positive_float(text: str) -> float:
     return value
 
 
+# The longest wait between two updates of `monitor`'s page: a timer waits no longer than the platform's time_t (past
+# it `--every 1e300` killed the updating thread with a traceback, and `inf` failed at the first update), and a page
+# drawn less than once a day is `report`'s.
+LONGEST_UPDATE = 86_400.0
+
+
+def update_interval(text: str) -> float:
+    """An argparse type: seconds between updates, > 0 and at most LONGEST_UPDATE (a day)."""
+    value = positive_float(text)
+    if not value <= LONGEST_UPDATE:
+        raise argparse.ArgumentTypeError(f"must be at most {LONGEST_UPDATE:,.0f} seconds (a day), got {text[:40]!r}; "
+                                         "for a page drawn once: angora-jax report")
+    return value
+
+
 
 def non_negative_int(text: str) -> int:
     """An argparse type: a whole number >= 0."""

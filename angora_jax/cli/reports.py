@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, port, positive_float
+from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, port, update_interval
 
 
 def add_report(commands: argparse._SubParsersAction) -> None:
@@ -25,7 +25,8 @@ def add_monitor(commands: argparse._SubParsersAction) -> None:
     monitor = commands.add_parser("monitor", help="the HTML report of runs while they train, regenerated and served")
     monitor.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="one or more runs, training or done")
     monitor.add_argument("--out", default=None, help="where the page is written (default: as for report)")
-    monitor.add_argument("--every", type=positive_float, default=30.0, help="seconds between updates (default: 30)")
+    monitor.add_argument("--every", type=update_interval, default=30.0,
+                         help="seconds between updates, at most 86,400 (default: 30)")
     monitor.add_argument("--port", type=port, default=8000, help="HTTP port (default: 8000; 0: any free port)")
     monitor.add_argument("--host", default="127.0.0.1",
                          help="address to serve on (default: this machine only; 0.0.0.0 for the network)")
