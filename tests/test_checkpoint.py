@@ -4,6 +4,7 @@ an uninterrupted run; best and snapshot checkpoints are kept; run directories ar
 import errno
 import json
 import os
+import re
 import shutil
 import signal
 from pathlib import Path
@@ -321,8 +322,12 @@ def test_acting_reads_only_parameters_and_statistics(runs, tmp_path, capsys):
     saved["ppo"]["network"]["width"] = 32
     (changed_dir / "config.yaml").write_text(yaml.safe_dump(saved))
     with pytest.raises(CheckpointError, match=r"params\..*stored \(.*16\).*expected \(.*32\).*do not fit the "
-                                              r"network.*Restore the config the run was trained with"):
+                                              r"network.*Restore the config the run was trained with: `angora-jax "
+                                              rf"check {re.escape(str(changed_dir))} --restore-config` puts back"):
         aj.load_agent(changed_dir, "latest")
+    # The fix the message names works: the network's width is put back, and the policy loads again.
+    assert main(["check", str(changed_dir), "--restore-config"]) == 0
+    assert aj.load_agent(changed_dir, "latest").config.ppo.network.width == 16
 
 
 def test_a_lean_checkpoint_resumes_with_fresh_environments_only_when_not_asked_for_exactness(runs, tmp_path, capsys):

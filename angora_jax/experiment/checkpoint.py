@@ -694,9 +694,12 @@ def _check_fits(where: Path, stored: dict[str, Any], abstract: dict[str, jax.Sha
                 *(f"{n}: stored, not expected" for n in extra)]
     listed = "; ".join(problems[:5]) + (f"; and {len(problems) - 5} more" if len(problems) > 5 else "")
     if any(name.startswith(("params.", "obs_stats.")) for name in [*missing, *extra, *differ]):
+        run_dir = where.parents[2]  # RUN_DIR/checkpoints/KIND/CYCLE
         cause = (
             "Its parameters or observation statistics do not fit the network and task of the config: the run's "
-            "config.yaml (ppo.network, env) was changed after training. Restore the config the run was trained with"
+            "config.yaml (ppo.network, env) was changed after training. Restore the config the run was trained with: "
+            f"`angora-jax check {run_dir} --restore-config` puts back the settings saved with its checkpoints (the "
+            "edited file is kept beside it)"
         )
     else:
         cause = (
