@@ -55,6 +55,21 @@ def test_a_file_where_the_report_goes_is_a_warning_after_training_and_a_named_re
     assert "is a file, where the report's folder goes: move it away, or give another --out" in capsys.readouterr().err
 
 
+def test_a_folder_with_a_page_of_its_own_is_refused_not_written_over(runs, tmp_path, capsys):
+    """`report RUN --out site` into a folder holding the user's own index.html (a lab's site, the Desktop) wrote the
+    report's page over it, and its PNGs beside it, with exit 0; refused now, nothing written. A report's own folder is
+    regenerated as before."""
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "index.html").write_text("<html><title>My lab</title></html>")
+    assert main(["report", str(runs[0].run_dir), "--out", str(site)]) == 2
+    err = capsys.readouterr().err
+    assert f"{site / 'index.html'} is a page of your own, not a report of runs" in err and "give another --out" in err
+    assert list(site.iterdir()) == [site / "index.html"] and "My lab" in (site / "index.html").read_text()
+    for _ in range(2):
+        assert main(["report", str(runs[0].run_dir), "--out", str(tmp_path / "report")]) == 0
+
+
 @pytest.fixture(scope="module")
 def comparison(runs, tmp_path_factory):
     out = tmp_path_factory.mktemp("report")

@@ -151,7 +151,8 @@ def plot_curve(runs: list[RunRecord], name: str, path: Path) -> None:
 def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_seconds: int | None = None) -> Path:
     """Write one PNG per metric (runs compared) and index.html into `out_dir`; return the HTML path.
 
-    The report's own files in `out_dir` are regenerated; nothing else there is touched.
+    The report's own files in `out_dir` are regenerated; nothing else there is touched, and an index.html that is not
+    a report's (a site of your own given as `out_dir`) is refused (RunDirError) before anything is written.
 
     Args:
         run_dirs: the runs to compare; a run given twice (under any spelling of its path) is drawn once.
@@ -165,6 +166,10 @@ def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_second
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise RunDirError(f"{out} is a file, where the report's folder goes: move it away, or give another --out")
+    page = out / "index.html"
+    if page.is_file() and PAGE_TITLE not in page.read_text(errors="replace"):
+        raise RunDirError(f"{page} is a page of your own, not a report of runs, and the report would write over it "
+                          "(its index.html and one PNG per curve): give another --out, e.g. a new folder.")
     out.mkdir(parents=True, exist_ok=True)
     images = []
     for name in curve_names(runs):
@@ -174,7 +179,6 @@ def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_second
         images.append((name, image.name))
     # Each run's latest video (evaluation.video), linked where it lies rather than copied: videos are large.
     videos = [(run.name, os.path.relpath(video, out)) for run in runs if (video := latest_video(run.path))]
-    page = out / "index.html"
     with written_whole(page) as draft:
         draft.write_text(render_html(runs, images, refresh_seconds, videos))
     return page
@@ -233,8 +237,10 @@ def render_html(runs: list[RunRecord], images: list[tuple[str, str]], refresh_se
                         updated=f"{updated}{live}")
 
 
+# The page's title, also how `write_report` tells a report's index.html from a page of the user's.
+PAGE_TITLE = "<title>angora_jax runs</title>"
 _PAGE = """<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8">{refresh}<title>angora_jax runs</title>
+<html lang="en"><head><meta charset="utf-8">{refresh}""" + PAGE_TITLE + """
 <style>
 body {{ font-family: sans-serif; margin: 1.5em; }}
 table {{ border-collapse: collapse; }}
