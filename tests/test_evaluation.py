@@ -388,6 +388,23 @@ def test_render_refuses_an_out_in_a_file_or_a_folder_it_cannot_write_before_rend
     assert (tmp_path / "notes.txt").read_text() == "mine" and not any((tmp_path / "read-only").iterdir())
 
 
+@pytest.mark.parametrize("width, height, said", [("33", "240", "not --width 33: give --width 34, or"),
+                                                  ("320", "17", "not --height 17: give --height 18, or")])
+def test_render_refuses_an_mp4_of_an_odd_frame_size_before_rendering(width, height, said, tmp_path, capsys,
+                                                                     monkeypatch):
+    """`render --out v.mp4 --width 33` rendered every frame, then ffmpeg refused them ("width not divisible by 2"),
+    reported as ffmpeg failing; H.264 needs even sizes. Refused first now, naming the even size; a GIF takes any."""
+    import angora_jax.experiment.video as video
+
+    monkeypatch.setattr(video, "render_episodes", never_renders)
+    out = tmp_path / "v.mp4"
+    assert main(["render", "--task", "ShadowHandReach", "--out", str(out), "--width", width, "--height", height]) == 2
+    err = capsys.readouterr().err
+    assert "An MP4's frames have an even width and height" in err and said in err and "Traceback" not in err, err
+    assert not out.exists()
+    video.check_frame_size(tmp_path / "v.gif", int(width), int(height))
+
+
 @pytest.mark.parametrize("argv, message", [
     (["evaluate", "RUN", "--episodes", "1000000000"], "--episodes/--num-envs: must be a whole number from 1 to "
                                                       "1,000,000, got '1000000000'; run more episodes as several"),

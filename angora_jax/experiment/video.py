@@ -123,11 +123,24 @@ def check_frames_fit(episodes: int, steps: int, width: int, height: int) -> None
 def render_video(out: str | Path, run_dir: str | Path | None = None, *, task: str | None = None,
                  **options: Any) -> Path:
     """Render as `render_frames(run_dir, task=task, **options)` and write the frames to `out` at real-time speed
-    (`1 / env.dt` frames per second). Refuses an existing `out`, or one that is neither .mp4 nor .gif, before
-    rendering anything (`check_video_path`)."""
+    (`1 / env.dt` frames per second). Refuses an existing `out`, one that is neither .mp4 nor .gif, or an MP4 of an
+    odd width or height, before rendering anything (`check_video_path`, `check_frame_size`)."""
     check_video_path(out)
+    check_frame_size(out, options.get("width"), options.get("height"))  # the defaults, 320 x 240, are even
     frames, dt = render_episodes(run_dir, task, **options)
     return write_video(frames, out, 1.0 / dt)
+
+
+def check_frame_size(out: str | Path, width: int | None, height: int | None) -> None:
+    """ValueError when the frames of an MP4 `out` would have an odd width or height: H.264 (yuv420p) keeps colour at
+    half the resolution, and ffmpeg refused such frames only once every frame had been rendered, which `render`
+    reported as ffmpeg failing."""
+    odd = [(name, size) for name, size in (("width", width), ("height", height)) if size is not None and size % 2]
+    if Path(out).suffix.lower() == ".mp4" and odd:
+        given = " and ".join(f"--{name} {size}" for name, size in odd)
+        even = " and ".join(f"--{name} {size + 1}" for name, size in odd)
+        raise ValueError(f"An MP4's frames have an even width and height (H.264 keeps colour at half the resolution), "
+                         f"not {given}: give {even}, or write a .gif.")
 
 
 def write_video(frames: list[np.ndarray], out: str | Path, fps: float) -> Path:
@@ -138,6 +151,7 @@ def write_video(frames: list[np.ndarray], out: str | Path, fps: float) -> Path:
     out = check_video_path(out)
     if not frames:
         raise ValueError("No frames to write.")
+    check_frame_size(out, frames[0].shape[1], frames[0].shape[0])
     out.parent.mkdir(parents=True, exist_ok=True)
     with written_whole(out, replace=False) as draft:
         if out.suffix.lower() == ".gif":
@@ -166,8 +180,8 @@ def write_video(frames: list[np.ndarray], out: str | Path, fps: float) -> Path:
 
 
 def _ffmpeg_failed(out: Path, why: str) -> str:
-    return (f"ffmpeg could not finish {out} ({why}; ffmpeg's own error is printed above: a full disk is the usual "
-            "cause), and nothing was written: free space on that disk, or choose another --out, and render again.")
+    return (f"ffmpeg could not finish {out} ({why}; ffmpeg's own error, printed above, says why: a full disk, for "
+            "one), and nothing was written: free space on that disk, or choose another --out, and render again.")
 
 
 def whole_mp4(path: Path) -> bool:
