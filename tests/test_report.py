@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -68,6 +69,26 @@ def test_a_folder_with_a_page_of_its_own_is_refused_not_written_over(runs, tmp_p
     assert list(site.iterdir()) == [site / "index.html"] and "My lab" in (site / "index.html").read_text()
     for _ in range(2):
         assert main(["report", str(runs[0].run_dir), "--out", str(tmp_path / "report")]) == 0
+
+
+@pytest.mark.parametrize("section, value, said", [("ppo", "oops", "ppo is 'oops'"), ("env", [1], "env is [1]"),
+                                                  ("ppo.network", 3, "ppo.network is 3")])
+def test_a_config_whose_section_is_no_mapping_is_named_as_damaged(section, value, said, runs, tmp_path, capsys):
+    """A run's config.yaml edited into `ppo: oops` (or `env: [1]`) ended `report` in AttributeError: 'str' object has
+    no attribute 'items' and exit 1; it is named as damaged now, with the fix (`check --restore-config`)."""
+    run = tmp_path / "run"
+    shutil.copytree(runs[0].run_dir, run)
+    config = yaml.safe_load((run / "config.yaml").read_text())
+    *sections, key = section.split(".")
+    target = config
+    for name in sections:
+        target = target[name]
+    target[key] = value
+    (run / "config.yaml").write_text(yaml.safe_dump(config))
+    assert main(["report", str(run), "--out", str(tmp_path / "report")]) == 2
+    err = capsys.readouterr().err
+    assert f"{run / 'config.yaml'} is damaged: {said}, not a mapping of settings" in err, err
+    assert f"`angora-jax check {run} --restore-config`" in err and "Traceback" not in err
 
 
 @pytest.fixture(scope="module")

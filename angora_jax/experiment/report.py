@@ -86,7 +86,23 @@ def load_run(run_dir: str | Path) -> RunRecord:
     if not isinstance(config, dict):
         raise RunDirError(f"{path / CONFIG_FILE} holds no config (a {type(config).__name__}): `angora-jax check "
                           f"{run_dir} --restore-config` writes it again from its checkpoints' copy.")
+    if (misshapen := _not_a_mapping(config)) is not None:
+        raise RunDirError(f"{path / CONFIG_FILE} is damaged: {misshapen}, not a mapping of settings. `angora-jax "
+                          f"check {run_dir} --restore-config` writes it again from its checkpoints' copy, or leave the "
+                          "run out of the report.")
     return RunRecord(path.resolve().name, path, config, read_metrics(path))
+
+
+def _not_a_mapping(config: dict[str, Any]) -> str | None:
+    """The first section the report reads (env, ppo, ppo.network) that is not a mapping, as "ppo is 'oops'"; None
+    when each is one or absent. A config.yaml edited into `ppo: 3` ended `report` and `monitor` in AttributeError."""
+    for dotted in ("env", "ppo", "ppo.network"):
+        value: Any = config
+        for key in dotted.split("."):
+            value = value.get(key, {})
+        if not isinstance(value, dict):
+            return f"{dotted} is {repr(value)[:60]}"
+    return None
 
 
 def curve_names(runs: list[RunRecord]) -> list[str]:
