@@ -91,6 +91,23 @@ def test_a_config_whose_section_is_no_mapping_is_named_as_damaged(section, value
     assert f"`angora-jax check {run} --restore-config`" in err and "Traceback" not in err
 
 
+def test_a_metrics_line_edited_to_hold_text_is_skipped_as_damaged_not_a_traceback(runs, tmp_path, capsys):
+    """A line of metrics.jsonl edited to hold text where a number goes (`"episode_return": "high"`) ended `report`
+    in TypeError: must be real number, not str (exit 1), while `check` called the run intact. It is a damaged line
+    now: the report skips it with a warning naming it, and `check` lists it."""
+    from angora_jax.experiment.run_check import check_run
+
+    run = tmp_path / "run"
+    shutil.copytree(runs[0].run_dir, run)
+    lines = len((run / "metrics.jsonl").read_text().splitlines())
+    with (run / "metrics.jsonl").open("a") as log:
+        log.write('{"cycle": 4, "env_steps": 999, "episode_return": "high"}\n')
+    assert main(["report", str(run), "--out", str(tmp_path / "report")]) == 0
+    assert f"line(s) {lines + 1} are not records of a cycle and are skipped" in capsys.readouterr().err
+    assert any(f"metrics.jsonl lines {lines + 1} hold no cycle's record" in problem
+               for problem in check_run(run).problems)
+
+
 @pytest.fixture(scope="module")
 def comparison(runs, tmp_path_factory):
     out = tmp_path_factory.mktemp("report")

@@ -177,12 +177,15 @@ def _parse_metrics(path: Path) -> tuple[list[tuple[str, dict[str, Any]]], list[i
 
 
 def _record(line: str) -> dict[str, Any] | None:
-    """The cycle's record a line of metrics.jsonl holds, or None when it holds none."""
+    """The cycle's record a line of metrics.jsonl holds, or None when it holds none: a record's values are numbers
+    (or null, for a non-finite one), as `Monitor.record` writes them. A line edited to hold text where a number goes
+    ended `report` in a TypeError traceback, while `check` called the file intact."""
     try:
         row = json.loads(line)
     except ValueError:
         return None
-    return row if isinstance(row, dict) and isinstance(row.get("cycle"), int) else None
+    numbers = isinstance(row, dict) and all(value is None or isinstance(value, int | float) for value in row.values())
+    return row if numbers and isinstance(row.get("cycle"), int) else None
 
 
 def set_aside_after(run_dir: str | Path, cycle: int) -> Path | None:
