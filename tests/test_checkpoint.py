@@ -602,3 +602,15 @@ def test_a_reader_opens_a_run_whose_writer_removes_a_step_while_orbax_lists_them
         assert reader.steps("latest") == [4] and len(failures) == 1
     finally:
         reader.close()
+
+
+def test_a_cycle_given_as_digits_or_a_numpy_integer_names_that_checkpoint(runs, tmp_path):
+    """A notebook's cycle often comes as text ("2", typed into a widget) or as a numpy integer (read from an array of
+    `read_metrics` or a DataFrame): each names the snapshot of that cycle, for loading and resuming, as the int does.
+    They were answered "No checkpoint '2'. ... ask for ... a cycle (2)" (and np.int64(2) likewise)."""
+    whole = runs[0]
+    for cycle in ("2", np.int64(2), np.int32(2)):
+        assert aj.load_agent(whole.run_dir, cycle).cycle == 2
+    run = tmp_path / "from_text"
+    shutil.copytree(whole.run_dir, run)
+    assert [r["cycle"] for r in resume(run, start_from="2").history] == [3, 4]

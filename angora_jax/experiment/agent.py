@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from angora_jax.envs.core import Env, Sensation
-from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints
+from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, checkpoint_name
 from angora_jax.experiment.config import Config, ConfigError, DistributionConfig, load_config, to_dict, validate
 from angora_jax.experiment.programs import initial_state_shape
 from angora_jax.experiment.run_dir import CHECKPOINTS, own_code_misfit, read_run_config, read_sessions, run_source
@@ -140,7 +140,7 @@ def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_override
     Args:
         run_dir: the run directory.
         checkpoint: "best" (falls back to "latest" when the run keeps no best), "latest", or a cycle number with a
-            checkpoint (see `RUN_DIR/checkpoints`).
+            checkpoint (see `RUN_DIR/checkpoints`; an int, a numpy integer or its digits as text).
         env_overrides: task options that differ from the run's, as `key.sub=value` strings applied to `env.options` as
             training applies overrides, for acting in a changed task whose observations the network still fits (e.g.
             `pose_estimator=FILE`: a cube policy trained on the true pose sees it through a pose estimator).
@@ -209,6 +209,7 @@ def _note_early_best(run_dir: str | Path, read: str | int, agent: Agent, latest:
 def read_checkpoint(run_dir: str | Path, checkpoint: str | int) -> str | int:
     """The checkpoint that `load_agent` reads for `checkpoint`: "latest" for "best" when the run keeps no best (its
     best metric is null, or fewer than `checkpoint.best_episodes` episodes had ended)."""
+    checkpoint = checkpoint_name(checkpoint)
     best = Path(run_dir) / CHECKPOINTS / "best"
     kept = best.is_dir() and any(path.name.isdigit() for path in best.iterdir())
     return "latest" if checkpoint == "best" and not kept else checkpoint

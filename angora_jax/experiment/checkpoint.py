@@ -18,6 +18,7 @@ import errno
 import gc
 import logging
 import math
+import numbers
 import os
 import shutil
 import sys
@@ -124,6 +125,14 @@ def refuse_files_in_place(directory: Path) -> None:
                 f"{Path(directory) / kind} is a file, where the run keeps its {kind} checkpoints in a folder of that "
                 "name: nothing was changed. Move the file away (it is not a checkpoint; a copy of the run's folder "
                 "from a backup restores the checkpoints it replaced).")
+
+
+def checkpoint_name(which: Any) -> Any:
+    """`which` as checkpoints are named: "latest" and "best" as they are, a cycle as an int also when it comes as
+    digits ("2", as typed) or as a numpy integer (a cycle read from an array, e.g. of `read_metrics`)."""
+    if isinstance(which, str):
+        return int(which) if which.isdigit() else which
+    return int(which) if isinstance(which, numbers.Integral) and not isinstance(which, bool) else which
 
 
 def describe_saved(saved: Mapping[str, list[int]]) -> str:
@@ -387,6 +396,7 @@ class Checkpoints:
         """`read(kind, cycle)` of checkpoint `which`. A process training the run replaces its latest and best
         checkpoints (one of each is kept) while others read them; a read that fails because its checkpoint was
         replaced meanwhile reads the one that replaced it ("latest", "best"), or says what happened (a cycle)."""
+        which = checkpoint_name(which)
         for attempt in range(_REPLACED_RETRIES):
             kind, cycle = self.locate(which)
             try:
@@ -433,6 +443,7 @@ class Checkpoints:
     def locate(self, which: str | int) -> tuple[str, int]:
         """The kind and cycle of checkpoint `which` ("latest", "best" or a cycle: of the kinds that hold it, the first
         not found damaged); FileNotFoundError listing what exists when there is none."""
+        which = checkpoint_name(which)
         if which in ("latest", "best"):
             step = self._managers[which].latest_step()
             if step is not None:
