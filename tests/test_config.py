@@ -10,8 +10,18 @@ from pathlib import Path
 
 import pytest
 
+import angora_jax as aj
 from angora_jax.envs.randomization import Randomization
-from angora_jax.experiment.config import Config, ConfigError, flatten, list_configs, load_config, to_dict, validate
+from angora_jax.experiment.config import (
+    Config,
+    ConfigError,
+    flatten,
+    list_configs,
+    load_config,
+    override_strings,
+    to_dict,
+    validate,
+)
 from angora_jax.experiment.config_reference import config_keys, field_descriptions, reference_markdown
 from angora_jax.ppo import PPOConfig
 from angora_jax.ppo.config import check_bounds, field_bounds
@@ -248,6 +258,26 @@ def test_one_override_given_as_a_string_is_one_override():
     with pytest.raises(ConfigError, match=r"Override 'ppo.num_cycles 1' must look like key.sub=value, e.g. "
                                           r"ppo.num_cycles=1\.$"):
         load_config("cartpole", ["ppo.num_cycles 1"])  # it suggested "ppo.num_cycles 1=VALUE"
+
+
+@pytest.mark.parametrize("overrides, given", [
+    ({"ppo.num_envs": 8, "ppo.network.name": "gru"}, "a dict"),
+    ({"ppo": {"num_envs": 8, "network": {"name": "gru"}}}, "a dict"),
+    ([("ppo.num_envs", 8), "ppo.network.name=gru"], r"\('ppo.num_envs', 8\) \(tuple\)"),
+])
+def test_overrides_given_as_a_dict_or_pairs_are_answered_with_the_list_to_give(tmp_path: Path, overrides, given):
+    """A notebook's natural `aj.train("cartpole", {"ppo.num_envs": 8})` read the dict's keys as overrides ("Override
+    'ppo.num_envs' must look like key.sub=value, e.g. ppo.num_envs=VALUE", the 8 dropped unsaid), and pairs failed
+    with AttributeError ('tuple' object has no attribute 'partition'); env_overrides likewise, and one string of them
+    was read letter by letter ("got 'm'")."""
+    wanted = r"give \['ppo.num_envs=8', 'ppo.network.name=gru'\], not " + given
+    with pytest.raises(ConfigError, match=r"^overrides are KEY=VALUE strings.*" + wanted):
+        load_config("cartpole", overrides)
+    with pytest.raises(ConfigError, match=r"^env_overrides are KEY=VALUE strings.*" + wanted):
+        aj.load_agent(tmp_path, env_overrides=overrides)
+    with pytest.raises(ConfigError, match=r"^env_overrides are KEY=VALUE strings.*" + wanted):
+        aj.evaluate(tmp_path, env_overrides=overrides)
+    assert override_strings("max_episode_steps=20", "env_overrides") == ["max_episode_steps=20"]
 
 
 def test_bad_files_fail_clearly(tmp_path: Path):

@@ -47,6 +47,7 @@ from flax import linen as nn
 from angora_jax.envs.cameras import check_path_renderer
 from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, load_agent
+from angora_jax.experiment.config import override_strings
 from angora_jax.nets import ActorCritic
 from angora_jax.ppo.evaluate import make_evaluate
 from angora_jax.whole_files import written_whole
@@ -99,6 +100,7 @@ def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | 
     for name, value in (("episodes", episodes), ("steps", steps)):
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
             raise ValueError(f"{name} must be a whole number of at least 1, got {value!r}.")
+    env_overrides = override_strings(env_overrides, "env_overrides")
     if isinstance(agent, Agent):
         if env_overrides:
             raise ValueError("env_overrides apply when a run is loaded: give the run directory, or load the agent with "

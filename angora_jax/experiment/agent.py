@@ -17,7 +17,15 @@ import jax.numpy as jnp
 
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, checkpoint_name
-from angora_jax.experiment.config import Config, ConfigError, DistributionConfig, load_config, to_dict, validate
+from angora_jax.experiment.config import (
+    Config,
+    ConfigError,
+    DistributionConfig,
+    load_config,
+    override_strings,
+    to_dict,
+    validate,
+)
 from angora_jax.experiment.programs import initial_state_shape
 from angora_jax.experiment.run_dir import CHECKPOINTS, own_code_misfit, read_run_config, read_sessions, run_source
 from angora_jax.nets import ActorCritic, make_network
@@ -157,6 +165,7 @@ def _restore_agent(run_dir: str | Path, checkpoint: str | int,
                    env_overrides: Sequence[str]) -> tuple[Agent, str | int, int]:
     """`load_agent`'s agent, the checkpoint read (`read_checkpoint`) and the cycle of the run's latest checkpoint (0
     when it keeps none)."""
+    env_overrides = override_strings(env_overrides, "env_overrides")
     config = _seeing_as_trained(read_run_config(run_dir), run_dir)
     if env_overrides:
         for override in env_overrides:

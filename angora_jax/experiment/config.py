@@ -344,9 +344,32 @@ def load_config(source: str | Path | dict | None = None, overrides: typing.Itera
         ConfigError: a missing file, bad YAML, an unknown key or a value of the wrong type.
     """
     data = _read(source)
-    for override in [overrides] if isinstance(overrides, str) else overrides:
+    for override in override_strings(overrides):
         _apply_override(data, override)
     return _build(Config, data, "")
+
+
+def override_strings(overrides: typing.Iterable[str] | str | None, name: str = "overrides") -> list[str]:
+    """`overrides` as a list of KEY=VALUE strings: one string alone is one override, None none. ConfigError naming
+    the list to give for a dict (`{"ppo.num_envs": 8}`, nested or not) or items that are not strings (pairs)."""
+    if overrides is None:
+        return []
+    if isinstance(overrides, str):
+        return [overrides]
+    items = list(flatten(overrides).items()) if isinstance(overrides, dict) else list(overrides)
+    if not isinstance(overrides, dict) and all(isinstance(item, str) for item in items):
+        return items
+    odd = next(item for item in items if not isinstance(item, str))
+    given = "a dict" if isinstance(overrides, dict) else f"{_shorten(odd)} ({type(odd).__name__})"
+    pairs = [item if isinstance(item, str) else f"{item[0]}={_yaml_text(item[1])}" for item in items
+             if isinstance(item, str) or (isinstance(item, tuple | list) and len(item) == 2)]
+    raise ConfigError(f"{name} are KEY=VALUE strings, the value in YAML syntax: give "
+                      f"{pairs or ['ppo.num_cycles=20']!r}, not {given}.")
+
+
+def _yaml_text(value: Any) -> str:
+    """`value` as the text of an override's value."""
+    return value if isinstance(value, str) else json.dumps(value, default=str)
 
 
 def list_configs() -> dict[str, str]:

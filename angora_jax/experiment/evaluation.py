@@ -25,7 +25,7 @@ from angora_jax.envs.cameras import check_path_renderer
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.experiment.agent import Agent, load_agent, read_checkpoint
-from angora_jax.experiment.config import ConfigError, to_dict
+from angora_jax.experiment.config import ConfigError, override_strings, to_dict
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
 from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths
 from angora_jax.ppo.evaluate import make_evaluate
@@ -129,6 +129,7 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
         raise ValueError(f"episodes, batch and workers must be >= 1, got {episodes}, {batch}, {workers}.")
     if path not in PATHS:
         raise ValueError(f"Unknown evaluation path {path!r}; choose one of {PATHS}.")
+    env_overrides = override_strings(env_overrides, "env_overrides")
     agent = load_agent(run_dir, checkpoint, env_overrides)
     checkpoint = read_checkpoint(run_dir, checkpoint)  # named as read: a run without a best evaluates its latest
     changed = {"env_overrides": list(env_overrides)} if env_overrides else {}
