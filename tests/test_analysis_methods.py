@@ -656,6 +656,34 @@ def test_probing_calls_from_python_name_a_wrong_argument_before_numpy_or_jax_fai
                            "network.PMX")
 
 
+def test_a_run_directory_file_name_or_agent_given_for_a_recording_is_named_with_what_to_do(tmp_path):
+    """Notebook trial: decode(RUN_DIR), timescales("act.nc") or principal_components(agent) in place of the recording
+    failed with "'str' object has no attribute 'data_vars'" (replay_activity: no attribute 'attrs', synergies: "could
+    not convert string to float", agent_fixed_points: "string indices must be integers")."""
+    from angora_jax.analysis import (
+        agent_fixed_points,
+        muscles_or_movements,
+        replay_activity,
+        save_activity,
+        sindy,
+        synergies,
+    )
+
+    agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
+                         "PMC": {"size": 4, "inputs": ("S1",), "cell": "rnn"}})
+    run, name = str(tmp_path), str(tmp_path / "act.nc")
+    for given, said in ((run, rf"not the folder '{run}': record one first: record_activity\('{run}'\)\.$"),
+                        (name, rf"not the name '{name}': read it first: xarray.load_dataset\('{name}'\)\.$"),
+                        (agent, r"not an Agent: record one first: record_activity\(agent\)\.$")):
+        for analysis in (decode, timescales, cross_correlation, principal_components, synergies, muscles_or_movements,
+                         lambda data: similarity(data, "metric_x"), lambda data: tuning_curves(data, "code", "x"),
+                         lambda data: sindy(data, "code"), lambda data: replay_activity(agent, data),
+                         lambda data: agent_fixed_points(agent, data, "network.PMC"),
+                         lambda data: save_activity(data, tmp_path / "out.nc")):
+            with pytest.raises(TypeError, match=r"^Analyses read a recording .*" + said):
+                analysis(given)
+
+
 def test_the_similarity_plot_of_many_layers_wraps_its_rdms_into_rows(tmp_path):
     """The brain-area model's 15 layers and the two comparison matrices were 17 panels in one row, a figure 44 inches
     wide in which nothing could be read; the RDMs now wrap at six a row, with the matrices below them."""

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import difflib
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import xarray as xr
@@ -243,8 +244,27 @@ def lagged_steps(steps: int, lag: int) -> tuple[slice, slice]:
     return slice(max(0, -lag), steps - max(0, lag)), slice(max(0, lag), steps + min(0, lag))
 
 
+def check_recording(dataset: object) -> None:
+    """TypeError naming what to do when `dataset` is not a recording (an xarray Dataset): a run directory, a saved
+    recording's file name or an Agent given in its place, as a notebook easily does."""
+    if isinstance(dataset, xr.Dataset):
+        return
+    if isinstance(dataset, str | Path):
+        fix = (f"record one first: record_activity({str(dataset)!r})" if Path(dataset).is_dir() else
+               f"read it first: xarray.load_dataset({str(dataset)!r})")
+        given = f"the {'folder' if Path(dataset).is_dir() else 'name'} {str(dataset)!r}"
+    else:
+        kind = type(dataset).__name__
+        given = f"{'an' if kind[0] in 'AEIOU' else 'a'} {kind}"
+        fix = "record one first: record_activity(agent)" if hasattr(dataset, "initial_carry") else "give one"
+    raise TypeError(f"Analyses read a recording (the xarray Dataset that record_activity returns, or a file of "
+                    f"save_activity read with xarray.load_dataset), not {given}: {fix}.")
+
+
 def recorded_layers(dataset: xr.Dataset) -> list[str]:
-    """The layer names of a recording (its `activity_<name>` variables)."""
+    """The layer names of a recording (its `activity_<name>` variables); TypeError for what is none
+    (`check_recording`)."""
+    check_recording(dataset)
     return [name.removeprefix("activity_") for name in dataset.data_vars if name.startswith("activity_")]
 
 

@@ -22,7 +22,7 @@ import optax
 import xarray as xr
 from sklearn.decomposition import PCA
 
-from angora_jax.analysis.decoding import as_names, chosen_layers, recorded_layers
+from angora_jax.analysis.decoding import as_names, check_recording, chosen_layers, recorded_layers
 from angora_jax.analysis.parallel import map_in_threads
 from angora_jax.experiment.agent import Agent
 from angora_jax.nets.activations import ACTIVATION_RANGES, ACTIVATIONS
@@ -283,6 +283,7 @@ def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: st
         `find_fixed_points`'s arrays plus `input` (the constant input, the parts held constant concatenated: an area
         that reads itself reads its state instead).
     """
+    check_recording(dataset)
     alive = dataset["alive"].values > 0
     if inputs is None:
         pieces = list(area_input(agent, dataset, layer).values())

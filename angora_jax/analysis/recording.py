@@ -44,6 +44,7 @@ import numpy as np
 import xarray as xr
 from flax import linen as nn
 
+from angora_jax.analysis.decoding import check_recording
 from angora_jax.envs.cameras import check_path_renderer
 from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, load_agent
@@ -233,6 +234,7 @@ def replay_activity(agent: Agent, recording: xr.Dataset) -> xr.Dataset:
     """`recording` with its `activity_*` replaced by `agent`'s layer activity on the recorded inputs (each episode
     from the initial carry, step by step): another network's response to the same observations, e.g. the untrained
     control of `with_random_weights`, whose own behaviour would otherwise present other inputs."""
+    check_recording(recording)
     recorded_task = recording.attrs.get("task")
     if recorded_task and recorded_task != agent.config.env.task:
         raise ValueError(f"The recording is of {recorded_task}, and this agent acts in {agent.config.env.task}: "
@@ -263,6 +265,7 @@ def replay_activity(agent: Agent, recording: xr.Dataset) -> xr.Dataset:
 
 def save_activity(dataset: xr.Dataset, path: str | Path) -> Path:
     """Write `dataset` as NetCDF (`xarray.open_dataset(path)` reads it back); refuses to overwrite."""
+    check_recording(dataset)
     path = Path(path)
     if path.exists():
         raise FileExistsError(f"{path} exists; recordings are never overwritten: give another --out.")

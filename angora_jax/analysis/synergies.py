@@ -15,9 +15,13 @@ co-activation with the others. Structure is where the VAF rises above that contr
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import xarray as xr
 from sklearn.decomposition import NMF
+
+from angora_jax.analysis.decoding import check_recording
 
 ACTIVATION = "task_muscle_activation"
 
@@ -106,6 +110,8 @@ def _activations(data: xr.Dataset | np.ndarray, variable: str) -> np.ndarray:
                              "(MyoHandPose records task_muscle_activation).")
         values = np.asarray(data[variable].values, np.float64)[data["alive"].values > 0]
     else:
+        if isinstance(data, str | Path) or not hasattr(data, "__len__"):  # a run or file name, an Agent
+            check_recording(data)
         values = np.asarray(data, np.float64)
     values = values.reshape(len(values), -1)
     if values.size == 0 or np.any(values < 0) or not np.any(values > 0):
