@@ -426,6 +426,25 @@ def test_absurd_episode_counts_and_frame_sizes_are_usage_errors(argv, message, c
     assert stop.value.code == 2 and message in err and "Traceback" not in err, err
 
 
+def test_counts_given_in_python_that_are_no_whole_number_of_at_least_one_are_refused_by_name(run_dir):
+    """Notebook trial: `agent.evaluate(num_envs=0)` returned NaN means as if evaluated, num_envs=-2 and 2.5 failed
+    inside JAX ("slice limit_indices must have every element be nonnegative", "Shapes must be 1D sequences of
+    concrete values of integer type"), as did `evaluate(run, episodes=2.5)`; episodes="4" and `resume(run,
+    num_cycles="4")` compared text with a number (TypeError); `render_frames(run, episodes=0)` returned no frames."""
+    agent = aj.load_agent(run_dir, "latest")
+    for bad in (0, -2, 2.5, "4", True):
+        said = rf"must be a whole number of at least 1, got {bad!r}\.$"
+        with pytest.raises(ValueError, match="^num_envs " + said):
+            agent.evaluate(num_envs=bad)
+        with pytest.raises(ValueError, match="^episodes " + said):
+            evaluate(run_dir, episodes=bad, save=False)
+        with pytest.raises(ValueError, match="^episodes " + said):
+            aj.render_frames(run_dir, episodes=bad)
+        with pytest.raises(ValueError, match="^num_cycles " + said):
+            aj.resume(run_dir, num_cycles=bad)
+    assert evaluate(run_dir, "latest", episodes=np.int64(EPISODES), save=False).meta["episodes"] == EPISODES
+
+
 def test_render_refuses_frames_larger_than_memory_before_rendering(tmp_path, capsys, monkeypatch):
     """Every frame is held until the video is written: 100 episodes at 4,096 x 4,096 pixels (5 TB) rendered for
     as long as they took, then were killed by the kernel. Refused first, naming --episodes, --width and --height."""

@@ -26,6 +26,7 @@ import xarray as xr
 from angora_jax.analysis.recording import episode_outcomes
 from angora_jax.envs.core import Env, Sensation, State
 from angora_jax.experiment.agent import Agent
+from angora_jax.experiment.config import check_count
 
 # The kernels inside flax's recurrent cells, by their names: SimpleCell's input and hidden kernels, the GRU's and
 # OptimizedLSTMCell's gate pre-activations. They are parts of one step of the cell rather than layers (recordings
@@ -216,8 +217,7 @@ def ablation(agent: Agent, lesions: Mapping[str, Agent], episodes: int = 256, st
                          f"'network.SSC_2')}}; got {type(lesions).__name__}" + (
                              f" holding {sorted({type(v).__name__ for v in lesions.values()})}"
                              if isinstance(lesions, Mapping) else "") + ".")
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise ValueError(f"episodes must be a whole number of at least 1, got {episodes!r}.")
+    episodes = check_count("episodes", episodes)
     variants = {"intact": agent, **lesions}
     values = {name: episode_outcomes(variant, episodes, steps, seed) for name, variant in variants.items()}
     outcomes = list(values["intact"])

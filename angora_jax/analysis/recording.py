@@ -48,7 +48,7 @@ from angora_jax.analysis.decoding import check_recording
 from angora_jax.envs.cameras import check_path_renderer
 from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, load_agent
-from angora_jax.experiment.config import override_strings
+from angora_jax.experiment.config import check_count, override_strings
 from angora_jax.nets import ActorCritic
 from angora_jax.ppo.evaluate import make_evaluate
 from angora_jax.whole_files import written_whole
@@ -98,9 +98,8 @@ def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | 
     and return the dataset described in the module docstring; `images` keeps camera images (`input_vision`) of a
     task that sees through cameras. With a cube policy reading a pose estimator (`pose_estimator=FILE`), the
     estimate (`input_vision`) lies beside the true pose (`task_cube_position`, `task_cube_orientation`)."""
-    for name, value in (("episodes", episodes), ("steps", steps)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-            raise ValueError(f"{name} must be a whole number of at least 1, got {value!r}.")
+    episodes = check_count("episodes", episodes)
+    steps = None if steps is None else check_count("steps", steps)
     env_overrides = override_strings(env_overrides, "env_overrides")
     if isinstance(agent, Agent):
         if env_overrides:

@@ -21,6 +21,7 @@ from angora_jax.experiment.config import (
     Config,
     ConfigError,
     DistributionConfig,
+    check_count,
     load_config,
     override_strings,
     to_dict,
@@ -134,6 +135,7 @@ class Agent:
     def evaluate(self, num_envs: int = 16, seed: int = 0, deterministic: bool = True) -> dict[str, float]:
         """One episode in each of `num_envs` fresh environments; means of episode_return, episode_length and the
         task metrics at episode ends (see `angora_jax.ppo.make_evaluate`)."""
+        num_envs = check_count("num_envs", num_envs)
         evaluate = self.compiled_once(("evaluate", num_envs, deterministic), lambda: make_evaluate(
             self.env, self.network, self.config.ppo, num_envs, deterministic))
         return {k: float(v) for k, v in evaluate(self.state, jax.random.key(seed)).items()}

@@ -16,6 +16,7 @@ import inspect
 import itertools
 import json
 import math
+import numbers
 import os
 import re
 import reprlib
@@ -365,6 +366,15 @@ def override_strings(overrides: typing.Iterable[str] | str | None, name: str = "
              if isinstance(item, str) or (isinstance(item, tuple | list) and len(item) == 2)]
     raise ConfigError(f"{name} are KEY=VALUE strings, the value in YAML syntax: give "
                       f"{pairs or ['ppo.num_cycles=20']!r}, not {given}.")
+
+
+def check_count(name: str, value: object) -> int:
+    """`value` as an int; ValueError unless it is a whole number of at least 1 (an int or a numpy integer, not a
+    bool): a count of episodes or environments given in Python, where 0 gave NaN means and a float or text failed
+    deep inside JAX."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise ValueError(f"{name} must be a whole number of at least 1, got {value!r}.")
+    return int(value)
 
 
 def _yaml_text(value: Any) -> str:

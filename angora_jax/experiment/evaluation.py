@@ -25,7 +25,7 @@ from angora_jax.envs.cameras import check_path_renderer
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.experiment.agent import Agent, load_agent, read_checkpoint
-from angora_jax.experiment.config import ConfigError, override_strings, to_dict
+from angora_jax.experiment.config import ConfigError, check_count, override_strings, to_dict
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
 from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths
 from angora_jax.ppo.evaluate import make_evaluate
@@ -125,8 +125,8 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
         env_overrides: task options that differ from the run's (`load_agent`); recorded, and `-changed` comes before
             the files' `.json`.
     """
-    if episodes < 1 or batch < 1 or workers < 1:
-        raise ValueError(f"episodes, batch and workers must be >= 1, got {episodes}, {batch}, {workers}.")
+    episodes, batch, workers = (check_count(name, count) for name, count in
+                                (("episodes", episodes), ("batch", batch), ("workers", workers)))
     if path not in PATHS:
         raise ValueError(f"Unknown evaluation path {path!r}; choose one of {PATHS}.")
     env_overrides = override_strings(env_overrides, "env_overrides")

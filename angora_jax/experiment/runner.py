@@ -27,7 +27,15 @@ from angora_jax.envs.mjx_env import on_gpu
 from angora_jax.envs.registry import TASKS
 from angora_jax.experiment import compilation_cache
 from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, disk_needed, refuse_files_in_place
-from angora_jax.experiment.config import Config, ConfigError, load_config, num_devices, to_dict, validate
+from angora_jax.experiment.config import (
+    Config,
+    ConfigError,
+    check_count,
+    load_config,
+    num_devices,
+    to_dict,
+    validate,
+)
 from angora_jax.experiment.cpu_sizing import cpu_note
 from angora_jax.experiment.distributed import (
     ProcessFailed,
@@ -223,6 +231,7 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     config = on_disk = read_run_config(run_dir)
     before = config.ppo
     if num_cycles is not None:
+        num_cycles = check_count("num_cycles", num_cycles)
         config = _lengthened(config, num_cycles, run_dir)
     if no_stop_at:
         config = replace(config, ppo=replace(config.ppo, stop_at=None))
