@@ -8,13 +8,16 @@ import tracemalloc
 import typing
 from pathlib import Path
 
+import numpy as np
 import pytest
+import yaml
 
 import angora_jax as aj
 from angora_jax.envs.randomization import Randomization
 from angora_jax.experiment.config import (
     Config,
     ConfigError,
+    checked,
     flatten,
     list_configs,
     load_config,
@@ -258,6 +261,33 @@ def test_one_override_given_as_a_string_is_one_override():
     with pytest.raises(ConfigError, match=r"Override 'ppo.num_cycles 1' must look like key.sub=value, e.g. "
                                           r"ppo.num_cycles=1\.$"):
         load_config("cartpole", ["ppo.num_cycles 1"])  # it suggested "ppo.num_cycles 1=VALUE"
+
+
+@pytest.mark.parametrize("ppo, message", [
+    ({"num_envs": "8"}, r"ppo.num_envs must be an integer, got '8' \(str\)"),  # was: "not all arguments converted"
+    ({"num_cycles": 2.0}, r"ppo.num_cycles must be an integer, got 2.0 \(float\)"),  # was: TypeError in training
+    ({"num_envs": -8}, r"ppo.num_envs must be >= 1, got -8"),
+])
+def test_a_config_changed_in_python_is_checked_as_a_file_s_before_a_run_directory_is_made(tmp_path: Path, ppo,
+                                                                                           message):
+    """A Config changed with dataclasses.replace skipped load_config's type checks: validate passed num_cycles=2.0
+    and train failed inside the training loop ('float' object cannot be interpreted as an integer), num_envs="8"
+    failed as "not all arguments converted during string formatting", and a Path run_root or a numpy seed, which a
+    notebook easily gives, passed validate and then failed as yaml's RepresenterError writing config.yaml."""
+    config = load_config("cartpole", [f"logging.run_root={tmp_path}"])
+    changed = dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, **ppo))
+    with pytest.raises(ConfigError, match="^" + message):
+        validate(changed)
+    with pytest.raises(ConfigError, match="^" + message):
+        aj.train(changed)
+    assert list(tmp_path.iterdir()) == []
+    plain = dataclasses.replace(config, logging=dataclasses.replace(config.logging, run_root=tmp_path),
+                                ppo=dataclasses.replace(config.ppo, seed=np.int64(3), gamma=np.float32(0.5),
+                                                        network={"name": "gru"}))
+    validate(plain)
+    assert checked(plain) == dataclasses.replace(config, ppo=dataclasses.replace(
+        config.ppo, seed=3, gamma=0.5, network=load_config(None, ["ppo.network.name=gru"]).ppo.network))
+    assert yaml.safe_load(yaml.safe_dump(to_dict(checked(plain))))["logging"]["run_root"] == str(tmp_path)
 
 
 @pytest.mark.parametrize("overrides, given", [

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import mujoco
+import numpy as np
 import yaml
 
 from angora_jax.envs.core import Env
@@ -42,7 +43,6 @@ from angora_jax.ppo.config import (
     SEED_MAX,
     PPOConfig,
     bounded,
-    check_bounds,
     count_field,
     field_bounds,
     quote_number,
@@ -392,6 +392,13 @@ def list_configs() -> dict[str, str]:
     return described
 
 
+def checked(config: Config) -> Config:
+    """`config` as `load_config` reads it from its dict: ConfigError naming a key of the wrong type or range in a
+    Config made or changed in Python (`dataclasses.replace`), which skipped those checks, and a Path or numpy number
+    made plain, as its run's config.yaml must hold it."""
+    return load_config(to_dict(config))
+
+
 def to_dict(config: Config) -> dict[str, Any]:
     """The config as nested plain dicts (what config.yaml in a run directory holds)."""
     return dataclasses.asdict(config)
@@ -448,10 +455,7 @@ def validate(config: Config, new_run: bool = True) -> Env:
                        "listed under imports in the config; a run's config.yaml lists those it trained with")
     except ModuleNameError as error:
         raise ConfigError(str(error)) from None
-    try:  # load_config checks these too; a Config made in Python comes here unchecked
-        check_bounds(config, "")
-    except ValueError as error:
-        raise ConfigError(str(error)) from None
+    config = checked(config)  # a Config made or changed in Python skipped load_config's checks of types and ranges
     if config.env.task not in list_tasks() and not is_gymnasium(config.env.task):
         raise ConfigError(_unknown("env.task", config.env.task, list_tasks(), "tasks") +
                           " Any Gymnasium environment: gym:<id>, e.g. gym:LunarLander-v3." +
@@ -667,11 +671,15 @@ def _merge(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
 
 
 def _deep_copy(data: Any) -> Any:
+    """A copy of a config's dict, with the values a notebook gives that YAML cannot save made plain: a Path as its
+    text, a numpy number as Python's."""
     if isinstance(data, dict):
         return {key: _deep_copy(value) for key, value in data.items()}
     if isinstance(data, list):
         return [_deep_copy(value) for value in data]
-    return data
+    if isinstance(data, Path):
+        return str(data)
+    return data.item() if isinstance(data, np.generic) else data
 
 
 def _unknown_option(task: str, options: dict[str, Any]) -> str | None:

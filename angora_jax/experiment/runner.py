@@ -31,6 +31,7 @@ from angora_jax.experiment.config import (
     Config,
     ConfigError,
     check_count,
+    checked,
     load_config,
     num_devices,
     to_dict,
@@ -153,6 +154,8 @@ def train(
         config = load_config(config, overrides)
     elif overrides:
         raise ValueError("Overrides apply to a config loaded from a file or dict; change a Config with replace().")
+    else:
+        config = checked(config)
     # Per key one level into each section (the dataclass fields, the same on every process), so the message names it.
     agree_on_settings({f"{section}.{key}" if key else section: value for section, values in to_dict(config).items()
                        for key, value in (values.items() if isinstance(values, dict) else [("", values)])},
