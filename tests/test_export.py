@@ -1,6 +1,7 @@
 """`angora-jax export` and `aj.load_policy`: a trained recurrent policy in one file acts, without its run directory,
 exactly as the run's own agent does; bad files and an existing output are refused."""
 
+import json
 import shutil
 import sys
 
@@ -8,6 +9,7 @@ import jax
 import numpy as np
 import pytest
 from benchmark_results import BENCHMARKS, results
+from flax import serialization
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -133,6 +135,31 @@ def test_the_exported_policy_benchmark_reproduces_evaluates_episodes_in_a_loop_o
     for row in rows.values():  # CartPole on the CPU: the plain loop rounds as evaluate's program does
         assert row["equal_episodes"] == 1.0 and row["agree"] and row["exported"] == row["evaluate"]
     assert np.ptp(batched.episodes["episode_length"]) > 0, "episodes differ: the comparison is not of constants"
+
+
+@pytest.mark.parametrize("section, key, value, said", [
+    ("ppo", "network", {"name": "lstm", "width": 8}, r"'lstm' network and CartPole task .*params\.network\."
+                                                     r"policy_cell\..*: stored \(64, 64\) float32, expected \(8, 64\) "
+                                                     r"float32"),
+    ("env", "task", "Pendulum", r"'lstm' network and Pendulum task .*obs_stats.proprioception.mean: stored \(4,\) "
+                                r"float32, expected \(3,\) float32"),
+])
+def test_a_policy_whose_parameters_do_not_fit_what_its_config_builds_is_refused_on_loading(lstm_run, tmp_path,
+                                                                                           section, key, value, said):
+    """An exported file whose network or task is built otherwise where it is loaded (a network of one's own edited
+    since, another angora_jax version; here its config is edited in the file) loaded without a word and then failed
+    in `act` with flax's ScopeParamShapeError, or on loading with flax's "The target dict keys and state dict keys do
+    not match"; it is refused by load_policy now, naming the leaves and the cause."""
+    out = export_policy(lstm_run, tmp_path / "policy.msgpack")
+    content = serialization.msgpack_restore(out.read_bytes())
+    config = json.loads(content["config"])
+    config[section][key] = value
+    content["config"] = json.dumps(config)
+    changed = tmp_path / "changed.msgpack"
+    changed.write_bytes(serialization.msgpack_serialize(content))
+    with pytest.raises(RunDirError, match=rf"^{changed} holds parameters that do not fit the {said}.*: their code "
+                                          r"changed since the export"):
+        aj.load_policy(changed)
 
 
 def test_act_names_an_observation_or_carry_that_does_not_fit(lstm_run):

@@ -689,22 +689,33 @@ def disk_needed(config: CheckpointConfig, state: Any, cycles_left: int) -> int:
     return 2 * size("latest") + best + snapshots * size("snapshots")
 
 
+def misfits(stored: Mapping[str, Any], abstract: Mapping[str, Any], partial: bool = False) -> dict[str, str]:
+    """Leaf name -> what is wrong, for the leaves of `abstract` (arrays or `jax.ShapeDtypeStruct`s by dotted path)
+    that `stored` lacks or holds with another shape or dtype, and, unless `partial`, the stored leaves `abstract`
+    lacks; empty when they fit."""
+    differ = {
+        name: f"stored {tuple(stored[name].shape)} {stored[name].dtype}, expected {tuple(x.shape)} {x.dtype}"
+        for name, x in abstract.items()
+        if name in stored and (tuple(stored[name].shape) != tuple(x.shape) or stored[name].dtype != x.dtype)
+    }
+    return {**differ, **{name: "not stored" for name in sorted(set(abstract) - set(stored))},
+            **{name: "stored, not expected" for name in ([] if partial else sorted(set(stored) - set(abstract)))}}
+
+
+def describe_misfits(found: Mapping[str, str]) -> str:
+    """`misfits` in a message: the first five, and how many more."""
+    problems = [f"{name}: {what}" for name, what in found.items()]
+    return "; ".join(problems[:5]) + (f"; and {len(problems) - 5} more" if len(problems) > 5 else "")
+
+
 def _check_fits(where: Path, stored: dict[str, Any], abstract: dict[str, jax.ShapeDtypeStruct], partial: bool) -> None:
     """Raise CheckpointError naming the leaves of `abstract` that the checkpoint lacks or stores with another shape or
     dtype (and, unless `partial`, the stored leaves `abstract` lacks), with the likely cause and its fix."""
-    missing = sorted(set(abstract) - set(stored))
-    extra = [] if partial else sorted(set(stored) - set(abstract))
-    differ = {
-        name: f"stored {tuple(stored[name].shape)} {stored[name].dtype}, expected {x.shape} {x.dtype}"
-        for name, x in abstract.items()
-        if name in stored and (tuple(stored[name].shape) != x.shape or stored[name].dtype != x.dtype)
-    }
-    if not (missing or extra or differ):
+    found = misfits(stored, abstract, partial)
+    if not found:
         return
-    problems = [*(f"{n}: {d}" for n, d in differ.items()), *(f"{n}: not stored" for n in missing),
-                *(f"{n}: stored, not expected" for n in extra)]
-    listed = "; ".join(problems[:5]) + (f"; and {len(problems) - 5} more" if len(problems) > 5 else "")
-    if any(name.startswith(("params.", "obs_stats.")) for name in [*missing, *extra, *differ]):
+    listed = describe_misfits(found)
+    if any(name.startswith(("params.", "obs_stats.")) for name in found):
         run_dir = where.parents[2]  # RUN_DIR/checkpoints/KIND/CYCLE
         cause = (
             "Its parameters or observation statistics do not fit the network and task of the config: the run's "

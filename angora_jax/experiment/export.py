@@ -14,10 +14,11 @@ from pathlib import Path
 from typing import Any
 
 import jax
-from flax import serialization
+from flax import serialization, traverse_util
 
 from angora_jax.envs.core import Sensation
 from angora_jax.experiment.agent import Agent, acting_parts, load_agent
+from angora_jax.experiment.checkpoint import describe_misfits, misfits
 from angora_jax.experiment.config import load_config, to_dict
 from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError, run_source
 from angora_jax.whole_files import unwritable_folder, written_whole
@@ -95,7 +96,8 @@ class Policy:
 
 def load_policy(path: str | Path) -> Policy:
     """The policy in a file written by `export_policy` (or `angora-jax export`). Raises FileNotFoundError when there
-    is no such file and RunDirError when the file is not an exported policy."""
+    is no such file, RunDirError when the file is not an exported policy or its parameters do not fit the network and
+    task its config builds here (their code changed since the export)."""
     path = Path(path)
     if path.is_dir() and (path / CONFIG_FILE).is_file():
         raise FileNotFoundError(f"{path} is a run directory, not an exported policy: aj.load_agent({str(path)!r}) "
@@ -112,5 +114,14 @@ def load_policy(path: str | Path) -> Policy:
         raise RunDirError(f"{path} is not an exported policy of this version (format {FORMAT!r} expected).")
     config = load_config(json.loads(content["config"]))
     env, network, head, template, compiled = acting_parts(config)
+    # flax fills any arrays into the template: parameters of another layout failed only when acting, deep in flax.
+    found = misfits(*(traverse_util.flatten_dict(tree, sep=".") for tree in (
+        content["state"], serialization.to_state_dict(template))))
+    if found:
+        raise RunDirError(
+            f"{path} holds parameters that do not fit the {config.ppo.network.name!r} network and {config.env.task} "
+            f"task they were exported with, as this angora_jax builds them ({describe_misfits(found)}): their code "
+            "changed since the export (a task or network of your own edited, or another angora_jax version). Load it "
+            "with the code it was exported with, or export it again from its run.")
     state = serialization.from_state_dict(template, content["state"])
     return Policy(Agent(config, env, network, head, state, int(state.cycle), compiled))
