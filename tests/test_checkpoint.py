@@ -614,3 +614,22 @@ def test_a_cycle_given_as_digits_or_a_numpy_integer_names_that_checkpoint(runs, 
     run = tmp_path / "from_text"
     shutil.copytree(whole.run_dir, run)
     assert [r["cycle"] for r in resume(run, start_from="2").history] == [3, 4]
+
+
+@pytest.mark.parametrize("options, error, message", [
+    ({"on_cycle": "print"}, TypeError, r"^on_cycle is called with each cycle's record \(a dict\), e.g. on_cycle=print "
+                                       r"or on_cycle=records.append; got 'print' \(str\)\.$"),
+    ({"minutes": "5"}, ValueError, r"^minutes \(the call's time limit\) must be > 0, got '5'\.$"),
+    ({"minutes": 0}, ValueError, r"^minutes \(the call's time limit\) must be > 0, got 0\.$"),
+])
+def test_an_on_cycle_or_time_limit_that_cannot_be_used_is_refused_before_a_run_directory_is_made(runs, tmp_path,
+                                                                                                 options, error,
+                                                                                                 message):
+    """on_cycle="print" (a notebook slip) was found only after the first cycle had compiled and run: "'str' object is
+    not callable", leaving a run with that cycle logged and no checkpoint, which resume refuses to start over (it
+    needs from_scratch=True); minutes="5" failed comparing text with a number once the run directory was made."""
+    with pytest.raises(error, match=message):
+        aj.train(config(tmp_path, "refused"), **options)
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(error, match=message):
+        resume(runs[0].run_dir, **options)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import numbers
 import os
 import shutil
 import signal
@@ -149,6 +150,7 @@ def train(
         TrainingInterrupted: Ctrl-C or SIGTERM (with a checkpoint saved).
         TrainingDivergedError: NaN in the losses or parameters.
     """
+    _check_call(on_cycle, minutes)
     compilation_cache.enable()
     if not isinstance(config, Config):
         config = load_config(config, overrides)
@@ -225,6 +227,7 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
         CheckpointError: a damaged checkpoint (the message names the newest intact one), or `exact` cannot hold.
         ConfigError: `num_cycles` cannot apply (the message says why).
     """
+    _check_call(on_cycle, minutes)
     compilation_cache.enable()
     run_dir = Path(run_dir)
     agree_on_settings({"RUN_DIR": str(run_dir.absolute()), "--from": start_from, "--from-scratch": from_scratch,
@@ -301,6 +304,17 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
             checkpoints.close()
         if lock is not None:
             lock.release()
+
+
+def _check_call(on_cycle: Any, minutes: Any) -> None:
+    """Refuse, before anything is made or compiled, an `on_cycle` that cannot be called and a time limit that is no
+    positive number: found after the first cycle (called with its record, compared with the clock), they ended a new
+    run with that cycle logged and no checkpoint, which `resume` then refuses to start over."""
+    if on_cycle is not None and not callable(on_cycle):
+        raise TypeError(f"on_cycle is called with each cycle's record (a dict), e.g. on_cycle=print or "
+                        f"on_cycle=records.append; got {on_cycle!r} ({type(on_cycle).__name__}).")
+    if minutes is not None and (isinstance(minutes, bool) or not isinstance(minutes, numbers.Real) or not minutes > 0):
+        raise ValueError(f"minutes (the call's time limit) must be > 0, got {minutes!r}.")
 
 
 def _refuse_edited(run_dir: Path, config: Config, checkpoints: Checkpoints) -> None:
@@ -404,8 +418,6 @@ def _run(
     ended: str | None = None,
     verified: dict[tuple[str, int], str | None] | None = None,
 ) -> TrainingRun:
-    if minutes is not None and minutes <= 0:
-        raise ValueError(f"minutes (the call's time limit) must be > 0, got {minutes}.")
     deadline = None if minutes is None else time.monotonic() + 60.0 * minutes
     # A run that its ppo.stop_at ended is as complete as one that did all its cycles (`ended`: what ended it).
     finished = state is not None and (int(state.cycle) >= config.ppo.num_cycles or ended is not None)
