@@ -611,7 +611,9 @@ def test_a_recurrent_area_named_without_its_module_path_is_suggested_with_it():
     recording = graph_recording({"network.S1": 3, "network.PMC.0": 5, "network.PMC.1": 5})
     with pytest.raises(ValueError, match=r"no carry of 'PMC' .*; did you mean 'network.PMC'\? Recurrent modules "
                                          r"recorded: network.PMC\."):
-        agent_fixed_points(None, recording, "PMC", inputs=["network.S1"])
+        agent_fixed_points(graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
+                                        "PMC": {"size": 5, "inputs": ("S1",), "cell": "rnn"}}),
+                           recording, "PMC", inputs=["network.S1"])
 
 
 def test_a_layer_or_variable_the_recording_lacks_is_named_with_the_nearest_and_a_single_name_is_one_layer():
@@ -681,6 +683,45 @@ def test_a_run_directory_file_name_or_agent_given_for_a_recording_is_named_with_
                          lambda data: agent_fixed_points(agent, data, "network.PMC"),
                          lambda data: save_activity(data, tmp_path / "out.nc")):
             with pytest.raises(TypeError, match=r"^Analyses read a recording .*" + said):
+                analysis(given)
+
+
+def test_a_run_directory_or_a_policy_given_for_an_agent_is_named_with_what_to_do(tmp_path):
+    """Notebook trial: lesion_area(RUN_DIR, ...), dense_layers, silence_modality, silence_actions, with_random_weights,
+    ablation, episode_outcomes, replay_activity, area_input and agent_fixed_points given the run directory (which
+    record_activity and evaluate take) failed with AttributeError ("'str' object has no attribute 'params'", 'env',
+    'compiled_once', 'config', 'network'); an exported Policy likewise."""
+    from types import SimpleNamespace
+
+    from angora_jax.analysis import (
+        ablation,
+        agent_fixed_points,
+        area_input,
+        dense_layers,
+        episode_outcomes,
+        lesion,
+        lesion_area,
+        lesion_fraction,
+        reach_lesions,
+        replay_activity,
+        silence_actions,
+        silence_modality,
+        with_random_weights,
+    )
+
+    agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
+                         "PMC": {"size": 4, "inputs": ("S1",), "cell": "rnn"}})
+    data = graph_recording({"network.S1": 3, "network.PMC.0": 4, "network.PMC.1": 4})
+    run = str(tmp_path)
+    for given, said in ((run, rf"not the name '{run}': load it first: agent = aj.load_agent\('{run}'\)\.$"),
+                        (SimpleNamespace(agent=agent), r"not a SimpleNamespace: give its .agent\.$")):
+        for analysis in (dense_layers, reach_lesions, with_random_weights, lambda a: lesion(a, "network.S1", [0]),
+                         lambda a: lesion_area(a, "network.S1"), lambda a: lesion_fraction(a, "network.S1", 0.5),
+                         lambda a: silence_modality(a, "proprioception"), lambda a: silence_actions(a, [0]),
+                         lambda a: ablation(a, {}, episodes=2), lambda a: episode_outcomes(a, episodes=2),
+                         lambda a: replay_activity(a, data), lambda a: area_input(a, data, "network.PMC"),
+                         lambda a: agent_fixed_points(a, data, "network.PMC")):
+            with pytest.raises(TypeError, match=r"^This analysis takes an Agent, " + said):
                 analysis(given)
 
 

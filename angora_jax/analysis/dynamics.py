@@ -24,7 +24,7 @@ from sklearn.decomposition import PCA
 
 from angora_jax.analysis.decoding import as_names, check_recording, chosen_layers, recorded_layers
 from angora_jax.analysis.parallel import map_in_threads
-from angora_jax.experiment.agent import Agent
+from angora_jax.experiment.agent import Agent, check_agent
 from angora_jax.nets.activations import ACTIVATION_RANGES, ACTIVATIONS
 from angora_jax.nets.area_graph import AreaGraph, feedback_inputs
 from angora_jax.nets.components import component
@@ -207,6 +207,7 @@ def area_input(agent: Agent, dataset: xr.Dataset, layer: str) -> dict[str, np.nd
     shifted by one step, 0 (the initial carry's) at each episode's first step. Every input is held at its mean, so
     the fixed points are those of the area with the loop through other areas opened (they follow the area's mean
     input, not its own state); an area that reads itself reads its own state (None: see `recurrent_step`)."""
+    check_agent(agent)
     area = _graph_area(agent, layer)
     graph = getattr(agent.network, "graph", None)
     if area is None and isinstance(graph, AreaGraph):
@@ -283,6 +284,7 @@ def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: st
         `find_fixed_points`'s arrays plus `input` (the constant input, the parts held constant concatenated: an area
         that reads itself reads its state instead).
     """
+    check_agent(agent)
     check_recording(dataset)
     alive = dataset["alive"].values > 0
     if inputs is None:

@@ -25,7 +25,7 @@ import xarray as xr
 
 from angora_jax.analysis.recording import episode_outcomes
 from angora_jax.envs.core import Env, Sensation, State
-from angora_jax.experiment.agent import Agent
+from angora_jax.experiment.agent import Agent, check_agent
 from angora_jax.experiment.config import check_count
 
 # The kernels inside flax's recurrent cells, by their names: SimpleCell's input and hidden kernels, the GRU's and
@@ -36,6 +36,7 @@ CELL_PARTS = ({"i", "h"}, {"ir", "iz", "in", "hr", "hz", "hn"}, {"ii", "if", "ig
 
 def _kernels(agent: Agent) -> dict[tuple[str, ...], int]:
     """Every 2-D `kernel` of `agent`'s parameters: its module path -> its number of output units."""
+    check_agent(agent)
     found = {}
     for path, leaf in jax.tree_util.tree_flatten_with_path(agent.params)[0]:
         names = tuple(str(getattr(p, "key", p)) for p in path)
@@ -101,6 +102,7 @@ def lesion_area(agent: Agent, area: str) -> Agent:
 
 def silence_modality(agent: Agent, modality: str) -> Agent:
     """`agent` receiving nothing from input `modality` (e.g. "goal"): its normalised input is held at 0."""
+    check_agent(agent)
     modalities = [name for name, stats in vars(agent.state.obs_stats).items() if stats.mean.shape[-1] > 0]
     if modality == "vision" and agent.config.ppo.network.visual is not None:
         raise ValueError("This agent sees camera images, which are not normalised inputs: silence what it sees with "
@@ -129,6 +131,7 @@ def silence_actions(agent: Agent, components: Sequence[int] | np.ndarray) -> Age
     Raises:
         ValueError: discrete actions (0 is an action there, not silence) or a component out of range.
     """
+    check_agent(agent)
     spec = agent.env.action_spec
     if spec.discrete:
         raise ValueError("Silencing action components forces them to 0, which is a choice for discrete actions, not "
@@ -251,6 +254,7 @@ def plot_ablation(result: xr.Dataset, outcome: str, path: str) -> None:
 def with_random_weights(agent: Agent, seed: int = 0) -> Agent:
     """`agent` with freshly initialised parameters (same network, head and normaliser): the untrained control for
     decoding and similarity (what structure alone gives, before learning)."""
+    check_agent(agent)
     shapes = agent.env.observation_shapes()
     obs = jax.tree.map(lambda s: jnp.zeros((1, *s.shape), s.dtype), shapes)
     params = agent.model.init(jax.random.key(seed), agent.initial_carry(1), obs)["params"]

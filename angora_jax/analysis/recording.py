@@ -47,7 +47,7 @@ from flax import linen as nn
 from angora_jax.analysis.decoding import check_recording
 from angora_jax.envs.cameras import check_path_renderer
 from angora_jax.envs.core import Sensation, is_image
-from angora_jax.experiment.agent import Agent, load_agent
+from angora_jax.experiment.agent import Agent, check_agent, load_agent
 from angora_jax.experiment.config import check_count, override_strings
 from angora_jax.nets import ActorCritic
 from angora_jax.ppo.evaluate import make_evaluate
@@ -183,6 +183,7 @@ def episode_outcomes(agent: Agent, episodes: int = 256, steps: int | None = None
     (or at step `steps` when it has not ended by then). Runs the evaluation's program (`ppo.make_evaluate`), compiled
     once per agent kind, episode count and limit: lesioned variants of an agent share it. The episodes are those
     `record_activity` records with the same seed."""
+    check_agent(agent)
     program = agent.compiled_once(("outcomes", episodes, steps), lambda: make_evaluate(
         agent.env, agent.network, agent.config.ppo, episodes, per_episode=True, steps=steps))
     totals = jax.device_get(program(agent.state, jax.random.key(seed)))
@@ -233,6 +234,7 @@ def replay_activity(agent: Agent, recording: xr.Dataset) -> xr.Dataset:
     """`recording` with its `activity_*` replaced by `agent`'s layer activity on the recorded inputs (each episode
     from the initial carry, step by step): another network's response to the same observations, e.g. the untrained
     control of `with_random_weights`, whose own behaviour would otherwise present other inputs."""
+    check_agent(agent)
     check_recording(recording)
     recorded_task = recording.attrs.get("task")
     if recorded_task and recorded_task != agent.config.env.task:

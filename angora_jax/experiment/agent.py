@@ -141,6 +141,20 @@ class Agent:
         return {k: float(v) for k, v in evaluate(self.state, jax.random.key(seed)).items()}
 
 
+def check_agent(agent: object) -> None:
+    """TypeError naming what to do when `agent` is not an Agent: a run directory (what `record_activity` and
+    `evaluate` take) or an exported `Policy` given where probing needs the agent itself, as a notebook easily does."""
+    if isinstance(agent, Agent):
+        return
+    if isinstance(agent, str | Path):
+        given, fix = f"the name {str(agent)!r}", f"load it first: agent = aj.load_agent({str(agent)!r})"
+    elif isinstance(getattr(agent, "agent", None), Agent):
+        given, fix = f"a {type(agent).__name__}", "give its .agent"
+    else:
+        given, fix = f"a {type(agent).__name__}", "load one with aj.load_agent(run_dir)"
+    raise TypeError(f"This analysis takes an Agent, not {given}: {fix}.")
+
+
 def load_agent(run_dir: str | Path, checkpoint: str | int = "best", env_overrides: Sequence[str] = ()) -> Agent:
     """The policy saved in `run_dir`.
 
