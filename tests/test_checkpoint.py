@@ -633,3 +633,17 @@ def test_an_on_cycle_or_time_limit_that_cannot_be_used_is_refused_before_a_run_d
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(error, match=message):
         resume(runs[0].run_dir, **options)
+
+
+def test_read_metrics_of_what_is_no_run_directory_says_so_rather_than_return_no_records(runs, tmp_path):
+    """A mistyped run path gave read_metrics' empty list, a run without records (an empty plot, no word why), and the
+    run's config.yaml given for it NotADirectoryError; a run that has not finished a cycle still reads as []."""
+    whole = runs[0].run_dir
+    with pytest.raises(RunDirError, match=rf"^{tmp_path / 'whol'} is not a run directory: it does not exist\."):
+        read_metrics(tmp_path / "whol")
+    with pytest.raises(RunDirError, match=rf"is a file, not a run directory\. It is inside the run directory {whole}"):
+        read_metrics(whole / "config.yaml")
+    started = tmp_path / "started"
+    started.mkdir()
+    shutil.copy(whole / "config.yaml", started)
+    assert read_metrics(started) == [] and len(read_metrics(whole)) == 4

@@ -24,7 +24,15 @@ from typing import Any
 import jax
 import numpy as np
 
-from angora_jax.experiment.run_dir import METRICS_FILE, DiskFullError, RunDirError, no_room
+from angora_jax.experiment.run_dir import (
+    CONFIG_FILE,
+    METRICS_FILE,
+    START_RUNS,
+    DiskFullError,
+    RunDirError,
+    no_room,
+    not_a_run_dir,
+)
 from angora_jax.experiment.wandb_logging import WandbConfig, WandbLog
 from angora_jax.ppo.config import StopAt
 from angora_jax.ppo.cycle import TrainState
@@ -113,7 +121,10 @@ class Monitor:
 
 def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
     """The records of `run_dir/metrics.jsonl` in order, nulls read back as NaN. A damaged line (an edit, a copy cut
-    short) is skipped with a warning naming it (`angora-jax check` lists them)."""
+    short) is skipped with a warning naming it (`angora-jax check` lists them). A run that has not finished a cycle
+    yet has none; RunDirError for what is no run directory (a mistyped path read as a run without records)."""
+    if not (Path(run_dir) / METRICS_FILE).is_file() and not (Path(run_dir) / CONFIG_FILE).is_file():
+        raise RunDirError(not_a_run_dir(run_dir, START_RUNS))
     rows, damaged = _parse_metrics(Path(run_dir) / METRICS_FILE)
     if damaged:
         print(f"Warning: {Path(run_dir) / METRICS_FILE}: line(s) {', '.join(map(str, damaged[:5]))} are not records "

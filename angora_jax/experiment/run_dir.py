@@ -46,6 +46,8 @@ CHECKPOINTS = "checkpoints"
 SESSIONS_FILE = "sessions.jsonl"
 VIDEOS = "videos"
 EVALUATIONS = "evaluation"  # `angora-jax evaluate` writes its JSON and plots here
+# What to do instead, said of a path that is no run directory.
+START_RUNS = "Start runs with `angora-jax train` (in Python: aj.train)."
 
 
 class RunDirError(ValueError):
@@ -161,7 +163,7 @@ def read_run_config(run_dir: str | Path) -> Config:
         if has_checkpoints(run_dir):
             raise RunDirError(f"{run_dir} has checkpoints but no {CONFIG_FILE}: `angora-jax check {run_dir} "
                               "--restore-config` writes it again from the copy they keep.")
-        raise RunDirError(not_a_run_dir(run_dir, "Start runs with `angora-jax train` (in Python: aj.train)."))
+        raise RunDirError(not_a_run_dir(run_dir, START_RUNS))
     try:
         config = load_config(path)
     except UnreadableConfigError as error:  # the run's fix first: `train`'s (name a shipped config) is no fix here
