@@ -22,7 +22,7 @@ import angora_jax as aj
 from angora_jax.cli import main
 from angora_jax.experiment import Checkpoints, RunDirError, TrainingInterrupted, read_metrics, resume, validate
 from angora_jax.experiment.checkpoint import CheckpointError
-from angora_jax.experiment.config import CheckpointConfig
+from angora_jax.experiment.config import CheckpointConfig, ConfigError
 from angora_jax.experiment.monitor import set_aside_after
 from angora_jax.experiment.programs import cycle_programs
 from angora_jax.experiment.run_dir import CHECKPOINTS
@@ -647,3 +647,24 @@ def test_read_metrics_of_what_is_no_run_directory_says_so_rather_than_return_no_
     started.mkdir()
     shutil.copy(whole / "config.yaml", started)
     assert read_metrics(started) == [] and len(read_metrics(whole)) == 4
+
+
+def test_resumes_refusals_name_the_python_arguments_beside_the_command_line_options(runs, tmp_path):
+    """aj.resume's refusals named only the command's options: a notebook user whose run lost its latest checkpoint (a
+    second interrupt before the first save) was told "`--from 4` continues ..., or `--from-scratch` trains again",
+    and resume(start_from=7) and resume(num_cycles=3) answered "--from 7: ..." and "--num-cycles 3 is below ..."."""
+    run = tmp_path / "nolatest"
+    shutil.copytree(runs[0].run_dir, run)
+    shutil.rmtree(run / CHECKPOINTS / "latest")
+    with pytest.raises(RunDirError, match=rf"`--from 4` continues .*`--from-scratch` trains again .* \(in Python: "
+                                          rf"aj.resume\('{run}', start_from=4\) or aj.resume\('{run}', "
+                                          r"from_scratch=True\)\)\."):
+        resume(run)
+    with pytest.raises(RunDirError, match=r"^--from 7 \(in Python start_from=7\): No checkpoint 7\."):
+        resume(run, start_from=7)
+    with pytest.raises(RunDirError, match=r"cannot be combined with --from \(in Python: from_scratch=True without "
+                                          r"start_from\)\.$"):
+        resume(run, start_from=4, from_scratch=True)
+    with pytest.raises(ConfigError, match=r"--num-cycles 3 is below cycle 4, .*: ask for at least that many "
+                                          r"\(num_cycles in Python\)\.$"):
+        resume(run, start_from=4, num_cycles=3)

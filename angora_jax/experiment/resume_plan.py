@@ -63,7 +63,8 @@ def plan_resume(run_dir: Path, config: Config, start_from: str | int = "latest",
     cube); None opens and closes them here."""
     if from_scratch:
         if start_from != "latest":
-            raise RunDirError("--from-scratch trains again from cycle 0: it cannot be combined with --from.")
+            raise RunDirError("--from-scratch trains again from cycle 0: it cannot be combined with --from (in Python: "
+                              "from_scratch=True without start_from).")
         return ResumePlan(None, None, True, f"train again from cycle 0; the earlier {', '.join(TRAINING_OUTPUTS)} "
                                             f"move to {run_dir}/previous-N/")
     logged = logged_cycles(run_dir)
@@ -82,19 +83,21 @@ def plan_resume(run_dir: Path, config: Config, start_from: str | int = "latest",
                 older = checkpoints.newest_intact()
                 choice = (f"`--from {older[1]}` continues from the newest intact checkpoint ({older[0]}, cycle "
                           f"{older[1]}), or " if older else "")
+                python = " or ".join(([f"aj.resume({str(run_dir)!r}, start_from={older[1]})"] if older else []) +
+                                     [f"aj.resume({str(run_dir)!r}, from_scratch=True)"])
                 raise RunDirError(
                     f"{run_dir} has no latest checkpoint to resume from (checkpoints/latest is empty or missing), "
                     f"but it logged {len(logged)} cycles (up to cycle {max(logged, default=0)}) in {METRICS_FILE}"
                     f"{f' and keeps checkpoints ({describe_saved(saved)})' if saved else ''}. Resuming now would start "
                     "over and lose that curve, "
                     f"so nothing was changed. Choose: {choice}`--from-scratch` trains again from cycle 0 with the "
-                    f"earlier files moved to {run_dir}/previous-N/. `angora-jax check {run_dir}` shows what the run "
-                    "holds.")
+                    f"earlier files moved to {run_dir}/previous-N/ (in Python: {python}). `angora-jax check {run_dir}` "
+                    "shows what the run holds.")
             return ResumePlan(None, None, False, "train from cycle 0: nothing was logged or saved before it stopped")
         try:
             kind, cycle = checkpoints.locate(start_from)
         except FileNotFoundError as error:
-            raise RunDirError(f"--from {start_from}: {error}") from None
+            raise RunDirError(f"--from {start_from} (in Python start_from={start_from!r}): {error}") from None
         checkpoints.check_intact(kind, cycle)
         later = [c for c in logged if c > cycle]
         return ResumePlan(kind, cycle, False,

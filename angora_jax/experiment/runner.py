@@ -254,10 +254,10 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
         if ended is not None and config.ppo.num_cycles != before.num_cycles:
             raise ConfigError(f"ppo.stop_at ended {run_dir} at cycle {plan.cycle} ({ended}), so --num-cycles alone "
                               f"would train nothing: add --no-stop-at to train it on to {config.ppo.num_cycles} "
-                              "cycles.")
+                              "cycles (in Python: no_stop_at=True with num_cycles).")
         if config.ppo != before and plan.cycle is not None and config.ppo.num_cycles < plan.cycle:
             raise ConfigError(f"--num-cycles {config.ppo.num_cycles} is below cycle {plan.cycle}, where {run_dir} "
-                              "continues: ask for at least that many.")
+                              "continues: ask for at least that many (num_cycles in Python).")
         if plan.cycle is None:  # a start from cycle 0 reads its saved starting values (ppo.init_from, pretrained)
             check_sources(config, env)
         state = None
