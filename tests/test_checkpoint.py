@@ -643,8 +643,11 @@ def test_read_metrics_of_what_is_no_run_directory_says_so_rather_than_return_no_
         read_metrics(tmp_path / "whol")
     with pytest.raises(RunDirError, match=rf"is a file, not a run directory\. It is inside the run directory {whole}"):
         read_metrics(whole / "config.yaml")
+    with pytest.raises(RunDirError, match=r"has no config.yaml\. It holds run directories \(.*whole\): give one"):
+        read_metrics(whole.parent)
     started = tmp_path / "started"
     started.mkdir()
+    assert read_metrics(started) == [], "a directory that train is making into a run"
     shutil.copy(whole / "config.yaml", started)
     assert read_metrics(started) == [] and len(read_metrics(whole)) == 4
 

@@ -486,7 +486,8 @@ def kill_at_random(root: Path, name: str, rng: random.Random) -> None:
                                stderr=subprocess.PIPE, text=True)
     target = rng.randint(logged + 1, CYCLES - 1)
     deadline = time.monotonic() + 120
-    while len(read_metrics(run)) < target or (fresh and len(list(run.glob("previous-*"))) == earlier):
+    logged_now = lambda: len(read_metrics(run)) if run.exists() else 0  # noqa: E731  (the process makes the run)
+    while logged_now() < target or (fresh and len(list(run.glob("previous-*"))) == earlier):
         assert process.poll() is None and time.monotonic() < deadline, process.communicate()
         time.sleep(0.01)
     time.sleep(rng.uniform(0.0, 0.2))

@@ -122,8 +122,11 @@ class Monitor:
 def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
     """The records of `run_dir/metrics.jsonl` in order, nulls read back as NaN. A damaged line (an edit, a copy cut
     short) is skipped with a warning naming it (`angora-jax check` lists them). A run that has not finished a cycle
-    yet has none; RunDirError for what is no run directory (a mistyped path read as a run without records)."""
-    if not (Path(run_dir) / METRICS_FILE).is_file() and not (Path(run_dir) / CONFIG_FILE).is_file():
+    yet has none, as has a directory being made into one (`train` makes it, then writes its config); RunDirError for
+    a path that does not exist (mistyped), a file or a folder of runs, each of which read as a run without records."""
+    path = Path(run_dir)
+    if not (path / METRICS_FILE).is_file() and not (path / CONFIG_FILE).is_file() and (
+            not path.is_dir() or any((child / CONFIG_FILE).is_file() for child in path.iterdir())):
         raise RunDirError(not_a_run_dir(run_dir, START_RUNS))
     rows, damaged = _parse_metrics(Path(run_dir) / METRICS_FILE)
     if damaged:
