@@ -318,7 +318,9 @@ def main(argv: list[str] | None = None) -> int:
                                                           "episode_return", "episode_length", CGR, "metric/dropped",
                                                           "metric/timed_out", "metric/goal_distance", "entropy")}
                                   for r in rows] for rows in seeds] for label, seeds in runs.items()}}
-    stem = write_json(stem, record, (".json", ".png"), indent=1)
+    # The repository keeps no file over 2 MiB: the curves of many long runs are written without indentation.
+    indent = 1 if len(json.dumps(record, indent=1)) < 2 * 2**20 else None
+    stem = write_json(stem, record, (".json", ".png"), indent=indent)
     plot(runs, f"ShadowHandCube (IHOM) on {args.device}", stem + ".png")
     for label, seeds in runs.items():
         for rows, held in zip(seeds, stable[label], strict=True):
