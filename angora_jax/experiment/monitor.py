@@ -125,12 +125,13 @@ def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
     yet has none, as has a directory being made into one (`train` makes it, then writes its config); RunDirError for
     a path that does not exist (mistyped), a file or a folder of runs, each of which read as a run without records."""
     path = Path(run_dir)
-    if not (path / METRICS_FILE).is_file() and not (path / CONFIG_FILE).is_file() and (
+    metrics = path / METRICS_FILE
+    if not metrics.is_file() and not (path / CONFIG_FILE).is_file() and (
             not path.is_dir() or any((child / CONFIG_FILE).is_file() for child in path.iterdir())):
         raise RunDirError(not_a_run_dir(run_dir, START_RUNS))
-    rows, damaged = _parse_metrics(Path(run_dir) / METRICS_FILE)
+    rows, damaged = _parse_metrics(metrics)
     if damaged:
-        print(f"Warning: {Path(run_dir) / METRICS_FILE}: line(s) {', '.join(map(str, damaged[:5]))} are not records "
+        print(f"Warning: {metrics}: line(s) {', '.join(map(str, damaged[:5]))} are not records "
               "of a cycle and are skipped (angora-jax check RUN_DIR).", file=sys.stderr)
     return [_with_nans(row) for _, row in rows]
 
