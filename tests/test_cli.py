@@ -764,14 +764,14 @@ def test_a_gpu_sized_config_started_without_a_gpu_says_so_before_compiling(capsy
     with pytest.raises(RuntimeError, match="stopped before compiling"):
         runner.train("shadow_ihom", ["logging.progress=lines"])
     out = capsys.readouterr().out
-    assert "Note: no GPU found, and this config is sized for one: 16,384 envs x 32 steps = 524,288 env steps" in out
+    assert "Note: no GPU found, and this config is sized for one: 16,384 envs x 16 steps = 262,144 env steps" in out
     assert out.index("Note: no GPU found") < out.index("compiling the first cycle"), "the note first: said before"
-    assert "about 3.3 hours per cycle (276 days for its 2,000 cycles) at the 44 env steps/s" in out
+    assert "about 1.7 hours per cycle (138 days for its 2,000 cycles) at the 44 env steps/s" in out
     assert "compiling the first cycle adds about a minute" in out, "a newcomer waited a minute it did not mention"
     reach = load_config("shadow_reach_cortical")  # 38 s a cycle, but 1.6 hours in all: said too
     assert "(1.6 hours for its 150 cycles)" in cpu_note(reach, {"engine": "MuJoCo MJX (JAX implementation)"}, False)
     override = re.search(r"For a CPU run, add: (.*?);", out).group(1).split()
-    assert override == ["ppo.num_envs=32", "ppo.minibatch_size=256"], "at most 32 (cpu_sizing.CPU_ENVS)"
+    assert override == ["ppo.num_envs=32", "ppo.minibatch_size=128"], "at most 32 (cpu_sizing.CPU_ENVS)"
     validate(load_config("shadow_ihom", override))
     assert cpu_note(load_config("shadow_ihom", override), {"engine": "MuJoCo MJX (JAX implementation)"}, False) is None
     assert cpu_note(load_config("shadow_ihom"), {"engine": "MuJoCo MJX (MuJoCo Warp implementation)"}, True) is None

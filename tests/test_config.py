@@ -367,12 +367,17 @@ def test_shipped_configs_are_found_by_name_from_any_directory(tmp_path: Path, mo
 
 
 def test_a_config_extends_another_by_name_or_relative_path(tmp_path: Path):
-    # The shipped 4-GPU recipe is the fast cube with its batch and learning rate changed and nothing else.
+    # The shipped 4-GPU recipe is the fast cube at the same sizes per GPU: 4x its environments and minibatch samples.
     fast, four = to_dict(load_config("shadow_ihom")), to_dict(load_config("shadow_ihom_4gpu"))
     changed = {key for key, value in flatten(four).items() if flatten(fast)[key] != value}
-    assert changed == {"ppo.num_envs", "ppo.rollout_length", "ppo.minibatch_size", "ppo.learning_rate",
-                       "distribution.num_devices", "checkpoint.every", "checkpoint.lean"}
-    assert four["env"]["options"] == fast["env"]["options"] and four["ppo"]["learning_rate"] == 2 * 3e-4
+    assert changed == {"ppo.num_envs", "ppo.minibatch_size", "distribution.num_devices"}
+    assert (four["ppo"]["num_envs"], four["ppo"]["minibatch_size"]) == (
+        4 * fast["ppo"]["num_envs"], 4 * fast["ppo"]["minibatch_size"])
+    # The cube recipes measured with the 32-step recipe shadow_ihom shipped before keep its sizes, rate and saves.
+    for name in ("shadow_ihom_cortical", "shadow_ihom_randomized"):
+        ppo, checkpoint = to_dict(load_config(name))["ppo"], load_config(name).checkpoint
+        assert (ppo["rollout_length"], ppo["minibatch_size"], ppo["learning_rate"]) == (32, 16384, 3e-4), name
+        assert (checkpoint.every, checkpoint.lean) == (10, ("best", "snapshots")), name
     # The 2-GPU recipe is the 4-GPU one at the same sizes per GPU: half the environments and minibatch samples.
     two = to_dict(load_config("shadow_ihom_2gpu"))
     assert {key for key, value in flatten(two).items() if flatten(four)[key] != value} == {
