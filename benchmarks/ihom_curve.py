@@ -81,9 +81,16 @@ def read_pieces(paths: list[str]) -> list[dict]:
             if line.strip():
                 row = json.loads(line)
                 by_cycle[int(row["cycle"])] = row
+    return with_clocks([by_cycle[cycle] for cycle in sorted(by_cycle)])
+
+
+def with_clocks(records: list[dict]) -> list[dict]:
+    """Per-cycle records in cycle order (metrics.jsonl rows, or `train`'s `on_cycle` records as they come), with the
+    cumulative `train_seconds`, `wall_seconds` and `compiled_seconds` of `read_pieces` added: a cycle that does not
+    follow the one before it, or that compiled, starts a piece and counts by its own seconds."""
     rows, train, wall, compiling, previous = [], 0.0, 0.0, 0.0, None
-    for cycle in sorted(by_cycle):
-        row = by_cycle[cycle]
+    for row in records:
+        cycle = int(row["cycle"])
         train += row["seconds"]
         compiling += row.get("compile_seconds") or 0.0
         same_piece = previous is not None and previous["cycle"] == cycle - 1 and "compile_seconds" not in row
@@ -93,9 +100,9 @@ def read_pieces(paths: list[str]) -> list[dict]:
     return rows
 
 
-def first_reaching(rows: list[dict], bar: float) -> dict | None:
-    """The first row whose training-mean CGR is at least `bar`, None when none is."""
-    return next((r for r in rows if r.get(CGR) is not None and r[CGR] >= bar), None)
+def first_reaching(rows: list[dict], bar: float, metric: str = CGR) -> dict | None:
+    """The first row whose training mean of `metric` (the CGR unless named) is at least `bar`, None when none is."""
+    return next((r for r in rows if r.get(metric) is not None and r[metric] >= bar), None)
 
 
 def milestones(rows: list[dict]) -> list[dict]:

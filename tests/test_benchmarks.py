@@ -30,6 +30,7 @@ import ihom_curve  # noqa: E402
 import paper_figures  # noqa: E402
 import snapshot_evaluations  # noqa: E402
 import throughput_ladder  # noqa: E402
+import train_past_solve  # noqa: E402
 
 EPISODE = 4
 # Pendulum's worst step costs pi^2 + 0.1 * 8^2 + 0.001 * 2^2.
@@ -338,6 +339,38 @@ def test_ihom_curve_reports_time_to_solve_efficiency_against_the_fewest_devices(
     assert rows["never"]["reached"] == 0 and rows["never"]["time_to_solve_efficiency"] is None
     with pytest.raises(SystemExit, match="LABEL=N"):
         ihom_curve.main([*runs, "--devices", "four=many", "--device", "cpu", "--name", "e2"])
+
+
+def test_train_past_solve_stops_at_the_first_cycle_past_the_multiple():
+    """Reached at wall second 20 (cycle 2, after a 10 s compile); at 2x the run stops at the first cycle whose wall
+    clock is 40 s or more, not before, and never without having reached the bar."""
+    records = [{"cycle": c, "seconds": 10.0, "time": 10.0 * c, "metric/goals_reached": 31.0 if c >= 2 else 5.0}
+               for c in range(1, 6)]
+    records[0]["compile_seconds"] = 10.0
+    clocked = ihom_curve.with_clocks(records)
+    assert [r["wall_seconds"] for r in clocked] == [10.0, 20.0, 30.0, 40.0, 50.0]
+    stops = [train_past_solve.should_stop(clocked[:n], ihom_curve.CGR, 30, 2.0) for n in range(1, 6)]
+    assert stops == [False, False, False, True, True]
+    assert not train_past_solve.should_stop(clocked, ihom_curve.CGR, 40, 1.0), "never reached: never stopped"
+
+
+def test_train_past_solve_trains_stops_and_evaluates_best_and_latest(tmp_path):
+    """CartPole's return passes 40 in its first cycles; the run is stopped by its own SIGINT at 1.5 times that wall
+    time, with a checkpoint of that cycle, and both checkpoints are evaluated and summarised."""
+    out = tmp_path / "summary.json"
+    assert train_past_solve.main(["cartpole", "ppo.num_cycles=60", f"logging.run_root={tmp_path}",
+                                  "logging.run_name=a", "--metric", "episode_return", "--bar", "40",
+                                  "--multiple", "1.5", "--episodes", "8", "--out", str(out)]) == 0
+    (result,) = results(out, "train_past_solve")["results"]
+    rows = ihom_curve.read_pieces([str(tmp_path / "a")])
+    reached = ihom_curve.first_reaching(rows, 40, "episode_return")
+    assert result["reached_cycle"] == reached["cycle"] and result["stopped_cycle"] == rows[-1]["cycle"] < 60
+    assert rows[-1]["wall_seconds"] >= 1.5 * reached["wall_seconds"] > rows[-2]["wall_seconds"], "the first cycle past"
+    assert result["solve_time_multiple"] == pytest.approx(rows[-1]["wall_seconds"] / reached["wall_seconds"])
+    assert result["evaluations"]["latest"]["cycle"] == rows[-1]["cycle"], "a checkpoint of the cycle it stopped after"
+    for evaluation in result["evaluations"].values():
+        assert os.path.exists(evaluation["json"]) and evaluation["stderr"] >= 0
+    assert 0 < result["fraction_of_peak"] <= 1.0 and result["final"] <= result["peak"]
 
 
 @pytest.mark.slow
