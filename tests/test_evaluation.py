@@ -24,7 +24,7 @@ from angora_jax.envs.core import Sensation
 from angora_jax.envs.cpu_env import CpuEnv, eager
 from angora_jax.envs.eager_batch import EagerBatch
 from angora_jax.envs.rendering import RenderError
-from angora_jax.experiment import evaluation, snapshot_cycles
+from angora_jax.experiment import ConfigError, evaluation, snapshot_cycles
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
 from angora_jax.experiment.evaluation import agreement, evaluate
 from angora_jax.experiment.run_dir import EVALUATIONS
@@ -519,10 +519,27 @@ def test_evaluate_out_writes_into_another_folder_and_nothing_into_the_run(run_di
         "latest-cycle20-mode-seed0-2.json", "latest-cycle20-mode-seed0-2.png",
         "latest-cycle20-mode-seed0.json", "latest-cycle20-mode-seed0.png"]
     assert str(elsewhere / "latest-cycle20-mode-seed0.json") in capsys.readouterr().out
-    in_the_way = tmp_path / "a-file"
-    in_the_way.write_text("")
+
+
+def test_an_out_that_is_a_file_or_lies_in_one_is_refused_before_any_episode_runs(run_dir, tmp_path, capsys,
+                                                                                 monkeypatch):
+    """`evaluate --out notes.txt` (or `save=` in Python) ran every episode, then ended in mkdir's FileExistsError
+    (a traceback in Python, "a file is in the way ... (logging.run_root, --out)" from the command). Refused first
+    now, as a ConfigError naming the file and saying to give a folder; the file is left as it was."""
+    def never_loads(*args, **kwargs):
+        raise AssertionError("the agent was loaded to evaluate, although the --out was refusable before")
+
+    monkeypatch.setattr(evaluation, "load_agent", never_loads)
+    in_the_way = tmp_path / "notes.txt"
+    in_the_way.write_text("mine")
+    with pytest.raises(ConfigError, match=f"{in_the_way} is a file.*give a folder"):
+        evaluate(run_dir, episodes=1, save=in_the_way)
     assert main(["evaluate", str(run_dir), "--episodes", "1", "--out", str(in_the_way)]) == 2
-    assert "choose another path" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"--out) {in_the_way} is a file" in err and "give a folder" in err and "Traceback" not in err, err
+    assert main(["evaluate", str(run_dir), "--episodes", "1", "--out", str(in_the_way / "evaluations")]) == 2
+    assert f"{in_the_way} is a file, not a folder; give a folder you can write to" in capsys.readouterr().err
+    assert in_the_way.read_text() == "mine"
 
 def test_render_shows_a_trained_reach_policy_acting(cortical_reach, tmp_path, opengl):
     """`angora-jax render RUN_DIR` on the session's trained reach run (the policy branch of experiment/video.py): the

@@ -29,7 +29,7 @@ from angora_jax.experiment.config import ConfigError, check_count, override_stri
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
 from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths
 from angora_jax.ppo.evaluate import make_evaluate
-from angora_jax.whole_files import written_whole
+from angora_jax.whole_files import unwritable_folder, written_whole
 
 # Episodes run at once by default: enough to spread the fixed cost of each step's JAX calls, few enough that a small
 # evaluation still fills the batch.
@@ -129,6 +129,7 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
                                 (("episodes", episodes), ("batch", batch), ("workers", workers)))
     if path not in PATHS:
         raise ValueError(f"Unknown evaluation path {path!r}; choose one of {PATHS}.")
+    check_save_folder(save)
     env_overrides = override_strings(env_overrides, "env_overrides")
     agent = load_agent(run_dir, checkpoint, env_overrides)
     checkpoint = read_checkpoint(run_dir, checkpoint)  # named as read: a run without a best evaluates its latest
@@ -157,6 +158,20 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     meta = _record(agent, run_dir, checkpoint, episodes, stochastic, seed, wall, changed,
                    {"physics": physics, "batch": envs.size, "workers": envs.workers})
     return _evaluation(per_episode, meta, run_dir, save)
+
+
+def check_save_folder(save: bool | str | Path) -> None:
+    """ConfigError, before any episode runs, when `save` names a folder that no evaluation can be written into: a
+    file is there (never overwritten), a file is on its way, or it cannot be written; True and False pass."""
+    if isinstance(save, bool):
+        return
+    folder = Path(save)
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(f"save (--out) {folder} is a file, and an evaluation writes its JSON and box plot into a "
+                          f"folder without overwriting anything: give a folder, a new or an existing one (e.g. "
+                          f"{folder.parent / EVALUATIONS}).")
+    if (why := unwritable_folder(folder / "evaluation.json")) is not None:
+        raise ConfigError(f"save (--out) {folder}: {why}; give a folder you can write to.")
 
 
 def _evaluation(per_episode: dict[str, np.ndarray], meta: dict[str, Any], run_dir: str | Path,
