@@ -3,6 +3,7 @@ from another machine), the MJX/CPU agreement tool, and videos of MuJoCo tasks.""
 
 import json
 import os
+import re
 import shutil
 import sys
 from dataclasses import replace
@@ -443,6 +444,24 @@ def test_counts_given_in_python_that_are_no_whole_number_of_at_least_one_are_ref
         with pytest.raises(ValueError, match="^num_cycles " + said):
             aj.resume(run_dir, num_cycles=bad)
     assert evaluate(run_dir, "latest", episodes=np.int64(EPISODES), save=False).meta["episodes"] == EPISODES
+
+
+def test_seeds_given_in_python_that_are_no_seed_are_refused_by_name(run_dir):
+    """Notebook trial: the Python twins of the commands' --seed (which argparse checks), given seed=1.5, failed inside
+    a compiled program ("PRNG key seed must be an integer; got JitTracer(~float32[])"), seed="abc" as "is not a
+    valid JAX array type". Each is a ConfigError naming `seed` and its range now, as ppo.seed is in a config."""
+    from angora_jax.analysis import episode_outcomes, record_activity
+
+    agent = aj.load_agent(run_dir, "latest")
+    for bad in (1.5, "abc", -1, 2**32, True):
+        said = rf"^seed must be a whole number from 0 to 4,294,967,295, got {re.escape(repr(bad))}\.$"
+        for call, first in ((evaluate, dict(run_dir=run_dir, episodes=1, save=False)),
+                            (agent.evaluate, dict(num_envs=1)), (aj.render_frames, dict(run_dir=run_dir)),
+                            (record_activity, dict(agent=agent, episodes=1)),
+                            (episode_outcomes, dict(agent=agent, episodes=1))):
+            with pytest.raises(ConfigError, match=said):
+                call(**first, seed=bad)
+    assert evaluate(run_dir, "latest", episodes=1, seed=np.int64(3), save=False).meta["seed"] == 3
 
 
 def test_render_refuses_frames_larger_than_memory_before_rendering(tmp_path, capsys, monkeypatch):

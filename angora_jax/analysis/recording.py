@@ -48,7 +48,7 @@ from angora_jax.analysis.decoding import check_recording
 from angora_jax.envs.cameras import check_path_renderer
 from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, check_agent, load_agent
-from angora_jax.experiment.config import check_count, override_strings
+from angora_jax.experiment.config import check_count, check_seed, override_strings
 from angora_jax.nets import ActorCritic
 from angora_jax.ppo.evaluate import make_evaluate
 from angora_jax.whole_files import written_whole
@@ -100,6 +100,7 @@ def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | 
     estimate (`input_vision`) lies beside the true pose (`task_cube_position`, `task_cube_orientation`)."""
     episodes = check_count("episodes", episodes)
     steps = None if steps is None else check_count("steps", steps)
+    seed = check_seed("seed", seed)
     env_overrides = override_strings(env_overrides, "env_overrides")
     if isinstance(agent, Agent):
         if env_overrides:
@@ -184,6 +185,7 @@ def episode_outcomes(agent: Agent, episodes: int = 256, steps: int | None = None
     once per agent kind, episode count and limit: lesioned variants of an agent share it. The episodes are those
     `record_activity` records with the same seed."""
     check_agent(agent)
+    seed = check_seed("seed", seed)
     program = agent.compiled_once(("outcomes", episodes, steps), lambda: make_evaluate(
         agent.env, agent.network, agent.config.ppo, episodes, per_episode=True, steps=steps))
     totals = jax.device_get(program(agent.state, jax.random.key(seed)))

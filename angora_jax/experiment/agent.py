@@ -22,6 +22,7 @@ from angora_jax.experiment.config import (
     ConfigError,
     DistributionConfig,
     check_count,
+    check_seed,
     load_config,
     override_strings,
     to_dict,
@@ -136,6 +137,7 @@ class Agent:
         """One episode in each of `num_envs` fresh environments; means of episode_return, episode_length and the
         task metrics at episode ends (see `angora_jax.ppo.make_evaluate`)."""
         num_envs = check_count("num_envs", num_envs)
+        seed = check_seed("seed", seed)
         evaluate = self.compiled_once(("evaluate", num_envs, deterministic), lambda: make_evaluate(
             self.env, self.network, self.config.ppo, num_envs, deterministic))
         return {k: float(v) for k, v in evaluate(self.state, jax.random.key(seed)).items()}

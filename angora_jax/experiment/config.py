@@ -377,6 +377,15 @@ def check_count(name: str, value: object) -> int:
     return int(value)
 
 
+def check_seed(name: str, value: object) -> int:
+    """`value` as an int; ConfigError unless it is a seed, a whole number from 0 to SEED_MAX (an int or a numpy
+    integer, not a bool), as ppo.seed is checked in a config: a seed given in Python as 1.5 or "3" failed inside a
+    compiled JAX program ("PRNG key seed must be an integer; got JitTracer(~float32[])")."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 0 <= value <= SEED_MAX:
+        raise ConfigError(f"{name} must be a whole number from 0 to {SEED_MAX:,}, got {value!r}.")
+    return int(value)
+
+
 def _yaml_text(value: Any) -> str:
     """`value` as the text of an override's value."""
     return value if isinstance(value, str) else json.dumps(value, default=str)

@@ -25,7 +25,7 @@ from angora_jax.envs.cameras import check_path_renderer
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.experiment.agent import Agent, load_agent, read_checkpoint
-from angora_jax.experiment.config import ConfigError, check_count, override_strings, to_dict
+from angora_jax.experiment.config import ConfigError, check_count, check_seed, override_strings, to_dict
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
 from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths
 from angora_jax.ppo.evaluate import make_evaluate
@@ -127,6 +127,7 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     """
     episodes, batch, workers = (check_count(name, count) for name, count in
                                 (("episodes", episodes), ("batch", batch), ("workers", workers)))
+    seed = check_seed("seed", seed)
     if path not in PATHS:
         raise ValueError(f"Unknown evaluation path {path!r}; choose one of {PATHS}.")
     check_save_folder(save)

@@ -23,7 +23,7 @@ from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.envs.registry import make
 from angora_jax.envs.rendering import RenderError, SceneRenderer, camera_named
 from angora_jax.experiment.agent import Agent, load_agent
-from angora_jax.experiment.config import check_count
+from angora_jax.experiment.config import check_count, check_seed
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
 from angora_jax.ppo.memory import device_memory
 from angora_jax.whole_files import unwritable_folder, written_whole
@@ -81,6 +81,7 @@ def render_episodes(run_dir: str | Path | Agent | None, task: str | None, checkp
     if (run_dir is None) == (task is None):
         raise ValueError("Give either run_dir (a trained policy) or task (random actions), not both or neither.")
     episodes = check_count("episodes", episodes)
+    seed = check_seed("seed", seed)
     with on_host():
         if run_dir is not None:
             agent = run_dir if isinstance(run_dir, Agent) else load_agent(run_dir, checkpoint)
