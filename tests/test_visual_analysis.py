@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import xarray as xr
 
 import angora_jax as aj
 from angora_jax.analysis import visual
@@ -84,3 +85,23 @@ def test_filters_maps_and_the_whole_analysis_fit_together(agent, images, tmp_pat
     blind = SimpleNamespace(config=aj.load_config("shadow_reach"), params={"network": {}})
     with pytest.raises(ValueError, match="has no visual area"):
         visual.first_layer_filters(blind)
+
+
+def test_a_run_directory_or_a_recording_given_for_the_seeing_network_is_named_with_what_to_do(agent, images):
+    """A notebook gives the visual analyses the run directory (which record_activity takes) or the recording: each
+    failed with AttributeError ('str' object has no attribute 'config', 'Dataset' object ...), pose_saliency given an
+    agent with "'SimpleNamespace' object has no attribute 'check_frames'". Each is a TypeError saying what to give."""
+    run = "runs/pixels"
+    for call in (lambda seer: visual.first_layer_filters(seer), lambda seer: visual.conv_layers(seer),
+                 lambda seer: visual.feature_maps(seer, images), lambda seer: visual.saliency(seer, images, unit=0),
+                 lambda seer: visual.preferred_stimuli(seer, "V1", [0]),
+                 lambda seer: visual.visual_analysis(seer, images)):
+        with pytest.raises(TypeError, match=rf"not the name '{run}': load it first: agent = aj.load_agent\('{run}'\)"
+                                            r"\. A pose estimator's file is read with .*PoseEstimator.load\(FILE\)"):
+            call(run)
+        with pytest.raises(TypeError, match=r"not a Dataset: load one with aj.load_agent\(run_dir\)"):
+            call(xr.Dataset())
+    for not_an_estimator in (agent, run):
+        with pytest.raises(TypeError, match=r"pose_saliency takes a PoseEstimator .*got (SimpleNamespace|str); for "
+                                            r"an agent's visual area: saliency\(agent, images, unit=\.\.\.\)"):
+            visual.pose_saliency(not_an_estimator, images[:, None])

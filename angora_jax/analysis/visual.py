@@ -29,7 +29,7 @@ import optax
 import scipy.ndimage
 import xarray as xr
 
-from angora_jax.experiment.agent import Agent
+from angora_jax.experiment.agent import Agent, check_agent
 from angora_jax.nets.visual import make_visual_area, make_visual_encoder
 from angora_jax.vision.estimator import PoseEstimator
 
@@ -37,9 +37,24 @@ from angora_jax.vision.estimator import PoseEstimator
 Seer = Agent | PoseEstimator
 
 
+def check_seer(seer: object) -> None:
+    """TypeError naming what to do when `seer` is neither a PoseEstimator nor what these analyses read of an agent,
+    its `config` and `params` (an Agent, or a stand-in holding those two): a run directory, an exported Policy or a
+    recording given for it failed with AttributeError ('str' object has no attribute 'config')."""
+    if isinstance(seer, PoseEstimator) or (hasattr(seer, "config") and hasattr(seer, "params")):
+        return
+    try:
+        check_agent(seer)
+    except TypeError as error:
+        raise TypeError(f"{error} A pose estimator's file is read with angora_jax.vision.PoseEstimator.load(FILE), "
+                        "which this analysis takes too.") from None
+
+
 def _visual_system(seer: Seer) -> tuple[nn.Module, Any, tuple[int, int]]:
     """The encoder module that `seer` sees with, its parameters and the (height, width) of the camera images it
-    reads (an agent's: 64 x 64 where its config names none); ValueError for an agent without a visual area."""
+    reads (an agent's: 64 x 64 where its config names none); ValueError for an agent without a visual area,
+    TypeError for what is neither an agent nor an estimator (`check_seer`)."""
+    check_seer(seer)
     if isinstance(seer, PoseEstimator):
         return make_visual_encoder(seer.encoder, **seer.encoder_options), seer.params["encoder"], (seer.size,) * 2
     module = make_visual_area(seer.config.ppo.network.visual)
@@ -130,6 +145,9 @@ def pose_saliency(estimator: PoseEstimator, frames: np.ndarray,
     to 1) whichever representation the head was trained in."""
     if output not in ("orientation", "position"):
         raise ValueError(f"output must be 'orientation' or 'position', got {output!r}.")
+    if not isinstance(estimator, PoseEstimator):
+        raise TypeError(f"pose_saliency takes a PoseEstimator (angora_jax.vision.PoseEstimator.load(FILE)), got "
+                        f"{type(estimator).__name__}; for an agent's visual area: saliency(agent, images, unit=...).")
     frames = np.asarray(frames)
     estimator.check_frames(frames)
     network, which = estimator.network(), ("position", "orientation").index(output)
