@@ -59,8 +59,12 @@ def rollout(env, batched):
 
 def test_registry_lists_tasks_and_rejects_unknown_names():
     assert {"ShadowHandReach", "ShadowHandFreeReach"} <= set(aj.list_tasks())
-    with pytest.raises(ValueError, match="Unknown task 'ShadowHandRech'.*ShadowHandReach"):
-        aj.make("ShadowHandRech")
+    # The config's did-you-mean (`registry.did_you_mean`): make_env's refusal had only the list.
+    with pytest.raises(ValueError, match=r"^Unknown task 'ShadowHandRech'\. Did you mean 'ShadowHandReach'\? Known "
+                                         r"tasks: .*ShadowHandReach"):
+        aj.make_env("ShadowHandRech")
+    with pytest.raises(ValueError, match=r"^Unknown task 'Xyzzy'\. Known tasks: "):
+        aj.make("Xyzzy")
     with pytest.raises(ValueError, match="Unknown backend"):
         aj.make("ShadowHandReach", backend="gpu")
     with pytest.raises(ValueError, match="Unknown reward coefficients.*success_bonus"):

@@ -49,6 +49,7 @@ from angora_jax.ppo.config import (
 )
 from angora_jax.ppo.memory import estimate_memory
 from angora_jax.ppo.parallel import per_device, resolve_num_devices
+from angora_jax.registry import did_you_mean
 from angora_jax.registry.plugins import ModuleNameError, defined_in_a_notebook, import_modules
 
 # Named configs (`load_config("cartpole")`) ship inside the package (the repository's configs/ links here), so a
@@ -936,6 +937,5 @@ def _shorten(value: Any) -> str:
 
 def _unknown(key: str, value: Any, allowed: typing.Iterable[str], plural: str) -> str:
     allowed = list(allowed)
-    close = difflib.get_close_matches(str(value), allowed, n=1)
-    hint = f" Did you mean {close[0]!r}?" if close else ""
-    return f"Unknown value {value!r} for {key}.{hint} Allowed {plural}: {', '.join(map(str, allowed))}."
+    return (f"Unknown value {value!r} for {key}.{did_you_mean(value, allowed)} Allowed {plural}: "
+            f"{', '.join(map(str, allowed))}.")

@@ -4,7 +4,8 @@ names are there."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import difflib
+from collections.abc import Callable, Iterable
 from typing import Generic, TypeVar
 
 from angora_jax.registry.plugins import load_plugins
@@ -62,7 +63,16 @@ class Registry(Generic[F]):
         try:
             return self._factories[name]
         except KeyError:
-            raise ValueError(f"Unknown {self.kind} {name!r}. Known {self.plural}: {', '.join(self.names())}.") from None
+            names = self.names()
+            raise ValueError(f"Unknown {self.kind} {name!r}.{did_you_mean(name, names)} Known {self.plural}: "
+                             f"{', '.join(names)}.") from None
+
+
+def did_you_mean(value: object, allowed: Iterable[str]) -> str:
+    """" Did you mean 'x'?" with the name of `allowed` closest to `value` (difflib's), or "" when none is close: the
+    hint of every message that refuses an unknown name (a config's value, a registry's name)."""
+    close = difflib.get_close_matches(str(value), list(allowed), n=1)
+    return f" Did you mean {close[0]!r}?" if close else ""
 
 
 def definition(factory: Callable) -> str:
