@@ -15,6 +15,7 @@ from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.cli import main
+from angora_jax.experiment import read_metrics
 from angora_jax.experiment.live_report import LiveReport
 from angora_jax.experiment.report import RunRecord, group_band, load_run, seed_groups
 
@@ -106,6 +107,27 @@ def test_a_metrics_line_edited_to_hold_text_is_skipped_as_damaged_not_a_tracebac
     assert f"line(s) {lines + 1} are not records of a cycle and are skipped" in capsys.readouterr().err
     assert any(f"metrics.jsonl lines {lines + 1} hold no cycle's record" in problem
                for problem in check_run(run).problems)
+
+
+@pytest.mark.parametrize("line", ['{"cycle": 4}', '{"cycle": 4, "episode_return": 9.0}'])
+def test_a_metrics_line_without_its_env_steps_is_reported_without_a_traceback(line, runs, tmp_path, capsys):
+    """A last line of metrics.jsonl cut down to `{"cycle": 4}` (or holding a curve's value but not env_steps) ended
+    `report` (and `monitor`) in `KeyError: 'env_steps'`, alone and beside its seed's twin. The row has no place on the
+    curves' env-steps axis and is left off them; the table counts its cycle and shows the env steps of the last row
+    that has them."""
+    copies = [tmp_path / run.run_dir.name for run in runs]
+    for run, copy in zip(runs, copies, strict=True):
+        shutil.copytree(run.run_dir, copy)
+    steps = read_metrics(copies[0])[-1]["env_steps"]
+    with (copies[0] / "metrics.jsonl").open("a") as log:
+        log.write(line + "\n")
+    for given in ([copies[0]], copies):  # one run's own curves; the two seeds' mean and band
+        out = tmp_path / f"report{len(given)}"
+        assert main(["report", *map(str, given), "--out", str(out)]) == 0
+        assert "Traceback" not in capsys.readouterr().err
+        cells = re.findall(r"<td>([^<]*)</td>", (out / "index.html").read_text())
+        assert "4/3" in cells and f"{steps:,}" in cells, cells
+        assert (out / "episode_return.png").is_file()
 
 
 @pytest.fixture(scope="module")

@@ -130,14 +130,19 @@ def group_band(group: list[RunRecord], name: str) -> tuple[np.ndarray, np.ndarra
     runs recorded (NaN excluded), the mean and the half width of its 95% confidence interval (Student's t)."""
     values: dict[float, list[float]] = {}
     for run in group:
-        for row in run.rows:
-            if name in row and not math.isnan(row[name]):
-                values.setdefault(row["env_steps"], []).append(row[name])
+        for step, value in _points(run.rows, name):
+            values.setdefault(step, []).append(value)
     steps = np.array(sorted(step for step, seen in values.items() if len(seen) >= 2))
     mean = np.array([np.mean(values[step]) for step in steps])
     half = np.array([scipy.stats.t.ppf(0.975, len(values[step]) - 1) * scipy.stats.sem(values[step])
                      for step in steps])
     return steps, mean, half
+
+
+def _points(rows: list[dict[str, Any]], name: str) -> list[tuple[float, float]]:
+    """(env steps, value) of metric `name` in each row that holds both, NaN left out. A row without env_steps (a line
+    holding only its cycle, `{"cycle": 7}`) has no place on the curves' axis: it ended `report` in KeyError."""
+    return [(r["env_steps"], r[name]) for r in rows if "env_steps" in r and name in r and not math.isnan(r[name])]
 
 
 def plot_curve(runs: list[RunRecord], name: str, path: Path) -> None:
@@ -152,7 +157,7 @@ def plot_curve(runs: list[RunRecord], name: str, path: Path) -> None:
                 ax.fill_between(steps, mean - half, mean + half, color=line.get_color(), alpha=0.25, linewidth=0)
             continue
         run = group[0]
-        points = [(r["env_steps"], r[name]) for r in run.rows if name in r and not math.isnan(r[name])]
+        points = _points(run.rows, name)
         if points:
             ax.plot(*zip(*points, strict=True), marker="." if len(points) < 50 else None, label=run.name)
     ax.set_xlabel("env steps")
@@ -205,6 +210,7 @@ def summary(run: RunRecord, seeds: int = 1) -> dict[str, Any]:
     steps, final and best return."""
     returns = [r["episode_return"] for r in run.rows if not math.isnan(r.get("episode_return", math.nan))]
     tail = returns[-max(1, len(returns) // 10) :]
+    steps = [r["env_steps"] for r in run.rows if "env_steps" in r]  # the last cycle's row may hold nothing else
     ppo = run.config.get("ppo", {})
     return {
         "status": run.status(),
@@ -213,7 +219,7 @@ def summary(run: RunRecord, seeds: int = 1) -> dict[str, Any]:
         "head": ppo.get("head", "?"),
         "seed": f"{ppo.get('seed', '?')} (group of {seeds})" if seeds > 1 else str(ppo.get("seed", "?")),
         "cycles": f"{run.rows[-1]['cycle'] if run.rows else 0}/{ppo.get('num_cycles', '?')}",
-        "env steps": f"{run.rows[-1]['env_steps']:,}" if run.rows else "0",
+        "env steps": f"{steps[-1]:,}" if steps else "0",
         "final return": f"{sum(tail) / len(tail):.2f}" if tail else "-",
         "best return": f"{max(returns):.2f}" if returns else "-",
     }
