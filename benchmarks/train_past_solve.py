@@ -33,7 +33,8 @@ from common import config_parser, device, markdown_table, rolling_peak, versions
 from ihom_curve import CGR, SMOOTH, first_reaching, with_clocks
 
 import angora_jax as aj
-from angora_jax.experiment.runner import TrainingInterrupted
+from angora_jax.cli.errors import os_error_message
+from angora_jax.experiment import ConfigError, RunDirError, TrainingInterrupted
 
 CHECKPOINTS = ("best", "latest")
 
@@ -61,6 +62,23 @@ def summary(rows: list[dict], metric: str, bar: float) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Exit codes as angora-jax train's: 0 done, 2 a bad config or argument, a run directory in the way or a full
+    disk (the message says which, nothing saved is changed), 128 + signal number for your own Ctrl-C (the run is
+    saved; nothing is evaluated)."""
+    try:
+        return _train_past_solve(argv)
+    except TrainingInterrupted as stop:
+        print(f"train_past_solve: {stop}", file=sys.stderr)
+        return 128 + stop.signum
+    except (ConfigError, RunDirError) as error:
+        print(f"train_past_solve: {error}", file=sys.stderr)
+        return 2
+    except OSError as error:
+        print(f"train_past_solve: {os_error_message(error)}", file=sys.stderr)
+        return 2
+
+
+def _train_past_solve(argv: list[str] | None) -> int:
     parser = config_parser(__doc__)
     parser.add_argument("--metric", default=CGR, help="the training metric whose bar marks the solve (default: CGR)")
     parser.add_argument("--bar", type=float, default=30.0, help="the solve: the metric's first training mean >= bar")

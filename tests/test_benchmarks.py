@@ -354,9 +354,10 @@ def test_train_past_solve_stops_at_the_first_cycle_past_the_multiple():
     assert not train_past_solve.should_stop(clocked, ihom_curve.CGR, 40, 1.0), "never reached: never stopped"
 
 
-def test_train_past_solve_trains_stops_and_evaluates_best_and_latest(tmp_path):
+def test_train_past_solve_trains_stops_and_evaluates_best_and_latest(tmp_path, capsys):
     """CartPole's return passes 40 in its first cycles; the run is stopped by its own SIGINT at 1.5 times that wall
-    time, with a checkpoint of that cycle, and both checkpoints are evaluated and summarised."""
+    time, with a checkpoint of that cycle, and both checkpoints are evaluated and summarised. The same run name again,
+    or a misspelt key, exits 2 with the library's message, the run untouched."""
     out = tmp_path / "summary.json"
     assert train_past_solve.main(["cartpole", "ppo.num_cycles=60", f"logging.run_root={tmp_path}",
                                   "logging.run_name=a", "--metric", "episode_return", "--bar", "40",
@@ -371,6 +372,13 @@ def test_train_past_solve_trains_stops_and_evaluates_best_and_latest(tmp_path):
     for evaluation in result["evaluations"].values():
         assert os.path.exists(evaluation["json"]) and evaluation["stderr"] >= 0
     assert 0 < result["fraction_of_peak"] <= 1.0 and result["final"] <= result["peak"]
+    saved = (tmp_path / "a" / "metrics.jsonl").read_bytes()
+    capsys.readouterr()
+    for mistake, said in ((["logging.run_name=a"], "already exists and is left untouched"),
+                          (["logging.run_name=b", "ppo.num_cyles=9"], "Did you mean 'ppo.num_cycles'?")):
+        assert train_past_solve.main(["cartpole", f"logging.run_root={tmp_path}", *mistake]) == 2
+        assert said in capsys.readouterr().err
+    assert (tmp_path / "a" / "metrics.jsonl").read_bytes() == saved and not (tmp_path / "b").exists()
 
 
 @pytest.mark.slow
