@@ -496,7 +496,7 @@ class Checkpoints:
     def newest_intact(self, skip: tuple[str, int] | None = None) -> tuple[str, int] | None:
         """The kind and cycle of the newest checkpoint not found damaged (its manifest holds, or it has none to check;
         `skip` left out), or None. Newest first, stopping at the first intact one: verifying means hashing every file,
-        and a run's older checkpoints (the cube's are 301 MB each) need not be read to name it."""
+        and a run's older checkpoints (a full one of the cube is 301 MB) need not be read to name it."""
         for cycle, kind in self._newest_first():
             if (kind, cycle) != skip and self.damage(kind, cycle) in (None, "no manifest"):
                 return kind, cycle

@@ -230,8 +230,8 @@ class CheckpointConfig:
             recurrent carries, episode accumulators): parameters, optimizer, normalisers, PRNG key and cycle only, a
             small fraction of the size (the cube at 16,384 envs: the environments are most of a full checkpoint).
             Evaluating and probing read only parameters and normalisers, so lean best and snapshots (the default)
-            lose nothing for them; best is lean by default because a learning run beats its best most cycles, and
-            a full save (the cube at 16,384 envs: 300 MB, 1.6 s on an H200) then costs most of a cycle each time.
+            lose nothing for them; best is lean by default because a learning run beats its best most cycles, and a
+            full save (the cube at 16,384 envs: 300 MB, 1.6 s on an H200) then costs most of a cycle or more each time.
             Resuming from a lean checkpoint makes the environments afresh: the run goes on, but not bit for bit as if
             it had not stopped (`angora-jax resume --exact` refuses it).
     """
