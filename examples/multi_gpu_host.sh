@@ -2,7 +2,7 @@
 # Data-parallel training on every GPU of one host, one angora-jax process per GPU: the layout a cluster job uses
 # (examples/slurm_train.sh), here without a scheduler. Each process joins a jax.distributed job on this host and takes
 # the GPU of its index (--local-devices); process 0 logs and all write the checkpoint. Measured on 4 H100s: the fast
-# cube on MuJoCo Warp at 16,384 envs per GPU trains at 3.94x one GPU's rate in this layout
+# cube (its 32-step recipe) on MuJoCo Warp at 16,384 envs per GPU trains at 3.94x one GPU's rate in this layout
 # (benchmarks/results/scaling/scaling_ShadowHandCube_weak_processes_4xh100.json); configs/shadow_ihom_4gpu.yaml is the fast cube
 # sized and tuned for 4 GPUs (benchmarks/results/cube_multi_gpu/ihom_curve_4gpu_processes_h100.json), shadow_ihom_2gpu the same per GPU on 2
 # (benchmarks/results/cube_multi_gpu/ihom_curve_2gpu_h100.json).

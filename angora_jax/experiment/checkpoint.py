@@ -159,7 +159,7 @@ class Checkpoints:
     """The checkpoints of one run directory: decides what to save after a cycle, and restores.
 
     Saves are written in the background while the next cycle runs: `save` returns once Orbax has copied the state to
-    host memory, and the files are written behind it (on one H200 the fast cube spent 11% of its wall time in
+    host memory, and the files are written behind it (on one H200 the 32-step fast cube spent 11% of its wall time in
     synchronous saves: benchmarks/results/cube_one_gpu/README.md). The next `save`, a `final` one, a restore and
     `close` wait for what is still being written, write its manifest and raise its errors (a full disk) there, so a
     checkpoint is complete on disk when the run stops, and a process killed mid-write leaves the checkpoint before it

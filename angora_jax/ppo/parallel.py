@@ -40,7 +40,7 @@ Traffic that stays: one gradient all-reduce per minibatch (reach: 0.70 MB x 64 u
 52 MB x 192 = 10 GB per cycle), one per rollout step for the normaliser (every modality's moments together), one
 per epoch for the advantage statistics of all its minibatches, and the metrics once per cycle. Small all-reduces
 cost their latency, not their bytes, so each pools everything it can in one (`normalization.pooled_moments`).
-MuJoCo Warp on 4 H100s (the fast cube, weak scaling, 16,384 envs per GPU): one process per GPU 1.97x on 2 and 3.94x
+MuJoCo Warp on 4 H100s (32-step fast cube, weak scaling, 16,384 envs per GPU): one process per GPU 1.97x on 2 and 3.94x
 on 4; one process driving all GPUs 1.87x on 2 and 3.87x on 4 (10 cycles). That layout once hung after 3 cycles on 4
 GPUs, when Warp's cache of captured CUDA graphs, 32 per call by default, began evicting (one process needs a set per
 GPU; `mjx_env.size_warp_graph_cache` keeps 32 per device;
