@@ -34,7 +34,9 @@ from ihom_curve import CGR, SMOOTH, first_reaching, with_clocks
 
 import angora_jax as aj
 from angora_jax.cli.errors import os_error_message
-from angora_jax.experiment import ConfigError, RunDirError, TrainingInterrupted
+from angora_jax.experiment import ConfigError, RunDirError, TrainingInterrupted, load_config, validate
+from angora_jax.experiment.config import best_metric_choices
+from angora_jax.registry import did_you_mean
 
 CHECKPOINTS = ("best", "latest")
 
@@ -93,6 +95,12 @@ def _train_past_solve(argv: list[str] | None) -> int:
     if args.multiple <= 0 or args.episodes <= 0:
         parser.error("--multiple and --episodes must be positive")
 
+    # A misspelt metric would be found only after the whole run, which it would never stop: checked first.
+    config = load_config(args.config, args.overrides)
+    metrics = best_metric_choices(validate(config))
+    if args.metric not in metrics:
+        raise ConfigError(f"--metric {args.metric!r} is not a training metric of {config.env.task}."
+                          f"{did_you_mean(args.metric, metrics)} Choose one of: {', '.join(metrics)}.")
     rows: list[dict] = []
     stopped_here = []
 
@@ -104,7 +112,7 @@ def _train_past_solve(argv: list[str] | None) -> int:
             os.kill(os.getpid(), signal.SIGINT)
 
     try:
-        run_dir = aj.train(args.config, args.overrides, on_cycle=watch, minutes=args.minutes).run_dir
+        run_dir = aj.train(config, on_cycle=watch, minutes=args.minutes).run_dir
     except TrainingInterrupted as interrupted:
         if not stopped_here:
             raise

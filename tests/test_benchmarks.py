@@ -374,8 +374,10 @@ def test_train_past_solve_trains_stops_and_evaluates_best_and_latest(tmp_path, c
     assert 0 < result["fraction_of_peak"] <= 1.0 and result["final"] <= result["peak"]
     saved = (tmp_path / "a" / "metrics.jsonl").read_bytes()
     capsys.readouterr()
-    for mistake, said in ((["logging.run_name=a"], "already exists and is left untouched"),
-                          (["logging.run_name=b", "ppo.num_cyles=9"], "Did you mean 'ppo.num_cycles'?")):
+    for mistake, said in ((["logging.run_name=a", "--metric", "episode_return"], "exists and is left untouched"),
+                          (["logging.run_name=b", "ppo.num_cyles=9"], "Did you mean 'ppo.num_cycles'?"),
+                          (["logging.run_name=b", "--metric", "episode_retrun"], "Did you mean 'episode_return'?"),
+                          (["logging.run_name=b"], "'metric/goals_reached' is not a training metric of CartPole")):
         assert train_past_solve.main(["cartpole", f"logging.run_root={tmp_path}", *mistake]) == 2
         assert said in capsys.readouterr().err
     assert (tmp_path / "a" / "metrics.jsonl").read_bytes() == saved and not (tmp_path / "b").exists()
