@@ -53,13 +53,15 @@ def summary(rows: list[dict], metric: str, bar: float) -> dict:
     first that the second is, and the 5-cycle peak of the metric, its last 5-cycle mean and their ratio."""
     reached, last = first_reaching(rows, bar, metric), rows[-1]
     values = [row.get(metric, math.nan) for row in rows]
-    top, peak, final = rolling_peak(values, min(SMOOTH, len(values)))
+    # Cycles in which no episode ended have no value; a run stopped before any did has no peak.
+    known = any(math.isfinite(value) for value in values)
+    top, peak, final = rolling_peak(values, min(SMOOTH, len(values))) if known else (None, None, None)
     return {"reached_cycle": reached and reached["cycle"], "reached_env_steps": reached and reached["env_steps"],
             "reached_wall_minutes": reached and reached["wall_seconds"] / 60,
             "stopped_cycle": last["cycle"], "stopped_env_steps": last["env_steps"],
             "stopped_wall_minutes": last["wall_seconds"] / 60,
             "solve_time_multiple": last["wall_seconds"] / reached["wall_seconds"] if reached else None,
-            "peak": peak, "peak_cycle": rows[top]["cycle"], "final": final,
+            "peak": peak, "peak_cycle": None if top is None else rows[top]["cycle"], "final": final,
             "fraction_of_peak": final / peak if peak else None}
 
 
@@ -124,13 +126,14 @@ def _train_past_solve(argv: list[str] | None) -> int:
               **summary(rows, args.metric, args.bar), "evaluations": {}}
     for checkpoint in CHECKPOINTS:
         evaluation = aj.evaluate(run_dir, checkpoint=checkpoint, episodes=args.episodes, path="batched")
-        stats = evaluation.summary[args.metric]
+        stats = evaluation.summary[args.metric.removeprefix("eval/")]  # the held-out episodes' own name
         result["evaluations"][checkpoint] = {"cycle": evaluation.meta["cycle"], "mean": stats["mean"],
                                              "stderr": stats["stderr"], "median": stats["median"],
                                              "json": str(evaluation.json_path)}
     print(markdown_table([{"what": "reached the bar", "cycle": result["reached_cycle"],
                            "minutes": result["reached_wall_minutes"]},
-                          {"what": f"stopped ({result['fraction_of_peak']:.3f} of the peak {result['peak']:.2f})",
+                          {"what": "stopped" + (f" ({result['fraction_of_peak']:.3f} of the peak {result['peak']:.2f})"
+                                                if result["fraction_of_peak"] is not None else ""),
                            "cycle": result["stopped_cycle"], "minutes": result["stopped_wall_minutes"]},
                           *({"what": f"{name}: {args.metric} {e['mean']:.2f} +- {e['stderr']:.2f}, median "
                                      f"{e['median']:g}", "cycle": e["cycle"]}

@@ -352,6 +352,11 @@ def test_train_past_solve_stops_at_the_first_cycle_past_the_multiple():
     stops = [train_past_solve.should_stop(clocked[:n], ihom_curve.CGR, 30, 2.0) for n in range(1, 6)]
     assert stops == [False, False, False, True, True]
     assert not train_past_solve.should_stop(clocked, ihom_curve.CGR, 40, 1.0), "never reached: never stopped"
+    # A run that ended (its cycles, --minutes) before any episode did, or at CGR 0 throughout: no ratio, no crash.
+    for value in (math.nan, 0.0):
+        summary = train_past_solve.summary([{**r, ihom_curve.CGR: value} for r in clocked], ihom_curve.CGR, 30)
+        assert summary["reached_cycle"] is None and summary["fraction_of_peak"] is None, summary
+        assert summary["stopped_cycle"] == 5 and summary["solve_time_multiple"] is None
 
 
 def test_train_past_solve_trains_stops_and_evaluates_best_and_latest(tmp_path, capsys):
