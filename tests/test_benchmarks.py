@@ -344,7 +344,8 @@ def test_ihom_curve_reports_time_to_solve_efficiency_against_the_fewest_devices(
 def test_train_past_solve_stops_at_the_first_cycle_past_the_multiple():
     """Reached at wall second 20 (cycle 2, after a 10 s compile); at 2x the run stops at the first cycle whose wall
     clock is 40 s or more, not before, and never without having reached the bar."""
-    records = [{"cycle": c, "seconds": 10.0, "time": 10.0 * c, "metric/goals_reached": 31.0 if c >= 2 else 5.0}
+    records = [{"cycle": c, "env_steps": 100 * c, "seconds": 10.0, "time": 10.0 * c,
+                "metric/goals_reached": 31.0 if c >= 2 else 5.0}
                for c in range(1, 6)]
     records[0]["compile_seconds"] = 10.0
     clocked = ihom_curve.with_clocks(records)
