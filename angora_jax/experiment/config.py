@@ -628,11 +628,11 @@ def _read(source: str | Path | dict | None, chain: tuple[Path, ...] = ()) -> dic
     if not path.exists() and path.suffix == "" and (CONFIGS / f"{source}.yaml").exists():
         path = CONFIGS / f"{source}.yaml"
     if not path.exists():
-        close = difflib.get_close_matches(str(source), list_configs(), n=1)
+        shipped = list_configs()
         raise ConfigError(
             f"Config file {str(source)!r} not found{f' (extended by {chain[-1]})' if chain else ''}."
-            f"{f' Did you mean {close[0]!r}?' if close else ''} Give a YAML path or the name of a shipped config: "
-            f"{', '.join(list_configs())} (angora-jax list-configs)."
+            f"{did_you_mean(source, shipped)} Give a YAML path or the name of a shipped config: "
+            f"{', '.join(shipped)} (angora-jax list-configs)."
         )
     if path.is_dir():
         raise ConfigError(f"{path} is a directory; give a config's YAML file (to continue a run: angora-jax resume "
