@@ -21,6 +21,7 @@ from angora_jax.analysis import (
 )
 from angora_jax.analysis.decoding import cross_validated_r2
 from angora_jax.analysis.timescales import autocorrelation
+from angora_jax.experiment import ConfigError
 
 DT = 0.02
 
@@ -644,7 +645,7 @@ def test_probing_calls_from_python_name_a_wrong_argument_before_numpy_or_jax_fai
 
     agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
                          "PMC": {"size": 4, "inputs": ("S1",), "cell": "rnn"}})
-    with pytest.raises(ValueError, match=r"^episodes must be a whole number of at least 1, got 0\.$"):
+    with pytest.raises(ConfigError, match=r"^episodes must be a whole number of at least 1, got 0\.$"):
         record_activity(agent, episodes=0)
     with pytest.raises(ValueError, match=r"lesions must map a name to a lesioned Agent, e.g. .*; got dict holding "
                                          r"\['str'\]\.$"):

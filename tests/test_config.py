@@ -17,6 +17,8 @@ from angora_jax.envs.randomization import Randomization
 from angora_jax.experiment.config import (
     Config,
     ConfigError,
+    check_count,
+    check_number,
     checked,
     flatten,
     list_configs,
@@ -553,3 +555,22 @@ def test_every_numeric_key_declares_its_range():
     assert not [key for key, bounds in numeric.items() if bounds is None], "numeric keys without a declared range"
     # The defaults lie in their ranges.
     check_bounds(Config(), "")
+
+
+def test_python_arguments_that_are_no_count_or_number_in_range_are_config_errors_naming_them():
+    """The shared checks of arguments given in Python (counts, fractions, rates) raise a ConfigError, as check_seed
+    does: the error of a bad setting, which the command line answers with exit 2 and the message, where a bare
+    ValueError (check_count's before) is a traceback. Numpy numbers are taken; bools, text and NaN are not."""
+    assert check_count("jitter", np.int64(0), least=0) == 0 and check_number("blur", np.float32(0.5), 0, 1) == 0.5
+    for bad in (0, -2, 2.5, "4", True, None):
+        said = re.escape(repr(bad))
+        with pytest.raises(ConfigError, match=rf"^episodes must be a whole number of at least 1, got {said}\.$"):
+            check_count("episodes", bad)
+    for bad in (1.5, -0.1, float("nan"), float("inf"), "0.5", True, None):
+        said = re.escape(repr(bad))
+        with pytest.raises(ConfigError, match=rf"^fraction must be a number from 0 to 1, got {said}\.$"):
+            check_number("fraction", bad, 0.0, 1.0)
+    with pytest.raises(ConfigError, match=r"^learning_rate must be a number above 0, got 0\.$"):
+        check_number("learning_rate", 0, 0.0, open_low=True)
+    with pytest.raises(ConfigError, match=r"^learning_rate must be a number above 0, got a 401-digit integer\.$"):
+        check_number("learning_rate", 10**400, 0.0, open_low=True)  # past a float's range: no OverflowError

@@ -369,12 +369,12 @@ def override_strings(overrides: typing.Iterable[str] | str | None, name: str = "
                       f"{pairs or ['ppo.num_cycles=20']!r}, not {given}.")
 
 
-def check_count(name: str, value: object) -> int:
-    """`value` as an int; ValueError unless it is a whole number of at least 1 (an int or a numpy integer, not a
-    bool): a count of episodes or environments given in Python, where 0 gave NaN means and a float or text failed
-    deep inside JAX."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
-        raise ValueError(f"{name} must be a whole number of at least 1, got {value!r}.")
+def check_count(name: str, value: object, least: int = 1) -> int:
+    """`value` as an int; ConfigError unless it is a whole number of at least `least` (an int or a numpy integer,
+    not a bool): a count of episodes or environments given in Python, where 0 gave NaN means and a float or text
+    failed deep inside JAX. ConfigError is a ValueError, which this raised before."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < least:
+        raise ConfigError(f"{name} must be a whole number of at least {least}, got {value!r}.")
     return int(value)
 
 
@@ -385,6 +385,22 @@ def check_seed(name: str, value: object) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 0 <= value <= SEED_MAX:
         raise ConfigError(f"{name} must be a whole number from 0 to {SEED_MAX:,}, got {value!r}.")
     return int(value)
+
+
+def check_number(name: str, value: object, low: float, high: float = math.inf, open_low: bool = False) -> float:
+    """`value` as a float; ConfigError unless it is a finite real number (an int, a float or a numpy number, not a
+    bool) from `low` (above it, with `open_low`) to `high`: a fraction or a rate given in Python, where text failed
+    inside JAX ("Only integer scalar arrays can be converted to a scalar index") and a number out of range (a blur of
+    2, a negative learning rate, NaN) gave a result without a word."""
+    try:
+        number = math.nan if isinstance(value, bool) or not isinstance(value, numbers.Real) else float(value)
+    except OverflowError:  # an int past a float's range
+        number = math.nan
+    if not math.isfinite(number) or not (low < number if open_low else low <= number) or not number <= high:
+        span = (f"{'above' if open_low else 'of at least'} {low:g}" if high == math.inf else
+                f"above {low:g} up to {high:g}" if open_low else f"from {low:g} to {high:g}")
+        raise ConfigError(f"{name} must be a number {span}, got {quote_number(value)}.")
+    return number
 
 
 def _yaml_text(value: Any) -> str:
