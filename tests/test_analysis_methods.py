@@ -3,6 +3,8 @@ of a hand-built linear RNN and of Elman areas of brain-area graphs (against fixe
 timescales of AR(1) units (only from alive steps), tuning strength, PCA dimensionality, held-out decoding of noise
 and of a code, lagged decoding and cross-correlation of a layer that another follows by 3 steps."""
 
+import re
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -657,6 +659,28 @@ def test_probing_calls_from_python_name_a_wrong_argument_before_numpy_or_jax_fai
                                          r"'network.PMC'\?\); its recurrent areas: network.PMC\.$"):
         agent_fixed_points(agent, graph_recording({"network.S1": 3, "network.PMC.0": 4, "network.PMC.1": 4}),
                            "network.PMX")
+
+
+def test_a_lesion_fraction_or_seed_out_of_range_is_refused_by_name():
+    """Notebook trial: lesion_fraction(agent, layer, "0.5") compared text with a number (TypeError), its seed=1.5 or
+    -1 failed inside NumPy ("SeedSequence expects int", "expected non-negative integer"), with_random_weights(agent,
+    seed=1.5) inside a compiled program ("PRNG key seed must be an integer") and seed="3" as "not a valid JAX array
+    type". Each is a ConfigError naming the argument and its range, as the other seeds given in Python are."""
+    from angora_jax.analysis import dense_layers, lesion_fraction, with_random_weights
+
+    agent = graph_agent({"S1": {"size": 4, "inputs": ("proprioception",)}})
+    for bad in (1.5, -0.1, float("nan"), "0.5", True):
+        with pytest.raises(ConfigError, match=rf"^fraction must be a number from 0 to 1, got {re.escape(repr(bad))}"):
+            lesion_fraction(agent, "network.S1", bad)
+    for bad in (1.5, -1, 2**32, "3", True):
+        said = rf"^seed must be a whole number from 0 to 4,294,967,295, got {re.escape(repr(bad))}\.$"
+        with pytest.raises(ConfigError, match=said):
+            lesion_fraction(agent, "network.S1", 0.5, seed=bad)
+        with pytest.raises(ConfigError, match=said):
+            with_random_weights(agent, seed=bad)
+    half = lesion_fraction(agent, "network.S1", np.float32(0.5), seed=np.int64(3))
+    assert int((np.asarray(half.params["network"]["S1"]["kernel"]) == 0).all(axis=0).sum()) == 2
+    assert dense_layers(with_random_weights(agent, seed=np.int64(1))) == dense_layers(agent)
 
 
 def test_a_run_directory_file_name_or_agent_given_for_a_recording_is_named_with_what_to_do(tmp_path):

@@ -26,7 +26,7 @@ import xarray as xr
 from angora_jax.analysis.recording import episode_outcomes
 from angora_jax.envs.core import Env, Sensation, State
 from angora_jax.experiment.agent import Agent, check_agent
-from angora_jax.experiment.config import check_count
+from angora_jax.experiment.config import check_count, check_number, check_seed
 
 # The kernels inside flax's recurrent cells, by their names: SimpleCell's input and hidden kernels, the GRU's and
 # OptimizedLSTMCell's gate pre-activations. They are parts of one step of the cell rather than layers (recordings
@@ -87,9 +87,10 @@ def lesion(agent: Agent, layer: str, units: Sequence[int] | np.ndarray) -> Agent
 
 
 def lesion_fraction(agent: Agent, layer: str, fraction: float, seed: int = 0) -> Agent:
-    """`lesion` of a random `fraction` (0 to 1) of the layer's units, drawn with `seed`."""
-    if not 0.0 <= fraction <= 1.0:
-        raise ValueError(f"fraction must lie in [0, 1], got {fraction}.")
+    """`lesion` of a random `fraction` (0 to 1) of the layer's units, drawn with `seed` (a whole number from 0 to
+    2**32 - 1); ConfigError for either outside its range."""
+    fraction = check_number("fraction", fraction, 0.0, 1.0)
+    seed = check_seed("seed", seed)
     size = dense_layers(agent).get(layer, 0)
     units = np.random.default_rng(seed).permutation(size)[: round(fraction * size)]
     return lesion(agent, layer, units)
@@ -253,8 +254,10 @@ def plot_ablation(result: xr.Dataset, outcome: str, path: str) -> None:
 
 def with_random_weights(agent: Agent, seed: int = 0) -> Agent:
     """`agent` with freshly initialised parameters (same network, head and normaliser): the untrained control for
-    decoding and similarity (what structure alone gives, before learning)."""
+    decoding and similarity (what structure alone gives, before learning). `seed`: a whole number from 0 to
+    2**32 - 1 (ConfigError otherwise)."""
     check_agent(agent)
+    seed = check_seed("seed", seed)
     shapes = agent.env.observation_shapes()
     obs = jax.tree.map(lambda s: jnp.zeros((1, *s.shape), s.dtype), shapes)
     params = agent.model.init(jax.random.key(seed), agent.initial_carry(1), obs)["params"]
