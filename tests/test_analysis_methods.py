@@ -683,6 +683,26 @@ def test_a_lesion_fraction_or_seed_out_of_range_is_refused_by_name():
     assert dense_layers(with_random_weights(agent, seed=np.int64(1))) == dense_layers(agent)
 
 
+def test_fixed_point_starts_iterations_or_seed_out_of_range_are_refused_by_name():
+    """Notebook trial: agent_fixed_points(starts=0) failed with "need at least one array to stack", starts=2.5 inside
+    NumPy, iterations=1.5 in jax's fori_loop ("must have equal types") and seed=1.5 in NumPy; iterations=-1 searched
+    nothing without a word. Each is a ConfigError naming the argument and its range, before the search compiles."""
+    from angora_jax.analysis import agent_fixed_points
+
+    agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
+                         "PMC": {"size": 4, "inputs": ("S1",), "cell": "rnn"}})
+    data = graph_recording({"network.S1": 3, "network.PMC.0": 4, "network.PMC.1": 4})
+    for name in ("starts", "iterations"):
+        for bad in (0, -1, 2.5, "8", True):
+            with pytest.raises(ConfigError, match=rf"^{name} must be a whole number of at least 1, got "
+                                                  rf"{re.escape(repr(bad))}\.$"):
+                agent_fixed_points(agent, data, "network.PMC", **{name: bad})
+    for bad in (1.5, -1, "3"):
+        with pytest.raises(ConfigError, match=rf"^seed must be a whole number from 0 to 4,294,967,295, got "
+                                              rf"{re.escape(repr(bad))}\.$"):
+            agent_fixed_points(agent, data, "network.PMC", seed=bad)
+
+
 def test_a_run_directory_file_name_or_agent_given_for_a_recording_is_named_with_what_to_do(tmp_path):
     """Notebook trial: decode(RUN_DIR), timescales("act.nc") or principal_components(agent) in place of the recording
     failed with "'str' object has no attribute 'data_vars'" (replay_activity: no attribute 'attrs', synergies: "could

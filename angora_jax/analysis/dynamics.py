@@ -25,6 +25,7 @@ from sklearn.decomposition import PCA
 from angora_jax.analysis.decoding import as_names, check_recording, chosen_layers, recorded_layers
 from angora_jax.analysis.parallel import map_in_threads
 from angora_jax.experiment.agent import Agent, check_agent
+from angora_jax.experiment.config import check_count, check_seed
 from angora_jax.nets.activations import ACTIVATION_RANGES, ACTIVATIONS
 from angora_jax.nets.area_graph import AreaGraph, feedback_inputs
 from angora_jax.nets.components import component
@@ -276,9 +277,10 @@ def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: st
         inputs: the recorded layer(s) that feed it (e.g. `network.PMC_in`), concatenated in the order given; or None
             for a recurrent area of a brain-area graph (`network.<area>`), whose inputs the graph names (`area_input`:
             the sources in the order of the area's `inputs`, feedback inputs at their previous step).
-        starts: the number of carries the network visited (recorded as `<layer>.0...`) that the searches start from.
-        iterations: L-BFGS steps of each search.
-        seed: picks the starting carries.
+        starts: the number of carries the network visited (recorded as `<layer>.0...`) that the searches start from
+            (at least 1).
+        iterations: L-BFGS steps of each search (at least 1).
+        seed: picks the starting carries (a whole number from 0 to 2**32 - 1).
 
     Returns:
         `find_fixed_points`'s arrays plus `input` (the constant input, the parts held constant concatenated: an area
@@ -286,6 +288,8 @@ def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: st
     """
     check_agent(agent)
     check_recording(dataset)
+    starts, iterations = check_count("starts", starts), check_count("iterations", iterations)
+    seed = check_seed("seed", seed)
     alive = dataset["alive"].values > 0
     if inputs is None:
         pieces = list(area_input(agent, dataset, layer).values())
