@@ -1,6 +1,7 @@
 """Inside the visual area (angora_jax.analysis.visual), on a small CORnet-Z with its initial weights: saliency is the
 gradient it claims to be, activation maximization raises the unit's activation, and the parts fit together."""
 
+import re
 from types import SimpleNamespace
 
 import jax
@@ -11,6 +12,7 @@ import xarray as xr
 
 import angora_jax as aj
 from angora_jax.analysis import visual
+from angora_jax.experiment import ConfigError
 from angora_jax.nets.visual import make_visual_encoder
 
 SIZE = 32
@@ -85,6 +87,27 @@ def test_filters_maps_and_the_whole_analysis_fit_together(agent, images, tmp_pat
     blind = SimpleNamespace(config=aj.load_config("shadow_reach"), params={"network": {}})
     with pytest.raises(ValueError, match="has no visual area"):
         visual.first_layer_filters(blind)
+
+
+def test_preferred_stimuli_options_out_of_range_are_refused_by_name_before_compiling(agent):
+    """Notebook trial: preferred_stimuli(steps=2.5) failed inside JAX ("Shapes must be 1D sequences of concrete
+    values of integer type"), learning_rate="0.05" with "Only integer scalar arrays can be converted to a scalar
+    index", seed=1.5 with "PRNG key seed must be an integer", size=(0, 32) in the convolution and size=32 unpacking;
+    a negative learning rate (descent), blur=2, jitter=-1 and steps=0 returned images without a word. Each is a
+    ConfigError naming the argument and its range, before anything compiles."""
+    whole = "must be a whole number of at least"
+    for options, said in (({"steps": 0}, f"steps {whole} 1, got 0"), ({"steps": 2.5}, f"steps {whole} 1, got 2.5"),
+                          ({"jitter": -1}, f"jitter {whole} 0, got -1"),
+                          ({"jitter": 1.5}, f"jitter {whole} 0, got 1.5"),
+                          ({"learning_rate": -0.1}, "learning_rate must be a number above 0, got -0.1"),
+                          ({"learning_rate": "0.05"}, "learning_rate must be a number above 0, got '0.05'"),
+                          ({"blur": 2}, "blur must be a number from 0 to 1, got 2"),
+                          ({"blur": float("nan")}, "blur must be a number from 0 to 1, got nan"),
+                          ({"seed": 1.5}, "seed must be a whole number from 0 to 4,294,967,295, got 1.5"),
+                          ({"size": (0, SIZE)}, f"size[0] (height) {whole} 1, got 0"),
+                          ({"size": SIZE}, f"size must be (height, width) in pixels, e.g. (64, 64), got {SIZE}")):
+        with pytest.raises(ConfigError, match=f"^{re.escape(said)}\\.$"):
+            visual.preferred_stimuli(agent, "V1", [0], **options)
 
 
 def test_a_run_directory_or_a_recording_given_for_the_seeing_network_is_named_with_what_to_do(agent, images):

@@ -30,6 +30,7 @@ import scipy.ndimage
 import xarray as xr
 
 from angora_jax.experiment.agent import Agent, check_agent
+from angora_jax.experiment.config import ConfigError, check_count, check_number, check_seed
 from angora_jax.nets.visual import make_visual_area, make_visual_encoder
 from angora_jax.vision.estimator import PoseEstimator
 
@@ -188,10 +189,22 @@ def preferred_stimuli(seer: Seer, layer: str, units: list[int] | np.ndarray, siz
 
     Args:
         size: (height, width), default that of the camera images `seer` reads.
+        steps: ascent steps, at least 1.
+        learning_rate: Adam's step size, above 0.
+        jitter: the largest shift, whole pixels (0: none).
+        blur: 0 to 1.
+        seed: a whole number from 0 to 2**32 - 1.
 
     Returns:
         The images `(units, height, width, 3)` uint8 and the activation at each step `(units, steps)`.
     """
+    if size is not None:
+        if not isinstance(size, tuple | list | np.ndarray) or len(size) != 2:
+            raise ConfigError(f"size must be (height, width) in pixels, e.g. (64, 64), got {size!r}.")
+        size = (check_count("size[0] (height)", size[0]), check_count("size[1] (width)", size[1]))
+    steps, jitter = check_count("steps", steps), check_count("jitter", jitter, least=0)
+    learning_rate = check_number("learning_rate", learning_rate, 0.0, open_low=True)
+    blur, seed = check_number("blur", blur, 0.0, 1.0), check_seed("seed", seed)
     module, params, camera = _visual_system(seer)
     if layer != "output" and layer not in conv_layers(seer):
         raise ValueError(f"No convolution {layer!r} in the visual area; choose one of {conv_layers(seer)} or "
