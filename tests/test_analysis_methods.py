@@ -71,8 +71,37 @@ def test_a_one_unit_layer_is_left_out_of_correlation_rsa_unless_named_and_then_r
 
 
 def test_decoding_with_one_fold_is_refused_in_our_words():
-    with pytest.raises(ValueError, match=r"at least 2 folds \(--folds\), got 1"):
+    with pytest.raises(ConfigError, match=r"at least 2 folds \(--folds\), got 1"):
         decode(synthetic(episodes=4, steps=5), ["code"], ["metric_x"], folds=1)
+
+
+def test_decoding_options_out_of_range_are_refused_by_name(tmp_path, capsys):
+    """Notebook trial: decode(folds=2.5) failed in scikit-learn, folds="3" comparing text with a number, seed=-1 or
+    1.5 inside NumPy, max_samples=0 blamed the recording ("needs at least 2 episodes ...; the recording has 0"),
+    lags=3 with "'int' object is not iterable", lags=[1.5] with NumPy's "arrays used as indices must be of integer
+    type" and lags=[] (`--lags` alone) with "min() arg is an empty sequence". Each is a ConfigError naming the
+    argument and its range."""
+    data = synthetic(episodes=4, steps=5)
+    for options, said in (({"folds": 2.5}, "Decoding needs a whole number of at least 2 folds (--folds), got 2.5: "),
+                          ({"folds": "3"}, "Decoding needs a whole number of at least 2 folds (--folds), got '3': "),
+                          ({"seed": -1}, "seed must be a whole number from 0 to 4,294,967,295, got -1."),
+                          ({"seed": 1.5}, "seed must be a whole number from 0 to 4,294,967,295, got 1.5."),
+                          ({"max_samples": 0}, "max_samples must be a whole number of at least 1, got 0."),
+                          ({"lags": 3}, "lags must be one or more whole numbers of policy steps (--lags), e.g. [-4, "
+                                        "0, 4], got 3."),
+                          ({"lags": [1.5]}, "lags must be one or more whole numbers of policy steps"),
+                          ({"lags": []}, "lags must be one or more whole numbers of policy steps"),
+                          ({"lags": [5]}, "lags must be shorter than the recording's 5 steps, got [5].")):
+        with pytest.raises(ConfigError, match="^" + re.escape(said)):
+            decode(data, ["code"], ["metric_x"], **options)
+    lagged = decode(data, ["code"], ["metric_x"], folds=np.int64(2), lags=np.array([0, 1]))
+    assert lagged["lag"].values.tolist() == [0, 1] and lagged.attrs["folds"] == 2
+    from angora_jax import cli
+    from angora_jax.analysis import save_activity
+
+    path = save_activity(data, tmp_path / "short.nc")
+    assert cli.main(["analyze", "decode", str(path), "--lags"]) == 2
+    assert "angora-jax analyze decode: lags must be one or more whole numbers" in capsys.readouterr().err
 
 
 def test_a_feature_is_required_of_a_vector_variable_in_range_and_refused_of_a_scalar():

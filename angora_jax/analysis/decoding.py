@@ -19,6 +19,7 @@ of learning; compare areas, variables that must be computed, and that control.
 from __future__ import annotations
 
 import difflib
+import numbers
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -31,6 +32,7 @@ from sklearn.pipeline import Pipeline, make_pipeline
 from sklearn.preprocessing import StandardScaler
 
 from angora_jax.analysis.parallel import map_in_threads
+from angora_jax.experiment.config import ConfigError, check_count, check_seed
 
 # Ridge penalties per training sample: a fit on n samples is penalised n times this, so that the penalty chosen on
 # the inner folds' smaller training sets means the same on the whole training fold.
@@ -54,9 +56,7 @@ def _cross_validated_r2s(feature_sets: Sequence[np.ndarray], targets: np.ndarray
                          spans: Sequence[slice] | None) -> np.ndarray:
     """`cross_validated_r2` of each of `feature_sets` on the same targets and folds, `(sets, folds[, spans])`: every
     (set, fold) fit runs in parallel (`map_in_threads`)."""
-    if folds < 2:
-        raise ValueError(f"Decoding needs at least 2 folds (--folds), got {folds}: each fold's episodes are held out "
-                         "while the readout is fitted on the others'.")
+    folds = check_folds(folds)
     columns = [slice(0, targets.shape[1])] if spans is None else list(spans)
     splits = list(GroupKFold(n_splits=folds).split(targets, targets, groups))
 
@@ -105,6 +105,15 @@ def _penalty_path_errors(x: np.ndarray, y: np.ndarray, x_test: np.ndarray, y_tes
                      .sum(axis=0) for penalty in PENALTIES])
 
 
+def check_folds(folds: object) -> int:
+    """`folds` as an int; ConfigError unless it is a whole number of at least 2 (`check_count`)."""
+    try:
+        return check_count("folds", folds, least=2)
+    except ConfigError:
+        raise ConfigError(f"Decoding needs a whole number of at least 2 folds (--folds), got {folds!r}: each fold's "
+                          "episodes are held out while the readout is fitted on the others'.") from None
+
+
 def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: Sequence[str] | None = None,
            folds: int = 5, seed: int = 0, lags: Sequence[int] | None = None,
            max_samples: int = MAX_SAMPLES, baseline: bool = True) -> xr.Dataset:
@@ -116,11 +125,13 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
         layers: names as in `activity_<name>` (default: all).
         variables: dataset variables to decode, e.g. `input_goal`, `task_cube_angular_velocity`, `metric_goal_distance`
             (default: every `input_*`, `task_*` and `metric_*`).
+        folds: cross-validation folds over the episodes, at least 2.
+        seed: draws the noise baseline, a whole number from 0 to 2**32 - 1.
         lags: policy steps k; with them, the variable at step t + k is decoded from the activity at step t (k > 0: which
             areas predict the future; k < 0: which keep the past), and every result gets a leading `lag` dim (coordinate
             in steps, `lag_s` in s). Every lag reads the same steps t: those alive with the variable alive at every t +
             k, so the lags compare one set of activity, and one readout per layer and fold fits every lag and variable
-            at once (a lag costs hardly more than none).
+            at once (a lag costs hardly more than none). One or more whole numbers, each shorter than the recording.
         max_samples: at most this many of those steps, evenly spaced over them (consecutive steps are strongly
             correlated, so a stride loses little, and a readout's cost grows with the steps: 64 trained cube episodes
             hold about 75,000); the attribute `samples` says how many were used, one number per lag.
@@ -128,15 +139,17 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
             have the same widths as the network it controls for, so the same baseline). The noise baseline is one draw
             per layer width, shared by layers of that width.
     """
+    folds, seed, max_samples = check_folds(folds), check_seed("seed", seed), check_count("max_samples", max_samples)
+    lags = None if lags is None else _checked_lags(lags)
     layers = chosen_layers(dataset, layers)
     variables = as_names(variables) if variables else [
         n for n in dataset.data_vars if n.startswith(("input_", "task_", "metric_"))]
     require(dataset, layers, variables)
     steps = dataset.sizes["time"]
     if lags is not None and any(abs(k) >= steps for k in lags):
-        raise ValueError(f"lags must be shorter than the recording's {steps} steps, got {list(lags)}.")
+        raise ConfigError(f"lags must be shorter than the recording's {steps} steps, got {lags}.")
     result = _decode_lags(dataset, layers, variables, folds, np.random.default_rng(seed),
-                          list(lags) if lags is not None else [0], max_samples, baseline)
+                          lags if lags is not None else [0], max_samples, baseline)
     names = ("r2", "r2_low", "r2_high", "baseline")
     coords = {"layer": layers, "variable": variables}
     # The steps each readout was fitted and scored on, at each lag: NetCDF keeps lists of numbers as attributes.
@@ -149,6 +162,20 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
     return xr.Dataset({name: (("lag", "layer", "variable"), result[name]) for name in names},
                       coords={"lag": list(lags), "lag_s": ("lag", np.asarray(lags) * dt, {"units": "s"}), **coords},
                       attrs=attrs)
+
+
+def _checked_lags(lags: object) -> list[int]:
+    """`decode`'s `lags` as a list of ints; ConfigError unless they are one or more whole numbers: a single number or
+    text failed with a TypeError, 1.5 inside NumPy, and none at all (`--lags` alone) with "min() arg is an empty
+    sequence"."""
+    try:
+        given = [] if isinstance(lags, str | numbers.Number) else list(lags)
+    except TypeError:
+        given = []
+    if not given or not all(isinstance(k, numbers.Integral) and not isinstance(k, bool) for k in given):
+        raise ConfigError(f"lags must be one or more whole numbers of policy steps (--lags), e.g. [-4, 0, 4], got "
+                          f"{lags!r}.")
+    return [int(k) for k in given]
 
 
 def _decode_lags(dataset: xr.Dataset, layers: list[str], variables: list[str], folds: int, rng: np.random.Generator,
