@@ -672,12 +672,18 @@ def test_probing_calls_from_python_name_a_wrong_argument_before_numpy_or_jax_fai
     """Notebook trial: record_activity(episodes=0) failed inside NumPy, ablation({"SSC": "network.SSC_2"}) with
     "'str' object has no attribute 'compiled_once'", replaying another task's recording with a broadcasting error,
     and a misspelt area of a graph was called no graph area at all."""
-    from angora_jax.analysis import ablation, agent_fixed_points, record_activity, replay_activity
+    from angora_jax.analysis import ablation, agent_fixed_points, episode_outcomes, record_activity, replay_activity
 
     agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
                          "PMC": {"size": 4, "inputs": ("S1",), "cell": "rnn"}})
     with pytest.raises(ConfigError, match=r"^episodes must be a whole number of at least 1, got 0\.$"):
         record_activity(agent, episodes=0)
+    for options in ({"episodes": 0}, {"episodes": 2.5}, {"steps": 0}, {"steps": "9"}):
+        (name, bad), = options.items()
+        for outcomes, first in ((episode_outcomes, ()), (ablation, ({},))):
+            with pytest.raises(ConfigError, match=rf"^{name} must be a whole number of at least 1, got "
+                                                  rf"{re.escape(repr(bad))}\.$"):
+                outcomes(agent, *first, **options)
     with pytest.raises(ValueError, match=r"lesions must map a name to a lesioned Agent, e.g. .*; got dict holding "
                                          r"\['str'\]\.$"):
         ablation(agent, {"SSC": "network.SSC_2"})

@@ -183,8 +183,10 @@ def episode_outcomes(agent: Agent, episodes: int = 256, steps: int | None = None
     through the episode's last step), episode_length (policy steps) and each task metric at the episode's last step
     (or at step `steps` when it has not ended by then). Runs the evaluation's program (`ppo.make_evaluate`), compiled
     once per agent kind, episode count and limit: lesioned variants of an agent share it. The episodes are those
-    `record_activity` records with the same seed."""
+    `record_activity` records with the same seed. ConfigError for counts or a seed that `record_activity` refuses."""
     check_agent(agent)
+    episodes = check_count("episodes", episodes)
+    steps = None if steps is None else check_count("steps", steps)
     seed = check_seed("seed", seed)
     program = agent.compiled_once(("outcomes", episodes, steps), lambda: make_evaluate(
         agent.env, agent.network, agent.config.ppo, episodes, per_episode=True, steps=steps))
