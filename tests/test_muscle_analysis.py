@@ -3,11 +3,14 @@ muscles or movements (decoding of muscle and kinematic variables per layer, agai
 single-muscle lesions (an agent whose excitation of one muscle is 0). Synthetic data with planted answers; the lesion
 on the MyoHand's C MuJoCo twin with an untrained policy (no trained MyoHand agent exists yet)."""
 
+import re
+
 import numpy as np
 import pytest
 import xarray as xr
 
 from angora_jax.analysis import muscles_or_movements, plot_muscles_or_movements, plot_synergies, synergies
+from angora_jax.experiment import ConfigError
 
 MUSCLES = 39
 
@@ -58,6 +61,40 @@ def test_synergies_read_a_recording_and_refuse_negative_values():
         synergies(activations - 0.5)
     with pytest.raises(ValueError, match="task_muscle_activation"):
         synergies(recording.drop_vars("task_muscle_activation"))
+
+
+@pytest.mark.filterwarnings("ignore:Maximum number of iterations")
+def test_synergies_options_out_of_range_are_refused_by_name_as_the_other_analyses_refuse_theirs(tmp_path, capsys):
+    """synergies checked its options by hand: max_synergies=2.5 failed in range() ("'float' object cannot be
+    interpreted as an integer"), "3" and threshold="0.9" comparing text with numbers, True fitted one synergy without
+    a word and seed=-1 failed inside NumPy; the ranges it did check said "must lie in 1..39" and "(0, 1]", in other
+    words than every other analysis. Each is now a ConfigError in the words of check_count, check_number and
+    check_seed."""
+    activations, _ = planted_activations(samples=120)
+    whole = "max_synergies must be a whole number"
+    for options, said in (({"max_synergies": 2.5}, f"{whole} of at least 1, got 2.5"),
+                          ({"max_synergies": "3"}, f"{whole} of at least 1, got '3'"),
+                          ({"max_synergies": True}, f"{whole} of at least 1, got True"),
+                          ({"max_synergies": 0}, f"{whole} of at least 1, got 0"),
+                          ({"max_synergies": MUSCLES + 1}, f"{whole} from 1 to {MUSCLES} (the muscles), got 40"),
+                          ({"threshold": "0.9"}, "threshold must be a number above 0 up to 1, got '0.9'"),
+                          ({"threshold": 0}, "threshold must be a number above 0 up to 1, got 0"),
+                          ({"threshold": 1.5}, "threshold must be a number above 0 up to 1, got 1.5"),
+                          ({"threshold": float("nan")}, "threshold must be a number above 0 up to 1, got nan"),
+                          ({"seed": -1}, "seed must be a whole number from 0 to 4,294,967,295, got -1")):
+        with pytest.raises(ConfigError, match=f"^{re.escape(said)}\\.$"):
+            synergies(activations, **options)
+    result = synergies(activations, max_synergies=np.int64(2), threshold=1, seed=np.int64(1), control=False)
+    assert result.sizes["count"] == 2 and result.attrs["threshold"] == 1.0
+    from angora_jax import cli
+    from angora_jax.analysis import save_activity
+
+    recording = xr.Dataset({"task_muscle_activation": (("episode", "time", "muscle"), activations.reshape(4, 30, -1)),
+                            "alive": (("episode", "time"), np.ones((4, 30)))})
+    path = save_activity(recording, tmp_path / "muscles.nc")
+    assert cli.main(["analyze", "synergies", str(path), "--threshold", "1.5"]) == 2
+    err = capsys.readouterr().err
+    assert err == "angora-jax analyze synergies: threshold must be a number above 0 up to 1, got 1.5.\n", err
 
 
 def kinematic_recording(episodes=10, steps=60, seed=0):

@@ -22,6 +22,7 @@ import xarray as xr
 from sklearn.decomposition import NMF
 
 from angora_jax.analysis.decoding import check_recording
+from angora_jax.experiment.config import ConfigError, check_count, check_number, check_seed
 
 ACTIVATION = "task_muscle_activation"
 
@@ -33,11 +34,11 @@ def synergies(data: xr.Dataset | np.ndarray, max_synergies: int | None = None, t
     Args:
         data: a recording (`record_activity`; its `variable` at the steps where `alive`) or an array (samples x
             muscles) of non-negative activations.
-        max_synergies: fit 1 .. this many synergies (at most the number of muscles); None: fit 1, 2, ... until the
-            VAF reaches `threshold`, at most one per muscle.
-        threshold: the VAF the count must reach, in (0, 1].
+        max_synergies: fit 1 .. this many synergies, a whole number from 1 to the number of muscles; None: fit 1,
+            2, ... until the VAF reaches `threshold`, at most one per muscle.
+        threshold: the VAF the count must reach, a number above 0 up to 1.
         variable: the recording's variable of activations (`task_muscle_activation` of `MyoHandPose`).
-        seed: NMF's initialisation seed and the control's permutations'.
+        seed: NMF's initialisation seed and the control's permutations', a whole number from 0 to 2**32 - 1.
         control: also fit the shuffled control (twice the fits).
 
     Returns:
@@ -48,15 +49,18 @@ def synergies(data: xr.Dataset | np.ndarray, max_synergies: int | None = None, t
         reaches the threshold, and `reached` 0), `threshold` and `samples`.
 
     Raises:
-        ValueError: negative activations, a variable the recording lacks, or a count out of range.
+        ConfigError: `max_synergies`, `threshold` or `seed` out of range (`check_count`, `check_number`,
+            `check_seed`); ValueError: negative activations or a variable the recording lacks.
     """
+    if max_synergies is not None:
+        max_synergies = check_count("max_synergies", max_synergies)
+    threshold, seed = check_number("threshold", threshold, 0.0, 1.0, open_low=True), check_seed("seed", seed)
     activations = _activations(data, variable)
     muscles = activations.shape[1]
     names = _muscle_names(data, variable, muscles)
-    if max_synergies is not None and not 1 <= max_synergies <= muscles:
-        raise ValueError(f"max_synergies must lie in 1..{muscles} (the muscles), got {max_synergies}.")
-    if not 0 < threshold <= 1:
-        raise ValueError(f"threshold must lie in (0, 1], got {threshold}.")
+    if max_synergies is not None and max_synergies > muscles:
+        raise ConfigError(f"max_synergies must be a whole number from 1 to {muscles} (the muscles), got "
+                          f"{max_synergies}.")
     fits = []
     for k in range(1, (max_synergies or muscles) + 1):
         fits.append(_factorise(activations, k, seed))
