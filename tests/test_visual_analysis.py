@@ -110,6 +110,42 @@ def test_preferred_stimuli_options_out_of_range_are_refused_by_name_before_compi
             visual.preferred_stimuli(agent, "V1", [0], **options)
 
 
+def test_units_that_are_no_units_of_the_layer_are_refused_by_name_before_anything_is_computed(agent, images):
+    """preferred_stimuli(units=[1.5]) cut 1.5 to unit 1 and [True] read as unit 0 without a word, and [0, 0] optimised
+    unit 0 twice; visual_analysis(units=...) was not checked at all: 2.5 failed in range(), 0 in np.stack ("need at
+    least one array to stack"), and 5 (more than the 4 channels of each layer) only after the feature maps and the
+    saliency of 5 output features had been computed. Each is a ConfigError naming units, the value and the range,
+    before anything is computed."""
+    span = "whole numbers from 0 to 3 (V1 has 4 units)"
+    for units, said in (([1.5], f"units must be {span}; got 1.5 in [1.5]"),
+                        ([True], f"units must be {span}; got True in [True]"),
+                        (np.array([0.0, 1.0]), f"units must be {span}; got 0.0 in [0.0, 1.0]"),
+                        ([0, 4], f"units must be {span}; got 4 in [0, 4]"),
+                        ([-1], f"units must be {span}; got -1 in [-1]"),
+                        ([], f"units must be a list of one or more {span}, e.g. [0, 1]; got []"),
+                        (2, f"units must be a list of one or more {span}, e.g. [0, 1]; got 2"),
+                        ([1, 2, 1], "units must name each unit once (its preferred stimulus is one image; another "
+                                    "seed starts another), got 1 twice in [1, 2, 1]")):
+        with pytest.raises(ConfigError, match=f"^{re.escape(said)}\\.$"):
+            visual.preferred_stimuli(agent, "V1", units, steps=1)
+    with pytest.raises(ConfigError, match=r"^units must be whole numbers from 0 to 5 \(the output has 6 units\); "):
+        visual.preferred_stimuli(agent, "output", [6], steps=1)
+    many = ("units must be a whole number from 1 to 4, got 5: the analysis shows that many units of the output and "
+            "of each layer (their units: output 6, V1 4, V2 4, V4 4, IT 4).")
+    for options, said in (({"units": 2.5}, "units must be a whole number of at least 1, got 2.5."),
+                          ({"units": 0}, "units must be a whole number of at least 1, got 0."),
+                          ({"units": True}, "units must be a whole number of at least 1, got True."),
+                          ({"units": 5}, many),
+                          ({"units": 7, "layers": ["output"]}, "units must be a whole number from 1 to 6, got 7: "
+                                                               "the analysis shows that many units of the output and "
+                                                               "of each layer (their units: output 6)."),
+                          ({"units": 1, "layers": ["V3"]}, "No convolution 'V3' in the visual area; choose one of "
+                                                           "['V1', 'V2', 'V4', 'IT'] or 'output'."),
+                          ({"steps": 0}, "steps must be a whole number of at least 1, got 0.")):
+        with pytest.raises(ConfigError, match=f"^{re.escape(said)}$"):
+            visual.visual_analysis(agent, images, **options)
+
+
 def test_a_run_directory_or_a_recording_given_for_the_seeing_network_is_named_with_what_to_do(agent, images):
     """A notebook gives the visual analyses the run directory (which record_activity takes) or the recording: each
     failed with AttributeError ('str' object has no attribute 'config', 'Dataset' object ...), pose_saliency given an

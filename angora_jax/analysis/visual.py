@@ -19,6 +19,7 @@ fingers? `saliency_share` measures it against a cube mask (`angora_jax.vision.cu
 
 from __future__ import annotations
 
+import numbers
 from typing import Any, Literal
 
 import flax.linen as nn
@@ -188,6 +189,8 @@ def preferred_stimuli(seer: Seer, layer: str, units: list[int] | np.ndarray, siz
     uses against high-frequency patterns. All units are optimized at once, in one compiled program.
 
     Args:
+        units: channel indices of `layer` (features of the output), one or more whole numbers from 0 to its count
+            less 1, each once.
         size: (height, width), default that of the camera images `seer` reads.
         steps: ascent steps, at least 1.
         learning_rate: Adam's step size, above 0.
@@ -210,17 +213,13 @@ def preferred_stimuli(seer: Seer, layer: str, units: list[int] | np.ndarray, siz
         raise ValueError(f"No convolution {layer!r} in the visual area; choose one of {conv_layers(seer)} or "
                          "'output'.")
     height, width = size or camera
-    units = np.asarray(units, int)
 
     def activations(pixels: jax.Array) -> jax.Array:
         out, captured = module.apply({"params": params}, pixels[None], capture_intermediates=True,
                                      mutable=["intermediates"])
         return out[0] if layer == "output" else captured["intermediates"][layer]["__call__"][0][0].mean(axis=(0, 1))
 
-    count = jax.eval_shape(activations, jnp.zeros((height, width, 3))).shape[-1]
-    if units.ndim != 1 or not ((units >= 0) & (units < count)).all():
-        raise ValueError(f"{layer} has {count} units; units must be a list of indices in [0, {count}), got "
-                         f"{units.tolist()}.")
+    units = _checked_units(units, layer, jax.eval_shape(activations, jnp.zeros((height, width, 3))).shape[-1])
     optimizer = optax.adam(learning_rate)
     kernel = jnp.full((3, 3), 1.0 / 9.0)
     smooth = jax.vmap(lambda c: jax.scipy.signal.convolve2d(c, kernel, mode="same"), in_axes=2, out_axes=2)
@@ -246,6 +245,39 @@ def preferred_stimuli(seer: Seer, layer: str, units: list[int] | np.ndarray, siz
     return np.asarray(images).round().astype(np.uint8), np.asarray(traces)
 
 
+def _checked_units(units: object, layer: str, count: int) -> np.ndarray:
+    """`preferred_stimuli`'s `units` as an int array; ConfigError unless they are one or more whole numbers from 0 to
+    `count` - 1, each once: [1.5] was cut to unit 1 and [True] read as unit 0 without a word, and a unit named twice
+    was optimised twice, as if it were two."""
+    name = "the output" if layer == "output" else layer
+    span = f"whole numbers from 0 to {count - 1} ({name} has {count} units)"
+    try:
+        given = [] if isinstance(units, str | bytes | numbers.Number) else list(units)
+    except TypeError:  # a 0-d array, an object that is no list
+        given = []
+    given = [unit.item() if isinstance(unit, np.generic) else unit for unit in given]
+    if not given:
+        raise ConfigError(f"units must be a list of one or more {span}, e.g. [0, 1]; got {units!r}.")
+    for unit in given:
+        if isinstance(unit, bool) or not isinstance(unit, numbers.Integral) or not 0 <= unit < count:
+            raise ConfigError(f"units must be {span}; got {unit!r} in {given}.")
+    twice = next((unit for i, unit in enumerate(given) if unit in given[:i]), None)
+    if twice is not None:
+        raise ConfigError(f"units must name each unit once (its preferred stimulus is one image; another seed "
+                          f"starts another), got {twice} twice in {given}.")
+    return np.asarray(given, int)
+
+
+def _unit_counts(seer: Seer, layers: list[str], size: tuple[int, int]) -> dict[str, int]:
+    """The units of the visual area's output (its features, as "output") and of each of `layers` (a convolution's
+    channels, from its kernel's shape), for images of `size` (height, width): from shapes alone, nothing runs."""
+    module, params = visual_area(seer)
+    output = jax.eval_shape(lambda pixels: module.apply({"params": params}, pixels),
+                            jax.ShapeDtypeStruct((1, *size, 3), jnp.uint8)).shape[-1]
+    return {"output": output, **{layer: output if layer == "output" else int(np.shape(params[layer]["kernel"])[-1])
+                                 for layer in layers}}
+
+
 def visual_analysis(seer: Seer, images: np.ndarray, units: int = 4, steps: int = 256,
                     layers: list[str] | None = None) -> xr.Dataset:
     """All of the above but `pose_saliency` for `images` `(N, height, width, 3)` uint8 (for several cameras, their
@@ -253,13 +285,26 @@ def visual_analysis(seer: Seer, images: np.ndarray, units: int = 4, steps: int =
     convolution's mean feature map per image (`last_map`), the saliency of each of the first `units` output features
     (`saliency`, image x unit x y x x) and the preferred stimulus of each of the first `units` channels of each of
     `layers` (default: every convolution; `preferred`, layer x unit x y x x x rgb) with its final activation
-    (`preferred_activation`); images (`preferred`, `frames`) hold 0-255 as int16."""
+    (`preferred_activation`); images (`preferred`, `frames`) hold 0-255 as int16.
+
+    `units` is a whole number from 1 to the fewest units of the output and of `layers`, `steps` (of each preferred
+    stimulus's ascent) one of at least 1: checked, with `layers`, before anything is computed (ConfigError)."""
+    units, steps = check_count("units", units), check_count("steps", steps)
     images = np.asarray(images)
     if images.ndim != 4 or images.shape[-1] != 3 or images.dtype != np.uint8:
         raise ValueError(f"images must be (N, height, width, 3) uint8 camera frames, got {images.shape} "
                          f"{images.dtype}; take them from a recording made with angora-jax record --images.")
     convolutions = conv_layers(seer)
-    layers = list(layers or convolutions)
+    layers = [layers] if isinstance(layers, str) else list(layers or convolutions)
+    for layer in layers:
+        if layer != "output" and layer not in convolutions:
+            raise ConfigError(f"No convolution {layer!r} in the visual area; choose one of {convolutions} or "
+                              "'output'.")
+    counts = _unit_counts(seer, layers, images.shape[1:3])
+    if units > min(counts.values()):
+        shown = ", ".join(f"{layer} {count}" for layer, count in counts.items())
+        raise ConfigError(f"units must be a whole number from 1 to {min(counts.values())}, got {units}: the analysis "
+                          f"shows that many units of the output and of each layer (their units: {shown}).")
     maps = feature_maps(seer, images)
     filters = first_layer_filters(seer)
     where = np.stack([saliency(seer, images, unit=u) for u in range(units)], axis=1)
