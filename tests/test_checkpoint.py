@@ -188,7 +188,7 @@ def test_a_run_stopped_at_its_target_trains_on_past_it_when_asked(runs, tmp_path
     assert restores == [(1, True, True)], "a full checkpoint read whole for a run that does not go on"
     monkeypatch.undo()
     out = capsys.readouterr().out
-    assert "1 cycles done (0 in this session)" in out and "Stopped early at cycle 1, as ppo.stop_at asks" in out
+    assert "1 cycle done (0 in this session)" in out and "Stopped early at cycle 1, as ppo.stop_at asks" in out
     assert f"To train on past it: angora-jax resume {early.run_dir} --no-stop-at" in out
     assert main(["check", str(early.run_dir)]) == 0
     assert "ppo.stop_at ended it (episode_return" in capsys.readouterr().out

@@ -312,7 +312,7 @@ def test_monitor_writes_the_page_and_refuses_a_busy_port(capsys, tmp_path, monke
     out_dir = tmp_path / "page"
     assert main(["monitor", str(tmp_path / "m"), "--no-serve", "--out", str(out_dir)]) == 0
     out = capsys.readouterr().out
-    assert f"Monitoring 1 run(s): {(out_dir / 'index.html').resolve().as_uri()}" in out and "Monitor stopped." in out
+    assert f"Monitoring 1 run: {(out_dir / 'index.html').resolve().as_uri()}" in out and "Monitor stopped." in out
     assert "1/1" in (out_dir / "index.html").read_text()
     with socket.socket() as busy:  # a port another program holds
         busy.bind(("127.0.0.1", 0))

@@ -97,6 +97,20 @@ def test_synergies_options_out_of_range_are_refused_by_name_as_the_other_analyse
     assert err == "angora-jax analyze synergies: threshold must be a number above 0 up to 1, got 1.5.\n", err
 
 
+@pytest.mark.filterwarnings("ignore:Maximum number of iterations")
+def test_the_synergies_summary_counts_one_synergy_in_the_singular(tmp_path, capsys):
+    """`analyze synergies` printed "1 synergies reach VAF 0.5" when the first synergy reached the threshold."""
+    from angora_jax import cli
+    from angora_jax.analysis import save_activity
+
+    activations, _ = planted_activations(samples=120)
+    recording = xr.Dataset({"task_muscle_activation": (("episode", "time", "muscle"), activations.reshape(4, 30, -1)),
+                            "alive": (("episode", "time"), np.ones((4, 30)))})
+    path = save_activity(recording, tmp_path / "muscles.nc")
+    assert cli.main(["analyze", "synergies", str(path), "--threshold", "0.5"]) == 0
+    assert "\n1 synergy reaches VAF 0.5\n" in capsys.readouterr().out
+
+
 def kinematic_recording(episodes=10, steps=60, seed=0):
     """A recording where layer `network.M1` is a linear readout (with noise) of 6 "muscle force" variables and
     `network.SPL` one of 4 "joint angle" variables, independent random walks; its random-weights control is noise

@@ -101,7 +101,7 @@ def test_a_run_records_its_imports_and_resume_and_evaluate_import_them_again(use
     (tmp_path / "user_code" / f"{module}.py").unlink()
     assert main(["check", str(run_dir)]) == 0, "its code not importable here damages nothing in the run"
     out = capsys.readouterr().out
-    assert f"config: CartPole, user_simple network, 1 cycles; its own code cannot be used here, so resume and " \
+    assert f"config: CartPole, user_simple network, 1 cycle; its own code cannot be used here, so resume and " \
            f"evaluate cannot either (the checks below do not need it): Module '{module}'" in out, out
     assert out.rstrip().endswith("OK: nothing is damaged or missing.")
 

@@ -104,8 +104,8 @@ def test_a_metrics_line_edited_to_hold_text_is_skipped_as_damaged_not_a_tracebac
     with (run / "metrics.jsonl").open("a") as log:
         log.write('{"cycle": 4, "env_steps": 999, "episode_return": "high"}\n')
     assert main(["report", str(run), "--out", str(tmp_path / "report")]) == 0
-    assert f"line(s) {lines + 1} are not records of a cycle and are skipped" in capsys.readouterr().err
-    assert any(f"metrics.jsonl lines {lines + 1} hold no cycle's record" in problem
+    assert f"line {lines + 1} is not a record of a cycle and is skipped" in capsys.readouterr().err
+    assert any(f"metrics.jsonl line {lines + 1} holds no cycle's record" in problem
                for problem in check_run(run).problems)
 
 

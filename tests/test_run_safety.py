@@ -28,9 +28,10 @@ from angora_jax.experiment import checkpoint as checkpoint_module
 from angora_jax.experiment import read_metrics, resume, resume_plan, runner
 from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, disk_needed
 from angora_jax.experiment.config import CheckpointConfig
+from angora_jax.experiment.doctor import Diagnosis
 from angora_jax.experiment.manifest import MANIFEST_FILE
 from angora_jax.experiment.run_check import check_run
-from angora_jax.experiment.run_dir import CHECKPOINTS, CONFIG_FILE, EVALUATIONS, VIDEOS, DiskFullError
+from angora_jax.experiment.run_dir import CHECKPOINTS, CONFIG_FILE, EVALUATIONS, VIDEOS, DiskFullError, write_run_config
 from angora_jax.experiment.run_lock import LOCK_FILE, RunLock, RunLockedError, _process_start, _process_state
 from angora_jax.whole_files import written_whole
 
@@ -182,7 +183,7 @@ def test_records_after_the_checkpoint_continued_from_move_to_a_side_file_with_da
     with (run / "metrics.jsonl").open("a") as log:
         log.write('{"cycle": 7, "episode_ret')  # a record cut short by a crash, then another process's line
         log.write("\n" + json.dumps({"cycle": 8}) + "\n")
-    assert "metrics.jsonl lines 7 hold no cycle's record" in check_run(run).format()
+    assert "metrics.jsonl line 7 holds no cycle's record" in check_run(run).format()
     for checkpoint in ("3", "latest"):
         assert main(["evaluate", str(run), "--checkpoint", checkpoint, "--episodes", "1"]) == 0
     (run / VIDEOS).mkdir()
@@ -607,6 +608,36 @@ def test_a_file_where_a_checkpoint_kind_keeps_its_folder_is_named_before_anythin
         err = exits_2(["resume", str(run), *argv], capsys)
         assert err.count("\n") == 1 and "checkpoints/latest is a file" in err and "Move the file away" in err, err
     assert {path: path.read_bytes() for path in run.rglob("*") if path.is_file()} == before
+
+
+def test_the_words_that_count_agree_with_their_count(tmp_path, capsys):
+    """A run of one cycle was "config: CartPole, simple network, 1 cycles", "metrics.jsonl: 1 cycles logged, 1 to 1"
+    with "lines 2 hold no cycle's record" in `check`, resume refused it as having "logged 1 cycles", the training
+    curve's reader warned that "line(s) 2 are not records", and doctor counted "1 problem(s): fix them". Each word now
+    agrees with its count (`registry.counted`, `agreeing`): 1 cycle, 2 cycles."""
+    run = tmp_path / "one"
+    run.mkdir()
+    write_run_config(run, aj.load_config("cartpole", ["ppo.num_cycles=1"]))
+    (run / "metrics.jsonl").write_text(json.dumps({"cycle": 1, "env_steps": 64, "time": 1.0}) + "\nnot a record\n")
+    found = check_run(run).format()
+    for said in ("config: CartPole, simple network, 1 cycle\n", "metrics.jsonl: 1 cycle logged, cycle 1\n",
+                 "PROBLEM: metrics.jsonl line 2 holds no cycle's record (edited or cut short)",
+                 "but it logged 1 cycle (up to cycle 1) in metrics.jsonl"):
+        assert said in found, found
+    assert [record["cycle"] for record in read_metrics(run)] == [1]
+    assert "metrics.jsonl: line 2 is not a record of a cycle and is skipped" in capsys.readouterr().err
+    with (run / "metrics.jsonl").open("a") as log:
+        log.write(json.dumps({"cycle": 2, "env_steps": 128, "time": 2.0}) + "\nnor this\n")
+    found = check_run(run).format()
+    for said in ("metrics.jsonl: 2 cycles logged, 1 to 2\n", "PROBLEM: metrics.jsonl lines 2, 4 hold no cycle's",
+                 "but it logged 2 cycles (up to cycle 2)"):
+        assert said in found, found
+    read_metrics(run)
+    assert "metrics.jsonl: lines 2, 4 are not records of a cycle and are skipped" in capsys.readouterr().err
+    doctor = Diagnosis([("machine", "cpu", "x86_64")], ["no GPU"])
+    assert doctor.format().endswith("\n1 problem: fix it as shown above."), doctor.format()
+    doctor.problems.append("no disk")
+    assert doctor.format().endswith("\n2 problems: fix them as shown above."), doctor.format()
 
 
 def test_check_names_a_deleted_or_emptied_metrics_file_of_a_run_with_checkpoints(whole, tmp_path):

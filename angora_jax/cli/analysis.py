@@ -21,6 +21,7 @@ from angora_jax.cli.arguments import (
 )
 from angora_jax.experiment import Agent, load_agent
 from angora_jax.experiment.run_dir import CONFIG_FILE, numbered_paths, read_run_config
+from angora_jax.registry import agreeing, counted
 from angora_jax.whole_files import written_whole
 
 
@@ -235,7 +236,7 @@ def command_analysis(args: argparse.Namespace) -> int:
                                  "--images.")
             cameras = data["input_vision"].sizes["camera"]
             if not 0 <= args.camera < cameras:
-                raise ValueError(f"--camera must be in [0, {cameras}): the recording has {cameras} cameras.")
+                raise ValueError(f"--camera must be in [0, {cameras}): the recording has {counted(cameras, 'camera')}.")
             images = data["input_vision"].values[0, : args.frames, args.camera]
             agent = _recorded_agent(args, data, args.env_option)
             return analysis.visual_analysis(agent, images, args.units, args.steps)
@@ -278,7 +279,9 @@ def command_analysis(args: argparse.Namespace) -> int:
         elif args.analysis == "timescales":
             yield from (f"{layer}: {_timescale_said(result, layer)}" for layer in result["layer"].values)
         elif args.analysis == "visual":
-            yield from (f"{layer}: preferred stimuli drive units 0-{len(result['unit']) - 1} to " + ", ".join(
+            units = len(result["unit"])
+            driven = agreeing(units, "unit 0", f"units 0-{units - 1}")
+            yield from (f"{layer}: preferred stimuli drive {driven} to " + ", ".join(
                 f"{a:.3g}" for a in result["preferred_activation"].sel(layer=layer).values)
                 for layer in result["layer"].values)
         elif args.analysis == "tuning":
@@ -288,7 +291,9 @@ def command_analysis(args: argparse.Namespace) -> int:
             yield "VAF by count (shuffled control): " + ", ".join(
                 f"{k} {v:.3f} ({c:.3f})" for k, v, c in zip(result["count"].values, result["vaf"].values,
                                                          result["vaf_shuffled"].values, strict=True))
-            yield (f"{result.attrs['count']} synergies reach VAF {args.threshold}" if result.attrs["reached"] else
+            count = result.attrs["count"]
+            yield (f"{counted(count, 'synergy', 'synergies')} {agreeing(count, 'reaches', 'reach')} VAF "
+                   f"{args.threshold}" if result.attrs["reached"] else
                    f"No count up to {result.sizes['count']} reaches VAF {args.threshold}")
         elif args.analysis == "muscles-or-movements":
             control = "" if args.run else " (no control: give --run)"
@@ -300,17 +305,18 @@ def command_analysis(args: argparse.Namespace) -> int:
         elif args.analysis == "sindy":
             yield from result["equation"].values
             error, baseline = result["simulation_error"].values[-1], result["baseline_error"].values[-1]
-            yield (f"Held out ({result.attrs['held_out_episodes']} episodes): one-step R^2 "
+            yield (f"Held out ({counted(result.attrs['held_out_episodes'], 'episode')}): one-step R^2 "
                    f"{float(result['r2_one_step']):.3f} (next = current {float(result['baseline_r2_one_step']):.3f}); "
-                   f"RMSE after {args.horizon} steps {error:.3g} (next = current {baseline:.3g}) PC1 std")
+                   f"RMSE after {counted(args.horizon, 'step')} {error:.3g} (next = current {baseline:.3g}) PC1 std")
         else:
             for layer in result["layer"].values:
                 count = result["dimensionality"].sel(layer=layer).item()
-                yield (f"{layer}: {count} component{'' if count == 1 else 's'} for 90% of the variance, "
+                yield (f"{layer}: {counted(count, 'component')} for 90% of the variance, "
                        f"participation ratio {result['participation_ratio'].sel(layer=layer).item():.1f}")
             if fixed:
-                yield (f"{args.recurrent}: {int(fixed['fixed'].sum())} of {len(fixed['fixed'])} starts reached a "
-                       f"fixed point; largest |eigenvalue| median {np.median(np.abs(fixed['eigenvalues'][:, 0])):.3f}")
+                largest = np.median(np.abs(fixed["eigenvalues"][:, 0]))
+                yield (f"{args.recurrent}: {int(fixed['fixed'].sum())} of {counted(len(fixed['fixed']), 'start')} "
+                       f"reached a fixed point; largest |eigenvalue| median {largest:.3f}")
 
     return _analyze(args, compute, plot, summary)
 
@@ -452,5 +458,5 @@ def _timescale_said(result, layer: str) -> str:
         return "no timescale: its units are constant over the recording"
     lags = result["lag"].values
     return (f"timescale longer than {lags[-1]:.3g} s: no unit's autocorrelation falls below 1/e within "
-            f"{len(lags) - 1} steps (give a larger --max-lag)")
+            f"{counted(len(lags) - 1, 'step')} (give a larger --max-lag)")
 

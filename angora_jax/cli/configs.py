@@ -21,6 +21,7 @@ from angora_jax.experiment.config_reference import reference_markdown
 from angora_jax.experiment.sources import check_sources
 from angora_jax.nets import list_networks
 from angora_jax.ppo import list_heads
+from angora_jax.registry import counted
 
 
 def add_config(commands: argparse._SubParsersAction) -> None:
@@ -143,7 +144,8 @@ def run_random(task: str, num_envs: int, num_steps: int, seed: int) -> dict[str,
     }
     for name, values in metrics.items():
         result[f"episode_{name}"] = float(episode_mean(values, dones))
-    print(f"{task}: random policy, {num_envs} envs x {num_steps} steps on {jax.devices()[0].platform}")
+    print(f"{task}: random policy, {counted(num_envs, 'env')} x {counted(num_steps, 'step')} on "
+          f"{jax.devices()[0].platform}")
     for name, value in result.items():
         shown = "- (no episode ended: more --steps)" if math.isnan(value) else f"{value:,.4g}"
         print(f"  {name:>24}: {shown}")

@@ -21,6 +21,7 @@ from angora_jax.cli.arguments import (
 from angora_jax.envs.rendering import CAMERAS, RenderError
 from angora_jax.experiment import ConfigError, RunDirError, evaluation, snapshot_cycles
 from angora_jax.experiment.agent import read_checkpoint
+from angora_jax.registry import counted
 
 
 def add_evaluate(commands: argparse._SubParsersAction) -> None:
@@ -123,8 +124,9 @@ def command_evaluate(args: argparse.Namespace) -> int:
                   "episodes ended while it trained): its latest is evaluated.", file=sys.stderr)
         actions = "sampled" if args.stochastic else "deterministic (mode)"
         threads = f", {meta['workers']} threads stepping physics" if meta["workers"] > 1 else ""
-        print(f"{args.run_dir}, checkpoint of cycle {meta['cycle']}, {args.episodes} episodes on {meta['physics']} "
-              f"({meta['batch']} at a time{threads}), {actions} actions, {meta['wall_seconds']:.1f} s:")
+        print(f"{args.run_dir}, checkpoint of cycle {meta['cycle']}, {counted(args.episodes, 'episode')} on "
+              f"{meta['physics']} ({meta['batch']} at a time{threads}), {actions} actions, "
+              f"{meta['wall_seconds']:.1f} s:")
         print(f"  {'':>22} {'mean':>9} {'median':>9} {'mode':>9} {'stderr':>9}")
         for name, stats in result.summary.items():
             print(f"  {name:>22} " + " ".join(f"{stats[k]:9.4g}" for k in ("mean", "median", "mode", "stderr")))
@@ -195,7 +197,8 @@ def command_record(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     save_activity(dataset, out)
     layers = [n.removeprefix("activity_") for n in dataset.data_vars if n.startswith("activity_")]
-    print(f"Recorded {dataset.sizes['episode']} episodes x {dataset.sizes['time']} steps of {len(layers)} layers "
-          f"({', '.join(layers)}) of the network at cycle {dataset.attrs['cycle']}: {out}")
+    print(f"Recorded {counted(dataset.sizes['episode'], 'episode')} x {counted(dataset.sizes['time'], 'step')} of "
+          f"{counted(len(layers), 'layer')} ({', '.join(layers)}) of the network at cycle {dataset.attrs['cycle']}: "
+          f"{out}")
     return EXIT_OK
 

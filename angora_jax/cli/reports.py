@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, port, update_interval
+from angora_jax.registry import counted
 
 
 def add_report(commands: argparse._SubParsersAction) -> None:
@@ -59,8 +60,8 @@ def command_monitor(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     with live:
         where = live.url or (out / "index.html").resolve().as_uri()
-        print(f"Monitoring {len(args.run_dirs)} run(s): {where} (updated every {args.every:g} s; Ctrl-C stops the "
-              "monitor, never the runs)", flush=True)
+        print(f"Monitoring {counted(len(args.run_dirs), 'run')}: {where} (updated every {args.every:g} s; Ctrl-C "
+              "stops the monitor, never the runs)", flush=True)
         try:
             live.wait()
         except KeyboardInterrupt:

@@ -20,6 +20,7 @@ from angora_jax.experiment.distributed import initialize, is_main_process
 from angora_jax.experiment.run_check import check_run, restore_config
 from angora_jax.experiment.run_dir import read_run_config
 from angora_jax.experiment.runner import signals_exit_while_preparing
+from angora_jax.registry import counted
 
 
 def add_train(commands: argparse._SubParsersAction) -> None:
@@ -130,7 +131,7 @@ def command_check(args: argparse.Namespace) -> int:
 
 def print_finished(run: TrainingRun) -> None:
     cycle = int(run.state.cycle)
-    print(f"Run {run.run_dir}: {cycle} cycles done ({len(run.history)} in this session).")
+    print(f"Run {run.run_dir}: {counted(cycle, 'cycle')} done ({len(run.history)} in this session).")
     if run.stopped_at is not None:
         print(f"Stopped early at cycle {cycle}, as ppo.stop_at asks: {run.stopped_at}. To train on past it: "
               f"angora-jax resume {run.run_dir} --no-stop-at")

@@ -11,6 +11,7 @@ import jax
 
 from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, positive_int, refused_existing, seed
 from angora_jax.envs.rendering import CAMERAS, RenderError
+from angora_jax.registry import counted
 from angora_jax.vision.estimator import ORIENTATIONS
 from angora_jax.whole_files import unwritable_folder, written_whole
 
@@ -102,9 +103,9 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
     with written_whole(numbers_out, replace=False) as draft:
         draft.write_text(json.dumps(report, indent=1))
     errors = result.errors
-    print(f"Rendered {len(dataset)} samples x {len(args.cameras)} cameras in {rendered:.0f} s; trained {args.steps} "
-          f"steps in {result.seconds:.0f} s. Held-out ({errors['test_samples']}): position "
-          f"{errors['position_mm_median']:.1f} mm median ({errors['position_mm_p90']:.1f} p90), orientation "
+    print(f"Rendered {counted(len(dataset), 'sample')} x {counted(len(args.cameras), 'camera')} in {rendered:.0f} s; "
+          f"trained {counted(args.steps, 'step')} in {result.seconds:.0f} s. Held-out ({errors['test_samples']}): "
+          f"position {errors['position_mm_median']:.1f} mm median ({errors['position_mm_p90']:.1f} p90), orientation "
           f"{errors['orientation_deg_median']:.1f} deg median ({errors['orientation_deg_p90']:.1f} p90).")
     print(f"Encoder: {out} (load with network.pretrained); the whole pose network: {estimator_out} "
           f"(angora_jax.vision.PoseEstimator.load); numbers: {numbers_out}")

@@ -36,7 +36,7 @@ from angora_jax.ppo.cycle import build_head, build_model
 from angora_jax.ppo.distributions import PolicyHead
 from angora_jax.ppo.evaluate import PolicyState, make_evaluate
 from angora_jax.ppo.normalization import normalize_observation
-from angora_jax.registry import generation
+from angora_jax.registry import counted, generation
 
 
 @dataclass(frozen=True)
@@ -119,8 +119,8 @@ class Agent:
             batch = shape[0] if batch is None else batch
         carried = {jnp.shape(leaf)[0] for leaf in jax.tree.leaves(carry) if jnp.ndim(leaf)}
         if batch is not None and carried and carried != {batch}:
-            raise ValueError(f"The carry is for a batch of {sorted(carried)[0]} environments and obs for {batch}: "
-                             f"start it with agent.initial_carry({batch}).")
+            raise ValueError(f"The carry is for a batch of {counted(sorted(carried)[0], 'environment')} and obs for "
+                             f"{batch}: start it with agent.initial_carry({batch}).")
 
     def act(self, carry: Any, obs: Sensation, key: jax.Array | None = None) -> tuple[Any, jax.Array, jax.Array]:
         """Choose actions for a batch of B environments: the head's mode, or a sample when `key` is given.

@@ -4,6 +4,7 @@ override to use instead."""
 from __future__ import annotations
 
 from angora_jax.experiment.config import Config
+from angora_jax.registry import counted
 
 # Env steps per second of MJX's JAX implementation on 2 CPU cores (batch 16, the tasks' own physics settings;
 # benchmarks/results/physics_throughput/physics_throughput_cpu.json, configs "reach-tuned" and "cube-tuned"). More
@@ -36,7 +37,7 @@ def cpu_note(config: Config, physics: dict, on_gpu: bool) -> str | None:
     override = f"ppo.num_envs={envs} ppo.minibatch_size={minibatch}"
     cost = "" if rate is None else (
         f", about {_duration(steps / rate)} per cycle ({_duration(ppo.num_cycles * steps / rate)} for its "
-        f"{ppo.num_cycles:,} cycles) at the {rate:,.0f} env steps/s that 2 CPU cores ran "
+        f"{counted(ppo.num_cycles, 'cycle')}) at the {rate:,.0f} env steps/s that 2 CPU cores ran "
         "(benchmarks/results/physics_throughput/physics_throughput_cpu.json; "
         f"{_duration(envs * ppo.rollout_length / rate)} with the override; compiling the first cycle adds about a "
         "minute, 53 s for the cube from an empty compilation cache)")

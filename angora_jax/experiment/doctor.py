@@ -22,6 +22,7 @@ import jax
 from angora_jax.envs.mjx_env import WARP_REQUIREMENT, choose_impl, on_gpu
 from angora_jax.opengl_backend import GL_HINT
 from angora_jax.ppo.memory import GIB, device_memory
+from angora_jax.registry import agreeing, counted
 
 # myo-sim (optional) holds the MyoHand's muscles and tendons: a run of a MyoHand task depends on its version.
 PACKAGES = ("jax", "jaxlib", "jax-cuda13-plugin", "jax-cuda12-plugin", "mujoco", "mujoco-mjx", "warp-lang", "flax",
@@ -55,7 +56,8 @@ class Diagnosis:
             lines.append(f"  {name:<{width}}  {value}")
         lines += [f"PROBLEM: {text}" for text in self.problems] + [f"advice: {text}" for text in self.advice]
         lines.append("OK: angora_jax can train here." if not self.problems else
-                     f"{len(self.problems)} problem(s): fix them as shown above.")
+                     f"{counted(len(self.problems), 'problem')}: fix {agreeing(len(self.problems), 'it', 'them')} as "
+                     "shown above.")
         return "\n".join(lines)
 
 

@@ -29,6 +29,7 @@ from angora_jax.experiment.config import ConfigError, check_count, check_seed, o
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
 from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths
 from angora_jax.ppo.evaluate import make_evaluate
+from angora_jax.registry import counted
 from angora_jax.whole_files import unwritable_folder, written_whole
 
 # Episodes run at once by default: enough to spread the fixed cost of each step's JAX calls, few enough that a small
@@ -274,7 +275,7 @@ def box_plot(result: Evaluation, path: Path) -> None:
         ax.set_title(f"mean {_number(stats['mean'])}  median {_number(stats['median'])}\n"
                      f"mode {_number(stats['mode'])}", fontsize=9)
     meta = result.meta
-    figure.suptitle(f"{meta['task']}, cycle {meta['cycle']}, {meta['episodes']} episodes, "
+    figure.suptitle(f"{meta['task']}, cycle {meta['cycle']}, {counted(meta['episodes'], 'episode')}, "
                     f"{'sampled' if meta['stochastic'] else 'mode'} actions", fontsize=10)
     figure.tight_layout()
     figure.savefig(path, dpi=100)

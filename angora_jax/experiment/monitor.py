@@ -38,6 +38,7 @@ from angora_jax.ppo.config import StopAt
 from angora_jax.ppo.cycle import TrainState
 from angora_jax.ppo.episode_pool import Pool
 from angora_jax.ppo.parallel import host_copy
+from angora_jax.registry import agreeing
 from angora_jax.whole_files import written_whole
 
 
@@ -131,8 +132,10 @@ def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
         raise RunDirError(not_a_run_dir(run_dir, START_RUNS))
     rows, damaged = _parse_metrics(metrics)
     if damaged:
-        print(f"Warning: {metrics}: line(s) {', '.join(map(str, damaged[:5]))} are not records "
-              "of a cycle and are skipped (angora-jax check RUN_DIR).", file=sys.stderr)
+        count = len(damaged)
+        print(f"Warning: {metrics}: {agreeing(count, 'line')} {', '.join(map(str, damaged[:5]))} "
+              f"{agreeing(count, 'is not a record', 'are not records')} of a cycle and {agreeing(count, 'is', 'are')} "
+              "skipped (angora-jax check RUN_DIR).", file=sys.stderr)
     return [_with_nans(row) for _, row in rows]
 
 

@@ -32,6 +32,7 @@ from angora_jax.experiment.run_dir import (  # noqa: E402
     not_a_run_dir,
     read_sessions,
 )
+from angora_jax.registry import counted
 from angora_jax.whole_files import written_whole  # noqa: E402
 
 # Curves drawn when at least one run has them, in this order; task metrics (metric/*) follow the return.
@@ -255,8 +256,8 @@ def render_html(runs: list[RunRecord], images: list[tuple[str, str]], refresh_se
     refresh = "" if refresh_seconds is None else f'<meta http-equiv="refresh" content="{int(refresh_seconds)}">'
     updated = time.strftime("%Y-%m-%d %H:%M:%S")
     live = "" if refresh_seconds is None else f", reloads every {int(refresh_seconds)} s"
-    return _PAGE.format(head=head, rows="\n".join(rows), figures=figures, count=len(runs), refresh=refresh,
-                        updated=f"{updated}{live}")
+    return _PAGE.format(head=head, rows="\n".join(rows), figures=figures, count=len(runs),
+                        total=counted(len(runs), "run"), refresh=refresh, updated=f"{updated}{live}")
 
 
 # The page's title, also how `write_report` tells a report's index.html from a page of the user's.
@@ -275,7 +276,7 @@ figure {{ display: inline-block; margin: 0.5em; }}
 <h1>angora_jax runs</h1>
 <p id="updated">Updated {updated}</p>
 <input id="filter" placeholder="filter runs by name or any config value (e.g. lstm, CartPole)">
-<p><span id="shown">{count}</span> of {count} runs shown</p>
+<p><span id="shown">{count}</span> of {total} shown</p>
 <table><thead><tr>{head}</tr></thead><tbody>
 {rows}
 </tbody></table>

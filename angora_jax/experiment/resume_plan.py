@@ -26,6 +26,7 @@ from angora_jax.experiment.run_dir import (
     RunDirError,
     numbered_paths,
 )
+from angora_jax.registry import counted
 
 # What a fresh start moves aside (into RUN_DIR/previous-N/): everything the earlier training wrote but its config and
 # the session log, which goes on, and what was made from its checkpoints (evaluations, `analyze ablate`'s default
@@ -87,7 +88,8 @@ def plan_resume(run_dir: Path, config: Config, start_from: str | int = "latest",
                                      [f"aj.resume({str(run_dir)!r}, from_scratch=True)"])
                 raise RunDirError(
                     f"{run_dir} has no latest checkpoint to resume from (checkpoints/latest is empty or missing), "
-                    f"but it logged {len(logged)} cycles (up to cycle {max(logged, default=0)}) in {METRICS_FILE}"
+                    f"but it logged {counted(len(logged), 'cycle')} (up to cycle {max(logged, default=0)}) in "
+                    f"{METRICS_FILE}"
                     f"{f' and keeps checkpoints ({describe_saved(saved)})' if saved else ''}. Resuming now would start "
                     "over and lose that curve, "
                     f"so nothing was changed. Choose: {choice}`--from-scratch` trains again from cycle 0 with the "
@@ -102,7 +104,7 @@ def plan_resume(run_dir: Path, config: Config, start_from: str | int = "latest",
         later = [c for c in logged if c > cycle]
         return ResumePlan(kind, cycle, False,
                           f"continue from the {kind} checkpoint of cycle {cycle}" +
-                          (f"; the {len(later)} cycles logged after it, and later checkpoints with their "
+                          (f"; the {counted(len(later), 'cycle')} logged after it, and later checkpoints with their "
                            "evaluations and videos, are set aside" if later else ""))
     finally:
         if own:

@@ -36,6 +36,7 @@ from angora_jax.experiment.run_dir import (
     write_run_config,
 )
 from angora_jax.experiment.run_lock import RunLock
+from angora_jax.registry import agreeing, counted
 from angora_jax.registry.plugins import UserCodeError
 
 # The settings that make a run what it is: the task and the learning. The others (logging, checkpoint, distribution,
@@ -126,7 +127,8 @@ def check_run(run_dir: str | Path) -> RunCheck:
     run_dir = Path(run_dir)
     result = RunCheck()
     config = read_run_config(run_dir)  # RunDirError: not a run directory, or a config this version cannot read
-    described = f"config: {config.env.task}, {config.ppo.network.name} network, {config.ppo.num_cycles} cycles"
+    described = (f"config: {config.env.task}, {config.ppo.network.name} network, "
+                 f"{counted(config.ppo.num_cycles, 'cycle')}")
     try:
         validate(config, new_run=False)
         result.findings.append(described)
@@ -155,11 +157,13 @@ def check_run(run_dir: str | Path) -> RunCheck:
     live = holder is not None and holder.pid >= 0 and not gone
 
     cycles = logged_cycles(run_dir)
-    result.findings.append(f"{METRICS_FILE}: {len(cycles)} cycles logged"
-                           + (f", {cycles[0]} to {cycles[-1]}" if cycles else ""))
+    result.findings.append(f"{METRICS_FILE}: {counted(len(cycles), 'cycle')} logged"
+                           + (f", {cycles[0]} to {cycles[-1]}" if len(cycles) > 1 else
+                              f", cycle {cycles[0]}" if cycles else ""))
     damaged = damaged_metric_lines(run_dir)
     if damaged:
-        result.problems.append(f"{METRICS_FILE} lines {', '.join(map(str, damaged[:10]))} hold no cycle's record "
+        result.problems.append(f"{METRICS_FILE} {agreeing(len(damaged), 'line')} {', '.join(map(str, damaged[:10]))} "
+                               f"{agreeing(len(damaged), 'holds', 'hold')} no cycle's record "
                                "(edited or cut short); resume moves them to a side file")
     expected = list(range(cycles[0], cycles[0] + len(cycles))) if cycles else []
     uneven = bool(cycles) and (cycles != expected or cycles[0] != 1)
@@ -242,8 +246,8 @@ def _ended(run_dir: Path, config: Config, cycle: int | None) -> str:
     if cycle is None:
         return ""
     if cycle >= config.ppo.num_cycles:
-        return (f"; the run is complete ({cycle} of {config.ppo.num_cycles} cycles): `angora-jax resume {run_dir} "
-                "--num-cycles N` trains it longer")
+        return (f"; the run is complete ({cycle} of {counted(config.ppo.num_cycles, 'cycle')}): `angora-jax resume "
+                f"{run_dir} --num-cycles N` trains it longer")
     ended = ended_by_stop_at(run_dir, config.ppo.stop_at, cycle)
     if ended is not None:
         return (f"; ppo.stop_at ended it ({ended}): resume leaves it as it is; `angora-jax resume {run_dir} "

@@ -26,6 +26,7 @@ from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.config import check_count, check_seed
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
 from angora_jax.ppo.memory import device_memory
+from angora_jax.registry import counted
 from angora_jax.whole_files import unwritable_folder, written_whole
 
 # The files `write_video` writes, by suffix: MP4 through imageio-ffmpeg, GIF through Pillow. Any other suffix (or none)
@@ -117,9 +118,10 @@ def check_frames_fit(episodes: int, steps: int, width: int, height: int) -> None
     needed = 2 * frames * width * height * 3
     memory = device_memory(jax.devices("cpu")[0])
     if memory is not None and needed > memory:
-        raise ValueError(f"{episodes:,} episodes of up to {steps:,} steps at {width} x {height} pixels are up to "
-                         f"{frames:,} frames, {needed / 2 / 1e9:,.1f} GB held in memory and twice that while the "
-                         f"video is written, more than this machine's {memory / 1e9:,.0f} GB: render fewer episodes "
+        raise ValueError(f"{counted(episodes, 'episode')} of up to {counted(steps, 'step')} at {width} x {height} "
+                         f"pixels are up to {frames:,} frames, {needed / 2 / 1e9:,.1f} GB held in memory and twice "
+                         f"that while the video is written, more than this machine's {memory / 1e9:,.0f} GB: render "
+                         "fewer episodes "
                          "(--episodes) or smaller frames (--width, --height).")
 
 

@@ -75,6 +75,19 @@ def did_you_mean(value: object, allowed: Iterable[str]) -> str:
     return f" Did you mean {close[0]!r}?" if close else ""
 
 
+def agreeing(count: int, word: str, many: str | None = None) -> str:
+    """The form of `word` that agrees with `count`: `word` for exactly 1, else `many` (default: `word` + "s"), as in
+    "line 7 holds" and "lines 7, 8 hold" (`agreeing(2, "holds", "hold")`). Every message that counts goes through it
+    (or `counted`), so that none says "1 cycles" or hedges with "cycle(s)"."""
+    return word if count == 1 else many or word + "s"
+
+
+def counted(count: int, word: str, many: str | None = None) -> str:
+    """`count` (with thousands separators) and the form of `word` that agrees with it: "1 cycle", "0 cycles",
+    "2,000 cycles", `counted(1, "synergy", "synergies")`."""
+    return f"{count:,} {agreeing(count, word, many)}"
+
+
 def definition(factory: Callable) -> str:
     """Where `factory` was defined: module and qualified name (a lambda's is `<lambda>` in its function or module)."""
     return f"{getattr(factory, '__module__', '?')}.{getattr(factory, '__qualname__', type(factory).__qualname__)}"
