@@ -30,6 +30,7 @@ from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, disk_
 from angora_jax.experiment.config import CheckpointConfig
 from angora_jax.experiment.doctor import Diagnosis
 from angora_jax.experiment.manifest import MANIFEST_FILE
+from angora_jax.experiment.monitor import set_aside_after
 from angora_jax.experiment.run_check import check_run
 from angora_jax.experiment.run_dir import CHECKPOINTS, CONFIG_FILE, EVALUATIONS, VIDEOS, DiskFullError, write_run_config
 from angora_jax.experiment.run_lock import LOCK_FILE, RunLock, RunLockedError, _process_start, _process_state
@@ -648,6 +649,32 @@ def test_check_names_a_deleted_or_emptied_metrics_file_of_a_run_with_checkpoints
     assert f"PROBLEM: metrics.jsonl is empty, but checkpoints were saved up to cycle {CYCLES}" in found, found
     (run / "metrics.jsonl").unlink()
     assert "PROBLEM: metrics.jsonl is missing, but checkpoints" in check_run(run).format()
+
+
+def test_check_names_a_record_without_its_env_steps_with_what_resume_does_with_it(whole, tmp_path, capsys):
+    """A metrics.jsonl ending in `{"cycle": 7}` past the latest checkpoint (cycle 6) passed as "7 cycles logged, 1 to
+    7 ... OK: nothing is damaged". The trainer never writes such a line (each record it writes carries env_steps, and
+    a record cut short does not parse), so it is damage, named as such with what resume does about it: past the
+    checkpoint resume continues from, it goes to the side file with the later records; before it, resume keeps it,
+    and the fix is a copy of the file or those cycles trained again."""
+    run = copy_of(whole, tmp_path)
+    with (run / "metrics.jsonl").open("a") as log:
+        log.write(json.dumps({"cycle": 7}) + "\n")
+    said = ("metrics.jsonl line 7 holds cycle 7 without its env_steps, which every record the trainer writes "
+            "carries: the file was edited, or another program wrote to it")
+    assert check_run(run).problems == [f"{said}; resume continues from cycle 6 and moves it to a side file with the "
+                                       "later records"]
+    assert main(["check", str(run)]) == 2 and f"PROBLEM: {said}" in capsys.readouterr().out
+    assert set_aside_after(run, 6).read_text() == '{"cycle": 7}\n'
+    lines = (run / "metrics.jsonl").read_text().splitlines()
+    lines[3:5] = [json.dumps({"cycle": 4}), json.dumps({"cycle": 5, "episode_return": 1.0})]
+    (run / "metrics.jsonl").write_text("\n".join(lines) + "\n")
+    assert check_run(run).problems == [
+        "metrics.jsonl lines 4, 5 hold cycles 4, 5 without their env_steps, which every record the trainer writes "
+        "carries: the file was edited, or another program wrote to it; resume would keep them, cycles without a point "
+        f"on the curves: put the file back from a copy if there is one, or `angora-jax resume {run} --from 3` trains "
+        "again from the checkpoint before cycle 4, so that each cycle is logged (the later records and checkpoints are "
+        "kept aside)"]
 
 
 def test_the_saved_config_comes_from_the_next_checkpoint_when_the_newest_cannot_be_read(whole, monkeypatch):

@@ -174,24 +174,34 @@ def damaged_metric_lines(run_dir: str | Path) -> list[int]:
     return _parse_metrics(Path(run_dir) / METRICS_FILE)[1]
 
 
+def bare_metric_records(run_dir: str | Path) -> list[tuple[int, int]]:
+    """(line number from 1, cycle) of each record of metrics.jsonl without env_steps, such as `{"cycle": 7}`: a
+    cycle's number without the values that every record `Monitor.record` writes carries (env_steps, time, the
+    normaliser's and memory's statistics). It writes each record as one whole line, and one cut short does not parse,
+    so such a line was edited or written by another program. It reads as a record (`report` counts its cycle, with no
+    point on the curves), which is why `angora-jax check` names it."""
+    return [(number, row["cycle"]) for number, _, row in _numbered_metrics(Path(run_dir) / METRICS_FILE)
+            if row is not None and "env_steps" not in row]
+
+
 def _parse_metrics(path: Path) -> tuple[list[tuple[str, dict[str, Any]]], list[int]]:
     """(line text, record) of each whole record line, and the numbers of the damaged lines. A last line without its
     newline is being written right now (a live report reads while the run trains) and is neither."""
+    numbered = _numbered_metrics(path)
+    return ([(line, row) for _, line, row in numbered if row is not None],
+            [number for number, line, row in numbered if row is None and line.strip()])
+
+
+def _numbered_metrics(path: Path) -> list[tuple[int, str, dict[str, Any] | None]]:
+    """(line number from 1, text, record or None) of each whole line of `path` (none where it is missing)."""
     try:
         text = path.read_text(errors="replace")
     except FileNotFoundError:
-        return [], []
+        return []
     lines = text.splitlines()
     if lines and not text.endswith("\n"):
         lines.pop()
-    rows, damaged = [], []
-    for number, line in enumerate(lines, 1):
-        row = _record(line)
-        if row is not None:
-            rows.append((line, row))
-        elif line.strip():
-            damaged.append(number)
-    return rows, damaged
+    return [(number, line, _record(line)) for number, line in enumerate(lines, 1)]
 
 
 def _record(line: str) -> dict[str, Any] | None:

@@ -1,10 +1,10 @@
 """`angora-jax check RUN_DIR`: what a run directory holds, whether it is intact, and what `resume` would do with it.
 
-Reads only: the config (does it load and fit this version), the writer lock, metrics.jsonl (damaged lines, and each
-cycle logged once and in order), every checkpoint against its manifest, and the resume plan (`resume_plan`).
-`restore_config` (`check --restore-config`) is its one repair: a damaged config.yaml, or one whose task or learning
-settings were edited after training, written again from the copy that the checkpoints keep. `edited_settings` finds
-such an edit; `resume` refuses to continue through one.
+Reads only: the config (does it load and fit this version), the writer lock, metrics.jsonl (damaged lines, records
+without their env_steps, and each cycle logged once and in order), every checkpoint against its manifest, and the resume
+plan (`resume_plan`). `restore_config` (`check --restore-config`) is its one repair: a damaged config.yaml, or one whose
+task or learning settings were edited after training, written again from the copy that the checkpoints keep.
+`edited_settings` finds such an edit; `resume` refuses to continue through one.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from angora_jax.experiment.config import (
     to_dict,
     validate,
 )
-from angora_jax.experiment.monitor import damaged_metric_lines, ended_by_stop_at, logged_cycles
+from angora_jax.experiment.monitor import bare_metric_records, damaged_metric_lines, ended_by_stop_at, logged_cycles
 from angora_jax.experiment.resume_plan import plan_resume
 from angora_jax.experiment.run_dir import (
     CHECKPOINTS,
@@ -165,6 +165,7 @@ def check_run(run_dir: str | Path) -> RunCheck:
         result.problems.append(f"{METRICS_FILE} {agreeing(len(damaged), 'line')} {', '.join(map(str, damaged[:10]))} "
                                f"{agreeing(len(damaged), 'holds', 'hold')} no cycle's record "
                                "(edited or cut short); resume moves them to a side file")
+    bare = bare_metric_records(run_dir)
     expected = list(range(cycles[0], cycles[0] + len(cycles))) if cycles else []
     uneven = bool(cycles) and (cycles != expected or cycles[0] != 1)
     sides = sorted(p.name for p in run_dir.glob("metrics.after-cycle-*.jsonl"))
@@ -218,13 +219,34 @@ def check_run(run_dir: str | Path) -> RunCheck:
                                "curve's records were lost. Put the file back from a copy if there is one; resume "
                                "would continue and log only the cycles after it")
 
+    plan = None
     try:
         plan = plan_resume(run_dir, config)
         result.resume = plan.describe + _ended(run_dir, config, plan.cycle)
     except RunDirError as refusal:
         result.resume = f"refuses: {refusal}"
+    if bare:
+        result.problems.append(_bare(run_dir, bare, None if plan is None else plan.cycle, sound))
+    if plan is None:
         result.problems.append("resume cannot continue as it is: see above")
     return result
+
+
+def _bare(run_dir: Path, bare: list[tuple[int, int]], after: int | None, sound: set[int]) -> str:
+    """The problem of records without env_steps (`bare_metric_records`: (line, cycle) each) and its fix: none past
+    `after`, the cycle resume continues from (None: it refuses), where resume sets them aside with the later
+    records; else put the file back, or train those cycles again."""
+    count, cycles = len(bare), [cycle for _, cycle in bare]
+    said = (f"{METRICS_FILE} {agreeing(count, 'line')} {', '.join(str(line) for line, _ in bare[:10])} "
+            f"{agreeing(count, 'holds', 'hold')} {agreeing(count, 'cycle')} {', '.join(map(str, cycles[:10]))} "
+            f"without {agreeing(count, 'its', 'their')} env_steps, which every record the trainer writes carries: "
+            "the file was edited, or another program wrote to it")
+    if after is not None and min(cycles) > after:
+        return (f"{said}; resume continues from cycle {after} and moves {agreeing(count, 'it', 'them')} to a side "
+                "file with the later records")
+    return (f"{said}; resume would keep {agreeing(count, 'it', 'them')}, {agreeing(count, 'a cycle', 'cycles')} "
+            f"without a point on the curves: put the file back from a copy if there is one, or "
+            f"{_log_again(run_dir, min(cycles), sound)}")
 
 
 def _relog(run_dir: Path, cycles: list[int], sound: set[int]) -> str:
@@ -234,11 +256,16 @@ def _relog(run_dir: Path, cycles: list[int], sound: set[int]) -> str:
     if len(set(cycles)) != len(cycles) or cycles != sorted(cycles):
         return ""
     missing = next(cycle for cycle in range(1, cycles[-1] + 1) if cycle not in set(cycles))
-    before = [cycle for cycle in sound if cycle < missing]
+    return f"; {_log_again(run_dir, missing, sound)}"
+
+
+def _log_again(run_dir: Path, cycle: int, sound: set[int]) -> str:
+    """How to log `cycle` and those after it again: train again from the newest intact checkpoint before it."""
+    before = [saved for saved in sound if saved < cycle]
     if not before:
-        return f"; `angora-jax resume {run_dir} --from-scratch` trains it again with each cycle logged"
-    return (f"; `angora-jax resume {run_dir} --from {max(before)}` trains again from the checkpoint before cycle "
-            f"{missing}, so that each cycle is logged (the later records and checkpoints are kept aside)")
+        return f"`angora-jax resume {run_dir} --from-scratch` trains it again with each cycle logged"
+    return (f"`angora-jax resume {run_dir} --from {max(before)}` trains again from the checkpoint before cycle "
+            f"{cycle}, so that each cycle is logged (the later records and checkpoints are kept aside)")
 
 
 def _ended(run_dir: Path, config: Config, cycle: int | None) -> str:
