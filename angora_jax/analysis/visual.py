@@ -247,8 +247,8 @@ def preferred_stimuli(seer: Seer, layer: str, units: list[int] | np.ndarray, siz
 
 def _checked_units(units: object, layer: str, count: int) -> np.ndarray:
     """`preferred_stimuli`'s `units` as an int array; ConfigError unless they are one or more whole numbers from 0 to
-    `count` - 1, each once: [1.5] was cut to unit 1 and [True] read as unit 0 without a word, and a unit named twice
-    was optimised twice, as if it were two."""
+    `count` - 1: [1.5] was cut to unit 1 and [True] read as unit 0 without a word. A unit named twice is optimised from
+    two starts (each entry has its own key), a way to see whether its preferred stimulus depends on the start."""
     name = "the output" if layer == "output" else layer
     span = f"whole numbers from 0 to {count - 1} ({name} has {count} units)"
     try:
@@ -261,10 +261,6 @@ def _checked_units(units: object, layer: str, count: int) -> np.ndarray:
     for unit in given:
         if isinstance(unit, bool) or not isinstance(unit, numbers.Integral) or not 0 <= unit < count:
             raise ConfigError(f"units must be {span}; got {unit!r} in {given}.")
-    twice = next((unit for i, unit in enumerate(given) if unit in given[:i]), None)
-    if twice is not None:
-        raise ConfigError(f"units must name each unit once (its preferred stimulus is one image; another seed "
-                          f"starts another), got {twice} twice in {given}.")
     return np.asarray(given, int)
 
 
