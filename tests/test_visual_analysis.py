@@ -48,7 +48,7 @@ def test_saliency_of_a_unit_is_that_of_its_one_hot_readout_and_bad_outputs_are_r
     assert unit.shape == (2, SIZE, SIZE) and unit.max() > 0
     np.testing.assert_allclose(visual.saliency(agent, images, readout=np.eye(6)[2]), unit, rtol=1e-6)
     for bad in ({"unit": 6}, {"readout": np.ones(5)}, {}, {"unit": 0, "readout": np.ones(6)}):
-        with pytest.raises(ValueError, match="unit|readout"):
+        with pytest.raises(ConfigError, match="unit|readout"):
             visual.saliency(agent, images, **bad)
 
 
@@ -62,9 +62,9 @@ def test_activation_maximization_raises_each_units_activation(agent, images):
     own = visual.feature_maps(agent, found)["V2"].mean(axis=(1, 2))[[0, 1], [0, 3]]
     noise = visual.feature_maps(agent, images)["V2"].mean(axis=(1, 2))[:, [0, 3]].max(axis=0)
     assert (own > noise + 0.1).all(), (own, noise)
-    with pytest.raises(ValueError, match=r"No convolution 'V3'.*V1"):
+    with pytest.raises(ConfigError, match=r"No convolution 'V3'.*V1"):
         visual.preferred_stimuli(agent, "V3", [0])
-    with pytest.raises(ValueError, match=r"V1 has 4 units"):
+    with pytest.raises(ConfigError, match=r"V1 has 4 units"):
         visual.preferred_stimuli(agent, "V1", [4])
 
 
@@ -142,6 +142,34 @@ def test_units_that_are_no_units_of_the_layer_are_refused_by_name_before_anythin
                           ({"steps": 0}, "steps must be a whole number of at least 1, got 0.")):
         with pytest.raises(ConfigError, match=f"^{re.escape(said)}$"):
             visual.visual_analysis(agent, images, **options)
+
+
+def test_a_saliency_unit_that_is_no_unit_of_the_output_and_an_unknown_layer_are_refused_by_name(agent, images,
+                                                                                                 monkeypatch):
+    """saliency(unit=1.5) returned a map of zeros without a word (one_hot of 1.5 is all zeros), unit=True and "1"
+    failed inside JAX, and 6 or -1 were a plain ValueError in their own words ("must be in [0, 6)"); each is a
+    ConfigError naming unit, the value and the range in preferred_stimuli's words, before any gradient. An unknown
+    layer was a plain ValueError from preferred_stimuli and a ConfigError from visual_analysis, with the same text:
+    both are ConfigError."""
+    def no_gradient(*args, **kwargs):
+        raise AssertionError("a gradient was computed")
+
+    monkeypatch.setattr(visual, "gradient_saliency", no_gradient)
+    for unit, shown in ((1.5, "1.5"), (True, "True"), ("1", "'1'"), (6, "6"), (-1, "-1"), (np.float64(2.0), "2.0")):
+        said = f"unit must be a whole number from 0 to 5 (the output has 6 units), got {shown}."
+        with pytest.raises(ConfigError, match=f"^{re.escape(said)}$"):
+            visual.saliency(agent, images, unit=unit)
+    for readout, got in ((np.ones(5), "shape (5,)"), (["a"] * 6, repr(["a"] * 6))):
+        said = f"readout must be numbers shaped (6,), a weight for each of the output's 6 units, got {got}."
+        with pytest.raises(ConfigError, match=f"^{re.escape(said)}$"):
+            visual.saliency(agent, images, readout=readout)
+    with pytest.raises(ConfigError, match="^Give exactly one of unit"):
+        visual.saliency(agent, images)
+    unknown = "No convolution 'V3' in the visual area; choose one of ['V1', 'V2', 'V4', 'IT'] or 'output'."
+    for call in (lambda: visual.preferred_stimuli(agent, "V3", [0], steps=1),
+                 lambda: visual.visual_analysis(agent, images, units=1, steps=1, layers=["V3"])):
+        with pytest.raises(ConfigError, match=f"^{re.escape(unknown)}$"):
+            call()
 
 
 def test_a_run_directory_or_a_recording_given_for_the_seeing_network_is_named_with_what_to_do(agent, images):

@@ -33,6 +33,7 @@ import xarray as xr
 from angora_jax.experiment.agent import Agent, check_agent
 from angora_jax.experiment.config import ConfigError, check_count, check_number, check_seed
 from angora_jax.nets.visual import make_visual_area, make_visual_encoder
+from angora_jax.registry import counted
 from angora_jax.vision.estimator import PoseEstimator
 
 # What these analyses look inside: an agent with a visual area, or a pose estimator (its encoder).
@@ -108,16 +109,26 @@ def saliency(seer: Seer, images: np.ndarray, unit: int | None = None,
     """Gradient saliency: |d output / d pixel| for `images` `(N, height, width, 3)` uint8, the largest over colour
     channels, `(N, height, width)` per pixel value (0-255). output: feature `unit` of the visual area's output
     `(features,)`, or `features @ readout` for a readout vector `(features,)` (e.g. a decoder's weights for a task
-    variable). Give exactly one of them."""
+    variable). Give exactly one of them: `unit` a whole number from 0 to the output's count of units less 1.
+    ConfigError for a unit or readout that is none, before any gradient (unit=1.5 gave a map of zeros)."""
     if (unit is None) == (readout is None):
-        raise ValueError("Give exactly one of unit (a feature of the visual area) or readout (a vector over them).")
+        raise ConfigError("Give exactly one of unit (a feature of the visual area) or readout (a vector over them).")
     module, params = visual_area(seer)
     features = module.apply({"params": params}, jnp.zeros((1, *np.shape(images)[1:]), jnp.uint8)).shape[-1]
-    weights = jax.nn.one_hot(unit, features) if readout is None else jnp.asarray(readout, jnp.float32)
-    if weights.shape != (features,) or (unit is not None and not 0 <= unit < features):
-        shape = None if readout is None else weights.shape
-        raise ValueError(f"The visual area has {features} features: unit must be in [0, {features}) and readout "
-                         f"shaped ({features},), got unit {unit}, readout {shape}.")
+    if readout is None:
+        unit = unit.item() if isinstance(unit, np.generic) else unit
+        if not _is_unit(unit, features):
+            raise ConfigError(f"unit must be a whole number {_unit_range('output', features)}, got {unit!r}.")
+        weights = jax.nn.one_hot(unit, features)
+    else:
+        try:
+            weights = jnp.asarray(np.asarray(readout, np.float32))
+        except (TypeError, ValueError):  # text, a ragged list
+            weights = None
+        if weights is None or weights.shape != (features,):
+            got = repr(readout) if weights is None else f"shape {weights.shape}"
+            raise ConfigError(f"readout must be numbers shaped ({features},), a weight for each of the output's "
+                              f"{counted(features, 'unit')}, got {got}.")
 
     # Float pixels: the encoder scales any dtype the same way, and gradients need floats.
     return gradient_saliency(lambda pixels: module.apply({"params": params}, pixels) @ weights, images)
@@ -209,9 +220,7 @@ def preferred_stimuli(seer: Seer, layer: str, units: list[int] | np.ndarray, siz
     learning_rate = check_number("learning_rate", learning_rate, 0.0, open_low=True)
     blur, seed = check_number("blur", blur, 0.0, 1.0), check_seed("seed", seed)
     module, params, camera = _visual_system(seer)
-    if layer != "output" and layer not in conv_layers(seer):
-        raise ValueError(f"No convolution {layer!r} in the visual area; choose one of {conv_layers(seer)} or "
-                         "'output'.")
+    _check_layer(layer, conv_layers(seer))
     height, width = size or camera
 
     def activations(pixels: jax.Array) -> jax.Array:
@@ -245,12 +254,31 @@ def preferred_stimuli(seer: Seer, layer: str, units: list[int] | np.ndarray, siz
     return np.asarray(images).round().astype(np.uint8), np.asarray(traces)
 
 
+def _check_layer(layer: object, convolutions: list[str]) -> None:
+    """ConfigError unless `layer` is one of `convolutions` (the visual area's, in order) or "output": the words of
+    every analysis that takes a layer."""
+    if layer != "output" and layer not in convolutions:
+        raise ConfigError(f"No convolution {layer!r} in the visual area; choose one of {convolutions} or 'output'.")
+
+
+def _unit_range(layer: str, count: int) -> str:
+    """"from 0 to 3 (V1 has 4 units)": the units of `layer` ("output": the visual area's output, its features), in
+    the words of every message that refuses a unit."""
+    name = "the output" if layer == "output" else layer
+    return f"from 0 to {count - 1} ({name} has {counted(count, 'unit')})"
+
+
+def _is_unit(unit: object, count: int) -> bool:
+    """Whether `unit` is a unit of a layer of `count` units: a whole number (an int or a numpy integer, not a bool,
+    which JAX reads as 0 or 1) from 0 to `count` - 1."""
+    return not isinstance(unit, bool) and isinstance(unit, numbers.Integral) and 0 <= unit < count
+
+
 def _checked_units(units: object, layer: str, count: int) -> np.ndarray:
     """`preferred_stimuli`'s `units` as an int array; ConfigError unless they are one or more whole numbers from 0 to
     `count` - 1: [1.5] was cut to unit 1 and [True] read as unit 0 without a word. A unit named twice is optimised from
     two starts (each entry has its own key), a way to see whether its preferred stimulus depends on the start."""
-    name = "the output" if layer == "output" else layer
-    span = f"whole numbers from 0 to {count - 1} ({name} has {count} units)"
+    span = f"whole numbers {_unit_range(layer, count)}"
     try:
         given = [] if isinstance(units, str | bytes | numbers.Number) else list(units)
     except TypeError:  # a 0-d array, an object that is no list
@@ -259,7 +287,7 @@ def _checked_units(units: object, layer: str, count: int) -> np.ndarray:
     if not given:
         raise ConfigError(f"units must be a list of one or more {span}, e.g. [0, 1]; got {units!r}.")
     for unit in given:
-        if isinstance(unit, bool) or not isinstance(unit, numbers.Integral) or not 0 <= unit < count:
+        if not _is_unit(unit, count):
             raise ConfigError(f"units must be {span}; got {unit!r} in {given}.")
     return np.asarray(given, int)
 
@@ -293,9 +321,7 @@ def visual_analysis(seer: Seer, images: np.ndarray, units: int = 4, steps: int =
     convolutions = conv_layers(seer)
     layers = [layers] if isinstance(layers, str) else list(layers or convolutions)
     for layer in layers:
-        if layer != "output" and layer not in convolutions:
-            raise ConfigError(f"No convolution {layer!r} in the visual area; choose one of {convolutions} or "
-                              "'output'.")
+        _check_layer(layer, convolutions)
     counts = _unit_counts(seer, layers, images.shape[1:3])
     if units > min(counts.values()):
         shown = ", ".join(f"{layer} {count}" for layer, count in counts.items())
