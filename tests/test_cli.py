@@ -88,7 +88,9 @@ def test_doctor_reports_the_physics_choice_and_exits_0_on_the_cpu(capsys, monkey
         (["train", "cartpole", "ppo.num_envs=10000000000"], "cannot fit: it needs at least"),
         (["train", "cartpole", "--num-processes", "2", "--process-id", "1"], "set up a jax.distributed job: add "
                                                                                "--distributed"),
-        (["train", "cartpole", "distribution.num_devices=3"], "distribution.num_devices=3 but JAX sees only 1"),
+        # One device is "1 device", not "1 device(s)".
+        (["train", "cartpole", "distribution.num_devices=3"], "distribution.num_devices=3 but JAX sees only 1 "
+                                                              "device ("),
         (["train", "cartpole", "checkpoint.lean=[latest, everything]"], "Unknown value 'everything' for "
                                                                         "checkpoint.lean"),
         (["train", "cartpole", "logging.run_name=../escape"], "must be a plain folder name"),

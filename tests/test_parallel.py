@@ -103,7 +103,7 @@ def test_single_device_config_is_unchanged():
         ({"minibatch_size": 18}, r"ppo.minibatch_size=18 is a run total"),
         (
             {"num_envs": 8, "minibatch_size": 32, "chunk_length": 16},
-            r"tiles of n=2 trajectories x m=1 chunks .*multiple of 4; use e.g. ppo.minibatch_size=64",
+            r"tiles of n=2 trajectories x m=1 chunk \(.*multiple of 4; use e.g. ppo.minibatch_size=64",
         ),
     ],
 )

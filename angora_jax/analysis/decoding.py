@@ -33,6 +33,7 @@ from sklearn.preprocessing import StandardScaler
 
 from angora_jax.analysis.parallel import map_in_threads
 from angora_jax.experiment.config import ConfigError, check_count, check_seed
+from angora_jax.registry import counted
 
 # Ridge penalties per training sample: a fit on n samples is penalised n times this, so that the penalty chosen on
 # the inner folds' smaller training sets means the same on the whole training fold.
@@ -147,7 +148,7 @@ def decode(dataset: xr.Dataset, layers: Sequence[str] | None = None, variables: 
     require(dataset, layers, variables)
     steps = dataset.sizes["time"]
     if lags is not None and any(abs(k) >= steps for k in lags):
-        raise ConfigError(f"lags must be shorter than the recording's {steps} steps, got {lags}.")
+        raise ConfigError(f"lags must be shorter than the recording's {counted(steps, 'step')}, got {lags}.")
     result = _decode_lags(dataset, layers, variables, folds, np.random.default_rng(seed),
                           lags if lags is not None else [0], max_samples, baseline)
     names = ("r2", "r2_low", "r2_high", "baseline")

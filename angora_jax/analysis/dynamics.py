@@ -30,6 +30,7 @@ from angora_jax.nets.activations import ACTIVATION_RANGES, ACTIVATIONS
 from angora_jax.nets.area_graph import AreaGraph, feedback_inputs
 from angora_jax.nets.components import component
 from angora_jax.nets.models import cell_output, recurrent_cell
+from angora_jax.registry import counted
 
 
 def principal_components(dataset: xr.Dataset, layers: Sequence[str] | None = None,
@@ -307,7 +308,7 @@ def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: st
     rows = np.random.default_rng(seed).choice(len(visited), size=min(starts, len(visited)), replace=False)
     step, size = recurrent_step(agent, layer, pieces)
     if visited.shape[-1] != size:
-        raise ValueError(f"Recorded carry of {layer!r} has {visited.shape[-1]} values, the cell {size}.")
+        raise ValueError(f"Recorded carry of {layer!r} has {counted(visited.shape[-1], 'value')}, the cell {size}.")
     drive = np.concatenate([np.zeros(0, np.float32), *(piece for piece in pieces if piece is not None)])
     return find_fixed_points(step, visited[rows], iterations, bounds=_state_bounds(agent, layer)) | {"input": drive}
 

@@ -26,6 +26,7 @@ from sklearn.decomposition import PCA
 from sklearn.metrics import r2_score
 
 from angora_jax.analysis.decoding import require
+from angora_jax.registry import counted
 
 # Runge-Kutta steps a policy step when a continuous-time model is run (`simulate`).
 SUBSTEPS = 4
@@ -153,9 +154,9 @@ def sindy(dataset: xr.Dataset, layer: str, components: int = 3, inputs: str | No
     terms = math.comb(variables + degree, degree)  # monomials of the variables up to `degree`, with the constant
     transitions = sum(len(states[e]) - 1 for e in train)
     if transitions < terms:
-        raise ValueError(f"The train episodes give {transitions} transitions for {terms} library terms: record "
-                         f"more episodes or steps (angora-jax record --episodes/--steps), or use fewer --components "
-                         f"or a lower --degree.")
+        raise ValueError(f"The train episodes give {counted(transitions, 'transition')} for {terms} library terms: "
+                         f"record more episodes or steps (angora-jax record --episodes/--steps), or use fewer "
+                         f"--components or a lower --degree.")
     dt = float(dataset.attrs.get("policy_step_s", 1.0))
     model = fit_sindy([states[e] for e in train], dt, names, discrete, degree, threshold,
                       None if controls is None else [controls[e] for e in train], input_names)
@@ -205,8 +206,8 @@ def _components(values: np.ndarray, lengths: np.ndarray, train: Sequence[int], c
     (length, components)}), the variance ratios and that standard deviation."""
     units = values.shape[-1]
     if components > units:
-        raise ValueError(f"{components} components of {layer!r}, which has {units} units: ask for at most {units} "
-                         f"(--components).")
+        raise ValueError(f"{components} components of {layer!r}, which has {counted(units, 'unit')}: ask for at "
+                         f"most {units} (--components).")
     pca = PCA(components).fit(np.concatenate([values[e, :lengths[e]] for e in train]))
     scale = float(np.sqrt(pca.explained_variance_[0]))
     if not scale > 0:

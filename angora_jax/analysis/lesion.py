@@ -27,6 +27,7 @@ from angora_jax.analysis.recording import episode_outcomes
 from angora_jax.envs.core import Env, Sensation, State
 from angora_jax.experiment.agent import Agent, check_agent
 from angora_jax.experiment.config import check_count, check_number, check_seed
+from angora_jax.registry import counted
 
 # The kernels inside flax's recurrent cells, by their names: SimpleCell's input and hidden kernels, the GRU's and
 # OptimizedLSTMCell's gate pre-activations. They are parts of one step of the cell rather than layers (recordings
@@ -72,7 +73,8 @@ def lesion(agent: Agent, layer: str, units: Sequence[int] | np.ndarray) -> Agent
         raise ValueError(f"No dense layer {layer!r} to lesion; the agent's dense layers: {sorted(layers)}.")
     units = np.asarray(units, int)
     if units.size and (units.min() < 0 or units.max() >= layers[layer]):
-        raise ValueError(f"Units {units.tolist()} out of range for {layer!r}, which has {layers[layer]} units.")
+        raise ValueError(f"Units {units.tolist()} out of range for {layer!r}, which has "
+                         f"{counted(layers[layer], 'unit')}.")
     if not units.size:
         return agent
 
@@ -246,7 +248,7 @@ def plot_ablation(result: xr.Dataset, outcome: str, path: str) -> None:
     fig, ax = plt.subplots(figsize=(1.5 + 0.8 * len(mean), 3.5))
     ax.bar(range(len(mean)), mean, yerr=sem, capsize=3, color="tab:blue")
     ax.set_xticks(range(len(mean)), result["lesion"].values, rotation=30, ha="right")
-    ax.set_ylabel(f"{outcome}\n(mean +- s.e.m., {result.attrs['episodes']} episodes)")
+    ax.set_ylabel(f"{outcome}\n(mean +- s.e.m., {counted(result.attrs['episodes'], 'episode')})")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -51,6 +51,7 @@ from angora_jax.experiment.agent import Agent, check_agent, load_agent
 from angora_jax.experiment.config import check_count, check_seed, override_strings
 from angora_jax.nets import ActorCritic
 from angora_jax.ppo.evaluate import make_evaluate
+from angora_jax.registry import counted
 from angora_jax.whole_files import written_whole
 
 # Policy steps compiled as one program when recording until the episodes end: a recording stops at most this many
@@ -173,8 +174,9 @@ def _check_fits_in_memory(first: Any, episodes: int, chunk: int, limit: int) -> 
     needed = sum(math.prod(x.shape) * x.dtype.itemsize for x in jax.tree.leaves(first)) * -(-limit // chunk)
     memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     if needed > memory:
-        raise ValueError(f"Recording {episodes:,} episodes x {limit:,} steps takes {needed / 2**30:,.1f} GiB, more "
-                         f"than this machine's {memory / 2**30:,.1f} GiB of memory: record fewer episodes or steps.")
+        raise ValueError(f"Recording {counted(episodes, 'episode')} x {counted(limit, 'step')} takes "
+                         f"{needed / 2**30:,.1f} GiB, more than this machine's {memory / 2**30:,.1f} GiB of memory: "
+                         "record fewer episodes or steps.")
 
 
 def episode_outcomes(agent: Agent, episodes: int = 256, steps: int | None = None,

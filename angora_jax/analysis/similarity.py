@@ -18,6 +18,7 @@ from rsatoolbox.data import Dataset
 from rsatoolbox.rdm import RDMs, calc_rdm, compare
 
 from angora_jax.analysis.decoding import as_names, chosen_layers, recorded_layers, require
+from angora_jax.registry import counted
 
 
 def condition_labels(dataset: xr.Dataset, variable: str, bins: int = 8, feature: int | None = None) -> np.ndarray:
@@ -30,7 +31,8 @@ def condition_labels(dataset: xr.Dataset, variable: str, bins: int = 8, feature:
     if values.ndim == 3:
         count = values.shape[-1]
         if feature is None:
-            raise ValueError(f"{variable} has {count} features; choose one with feature=<index> (--feature).")
+            raise ValueError(f"{variable} has {counted(count, 'feature')}; choose one with feature=<index> "
+                             "(--feature).")
         if not 0 <= feature < count:
             raise ValueError(f"feature={feature} (--feature) is not a feature of {variable}: it has {count}, 0 to "
                              f"{count - 1}.")

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from angora_jax.envs.core import ActionSpec, Env, Sensation, State, episode_limit
+from angora_jax.registry import counted
 
 PREFIX = "gym:"
 
@@ -145,7 +146,7 @@ class GymnasiumHost(Env):
 
     def _batch(self, size: int) -> gymnasium.vector.VectorEnv:
         if size != self.num_envs:
-            raise ValueError(f"{self.env_id}: a batch of {size} environments reached a host task sized for "
+            raise ValueError(f"{self.env_id}: a batch of {counted(size, 'environment')} reached a host task sized for "
                              f"{self.num_envs}; get one with env.sized_for({size}).")
         if self._vector is None:
             self._vector = gymnasium.make_vec(

@@ -18,6 +18,7 @@ from angora_jax.nets.models import POLICY_MODALITIES, RECURRENT_CELLS
 from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.distributions import list_heads
 from angora_jax.ppo.episode_pool import Pool, compared_value
+from angora_jax.registry import counted
 
 # Counts (cycles, environments, steps, units) become int32 in JAX's arrays and loops (x64 is off), so they must fit.
 INT32_MAX = 2**31 - 1
@@ -420,8 +421,9 @@ class PPOConfig:
         if tile_shape(self) is None:
             raise ValueError(
                 f"ppo.minibatch_size ({self.minibatch_size}) admits no tile of n trajectories x m chunks with n "
-                f"dividing num_envs ({self.num_envs}) and m dividing the {self.rollout_length // self.chunk_length} "
-                "chunks per trajectory; pick a minibatch_size of (divisor of num_envs) * (divisor of chunks) * "
+                f"dividing num_envs ({self.num_envs}) and m dividing the "
+                f"{counted(self.rollout_length // self.chunk_length, 'chunk')} per trajectory; pick a minibatch_size "
+                "of (divisor of num_envs) * (divisor of chunks) * "
                 "chunk_length."
             )
         self._validate_blocks()
@@ -442,10 +444,11 @@ class PPOConfig:
                              "anneals the run's: set one of them (entropy_coef_final: null, or entropy_coefs: []).")
         trajectories = tile_shape(self)[0]
         if trajectories % blocks.count:
-            raise ValueError(f"ppo.blocks.count={blocks.count} must divide the minibatch tile's {trajectories} "
-                             f"trajectories (of ppo.num_envs={self.num_envs}, ppo.minibatch_size="
-                             f"{self.minibatch_size}), so every minibatch holds each block's equal share; pick a "
-                             "count that divides it, or a minibatch_size with more trajectories per tile.")
+            raise ValueError(f"ppo.blocks.count={blocks.count} must divide the minibatch tile's "
+                             f"{counted(trajectories, 'trajectory', 'trajectories')} (of ppo.num_envs="
+                             f"{self.num_envs}, ppo.minibatch_size={self.minibatch_size}), so every minibatch holds "
+                             "each block's equal share; pick a count that divides it, or a minibatch_size with more "
+                             "trajectories per tile.")
         areas = self.network.graph.areas.values() if self.network.name == "areas" else ()
         if areas and not any("goal" in area.inputs for area in areas):
             raise ValueError("ppo.blocks conditions the network on each block's embedding through the goal modality, "

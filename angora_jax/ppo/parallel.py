@@ -74,6 +74,7 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from angora_jax.ppo.config import PPOConfig, tile_shape
+from angora_jax.registry import counted
 
 AXIS = "devices"
 
@@ -96,8 +97,9 @@ def resolve_num_devices(setting: int | str) -> int:
         )
     if setting > available:
         raise ValueError(
-            f"distribution.num_devices={setting} but JAX sees only {available} device(s) ({jax.devices()}); use "
-            f"num_devices<={available} or 'all' (on CPU, XLA_FLAGS=--xla_force_host_platform_device_count=K makes K)."
+            f"distribution.num_devices={setting} but JAX sees only {counted(available, 'device')} ({jax.devices()}); "
+            f"use num_devices<={available} or 'all' (on CPU, XLA_FLAGS=--xla_force_host_platform_device_count=K "
+            "makes K)."
         )
     return setting
 
@@ -123,10 +125,10 @@ def per_device(config: PPOConfig, num_devices: int) -> PPOConfig:
         suggestion = _shareable_minibatch_size(config, num_devices)
         fix = f"use e.g. ppo.minibatch_size={suggestion}" if suggestion else "use more ppo.num_envs"
         raise ValueError(
-            f"ppo.minibatch_size={config.minibatch_size} makes minibatch tiles of n={trajectories} trajectories x "
-            f"m={chunks} chunks (of ppo.num_envs={config.num_envs} trajectories); distribution.num_devices="
-            f"{num_devices} devices each take an equal share of a tile's trajectories, so their count must be a "
-            f"multiple of {num_devices}; {fix}."
+            f"ppo.minibatch_size={config.minibatch_size} makes minibatch tiles of n="
+            f"{counted(trajectories, 'trajectory', 'trajectories')} x m={counted(chunks, 'chunk')} (of ppo.num_envs="
+            f"{config.num_envs} trajectories); distribution.num_devices={num_devices} devices each take an equal "
+            f"share of a tile's trajectories, so their count must be a multiple of {num_devices}; {fix}."
         )
     return config.replace(num_envs=config.num_envs // num_devices, minibatch_size=config.minibatch_size // num_devices)
 

@@ -22,6 +22,7 @@ from angora_jax.envs.mjx_env import require_warp
 from angora_jax.envs.rendering import VISION_PREFIX, SceneRenderer
 from angora_jax.envs.shadow_hand.cube import CUBE_JOINT, load_cube_scene
 from angora_jax.ppo.memory import device_memory
+from angora_jax.registry import counted
 
 DEFAULT_CAMERAS = ("front", "side", "top")
 CUBE_REST = np.array([1.0, 0.875, 0.165])  # m, world frame: where a settled cube lies on the palm (measured)
@@ -55,7 +56,7 @@ class PoseDataset:
         """(train, test): the last `held_out` share of the (independent) samples is the test set."""
         cut = len(self) - max(1, int(round(len(self) * held_out)))
         if cut < 1:
-            raise ValueError(f"{len(self)} samples cannot be split into train and test; render more.")
+            raise ValueError(f"{counted(len(self), 'sample')} cannot be split into train and test; render more.")
         return self._rows(slice(0, cut)), self._rows(slice(cut, None))
 
     def _rows(self, rows: slice) -> PoseDataset:
@@ -138,8 +139,8 @@ def check_pose_renders(samples: int, cameras: tuple[str, ...], width: int, heigh
     images = samples * len(cameras) * width * height * 3
     memory = device_memory(jax.devices("cpu")[0])
     if memory is not None and 2 * images > memory:  # the frames, and the array they are stacked into at the end
-        raise ValueError(f"{samples:,} samples x {len(cameras)} cameras x {width} x {height} pixels take "
-                         f"{images / 1e9:,.1f} GB, twice that while rendering, more than this machine's "
+        raise ValueError(f"{counted(samples, 'sample')} x {counted(len(cameras), 'camera')} x {width} x {height} "
+                         f"pixels take {images / 1e9:,.1f} GB, twice that while rendering, more than this machine's "
                          f"{memory / 1e9:,.0f} GB of memory: render fewer samples (--samples) or smaller frames "
                          "(--size).")
 

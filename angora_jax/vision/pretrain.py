@@ -26,6 +26,7 @@ import optax
 
 from angora_jax.nets.visual import VISUAL_ENCODERS, make_visual_encoder
 from angora_jax.ppo.memory import device_memory
+from angora_jax.registry import counted
 from angora_jax.vision.dataset import PoseDataset
 from angora_jax.vision.estimator import (
     ORIENTATIONS,
@@ -142,5 +143,6 @@ def pretrain_pose_encoder(train: PoseDataset, test: PoseDataset, encoder: str = 
               "orientation_deg_median": float(np.median(orientation_deg)),
               "orientation_deg_p90": float(np.percentile(orientation_deg, 90)),
               "test_samples": len(test), "train_samples": len(train)}
-    schedule = f"{learning_rate:g}, cosine decay to 0 over {steps} steps" if decay else f"{learning_rate:g}, constant"
+    schedule = (f"{learning_rate:g}, cosine decay to 0 over {counted(steps, 'step')}" if decay else
+                f"{learning_rate:g}, constant")
     return PretrainResult(estimator, errors, history, seconds, schedule)
