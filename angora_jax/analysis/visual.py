@@ -116,7 +116,7 @@ def saliency(seer: Seer, images: np.ndarray, unit: int | None = None,
     module, params = visual_area(seer)
     features = module.apply({"params": params}, jnp.zeros((1, *np.shape(images)[1:]), jnp.uint8)).shape[-1]
     if readout is None:
-        unit = unit.item() if isinstance(unit, np.generic) else unit
+        unit = _scalar(unit)
         if not _is_unit(unit, features):
             raise ConfigError(f"unit must be a whole number {_unit_range('output', features)}, got {unit!r}.")
         weights = jax.nn.one_hot(unit, features)
@@ -268,6 +268,13 @@ def _unit_range(layer: str, count: int) -> str:
     return f"from 0 to {count - 1} ({name} has {counted(count, 'unit')})"
 
 
+def _scalar(unit: object) -> object:
+    """A NumPy or JAX scalar (0-d array) as the Python number it holds, e.g. `jnp.argmax(weights)` or an entry of
+    `jnp.arange(4)`, which the unit checks then take or refuse as they do ints, floats and bools; anything else as
+    given."""
+    return unit.item() if hasattr(unit, "dtype") and hasattr(unit, "item") and np.ndim(unit) == 0 else unit
+
+
 def _is_unit(unit: object, count: int) -> bool:
     """Whether `unit` is a unit of a layer of `count` units: a whole number (an int or a numpy integer, not a bool,
     which JAX reads as 0 or 1) from 0 to `count` - 1."""
@@ -283,7 +290,7 @@ def _checked_units(units: object, layer: str, count: int) -> np.ndarray:
         given = [] if isinstance(units, str | bytes | numbers.Number) else list(units)
     except TypeError:  # a 0-d array, an object that is no list
         given = []
-    given = [unit.item() if isinstance(unit, np.generic) else unit for unit in given]
+    given = [_scalar(unit) for unit in given]
     if not given:
         raise ConfigError(f"units must be a list of one or more {span}, e.g. [0, 1]; got {units!r}.")
     for unit in given:
