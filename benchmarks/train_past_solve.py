@@ -36,7 +36,7 @@ import angora_jax as aj
 from angora_jax.cli.errors import os_error_message
 from angora_jax.experiment import ConfigError, RunDirError, TrainingInterrupted, load_config, validate
 from angora_jax.experiment.config import best_metric_choices
-from angora_jax.registry import did_you_mean
+from angora_jax.wording import did_you_mean
 
 CHECKPOINTS = ("best", "latest")
 

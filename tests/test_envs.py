@@ -59,7 +59,7 @@ def rollout(env, batched):
 
 def test_registry_lists_tasks_and_rejects_unknown_names():
     assert {"ShadowHandReach", "ShadowHandFreeReach"} <= set(aj.list_tasks())
-    # The config's did-you-mean (`registry.did_you_mean`): make_env's refusal had only the list.
+    # The config's did-you-mean (`wording.did_you_mean`): make_env's refusal had only the list.
     with pytest.raises(ValueError, match=r"^Unknown task 'ShadowHandRech'\. Did you mean 'ShadowHandReach'\? Known "
                                          r"tasks: .*ShadowHandReach"):
         aj.make_env("ShadowHandRech")

@@ -2,8 +2,9 @@
 envs -> nets -> ppo -> experiment -> vision -> analysis (it looks inside agents and pose estimators) -> the
 package's public API (its `__init__`) -> cli, with angora_jax.registry, angora_jax.whole_files (result files
 written whole or not at all, which networks' component files need too), angora_jax.saved_files (which kind of
-saved file a file is, for messages in every layer) and angora_jax.cpu_threads (XLA's CPU thread pool, sized before
-JAX starts) below all. Where a lower layer needs something
+saved file a file is, for messages in every layer), angora_jax.wording (did-you-mean hints and count words, for
+messages in every layer, below registry too, whose refusals use it) and angora_jax.cpu_threads (XLA's CPU thread
+pool, sized before JAX starts) below all. Where a lower layer needs something
 of a higher one (reading a saved run's policy for `init_from`, reading a pose estimator file for the cube), the higher
 one registers it with the lower (`nets.components.register_run_reader`,
 `envs.shadow_hand.register_pose_estimator_reader`). Inside a layer, no modules import each other in a circle (what two
@@ -20,8 +21,8 @@ import pytest
 import angora_jax
 
 # "api": the package itself (`import angora_jax as aj`), the public API its __init__ gathers.
-LAYERS = {"registry": 0, "whole_files": 0, "saved_files": 0, "opengl_backend": 0, "cpu_threads": 0, "envs": 1,
-          "nets": 2, "ppo": 3, "experiment": 4, "vision": 5, "analysis": 6, "api": 7, "cli": 8}
+LAYERS = {"wording": -1, "registry": 0, "whole_files": 0, "saved_files": 0, "opengl_backend": 0, "cpu_threads": 0,
+          "envs": 1, "nets": 2, "ppo": 3, "experiment": 4, "vision": 5, "analysis": 6, "api": 7, "cli": 8}
 PACKAGE = Path(angora_jax.__file__).parent
 
 

@@ -615,7 +615,7 @@ def test_the_words_that_count_agree_with_their_count(tmp_path, capsys):
     """A run of one cycle was "config: CartPole, simple network, 1 cycles", "metrics.jsonl: 1 cycles logged, 1 to 1"
     with "lines 2 hold no cycle's record" in `check`, resume refused it as having "logged 1 cycles", the training
     curve's reader warned that "line(s) 2 are not records", and doctor counted "1 problem(s): fix them". Each word now
-    agrees with its count (`registry.counted`, `agreeing`): 1 cycle, 2 cycles."""
+    agrees with its count (`wording.counted`, `agreeing`): 1 cycle, 2 cycles."""
     run = tmp_path / "one"
     run.mkdir()
     write_run_config(run, aj.load_config("cartpole", ["ppo.num_cycles=1"]))

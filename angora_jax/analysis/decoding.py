@@ -33,7 +33,7 @@ from sklearn.preprocessing import StandardScaler
 
 from angora_jax.analysis.parallel import map_in_threads
 from angora_jax.experiment.config import ConfigError, check_count, check_seed
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 # Ridge penalties per training sample: a fit on n samples is penalised n times this, so that the penalty chosen on
 # the inner folds' smaller training sets means the same on the whole training fold.

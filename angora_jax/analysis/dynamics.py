@@ -30,7 +30,7 @@ from angora_jax.nets.activations import ACTIVATION_RANGES, ACTIVATIONS
 from angora_jax.nets.area_graph import AreaGraph, feedback_inputs
 from angora_jax.nets.components import component
 from angora_jax.nets.models import cell_output, recurrent_cell
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 
 def principal_components(dataset: xr.Dataset, layers: Sequence[str] | None = None,

@@ -26,7 +26,7 @@ from sklearn.decomposition import PCA
 from sklearn.metrics import r2_score
 
 from angora_jax.analysis.decoding import require
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 # Runge-Kutta steps a policy step when a continuous-time model is run (`simulate`).
 SUBSTEPS = 4

@@ -27,7 +27,7 @@ from angora_jax.analysis.recording import episode_outcomes
 from angora_jax.envs.core import Env, Sensation, State
 from angora_jax.experiment.agent import Agent, check_agent
 from angora_jax.experiment.config import check_count, check_number, check_seed
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 # The kernels inside flax's recurrent cells, by their names: SimpleCell's input and hidden kernels, the GRU's and
 # OptimizedLSTMCell's gate pre-activations. They are parts of one step of the cell rather than layers (recordings

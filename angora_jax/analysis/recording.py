@@ -51,8 +51,8 @@ from angora_jax.experiment.agent import Agent, check_agent, load_agent
 from angora_jax.experiment.config import check_count, check_seed, override_strings
 from angora_jax.nets import ActorCritic
 from angora_jax.ppo.evaluate import make_evaluate
-from angora_jax.registry import counted
 from angora_jax.whole_files import written_whole
+from angora_jax.wording import counted
 
 # Policy steps compiled as one program when recording until the episodes end: a recording stops at most this many
 # steps after its longest episode ended (a cube episode lasts 100-5,000 steps).

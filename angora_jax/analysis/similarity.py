@@ -18,7 +18,7 @@ from rsatoolbox.data import Dataset
 from rsatoolbox.rdm import RDMs, calc_rdm, compare
 
 from angora_jax.analysis.decoding import as_names, chosen_layers, recorded_layers, require
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 
 def condition_labels(dataset: xr.Dataset, variable: str, bins: int = 8, feature: int | None = None) -> np.ndarray:

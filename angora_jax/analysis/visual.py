@@ -33,8 +33,8 @@ import xarray as xr
 from angora_jax.experiment.agent import Agent, check_agent
 from angora_jax.experiment.config import ConfigError, check_count, check_number, check_seed
 from angora_jax.nets.visual import make_visual_area, make_visual_encoder
-from angora_jax.registry import counted
 from angora_jax.vision.estimator import PoseEstimator
+from angora_jax.wording import counted
 
 # What these analyses look inside: an agent with a visual area, or a pose estimator (its encoder).
 Seer = Agent | PoseEstimator

@@ -21,8 +21,8 @@ from angora_jax.cli.arguments import (
 )
 from angora_jax.experiment import Agent, load_agent
 from angora_jax.experiment.run_dir import CONFIG_FILE, numbered_paths, read_run_config
-from angora_jax.registry import agreeing, counted
 from angora_jax.whole_files import written_whole
+from angora_jax.wording import agreeing, counted
 
 
 def add_analyze(commands: argparse._SubParsersAction) -> None:

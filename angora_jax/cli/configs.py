@@ -21,7 +21,7 @@ from angora_jax.experiment.config_reference import reference_markdown
 from angora_jax.experiment.sources import check_sources
 from angora_jax.nets import list_networks
 from angora_jax.ppo import list_heads
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 
 def add_config(commands: argparse._SubParsersAction) -> None:

@@ -21,7 +21,7 @@ from angora_jax.cli.arguments import (
 from angora_jax.envs.rendering import CAMERAS, RenderError
 from angora_jax.experiment import ConfigError, RunDirError, evaluation, snapshot_cycles
 from angora_jax.experiment.agent import read_checkpoint
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 
 def add_evaluate(commands: argparse._SubParsersAction) -> None:

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, port, update_interval
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 
 def add_report(commands: argparse._SubParsersAction) -> None:

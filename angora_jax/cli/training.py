@@ -20,7 +20,7 @@ from angora_jax.experiment.distributed import initialize, is_main_process
 from angora_jax.experiment.run_check import check_run, restore_config
 from angora_jax.experiment.run_dir import read_run_config
 from angora_jax.experiment.runner import signals_exit_while_preparing
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 
 def add_train(commands: argparse._SubParsersAction) -> None:

@@ -11,9 +11,9 @@ import jax
 
 from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, positive_int, refused_existing, seed
 from angora_jax.envs.rendering import CAMERAS, RenderError
-from angora_jax.registry import counted
 from angora_jax.vision.estimator import ORIENTATIONS
 from angora_jax.whole_files import unwritable_folder, written_whole
+from angora_jax.wording import counted
 
 
 def add_pretrain_vision(commands: argparse._SubParsersAction) -> None:

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from angora_jax.envs.core import ActionSpec, Env, Sensation, State, episode_limit
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 PREFIX = "gym:"
 

@@ -36,7 +36,8 @@ from angora_jax.ppo.cycle import build_head, build_model
 from angora_jax.ppo.distributions import PolicyHead
 from angora_jax.ppo.evaluate import PolicyState, make_evaluate
 from angora_jax.ppo.normalization import normalize_observation
-from angora_jax.registry import counted, generation
+from angora_jax.registry import generation
+from angora_jax.wording import counted
 
 
 @dataclass(frozen=True)

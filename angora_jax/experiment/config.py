@@ -49,8 +49,8 @@ from angora_jax.ppo.config import (
 )
 from angora_jax.ppo.memory import estimate_memory
 from angora_jax.ppo.parallel import per_device, resolve_num_devices
-from angora_jax.registry import did_you_mean
 from angora_jax.registry.plugins import ModuleNameError, defined_in_a_notebook, import_modules
+from angora_jax.wording import did_you_mean
 
 # Named configs (`load_config("cartpole")`) ship inside the package (the repository's configs/ links here), so a
 # name is found from any working directory and in an installed wheel.

@@ -4,7 +4,7 @@ override to use instead."""
 from __future__ import annotations
 
 from angora_jax.experiment.config import Config
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 # Env steps per second of MJX's JAX implementation on 2 CPU cores (batch 16, the tasks' own physics settings;
 # benchmarks/results/physics_throughput/physics_throughput_cpu.json, configs "reach-tuned" and "cube-tuned"). More

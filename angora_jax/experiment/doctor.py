@@ -22,7 +22,7 @@ import jax
 from angora_jax.envs.mjx_env import WARP_REQUIREMENT, choose_impl, on_gpu
 from angora_jax.opengl_backend import GL_HINT
 from angora_jax.ppo.memory import GIB, device_memory
-from angora_jax.registry import agreeing, counted
+from angora_jax.wording import agreeing, counted
 
 # myo-sim (optional) holds the MyoHand's muscles and tendons: a run of a MyoHand task depends on its version.
 PACKAGES = ("jax", "jaxlib", "jax-cuda13-plugin", "jax-cuda12-plugin", "mujoco", "mujoco-mjx", "warp-lang", "flax",

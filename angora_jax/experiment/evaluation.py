@@ -29,8 +29,8 @@ from angora_jax.experiment.config import ConfigError, check_count, check_seed, o
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
 from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths
 from angora_jax.ppo.evaluate import make_evaluate
-from angora_jax.registry import counted
 from angora_jax.whole_files import unwritable_folder, written_whole
+from angora_jax.wording import counted
 
 # Episodes run at once by default: enough to spread the fixed cost of each step's JAX calls, few enough that a small
 # evaluation still fills the batch.

@@ -38,8 +38,8 @@ from angora_jax.ppo.config import StopAt
 from angora_jax.ppo.cycle import TrainState
 from angora_jax.ppo.episode_pool import Pool
 from angora_jax.ppo.parallel import host_copy
-from angora_jax.registry import agreeing
 from angora_jax.whole_files import written_whole
+from angora_jax.wording import agreeing
 
 
 def normalizer_summary(state: TrainState) -> dict[str, float]:

@@ -32,8 +32,8 @@ from angora_jax.experiment.run_dir import (  # noqa: E402
     not_a_run_dir,
     read_sessions,
 )
-from angora_jax.registry import counted
 from angora_jax.whole_files import written_whole  # noqa: E402
+from angora_jax.wording import counted
 
 # Curves drawn when at least one run has them, in this order; task metrics (metric/*) follow the return.
 CURVES = (

@@ -26,7 +26,7 @@ from angora_jax.experiment.run_dir import (
     RunDirError,
     numbered_paths,
 )
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 # What a fresh start moves aside (into RUN_DIR/previous-N/): everything the earlier training wrote but its config and
 # the session log, which goes on, and what was made from its checkpoints (evaluations, `analyze ablate`'s default

@@ -36,8 +36,8 @@ from angora_jax.experiment.run_dir import (
     write_run_config,
 )
 from angora_jax.experiment.run_lock import RunLock
-from angora_jax.registry import agreeing, counted
 from angora_jax.registry.plugins import UserCodeError
+from angora_jax.wording import agreeing, counted
 
 # The settings that make a run what it is: the task and the learning. The others (logging, checkpoint, distribution,
 # evaluation, imports) may change between sessions; so may the two that `resume` itself records (--num-cycles,

@@ -26,8 +26,8 @@ from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.config import check_count, check_seed
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
 from angora_jax.ppo.memory import device_memory
-from angora_jax.registry import counted
 from angora_jax.whole_files import unwritable_folder, written_whole
+from angora_jax.wording import counted
 
 # The files `write_video` writes, by suffix: MP4 through imageio-ffmpeg, GIF through Pillow. Any other suffix (or none)
 # made imageio pick a still-image writer (TIFF for none, PNG for .png) after every frame had been rendered: a traceback,

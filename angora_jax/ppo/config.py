@@ -18,7 +18,7 @@ from angora_jax.nets.models import POLICY_MODALITIES, RECURRENT_CELLS
 from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.distributions import list_heads
 from angora_jax.ppo.episode_pool import Pool, compared_value
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 # Counts (cycles, environments, steps, units) become int32 in JAX's arrays and loops (x64 is off), so they must fit.
 INT32_MAX = 2**31 - 1

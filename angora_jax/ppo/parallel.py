@@ -74,7 +74,7 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from angora_jax.ppo.config import PPOConfig, tile_shape
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 AXIS = "devices"
 

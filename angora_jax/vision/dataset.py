@@ -22,7 +22,7 @@ from angora_jax.envs.mjx_env import require_warp
 from angora_jax.envs.rendering import VISION_PREFIX, SceneRenderer
 from angora_jax.envs.shadow_hand.cube import CUBE_JOINT, load_cube_scene
 from angora_jax.ppo.memory import device_memory
-from angora_jax.registry import counted
+from angora_jax.wording import counted
 
 DEFAULT_CAMERAS = ("front", "side", "top")
 CUBE_REST = np.array([1.0, 0.875, 0.165])  # m, world frame: where a settled cube lies on the palm (measured)

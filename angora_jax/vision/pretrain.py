@@ -26,7 +26,6 @@ import optax
 
 from angora_jax.nets.visual import VISUAL_ENCODERS, make_visual_encoder
 from angora_jax.ppo.memory import device_memory
-from angora_jax.registry import counted
 from angora_jax.vision.dataset import PoseDataset
 from angora_jax.vision.estimator import (
     ORIENTATIONS,
@@ -35,6 +34,7 @@ from angora_jax.vision.estimator import (
     orientation_error_degrees,
     rotation_matrices,
 )
+from angora_jax.wording import counted
 
 
 @dataclass
