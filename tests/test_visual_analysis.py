@@ -11,6 +11,7 @@ import pytest
 import xarray as xr
 
 import angora_jax as aj
+from angora_jax.analysis import units as unit_checks
 from angora_jax.analysis import visual
 from angora_jax.experiment import ConfigError
 from angora_jax.nets.visual import make_visual_encoder
@@ -169,9 +170,9 @@ def test_a_saliency_unit_that_is_no_unit_of_the_output_and_an_unknown_layer_are_
     for unit in (np.int64(2), jnp.argmax(jnp.arange(3))):
         with pytest.raises(AssertionError, match="a gradient was computed"):
             visual.saliency(agent, images, unit=unit)
-    np.testing.assert_array_equal(visual._checked_units(jnp.arange(2), "V1", 4), [0, 1])
+    np.testing.assert_array_equal(unit_checks.checked_units(jnp.arange(2), "V1", 4), [0, 1])
     with pytest.raises(ConfigError, match=r"got 0.0 in \[0.0, 1.0\]"):
-        visual._checked_units(jnp.arange(2.0), "V1", 4)
+        unit_checks.checked_units(jnp.arange(2.0), "V1", 4)
     unknown = "No convolution 'V3' in the visual area; choose one of ['V1', 'V2', 'V4', 'IT'] or 'output'."
     for call in (lambda: visual.preferred_stimuli(agent, "V3", [0], steps=1),
                  lambda: visual.visual_analysis(agent, images, units=1, steps=1, layers=["V3"])):

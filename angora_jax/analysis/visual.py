@@ -19,7 +19,6 @@ fingers? `saliency_share` measures it against a cube mask (`angora_jax.vision.cu
 
 from __future__ import annotations
 
-import numbers
 from typing import Any, Literal
 
 import flax.linen as nn
@@ -30,6 +29,7 @@ import optax
 import scipy.ndimage
 import xarray as xr
 
+from angora_jax.analysis.units import as_scalar, checked_units, is_unit, unit_range
 from angora_jax.experiment.agent import Agent, check_agent
 from angora_jax.experiment.config import ConfigError, check_count, check_number, check_seed
 from angora_jax.nets.visual import make_visual_area, make_visual_encoder
@@ -116,9 +116,9 @@ def saliency(seer: Seer, images: np.ndarray, unit: int | None = None,
     module, params = visual_area(seer)
     features = module.apply({"params": params}, jnp.zeros((1, *np.shape(images)[1:]), jnp.uint8)).shape[-1]
     if readout is None:
-        unit = _scalar(unit)
-        if not _is_unit(unit, features):
-            raise ConfigError(f"unit must be a whole number {_unit_range('output', features)}, got {unit!r}.")
+        unit = as_scalar(unit)
+        if not is_unit(unit, features):
+            raise ConfigError(f"unit must be a whole number {unit_range('output', features)}, got {unit!r}.")
         weights = jax.nn.one_hot(unit, features)
     else:
         try:
@@ -228,7 +228,7 @@ def preferred_stimuli(seer: Seer, layer: str, units: list[int] | np.ndarray, siz
                                      mutable=["intermediates"])
         return out[0] if layer == "output" else captured["intermediates"][layer]["__call__"][0][0].mean(axis=(0, 1))
 
-    units = _checked_units(units, layer, jax.eval_shape(activations, jnp.zeros((height, width, 3))).shape[-1])
+    units = checked_units(units, layer, jax.eval_shape(activations, jnp.zeros((height, width, 3))).shape[-1])
     optimizer = optax.adam(learning_rate)
     kernel = jnp.full((3, 3), 1.0 / 9.0)
     smooth = jax.vmap(lambda c: jax.scipy.signal.convolve2d(c, kernel, mode="same"), in_axes=2, out_axes=2)
@@ -259,44 +259,6 @@ def _check_layer(layer: object, convolutions: list[str]) -> None:
     every analysis that takes a layer."""
     if layer != "output" and layer not in convolutions:
         raise ConfigError(f"No convolution {layer!r} in the visual area; choose one of {convolutions} or 'output'.")
-
-
-def _unit_range(layer: str, count: int) -> str:
-    """"from 0 to 3 (V1 has 4 units)": the units of `layer` ("output": the visual area's output, its features), in
-    the words of every message that refuses a unit."""
-    name = "the output" if layer == "output" else layer
-    return f"from 0 to {count - 1} ({name} has {counted(count, 'unit')})"
-
-
-def _scalar(unit: object) -> object:
-    """A NumPy or JAX scalar (0-d array) as the Python number it holds, e.g. `jnp.argmax(weights)` or an entry of
-    `jnp.arange(4)`, which the unit checks then take or refuse as they do ints, floats and bools; anything else as
-    given."""
-    return unit.item() if hasattr(unit, "dtype") and hasattr(unit, "item") and np.ndim(unit) == 0 else unit
-
-
-def _is_unit(unit: object, count: int) -> bool:
-    """Whether `unit` is a unit of a layer of `count` units: a whole number (an int or a numpy integer, not a bool,
-    which JAX reads as 0 or 1) from 0 to `count` - 1."""
-    return not isinstance(unit, bool) and isinstance(unit, numbers.Integral) and 0 <= unit < count
-
-
-def _checked_units(units: object, layer: str, count: int) -> np.ndarray:
-    """`preferred_stimuli`'s `units` as an int array; ConfigError unless they are one or more whole numbers from 0 to
-    `count` - 1: [1.5] was cut to unit 1 and [True] read as unit 0 without a word. A unit named twice is optimised from
-    two starts (each entry has its own key), a way to see whether its preferred stimulus depends on the start."""
-    span = f"whole numbers {_unit_range(layer, count)}"
-    try:
-        given = [] if isinstance(units, str | bytes | numbers.Number) else list(units)
-    except TypeError:  # a 0-d array, an object that is no list
-        given = []
-    given = [_scalar(unit) for unit in given]
-    if not given:
-        raise ConfigError(f"units must be a list of one or more {span}, e.g. [0, 1]; got {units!r}.")
-    for unit in given:
-        if not _is_unit(unit, count):
-            raise ConfigError(f"units must be {span}; got {unit!r} in {given}.")
-    return np.asarray(given, int)
 
 
 def _unit_counts(seer: Seer, layers: list[str], size: tuple[int, int]) -> dict[str, int]:
