@@ -718,6 +718,34 @@ def test_a_lesion_fraction_or_seed_out_of_range_is_refused_by_name():
     assert dense_layers(with_random_weights(agent, seed=np.int64(1))) == dense_layers(agent)
 
 
+def test_lesion_units_that_are_no_units_of_the_layer_are_refused_by_name():
+    """Notebook trial: lesion cast its units with np.asarray(units, int): [1.5] silenced unit 1 and [True] unit 0
+    without a word, and "0" failed inside NumPy; its range, unknown-layer and recurrent-cell refusals were plain
+    ValueErrors. Units are checked as preferred_stimuli checks them (ConfigError naming units, the value and the
+    range); an empty set still leaves the agent as it was, and NumPy and JAX integers are units."""
+    from angora_jax.analysis import lesion
+
+    agent = graph_agent({"S1": {"size": 4, "inputs": ("proprioception",)},
+                         "PMC": {"size": 5, "inputs": ("S1",), "cell": "rnn"}})
+    span = r"whole numbers from 0 to 3 \(network.S1 has 4 units\)"
+    for bad, said in (([1.5], rf"units must be {span}; got 1.5 in \[1.5\]"),
+                      ([True], rf"units must be {span}; got True in \[True\]"),
+                      ([4], rf"units must be {span}; got 4 in \[4\]"),
+                      ([-1], rf"units must be {span}; got -1 in \[-1\]"),
+                      (np.array([0.0, 1.0]), rf"units must be {span}; got 0.0 in \[0.0, 1.0\]"),
+                      ("0", rf"units must be a list of {span}, e.g. \[0, 1\]; got '0'"),
+                      (2, rf"units must be a list of {span}, e.g. \[0, 1\]; got 2")):
+        with pytest.raises(ConfigError, match=f"^{said}"):
+            lesion(agent, "network.S1", bad)
+    for layer in ("cortex", "network.PMC"):
+        with pytest.raises(ConfigError):
+            lesion(agent, layer, [0])
+    assert lesion(agent, "network.S1", []) is agent and lesion(agent, "network.S1", np.arange(0)) is agent
+    silenced = lesion(agent, "network.S1", [np.int64(1), jnp.int32(2)])
+    assert (np.asarray(silenced.params["network"]["S1"]["kernel"]) == 0).all(axis=0).tolist() == [False, True, True,
+                                                                                                  False]
+
+
 def test_fixed_point_starts_iterations_or_seed_out_of_range_are_refused_by_name():
     """Notebook trial: agent_fixed_points(starts=0) failed with "need at least one array to stack", starts=2.5 inside
     NumPy, iterations=1.5 in jax's fori_loop ("must have equal types") and seed=1.5 in NumPy; iterations=-1 searched

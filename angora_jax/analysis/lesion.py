@@ -24,9 +24,10 @@ import numpy as np
 import xarray as xr
 
 from angora_jax.analysis.recording import episode_outcomes
+from angora_jax.analysis.units import checked_units
 from angora_jax.envs.core import Env, Sensation, State
 from angora_jax.experiment.agent import Agent, check_agent
-from angora_jax.experiment.config import check_count, check_number, check_seed
+from angora_jax.experiment.config import ConfigError, check_count, check_number, check_seed
 from angora_jax.wording import counted
 
 # The kernels inside flax's recurrent cells, by their names: SimpleCell's input and hidden kernels, the GRU's and
@@ -61,20 +62,19 @@ def dense_layers(agent: Agent) -> dict[str, int]:
 
 
 def lesion(agent: Agent, layer: str, units: Sequence[int] | np.ndarray) -> Agent:
-    """`agent` with `units` (indices) of dense layer `layer` silenced; ValueError naming the layers when unknown."""
+    """`agent` with `units` (indices, whole numbers from 0 to the layer's count - 1; empty: the agent unchanged) of
+    dense layer `layer` silenced; ConfigError naming the layers when `layer` is unknown or a recurrent cell, and
+    naming units, the value and the range for a unit that is none of the layer's (1.5, True, -1)."""
     layers = dense_layers(agent)
     if layer in recurrent_cells(agent):
         feeding = [name for name in layers if name == f"{layer}_in"]
         instead = f"its input layer ({feeding[0]})" if feeding else "the layers feeding it"
-        raise ValueError(f"{layer!r} is a recurrent cell: its units feed back through gates, so there is no dense "
-                         f"output to silence. Lesion {instead} or the areas it feeds instead; the agent's dense "
-                         f"layers: {sorted(layers)}.")
+        raise ConfigError(f"{layer!r} is a recurrent cell: its units feed back through gates, so there is no dense "
+                          f"output to silence. Lesion {instead} or the areas it feeds instead; the agent's dense "
+                          f"layers: {sorted(layers)}.")
     if layer not in layers:
-        raise ValueError(f"No dense layer {layer!r} to lesion; the agent's dense layers: {sorted(layers)}.")
-    units = np.asarray(units, int)
-    if units.size and (units.min() < 0 or units.max() >= layers[layer]):
-        raise ValueError(f"Units {units.tolist()} out of range for {layer!r}, which has "
-                         f"{counted(layers[layer], 'unit')}.")
+        raise ConfigError(f"No dense layer {layer!r} to lesion; the agent's dense layers: {sorted(layers)}.")
+    units = checked_units(units, layer, layers[layer], empty=True)
     if not units.size:
         return agent
 
