@@ -113,13 +113,32 @@ def test_a_feature_is_required_of_a_vector_variable_in_range_and_refused_of_a_sc
     for variable, feature, message in (("metric_x", 0, "metric_x is one number per step, with no features: drop "
                                                         "feature=0"),
                                        ("activity_code", None, "activity_code has 6 features; choose one"),
-                                       ("activity_code", 6, "feature=6 .* is not a feature of activity_code: it has "
-                                                            "6, 0 to 5"),
+                                       ("activity_code", 6, "feature=6 .* is not a feature of activity_code: give a "
+                                                            r"whole number from 0 to 5 \(activity_code has 6 "
+                                                            "features"),
                                        ("activity_code", -1, "feature=-1 .* is not a feature")):
         with pytest.raises(ValueError, match=message):
             similarity(data, variable, layers=["code"], bins=4, feature=feature)
     with pytest.raises(ValueError, match="drop feature=2"):
         tuning_curves(data, "code", "metric_x", bins=4, feature=2)
+
+
+def test_a_feature_that_is_no_whole_number_is_refused_by_name_with_the_range():
+    """Notebook trial: feature=1.5 passed the range check (0 <= 1.5 < 6) and failed at NumPy's indexing ("only
+    integers, slices ... are valid indices"), and feature=True indexed with a bool; feature errors were plain
+    ValueErrors. They are ConfigErrors naming feature, the value and the range; NumPy and JAX integers are features."""
+    data = synthetic()
+    range_said = r"give a whole number from 0 to 5 \(activity_code has 6 features\)"
+    for feature in (1.5, True, "1", 6, -1, np.float64(2.0)):
+        said = rf"^feature={re.escape(repr(feature))} \(--feature\) is not a feature of activity_code: {range_said}"
+        with pytest.raises(ConfigError, match=said):
+            similarity(data, "activity_code", layers=["code"], bins=4, feature=feature)
+    for call in (lambda: similarity(data, "activity_code", layers=["code"], bins=4),
+                 lambda: similarity(data, "metric_x", layers=["code"], bins=4, feature=0)):
+        with pytest.raises(ConfigError):
+            call()
+    for feature in (np.int64(1), jnp.int32(1)):
+        assert type(tuning_curves(data, "code", "activity_code", bins=4, feature=feature).attrs["feature"]) is int
 
 
 def test_condition_bins_split_only_the_alive_steps_into_equal_parts():

@@ -18,27 +18,30 @@ from rsatoolbox.data import Dataset
 from rsatoolbox.rdm import RDMs, calc_rdm, compare
 
 from angora_jax.analysis.decoding import as_names, chosen_layers, recorded_layers, require
+from angora_jax.analysis.units import as_scalar, is_unit
+from angora_jax.experiment.config import ConfigError
 from angora_jax.wording import counted
 
 
 def condition_labels(dataset: xr.Dataset, variable: str, bins: int = 8, feature: int | None = None) -> np.ndarray:
     """Condition of every step `(episode, time)`: the quantile bin of `variable` (its `feature`-th component for a
-    vector variable), numbered 0..k-1 with k <= bins (ties in the quantiles merge bins), -1 where the episode is not
-    alive."""
+    vector variable: a whole number from 0 to its features - 1, ConfigError otherwise), numbered 0..k-1 with k <= bins
+    (ties in the quantiles merge bins), -1 where the episode is not alive."""
     if variable not in dataset.data_vars:
         raise ValueError(f"No variable {variable!r} in the recording; it has {sorted(dataset.data_vars)}.")
     values = np.asarray(dataset[variable].values, np.float64)
     if values.ndim == 3:
         count = values.shape[-1]
         if feature is None:
-            raise ValueError(f"{variable} has {counted(count, 'feature')}; choose one with feature=<index> "
-                             "(--feature).")
-        if not 0 <= feature < count:
-            raise ValueError(f"feature={feature} (--feature) is not a feature of {variable}: it has {count}, 0 to "
-                             f"{count - 1}.")
-        values = values[..., feature]
+            raise ConfigError(f"{variable} has {counted(count, 'feature')}; choose one with feature=<index> "
+                              "(--feature).")
+        if not is_unit(as_scalar(feature), count):
+            raise ConfigError(f"feature={feature!r} (--feature) is not a feature of {variable}: give a whole number "
+                              f"from 0 to {count - 1} ({variable} has {counted(count, 'feature')}).")
+        values = values[..., as_scalar(feature)]
     elif feature is not None:
-        raise ValueError(f"{variable} is one number per step, with no features: drop feature={feature} (--feature).")
+        raise ConfigError(f"{variable} is one number per step, with no features: drop feature={feature!r} "
+                          "(--feature).")
     alive = dataset["alive"].values > 0
     labels = np.digitize(values, np.quantile(values[alive], np.linspace(0, 1, bins + 1)[1:-1]))
     compact = np.full(labels.shape, -1)

@@ -9,6 +9,7 @@ import xarray as xr
 
 from angora_jax.analysis.decoding import require
 from angora_jax.analysis.similarity import condition_labels
+from angora_jax.analysis.units import as_scalar
 
 
 def tuning_curves(dataset: xr.Dataset, layer: str, variable: str, bins: int = 10,
@@ -18,6 +19,7 @@ def tuning_curves(dataset: xr.Dataset, layer: str, variable: str, bins: int = 10
     `strength` (unit): eta squared, 0 (untuned) to 1 (the bin explains all of the unit's variance)."""
     require(dataset, [layer])
     labels = condition_labels(dataset, variable, bins, feature)
+    feature = None if feature is None else int(as_scalar(feature))  # checked: a NumPy or JAX integer as an int
     alive = labels >= 0
     activity = np.asarray(dataset[f"activity_{layer}"].values, np.float64)[alive]
     values = np.asarray(dataset[variable].values, np.float64)
