@@ -11,6 +11,7 @@ from scipy.linalg import expm
 from test_docs import marked_blocks
 
 from angora_jax.analysis import fit_sindy, sindy
+from angora_jax.experiment import ConfigError
 
 # h[k+1] = A h[k]: a decaying rotation in (x, y) that drives z, which decays on its own.
 LINEAR_RNN = np.array([[0.9, -0.2, 0.0],
@@ -128,8 +129,32 @@ def test_bad_input_names_the_cause_and_the_fix():
         sindy(data.isel(episode=slice(0, 1)), "rnn", horizon=5)
     with pytest.raises(ValueError, match="transitions for 56 library terms.*fewer --components"):
         sindy(data, "rnn", components=5, degree=3, horizon=5)
-    with pytest.raises(ValueError, match="give --horizon from 1 to 9"):
+    with pytest.raises(ValueError, match=r"horizon must be a whole number from 1 to 9 \(--horizon; the recording "
+                                         r"has 10 time steps\), got 10"):
         sindy(data, "rnn", horizon=10)
+
+
+def test_sindy_options_out_of_range_are_config_errors_naming_them():
+    """Notebook trial: sindy(horizon=2.5) failed inside NumPy ("'float' object cannot be interpreted as an integer"),
+    components or degree of 1.5 in scikit-learn or math.comb, seed=1.5 in NumPy, held_out="0.3" comparing text with a
+    number; the range, components and transitions refusals were plain ValueErrors, which the command still printed but
+    a notebook could not tell from a bug. All are ConfigErrors naming the argument, the value and the range."""
+    data = recording(linear_trajectories(LINEAR_RNN, episodes=4, steps=10), units=5)
+    for options, said in (({"horizon": 2.5}, r"^horizon must be a whole number of at least 1, got 2\.5\.$"),
+                          ({"horizon": True}, r"^horizon must be a whole number of at least 1, got True\.$"),
+                          ({"horizon": 0}, r"^horizon must be a whole number of at least 1, got 0\.$"),
+                          ({"horizon": 10}, r"^horizon must be a whole number from 1 to 9 \(--horizon; the "
+                                            r"recording has 10 time steps\), got 10\.$"),
+                          ({"components": 1.5}, r"^components must be a whole number of at least 1, got 1\.5\.$"),
+                          ({"components": 6}, r"^6 components of 'rnn', which has 5 units: ask for at most 5"),
+                          ({"degree": 1.5}, r"^degree must be a whole number of at least 1, got 1\.5\.$"),
+                          ({"threshold": -0.1}, r"^threshold must be a number of at least 0, got -0\.1\.$"),
+                          ({"seed": 1.5}, r"^seed must be a whole number from 0 to 4,294,967,295, got 1\.5\.$"),
+                          ({"held_out": "0.3"}, r"^held_out must be a number above 0 and below 1 .*, got '0\.3'\.$"),
+                          ({"held_out": 1}, r"^held_out must be a number above 0 and below 1 .*, got 1\.$"),
+                          ({"components": 5, "degree": 3}, r"^The train episodes give \d+ transitions for 56 library")):
+        with pytest.raises(ConfigError, match=said):
+            sindy(data, "rnn", **{"horizon": 5, **options})
 
 
 def test_the_probing_page_example_runs_and_finds_its_equations(tmp_path, monkeypatch, capsys):

@@ -17,6 +17,7 @@ step for `horizon` steps, each against the naive prediction that the state stays
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Sequence
 
 import numpy as np
@@ -26,6 +27,8 @@ from sklearn.decomposition import PCA
 from sklearn.metrics import r2_score
 
 from angora_jax.analysis.decoding import require
+from angora_jax.experiment.config import ConfigError, check_count, check_number, check_seed
+from angora_jax.ppo.config import quote_number
 from angora_jax.wording import counted
 
 # Runge-Kutta steps a policy step when a continuous-time model is run (`simulate`).
@@ -115,17 +118,20 @@ def sindy(dataset: xr.Dataset, layer: str, components: int = 3, inputs: str | No
     inputs, time, degree, threshold, scale (PC1's standard deviation, in the layer's units) and the episodes used.
     """
     require(dataset, [layer, *([inputs] if inputs else [])])
+    components, degree = check_count("components", components), check_count("degree", degree)
+    horizon, threshold = check_count("horizon", horizon), check_number("threshold", threshold, 0.0)
+    seed = check_seed("seed", seed)
+    if isinstance(held_out, bool) or not isinstance(held_out, numbers.Real) or not 0 < held_out < 1:
+        raise ConfigError(f"held_out must be a number above 0 and below 1 (the fraction of the episodes held out, "
+                          f"--held-out), got {quote_number(held_out)}.")
     values = np.asarray(dataset[f"activity_{layer}"].values, np.float64)
     episodes, steps, _ = values.shape
     if steps < 3:
         raise ValueError(f"The recording has {steps} time steps; the dynamics need at least 3 (derivatives and "
                          f"transitions within an episode): record longer episodes (angora-jax record --steps).")
-    if not 0 < horizon < steps:
-        raise ValueError(f"A horizon of {horizon} steps in a recording of {steps}: give --horizon from 1 to "
-                         f"{steps - 1}.")
-    if not 0 < held_out < 1:
-        raise ValueError(f"held_out is the fraction of the episodes held out, between 0 and 1 (--held-out), got "
-                         f"{held_out}.")
+    if horizon >= steps:
+        raise ConfigError(f"horizon must be a whole number from 1 to {steps - 1} (--horizon; the recording has "
+                          f"{counted(steps, 'time step')}), got {horizon}.")
     if episodes < 2:
         raise ValueError(f"The recording has {episodes} episode; SINDy needs one to fit and one held out: record "
                          f"more (angora-jax record --episodes).")
@@ -154,9 +160,9 @@ def sindy(dataset: xr.Dataset, layer: str, components: int = 3, inputs: str | No
     terms = math.comb(variables + degree, degree)  # monomials of the variables up to `degree`, with the constant
     transitions = sum(len(states[e]) - 1 for e in train)
     if transitions < terms:
-        raise ValueError(f"The train episodes give {counted(transitions, 'transition')} for {terms} library terms: "
-                         f"record more episodes or steps (angora-jax record --episodes/--steps), or use fewer "
-                         f"--components or a lower --degree.")
+        raise ConfigError(f"The train episodes give {counted(transitions, 'transition')} for {terms} library terms: "
+                          f"record more episodes or steps (angora-jax record --episodes/--steps), or use fewer "
+                          f"--components or a lower --degree.")
     dt = float(dataset.attrs.get("policy_step_s", 1.0))
     model = fit_sindy([states[e] for e in train], dt, names, discrete, degree, threshold,
                       None if controls is None else [controls[e] for e in train], input_names)
@@ -206,8 +212,8 @@ def _components(values: np.ndarray, lengths: np.ndarray, train: Sequence[int], c
     (length, components)}), the variance ratios and that standard deviation."""
     units = values.shape[-1]
     if components > units:
-        raise ValueError(f"{components} components of {layer!r}, which has {counted(units, 'unit')}: ask for at "
-                         f"most {units} (--components).")
+        raise ConfigError(f"{components} components of {layer!r}, which has {counted(units, 'unit')}: ask for at "
+                          f"most {units} (--components).")
     pca = PCA(components).fit(np.concatenate([values[e, :lengths[e]] for e in train]))
     scale = float(np.sqrt(pca.explained_variance_[0]))
     if not scale > 0:
