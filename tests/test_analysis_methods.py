@@ -785,6 +785,25 @@ def test_fixed_point_starts_iterations_or_seed_out_of_range_are_refused_by_name(
             agent_fixed_points(agent, data, "network.PMC", seed=bad)
 
 
+def test_a_recording_or_inputs_that_do_not_fit_the_cell_are_config_errors_naming_them():
+    """A recording of another agent (its carry of another size) or inputs of the wrong width were plain ValueErrors
+    ("Recorded carry of 'network.PMC' has 5 values, the cell 4."), which a notebook could not tell from a bug. Both
+    are ConfigErrors naming what was given, its size and the size the cell takes."""
+    from angora_jax.analysis import agent_fixed_points
+
+    agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
+                         "S2": {"size": 2, "inputs": ("proprioception",)},
+                         "PMC": {"size": 4, "inputs": ("S2", "S1"), "cell": "rnn"}})
+    other = graph_recording({"network.S1": 3, "network.S2": 2, "network.PMC.0": 5, "network.PMC.1": 5})
+    with pytest.raises(ConfigError, match=r"^The recording's carry of 'network.PMC' has 5 values; this agent's cell "
+                                          r"holds 4: .*another agent"):
+        agent_fixed_points(agent, other, "network.PMC", starts=2, iterations=1)
+    data = graph_recording({"network.S1": 3, "network.S2": 2, "network.PMC.0": 4, "network.PMC.1": 4})
+    with pytest.raises(ConfigError, match=r"^inputs of 'network.PMC' must give the 5 input features it reads; "
+                                          r"those given have 2"):
+        agent_fixed_points(agent, data, "network.PMC", ["network.S2"], starts=2, iterations=1)
+
+
 def test_a_run_directory_file_name_or_agent_given_for_a_recording_is_named_with_what_to_do(tmp_path):
     """Notebook trial: decode(RUN_DIR), timescales("act.nc") or principal_components(agent) in place of the recording
     failed with "'str' object has no attribute 'data_vars'" (replay_activity: no attribute 'attrs', synergies: "could

@@ -25,7 +25,7 @@ from sklearn.decomposition import PCA
 from angora_jax.analysis.decoding import as_names, check_recording, chosen_layers, recorded_layers
 from angora_jax.analysis.parallel import map_in_threads
 from angora_jax.experiment.agent import Agent, check_agent
-from angora_jax.experiment.config import check_count, check_seed
+from angora_jax.experiment.config import ConfigError, check_count, check_seed
 from angora_jax.nets.activations import ACTIVATION_RANGES, ACTIVATIONS
 from angora_jax.nets.area_graph import AreaGraph, feedback_inputs
 from angora_jax.nets.components import component
@@ -140,7 +140,8 @@ def recurrent_step(agent: Agent, layer: str, inputs: jax.Array | Sequence[jax.Ar
     width = sum(size if piece is None else len(piece) for piece in pieces)
     expected = int(params[{"lstm": "ii", "gru": "ir", "rnn": "i"}[kind]]["kernel"].shape[0])
     if width != expected:
-        raise ValueError(f"{layer!r} reads {expected} input features; the input given has {width}.")
+        raise ConfigError(f"inputs of {layer!r} must give the {expected} input features it reads; those given have "
+                          f"{width}: name the layers that feed it, in the order it reads them.")
 
     def step(flat: jax.Array) -> jax.Array:
         carry = tuple(jnp.split(flat[None], parts, axis=-1)) if parts == 2 else flat[None]
@@ -308,7 +309,9 @@ def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: st
     rows = np.random.default_rng(seed).choice(len(visited), size=min(starts, len(visited)), replace=False)
     step, size = recurrent_step(agent, layer, pieces)
     if visited.shape[-1] != size:
-        raise ValueError(f"Recorded carry of {layer!r} has {counted(visited.shape[-1], 'value')}, the cell {size}.")
+        raise ConfigError(f"The recording's carry of {layer!r} has {counted(visited.shape[-1], 'value')}; this "
+                          f"agent's cell holds {size}: the recording is of another agent. Record this one (angora-jax "
+                          f"record RUN_DIR, or record_activity(agent)).")
     drive = np.concatenate([np.zeros(0, np.float32), *(piece for piece in pieces if piece is not None)])
     return find_fixed_points(step, visited[rows], iterations, bounds=_state_bounds(agent, layer)) | {"input": drive}
 
