@@ -765,6 +765,42 @@ def test_lesion_units_that_are_no_units_of_the_layer_are_refused_by_name():
                                                                                                   False]
 
 
+def pendulum_agent():
+    """An untrained Pendulum agent (continuous actions: one component, Gaussian head) with its template state: what
+    silence_actions reads (the task's action spec), nothing trained or initialised."""
+    from angora_jax.experiment.agent import Agent, acting_parts
+    from angora_jax.experiment.config import load_config
+
+    config = load_config("pendulum")
+    env, network, head, template, _ = acting_parts(config)
+    return Agent(config, env, network, head, template, 0)
+
+
+def test_action_components_that_are_none_of_the_action_s_are_refused_by_name():
+    """Notebook trial: silence_actions cast its components with np.asarray(components, int): [1.5] would silence
+    component 1 and [True] component 0 without a word (here [0.5] silenced Pendulum's only component), and its range
+    and discrete-action refusals were plain ValueErrors. Components are checked as lesion checks its units
+    (ConfigError naming components, the value and the range); an empty set leaves the agent as it was, and NumPy and
+    JAX integers are components."""
+    from angora_jax.analysis import silence_actions
+
+    agent = pendulum_agent()
+    span = r"whole numbers from 0 to 0 \(Pendulum's action has 1 component\)"
+    for bad, said in (([0.5], rf"components must be {span}; got 0.5 in \[0.5\]"),
+                      ([True], rf"components must be {span}; got True in \[True\]"),
+                      ([1], rf"components must be {span}; got 1 in \[1\]"),
+                      ([-1], rf"components must be {span}; got -1 in \[-1\]"),
+                      ("0", rf"components must be a list of {span}, e.g. \[0, 1\]; got '0'"),
+                      (0, rf"components must be a list of {span}, e.g. \[0, 1\]; got 0")):
+        with pytest.raises(ConfigError, match=f"^{said}"):
+            silence_actions(agent, bad)
+    assert silence_actions(agent, []) is agent and silence_actions(agent, np.arange(0)) is agent
+    for given in ([0], [np.int64(0)], jnp.arange(1)):
+        assert silence_actions(agent, given).env.components == (0,)
+    with pytest.raises(ConfigError, match="^Silencing action components forces them to 0"):
+        silence_actions(graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)}}), [0])
+
+
 def test_fixed_point_starts_iterations_or_seed_out_of_range_are_refused_by_name():
     """Notebook trial: agent_fixed_points(starts=0) failed with "need at least one array to stack", starts=2.5 inside
     NumPy, iterations=1.5 in jax's fori_loop ("must have equal types") and seed=1.5 in NumPy; iterations=-1 searched

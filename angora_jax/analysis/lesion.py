@@ -129,20 +129,20 @@ def silence_actions(agent: Agent, components: Sequence[int] | np.ndarray) -> Age
 
     Args:
         agent: the agent to lesion (continuous actions).
-        components: indices into the action vector; empty: the agent unchanged.
+        components: indices into the action vector, whole numbers from 0 to its size - 1 (NumPy and JAX integers
+            too); empty: the agent unchanged.
 
     Raises:
-        ValueError: discrete actions (0 is an action there, not silence) or a component out of range.
+        ConfigError (a ValueError): discrete actions (0 is an action there, not silence), or a component that is
+            none of the action's (1.5, True, -1, the size), naming components, the value and the range.
     """
     check_agent(agent)
     spec = agent.env.action_spec
     if spec.discrete:
-        raise ValueError("Silencing action components forces them to 0, which is a choice for discrete actions, not "
-                         "silence: lesion the policy's areas (lesion_area) instead.")
-    components = np.asarray(components, int)
-    if components.size and (components.min() < 0 or components.max() >= spec.size):
-        raise ValueError(f"Action components {components.tolist()} out of range: {agent.config.env.task} has "
-                         f"{spec.size}.")
+        raise ConfigError("Silencing action components forces them to 0, which is a choice for discrete actions, not "
+                          "silence: lesion the policy's areas (lesion_area) instead.")
+    components = checked_units(components, "the action", spec.size, empty=True, name="components",
+                               counts=f"{agent.config.env.task}'s action has {counted(spec.size, 'component')}")
     if not components.size:
         return agent
     return replace(agent, env=SilencedActions(agent.env, tuple(int(c) for c in components)), compiled={})

@@ -33,19 +33,22 @@ def is_unit(unit: object, count: int) -> bool:
     return not isinstance(unit, bool) and isinstance(unit, numbers.Integral) and 0 <= unit < count
 
 
-def checked_units(units: object, layer: str, count: int, empty: bool = False) -> np.ndarray:
+def checked_units(units: object, layer: str, count: int, empty: bool = False, name: str = "units",
+                  counts: str | None = None) -> np.ndarray:
     """`units` (a list or array of unit indices of `layer`, which has `count`) as an int array; ConfigError naming
-    `units`, the value and the range unless each is a whole number from 0 to `count` - 1 and, unless `empty`, there
-    is at least one. `np.asarray(units, int)` cut [1.5] to unit 1 and read [True] as unit 0 without a word."""
-    span = f"whole numbers {unit_range(layer, count)}"
+    the argument (`name`: "units", or "components" for an action's), the value and the range unless each is a whole
+    number from 0 to `count` - 1 and, unless `empty`, there is at least one. `counts` says what the indices count, in
+    the message's parentheses ("Pendulum's action has 1 component"); default: `layer`'s units (`unit_range`).
+    `np.asarray(units, int)` cut [1.5] to unit 1 and read [True] as unit 0 without a word."""
+    span = f"whole numbers {unit_range(layer, count) if counts is None else f'from 0 to {count - 1} ({counts})'}"
     try:
         given = None if isinstance(units, str | bytes | numbers.Number) else [as_scalar(unit) for unit in units]
     except TypeError:  # a 0-d array, an object that is no list
         given = None
     if given is None or not (given or empty):
-        raise ConfigError(f"units must be a list of {'' if empty else 'one or more '}{span}, e.g. [0, 1]; got "
+        raise ConfigError(f"{name} must be a list of {'' if empty else 'one or more '}{span}, e.g. [0, 1]; got "
                           f"{units!r}.")
     for unit in given:
         if not is_unit(unit, count):
-            raise ConfigError(f"units must be {span}; got {unit!r} in {given}.")
+            raise ConfigError(f"{name} must be {span}; got {unit!r} in {given}.")
     return np.asarray(given, int)
