@@ -141,6 +141,20 @@ def test_a_feature_that_is_no_whole_number_is_refused_by_name_with_the_range():
         assert type(tuning_curves(data, "code", "activity_code", bins=4, feature=feature).attrs["feature"]) is int
 
 
+def test_a_bin_count_that_is_no_whole_number_of_at_least_2_is_refused_by_name():
+    """Notebook trial: similarity(..., bins=1.5) and tuning_curves(..., bins=1.5) failed inside np.linspace ("'float'
+    object cannot be interpreted as an integer"), bins="4" adding text to a number, and bins=1 or 0 gave one
+    condition (an RDM of one entry, no tuning) or failed in NumPy's quantiles. bins is checked up front by name."""
+    data = synthetic()
+    for bins in (1.5, "4", True, 1, 0, -3):
+        said = rf"^bins must be a whole number of at least 2, got {re.escape(repr(bins))}\.$"
+        with pytest.raises(ConfigError, match=said):
+            similarity(data, "metric_x", layers=["code"], bins=bins)
+        with pytest.raises(ConfigError, match=said):
+            tuning_curves(data, "code", "metric_x", bins=bins)
+    assert tuning_curves(data, "code", "metric_x", bins=np.int64(2)).sizes["bin"] == 2
+
+
 def test_condition_bins_split_only_the_alive_steps_into_equal_parts():
     """The quantiles that bound the bins are those of the alive steps: steps after an episode ended belong to the
     next episode, whose values (here all 0, below every alive value) would otherwise pull the lower bounds down and

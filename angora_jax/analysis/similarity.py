@@ -19,14 +19,16 @@ from rsatoolbox.rdm import RDMs, calc_rdm, compare
 
 from angora_jax.analysis.decoding import as_names, chosen_layers, recorded_layers, require
 from angora_jax.analysis.units import as_scalar, is_unit
-from angora_jax.experiment.config import ConfigError
+from angora_jax.experiment.config import ConfigError, check_count
 from angora_jax.wording import counted
 
 
 def condition_labels(dataset: xr.Dataset, variable: str, bins: int = 8, feature: int | None = None) -> np.ndarray:
     """Condition of every step `(episode, time)`: the quantile bin of `variable` (its `feature`-th component for a
     vector variable: a whole number from 0 to its features - 1, ConfigError otherwise), numbered 0..k-1 with k <= bins
-    (ties in the quantiles merge bins), -1 where the episode is not alive."""
+    (ties in the quantiles merge bins), -1 where the episode is not alive. `bins` is a whole number of at least 2
+    (ConfigError otherwise: 1.5 failed in np.linspace, and 1 or 0 gave one condition without a word)."""
+    bins = check_count("bins", bins, least=2)
     if variable not in dataset.data_vars:
         raise ValueError(f"No variable {variable!r} in the recording; it has {sorted(dataset.data_vars)}.")
     values = np.asarray(dataset[variable].values, np.float64)
