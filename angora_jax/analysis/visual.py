@@ -201,7 +201,7 @@ def preferred_stimuli(seer: Seer, layer: str, units: list[int] | np.ndarray, siz
 
     Args:
         units: channel indices of `layer` (features of the output), one or more whole numbers from 0 to its count
-            less 1, each once.
+            less 1; a unit given twice ascends from two starts.
         size: (height, width), default that of the camera images `seer` reads.
         steps: ascent steps, at least 1.
         learning_rate: Adam's step size, above 0.
