@@ -375,11 +375,15 @@ def test_a_config_extends_another_by_name_or_relative_path(tmp_path: Path):
     assert changed == {"ppo.num_envs", "ppo.minibatch_size", "distribution.num_devices"}
     assert (four["ppo"]["num_envs"], four["ppo"]["minibatch_size"]) == (
         4 * fast["ppo"]["num_envs"], 4 * fast["ppo"]["minibatch_size"])
-    # The cube recipes measured with the 32-step recipe shadow_ihom shipped before keep its sizes, rate and saves.
-    for name in ("shadow_ihom_cortical", "shadow_ihom_randomized"):
-        ppo, checkpoint = to_dict(load_config(name))["ppo"], load_config(name).checkpoint
-        assert (ppo["rollout_length"], ppo["minibatch_size"], ppo["learning_rate"]) == (32, 16384, 3e-4), name
-        assert (checkpoint.every, checkpoint.lean) == (10, ("best", "snapshots")), name
+    # The cortical cube, measured with the 32-step recipe shadow_ihom shipped before, keeps its sizes, rate and saves.
+    cortical = load_config("shadow_ihom_cortical")
+    ppo, checkpoint = to_dict(cortical)["ppo"], cortical.checkpoint
+    assert (ppo["rollout_length"], ppo["minibatch_size"], ppo["learning_rate"]) == (32, 16384, 3e-4)
+    assert (checkpoint.every, checkpoint.lean) == (10, ("best", "snapshots"))
+    # The randomized cube was measured as the fast cube's second stage: shadow_ihom with the ranges, nothing else.
+    randomized = to_dict(load_config("shadow_ihom_randomized"))
+    assert {key for key, value in flatten(randomized).items() if flatten(fast).get(key) != value} == {
+        f"env.options.randomization.{key}" for key in randomized["env"]["options"]["randomization"]}
     # The 2-GPU recipe is the 4-GPU one at the same sizes per GPU: half the environments and minibatch samples.
     two = to_dict(load_config("shadow_ihom_2gpu"))
     assert {key for key, value in flatten(two).items() if flatten(four)[key] != value} == {
