@@ -578,3 +578,7 @@ def test_python_arguments_that_are_no_count_or_number_in_range_are_config_errors
         check_number("learning_rate", 0, 0.0, open_low=True)
     with pytest.raises(ConfigError, match=r"^learning_rate must be a number above 0, got a 401-digit integer\.$"):
         check_number("learning_rate", 10**400, 0.0, open_low=True)  # past a float's range: no OverflowError
+    for bad in (0, 1, 0.0, 1.0):  # a fraction held out: neither none nor all
+        with pytest.raises(ConfigError, match=rf"^held_out must be a number above 0 and below 1, got {bad!r}\.$"):
+            check_number("held_out", bad, 0.0, 1.0, open_low=True, open_high=True)
+    assert check_number("held_out", 0.25, 0.0, 1.0, open_low=True, open_high=True) == 0.25

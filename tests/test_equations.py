@@ -150,8 +150,9 @@ def test_sindy_options_out_of_range_are_config_errors_naming_them():
                           ({"degree": 1.5}, r"^degree must be a whole number of at least 1, got 1\.5\.$"),
                           ({"threshold": -0.1}, r"^threshold must be a number of at least 0, got -0\.1\.$"),
                           ({"seed": 1.5}, r"^seed must be a whole number from 0 to 4,294,967,295, got 1\.5\.$"),
-                          ({"held_out": "0.3"}, r"^held_out must be a number above 0 and below 1 .*, got '0\.3'\.$"),
-                          ({"held_out": 1}, r"^held_out must be a number above 0 and below 1 .*, got 1\.$"),
+                          ({"held_out": "0.3"}, r"^held_out \(the fraction of the episodes held out, --held-out\) "
+                                                r"must be a number above 0 and below 1, got '0\.3'\.$"),
+                          ({"held_out": 1}, r"^held_out \(.*\) must be a number above 0 and below 1, got 1\.$"),
                           ({"components": 5, "degree": 3}, r"^The train episodes give \d+ transitions for 56 library")):
         with pytest.raises(ConfigError, match=said):
             sindy(data, "rnn", **{"horizon": 5, **options})

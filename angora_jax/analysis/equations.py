@@ -17,7 +17,6 @@ step for `horizon` steps, each against the naive prediction that the state stays
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Sequence
 
 import numpy as np
@@ -28,7 +27,6 @@ from sklearn.metrics import r2_score
 
 from angora_jax.analysis.decoding import require
 from angora_jax.experiment.config import ConfigError, check_count, check_number, check_seed
-from angora_jax.ppo.config import quote_number
 from angora_jax.wording import counted
 
 # Runge-Kutta steps a policy step when a continuous-time model is run (`simulate`).
@@ -121,9 +119,8 @@ def sindy(dataset: xr.Dataset, layer: str, components: int = 3, inputs: str | No
     components, degree = check_count("components", components), check_count("degree", degree)
     horizon, threshold = check_count("horizon", horizon), check_number("threshold", threshold, 0.0)
     seed = check_seed("seed", seed)
-    if isinstance(held_out, bool) or not isinstance(held_out, numbers.Real) or not 0 < held_out < 1:
-        raise ConfigError(f"held_out must be a number above 0 and below 1 (the fraction of the episodes held out, "
-                          f"--held-out), got {quote_number(held_out)}.")
+    held_out = check_number("held_out (the fraction of the episodes held out, --held-out)", held_out, 0.0, 1.0,
+                            open_low=True, open_high=True)
     values = np.asarray(dataset[f"activity_{layer}"].values, np.float64)
     episodes, steps, _ = values.shape
     if steps < 3:

@@ -387,19 +387,24 @@ def check_seed(name: str, value: object) -> int:
     return int(value)
 
 
-def check_number(name: str, value: object, low: float, high: float = math.inf, open_low: bool = False) -> float:
+def check_number(name: str, value: object, low: float, high: float = math.inf, open_low: bool = False,
+                 open_high: bool = False) -> float:
     """`value` as a float; ConfigError unless it is a finite real number (an int, a float or a numpy number, not a
-    bool) from `low` (above it, with `open_low`) to `high`: a fraction or a rate given in Python, where text failed
-    inside JAX ("Only integer scalar arrays can be converted to a scalar index") and a number out of range (a blur of
-    2, a negative learning rate, NaN) gave a result without a word."""
+    bool) from `low` (above it, with `open_low`) to `high` (below it, with `open_high`): a fraction or a rate given in
+    Python, where text failed inside JAX ("Only integer scalar arrays can be converted to a scalar index") and a
+    number out of range (a blur of 2, a negative learning rate, NaN) gave a result without a word."""
     try:
         number = math.nan if isinstance(value, bool) or not isinstance(value, numbers.Real) else float(value)
     except OverflowError:  # an int past a float's range
         number = math.nan
-    if not math.isfinite(number) or not (low < number if open_low else low <= number) or not number <= high:
-        span = (f"{'above' if open_low else 'of at least'} {low:g}" if high == math.inf else
-                f"above {low:g} up to {high:g}" if open_low else f"from {low:g} to {high:g}")
-        raise ConfigError(f"{name} must be a number {span}, got {quote_number(value)}.")
+    above = low < number if open_low else low <= number
+    below = number < high if open_high else number <= high
+    if not math.isfinite(number) or not above or not below:
+        start = f"above {low:g}" if open_low else f"from {low:g}" if high < math.inf and not open_high else \
+            f"of at least {low:g}"
+        end = "" if high == math.inf else f" and below {high:g}" if open_high else \
+            f" up to {high:g}" if open_low else f" to {high:g}"
+        raise ConfigError(f"{name} must be a number {start}{end}, got {quote_number(value)}.")
     return number
 
 
