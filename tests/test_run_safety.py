@@ -87,8 +87,9 @@ def test_every_checkpoint_has_a_manifest_and_check_reports_a_sound_run(whole, ca
     assert "checkpoints/snapshots: intact: cycle 3, 6" in out
 
 
-@pytest.mark.parametrize("damage", ["truncate", "flip", "delete", "meta"])
-def test_a_damaged_checkpoint_is_named_with_the_newest_intact_one_by_every_verb(damage, whole, tmp_path, capsys):
+@pytest.mark.parametrize("damage", ["truncate", "flip", "delete", "meta", "checkpoint_metadata"])
+def test_a_damaged_checkpoint_is_named_with_the_newest_intact_one_by_every_verb(damage, whole, tmp_path, capsys,
+                                                                                 caplog):
     run = copy_of(whole, tmp_path)
     folder = run / CHECKPOINTS / "latest" / "6"
     victim = max((p for p in (folder / "state").rglob("*") if p.is_file()), key=lambda p: p.stat().st_size)
@@ -100,9 +101,12 @@ def test_a_damaged_checkpoint_is_named_with_the_newest_intact_one_by_every_verb(
         victim.write_bytes(bytes(data))
     elif damage == "delete":
         victim.unlink()
-    else:
+    elif damage == "meta":
         victim = folder / "meta" / "metadata"
         victim.write_text(victim.read_text()[:7])
+    else:  # Orbax's own record of the checkpoint, which it reads (and logged the content of) before ours is checked
+        victim = folder / "_CHECKPOINT_METADATA"
+        victim.write_text("garbage{")
     before = sorted(p.relative_to(run) for p in run.rglob("*"))
     for argv in (["resume", str(run)], ["evaluate", str(run), "--checkpoint", "latest", "--episodes", "1"],
                  ["export", str(run), "--checkpoint", "latest", "--out", str(tmp_path / "p.msgpack")],
@@ -112,6 +116,7 @@ def test_a_damaged_checkpoint_is_named_with_the_newest_intact_one_by_every_verb(
         # Of cycle 6's intact checkpoints, best before snapshots (the order of latest, best, snapshots).
         assert "The newest intact checkpoint is best of cycle 6: read it with --checkpoint best (resume: --from " \
                "best)" in err, err
+        assert "Failed to json parse" not in caplog.text, "one message, without Orbax's log of the file's content"
     assert sorted(p.relative_to(run) for p in run.rglob("*")) == before, "a refused command changed the run"
     assert main(["check", str(run)]) == 2
     out = capsys.readouterr().out

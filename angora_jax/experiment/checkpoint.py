@@ -181,6 +181,9 @@ class Checkpoints:
             refuse_files_in_place(self._directory)
         else:  # a reader of a run being trained meets checkpoints mid-removal; `_read_newest` handles them
             logging.getLogger("absl").addFilter(_mid_removal)
+        # Orbax logs an ERROR with the file's content when a checkpoint's metadata does not parse; the manifest's
+        # check names that damage and its fix in one message.
+        logging.getLogger("absl").addFilter(_damaged_metadata)
         # Read before the managers below remove them, so that the writer can say what it removed.
         self.removed_unfinished = {kind: cycles for kind in KINDS if create and (cycles := self.unfinished(kind))}
         self._managers = {kind: _manager(self._directory / kind, kind, create) for kind in KINDS}
@@ -559,6 +562,10 @@ _ECHOES = (*(words for words, *_ in NO_ROOM.values()), "Event loop is closed", "
 
 def _mid_removal(record: logging.LogRecord) -> bool:
     return not record.getMessage().startswith("Metadata file does not exist")
+
+
+def _damaged_metadata(record: logging.LogRecord) -> bool:
+    return not record.getMessage().startswith(("Failed to json parse Metadata file", "Failed to read Metadata file"))
 
 
 def _is_echo(text: str) -> bool:
