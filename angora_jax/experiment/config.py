@@ -400,11 +400,10 @@ def check_number(name: str, value: object, low: float, high: float = math.inf, o
     above = low < number if open_low else low <= number
     below = number < high if open_high else number <= high
     if not math.isfinite(number) or not above or not below:
-        start = f"above {low:g}" if open_low else f"from {low:g}" if high < math.inf and not open_high else \
-            f"of at least {low:g}"
-        end = "" if high == math.inf else f" and below {high:g}" if open_high else \
-            f" up to {high:g}" if open_low else f" to {high:g}"
-        raise ConfigError(f"{name} must be a number {start}{end}, got {quote_number(value)}.")
+        start = "above" if open_low else "from" if high < math.inf and not open_high else "of at least"
+        end = ("" if high == math.inf else f" and below {high:g}" if open_high
+               else f" up to {high:g}" if open_low else f" to {high:g}")
+        raise ConfigError(f"{name} must be a number {start} {low:g}{end}, got {quote_number(value)}.")
     return number
 
 
