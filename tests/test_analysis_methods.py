@@ -104,6 +104,22 @@ def test_decoding_options_out_of_range_are_refused_by_name(tmp_path, capsys):
     assert "angora-jax analyze decode: lags must be one or more whole numbers" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("argv", [["decode", "REC.nc", "--folds", "1"],
+                                  ["muscles-or-movements", "REC.nc", "--folds", "1"],
+                                  ["similarity", "REC.nc", "--condition", "metric_x", "--bins", "1"],
+                                  ["tuning", "REC.nc", "--layer", "code", "--variable", "metric_x", "--bins", "1"]])
+def test_one_bin_or_fold_is_refused_by_the_option_s_name_before_the_recording_is_read(argv, capsys):
+    """One quantile bin compares nothing and one fold leaves nothing to fit on. `--bins 1` and `--folds 1` passed the
+    command's check of a positive count and were refused by the library as `bins` and `folds`; now argparse refuses
+    them with the option's own name (exit 2), before the recording (here none) is read."""
+    from angora_jax import cli
+
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["analyze", *argv])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and f"argument {argv[-2]}: must be a whole number >= 2, got '1'" in err, err
+
+
 def test_a_feature_is_required_of_a_vector_variable_in_range_and_refused_of_a_scalar():
     """`--feature` on a scalar variable was ignored silently, and one out of range was an IndexError traceback
     (negative ones counted from the end)."""

@@ -14,6 +14,7 @@ from angora_jax.cli.arguments import (
     EXIT_OK,
     EXIT_USAGE,
     add_env_option,
+    at_least_two,
     checkpoint_of,
     episode_count,
     positive_int,
@@ -33,7 +34,7 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     decoding.add_argument("recording", help="a NetCDF file from angora-jax record")
     decoding.add_argument("--layers", nargs="*", help="layer names (default: all)")
     decoding.add_argument("--variables", nargs="*", help="variables (default: every input_*, task_* and metric_*)")
-    decoding.add_argument("--folds", type=positive_int, default=5,
+    decoding.add_argument("--folds", type=at_least_two, default=5,
                           help="cross-validation folds, split by episode (default: 5)")
     decoding.add_argument("--lags", nargs="*", type=int, default=None,
                           help="policy steps k: decode the variable k steps after the activity (k < 0: before), "
@@ -55,7 +56,7 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     similar = analysis("similarity", "representational similarity (RSA): RDMs per layer over bins of a variable")
     similar.add_argument("--condition", required=True, help="variable whose quantile bins are the conditions")
     similar.add_argument("--feature", type=int, default=None, help="component of a vector condition variable")
-    similar.add_argument("--bins", type=positive_int, default=8, help="quantile bins of the condition (default: 8)")
+    similar.add_argument("--bins", type=at_least_two, default=8, help="quantile bins of the condition (default: 8)")
     similar.add_argument("--layers", nargs="*", help="layer names (default: all)")
     similar.add_argument("--variables", nargs="*", default=[], help="variables to compare with as model RDMs")
     dynamics = analysis("dynamics", "PCA per layer; with --run, fixed points of a recurrent layer")
@@ -88,7 +89,7 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     tuning.add_argument("--layer", required=True, help="a recorded layer, e.g. network.SSC_2")
     tuning.add_argument("--variable", required=True, help="a recorded variable, e.g. metric_goal_distance")
     tuning.add_argument("--feature", type=int, default=None, help="component of a vector variable")
-    tuning.add_argument("--bins", type=positive_int, default=10, help="quantile bins of the variable (default: 10)")
+    tuning.add_argument("--bins", type=at_least_two, default=10, help="quantile bins of the variable (default: 10)")
     equations = analysis("sindy", "equations of a layer's dynamics in its leading principal components (SINDy), "
                                   "scored on held-out episodes against next = current")
     equations.add_argument("--layer", required=True, help="e.g. network.PMC.1, the premotor cell's output")
@@ -122,7 +123,7 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
                          help="muscle variables (default: task_muscle_force task_muscle_activation)")
     muscles.add_argument("--movements", nargs="+", default=["task_joint_angles", "task_joint_velocities"],
                          help="kinematic variables (default: task_joint_angles task_joint_velocities)")
-    muscles.add_argument("--folds", type=positive_int, default=5,
+    muscles.add_argument("--folds", type=at_least_two, default=5,
                          help="cross-validation folds, split by episode (default: 5)")
     ablate = analyses.add_parser("ablate", help="task outcomes of a run with areas, modalities, units or actions "
                                                    "silenced")

@@ -21,11 +21,21 @@ def seed(text: str) -> int:
     return int(text)
 
 
-def positive_int(text: str) -> int:
-    """An argparse type: a whole number >= 1 (argparse then exits with code 2 and names the option)."""
-    if not text.isdigit() or int(text) < 1:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
-    return int(text)
+def whole_number(least: int) -> Callable[[str], int]:
+    """An argparse type: a whole number >= `least` (argparse then exits with code 2 and names the option)."""
+
+    def parse(text: str) -> int:
+        if not text.isdigit() or int(text) < least:
+            raise argparse.ArgumentTypeError(f"must be a whole number >= {least}, got {text!r}")
+        return int(text)
+
+    parse.__name__ = f"whole number >= {least}"
+    return parse
+
+
+positive_int = whole_number(1)
+# Quantile bins and cross-validation folds: one bin compares nothing, one fold leaves no data to fit on.
+at_least_two = whole_number(2)
 
 
 
