@@ -380,10 +380,13 @@ def test_a_config_extends_another_by_name_or_relative_path(tmp_path: Path):
     ppo, checkpoint = to_dict(cortical)["ppo"], cortical.checkpoint
     assert (ppo["rollout_length"], ppo["minibatch_size"], ppo["learning_rate"]) == (32, 16384, 3e-4)
     assert (checkpoint.every, checkpoint.lean) == (10, ("best", "snapshots"))
-    # The randomized cube was measured as the fast cube's second stage: shadow_ihom with the ranges, nothing else.
+    # The randomized cube was measured as the fast cube's second stage: shadow_ihom with the ranges and a learning rate
+    # decaying over a fixed length, nothing else.
     randomized = to_dict(load_config("shadow_ihom_randomized"))
     assert {key for key, value in flatten(randomized).items() if flatten(fast).get(key) != value} == {
-        f"env.options.randomization.{key}" for key in randomized["env"]["options"]["randomization"]}
+        f"env.options.randomization.{key}" for key in randomized["env"]["options"]["randomization"]} | {
+        "ppo.num_cycles", "ppo.lr_decay"}
+    assert (randomized["ppo"]["num_cycles"], randomized["ppo"]["lr_decay"]) == (560, True)
     # The 2-GPU recipe is the 4-GPU one at the same sizes per GPU: half the environments and minibatch samples.
     two = to_dict(load_config("shadow_ihom_2gpu"))
     assert {key for key, value in flatten(two).items() if flatten(four)[key] != value} == {
