@@ -13,6 +13,9 @@ the reference itself. The reference is `env.options.randomization` of configs/sh
 `--ranges` gives a YAML or JSON mapping (a file or inline text); keys of the cube are left out for tasks without
 one.
 
+`--each` also evaluates every range of the reference alone (the others off), scaled by each width as above: which
+factor costs the policy most. Those rows and lines are labelled "<run> (<key> only)".
+
 The metric (default: the cube's `metric/goals_reached`, CGR; reach's `metric/success`; else the episode return) is
 tabled per run and width as mean, median and standard error over episodes. Writes JSON with the device, versions and
 configuration (`results/robustness/robustness_<task>_<platform>.json` unless `--out`), and a PNG beside it: the
@@ -107,6 +110,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--ranges", default=None,
                         help=f"reference randomization: a YAML/JSON file or inline mapping (default: "
                              f"{REFERENCE_CONFIG}'s env.options.randomization)")
+    parser.add_argument("--each", action="store_true",
+                        help="also evaluate each range of the reference alone, the others off: which costs most")
     parser.add_argument("--metric", default=None,
                         help=f"per-episode quantity to compare (default: the first of {METRICS} the task has, else "
                              "episode_return)")
@@ -132,30 +137,36 @@ def main(argv: list[str] | None = None) -> dict:
         if dropped:
             print(f"{task} has no cube: left out of the reference: {dropped}")
 
-    rows, metric = [], args.metric
+    # None: all of the reference's ranges together; a key: that range alone.
+    subsets = [None, *(reference if args.each else [])]
+    rows, metric, lines = [], args.metric, []
     for (run_dir, checkpoint), label, config in zip(runs, labels, configs, strict=True):
-        for width in args.widths:
-            ranges = scaled(reference, width)
-            result = evaluate(run_dir, checkpoint, args.episodes, seed=args.seed, save=False, path="batched",
-                              env_overrides=[f"randomization={json.dumps(ranges)}"])
-            if metric is None:
-                metric = next((name for name in METRICS if name in result.episodes), "episode_return")
-            stats, returns = result.summary[metric], result.summary["episode_return"]
-            rows.append({
-                "run": label, "run_dir": str(run_dir), "checkpoint": checkpoint, "cycle": result.meta["cycle"],
-                "trained_randomization": config.env.options.get("randomization"), "width": width, "ranges": ranges,
-                "metric": metric, "mean": stats["mean"], "median": stats["median"], "stderr": stats["stderr"],
-                "std": stats["std"], "return_mean": returns["mean"], "return_stderr": returns["stderr"],
-                "length_mean": result.summary["episode_length"]["mean"], "physics": result.meta["physics"],
-                "wall_seconds": result.meta["wall_seconds"], "per_episode": result.episodes[metric].tolist(),
-                "per_episode_return": result.episodes["episode_return"].tolist(),
-            })
-            print(f"{label} width {width:g}: {metric} {stats['mean']:.4g} +- {stats['stderr']:.3g} "
-                  f"({result.meta['wall_seconds']:.1f} s)", flush=True)
+        for only in subsets:
+            line = label if only is None else f"{label} ({only} only)"
+            lines.append(line)
+            for width in args.widths:
+                ranges = scaled(reference if only is None else {only: reference[only]}, width)
+                result = evaluate(run_dir, checkpoint, args.episodes, seed=args.seed, save=False, path="batched",
+                                  env_overrides=[f"randomization={json.dumps(ranges)}"])
+                if metric is None:
+                    metric = next((name for name in METRICS if name in result.episodes), "episode_return")
+                stats, returns = result.summary[metric], result.summary["episode_return"]
+                rows.append({
+                    "run": line, "run_dir": str(run_dir), "checkpoint": checkpoint, "cycle": result.meta["cycle"],
+                    "trained_randomization": config.env.options.get("randomization"), "only": only,
+                    "width": width, "ranges": ranges, "metric": metric, "mean": stats["mean"],
+                    "median": stats["median"], "stderr": stats["stderr"], "std": stats["std"],
+                    "return_mean": returns["mean"], "return_stderr": returns["stderr"],
+                    "length_mean": result.summary["episode_length"]["mean"], "physics": result.meta["physics"],
+                    "wall_seconds": result.meta["wall_seconds"], "per_episode": result.episodes[metric].tolist(),
+                    "per_episode_return": result.episodes["episode_return"].tolist(),
+                })
+                print(f"{line} width {width:g}: {metric} {stats['mean']:.4g} +- {stats['stderr']:.3g} "
+                      f"({result.meta['wall_seconds']:.1f} s)", flush=True)
 
     config = {"task": task, "metric": metric, "widths": args.widths, "episodes": args.episodes, "seed": args.seed,
               "actions": "mode (deterministic)", "path": "batched", "reference_ranges": reference,
-              "reference_source": source,
+              "reference_source": source, "each": args.each,
               "scaling": "scale [lo, hi] -> [max(1 - w (1 - lo), floor), 1 + w (hi - 1)], floor 0 (0.05 for "
                          f"{list(POSITIVE_SCALES)}); noise s -> w s; delay [lo, hi] -> [round(w lo), round(w hi)]",
               "runs": [{"label": label, "run_dir": str(run_dir), "checkpoint": checkpoint}
@@ -164,7 +175,7 @@ def main(argv: list[str] | None = None) -> dict:
     print(markdown_table(rows, [("run", "run", "s"), ("width", "width", "g"), ("mean", f"{metric} mean", ".3f"),
                                 ("median", "median", ".3g"), ("stderr", "s.e.", ".3f"),
                                 ("return_mean", "return mean", ".4g")]))
-    plot(rows, labels, metric, f"{task}: {args.episodes} held-out episodes per point, reference {source}",
+    plot(rows, lines, metric, f"{task}: {args.episodes} held-out episodes per point, reference {source}",
          path.with_suffix(".png"))
     print(f"Written: {path} and {path.with_suffix('.png')}")
     return json.loads(path.read_text())

@@ -198,7 +198,8 @@ def test_evaluation_speed_gets_the_same_episodes_from_every_batch_and_worker_set
 def test_robustness_scales_the_ranges_by_width_and_width_0_is_the_unrandomized_evaluation(tmp_path, quick_compiles):
     """A reach run of one tiny cycle (Warp) evaluated at widths 0 and 1 of reference ranges that hold a cube key (left
     out for reach): width 0 gives zero-width ranges and the unrandomized batched evaluation's episodes exactly, width 1
-    the reference ranges and other episodes; the JSON names the metric, ranges and runs, and the plot is written."""
+    the reference ranges and other episodes; the JSON names the metric, ranges and runs, and the plot is written.
+    `--each` then evaluates each range alone."""
     run = aj.train("shadow_reach", [*TINY_PPO, "ppo.num_cycles=1", "env.options.physics={impl: warp}",
                                     "env.options.max_episode_steps=20", "logging.progress=none",
                                     "logging.report=false", "checkpoint.best_metric=null",
@@ -222,6 +223,13 @@ def test_robustness_scales_the_ranges_by_width_and_width_0_is_the_unrandomized_e
                                                    plain.summary["metric/success"]["mean"])
     assert one["return_mean"] != zero["return_mean"], "width 1 evaluated the unrandomized task"
     assert out.with_suffix(".png").stat().st_size > 0
+    # --each adds each range alone, the others off: friction alone is another world than all three together.
+    each = robustness.main([f"{run}:latest", "--label", "tiny", "--widths", "1", "--episodes", "3", "--each",
+                            "--ranges", json.dumps(reference), "--out", str(tmp_path / "each.json")])["results"]
+    assert [(row["run"], row["only"], row["ranges"]) for row in each] == [
+        ("tiny", None, reference), *((f"tiny ({key} only)", key, {key: value}) for key, value in reference.items())]
+    assert each[0]["per_episode_return"] == one["per_episode_return"]
+    assert each[1]["return_mean"] != one["return_mean"], "friction alone evaluated all the ranges"
     # Past width 1 a minimum is clipped: at 0, or above 0 for the cube's mass.
     assert robustness.scaled({"cube_mass": [0.5, 1.5], "friction": [0.3, 1.3], "action_noise": 0.1,
                               "action_delay": [1, 3]}, 2) == {
