@@ -32,7 +32,15 @@ from angora_jax.experiment.doctor import Diagnosis
 from angora_jax.experiment.manifest import MANIFEST_FILE
 from angora_jax.experiment.monitor import set_aside_after
 from angora_jax.experiment.run_check import check_run
-from angora_jax.experiment.run_dir import CHECKPOINTS, CONFIG_FILE, EVALUATIONS, VIDEOS, DiskFullError, write_run_config
+from angora_jax.experiment.run_dir import (
+    CHECKPOINTS,
+    CONFIG_FILE,
+    EVALUATIONS,
+    VIDEOS,
+    DiskFullError,
+    create_run_dir,
+    write_run_config,
+)
 from angora_jax.experiment.run_lock import LOCK_FILE, RunLock, RunLockedError, _process_start, _process_state
 from angora_jax.whole_files import written_whole
 
@@ -614,6 +622,16 @@ def test_a_file_where_a_checkpoint_kind_keeps_its_folder_is_named_before_anythin
         err = exits_2(["resume", str(run), *argv], capsys)
         assert err.count("\n") == 1 and "checkpoints/latest is a file" in err and "Move the file away" in err, err
     assert {path: path.read_bytes() for path in run.rglob("*") if path.is_file()} == before
+
+
+def test_a_run_root_under_the_home_folder_written_with_a_tilde_is_made_there(tmp_path, monkeypatch):
+    """`logging.run_root=~/runs` reaches the config unexpanded (a shell expands a word's leading `~` only): the run
+    goes to the home folder, never to a folder named `~` in the current one."""
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.chdir(tmp_path)
+    run_dir = create_run_dir(aj.load_config("cartpole", ["logging.run_root=~/runs", "logging.run_name=x"]))
+    assert run_dir == tmp_path / "home" / "runs" / "x" and (run_dir / CONFIG_FILE).is_file()
+    assert not (tmp_path / "~").exists()
 
 
 def test_the_words_that_count_agree_with_their_count(tmp_path, capsys):

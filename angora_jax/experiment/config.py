@@ -198,6 +198,13 @@ class LoggingConfig:
     wandb: WandbConfig | None = None
     report: bool = True
 
+    @property
+    def root(self) -> Path:
+        """`run_root` as the folder it names, a leading `~` read as the home folder: a shell leaves the `~` of
+        `logging.run_root=~/runs` as it is (it expands a word's leading `~` only) and YAML never expands it, so runs
+        went to a folder named `~` in the current one, which `rm -rf ~` then takes for the home folder."""
+        return Path(self.run_root).expanduser()
+
 
 PROGRESS_MODES = ("auto", "bar", "lines", "none")
 # A run name is a folder name that every file system, shell and URL takes as it is (W&B and TensorBoard show it).

@@ -167,7 +167,7 @@ def shared_run_dir(config: Config, create: Callable[[Config], Path]) -> Path:
             f"A run over {jax.process_count()} processes needs logging.run_name (all processes write one run "
             "directory), e.g. logging.run_name=$SLURM_JOB_ID."
         )
-    path, failure = Path(config.logging.run_root) / config.logging.run_name, None
+    path, failure = config.logging.root / config.logging.run_name, None
     if is_main_process():
         try:
             path = create(config)

@@ -103,7 +103,7 @@ def create_run_dir(config: Config, claim: Callable[[Path], None] | None = None) 
     Raises:
         RunDirError: a named run directory exists already (nothing in it is touched).
     """
-    root = Path(config.logging.run_root)
+    root = config.logging.root
     root.mkdir(parents=True, exist_ok=True)
     if config.logging.run_name is not None:
         path = root / config.logging.run_name
