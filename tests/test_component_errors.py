@@ -14,6 +14,7 @@ from tiny import TINY_PPO
 import angora_jax as aj
 from angora_jax.cli import main
 from angora_jax.experiment import validate
+from angora_jax.experiment.export import export_policy
 from angora_jax.experiment.sources import check_sources
 from angora_jax.nets.components import save_component
 
@@ -128,6 +129,14 @@ def test_a_source_run_that_cannot_be_read_is_refused_naming_the_key_and_the_caus
     cause = {"no checkpoint": "No checkpoints", "damaged checkpoint": "checkpoint", "no config": "no config.yaml",
              "missing": "is neither a file nor a run directory: it does not exist"}[problem]
     assert cause in err
+
+
+def test_a_file_given_to_init_from_is_named_as_a_file_with_what_it_is(source_run, capsys, tmp_path):
+    """An exported policy given to ppo.init_from was said not to exist ("neither a file nor a run directory")."""
+    file = export_policy(source_run, tmp_path / "policy.msgpack")
+    err = refused(capsys, tmp_path, f"ppo.init_from={file}")
+    assert f"'{file}' is a file, not a run directory: name the run it came from, as RUN_DIR" in err
+    assert "an exported policy (`angora-jax export`)" in err and "does not exist" not in err
 
 
 def test_sources_that_fit_pass_the_check(source_run, tmp_path):

@@ -37,6 +37,7 @@ from angora_jax.ppo.distributions import PolicyHead
 from angora_jax.ppo.evaluate import PolicyState, make_evaluate
 from angora_jax.ppo.normalization import normalize_observation
 from angora_jax.registry import generation
+from angora_jax.saved_files import USE, msgpack_kind
 from angora_jax.wording import counted
 
 
@@ -258,6 +259,10 @@ def saved_policy(source: str | Path) -> PolicyState:
     latest when it keeps no best), `RUN_DIR:latest` or `RUN_DIR:<cycle>`; FileNotFoundError when there is no such
     run directory."""
     run_dir, which = run_source(source)
+    if Path(run_dir).is_file():  # e.g. an exported policy or a component given to ppo.init_from
+        kind = msgpack_kind(run_dir)
+        raise ValueError(f"{str(source)!r} is a file, not a run directory: name the run it came from, as "
+                         f"RUN_DIR[:best|latest|<cycle>]{f'. The file is {kind}: {USE[kind]}' if kind else ''}.")
     if not Path(run_dir).is_dir():
         raise FileNotFoundError(f"{str(source)!r} is neither a file nor a run directory: it does not exist. Give a "
                                 "component file, or a run as RUN_DIR[:best|latest|<cycle>].")
