@@ -120,6 +120,19 @@ def test_one_bin_or_fold_is_refused_by_the_option_s_name_before_the_recording_is
     assert stop.value.code == 2 and f"argument {argv[-2]}: must be a whole number >= 2, got '1'" in err, err
 
 
+@pytest.mark.parametrize("argv", [["decode", "REC.nc", "--layers"], ["decode", "REC.nc", "--variables"],
+                                  ["timescales", "REC.nc", "--layers"], ["dynamics", "REC.nc", "--layers"]])
+def test_an_option_that_names_layers_or_variables_is_refused_without_a_name(argv, capsys):
+    """`--layers` or `--variables` with no name after it (the names forgotten, or taken by the shell) was an empty
+    list: decode wrote an empty heat map and exited 0, timescales ended in xarray's "Could not convert tuple"."""
+    from angora_jax import cli
+
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["analyze", *argv])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and f"argument {argv[-1]}: expected at least one argument" in err, err
+
+
 def test_a_feature_is_required_of_a_vector_variable_in_range_and_refused_of_a_scalar():
     """`--feature` on a scalar variable was ignored silently, and one out of range was an IndexError traceback
     (negative ones counted from the end)."""

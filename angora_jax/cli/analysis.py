@@ -32,8 +32,8 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     analyses = analyze.add_subparsers(dest="analysis", required=True)
     decoding = analyses.add_parser("decode", help="ridge R^2 of each variable from each layer vs a noise baseline")
     decoding.add_argument("recording", help="a NetCDF file from angora-jax record")
-    decoding.add_argument("--layers", nargs="*", help="layer names (default: all)")
-    decoding.add_argument("--variables", nargs="*", help="variables (default: every input_*, task_* and metric_*)")
+    decoding.add_argument("--layers", nargs="+", help="layer names (default: all)")
+    decoding.add_argument("--variables", nargs="+", help="variables (default: every input_*, task_* and metric_*)")
     decoding.add_argument("--folds", type=at_least_two, default=5,
                           help="cross-validation folds, split by episode (default: 5)")
     decoding.add_argument("--lags", nargs="*", type=int, default=None,
@@ -57,10 +57,10 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
     similar.add_argument("--condition", required=True, help="variable whose quantile bins are the conditions")
     similar.add_argument("--feature", type=int, default=None, help="component of a vector condition variable")
     similar.add_argument("--bins", type=at_least_two, default=8, help="quantile bins of the condition (default: 8)")
-    similar.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    similar.add_argument("--layers", nargs="+", help="layer names (default: all)")
     similar.add_argument("--variables", nargs="*", default=[], help="variables to compare with as model RDMs")
     dynamics = analysis("dynamics", "PCA per layer; with --run, fixed points of a recurrent layer")
-    dynamics.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    dynamics.add_argument("--layers", nargs="+", help="layer names (default: all)")
     dynamics.add_argument("--components", type=positive_int, default=10,
                           help="principal components per layer (default: 10)")
     dynamics.add_argument("--run", default=None, help="the recorded run (for fixed points)")
@@ -71,10 +71,10 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
                           help="the recorded layer(s) feeding it, e.g. network.PMC_in (default, for an area of a "
                                "brain-area graph: its inputs as the graph lists them)")
     scales = analysis("timescales", "activity autocorrelation and intrinsic timescale per layer")
-    scales.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    scales.add_argument("--layers", nargs="+", help="layer names (default: all)")
     scales.add_argument("--max-lag", type=positive_int, default=20, help="policy steps (default: 20)")
     crosscorrelation = analysis("crosscorrelation", "correlation of layers' leading components over lags")
-    crosscorrelation.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    crosscorrelation.add_argument("--layers", nargs="+", help="layer names (default: all)")
     crosscorrelation.add_argument("--max-lag", type=positive_int, default=20, help="policy steps (default: 20)")
     seeing = analysis("visual", "inside the visual area: filters, feature maps, saliency, preferred stimuli")
     seeing.add_argument("--run", required=True, help="the recorded run (one that sees camera images)")
@@ -118,7 +118,7 @@ def add_analyze(commands: argparse._SubParsersAction) -> None:
                                                      "recording as the control")
     muscles.add_argument("--checkpoint", default=None,
                               help="the recorded checkpoint (default: the cycle the recording was made from)")
-    muscles.add_argument("--layers", nargs="*", help="layer names (default: all)")
+    muscles.add_argument("--layers", nargs="+", help="layer names (default: all)")
     muscles.add_argument("--muscles", nargs="+", default=["task_muscle_force", "task_muscle_activation"],
                          help="muscle variables (default: task_muscle_force task_muscle_activation)")
     muscles.add_argument("--movements", nargs="+", default=["task_joint_angles", "task_joint_velocities"],
