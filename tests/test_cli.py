@@ -305,7 +305,7 @@ def test_minutes_stop_training_with_the_command_to_continue(capsys, tmp_path):
     assert "3 cycles done (0 in this session)" in capsys.readouterr().out
 
 
-def test_monitor_writes_the_page_and_refuses_a_busy_port(capsys, tmp_path, monkeypatch):
+def test_monitor_writes_the_page_and_refuses_a_busy_port_and_another_machine_s_address(capsys, tmp_path, monkeypatch):
     assert main(["train", "cartpole", *TINY, "ppo.num_cycles=1", f"logging.run_root={tmp_path}",
                  "logging.run_name=m", "logging.report=false"]) == 0
     capsys.readouterr()
@@ -324,6 +324,11 @@ def test_monitor_writes_the_page_and_refuses_a_busy_port(capsys, tmp_path, monke
     err = capsys.readouterr().err
     assert f"cannot serve on 127.0.0.1:{port}" in err
     assert "pick another --port (0: any free one) or use --no-serve" in err
+    # An address that is not this machine's (TEST-NET-1) is the host's fault, which no other port mends.
+    assert main(["monitor", str(tmp_path / "m"), "--host", "192.0.2.1", "--port", "0", "--out", str(out_dir)]) == 2
+    err = capsys.readouterr().err
+    assert "cannot serve on 192.0.2.1:0" in err and "give --host an address of this machine" in err
+    assert "another --port" not in err
 
 
 def test_run_rolls_out_a_random_policy_and_names_an_unknown_task(capsys):

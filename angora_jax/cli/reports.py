@@ -4,6 +4,8 @@ train."""
 from __future__ import annotations
 
 import argparse
+import errno
+import socket
 import sys
 from pathlib import Path
 
@@ -55,8 +57,12 @@ def command_monitor(args: argparse.Namespace) -> int:
     try:
         live = LiveReport(args.run_dirs, out, args.every, None if args.no_serve else args.port, args.host)
     except OSError as error:
-        print(f"angora-jax monitor: cannot serve on {args.host}:{args.port} ({error}); pick another --port "
-              "(0: any free one) or use --no-serve.", file=sys.stderr)
+        # A name that does not resolve, or an address of another machine, is the host's fault: another port fails too.
+        elsewhere = isinstance(error, socket.gaierror) or error.errno == errno.EADDRNOTAVAIL
+        fix = ("give --host an address of this machine (127.0.0.1: this machine only; 0.0.0.0: the network)"
+               if elsewhere else "pick another --port (0: any free one)")
+        print(f"angora-jax monitor: cannot serve on {args.host}:{args.port} ({error}); {fix} or use --no-serve.",
+              file=sys.stderr)
         return EXIT_USAGE
     with live:
         where = live.url or (out / "index.html").resolve().as_uri()
