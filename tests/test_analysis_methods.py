@@ -75,6 +75,13 @@ def test_decoding_with_one_fold_is_refused_in_our_words():
         decode(synthetic(episodes=4, steps=5), ["code"], ["metric_x"], folds=1)
 
 
+def test_more_folds_than_episodes_are_refused_with_the_two_ways_out():
+    """The message named the shortfall (5 folds, 4 episodes) but neither fix."""
+    with pytest.raises(ValueError, match=r"needs at least 5 episodes alive at the lags \[0\]; the recording has 4: "
+                                         r"decode with fewer folds \(--folds\), or record more episodes"):
+        decode(synthetic(episodes=4, steps=5), ["code"], ["metric_x"], folds=5)
+
+
 def test_decoding_options_out_of_range_are_refused_by_name(tmp_path, capsys):
     """Notebook trial: decode(folds=2.5) failed in scikit-learn, folds="3" comparing text with a number, seed=-1 or
     1.5 inside NumPy, max_samples=0 blamed the recording ("needs at least 2 episodes ...; the recording has 0"),

@@ -193,7 +193,8 @@ def _decode_lags(dataset: xr.Dataset, layers: list[str], variables: list[str], f
     episode, step = episode[chosen], now[step[chosen]]
     if len(np.unique(episode)) < folds:
         raise ValueError(f"Decoding with {folds} folds needs at least {folds} episodes alive at the lags {lags}; the "
-                         f"recording has {len(np.unique(episode))}.")
+                         f"recording has {len(np.unique(episode))}: decode with fewer folds (--folds), or record more "
+                         "episodes (angora-jax record --episodes).")
     shape = (len(lags), len(layers), len(variables))
     result = {name: np.full(shape, np.nan) for name in ("r2", "r2_low", "r2_high", "baseline")}
     result["samples"] = len(episode)
