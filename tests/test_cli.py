@@ -135,6 +135,8 @@ def test_a_path_in_or_above_a_run_names_the_run_directory(capsys, tmp_path, monk
                                "train` (in Python: aj.train)."),
         (["analyze", "decode", "runs/a"], "runs/a is a run directory, not a recording: record its activity first, "
                                           "angora-jax record runs/a --out a.nc, then analyze that file."),
+        (["analyze", "decode", "runs"], "runs is a folder, not a recording: give the file that angora-jax record "
+                                        "wrote"),  # it was "No recording runs", of a folder in plain sight
     ]:
         assert main(argv) == 2, argv
         assert said in capsys.readouterr().err, argv

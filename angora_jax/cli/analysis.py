@@ -331,6 +331,9 @@ def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None 
     if (recording / CONFIG_FILE).is_file():
         raise FileNotFoundError(f"{recording} is a run directory, not a recording: record its activity first, "
                                 f"angora-jax record {recording} --out {recording.name}.nc, then analyze that file.")
+    if recording.is_dir():
+        raise FileNotFoundError(f"{recording} is a folder, not a recording: give the file that angora-jax record "
+                                "wrote (its --out, FILE.nc).")
     if not recording.is_file():
         raise FileNotFoundError(f"No recording {recording}; make one with angora-jax record RUN_DIR --out FILE.")
     out = output_path(args.analysis, args.out, recording.parent, f"{recording.stem}.{stem or args.analysis}")
