@@ -368,6 +368,15 @@ def test_shipped_configs_are_found_by_name_from_any_directory(tmp_path: Path, mo
     assert load_config("shadow_reach").env.task == "ShadowHandReach"
 
 
+def test_a_config_extends_one_under_the_home_folder_written_with_a_tilde(tmp_path: Path, monkeypatch):
+    """`extends: ~/configs/base.yaml` was 'not found': no shell expands a `~` inside a file."""
+    monkeypatch.setenv("HOME", str(tmp_path))
+    (tmp_path / "base.yaml").write_text("extends: cartpole\nppo: {num_cycles: 9}\n")
+    (tmp_path / "elsewhere").mkdir()
+    (tmp_path / "elsewhere" / "run.yaml").write_text("extends: ~/base.yaml\n")
+    assert load_config(tmp_path / "elsewhere" / "run.yaml").ppo.num_cycles == 9
+
+
 def test_a_config_extends_another_by_name_or_relative_path(tmp_path: Path):
     # The shipped 4-GPU recipe is the fast cube at the same sizes per GPU: 4x its environments and minibatch samples.
     fast, four = to_dict(load_config("shadow_ihom")), to_dict(load_config("shadow_ihom_4gpu"))

@@ -651,7 +651,7 @@ def _read(source: str | Path | dict | None, chain: tuple[Path, ...] = ()) -> dic
         return {}
     if isinstance(source, dict):
         return _deep_copy(source)
-    path = Path(source)
+    path = Path(source).expanduser()  # `extends: ~/configs/base.yaml`: no shell expands a `~` inside a file
     if not path.exists() and path.suffix == "" and (CONFIGS / f"{source}.yaml").exists():
         path = CONFIGS / f"{source}.yaml"
     if not path.exists():
