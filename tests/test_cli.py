@@ -429,6 +429,12 @@ def test_other_runtime_errors_and_a_full_disk_are_not_taken_for_the_gpu_out_of_m
         raise ValueError("while compiling") from jax.errors.JaxRuntimeError("RESOURCE_EXHAUSTED: Out of memory")
     except ValueError as wrapped:
         assert device_memory_message(wrapped).startswith("the machine ran out of memory (RESOURCE_EXHAUSTED")
+    # Only a verb that trains stops a run: `run` or `evaluate` told of checkpoints kept sent users looking for harm.
+    memory = jax.errors.JaxRuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 16 bytes.")
+    assert "angora-jax resume RUN_DIR" in device_memory_message(memory, "resume")
+    for command in ("run", "evaluate", "record"):
+        said = device_memory_message(memory, command)
+        assert "checkpoint" not in said and said.endswith("run: fewer --num-envs)."), said
 
 
 def test_distributed_outside_a_cluster_without_its_settings_exits_2_naming_them(capsys):

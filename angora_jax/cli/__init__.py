@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
         lost = lost_process_cause(error)
         if lost is not None:  # a process of the job is gone (kill -9): no traceback, no wait at the shutdown
             lost_process_exit(lost)
-        message = device_memory_message(error)
+        message = device_memory_message(error, args.command)
         if message is None:
             raise
         print(f"angora-jax {args.command}: {message}", file=sys.stderr)

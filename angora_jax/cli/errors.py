@@ -50,11 +50,11 @@ _OUT_OF_MEMORY = ("RESOURCE_EXHAUSTED", "out of memory", "Out of memory")
 _WARP_KERNEL_LOAD = "Failed to load CUDA module"
 
 
-def device_memory_message(error: BaseException) -> str | None:
+def device_memory_message(error: BaseException, command: str = "train") -> str | None:
     """The sentence for a JAX runtime error (or one it was raised from) that says a device's memory ran out, naming
-    the usual causes and their fixes (on a GPU: another process holding its share; on the CPU: only the batch);
-    None for every other error. A full disk, which TensorStore also reports as RESOURCE_EXHAUSTED, is not taken for
-    it."""
+    the usual causes and their fixes (on a GPU: another process holding its share; on the CPU: only the batch) and,
+    under a verb that trains (`command` in TRAINING_VERBS), that the run keeps what it saved before; None for every
+    other error. A full disk, which TensorStore also reports as RESOURCE_EXHAUSTED, is not taken for it."""
     import jax
 
     on_gpu = jax.default_backend() == "gpu"
@@ -80,8 +80,9 @@ def device_memory_message(error: BaseException) -> str | None:
               "Each JAX process takes 75% of a GPU's memory when it starts, so a second process on the same GPU "
               "(nvidia-smi lists them) leaves too little: run them one after another, or give each a share before "
               f"starting it (XLA_PYTHON_CLIENT_MEM_FRACTION=0.45 for two). Alone on the GPU, use {fewer}. ")
-    return (f"{what}. {advice}A run stopped by it keeps every checkpoint saved before: `angora-jax check RUN_DIR` "
-            "shows them, `angora-jax resume RUN_DIR` continues.")
+    kept = ("A run stopped by it keeps every checkpoint saved before: `angora-jax check RUN_DIR` shows them, "
+            "`angora-jax resume RUN_DIR` continues." if command in TRAINING_VERBS else "")
+    return f"{what}. {advice}{kept}".rstrip()
 
 
 def platform_message(error: BaseException) -> str | None:
