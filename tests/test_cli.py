@@ -468,6 +468,20 @@ def test_an_opengl_backend_that_cannot_load_exits_2_naming_it_and_fails_the_impo
                 in done.stderr, done.stderr[-2000:]
 
 
+def test_a_folder_where_a_runs_own_file_belongs_is_named_with_the_fix(capsys, tmp_path):
+    """A folder named metrics.jsonl (or sessions.jsonl, writer.lock) in a run was answered "the path is a folder: give
+    a file", though the user gave no such path: the run's file is what must be moved away."""
+    assert main(["train", "cartpole", *TINY, "ppo.num_cycles=1", f"logging.run_root={tmp_path}",
+                 "logging.run_name=r"]) == 0
+    run = tmp_path / "r"
+    (run / "metrics.jsonl").unlink()
+    (run / "metrics.jsonl").mkdir()
+    assert main(["resume", str(run), "--num-cycles", "2"]) == 2
+    err = capsys.readouterr().err
+    assert f"Is a directory ({run / 'metrics.jsonl'}): a folder is where a file belongs" in err
+    assert "where it is a run's own file, such as RUN_DIR/metrics.jsonl, move the folder away" in err, err
+
+
 def test_a_full_disk_tells_of_the_runs_checkpoints_only_under_a_verb_that_trains():
     """render, export or report meeting a full disk ended with "A run stopped by it keeps every checkpoint saved
     before: `angora-jax check RUN_DIR` shows them", though they stop no run: the user went looking for harm."""

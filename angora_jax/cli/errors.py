@@ -21,7 +21,8 @@ OS_ERROR_FIXES = {
     errno.ENAMETOOLONG: "shorten the path or name",
     errno.EIO: "the disk or network file system failed: check the mount, then retry",
     errno.ENOTDIR: "a part of the path is a file, not a folder: fix the path",
-    errno.EISDIR: "the path is a folder: give a file",
+    errno.EISDIR: "a folder is where a file belongs: give a file's path (or, where it is a run's own file, such as "
+                  "RUN_DIR/metrics.jsonl, move the folder away)",
     errno.EEXIST: "a file is in the way where a folder must be made: choose another path (logging.run_root, --out)",
     errno.ENOENT: "a folder on the way does not exist or cannot be made there: check the path",
 }
