@@ -612,6 +612,28 @@ def test_progress_is_a_live_line_on_a_terminal_and_log_lines_elsewhere():
 
 
 
+def test_a_reader_of_the_output_that_leaves_stops_neither_training_nor_its_checkpoints(tmp_path):
+    """`angora-jax train ... | head -2`: the progress line after head had left raised BrokenPipeError, which ended
+    training before its first checkpoint with "Broken pipe: fix the cause and retry." (exit 2). Now the run trains to
+    its end and saves; the command ends as a writer that SIGPIPE ends, 141, without a word or a traceback."""
+
+    class Gone(io.StringIO):
+        def write(self, text):
+            raise BrokenPipeError(errno.EPIPE, "Broken pipe")
+
+    progress = Progress(10, "lines", Gone())
+    progress.announce("compiling ...")
+    progress.update(metrics(1))
+    assert progress.mode == "none"
+    done = subprocess.Popen([sys.executable, "-m", "angora_jax.cli", "train", "cartpole", *TINY, "ppo.num_cycles=3",
+                             f"logging.run_root={tmp_path}", "logging.run_name=r"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=os.environ | QUICK_SUBPROCESS)
+    done.stdout.close()  # before the command writes anything: as `| head -0`
+    err = done.communicate(timeout=300)[1]
+    assert done.returncode == 128 + signal.SIGPIPE and "Traceback" not in err and "Broken pipe" not in err, err
+    assert len(read_metrics(tmp_path / "r")) == 3 and (tmp_path / "r" / "checkpoints" / "latest" / "3").is_dir()
+
+
 @pytest.mark.slow
 def test_a_second_run_reads_every_program_from_the_compilation_cache(tmp_path, monkeypatch):
     """`train` keeps compiled programs in ANGORA_JAX_CACHE: the same config run again compiles nothing (counted by

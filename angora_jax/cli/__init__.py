@@ -31,6 +31,7 @@ angora-jax pretrain-vision --out encoder.msgpack    a visual encoder that sees t
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 
@@ -71,7 +72,8 @@ def leaf_parsers(command: argparse.ArgumentParser) -> list[argparse.ArgumentPars
 def main(argv: list[str] | None = None) -> int:
     """Run the command; exit codes: 0 done, 1 training diverged or another process of the run failed, 2 bad usage
     or config, a second writer, a damaged file, a full disk or a GPU out of memory (nothing saved before is changed),
-    128 + signal number (130 Ctrl-C, 143 SIGTERM) when training was interrupted after saving a checkpoint."""
+    128 + signal number (130 Ctrl-C, 143 SIGTERM) when training was interrupted after saving a checkpoint, 141 (as for
+    SIGPIPE) when the reader of its output left before it ended (`| head`)."""
     cli = parser()
     args, extra = cli.parse_known_args(argv)
     if extra:
@@ -87,7 +89,9 @@ def main(argv: list[str] | None = None) -> int:
             cli.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         import_modules(args.imports, "--import")
-        return args.handler(args)
+        code = args.handler(args)
+        sys.stdout.flush()  # here, where a reader gone is answered below, not at Python's exit (exit status 120)
+        return code
     except UserCodeError as error:
         print(f"angora-jax {args.command}: {error}", file=sys.stderr)
         return EXIT_USAGE
@@ -97,6 +101,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"angora-jax {args.command}: {os_error_message(error, args.command) if system else error}",
               file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:  # stdout's reader is gone (`| head`, a pager closed): nothing to tell it, the work is done
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's flush at exit fails no more
+        return 128 + signal.SIGPIPE  # as a shell reports a writer that SIGPIPE ended
     except OSError as error:  # a full disk, a read-only or lost mount, permissions: the machine's, not a bug
         print(f"angora-jax {args.command}: {os_error_message(error, args.command)}", file=sys.stderr)
         return EXIT_USAGE

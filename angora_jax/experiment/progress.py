@@ -47,23 +47,30 @@ class Progress:
         per_cycle = sum(self._seconds) / len(self._seconds) if self._seconds else metrics["seconds"]
         line = progress_line(metrics, self.total, (self.total - metrics["cycle"]) * per_cycle, self.shown)
         if self.mode == "bar":
-            self.stream.write("\r" + line.ljust(self._width))
+            self._write("\r" + line.ljust(self._width))
             self._width = len(line)
         elif self.mode == "lines":
-            self.stream.write(line + "\n")
-        self.stream.flush()
+            self._write(line + "\n")
 
     def announce(self, text: str) -> None:
         """Print `text` on a line of its own (nothing in mode "none"): what the run is doing before its first cycle."""
         if self.mode != "none":
-            self.stream.write(text + "\n")
-            self.stream.flush()
+            self._write(text + "\n")
 
     def close(self) -> None:
         """End the live line, so that later output starts on a fresh line."""
         if self.mode == "bar" and self._width:
-            self.stream.write("\n")
+            self._write("\n")
+
+    def _write(self, text: str) -> None:
+        """Write `text` to the stream; once its reader has gone, show nothing more."""
+        try:
+            self.stream.write(text)
             self.stream.flush()
+        except BrokenPipeError:
+            # `train ... | head`, or a pager or `tee` closed: the error ended training at the next cycle, before its
+            # checkpoint. The run's records are in metrics.jsonl whatever is shown.
+            self.mode = "none"
 
 
 def _show(value: float, fmt: str) -> str:
