@@ -82,6 +82,23 @@ def test_more_folds_than_episodes_are_refused_with_the_two_ways_out():
         decode(synthetic(episodes=4, steps=5), ["code"], ["metric_x"], folds=5)
 
 
+def test_an_analysis_writes_into_new_folders_and_refuses_a_file_on_the_way_before_computing(tmp_path, capsys,
+                                                                                             monkeypatch):
+    """`analyze ... --out new/x.png` computed the analysis, then failed "No such file or directory" where record and
+    export make the folders; a file on the way (`--out notes.txt/x.png`) also failed only after the analysis."""
+    from angora_jax import analysis, cli
+    from angora_jax.analysis import save_activity
+
+    path = save_activity(synthetic(episodes=4, steps=30), tmp_path / "rec.nc")
+    out = tmp_path / "new" / "deeper" / "t.png"
+    assert cli.main(["analyze", "timescales", str(path), "--out", str(out)]) == 0, capsys.readouterr().err
+    assert out.is_file() and out.with_suffix(".nc").is_file()
+    (tmp_path / "notes.txt").write_text("mine")
+    monkeypatch.setattr(analysis, "timescales", lambda *args: pytest.fail("computed before --out was checked"))
+    assert cli.main(["analyze", "timescales", str(path), "--out", str(tmp_path / "notes.txt" / "t.png")]) == 2
+    assert f"{tmp_path / 'notes.txt'} is a file, not a folder; give a path in a folder" in capsys.readouterr().err
+
+
 def test_decoding_options_out_of_range_are_refused_by_name(tmp_path, capsys):
     """Notebook trial: decode(folds=2.5) failed in scikit-learn, folds="3" comparing text with a number, seed=-1 or
     1.5 inside NumPy, max_samples=0 blamed the recording ("needs at least 2 episodes ...; the recording has 0"),

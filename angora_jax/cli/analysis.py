@@ -22,7 +22,7 @@ from angora_jax.cli.arguments import (
 )
 from angora_jax.experiment import Agent, load_agent
 from angora_jax.experiment.run_dir import CONFIG_FILE, numbered_paths, read_run_config
-from angora_jax.whole_files import written_whole
+from angora_jax.whole_files import unwritable_folder, written_whole
 from angora_jax.wording import agreeing, counted
 
 
@@ -381,15 +381,23 @@ def output_path(analysis: str, given: str | None, directory: Path, stem: str) ->
                   f"numbers are written beside it as .nc: give e.g. {out.with_suffix('.png')}, not {out.name}.",
                   file=sys.stderr)
             return None
-        taken = any(refused_existing(f"analyze {analysis}", path, "analyses") for path in (out, out.with_suffix(".nc")))
-        return None if taken else out
+        if any(refused_existing(f"analyze {analysis}", path, "analyses") for path in (out, out.with_suffix(".nc"))):
+            return None
+        # Asked before the analysis, which may take minutes: a mistyped folder otherwise failed only after it.
+        if (why := unwritable_folder(out)) is not None:
+            print(f"angora-jax analyze {analysis}: --out {out}: {why}; give a path in a folder you can write to.",
+                  file=sys.stderr)
+            return None
+        return out
     return next(path for path in numbered_paths(directory, stem, ".png")
                 if not path.exists() and not path.with_suffix(".nc").exists())
 
 
 def write_plot_and_numbers(result, out: Path, plot) -> None:
     """`plot(result, path)` to `out` (PNG) and `result` to `out` with the suffix .nc (NetCDF), each written whole
-    (`written_whole`): an interrupted analysis leaves no half file."""
+    (`written_whole`): an interrupted analysis leaves no half file. The folders missing on the way are made, as
+    record makes its --out's."""
+    out.parent.mkdir(parents=True, exist_ok=True)
     with written_whole(out) as draft:
         plot(result, str(draft))
     with written_whole(out.with_suffix(".nc")) as draft:
