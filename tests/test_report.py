@@ -72,6 +72,34 @@ def test_a_folder_with_a_page_of_its_own_is_refused_not_written_over(runs, tmp_p
         assert main(["report", str(runs[0].run_dir), "--out", str(tmp_path / "report")]) == 0
 
 
+def test_a_folder_holding_a_file_named_like_a_curve_is_refused_and_a_report_cut_short_is_drawn_again(
+        runs, tmp_path, capsys, monkeypatch):
+    """`report RUN --out figures` into a folder of the user's holding an episode_return.png (and no index.html) wrote
+    the curve over it with exit 0; refused now, nothing written. A report cut short while drawing its curves keeps its
+    page, so the next report into that folder draws them again."""
+    import angora_jax.experiment.report as report
+
+    figures = tmp_path / "figures"
+    figures.mkdir()
+    (figures / "episode_return.png").write_bytes(b"mine")
+    assert main(["report", str(runs[0].run_dir), "--out", str(figures)]) == 2
+    err = capsys.readouterr().err
+    assert f"{figures / 'episode_return.png'} is a file of your own" in err and "give another --out" in err, err
+    assert list(figures.iterdir()) == [figures / "episode_return.png"]
+    assert (figures / "episode_return.png").read_bytes() == b"mine"
+
+    def cut_short(*args):
+        raise OSError(28, "No space left on device")
+
+    out = tmp_path / "report"
+    monkeypatch.setattr(report, "plot_curve", cut_short)
+    assert main(["report", str(runs[0].run_dir), "--out", str(out)]) == 2
+    assert (out / "index.html").is_file() and not list(out.glob("*.png"))
+    monkeypatch.undo()
+    assert main(["report", str(runs[0].run_dir), "--out", str(out)]) == 0
+    assert (out / "episode_return.png").read_bytes().startswith(b"\x89PNG")
+
+
 @pytest.mark.parametrize("section, value, said", [("ppo", "oops", "ppo is 'oops'"), ("env", [1], "env is [1]"),
                                                   ("ppo.network", 3, "ppo.network is 3")])
 def test_a_config_whose_section_is_no_mapping_is_named_as_damaged(section, value, said, runs, tmp_path, capsys):

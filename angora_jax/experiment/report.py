@@ -173,8 +173,9 @@ def plot_curve(runs: list[RunRecord], name: str, path: Path) -> None:
 def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_seconds: int | None = None) -> Path:
     """Write one PNG per metric (runs compared) and index.html into `out_dir`; return the HTML path.
 
-    The report's own files in `out_dir` are regenerated; nothing else there is touched, and an index.html that is not
-    a report's (a site of your own given as `out_dir`) is refused (RunDirError) before anything is written.
+    The report's own files in `out_dir` are regenerated; nothing else there is touched. An index.html that is not a
+    report's (a site of your own given as `out_dir`), or without a report's index.html a file named as one of its
+    PNGs, is refused (RunDirError) before anything is written.
 
     Args:
         run_dirs: the runs to compare; a run given twice (under any spelling of its path) is drawn once.
@@ -192,17 +193,22 @@ def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_second
     if page.is_file() and PAGE_TITLE not in page.read_text(errors="replace"):
         raise RunDirError(f"{page} is a page of your own, not a report of runs, and the report would write over it "
                           "(its index.html and one PNG per curve): give another --out, e.g. a new folder.")
+    images = [(name, name.replace("/", "_") + ".png") for name in curve_names(runs)]
+    if not page.is_file():  # no report's page: a file named like a curve here is the user's
+        yours = [file for _, file in images if (out / file).exists()]
+        if yours:
+            raise RunDirError(f"{out / yours[0]} is a file of your own (the folder holds no report's index.html), and "
+                              "the report would write over it (its index.html and one PNG per curve): give another "
+                              "--out, e.g. a new folder; if it is left from a report cut short, delete it.")
     out.mkdir(parents=True, exist_ok=True)
-    images = []
-    for name in curve_names(runs):
-        image = out / (name.replace("/", "_") + ".png")
-        with written_whole(image) as draft:  # a browser reloading a live report sees the old image or the new one
-            plot_curve(runs, name, draft)
-        images.append((name, image.name))
     # Each run's latest video (evaluation.video), linked where it lies rather than copied: videos are large.
     videos = [(run.name, os.path.relpath(video, out)) for run in runs if (video := latest_video(run.path))]
+    # The page first: a report cut short while drawing is then still known as a report's, and drawn again over.
     with written_whole(page) as draft:
         draft.write_text(render_html(runs, images, refresh_seconds, videos))
+    for name, file in images:
+        with written_whole(out / file) as draft:  # a browser reloading a live report sees the old image or the new one
+            plot_curve(runs, name, draft)
     return page
 
 
