@@ -401,7 +401,9 @@ def test_a_full_disk_keeps_the_previous_checkpoint_and_says_so(whole, tmp_path, 
         aj.train("cartpole", settings(root, "full"))
     monkeypatch.undo()
     message = str(full.value)
-    assert "The disk is full:" in message and "The checkpoints saved before are intact" in message, message
+    # The checkpoints kept, in words ("latest of cycle 2; ..."), not as a Python dict.
+    assert "The disk is full:" in message and "The checkpoints saved before are intact (latest of cycle 2; best of " \
+        "cycle" in message, message
     assert f"continue with `angora-jax resume {root / 'full'}`" in message
     assert not list((root / "full" / CHECKPOINTS).rglob("*orbax-checkpoint-tmp*")), "the failed save left its folder"
     assert check_run(root / "full").problems == []

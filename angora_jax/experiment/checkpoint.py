@@ -324,8 +324,8 @@ class Checkpoints:
                for kind, cycle in unlisted])
         run_dir = self._directory.parent
         happened, fix = no_room(error) or NO_ROOM[errno.ENOSPC][1:]
-        then = (f"The checkpoints saved before are intact ({kept}). {fix[0].upper()}{fix[1:]}, then continue with "
-                f"`angora-jax resume {run_dir}`" if kept else
+        then = (f"The checkpoints saved before are intact ({describe_saved(kept)}). {fix[0].upper()}{fix[1:]}, then "
+                f"continue with `angora-jax resume {run_dir}`" if kept else
                 f"No checkpoint was saved before, so the run cannot continue: {fix}, then train it again with "
                 f"`angora-jax resume {run_dir} --from-scratch` (the cycles logged so far are kept aside)")
         return DiskFullError(
