@@ -27,7 +27,13 @@ from angora_jax.envs.core import Env
 from angora_jax.envs.mjx_env import on_gpu
 from angora_jax.envs.registry import TASKS
 from angora_jax.experiment import compilation_cache
-from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, disk_needed, refuse_files_in_place
+from angora_jax.experiment.checkpoint import (
+    CheckpointError,
+    Checkpoints,
+    describe_saved,
+    disk_needed,
+    refuse_files_in_place,
+)
 from angora_jax.experiment.config import (
     Config,
     ConfigError,
@@ -430,8 +436,7 @@ def _run(
     if state is not None and not new:
         checkpoints.continue_from(int(state.cycle))
     if is_main_process() and checkpoints.removed_unfinished:
-        cut_short = "; ".join(f"{kind} of cycle {', '.join(map(str, cycles))}"
-                              for kind, cycles in checkpoints.removed_unfinished.items())
+        cut_short = describe_saved(checkpoints.removed_unfinished)
         print(f"Removed what a writer stopped mid-save left in {run_dir / CHECKPOINTS} ({cut_short}): unfinished, "
               "never checkpoints; the checkpoints saved before them are intact.", file=sys.stderr, flush=True)
     evaluate = held_out_evaluation(config, env)
