@@ -580,7 +580,7 @@ def check_run_location(logging: LoggingConfig) -> None:
             "and '=', not starting with '.' or '-' (so no '/', '\\' or '..'): the run directory is made inside "
             f"logging.run_root ({_shorten(logging.run_root)}); to write elsewhere, change logging.run_root."
         )
-    _check_folder("logging.run_root", logging.run_root)
+    _check_folder("logging.run_root", str(logging.root))  # the folder made: a leading ~ expanded
 
 
 def num_devices(config: Config) -> int:
