@@ -190,6 +190,18 @@ def test_ctrl_c_while_a_fresh_start_compiles_says_the_run_starts_over_and_where_
     assert "starts it from cycle 0 again" in err and "keeps its checkpoints" not in err
 
 
+def test_a_start_over_killed_after_it_moved_the_earlier_outputs_aside_resumes_from_cycle_0(whole, tmp_path):
+    """SIGKILL between `--from-scratch` moving the outputs to previous-1 and its first record: nothing of the new
+    training exists, so a plain resume trains from cycle 0 to the uninterrupted result, the earlier training kept."""
+    run = copy_of(whole, tmp_path)
+    resume_plan.set_aside_outputs(run)
+    argv, fresh = continuing(run)
+    assert argv == ["resume", str(run)] and not fresh
+    assert resume(run).finished and untimed(read_metrics(run)) == untimed(whole.history)
+    assert untimed(read_metrics(run / "previous-1")) == untimed(whole.history)
+    assert check_run(run).problems == []
+
+
 def test_records_after_the_checkpoint_continued_from_move_to_a_side_file_with_damaged_lines(whole, tmp_path, capsys):
     """`--from 3` sets aside the later records and checkpoints, and the evaluations and training videos of the later
     cycles: the cycles trained again are other policies under the same numbers."""
@@ -482,9 +494,11 @@ def test_a_real_full_disk_ends_in_one_message_and_leaves_no_half_made_run(size, 
 
 def continuing(run: Path) -> tuple[list[str], bool]:
     """How a user continues a stopped run, by what `check` says resume would do: the resume arguments, and whether
-    it starts over (a run killed before its first latest checkpoint is refused until told --from-scratch)."""
+    it starts over (a run killed before its first latest checkpoint is refused until told --from-scratch; a start
+    over killed after it moved the earlier outputs to previous-N, before its first record, trains from cycle 0)."""
     plan = check_run(run).resume
-    assert plan.startswith("continue from the latest checkpoint") or "has no latest checkpoint" in plan, plan
+    assert plan.startswith(("continue from the latest checkpoint", "train from cycle 0: nothing was logged")) or \
+        "has no latest checkpoint" in plan, plan
     fresh = plan.startswith("refuses")
     return ["resume", str(run), *["--from-scratch"] * fresh], fresh
 
