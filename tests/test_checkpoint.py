@@ -48,6 +48,10 @@ UNTIMED = {"seconds", "steps_per_second", "compile_seconds", "time", "memory/hos
 pytestmark = pytest.mark.usefixtures("quick_file_compiles")
 
 
+# Before any training in this process: its SIGHUP handler is set for training, then restored.
+HANGUP_AS_STARTED = signal.getsignal(signal.SIGHUP)
+
+
 def config(tmp_path, name):
     return aj.load_config("cartpole", [*TINY, f"logging.run_root={tmp_path}", f"logging.run_name={name}"])
 
@@ -261,6 +265,7 @@ def test_sigterm_saves_a_loadable_checkpoint_and_restores_the_handler(runs):
     assert stopped.signum == signal.SIGTERM and stopped.cycle == 2
     assert at_interrupt == [2]  # checkpoint.every=100: only the interruption made it save
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    assert signal.getsignal(signal.SIGHUP) is HANGUP_AS_STARTED  # SIG_DFL, or SIG_IGN under nohup
     agent = aj.load_agent(stopped.run_dir, checkpoint=2)
     assert agent.cycle == 2 and int(agent.state.cycle) == 2
 

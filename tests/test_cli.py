@@ -1,6 +1,7 @@
 """The `angora-jax` command: exit codes, messages, SIGTERM on a real process, and the progress display."""
 
 import argparse
+import contextlib
 import errno
 import io
 import json
@@ -516,7 +517,7 @@ def start_training(argv: list[str]) -> tuple[subprocess.Popen, str]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
 def test_a_signal_while_compiling_stops_at_once_and_removes_the_new_run_dir(signum, tmp_path):
     """Reach compiles for a minute on 2 CPU cores: the command must not wait for it, nor leave a run directory."""
     argv = ["train", "shadow_reach", *TINY, f"logging.run_root={tmp_path}", "logging.run_name=new"]
@@ -572,6 +573,60 @@ def test_sigterm_stops_the_command_with_a_checkpoint_and_a_second_one_does_not_c
     cycles = len(read_metrics(tmp_path / "long"))
     agent = aj.load_agent(tmp_path / "long", "latest")
     assert agent.cycle == cycles >= 2
+
+
+def on_a_terminal(argv: list[str], ignore_hangup: bool = False) -> tuple[subprocess.Popen, int]:
+    """`angora-jax ARGV` in a session of its own whose controlling terminal, input and output are a new
+    pseudo-terminal, as when typed in a terminal window or an ssh session. `ignore_hangup`: started with SIGHUP
+    ignored (`nohup`, or bash's `disown -h`). Returns the process and the terminal's own end: closing that end is
+    closing the window (the kernel hangs the terminal up, sends the process SIGHUP, and fails its writes to it)."""
+    terminal, process_end = os.openpty()
+    start = ("import fcntl, os, signal, sys, termios; fcntl.ioctl(0, termios.TIOCSCTTY, 0); "
+             f"{'signal.signal(signal.SIGHUP, signal.SIG_IGN); ' * ignore_hangup}"
+             "os.execv(sys.executable, [sys.executable, '-m', 'angora_jax.cli', *sys.argv[1:]])")
+    process = subprocess.Popen([sys.executable, "-c", start, *argv], stdin=process_end, stdout=process_end,
+                               stderr=process_end, start_new_session=True)
+    os.close(process_end)
+    os.set_blocking(terminal, False)
+    return process, terminal
+
+
+def logged_while_shown(process: subprocess.Popen, terminal: int, metrics: Path, cycles: int) -> None:
+    """Wait until METRICS holds CYCLES records, reading the terminal meanwhile as a terminal window does (a terminal
+    nobody reads fills and blocks the process's writes)."""
+    deadline = time.monotonic() + 120
+    while not (metrics.exists() and metrics.read_text().count("\n") >= cycles):
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+        with contextlib.suppress(BlockingIOError, OSError):
+            os.read(terminal, 65536)
+        time.sleep(0.1)
+
+
+@pytest.mark.slow
+def test_closing_the_terminal_stops_training_with_a_checkpoint_and_with_sighup_ignored_it_trains_on(tmp_path):
+    """Closing the terminal that runs `train` (a window, a dropped ssh session) sends SIGHUP, which killed the process
+    with the cycles since its last checkpoint and left its lock. It now stops after its cycle and saves, as on
+    SIGTERM, though every write to the closed terminal fails. Started with SIGHUP ignored, it trains on to its end;
+    the failed writes ended it before with "the disk or network file system failed" (exit 2)."""
+    argv = ["train", "cartpole", *TINY, "logging.progress=bar", "ppo.num_cycles=100000", "checkpoint.every=1000",
+            f"logging.run_root={tmp_path}", "logging.run_name=closed"]
+    process, terminal = on_a_terminal(argv)
+    logged_while_shown(process, terminal, tmp_path / "closed" / "metrics.jsonl", 2)
+    os.close(terminal)
+    assert process.wait(timeout=120) == 128 + signal.SIGHUP
+    run = tmp_path / "closed"
+    assert not (run / "writer.lock").exists() and check_run(run).problems == []
+    assert aj.load_agent(run, "latest").cycle == len(read_metrics(run)) >= 2
+
+    # Training for 9 s, of which the terminal is open for the first cycle only.
+    argv = [*argv[:-2], f"logging.run_root={tmp_path}", "logging.run_name=ignored", "--minutes", "0.15"]
+    process, terminal = on_a_terminal(argv, ignore_hangup=True)
+    logged_while_shown(process, terminal, tmp_path / "ignored" / "metrics.jsonl", 1)
+    os.close(terminal)
+    closed_at = len(read_metrics(tmp_path / "ignored"))
+    assert process.wait(timeout=120) == 128 + signal.SIGHUP  # its work done, its last lines lost
+    cycles = len(read_metrics(tmp_path / "ignored"))
+    assert cycles > closed_at + 10 and aj.load_agent(tmp_path / "ignored", "latest").cycle == cycles
 
 
 class Terminal(io.StringIO):

@@ -31,6 +31,7 @@ angora-jax pretrain-vision --out encoder.msgpack    a visual encoder that sees t
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import signal
 import sys
@@ -72,8 +73,10 @@ def leaf_parsers(command: argparse.ArgumentParser) -> list[argparse.ArgumentPars
 def main(argv: list[str] | None = None) -> int:
     """Run the command; exit codes: 0 done, 1 training diverged or another process of the run failed, 2 bad usage
     or config, a second writer, a damaged file, a full disk or a GPU out of memory (nothing saved before is changed),
-    128 + signal number (130 Ctrl-C, 143 SIGTERM) when training was interrupted after saving a checkpoint, 141 (as for
-    SIGPIPE) when the reader of its output left before it ended (`| head`)."""
+    128 + signal number (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP: its terminal closed) when training was interrupted
+    after saving a checkpoint, 141 (as for SIGPIPE) when the reader of its output left before it ended (`| head`),
+    129 too when its terminal closed while it ran on with SIGHUP ignored (its work done; its last output lost)."""
+    terminals = [descriptor for descriptor in (1, 2) if os.isatty(descriptor)]  # a closed terminal is no tty
     cli = parser()
     args, extra = cli.parse_known_args(argv)
     if extra:
@@ -105,6 +108,11 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's flush at exit fails no more
         return 128 + signal.SIGPIPE  # as a shell reports a writer that SIGPIPE ended
     except OSError as error:  # a full disk, a read-only or lost mount, permissions: the machine's, not a bug
+        if error.errno == errno.EIO and any(not os.isatty(descriptor) for descriptor in terminals):
+            # Not the disk: the terminal it wrote to closed (`disown`, a SIGHUP ignored); nothing can be shown.
+            for descriptor in terminals:
+                os.dup2(os.open(os.devnull, os.O_WRONLY), descriptor)
+            return 128 + signal.SIGHUP
         print(f"angora-jax {args.command}: {os_error_message(error, args.command)}", file=sys.stderr)
         return EXIT_USAGE
     except TrainingInterrupted as stop:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import math
 import sys
 from typing import TextIO
@@ -67,9 +68,12 @@ class Progress:
         try:
             self.stream.write(text)
             self.stream.flush()
-        except BrokenPipeError:
-            # `train ... | head`, or a pager or `tee` closed: the error ended training at the next cycle, before its
-            # checkpoint. The run's records are in metrics.jsonl whatever is shown.
+        except OSError as error:
+            # `train ... | head`, or a pager or `tee` closed (EPIPE), or the terminal (EIO, just before its SIGHUP):
+            # the error ended training at the next cycle, before its checkpoint. The run's records are in
+            # metrics.jsonl whatever is shown.
+            if not isinstance(error, BrokenPipeError) and error.errno != errno.EIO:
+                raise
             self.mode = "none"
 
 

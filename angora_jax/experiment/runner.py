@@ -118,13 +118,16 @@ class TrainingRun:
 
 
 class TrainingInterrupted(Exception):
-    """Training stopped on SIGINT (Ctrl-C) or SIGTERM after saving a checkpoint; `resume(run_dir)` continues."""
+    """Training stopped on SIGINT (Ctrl-C), SIGTERM or SIGHUP (its terminal closed) after saving a checkpoint;
+    `resume(run_dir)` continues."""
 
     def __init__(self, signum: int, run_dir: Path, cycle: int):
         self.signum, self.run_dir, self.cycle = signum, run_dir, cycle
+        hangup = (" To train on after the terminal closes, start it under nohup, tmux or screen."
+                  if signum == signal.SIGHUP else "")
         super().__init__(
             f"Interrupted by {signal.Signals(signum).name} after cycle {cycle}; a checkpoint of that cycle is saved. "
-            f"Continue with: angora-jax resume {run_dir} (in Python: aj.resume({str(run_dir)!r}))"
+            f"Continue with: angora-jax resume {run_dir} (in Python: aj.resume({str(run_dir)!r})).{hangup}"
         )
 
 
@@ -567,7 +570,7 @@ def _preparation(run_dir: Path, new: bool) -> Iterator[Callable[[], None]]:
     if threading.current_thread() is not threading.main_thread():
         yield preparing.set
         return
-    exits = (signal.SIGINT, signal.SIGTERM) if _EXIT_WHILE_PREPARING.get() else (signal.SIGTERM,)
+    exits = (signal.SIGTERM, signal.SIGHUP, *[signal.SIGINT] * _EXIT_WHILE_PREPARING.get())
     receive, send = socket.socketpair()
     send.setblocking(False)
     previous = signal.set_wakeup_fd(send.fileno(), warn_on_full_buffer=False)
@@ -602,8 +605,9 @@ def _exit_while_preparing(signum: signal.Signals, run_dir: Path, new: bool) -> N
             kept = f"; the earlier training is kept in {earlier[-1]}" if earlier else ""
             outcome = (f"{run_dir} holds no checkpoint of this training{kept}; `angora-jax resume {run_dir}` (in "
                        f"Python: aj.resume({str(run_dir)!r})) starts it from cycle 0 again")
-    print(f"\nInterrupted by {signum.name} before the first cycle ended (while compiling or running it): {outcome}.",
-          file=sys.stderr, flush=True)
+    with contextlib.suppress(OSError):  # SIGHUP: the terminal is gone, and writing to it fails
+        print(f"\nInterrupted by {signum.name} before the first cycle ended (while compiling or running it): "
+              f"{outcome}.", file=sys.stderr, flush=True)
     os._exit(128 + signum)
 
 
@@ -660,34 +664,61 @@ class _StopRequest:
 
 @contextlib.contextmanager
 def _stop_requests() -> Iterator[_StopRequest]:
-    """Turn the first SIGINT or SIGTERM into a request to stop after the current cycle (the compiled cycle cannot
-    be stopped halfway, and stopping between cycles lets the run save a checkpoint). A second Ctrl-C acts as usual,
-    at once. A second SIGTERM does not cut the stopping save short: one signal often arrives twice (a launcher
-    forwards it to a process that its process group's signal reached already), and SIGKILL remains for a user who
-    means it; in the command, whose process ends after the stop, it is not restored to kill the process on its way
-    out. Signal handlers can only be set from the main thread; elsewhere signals are left alone."""
+    """Turn the first SIGINT, SIGTERM or SIGHUP into a request to stop after the current cycle (the compiled cycle
+    cannot be stopped halfway, and stopping between cycles lets the run save a checkpoint). A second Ctrl-C acts as
+    usual, at once. A second SIGTERM or SIGHUP does not cut the stopping save short: one signal often arrives twice (a
+    launcher, or the shell of a closed terminal, forwards it to a process that its process group's signal reached
+    already), and SIGKILL remains for a user who means it; in the command, whose process ends after the stop, they
+    are not restored to kill the process on its way out. SIGHUP, sent when the terminal closes (an ssh session
+    dropped), killed the process with the cycles since its last checkpoint; its output to that terminal now goes
+    nowhere, as writing to a closed terminal fails. A SIGHUP ignored when training starts (`nohup`) stays ignored.
+    Signal handlers can only be set from the main thread; elsewhere signals are left alone."""
     request = _StopRequest()
     if threading.current_thread() is not threading.main_thread():
         yield request
         return
-    signals = (signal.SIGINT, signal.SIGTERM)
+    signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     previous = {signum: signal.getsignal(signum) for signum in signals}
+    held = [signum for signum in signals if previous[signum] is not signal.SIG_IGN]
+    terminals = _terminal_descriptors()  # now: once the terminal has hung up, isatty says no
 
     def again(signum, frame):
-        print("SIGTERM again: still finishing the cycle and saving its checkpoint, then the run stops; kill -9 "
-              "(SIGKILL) ends it at once, keeping the checkpoints saved before.", file=sys.stderr, flush=True)
-        signal.signal(signal.SIGTERM, lambda signum, frame: None)  # said once
+        if signum == signal.SIGTERM:
+            print("SIGTERM again: still finishing the cycle and saving its checkpoint, then the run stops; kill -9 "
+                  "(SIGKILL) ends it at once, keeping the checkpoints saved before.", file=sys.stderr, flush=True)
+        signal.signal(signum, lambda signum, frame: None)  # said once
 
     def handle(signum, frame):
+        if signum == signal.SIGHUP:
+            _leave_closed_terminal(terminals)
         request.signum = signum
         signal.signal(signal.SIGINT, previous[signal.SIGINT])
-        signal.signal(signal.SIGTERM, again)
+        for later in {signal.SIGTERM, signal.SIGHUP} & set(held):
+            signal.signal(later, again)
 
-    for signum in signals:
+    for signum in held:
         signal.signal(signum, handle)
     try:
         yield request
     finally:
         signal.signal(signal.SIGINT, previous[signal.SIGINT])
         if request.signum is None or not _EXIT_WHILE_PREPARING.get():
-            signal.signal(signal.SIGTERM, previous[signal.SIGTERM])
+            for signum in {signal.SIGTERM, signal.SIGHUP} & set(held):
+                signal.signal(signum, previous[signum])
+
+
+def _terminal_descriptors() -> list[int]:
+    """The file descriptors of the standard output and error that go to a terminal."""
+    descriptors = []
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError, AttributeError):  # closed, or replaced without a descriptor
+            if os.isatty(stream.fileno()):
+                descriptors.append(stream.fileno())
+    return descriptors
+
+
+def _leave_closed_terminal(descriptors: list[int]) -> None:
+    """Point DESCRIPTORS, the standard output and error that went to a terminal, at /dev/null: after SIGHUP the
+    terminal is gone, and each write to it would fail (EIO) and end the run before its checkpoint."""
+    for descriptor in descriptors:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), descriptor)
