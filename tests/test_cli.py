@@ -109,6 +109,15 @@ def test_bad_input_exits_2_with_the_cause(argv, message, capsys, tmp_path, monke
     assert sorted(path.name for path in tmp_path.iterdir() if path.name != "runs") == ["binary.yaml", "empty.yaml"]
 
 
+def test_resume_num_cycles_past_the_cycle_counter_names_the_option(capsys):
+    """`resume --num-cycles 100000000000` was refused as "ppo.num_cycles must be <= 2,147,483,647", a setting the
+    command line does not take, after the run was loaded."""
+    with pytest.raises(SystemExit) as ended:
+        main(["resume", "no/such/run", "--num-cycles", "100000000000"])
+    err = capsys.readouterr().err
+    assert ended.value.code == 2 and "argument --num-cycles: must be a whole number from 1 to 2,147,483,647" in err
+
+
 def test_a_path_in_or_above_a_run_names_the_run_directory(capsys, tmp_path, monkeypatch):
     """A run's config.yaml or checkpoints folder given for the run, or the folder of runs, names the run directory
     to give instead (relative as typed); a missing path says it does not exist; a run given for a recording says to

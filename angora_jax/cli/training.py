@@ -11,15 +11,16 @@ from angora_jax.cli.arguments import (
     EXIT_USAGE,
     add_distributed_flags,
     add_time_limit,
+    bounded_int,
     checkpoint_of,
     config_with_imports,
-    positive_int,
 )
 from angora_jax.experiment import ConfigError, TrainingRun, read_metrics, resume, train
 from angora_jax.experiment.distributed import initialize, is_main_process
 from angora_jax.experiment.run_check import check_run, restore_config
 from angora_jax.experiment.run_dir import read_run_config
 from angora_jax.experiment.runner import signals_exit_while_preparing
+from angora_jax.ppo.config import INT32_MAX
 from angora_jax.wording import counted
 
 
@@ -51,7 +52,8 @@ def add_resume(commands: argparse._SubParsersAction) -> None:
         help="train the run again from cycle 0 with its config; the earlier metrics, checkpoints, report, videos and "
              "evaluations move to RUN_DIR/previous-N/")
     resume.add_argument(
-        "--num-cycles", type=positive_int, default=None, metavar="N",
+        "--num-cycles", type=bounded_int(1, INT32_MAX, "the cycle counter is a 32-bit integer"), default=None,
+        metavar="N",
         help="train to N cycles in all instead of the run's ppo.num_cycles (recorded in its config.yaml): to train a "
              "finished run longer, or stop one sooner")
     resume.add_argument(
