@@ -37,6 +37,7 @@ from angora_jax.experiment.monitor import read_metrics
 from angora_jax.experiment.progress import Progress, progress_line
 from angora_jax.experiment.run_check import check_run
 from angora_jax.experiment.run_dir import read_sessions
+from angora_jax.experiment.runner import TrainingInterrupted
 
 TINY = [
     *TINY_PPO,
@@ -212,6 +213,20 @@ def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys
     err = capsys.readouterr().err
     assert err.startswith("angora-jax train: Process(es) 1 of this run failed after cycle 3")
     assert "Traceback" not in err and f"angora-jax resume {tmp_path / 'run'} --distributed" in err
+
+
+def test_an_interrupted_job_says_so_once_from_process_0(capsys, tmp_path, monkeypatch):
+    """Ctrl-C reaches every process of a multi-process job on one terminal (examples/multi_gpu_host.sh), and each
+    printed the same "Interrupted by SIGINT after cycle N" line; the others now exit with the code alone."""
+    def interrupted(config, minutes=None):
+        raise TrainingInterrupted(signal.SIGINT, tmp_path / "run", 3)
+
+    monkeypatch.setattr(cli.training, "train", interrupted)
+    monkeypatch.setattr(jax, "process_index", lambda: 1)
+    assert main(["train", "cartpole"]) == 128 + signal.SIGINT and capsys.readouterr().err == ""
+    monkeypatch.setattr(jax, "process_index", lambda: 0)
+    assert main(["train", "cartpole"]) == 128 + signal.SIGINT
+    assert capsys.readouterr().err.startswith("angora-jax train: Interrupted by SIGINT after cycle 3; a checkpoint")
 
 
 def test_overrides_may_follow_the_options_and_other_strays_are_usage_errors(capsys, monkeypatch):

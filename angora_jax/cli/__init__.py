@@ -40,7 +40,7 @@ from angora_jax.cli import analysis, configs, evaluation, reports, training, vis
 from angora_jax.cli.arguments import EXIT_FAILED, EXIT_USAGE, add_import_option
 from angora_jax.cli.errors import device_memory_message, os_error_message, platform_message
 from angora_jax.experiment import ConfigError, RunDirError, TrainingInterrupted
-from angora_jax.experiment.distributed import ProcessFailed, lost_process_cause, lost_process_exit
+from angora_jax.experiment.distributed import ProcessFailed, is_main_process, lost_process_cause, lost_process_exit
 from angora_jax.ppo import TrainingDivergedError
 from angora_jax.registry.plugins import UserCodeError, import_modules
 
@@ -116,7 +116,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"angora-jax {args.command}: {os_error_message(error, args.command)}", file=sys.stderr)
         return EXIT_USAGE
     except TrainingInterrupted as stop:
-        print(f"angora-jax {args.command}: {stop}", file=sys.stderr)
+        if is_main_process():  # every process of a job stopped after the same cycle: one says so, not one each
+            print(f"angora-jax {args.command}: {stop}", file=sys.stderr)
         return 128 + stop.signum
     except KeyboardInterrupt:  # Ctrl-C in a verb other than train's loop, which stops after saving instead
         print(f"angora-jax {args.command}: interrupted (Ctrl-C); the files it wrote are whole, none was left "
