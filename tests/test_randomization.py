@@ -1,8 +1,8 @@
 """Domain randomization of the hand tasks (`envs.randomization`): ranges are checked before anything compiles, a draw
 is per environment and per key, zero-width ranges give the unrandomized task bit for bit, randomized fields change
 the physics on both MJX implementations (Warp reading one world's fields per environment), the C MuJoCo twin
-simulates the same worlds for the same key, the cube's size scales its geoms, mass and inertia, and a delayed action
-reaches the physics the drawn number of steps late.
+simulates the same worlds for the same key, the cube's size scales its geoms, mass and inertia, a delayed action
+reaches the physics the drawn number of steps late, and the value function may see the drawn physics.
 
 Warp's CPU kernels compile in seconds, so most tests run on Warp; one runs on MJX's JAX implementation."""
 
@@ -181,12 +181,14 @@ def test_randomized_fields_change_mjx_jax_physics_and_ones_give_the_unrandomized
 
 @pytest.mark.slow
 def test_evaluate_runs_a_policy_under_randomization_given_as_an_env_option(tmp_path, capsys, quick_compiles):
-    """A reach run trains under randomization; `angora-jax evaluate --env-option randomization=...` on the batched
-    path (Warp) plays its policy in other randomized worlds, recorded as a changed task; the CPU path (C MuJoCo slots,
+    """A reach run trains under randomization, its value function seeing the drawn physics; `angora-jax evaluate
+    --env-option randomization=...` on the batched path (Warp) plays its policy in other randomized worlds (other
+    ranges: the value function's inputs keep their size), recorded as a changed task; the CPU path (C MuJoCo slots,
     each its own world) plays the same episodes: the same lengths, returns within 1% (as test_warp.py's evaluation),
     and returns unlike those of the task it trained in."""
     run = aj.train("shadow_reach", [*TINY_PPO, "ppo.num_cycles=1", "env.options.physics={impl: warp}",
                                     "env.options.randomization={joint_damping: [0.8, 1.2]}",
+                                    "env.options.value_sees_physics=true",
                                     "env.options.max_episode_steps=20", "logging.progress=none",
                                     "logging.report=false", "checkpoint.best_metric=null",
                                     f"logging.run_root={tmp_path}", "logging.run_name=reach"]).run_dir
@@ -206,6 +208,37 @@ def test_evaluate_runs_a_policy_under_randomization_given_as_an_env_option(tmp_p
     # The same episodes on the same path in the run's own task: a change well above float rounding.
     changed = np.abs(plain.episodes["episode_return"] - cpu.episodes["episode_return"])
     assert changed.max() > 1e-3 * np.abs(returns).max()
+
+
+@pytest.mark.slow
+def test_the_value_function_sees_the_drawn_physics_in_one_layout_whichever_ranges_are_set(inputs):
+    """`value_sees_physics`: `asymmetric` ends with the log of each drawn factor and the delay, held through the
+    episode, in a layout that does not depend on the ranges (a run evaluated under other ranges, or none, keeps its
+    value function's input size); zeros for the nominal physics. On the C MuJoCo twin (the batched path adds it in the
+    same `MujocoEnv` code: test_evaluate_runs_a_policy_under_randomization_given_as_an_env_option)."""
+    keys, actions = inputs
+    plain = aj.make("ShadowHandReach", physics=WARP, backend="cpu").reset(keys[0]).obs.asymmetric
+    env = aj.make("ShadowHandReach", physics=WARP, randomization=WIDE, value_sees_physics=True, backend="cpu")
+    state = env.reset(keys[0])
+    hand = env.task.randomizer.hand_dofs
+    factors = state.info[INFO_KEY]
+    expected = np.concatenate([np.log(factors["geom_friction"][0, :1]), np.log(factors["dof_damping"][hand]),
+                               np.log(factors["dof_armature"][hand]), np.log(factors["actuator_gainprm"][:, 0]),
+                               [state.info[DELAY_KEY]["delay"]]])
+    assert len(hand) == 24 and expected.shape == (1 + 24 + 24 + 20 + 1,)
+    np.testing.assert_array_equal(state.obs.asymmetric[: plain.shape[0]], plain)
+    np.testing.assert_allclose(state.obs.asymmetric[plain.shape[0]:], expected, rtol=1e-6)
+    for t in range(2):
+        state = env.step(state, actions[t, 0])
+        np.testing.assert_allclose(state.obs.asymmetric[plain.shape[0]:], expected, rtol=1e-6)
+    # What the policy sees is as without the option.
+    without = aj.make("ShadowHandReach", physics=WARP, randomization=WIDE, backend="cpu").reset(keys[0]).obs
+    jax.tree.map(np.testing.assert_array_equal, without, env.reset(keys[0]).obs.replace(asymmetric=plain))
+    friction = aj.make("ShadowHandReach", physics=WARP, randomization={"friction": [0.5, 1.5]},
+                       value_sees_physics=True, backend="cpu").reset(keys[0]).obs.asymmetric[plain.shape[0]:]
+    assert friction.shape == expected.shape and friction[0] != 0 and not np.any(friction[1:])
+    nominal = aj.make("ShadowHandReach", physics=WARP, value_sees_physics=True, backend="cpu").reset(keys[0])
+    np.testing.assert_array_equal(nominal.obs.asymmetric, np.concatenate([plain, np.zeros(expected.shape)]))
 
 
 def cube_pose(env, inputs):

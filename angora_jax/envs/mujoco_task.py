@@ -220,7 +220,7 @@ class MujocoEnv(Env):
         info = info | {INFO_KEY: factors}
         if randomizer.delays:
             info[DELAY_KEY] = randomizer.delay_state(key, self.task.initial_control(snap))
-        return info, randomizer.noisy_observation(obs, key)
+        return info, self._with_physics(randomizer.noisy_observation(obs, key), info)
 
     def _control_task(self, action: jax.Array, key: jax.Array, snap: Snapshot,
                       info: dict[str, jax.Array]) -> tuple[jax.Array, dict[str, jax.Array]]:
@@ -246,7 +246,17 @@ class MujocoEnv(Env):
         held = {k: v for k, v in info.items() if k in (INFO_KEY, DELAY_KEY)}
         task_info = {k: v for k, v in info.items() if k not in held}
         obs, reward, terminated, task_info, metrics = self.task.advance(key, prev, snap, task_info)
-        return randomizer.noisy_observation(obs, key), reward, terminated, task_info | held, metrics
+        return self._with_physics(randomizer.noisy_observation(obs, key), held), reward, terminated, task_info | held, \
+            metrics
+
+    def _with_physics(self, obs: Sensation, info: dict[str, Any]) -> Sensation:
+        """`obs` with the episode's drawn physics (held in `info`) after its `asymmetric` inputs, when the value
+        function sees them (`ModelRandomizer.physics_inputs`)."""
+        randomizer = self.task.randomizer
+        if not randomizer.value_sees_physics:
+            return obs
+        physics = randomizer.physics_inputs(info[INFO_KEY], info.get(DELAY_KEY))
+        return obs.replace(asymmetric=jnp.concatenate([obs.asymmetric, physics]))
 
     def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
         return {"engine": "C MuJoCo (eager)", "device": "host CPU", "timestep_s": float(self.task.model.opt.timestep),

@@ -133,11 +133,14 @@ class Randomization:
 
 class ModelRandomizer:
     """`randomization` resolved against `model`: which fields and elements each range scales. `cube_body` names the
-    cube's body (its free joint's dofs are the cube's, every other dof the hand's)."""
+    cube's body (its free joint's dofs are the cube's, every other dof the hand's). `value_sees_physics`: the
+    value function's `asymmetric` inputs also hold the episode's drawn physics (`physics_inputs`)."""
 
-    def __init__(self, randomization: Randomization, model: mujoco.MjModel, cube_body: str | None = None):
+    def __init__(self, randomization: Randomization, model: mujoco.MjModel, cube_body: str | None = None,
+                 value_sees_physics: bool = False):
         self.randomization = randomization
         self.model = model
+        self.value_sees_physics = value_sees_physics
         cube_dofs = np.zeros(model.nv, bool)
         self.cube_body = -1
         if cube_body is not None:
@@ -195,6 +198,24 @@ class ModelRandomizer:
             factors["body_mass"] = ones("body_mass").at[self.cube_body].set(mass)
             factors["body_inertia"] = ones("body_inertia").at[self.cube_body].set(inertia)
         return factors
+
+    def physics_inputs(self, factors: dict[str, jax.Array], delay: dict[str, jax.Array] | None) -> jax.Array:
+        """An episode's drawn physics as inputs for the value function, `(P,)` float32: the log of each factor (0 where
+        its field is not randomized, so the layout does not depend on which ranges are set), in the order friction
+        (1), each hand joint's damping, then armature, each actuator's gain, and on the cube task its mass (with its
+        size's s^3), free-joint damping and size (1 each); then the action delay in policy steps (0 without one).
+        `factors`: `draw`'s; `delay`: `delay_state`'s, or None. Pure JAX."""
+        def drawn(field: str, index) -> jax.Array:
+            value = factors[field][index] if field in factors else jnp.ones(np.shape(getattr(self.model, field)[index]))
+            return jnp.log(jnp.atleast_1d(value).astype(jnp.float32))
+
+        parts = [drawn("geom_friction", (0, 0)), drawn("dof_damping", self.hand_dofs),
+                 drawn("dof_armature", self.hand_dofs), drawn("actuator_gainprm", (slice(None), 0))]
+        if self.cube_body >= 0:
+            parts += [drawn("body_mass", self.cube_body), drawn("dof_damping", self.cube_dofs[0]),
+                      drawn("geom_size", (self.cube_geoms[0], 0))]
+        steps = jnp.zeros(1, jnp.float32) if delay is None else jnp.atleast_1d(delay["delay"]).astype(jnp.float32)
+        return jnp.concatenate([*parts, steps])
 
     @property
     def delays(self) -> bool:

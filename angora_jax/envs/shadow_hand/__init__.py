@@ -22,11 +22,13 @@ from angora_jax.envs.shadow_hand.reach import Reach, ReachReward
 
 
 def build(backend: str, task: MujocoTask, frame_skip: int, max_episode_steps: int, settings: PhysicsSettings,
-          randomization: Randomization | None = None, cube_body: str | None = None) -> Env:
+          randomization: Randomization | None = None, cube_body: str | None = None,
+          value_sees_physics: bool = False) -> Env:
     """The task on a backend (`angora_jax.envs.backends.on_backend`), Warp sized by `settings`, domain-randomized by
-    `randomization` (`cube_body` names the cube's body for its ranges)."""
-    if randomization is not None:
-        task.randomizer = ModelRandomizer(randomization, task.model, cube_body)
+    `randomization` (`cube_body` names the cube's body for its ranges), the drawn physics among the value function's
+    inputs if `value_sees_physics` (the nominal physics without `randomization`)."""
+    if randomization is not None or value_sees_physics:
+        task.randomizer = ModelRandomizer(randomization or Randomization(), task.model, cube_body, value_sees_physics)
     return on_backend(backend, task, frame_skip, max_episode_steps, settings.warp_max_envs)
 
 
@@ -39,7 +41,8 @@ def make_reach(free: bool = False, reward_preset: str = "default", reward: dict[
                control_dt: float = 0.02, max_episode_steps: int = 100, control: str = "position",
                physics: dict[str, float] | None = None, vision: dict | None = None, target_finger: str | None = None,
                freeze_wrist: bool = False, sequence_length: int | None = None, sequence_order: str = "random",
-               randomization: dict | None = None, touch: bool = False, backend: str = "mjx") -> Env:
+               randomization: dict | None = None, value_sees_physics: bool = False, touch: bool = False,
+               backend: str = "mjx") -> Env:
     """Build a reach task. Defaults follow AngoraPy: 0.02 s per policy step, 100 policy steps per episode,
     joint targets set relative to the joints' positions (`control`: see `HandTask`).
 
@@ -58,6 +61,8 @@ def make_reach(free: bool = False, reward_preset: str = "default", reward: dict[
         sequence_order: "random" (each target drawn among the three fingers other than the previous) or "fixed" (FF, MF,
             RF, LF, FF, ...).
         randomization: domain randomization ranges, `randomization.Randomization` fields without the cube's.
+        value_sees_physics: the value function's `asymmetric` inputs also hold the episode's drawn physics (the log
+            of each factor and the action delay: `randomization.ModelRandomizer.physics_inputs`), the policy's do not.
         touch: the hand carries Gym's 97 touch sensors (the cube's, `model.add_touch_sensors`) and `Sensation.touch`
             holds their readings (N); off by default, as in Gym's HandReach, so that MJX evaluates no sensor.
         backend: "mjx" (batched, for training) or "cpu" (the eager C MuJoCo twin).
@@ -72,7 +77,7 @@ def make_reach(free: bool = False, reward_preset: str = "default", reward: dict[
     task = Reach(scene, ReachReward.preset(REACH_REWARDS, reward_preset, reward), free=free, control=control,
                  vision=cameras, target_finger=target_finger, freeze_wrist=freeze_wrist,
                  sequence_length=sequence_length, sequence_order=sequence_order)
-    return build(backend, task, frame_skip, max_episode_steps, settings, ranges)
+    return build(backend, task, frame_skip, max_episode_steps, settings, ranges, value_sees_physics=value_sees_physics)
 
 
 # Reads a pose estimator file for the cube's `pose_estimator` option. Estimators are made and trained in
@@ -117,7 +122,7 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
               action_scale: float = 0.2, start_pool: int = 512, physics: dict[str, float] | None = None,
               vision: dict | None = None, pose_estimator: str | None = None, freeze_wrist: bool = False,
               pose_noise: dict[str, float] | None = None, goals: str = "random", randomization: dict | None = None,
-              backend: str = "mjx") -> Env:
+              value_sees_physics: bool = False, backend: str = "mjx") -> Env:
     """Build in-hand cube reorientation (see `ihom.Ihom`). Times in s, angles in rad.
 
     The defaults are the recipe of `configs/shadow_ihom.yaml`; `configs/shadow_ihom_paper.yaml` sets AngoraPy's.
@@ -146,6 +151,7 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
         goals: "random" (any rotation) or "test_set", the 24 axis-aligned orientations (AngoraPy's
             TestCaseManipulateBlock), to evaluate runs on the same fixed set: `evaluate --env-option goals=test_set`.
         randomization: domain randomization ranges, `randomization.Randomization` fields (docs/tasks.md).
+        value_sees_physics: as for `make_reach`, with the cube's mass, damping and size.
     """
     ranges = Randomization.from_options(randomization, cube=True)
     estimator = None
@@ -168,7 +174,7 @@ def make_ihom(reward_preset: str = "dense", reward: dict[str, float] | None = No
                 timer=timer, relative_goal=relative_goal, control=control, action_scale=action_scale,
                 start_pool=start_pool, vision=cameras, pose_estimator=estimator, freeze_wrist=freeze_wrist,
                 pose_noise=None if pose_noise is None else PoseNoise.from_options(pose_noise), goals=goals)
-    return build(backend, task, frame_skip, max_goals * steps_per_goal, settings, ranges, CUBE_BODY)
+    return build(backend, task, frame_skip, max_goals * steps_per_goal, settings, ranges, CUBE_BODY, value_sees_physics)
 
 
 register("ShadowHandReach", make_reach)
