@@ -143,16 +143,20 @@ def test_a_finished_run_trained_longer_ends_as_the_longer_run_and_records_its_ne
     start, and records N in its config.yaml and session record; fewer cycles than it has done, or a run whose
     schedule spans its length, are refused with the reason before anything changes."""
     whole = runs[0]
-    short = aj.train(aj.load_config("cartpole", [*TINY, "ppo.num_cycles=2", f"logging.run_root={tmp_path}",
-                                                 "logging.run_name=short", "logging.progress=lines"]))
-    capsys.readouterr()
-    assert main(["resume", str(short.run_dir)]) == 0
-    said = capsys.readouterr().out
-    assert "nothing to train (cycle 2 of 2: already complete)" in said and "compiling" not in said, said
-    assert "already complete; to train it longer: angora-jax resume" in said
-    assert main(["check", str(short.run_dir)]) == 0
-    assert "the run is complete (2 of 2 cycles): `angora-jax resume" in capsys.readouterr().out
-    assert main(["resume", str(short.run_dir), "--num-cycles", "4"]) == 0
+    # The same settings at another length reuse the programs that `runs` traced: nothing compiled depends on the
+    # count without a schedule that ends at the last cycle (cycle_programs' key).
+    with jax_events("jaxpr_trace_duration") as traced:
+        short = aj.train(aj.load_config("cartpole", [*TINY, "ppo.num_cycles=2", f"logging.run_root={tmp_path}",
+                                                     "logging.run_name=short", "logging.progress=lines"]))
+        capsys.readouterr()
+        assert main(["resume", str(short.run_dir)]) == 0
+        said = capsys.readouterr().out
+        assert "nothing to train (cycle 2 of 2: already complete)" in said and "compiling" not in said, said
+        assert "already complete; to train it longer: angora-jax resume" in said
+        assert main(["check", str(short.run_dir)]) == 0
+        assert "the run is complete (2 of 2 cycles): `angora-jax resume" in capsys.readouterr().out
+        assert main(["resume", str(short.run_dir), "--num-cycles", "4"]) == 0
+    assert not {"init", "cycle"} & set(traced), traced
     assert "ppo.num_cycles 2 -> 4, recorded in its config.yaml" in capsys.readouterr().err
     for a, b in zip(jax.tree.leaves(whole.state.params), jax.tree.leaves(aj.load_agent(short.run_dir, "latest").params),
                     strict=True):
@@ -258,6 +262,7 @@ def test_a_longer_run_of_the_same_settings_reuses_the_programs_unless_a_schedule
     assert programs("ppo.num_cycles=9") is programs("ppo.num_cycles=4")
     for schedule in ("ppo.lr_decay=true", "ppo.entropy_coef_final=0.0"):
         assert programs(schedule, "ppo.num_cycles=9")[1] is not programs(schedule, "ppo.num_cycles=4")[1], schedule
+
 
 @pytest.mark.slow
 def test_sigterm_saves_a_loadable_checkpoint_and_restores_the_handler(runs):

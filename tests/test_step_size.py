@@ -8,7 +8,9 @@ import pytest
 from tiny import TINY_PPO
 
 import angora_jax as aj
+from angora_jax.experiment import validate
 from angora_jax.experiment.config import load_config
+from angora_jax.experiment.programs import cycle_programs
 from angora_jax.ppo import PPOConfig
 from angora_jax.ppo.step_size import adapt_learning_rate, entropy_coef, learning_rate, make_optimizer
 
@@ -67,6 +69,10 @@ def test_an_adapted_rate_and_an_annealed_entropy_weight_continue_exactly_after_a
     overrides = [*TINY_PPO, "ppo.num_cycles=3", "ppo.learning_rate=1e-4", "ppo.target_kl=10.0", "ppo.lr_max=1e-2",
                  "ppo.entropy_coef=0.02", "ppo.entropy_coef_final=0.0", "logging.progress=none",
                  "logging.report=false", f"logging.run_root={tmp_path}"]
+    # Programs made in this process for a 5-cycle run of the same settings must not serve this one: its entropy
+    # weight anneals over its own 3 cycles (cycle_programs keeps the count in their key). Made, not traced here.
+    longer = load_config("cartpole", [*overrides, "ppo.num_cycles=5"])
+    cycle_programs(longer, validate(longer, new_run=False))
     whole = aj.train("cartpole", [*overrides, "logging.run_name=whole"])
     np.testing.assert_allclose([r["learning_rate"] for r in whole.history], [1e-4 * 1.5 ** (2 * c) for c in (1, 2, 3)],
                                rtol=1e-5)
