@@ -264,6 +264,17 @@ def test_a_longer_run_of_the_same_settings_reuses_the_programs_unless_a_schedule
         assert programs(schedule, "ppo.num_cycles=9")[1] is not programs(schedule, "ppo.num_cycles=4")[1], schedule
 
 
+def test_a_decaying_learning_rate_follows_its_own_runs_length_where_another_lengths_programs_were_made(tmp_path):
+    """With `ppo.lr_decay` the rate falls linearly to 0 over `ppo.num_cycles`, so programs made for a 4-cycle run must
+    not serve a 2-cycle run of the same settings: its rate halves at its second cycle, not falls by a quarter."""
+    decaying = [*TINY_PPO, "ppo.lr_decay=true", "ppo.learning_rate=1e-3", "logging.progress=none",
+                "logging.report=false", f"logging.run_root={tmp_path}"]
+    longer = aj.load_config("cartpole", [*decaying, "ppo.num_cycles=4"])
+    cycle_programs(longer, validate(longer, new_run=False))  # made, not traced: the 2-cycle run compiles its own
+    short = aj.train(aj.load_config("cartpole", [*decaying, "ppo.num_cycles=2", "logging.run_name=short"]))
+    np.testing.assert_allclose([r["learning_rate"] for r in short.history], [1e-3, 5e-4], rtol=1e-6)
+
+
 @pytest.mark.slow
 def test_sigterm_saves_a_loadable_checkpoint_and_restores_the_handler(runs):
     _, stopped, at_interrupt, *_ = runs
