@@ -55,8 +55,10 @@ def test_the_visual_analyses_read_an_estimators_encoder_as_an_agents_visual_area
     np.testing.assert_array_equal(visual.saliency(estimator, images, unit=1), visual.saliency(agent, images, unit=1))
     found, _ = visual.preferred_stimuli(estimator, "V1", [0], steps=2)
     assert found.shape == (1, SIZE, SIZE, 3), "the estimator's own camera size"
-    result = visual.visual_analysis(estimator, images, units=1, steps=2, layers=["V1"])
-    assert result["saliency"].shape == (4, 1, SIZE, SIZE) and result["preferred"].shape == (1, 1, SIZE, SIZE, 3)
+    # Every layer's preferred stimuli come from one program: each layer's as preferred_stimuli finds it alone.
+    result = visual.visual_analysis(estimator, images, units=1, steps=2, layers=["V1", "V2"])
+    assert result["saliency"].shape == (4, 1, SIZE, SIZE) and result["preferred"].shape == (2, 1, SIZE, SIZE, 3)
+    np.testing.assert_array_equal(result["preferred"].values[0], found)
 
 
 def test_the_saliency_of_several_linear_outputs_is_their_largest_weight():
