@@ -692,3 +692,20 @@ def test_resumes_refusals_name_the_python_arguments_beside_the_command_line_opti
     with pytest.raises(ConfigError, match=r"--num-cycles 3 is below cycle 4, .*: ask for at least that many "
                                           r"\(num_cycles in Python\)\.$"):
         resume(run, start_from=4, num_cycles=3)
+
+
+def test_a_run_given_as_what_train_returned_or_as_none_is_refused_naming_the_run_directory(runs, tmp_path):
+    """`aj.load_agent(run)` with the TrainingRun that train returned (the notebook's `run = aj.train(...)`), and None
+    for a run directory, failed deep in pathlib: "expected str, bytes or os.PathLike object, not TrainingRun"."""
+    whole = runs[0]
+    calls = (lambda value: resume(value), lambda value: aj.load_agent(value),
+             lambda value: aj.evaluate(value, episodes=1, save=False), lambda value: read_metrics(value),
+             lambda value: aj.export_policy(value, tmp_path / "p.msgpack"))
+    for call in calls:
+        with pytest.raises(TypeError, match=rf"^run_dir is a run directory \(a str or Path\): give run.run_dir "
+                                            rf"\('{whole.run_dir}'\), not the TrainingRun that train returned\.$"):
+            call(whole)
+        with pytest.raises(TypeError, match=r"^run_dir is a run directory \(a str or Path, e.g. 'runs/my-run'\), got "
+                                            r"None \(NoneType\)\.$"):
+            call(None)
+    assert not (tmp_path / "p.msgpack").exists()

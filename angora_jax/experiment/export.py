@@ -20,7 +20,7 @@ from angora_jax.envs.core import Sensation
 from angora_jax.experiment.agent import Agent, acting_parts, load_agent
 from angora_jax.experiment.checkpoint import describe_misfits, misfits
 from angora_jax.experiment.config import load_config, to_dict
-from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError, run_source
+from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError, run_dir_path, run_source
 from angora_jax.whole_files import unwritable_folder, written_whole
 
 FORMAT = "angora_jax.policy/1"
@@ -56,6 +56,7 @@ def export_policy(run_dir: str | Path, out: str | Path, checkpoint: str | int = 
     """Write the policy of `run_dir`'s checkpoint ("best", "latest" or a cycle, as `load_agent` takes it) to `out`
     (a .msgpack file, or a folder to write `<run name>.msgpack` in: `policy_path`; ValueError for another name); an
     existing file is never overwritten (FileExistsError). Returns the path written."""
+    run_dir_path(run_dir)  # TypeError for what is no path (the TrainingRun train returned), before `out` is made
     out = policy_path(out, run_dir)
     if out.exists():
         raise FileExistsError(f"{out} exists; exporting never overwrites a file: give another --out.")

@@ -32,6 +32,7 @@ from angora_jax.experiment.run_dir import (
     RunDirError,
     no_room,
     not_a_run_dir,
+    run_dir_path,
 )
 from angora_jax.experiment.wandb_logging import WandbConfig, WandbLog
 from angora_jax.ppo.config import StopAt
@@ -125,7 +126,7 @@ def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
     short) is skipped with a warning naming it (`angora-jax check` lists them). A run that has not finished a cycle
     yet has none, as has a directory being made into one (`train` makes it, then writes its config); RunDirError for
     a path that does not exist (mistyped), a file or a folder of runs, each of which read as a run without records."""
-    path = Path(run_dir)
+    path = run_dir_path(run_dir)
     metrics = path / METRICS_FILE
     if not metrics.is_file() and not (path / CONFIG_FILE).is_file() and (
             not path.is_dir() or any((child / CONFIG_FILE).is_file() for child in path.iterdir())):

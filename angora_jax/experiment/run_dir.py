@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
+import os
 import shutil
 import time
 from collections.abc import Callable, Iterator
@@ -156,9 +157,27 @@ def run_source(source: str | Path) -> tuple[str, str | int]:
     return run_dir, int(which) if which.isdigit() else (which or "best")
 
 
+def run_dir_path(run_dir: object) -> Path:
+    """`run_dir` (a str or an os.PathLike) as a Path; TypeError naming what to give for anything else: the TrainingRun
+    that `train` returns (`aj.load_agent(run)` in a notebook: give `run.run_dir`), None, a number. Path() itself says
+    only "expected str, bytes or os.PathLike object, not TrainingRun"."""
+    if isinstance(run_dir, str | os.PathLike):
+        return Path(run_dir)
+    if isinstance(getattr(run_dir, "run_dir", None), Path) and hasattr(run_dir, "history"):
+        raise TypeError(f"run_dir is a run directory (a str or Path): give run.run_dir ({str(run_dir.run_dir)!r}), "
+                        "not the TrainingRun that train returned.")
+    raise TypeError(f"run_dir is a run directory (a str or Path, e.g. 'runs/my-run'), got {_short_repr(run_dir)} "
+                    f"({type(run_dir).__name__}).")
+
+
+def _short_repr(value: object) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else f"{text[:77]}..."
+
+
 def read_run_config(run_dir: str | Path) -> Config:
     """The config saved in `run_dir`; RunDirError when `run_dir` is not a run directory."""
-    path = Path(run_dir) / CONFIG_FILE
+    path = run_dir_path(run_dir) / CONFIG_FILE
     if not path.is_file():
         if has_checkpoints(run_dir):
             raise RunDirError(f"{run_dir} has checkpoints but no {CONFIG_FILE}: `angora-jax check {run_dir} "

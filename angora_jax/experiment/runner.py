@@ -69,6 +69,7 @@ from angora_jax.experiment.run_dir import (
     own_code_misfit,
     read_run_config,
     record_session,
+    run_dir_path,
     write_run_config,
 )
 from angora_jax.experiment.run_lock import RunLock, RunLockedError, release_own_lock
@@ -236,9 +237,9 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
         CheckpointError: a damaged checkpoint (the message names the newest intact one), or `exact` cannot hold.
         ConfigError: `num_cycles` cannot apply (the message says why).
     """
+    run_dir = run_dir_path(run_dir)
     _check_call(on_cycle, minutes)
     compilation_cache.enable()
-    run_dir = Path(run_dir)
     agree_on_settings({"RUN_DIR": str(run_dir.absolute()), "--from": start_from, "--from-scratch": from_scratch,
                        "--num-cycles": num_cycles, "--no-stop-at": no_stop_at, "--exact": exact, "--force": force},
                       f"Start every process with the same command: angora-jax resume {run_dir} --distributed, with "
