@@ -594,3 +594,26 @@ def test_python_arguments_that_are_no_count_or_number_in_range_are_config_errors
         with pytest.raises(ConfigError, match=rf"^held_out must be a number above 0 and below 1, got {bad!r}\.$"):
             check_number("held_out", bad, 0.0, 1.0, open_low=True, open_high=True)
     assert check_number("held_out", 0.25, 0.0, 1.0, open_low=True, open_high=True) == 0.25
+
+
+@pytest.mark.parametrize("source, message", [
+    (42, r"^A config is the name of a shipped config \(e.g. 'cartpole'\), a YAML file's path, a dict or a Config; got "
+         r"42 \(int\)\.$"),
+    (["cartpole"], r"^A config is the name .*; got \['cartpole'\] \(list\)\.$"),
+])
+def test_a_config_given_as_what_is_no_name_path_or_dict_is_refused_naming_what_to_give(source, message):
+    """`aj.train(42)` or `aj.load_config(["cartpole"])` failed in pathlib: "expected str, bytes or os.PathLike object,
+    not int"."""
+    with pytest.raises(ConfigError, match=message):
+        load_config(source)
+    with pytest.raises(ConfigError, match=message):
+        aj.train(source)
+
+
+def test_a_config_loaded_already_given_to_load_config_is_returned_checked():
+    """`aj.load_config(config)` of a Config (loaded in an earlier cell) failed in pathlib; it is the config itself."""
+    config = load_config("cartpole", ["ppo.num_cycles=3"])
+    assert load_config(config) == config
+    with pytest.raises(ConfigError, match=r"^Overrides apply to a config loaded from a file or dict; change a Config "
+                                          r"with dataclasses.replace\(\)\.$"):
+        load_config(config, ["ppo.num_cycles=4"])

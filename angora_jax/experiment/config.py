@@ -352,6 +352,11 @@ def load_config(source: str | Path | dict | None = None, overrides: typing.Itera
     Raises:
         ConfigError: a missing file, bad YAML, an unknown key or a value of the wrong type.
     """
+    if isinstance(source, Config):  # loaded in an earlier cell: itself, checked as `train` checks one
+        if override_strings(overrides):
+            raise ConfigError("Overrides apply to a config loaded from a file or dict; change a Config with "
+                              "dataclasses.replace().")
+        return checked(source)
     data = _read(source)
     for override in override_strings(overrides):
         _apply_override(data, override)
@@ -651,6 +656,9 @@ def _read(source: str | Path | dict | None, chain: tuple[Path, ...] = ()) -> dic
         return {}
     if isinstance(source, dict):
         return _deep_copy(source)
+    if not isinstance(source, str | os.PathLike):  # Path() would say only "expected str, bytes or os.PathLike object"
+        raise ConfigError(f"A config is the name of a shipped config (e.g. 'cartpole'), a YAML file's path, a dict or "
+                          f"a Config; got {_shorten(source)} ({type(source).__name__}).")
     path = Path(source).expanduser()  # `extends: ~/configs/base.yaml`: no shell expands a `~` inside a file
     if not path.exists() and path.suffix == "" and (CONFIGS / f"{source}.yaml").exists():
         path = CONFIGS / f"{source}.yaml"
