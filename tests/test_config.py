@@ -617,3 +617,15 @@ def test_a_config_loaded_already_given_to_load_config_is_returned_checked():
     with pytest.raises(ConfigError, match=r"^Overrides apply to a config loaded from a file or dict; change a Config "
                                           r"with dataclasses.replace\(\)\.$"):
         load_config(config, ["ppo.num_cycles=4"])
+
+
+def test_a_run_root_that_is_a_file_or_inside_one_is_refused_before_anything_is_made(tmp_path: Path):
+    """logging.run_root naming a file (or a folder inside one) failed in pathlib's mkdir: "[Errno 17] File exists"
+    and "[Errno 20] Not a directory", with no word of which key to change."""
+    file = tmp_path / "notes.txt"
+    file.write_text("mine")
+    for root in (file, file / "runs"):
+        with pytest.raises(ConfigError, match=rf"^logging.run_root='{root}' cannot hold run directories: {file} is a "
+                                              r"file\. Choose a folder for runs \(e.g. logging.run_root=runs\)\.$"):
+            aj.train("cartpole", [f"logging.run_root={root}", "logging.run_name=a"])
+    assert file.read_text() == "mine" and sorted(tmp_path.iterdir()) == [file]

@@ -586,6 +586,11 @@ def check_run_location(logging: LoggingConfig) -> None:
             f"logging.run_root ({_shorten(logging.run_root)}); to write elsewhere, change logging.run_root."
         )
     _check_folder("logging.run_root", str(logging.root))  # the folder made: a leading ~ expanded
+    # A file where the folder (or a folder on its way) would be made: mkdir says only "File exists"/"Not a directory".
+    existing = next((path for path in (logging.root, *logging.root.parents) if path.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise ConfigError(f"logging.run_root={_shorten(logging.run_root)} cannot hold run directories: {existing} is a "
+                          "file. Choose a folder for runs (e.g. logging.run_root=runs).")
 
 
 def num_devices(config: Config) -> int:
