@@ -436,3 +436,14 @@ def test_a_quoted_no_for_a_true_or_false_task_option_is_refused_not_taken_as_tru
     for value in ("no", "false", 0):
         with pytest.raises(ValueError, match=f"ShadowHandReach's option touch must be true or false, got {value!r}"):
             make("ShadowHandReach", touch=value)
+
+
+def test_an_option_the_task_does_not_take_is_named_with_the_options_it_takes():
+    """`aj.make("CartPole", max_episode_step=3)` (and the same keyword to gymnasium.make) said only Python's
+    "CartPole.__init__() got an unexpected keyword argument 'max_episode_step'"; a config's env.options said more."""
+    with pytest.raises(TypeError, match=r"^Task 'CartPole' has no option 'max_episode_step' \(did you mean "
+                                        r"'max_episode_steps'\?\); its options: max_episode_steps\.$"):
+        aj.make("CartPole", max_episode_step=3)
+    with pytest.raises(TypeError, match=r"^Task 'CartPole' has no option 'colour'; its options: max_episode_steps\."):
+        aj.make_env("CartPole", colour="red")
+    assert aj.make("CartPole", max_episode_steps=3).max_episode_steps == 3

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import inspect
 from collections.abc import Callable
 from typing import Any
@@ -29,8 +30,28 @@ def make(name: str, **options) -> Env:
     if is_gymnasium(name):
         return make_gymnasium(name, **options)
     constructor = TASKS.get(name)
+    _refuse_unknown_options(name, constructor, options)
     _refuse_non_bools(name, constructor, options)
     return constructor(**options)
+
+
+def _refuse_unknown_options(name: str, constructor: Any, options: dict[str, Any]) -> None:
+    """TypeError naming the first of `options` that `constructor` takes by no name, the nearest it takes and all it
+    takes: Python's own says only "__init__() got an unexpected keyword argument". Nothing is checked of a constructor
+    that takes any keyword, or has no signature to read."""
+    try:
+        parameters = inspect.signature(constructor).parameters
+    except (TypeError, ValueError):
+        return
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values()):
+        return
+    names = [key for key, p in parameters.items()
+             if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)]
+    unknown = next((key for key in options if key not in names), None)
+    if unknown is not None:
+        close = difflib.get_close_matches(str(unknown), names, n=1)
+        raise TypeError(f"Task {name!r} has no option {unknown!r}{f' (did you mean {close[0]!r}?)' if close else ''}; "
+                        f"its options: {', '.join(names) or 'none'}.")
 
 
 def _refuse_non_bools(name: str, constructor: Any, options: dict[str, Any]) -> None:
