@@ -2,6 +2,7 @@
 
 
 import gymnasium
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
@@ -62,3 +63,20 @@ def test_pure_jax_task_through_gymnasium_and_errors():
         GymEnv("CartPole", render_mode="rgb_array")
     with pytest.raises(ValueError, match="render_mode must be"):
         GymEnv("ShadowHandReach", render_mode="human")
+
+
+def test_an_action_outside_a_discrete_space_and_a_frame_of_no_pixels_are_refused():
+    """CartPole through gymnasium took action 5 (or 0.5) of its Discrete(2) without a word, stepping as some valid
+    action; a frame size of 0 or -5 pixels (or "320") was taken, to fail or draw an empty frame at the first render."""
+    env = GymEnv("CartPole")
+    env.reset(seed=0)
+    for action in (5, -1, 0.5):
+        with pytest.raises(ValueError, match=rf"^CartPole takes one of the actions 0 to 1 \(its action_space is "
+                                             rf"Discrete\(2\)\), got {action!r}\.$"):
+            env.step(action)
+    for action in (1, np.int64(0), np.array(1), jnp.int32(1)):
+        env.step(action)
+    for size, given in (({"width": 0}, "width=0"), ({"height": -5}, "height=-5"), ({"width": "320"}, "width='320'")):
+        with pytest.raises(ValueError, match=rf"^width and height are the rendered frame's size in pixels, whole "
+                                             rf"numbers of at least 1; got {given}\.$"):
+            GymEnv("CartPole", **size)

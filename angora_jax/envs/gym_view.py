@@ -7,6 +7,7 @@ run their own functions, jitted for one environment. Ids are `AngoraJax/<Task>-v
 
 from __future__ import annotations
 
+import numbers
 from typing import Any
 
 import gymnasium
@@ -36,6 +37,11 @@ class GymEnv(gymnasium.Env):
 
     def __init__(self, task: str, render_mode: str | None = None, width: int = 320, height: int = 240,
                  camera: str = "front", **options: Any):
+        for name, size in (("width", width), ("height", height)):
+            if isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < 1:
+                raise ValueError(f"width and height are the rendered frame's size in pixels, whole numbers of at least "
+                                 f"1; got {name}={size!r}.")
+        self._task = task
         self._env: Env = eager(make(task, **options))
         self._eager = isinstance(self._env, CpuEnv)
         self._reset, self._advance = single_env_functions(self._env)
@@ -68,6 +74,11 @@ class GymEnv(gymnasium.Env):
         return self._observation(), self._info()
 
     def step(self, action):
+        if isinstance(self.action_space, gymnasium.spaces.Discrete) and not self.action_space.contains(
+                np.asarray(action)):  # the task would step as some valid action: jnp's int casts and indexing clip
+            space = self.action_space
+            raise ValueError(f"{self._task} takes one of the actions {space.start} to {space.start + space.n - 1} (its "
+                             f"action_space is Discrete({space.n})), got {action!r}.")
         self._state, _ = self._advance(self._state, jnp.asarray(action))
         terminated = bool(self._state.done) and not bool(self._state.truncated)
         return (self._observation(), float(self._state.reward), terminated, bool(self._state.truncated),
