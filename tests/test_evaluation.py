@@ -673,3 +673,16 @@ def test_the_box_plots_titles_write_large_numbers_whole():
 
     assert [_number(x) for x in (499.9, 1316.3, -365.2, 45.89, 0.4923, 2.5e-4, 0.0, 123456.7)] == [
         "499.9", "1,316.3", "-365.2", "45.89", "0.4923", "0.00025", "0", "123,457"]
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"save": None}, r"^save is True \(into RUN_DIR/evaluation\), False \(nothing written\) or a folder to write into; "
+                     r"got None \(NoneType\)\.$"),
+    ({"stochastic": "no"}, r"^stochastic must be True or False, got 'no' \(str\): a non-empty string counts as "
+                           r"True\.$"),
+])
+def test_evaluate_refuses_a_save_or_stochastic_of_the_wrong_kind_before_loading_anything(tmp_path, options, message):
+    """evaluate(save=None) failed in pathlib ("expected str, bytes or os.PathLike object, not NoneType"), and
+    stochastic="no" sampled actions, as "no" is a true value, evaluating the wrong policy without a word."""
+    with pytest.raises(TypeError, match=message):
+        evaluate(tmp_path / "not-even-a-run", episodes=1, **options)

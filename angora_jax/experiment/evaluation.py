@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 import warnings
 from collections.abc import Sequence
@@ -129,6 +130,9 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     episodes, batch, workers = (check_count(name, count) for name, count in
                                 (("episodes", episodes), ("batch", batch), ("workers", workers)))
     seed = check_seed("seed", seed)
+    if not isinstance(stochastic, bool | np.bool_):  # "no" or "false" from a widget or a file is a true value
+        raise TypeError(f"stochastic must be True or False, got {stochastic!r} ({type(stochastic).__name__})"
+                        f"{': a non-empty string counts as True' if isinstance(stochastic, str) else ''}.")
     if path not in PATHS:
         raise ValueError(f"Unknown evaluation path {path!r}; choose one of {PATHS}.")
     check_save_folder(save)
@@ -167,6 +171,9 @@ def check_save_folder(save: bool | str | Path) -> None:
     file is there (never overwritten), a file is on its way, or it cannot be written; True and False pass."""
     if isinstance(save, bool):
         return
+    if not isinstance(save, str | os.PathLike):
+        raise TypeError(f"save is True (into RUN_DIR/{EVALUATIONS}), False (nothing written) or a folder to write "
+                        f"into; got {save!r} ({type(save).__name__}).")
     folder = Path(save)
     if folder.exists() and not folder.is_dir():
         raise ConfigError(f"save (--out) {folder} is a file, and an evaluation writes its JSON and box plot into a "
