@@ -709,3 +709,16 @@ def test_a_run_given_as_what_train_returned_or_as_none_is_refused_naming_the_run
                                             r"None \(NoneType\)\.$"):
             call(None)
     assert not (tmp_path / "p.msgpack").exists()
+
+
+def test_a_damaged_checkpoint_names_the_python_arguments_that_read_the_intact_one(runs, tmp_path):
+    """A notebook's load_agent of a damaged checkpoint was told only the command's options: "read it with
+    --checkpoint best (resume: --from best)"."""
+    run = tmp_path / "damaged"
+    shutil.copytree(runs[0].run_dir, run)
+    meta = run / CHECKPOINTS / "latest" / "4" / "meta" / "metadata"
+    meta.write_bytes(meta.read_bytes()[:5])
+    with pytest.raises(CheckpointError, match=r"The newest intact checkpoint is best of cycle 4: read it with "
+                                              r"--checkpoint best \(resume: --from best\); in Python checkpoint='best' "
+                                              r"\(resume: start_from='best'\); or restore the folder"):
+        aj.load_agent(run, "latest")

@@ -492,7 +492,8 @@ class Checkpoints:
         intact = self.newest_intact(skip=(kind, cycle))
         named = intact and (intact[0] if intact[0] != kind and intact[0] in ("latest", "best") else intact[1])
         fallback = (f"The newest intact checkpoint is {intact[0]} of cycle {intact[1]}: read it with --checkpoint "
-                    f"{named} (resume: --from {named})" if intact else "No other intact checkpoint is left")
+                    f"{named} (resume: --from {named}); in Python checkpoint={named!r} (resume: start_from={named!r})"
+                    if intact else "No other intact checkpoint is left")
         raise CheckpointError(f"Checkpoint {self._directory / kind / str(cycle)} is damaged: {problem}. {fallback}; "
                               "or restore the folder from a copy. `angora-jax check RUN_DIR` lists every checkpoint.")
 
