@@ -1026,3 +1026,65 @@ def test_analyze_crosscorrelation_says_when_a_peak_sits_at_the_windows_edge(tmp_
     assert "give a larger --max-lag" in said
     assert cli.main(["analyze", "crosscorrelation", str(path), "--max-lag", "12"]) == 0
     assert "At the window's edge" not in capsys.readouterr().out
+
+
+def test_a_recording_that_lost_its_alive_steps_or_inputs_is_refused_naming_what_it_lacks():
+    """A recording with `alive` dropped (rec[["activity_code", "metric_x"]], a notebook's selection) failed in xarray:
+    KeyError "No variable named 'alive'"; replaying one without its inputs said the agent's "obs.proprioception has
+    shape ()", as if the agent were given the wrong observation."""
+    from angora_jax.analysis import replay_activity
+
+    data = synthetic(episodes=4, steps=30)
+    lacking = data.drop_vars("alive")
+    message = (r"^This recording has no alive \(which steps of each episode ran\), which every analysis reads: give "
+               r"the recording as record_activity returns it, or keep alive when selecting its variables\.$")
+    for analysis in (decode, timescales, cross_correlation, principal_components,
+                     lambda data: similarity(data, "metric_x"), lambda data: tuning_curves(data, "code", "metric_x")):
+        with pytest.raises(ValueError, match=message):
+            analysis(lacking)
+    agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
+                         "PMC": {"size": 4, "inputs": ("S1",), "cell": "rnn"}})
+    recording = graph_recording({"network.S1": 3, "network.PMC.0": 4, "network.PMC.1": 4})
+    with pytest.raises(ValueError, match=r"^The recording lacks the inputs this agent reads \(input_proprioception\): "
+                                         r"replay a recording as record_activity returns it, with its input_\* "
+                                         r"variables\.$"):
+        replay_activity(agent, recording.drop_vars("input_proprioception"))
+
+
+def test_no_component_and_a_negative_lag_are_refused_by_name():
+    """principal_components(components=0) returned an empty result, and cross_correlation(max_lag=-1) failed in numpy:
+    "attempt to get argmax of an empty sequence"; timescales(max_lag=0) gave every unit no timescale."""
+    data = synthetic(episodes=4, steps=30)
+    with pytest.raises(ConfigError, match=r"^components must be a whole number of at least 1, got 0\.$"):
+        principal_components(data, components=0)
+    with pytest.raises(ConfigError, match=r"^max_lag must be a whole number of at least 0, got -1\.$"):
+        cross_correlation(data, max_lag=-1)
+    with pytest.raises(ConfigError, match=r"^max_lag must be a whole number of at least 1, got 0\.$"):
+        timescales(data, max_lag=0)
+    assert cross_correlation(data, max_lag=0).sizes["lag"] == 1
+
+
+def test_a_plot_given_what_its_analysis_does_not_return_is_refused_and_one_into_a_new_folder_is_drawn(tmp_path):
+    """plot_decoding(recording) failed in xarray (KeyError "No variable named 'r2'"), and a plot into a folder not made
+    yet failed in PIL ("[Errno 2] No such file or directory"), where save_activity and export_policy make theirs."""
+    from angora_jax.analysis import plot_cross_correlation, plot_decoding, plot_dynamics, plot_timescales, plot_tuning
+
+    data = synthetic(episodes=4, steps=30)
+    for plot, analysis, needs in ((plot_decoding, "decode", "r2"), (plot_timescales, "timescales", "autocorrelation"),
+                                  (plot_cross_correlation, "cross_correlation", "cross_correlation"),
+                                  (plot_dynamics, "principal_components", "explained"),
+                                  (plot_tuning, "tuning_curves", "response")):
+        with pytest.raises(TypeError, match=rf"^{plot.__name__} draws what {analysis} returns \(a Dataset with "
+                                            rf"{needs}\), not a recording: give it {analysis}\(recording, \.\.\.\)\.$"):
+            plot(data, tmp_path / "x.png")
+        with pytest.raises(TypeError, match=rf"^{plot.__name__} draws what {analysis} returns \(a Dataset with "
+                                            rf"{needs}\), not a DataArray\.$"):
+            plot(data["activity_code"], tmp_path / "x.png")
+    assert sorted(tmp_path.iterdir()) == []
+    out = tmp_path / "new" / "deeper" / "t.png"
+    plot_timescales(timescales(data), out)
+    assert out.is_file()
+    (tmp_path / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match=rf"^{tmp_path / 'notes.txt'} is a file, not a folder; give plot_timescales a "
+                                         r"path in a folder you can write to\.$"):
+        plot_timescales(timescales(data), tmp_path / "notes.txt" / "t.png")

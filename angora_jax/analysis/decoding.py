@@ -33,6 +33,7 @@ from sklearn.preprocessing import StandardScaler
 
 from angora_jax.analysis.parallel import map_in_threads
 from angora_jax.experiment.config import ConfigError, check_count, check_seed
+from angora_jax.whole_files import unwritable_folder
 from angora_jax.wording import counted
 
 # Ridge penalties per training sample: a fit on n samples is penalised n times this, so that the penalty chosen on
@@ -277,6 +278,10 @@ def check_recording(dataset: object) -> None:
     """TypeError naming what to do when `dataset` is not a recording (an xarray Dataset): a run directory, a saved
     recording's file name or an Agent given in its place, as a notebook easily does."""
     if isinstance(dataset, xr.Dataset):
+        if "alive" not in dataset.data_vars:  # read by every analysis: xarray's KeyError would name no fix
+            raise ValueError("This recording has no alive (which steps of each episode ran), which every analysis "
+                             "reads: give the recording as record_activity returns it, or keep alive when selecting "
+                             "its variables.")
         return
     if isinstance(dataset, str | Path):
         fix = (f"record one first: record_activity({str(dataset)!r})" if Path(dataset).is_dir() else
@@ -288,6 +293,21 @@ def check_recording(dataset: object) -> None:
         fix = "record one first: record_activity(agent)" if hasattr(dataset, "initial_carry") else "give one"
     raise TypeError(f"Analyses read a recording (the xarray Dataset that record_activity returns, or a file of "
                     f"save_activity read with xarray.load_dataset), not {given}: {fix}.")
+
+
+def plot_path(plot: str, result: object, needs: str, analysis: str, path: str | Path) -> None:
+    """Before `plot` draws: TypeError naming `analysis` when `result` is not what it returns (a Dataset holding
+    `needs`: the recording or a DataArray given in its place failed deep in xarray); the folders on the way to `path`
+    made, as save_activity and export_policy make theirs (ValueError when a file is on the way)."""
+    if not isinstance(result, xr.Dataset) or needs not in result.variables:
+        given = (f"a recording: give it {analysis}(recording, ...)" if isinstance(result, xr.Dataset) and any(
+                 str(name).startswith("activity_") for name in result.data_vars) else
+                 f"a Dataset without {needs}" if isinstance(result, xr.Dataset) else
+                 f"{'an' if type(result).__name__[0] in 'AEIOU' else 'a'} {type(result).__name__}")
+        raise TypeError(f"{plot} draws what {analysis} returns (a Dataset with {needs}), not {given}.")
+    if (why := unwritable_folder(path)) is not None:
+        raise ValueError(f"{why}; give {plot} a path in a folder you can write to.")
+    Path(path).absolute().parent.mkdir(parents=True, exist_ok=True)
 
 
 def recorded_layers(dataset: xr.Dataset) -> list[str]:
@@ -305,6 +325,7 @@ def _samples(values: np.ndarray) -> np.ndarray:
 def plot_decoding(result: xr.Dataset, path: str) -> None:
     """A heat map layer x variable of R^2 (the baseline in each cell's label); for a lagged decoding, R^2 against
     the lag per variable, one line per layer, the noise baseline dashed."""
+    plot_path("plot_decoding", result, "r2", "decode", path)
     import matplotlib
 
     matplotlib.use("Agg")

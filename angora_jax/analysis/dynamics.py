@@ -22,7 +22,7 @@ import optax
 import xarray as xr
 from sklearn.decomposition import PCA
 
-from angora_jax.analysis.decoding import as_names, check_recording, chosen_layers, recorded_layers
+from angora_jax.analysis.decoding import as_names, check_recording, chosen_layers, plot_path, recorded_layers
 from angora_jax.analysis.parallel import map_in_threads
 from angora_jax.experiment.agent import Agent, check_agent
 from angora_jax.experiment.config import ConfigError, check_count, check_seed
@@ -41,6 +41,7 @@ def principal_components(dataset: xr.Dataset, layers: Sequence[str] | None = Non
     activity projected on the leading components, NaN where the episode is not alive). At most as many components as
     the widest layer has units."""
     layers = chosen_layers(dataset, layers)
+    components = check_count("components", components)
     # No layer has more components than units: asking for more would only pad the trajectories with NaN, at
     # episodes x steps x components floats (12 GB for 1,000 components of a 1.5M-step recording).
     components = min(components, max(dataset[f"activity_{layer}"].shape[-1] for layer in layers))
@@ -319,6 +320,7 @@ def agent_fixed_points(agent: Agent, dataset: xr.Dataset, layer: str, inputs: st
 def plot_dynamics(pcs: xr.Dataset, path: str, fixed_points: dict[str, np.ndarray] | None = None) -> None:
     """Variance explained per layer, and each layer's first two components over time for a few episodes (with the
     fixed points' eigenvalue moduli when given)."""
+    plot_path("plot_dynamics", pcs, "explained", "principal_components", path)
     import matplotlib
 
     matplotlib.use("Agg")

@@ -25,7 +25,7 @@ import xarray as xr
 from sklearn.decomposition import PCA
 from sklearn.metrics import r2_score
 
-from angora_jax.analysis.decoding import require
+from angora_jax.analysis.decoding import plot_path, require
 from angora_jax.experiment.config import ConfigError, check_count, check_number, check_seed
 from angora_jax.wording import counted
 
@@ -240,6 +240,7 @@ def _future(trajectories: list[np.ndarray], horizon: int) -> np.ndarray:
 def plot_sindy(result: xr.Dataset, path: str) -> None:
     """The identified coefficients (component x term), the held-out error over the horizon against next = current,
     and the first held-out episode's leading components with the model's simulation from its start."""
+    plot_path("plot_sindy", result, "coefficients", "sindy", path)
     import matplotlib
 
     matplotlib.use("Agg")

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
+from angora_jax.analysis.decoding import plot_path
 from angora_jax.analysis.recording import episode_outcomes
 from angora_jax.analysis.units import checked_units
 from angora_jax.envs.core import Env, Sensation, State
@@ -239,6 +240,7 @@ def ablation(agent: Agent, lesions: Mapping[str, Agent], episodes: int = 256, st
 
 def plot_ablation(result: xr.Dataset, outcome: str, path: str) -> None:
     """Bars of `outcome`'s mean per lesion with +-1 standard error."""
+    plot_path("plot_ablation", result, "mean", "ablation", path)
     import matplotlib
 
     matplotlib.use("Agg")

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 import xarray as xr
 
-from angora_jax.analysis.decoding import MAX_SAMPLES, chosen_layers, decode
+from angora_jax.analysis.decoding import MAX_SAMPLES, chosen_layers, decode, plot_path
 
 MUSCLE_VARIABLES = ("task_muscle_force", "task_muscle_activation")
 MOVEMENT_VARIABLES = ("task_joint_angles", "task_joint_velocities")
@@ -76,6 +76,7 @@ def muscles_or_movements(recording: xr.Dataset, control: xr.Dataset | None = Non
 
 def plot_muscles_or_movements(result: xr.Dataset, path: str) -> None:
     """Per layer, bars of the mean muscle R^2 and the mean movement R^2, the random-weights control's hatched."""
+    plot_path("plot_muscles_or_movements", result, "kind_r2", "muscles_or_movements", path)
     import matplotlib
 
     matplotlib.use("Agg")

@@ -250,6 +250,11 @@ def replay_activity(agent: Agent, recording: xr.Dataset) -> xr.Dataset:
         raise ValueError("The agent saw camera images, which this recording did not keep: record it with "
                          "images=True (angora-jax record --images) to replay it.")
     names = [name for name in recording.data_vars if name.startswith("input_")]
+    read = [f"input_{modality}" for modality, shape in vars(agent.env.observation_shapes()).items()
+            if not is_image(shape) and shape.shape[-1]]
+    if missing := [name for name in read if name not in names]:  # else the agent is handed an empty observation
+        raise ValueError(f"The recording lacks the inputs this agent reads ({', '.join(missing)}): replay a recording "
+                         "as record_activity returns it, with its input_* variables.")
     inputs = {name.removeprefix("input_"): jnp.asarray(np.swapaxes(recording[name].values, 0, 1)) for name in names}
     episodes = recording.sizes["episode"]
 

@@ -17,7 +17,7 @@ import xarray as xr
 from rsatoolbox.data import Dataset
 from rsatoolbox.rdm import RDMs, calc_rdm, compare
 
-from angora_jax.analysis.decoding import as_names, chosen_layers, recorded_layers, require
+from angora_jax.analysis.decoding import as_names, chosen_layers, plot_path, recorded_layers, require
 from angora_jax.analysis.units import as_scalar, is_unit
 from angora_jax.experiment.config import ConfigError, check_count
 from angora_jax.wording import counted
@@ -120,6 +120,7 @@ def _patterns(array: xr.DataArray, labels: np.ndarray, alive: np.ndarray) -> Dat
 def plot_similarity(result: xr.Dataset, path: str) -> None:
     """One panel per layer's RDM, up to six a row, then the layer x layer similarity (and layer x variable, when
     computed) below them, larger: the brain-area model's 15 layers in one row made a figure 44 inches wide."""
+    plot_path("plot_similarity", result, "rdm", "similarity", path)
     import matplotlib
 
     matplotlib.use("Agg")

@@ -21,7 +21,7 @@ import numpy as np
 import xarray as xr
 from sklearn.decomposition import NMF
 
-from angora_jax.analysis.decoding import check_recording
+from angora_jax.analysis.decoding import check_recording, plot_path
 from angora_jax.experiment.config import ConfigError, check_count, check_number, check_seed
 
 ACTIVATION = "task_muscle_activation"
@@ -109,6 +109,7 @@ def _muscle_names(data: xr.Dataset | np.ndarray, variable: str, muscles: int) ->
 def _activations(data: xr.Dataset | np.ndarray, variable: str) -> np.ndarray:
     """(samples, muscles) float64 from a recording's alive steps or an array; ValueError when negative or absent."""
     if isinstance(data, xr.Dataset):
+        check_recording(data)
         if variable not in data.data_vars:
             raise ValueError(f"Not in the recording: {variable}; it has {sorted(data.data_vars)}. Record a muscle task "
                              "(MyoHandPose records task_muscle_activation).")
@@ -126,6 +127,7 @@ def _activations(data: xr.Dataset | np.ndarray, variable: str) -> np.ndarray:
 
 def plot_synergies(result: xr.Dataset, path: str) -> None:
     """The VAF against the number of synergies (the threshold dashed) and the chosen synergies' muscle weights."""
+    plot_path("plot_synergies", result, "count", "synergies", path)
     import matplotlib
 
     matplotlib.use("Agg")

@@ -13,8 +13,9 @@ from collections.abc import Sequence
 import numpy as np
 import xarray as xr
 
-from angora_jax.analysis.decoding import chosen_layers, lagged_steps
+from angora_jax.analysis.decoding import chosen_layers, lagged_steps, plot_path
 from angora_jax.analysis.parallel import map_in_threads
+from angora_jax.experiment.config import check_count
 
 
 def autocorrelation(dataset: xr.Dataset, layer: str, max_lag: int = 20) -> np.ndarray:
@@ -62,7 +63,7 @@ def cross_correlation(dataset: xr.Dataset, layers: Sequence[str] | None = None, 
     from sklearn.decomposition import PCA
 
     layers = chosen_layers(dataset, layers)
-    max_lag = _lags_within(dataset, max_lag)
+    max_lag = _lags_within(dataset, check_count("max_lag", max_lag, least=0))  # 0: the correlation at lag 0 alone
     alive = dataset["alive"].values > 0
     leading = {}
     for layer in layers:
@@ -87,7 +88,7 @@ def timescales(dataset: xr.Dataset, layers: Sequence[str] | None = None, max_lag
     `max_lag` or the unit is constant) summarised as `timescale_median` and `timescale_iqr_low/high` (layer).
     `max_lag` stops at the recording's steps less one."""
     layers = chosen_layers(dataset, layers)
-    max_lag = _lags_within(dataset, max_lag)
+    max_lag = _lags_within(dataset, check_count("max_lag", max_lag))  # a timescale needs a lag past 0
     dt = float(dataset.attrs.get("policy_step_s", 1.0))
     curves, medians, low, high = [], [], [], []
     for acf in map_in_threads(lambda layer: autocorrelation(dataset, layer, max_lag), layers):
@@ -124,6 +125,7 @@ def _crossing(acf: np.ndarray, level: float = 1.0 / np.e) -> float:
 
 def plot_timescales(result: xr.Dataset, path: str) -> None:
     """Mean autocorrelation per layer over lags (s), with the 1/e level."""
+    plot_path("plot_timescales", result, "autocorrelation", "timescales", path)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -144,6 +146,7 @@ def plot_timescales(result: xr.Dataset, path: str) -> None:
 
 def plot_cross_correlation(result: xr.Dataset, path: str) -> None:
     """The cross-correlation curves of every pair of different layers over lags (s)."""
+    plot_path("plot_cross_correlation", result, "cross_correlation", "cross_correlation", path)
     import matplotlib
 
     matplotlib.use("Agg")

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from angora_jax.analysis.decoding import require
+from angora_jax.analysis.decoding import plot_path, require
 from angora_jax.analysis.similarity import condition_labels
 from angora_jax.analysis.units import as_scalar
 
@@ -42,6 +42,7 @@ def tuning_curves(dataset: xr.Dataset, layer: str, variable: str, bins: int = 10
 
 def plot_tuning(result: xr.Dataset, path: str, units: int = 6) -> None:
     """The tuning curves of the `units` most strongly tuned units, with +-1 s.e.m."""
+    plot_path("plot_tuning", result, "response", "tuning_curves", path)
     import matplotlib
 
     matplotlib.use("Agg")

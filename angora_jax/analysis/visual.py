@@ -30,6 +30,7 @@ import optax
 import scipy.ndimage
 import xarray as xr
 
+from angora_jax.analysis.decoding import plot_path
 from angora_jax.analysis.units import as_scalar, checked_units, is_unit, unit_range
 from angora_jax.experiment.agent import Agent, check_agent
 from angora_jax.experiment.config import ConfigError, check_count, check_number, check_seed
@@ -339,6 +340,7 @@ def visual_analysis(seer: Seer, images: np.ndarray, units: int = 4, steps: int =
 def plot_visual(result: xr.Dataset, path: str) -> None:
     """One figure: the first layer's filters, each frame with its saliency (the first unit) and its last feature
     map, and each layer's preferred stimuli."""
+    plot_path("plot_visual", result, "layer", "visual_analysis", path)
     import matplotlib
 
     matplotlib.use("Agg")
