@@ -686,3 +686,23 @@ def test_evaluate_refuses_a_save_or_stochastic_of_the_wrong_kind_before_loading_
     stochastic="no" sampled actions, as "no" is a true value, evaluating the wrong policy without a word."""
     with pytest.raises(TypeError, match=message):
         evaluate(tmp_path / "not-even-a-run", episodes=1, **options)
+
+
+@pytest.mark.parametrize("size, given", [({"width": "320"}, "'320' x 240"), ({"height": 2.5}, "320 x 2.5"),
+                                         ({"width": 0}, "0 x 240")])
+def test_frames_of_no_whole_number_of_pixels_are_refused_before_anything_is_made(tmp_path, size, given):
+    """render_frames(width="320") failed comparing text with a number ("'<' not supported between instances of 'str'
+    and 'int'") once the task was made, and render_video's MP4 check failed on it with "not all arguments converted
+    during string formatting"."""
+    message = rf"^Frames are whole numbers of pixels, at least 1 x 1: width and height, got {re.escape(given)}\.$"
+    with pytest.raises(ValueError, match=message):
+        aj.render_frames(task="Reacher", **size)
+    with pytest.raises(ValueError, match=message):
+        evaluation_video(tmp_path / "v.mp4", size)
+    assert list(tmp_path.iterdir()) == []
+
+
+def evaluation_video(out, size):
+    from angora_jax.experiment.video import render_video
+
+    return render_video(out, task="Reacher", **size)

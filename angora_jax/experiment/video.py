@@ -10,6 +10,7 @@ Rendering needs an OpenGL backend (see `angora_jax.envs.rendering`: MUJOCO_GL=eg
 from __future__ import annotations
 
 import importlib.util
+import numbers
 import struct
 import warnings
 from pathlib import Path
@@ -81,6 +82,7 @@ def render_episodes(run_dir: str | Path | Agent | None, task: str | None, checkp
     policy still training, `evaluation.video`); max_steps cuts each episode after that many steps."""
     if (run_dir is None) == (task is None):
         raise ValueError("Give either run_dir (a trained policy) or task (random actions), not both or neither.")
+    check_pixels(width, height)  # before the policy is loaded or the task made
     episodes = check_count("episodes", episodes)
     seed = check_seed("seed", seed)
     with on_host():
@@ -112,8 +114,7 @@ def check_frames_fit(episodes: int, steps: int, width: int, height: int) -> None
     `width` x `height` would not fit in this machine's memory: every frame is held until the video is written, and
     stacked into one array then (twice the frames). Without it a long video of large frames ran for as long as the
     episodes took and was then killed by the kernel, with no message and nothing written."""
-    if width < 1 or height < 1:
-        raise ValueError(f"Frames must be at least 1 x 1 pixels, got {width} x {height}.")
+    check_pixels(width, height)
     frames = episodes * (steps + 1)
     needed = 2 * frames * width * height * 3
     memory = device_memory(jax.devices("cpu")[0])
@@ -123,6 +124,14 @@ def check_frames_fit(episodes: int, steps: int, width: int, height: int) -> None
                          f"that while the video is written, more than this machine's {memory / 1e9:,.0f} GB: render "
                          "fewer episodes "
                          "(--episodes) or smaller frames (--width, --height).")
+
+
+def check_pixels(width: object, height: object) -> None:
+    """ValueError unless `width` and `height` are whole numbers of at least 1 (not bools): text ("320" from a widget)
+    or a fraction failed deep in a comparison or a format once the task was made."""
+    if any(isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < 1 for size in (width, height)):
+        raise ValueError(f"Frames are whole numbers of pixels, at least 1 x 1: width and height, got {width!r} x "
+                         f"{height!r}.")
 
 
 def render_video(out: str | Path, run_dir: str | Path | None = None, *, task: str | None = None,
@@ -140,6 +149,7 @@ def check_frame_size(out: str | Path, width: int | None, height: int | None) -> 
     """ValueError when the frames of an MP4 `out` would have an odd width or height: H.264 (yuv420p) keeps colour at
     half the resolution, and ffmpeg refused such frames only once every frame had been rendered, which `render`
     reported as ffmpeg failing."""
+    check_pixels(320 if width is None else width, 240 if height is None else height)  # None: the defaults
     odd = [(name, size) for name, size in (("width", width), ("height", height)) if size is not None and size % 2]
     if Path(out).suffix.lower() == ".mp4" and odd:
         given = " and ".join(f"--{name} {size}" for name, size in odd)
