@@ -20,7 +20,15 @@ from tiny import TINY_PPO
 
 import angora_jax as aj
 from angora_jax.cli import main
-from angora_jax.experiment import Checkpoints, RunDirError, TrainingInterrupted, read_metrics, resume, validate
+from angora_jax.experiment import (
+    Checkpoints,
+    RunDirError,
+    TrainingInterrupted,
+    read_metrics,
+    resume,
+    snapshot_cycles,
+    validate,
+)
 from angora_jax.experiment.checkpoint import CheckpointError
 from angora_jax.experiment.config import CheckpointConfig, ConfigError
 from angora_jax.experiment.monitor import set_aside_after
@@ -642,13 +650,18 @@ def test_a_cycle_given_as_digits_or_a_numpy_integer_names_that_checkpoint(runs, 
                                        r"or on_cycle=records.append; got 'print' \(str\)\.$"),
     ({"minutes": "5"}, ValueError, r"^minutes \(the call's time limit\) must be > 0, got '5'\.$"),
     ({"minutes": 0}, ValueError, r"^minutes \(the call's time limit\) must be > 0, got 0\.$"),
+    ({"on_cycle": lambda: None}, TypeError, r"^on_cycle is called with each cycle's record \(a dict\), e.g. on_cycle="
+                                            r"print or on_cycle=records.append; <lambda> takes \(\)\.$"),
+    ({"on_cycle": lambda record, axes: None}, TypeError, r"^on_cycle is called with each cycle's record .*; <lambda> "
+                                                         r"takes \(record, axes\)\.$"),
 ])
 def test_an_on_cycle_or_time_limit_that_cannot_be_used_is_refused_before_a_run_directory_is_made(runs, tmp_path,
                                                                                                  options, error,
                                                                                                  message):
     """on_cycle="print" (a notebook slip) was found only after the first cycle had compiled and run: "'str' object is
     not callable", leaving a run with that cycle logged and no checkpoint, which resume refuses to start over (it
-    needs from_scratch=True); minutes="5" failed comparing text with a number once the run directory was made."""
+    needs from_scratch=True); minutes="5" failed comparing text with a number once the run directory was made. An
+    on_cycle that takes no record, or two arguments, failed the same way after the first cycle."""
     with pytest.raises(error, match=message):
         aj.train(config(tmp_path, "refused"), **options)
     assert list(tmp_path.iterdir()) == []
@@ -700,7 +713,7 @@ def test_a_run_given_as_what_train_returned_or_as_none_is_refused_naming_the_run
     whole = runs[0]
     calls = (lambda value: resume(value), lambda value: aj.load_agent(value),
              lambda value: aj.evaluate(value, episodes=1, save=False), lambda value: read_metrics(value),
-             lambda value: aj.export_policy(value, tmp_path / "p.msgpack"))
+             lambda value: aj.export_policy(value, tmp_path / "p.msgpack"), lambda value: snapshot_cycles(value))
     for call in calls:
         with pytest.raises(TypeError, match=rf"^run_dir is a run directory \(a str or Path\): give run.run_dir "
                                             rf"\('{whole.run_dir}'\), not the TrainingRun that train returned\.$"):

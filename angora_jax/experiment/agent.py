@@ -247,7 +247,8 @@ def read_checkpoint(run_dir: str | Path, checkpoint: str | int) -> str | int:
 def snapshot_cycles(run_dir: str | Path) -> list[int]:
     """The cycles of the snapshots that a run keeps for probing (`checkpoint.snapshot_every`), ascending; empty when
     it keeps none."""
-    checkpoints = Checkpoints(Path(run_dir) / CHECKPOINTS, read_run_config(run_dir).checkpoint, create=False)
+    config = read_run_config(run_dir)  # TypeError or RunDirError for what is no run directory
+    checkpoints = Checkpoints(Path(run_dir) / CHECKPOINTS, config.checkpoint, create=False)
     try:
         return checkpoints.steps("snapshots")
     finally:

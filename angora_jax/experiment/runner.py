@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import inspect
 import numbers
 import os
 import shutil
@@ -323,6 +324,18 @@ def _check_call(on_cycle: Any, minutes: Any) -> None:
     if on_cycle is not None and not callable(on_cycle):
         raise TypeError(f"on_cycle is called with each cycle's record (a dict), e.g. on_cycle=print or "
                         f"on_cycle=records.append; got {on_cycle!r} ({type(on_cycle).__name__}).")
+    if on_cycle is not None:  # one that takes no record, or more, failed alike after the first cycle
+        try:
+            signature = inspect.signature(on_cycle)
+        except (TypeError, ValueError):  # a builtin without a signature to read: called as it is
+            signature = None
+        if signature is not None:
+            try:
+                signature.bind({})
+            except TypeError:
+                name = getattr(on_cycle, "__name__", type(on_cycle).__name__)
+                raise TypeError(f"on_cycle is called with each cycle's record (a dict), e.g. on_cycle=print or "
+                                f"on_cycle=records.append; {name} takes {signature}.") from None
     if minutes is not None and (isinstance(minutes, bool) or not isinstance(minutes, numbers.Real) or not minutes > 0):
         raise ValueError(f"minutes (the call's time limit) must be > 0, got {minutes!r}.")
 
