@@ -735,3 +735,22 @@ def test_a_damaged_checkpoint_names_the_python_arguments_that_read_the_intact_on
                                               r"--checkpoint best \(resume: --from best\); in Python checkpoint='best' "
                                               r"\(resume: start_from='best'\); or restore the folder"):
         aj.load_agent(run, "latest")
+
+
+def test_a_run_config_edited_into_one_that_does_not_validate_names_the_edit_and_the_copy_to_restore(runs, tmp_path):
+    """A run's config.yaml cut short mid-word (or mistyped by hand) to `task: CartPol` was answered "Unknown value
+    'CartPol' for env.task. Did you mean 'CartPole'?", as if the user had asked for that task, with no word that the
+    run's own file changed or that its checkpoints keep the config it was trained with."""
+    run = tmp_path / "edited"
+    shutil.copytree(runs[0].run_dir, run)
+    config_file = run / "config.yaml"
+    config_file.write_text(config_file.read_text().replace("task: CartPole", "task: CartPol"))
+    before = sorted(p.relative_to(run) for p in run.rglob("*"))
+    edit = (f"{config_file} was edited after the latest checkpoint of cycle 4 was saved: env.task: 'CartPole' -> "
+            f"'CartPol'. `angora-jax check {run} --restore-config` writes back the config it was trained with (the "
+            "edited file is kept beside it).")
+    wanted = r"^Unknown value 'CartPol' for env.task\..* " + re.escape(edit) + "$"
+    for call in (lambda: aj.load_agent(run), lambda: resume(run), lambda: aj.evaluate(run, episodes=1, save=False)):
+        with pytest.raises(ConfigError, match=wanted):
+            call()
+    assert sorted(p.relative_to(run) for p in run.rglob("*")) == before

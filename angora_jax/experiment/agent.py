@@ -29,6 +29,7 @@ from angora_jax.experiment.config import (
     validate,
 )
 from angora_jax.experiment.programs import initial_state_shape
+from angora_jax.experiment.run_check import refused_as_edited
 from angora_jax.experiment.run_dir import CHECKPOINTS, own_code_misfit, read_run_config, read_sessions, run_source
 from angora_jax.nets import ActorCritic, make_network
 from angora_jax.nets.components import register_run_reader
@@ -186,7 +187,8 @@ def _restore_agent(run_dir: str | Path, checkpoint: str | int,
     """`load_agent`'s agent, the checkpoint read (`read_checkpoint`) and the cycle of the run's latest checkpoint (0
     when it keeps none)."""
     env_overrides = override_strings(env_overrides, "env_overrides")
-    config = _seeing_as_trained(read_run_config(run_dir), run_dir)
+    saved = read_run_config(run_dir)
+    config = _seeing_as_trained(saved, run_dir)
     if env_overrides:
         for override in env_overrides:
             if "=" not in override:
@@ -196,7 +198,12 @@ def _restore_agent(run_dir: str | Path, checkpoint: str | int,
         # Given with the prefix that config files use (env.options.touch=true), an option means the same.
         config = load_config(to_dict(config), [f"env.options.{override.removeprefix('env.options.')}"
                                                for override in env_overrides])
-    env, network, head, template, compiled = acting_parts(config)
+    try:
+        env, network, head, template, compiled = acting_parts(config)
+    except ConfigError as error:
+        if (edited := refused_as_edited(run_dir, saved, error)) is not None:
+            raise edited from None
+        raise
     checkpoints = Checkpoints(Path(run_dir) / CHECKPOINTS, config.checkpoint, create=False)
     which = read_checkpoint(run_dir, checkpoint)
     try:

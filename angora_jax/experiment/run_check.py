@@ -97,6 +97,18 @@ def edited_settings(run_dir: str | Path, config: Config, checkpoints: Checkpoint
     return EditedSettings(kind, cycle, saved, changes) if changes else None
 
 
+def refused_as_edited(run_dir: str | Path, config: Config, error: ConfigError) -> ConfigError | None:
+    """`error` (the run's config.yaml, as loaded in `config`, refused by `validate`) with what of it was edited since
+    its checkpoints were saved and how to write theirs back; None when it was not edited (the error is then the
+    whole story). A file cut short mid-word (`task: CartPol`) was otherwise answered as if the user had asked for
+    that task."""
+    edited = edited_settings(run_dir, config)
+    if edited is None:
+        return None
+    return ConfigError(f"{error} {edited.describe(Path(run_dir))}. `angora-jax check {run_dir} --restore-config` "
+                       "writes back the config it was trained with (the edited file is kept beside it).")
+
+
 def _shown(value: Any) -> str:
     text = repr(value)
     return text if len(text) <= 40 else text[:37] + "..."

@@ -59,7 +59,7 @@ from angora_jax.experiment.monitor import Monitor, ended_by_stop_at, logged_cycl
 from angora_jax.experiment.programs import cycle_programs, initial_state_shape
 from angora_jax.experiment.progress import Progress
 from angora_jax.experiment.resume_plan import plan_resume, set_aside_checkpoints_after, set_aside_outputs
-from angora_jax.experiment.run_check import edited_settings
+from angora_jax.experiment.run_check import edited_settings, refused_as_edited
 from angora_jax.experiment.run_dir import (
     CHECKPOINTS,
     EVALUATIONS,
@@ -252,7 +252,12 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
         config = _lengthened(config, num_cycles, run_dir)
     if no_stop_at:
         config = replace(config, ppo=replace(config.ppo, stop_at=None))
-    env = validate(config, new_run=False)
+    try:
+        env = validate(config, new_run=False)
+    except ConfigError as error:
+        if (edited := refused_as_edited(run_dir, on_disk, error)) is not None:
+            raise edited from None
+        raise
     lock = _lock_together(run_dir, force)
     # One reader of the checkpoints for planning and restoring, so that the one resumed from is verified once.
     checkpoints = Checkpoints(run_dir / CHECKPOINTS, config.checkpoint, create=False)
