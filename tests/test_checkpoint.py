@@ -754,3 +754,15 @@ def test_a_run_config_edited_into_one_that_does_not_validate_names_the_edit_and_
         with pytest.raises(ConfigError, match=wanted):
             call()
     assert sorted(p.relative_to(run) for p in run.rglob("*")) == before
+
+
+def test_a_run_directory_written_with_a_leading_tilde_is_named_in_the_home_folder(runs, tmp_path, monkeypatch):
+    """aj.load_agent("~/runs/x") said "~/runs/x is not a run directory: it does not exist", of a run that exists in
+    the home folder: Python reads the ~ as a folder's name, as a shell does not."""
+    monkeypatch.setenv("HOME", str(tmp_path))
+    shutil.copytree(runs[0].run_dir, tmp_path / "runs" / "x")
+    wanted = (r"^~/runs/x is not a run directory: it does not exist\. A leading ~ is the home folder to a shell, not "
+              rf"in Python: give '{tmp_path / 'runs' / 'x'}' \(os.path.expanduser\('~/runs/x'\)\)\.$")
+    for call in (aj.load_agent, resume, read_metrics):
+        with pytest.raises(RunDirError, match=wanted):
+            call("~/runs/x")

@@ -251,6 +251,10 @@ def not_a_run_dir(path: str | Path, otherwise: str = "") -> str:
     config.yaml or checkpoints folder given for the run is a slip worth naming); else `otherwise` is added."""
     resolved = Path(path).resolve()
     if not resolved.exists():
+        home = Path(path).expanduser()
+        if str(path).startswith("~") and home.exists():  # a shell expands it; Path() and open() do not
+            return (f"{path} is not a run directory: it does not exist. A leading ~ is the home folder to a shell, "
+                    f"not in Python: give {str(home)!r} (os.path.expanduser({str(path)!r})).")
         return f"{path} is not a run directory: it does not exist. {otherwise}".rstrip()
     said = (f"{path} is a file, not a run directory." if resolved.is_file() else
             f"{path} is not a run directory: it has no {CONFIG_FILE}.")
