@@ -105,8 +105,9 @@ def refused_as_edited(run_dir: str | Path, config: Config, error: ConfigError) -
     edited = edited_settings(run_dir, config)
     if edited is None:
         return None
-    return ConfigError(f"{error} {edited.describe(Path(run_dir))}. `angora-jax check {run_dir} --restore-config` "
-                       "writes back the config it was trained with (the edited file is kept beside it).")
+    return ConfigError(f"{edited.describe(Path(run_dir))}, and it no longer loads: {error} `angora-jax check {run_dir} "
+                       "--restore-config` writes back the config it was trained with (the edited file is kept beside "
+                       "it).")
 
 
 def _shown(value: Any) -> str:
