@@ -311,6 +311,27 @@ def test_resume_equals_uninterrupted(runs):
     assert [r["cycle"] for r in read_metrics(resumed.run_dir)] == [1, 2, 3, 4]
 
 
+def test_an_on_cycle_that_fails_keeps_its_cycle_and_resume_ends_as_the_whole_run(runs, tmp_path):
+    """A notebook's live plot raising at cycle 2 ended the run with the cycles since its last checkpoint unsaved (here
+    all: checkpoint.every=100), and resume then refused without from_scratch. That cycle is now saved, the error says
+    so, and resume ends as the run that was not stopped."""
+    whole = runs[0]
+
+    def plot(record):
+        if record["cycle"] == 2:
+            raise ValueError("the plot failed")
+
+    with pytest.raises(ValueError, match="the plot failed") as failed:
+        aj.train(config(tmp_path, "plotted"), on_cycle=plot)
+    run = tmp_path / "plotted"
+    assert f"the run stopped after cycle 2, whose checkpoint is saved; fix on_cycle, then continue with " \
+           f"aj.resume({str(run)!r}, on_cycle=...)" in "".join(failed.value.__notes__)
+    resumed = resume(run)
+    assert resumed.finished and [r["cycle"] for r in resumed.history] == [3, 4]
+    for a, b in zip(jax.tree.leaves(whole.state.params), jax.tree.leaves(resumed.state.params), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 @pytest.mark.slow
 def test_acting_reads_only_parameters_and_statistics(runs, tmp_path, capsys):
     """A checkpoint whose stored environment states no longer fit the task (as reach's did after its scene dropped

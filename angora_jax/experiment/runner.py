@@ -518,12 +518,13 @@ def _run(
                     metrics |= evaluate(latest)
                 if video is not None:
                     video(latest)
-                state, failure = latest, None
+                state, failure, in_on_cycle = latest, None, False
                 try:
                     record = monitor.record(metrics, state) if monitor is not None else metrics
                     history.append(record)
                     progress.update(record)
-                    if on_cycle is not None:
+                    in_on_cycle = on_cycle is not None
+                    if in_on_cycle:
                         on_cycle(record)
                 except Exception as error:  # re-raised below, once the other processes know to stop too
                     failure = error
@@ -531,6 +532,8 @@ def _run(
                 out_of_time = deadline is not None and time.monotonic() > deadline
                 decision = agree_to_stop(stop.signum, failure is not None, out_of_time)
                 if failure is not None:
+                    if in_on_cycle and jax.process_count() == 1:
+                        _keep_cycle_on_cycle_failed(failure, checkpoints, state, record, resolved, run_dir)
                     raise failure
                 if decision.failed:
                     raise ProcessFailed(decision.failed, int(metrics["cycle"]), run_dir)
@@ -645,6 +648,17 @@ def _save_together(checkpoints: Checkpoints, state: TrainState, record: dict[str
         raise ProcessFailed(saved.failed, int(record["cycle"]), run_dir)
     if error is not None:
         raise error
+
+
+def _keep_cycle_on_cycle_failed(failure: Exception, checkpoints: Checkpoints, state: TrainState,
+                                record: dict[str, Any], config: dict[str, Any], run_dir: Path) -> None:
+    """Save the cycle that `on_cycle` (the user's code: a live plot in a notebook) failed on, logged already, and say
+    so on `failure`: it ended the run with the cycles since the last checkpoint unsaved, and before the first one with
+    a run that resume refuses until told to start over. One process only: with several, the others learn only that
+    one failed, and save nothing more."""
+    _save_together(checkpoints, state, record, config, True, run_dir)
+    failure.add_note(f"angora_jax: the run stopped after cycle {record['cycle']}, whose checkpoint is saved; fix "
+                     f"on_cycle, then continue with aj.resume({str(run_dir)!r}, on_cycle=...).")
 
 
 def _warn_if_disk_is_small(run_dir: Path, config: Config, state: TrainState, cycles_left: int) -> None:
