@@ -154,7 +154,7 @@ class NetworkConfig:
             unchanged: their updates are masked to zero (`optax.multi_transform`). Each must name a module.
         pretrained: parameter path -> where its values come from at the start of a run: a run directory (its best
             checkpoint; `RUN_DIR:latest` or `RUN_DIR:<cycle>` for another), whose parameters at the same path are taken,
-            or a file written by `angora_jax.nets.save_component`. Shapes must match.
+            or a file written by `angora_jax.nets.components.save_component`. Shapes must match.
         visual: the visual area that encodes camera images (needed when the task's `vision` option renders them; its
             parameters are the module `visual`, e.g. `pretrained: {visual: encoder.msgpack}` and `frozen: [visual]`).
     """
