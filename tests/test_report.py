@@ -267,3 +267,16 @@ def test_monitor_serves_the_report_as_a_run_trains(runs, tmp_path):
             assert '<span id="shown">1</span>' in dom and "<td>finished</td>" in dom
     with pytest.raises(OSError):  # stopped: the server no longer answers
         fetch(live.url)
+
+
+def test_a_curve_with_no_value_to_draw_is_drawn_empty_without_a_matplotlib_warning(tmp_path):
+    """A run whose curve has no finite value yet (a first cycle in which no episode ended, NaN) printed matplotlib's
+    'No artists with labels found to put in legend' at the end of training: a legend is drawn only for lines."""
+    import warnings
+
+    from angora_jax.experiment.report import plot_curve
+    run = RunRecord("a", tmp_path / "a", {}, [{"cycle": 1, "env_steps": 32, "episode_return": float("nan")}])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plot_curve([run], "episode_return", tmp_path / "episode_return.png")
+    assert (tmp_path / "episode_return.png").stat().st_size > 0

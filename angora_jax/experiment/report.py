@@ -164,7 +164,8 @@ def plot_curve(runs: list[RunRecord], name: str, path: Path) -> None:
     ax.set_xlabel("env steps")
     ax.set_title(name)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize="small")
+    if ax.get_legend_handles_labels()[0]:  # no line yet (NaN only): a legend of nothing is matplotlib's warning
+        ax.legend(fontsize="small")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
