@@ -168,3 +168,19 @@ def test_a_pose_estimator_and_a_component_given_for_each_other_are_named_as_what
     with pytest.raises(ValueError, match=r"is a pose estimator .*, not a component file: give it as "
                                          r"env.options.pose_estimator=FILE"):
         read_component_file(pose)
+
+
+def test_an_init_from_whose_value_function_alone_misfits_points_to_taking_the_policy_alone():
+    """A source trained without `value_sees_physics` (or another value-only input) differs in its value function's
+    inputs only: the refusal says so and names the way docs/tasks.md gives (`ppo.network.pretrained`, the policy's
+    modules), not only "give the saved run's network settings"."""
+    from angora_jax.ppo.cycle import SavedRunMisfit, _fitting
+    ours = {"network": {"policy_trunk": {"kernel": np.zeros((5, 4))}, "value_trunk": {"kernel": np.zeros((9, 4))}},
+            "policy_head": {"kernel": np.zeros((4, 2))}}
+    theirs = {**ours, "network": {**ours["network"], "value_trunk": {"kernel": np.zeros((7, 4))}}}
+    with pytest.raises(SavedRunMisfit, match=r"Only the value function's.*ppo\.network\.pretrained"):
+        _fitting(ours, theirs, "network parameters", "runs/src")
+    policy_too = {**theirs, "policy_head": {"kernel": np.zeros((4, 3))}}
+    with pytest.raises(SavedRunMisfit) as refused:
+        _fitting(ours, policy_too, "network parameters", "runs/src")
+    assert "Only the value function's" not in str(refused.value)

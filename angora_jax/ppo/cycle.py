@@ -396,8 +396,13 @@ def _fitting(current: Any, saved: Any, what: str, source: str) -> Any:
     differ otherwise."""
     differing = shape_misfits(current, saved)
     if differing:
+        value_only = all("['value" in misfit.split(":")[0] for misfit in differing)  # value_trunk, value, ...
+        hint = (" Only the value function's parameters differ (its inputs: env.options.value_sees_physics, for one): "
+                "to fine-tune the policy alone, take its modules with ppo.network.pretrained={MODULE: SOURCE, ...} "
+                "instead, the value function starting afresh (docs/tasks.md, Domain randomization)." if value_only
+                else "")
         raise SavedRunMisfit(f"ppo.init_from {source!r}: its {what} do not fit this run's ({'; '.join(differing[:4])})"
-                             "; give the saved run's network settings, on a task with its observation shapes.")
+                             f"; give the saved run's network settings, on a task with its observation shapes.{hint}")
     return jax.tree.map(lambda old, new: jnp.asarray(new, dtype=old.dtype), current, saved)
 
 
