@@ -36,7 +36,8 @@ def add_train(commands: argparse._SubParsersAction) -> None:
 
 def add_resume(commands: argparse._SubParsersAction) -> None:
     """The `resume` verb: its arguments and its handler."""
-    resume = commands.add_parser("resume", help="continue a run from its latest checkpoint, exactly")
+    resume = commands.add_parser("resume", help="continue a run from its latest checkpoint (bit for bit from a full "
+                                                "one, the default; --exact insists)")
     resume.add_argument("run_dir", help="the run directory to continue (runs/<name>)")
     resume.add_argument(
         "--exact", action="store_true",
