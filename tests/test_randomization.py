@@ -68,7 +68,7 @@ def warp_runs(inputs):
 @pytest.mark.parametrize("ranges, message", [
     ({"friction": [-0.5, 1.0]}, "randomization.friction .* minimum must be >= 0"),
     ({"joint_damping": [2.0, 1.0]}, "randomization.joint_damping's minimum 2.0 is above its maximum 1.0"),
-    ({"frction": [0.5, 1.0]}, "Unknown randomization key 'frction'"),
+    ({"frction": [0.5, 1.0]}, r"Unknown randomization key 'frction' \(did you mean 'friction'\?\)"),
     ({"cube_mass": [0.5, 1.5]}, "randomization.cube_mass applies to the cube task only"),
     ({"armature": 1.5}, r"randomization.armature is a range of scale factors: give \[lo, hi\]"),
     ({"action_noise": -0.1}, "randomization.action_noise is a standard deviation"),

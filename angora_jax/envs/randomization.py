@@ -12,6 +12,7 @@ simulate the same worlds for the same key.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import sys
 
@@ -94,7 +95,9 @@ class Randomization:
             if key in CUBE_KEYS and not cube:
                 raise ValueError(f"randomization.{key} applies to the cube task only; remove it for this task.")
             if key not in known:
-                raise ValueError(f"Unknown randomization key {key!r}; known: {list(known)}.")
+                close = difflib.get_close_matches(str(key), known, n=1)
+                raise ValueError(f"Unknown randomization key {key!r}{f' (did you mean {close[0]!r}?)' if close else ''}"
+                                 f"; known: {list(known)}.")
         values = {}
         for key, value in options.items():
             name = f"randomization.{key}"
