@@ -41,6 +41,7 @@ from angora_jax.cli.arguments import EXIT_FAILED, EXIT_USAGE, add_import_option
 from angora_jax.cli.errors import device_memory_message, os_error_message, platform_message
 from angora_jax.experiment import ConfigError, RunDirError, TrainingInterrupted
 from angora_jax.experiment.distributed import ProcessFailed, is_main_process, lost_process_cause, lost_process_exit
+from angora_jax.experiment.terminal import discard, terminal_descriptors
 from angora_jax.ppo import TrainingDivergedError
 from angora_jax.registry.plugins import UserCodeError, import_modules
 
@@ -76,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     128 + signal number (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP: its terminal closed) when training was interrupted
     after saving a checkpoint, 141 (as for SIGPIPE) when the reader of its output left before it ended (`| head`),
     129 too when its terminal closed while it ran on with SIGHUP ignored (its work done; its last output lost)."""
-    terminals = [descriptor for descriptor in (1, 2) if os.isatty(descriptor)]  # a closed terminal is no tty
+    terminals = terminal_descriptors()  # now: a terminal that closed is no tty
     cli = parser()
     args, extra = cli.parse_known_args(argv)
     if extra:
@@ -105,13 +106,12 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return EXIT_USAGE
     except BrokenPipeError:  # stdout's reader is gone (`| head`, a pager closed): nothing to tell it, the work is done
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's flush at exit fails no more
+        discard([sys.stdout.fileno()])  # Python's flush at exit fails no more
         return 128 + signal.SIGPIPE  # as a shell reports a writer that SIGPIPE ended
     except OSError as error:  # a full disk, a read-only or lost mount, permissions: the machine's, not a bug
         if error.errno == errno.EIO and any(not os.isatty(descriptor) for descriptor in terminals):
             # Not the disk: the terminal it wrote to closed (`disown`, a SIGHUP ignored); nothing can be shown.
-            for descriptor in terminals:
-                os.dup2(os.open(os.devnull, os.O_WRONLY), descriptor)
+            discard(terminals)
             return 128 + signal.SIGHUP
         print(f"angora-jax {args.command}: {os_error_message(error, args.command)}", file=sys.stderr)
         return EXIT_USAGE

@@ -75,6 +75,7 @@ from angora_jax.experiment.run_dir import (
 )
 from angora_jax.experiment.run_lock import RunLock, RunLockedError, release_own_lock
 from angora_jax.experiment.sources import check_sources
+from angora_jax.experiment.terminal import discard, terminal_descriptors
 from angora_jax.nets.registry import NETWORKS
 from angora_jax.ppo.cycle import TrainState
 from angora_jax.ppo.parallel import per_device
@@ -713,7 +714,7 @@ def _stop_requests() -> Iterator[_StopRequest]:
     signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     previous = {signum: signal.getsignal(signum) for signum in signals}
     held = [signum for signum in signals if previous[signum] is not signal.SIG_IGN]
-    terminals = _terminal_descriptors()  # now: once the terminal has hung up, isatty says no
+    terminals = terminal_descriptors()  # now: once the terminal has hung up, isatty says no
 
     def again(signum, frame):
         if signum == signal.SIGTERM:
@@ -722,8 +723,8 @@ def _stop_requests() -> Iterator[_StopRequest]:
         signal.signal(signum, lambda signum, frame: None)  # said once
 
     def handle(signum, frame):
-        if signum == signal.SIGHUP:
-            _leave_closed_terminal(terminals)
+        if signum == signal.SIGHUP:  # the terminal is gone: each write to it would fail and end the run unsaved
+            discard(terminals)
         request.signum = signum
         signal.signal(signal.SIGINT, previous[signal.SIGINT])
         for later in {signal.SIGTERM, signal.SIGHUP} & set(held):
@@ -738,20 +739,3 @@ def _stop_requests() -> Iterator[_StopRequest]:
         if request.signum is None or not _EXIT_WHILE_PREPARING.get():
             for signum in {signal.SIGTERM, signal.SIGHUP} & set(held):
                 signal.signal(signum, previous[signum])
-
-
-def _terminal_descriptors() -> list[int]:
-    """The file descriptors of the standard output and error that go to a terminal."""
-    descriptors = []
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(OSError, ValueError, AttributeError):  # closed, or replaced without a descriptor
-            if os.isatty(stream.fileno()):
-                descriptors.append(stream.fileno())
-    return descriptors
-
-
-def _leave_closed_terminal(descriptors: list[int]) -> None:
-    """Point DESCRIPTORS, the standard output and error that went to a terminal, at /dev/null: after SIGHUP the
-    terminal is gone, and each write to it would fail (EIO) and end the run before its checkpoint."""
-    for descriptor in descriptors:
-        os.dup2(os.open(os.devnull, os.O_WRONLY), descriptor)
