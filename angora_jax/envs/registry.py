@@ -30,28 +30,30 @@ def make(name: str, **options) -> Env:
     if is_gymnasium(name):
         return make_gymnasium(name, **options)
     constructor = TASKS.get(name)
-    _refuse_unknown_options(name, constructor, options)
+    if (unknown := unknown_option(name, options)) is not None:
+        raise TypeError(f"Task {name!r} {unknown}")
     _refuse_non_bools(name, constructor, options)
     return constructor(**options)
 
 
-def _refuse_unknown_options(name: str, constructor: Any, options: dict[str, Any]) -> None:
-    """TypeError naming the first of `options` that `constructor` takes by no name, the nearest it takes and all it
-    takes: Python's own says only "__init__() got an unexpected keyword argument". Nothing is checked of a constructor
-    that takes any keyword, or has no signature to read."""
+def unknown_option(name: str, options: dict[str, Any]) -> str | None:
+    """"has no option 'x' (did you mean 'y'?); its options: ..." for the first of `options` that task `name`'s
+    constructor takes by no name (Python's own error says only "__init__() got an unexpected keyword argument");
+    None when it takes them all, or any keyword, or has no signature to read."""
     try:
-        parameters = inspect.signature(constructor).parameters
+        parameters = inspect.signature(TASKS.get(name)).parameters
     except (TypeError, ValueError):
-        return
+        return None
     if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values()):
-        return
+        return None
     names = [key for key, p in parameters.items()
              if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)]
     unknown = next((key for key in options if key not in names), None)
-    if unknown is not None:
-        close = difflib.get_close_matches(str(unknown), names, n=1)
-        raise TypeError(f"Task {name!r} has no option {unknown!r}{f' (did you mean {close[0]!r}?)' if close else ''}; "
-                        f"its options: {', '.join(names) or 'none'}.")
+    if unknown is None:
+        return None
+    close = difflib.get_close_matches(str(unknown), names, n=1)
+    return (f"has no option {unknown!r}{f' (did you mean {close[0]!r}?)' if close else ''}; its options: "
+            f"{', '.join(names) or 'none'}.")
 
 
 def _refuse_non_bools(name: str, constructor: Any, options: dict[str, Any]) -> None:

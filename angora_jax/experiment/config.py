@@ -12,7 +12,6 @@ import contextlib
 import dataclasses
 import difflib
 import importlib.util
-import inspect
 import itertools
 import json
 import math
@@ -33,7 +32,7 @@ import yaml
 
 from angora_jax.envs.core import Env
 from angora_jax.envs.mujoco_task import MujocoEnv
-from angora_jax.envs.registry import TASKS, is_gymnasium, list_tasks, make
+from angora_jax.envs.registry import is_gymnasium, list_tasks, make, unknown_option
 from angora_jax.envs.rendering import CAMERAS, RenderError, SceneRenderer
 from angora_jax.experiment.contracts import check_own_code
 from angora_jax.experiment.wandb_logging import WANDB_INSTALL, WANDB_MODES, WandbConfig
@@ -503,11 +502,13 @@ def validate(config: Config, new_run: bool = True) -> Env:
                           " Any Gymnasium environment: gym:<id>, e.g. gym:LunarLander-v3." +
                           (defined_in_a_notebook(config.env.task) or YOUR_OWN))
     _check_options(config.env.options, "env.options")
+    unknown = None if is_gymnasium(config.env.task) else unknown_option(config.env.task, config.env.options)
+    if unknown is not None:
+        raise ConfigError(f"env.options do not fit task {config.env.task!r}: it {unknown}")
     try:
         env = make(config.env.task, **config.env.options)
     except (TypeError, ValueError) as error:
-        raise ConfigError(f"env.options do not fit task {config.env.task!r}: "
-                          f"{_unknown_option(config.env.task, config.env.options) or error}") from None
+        raise ConfigError(f"env.options do not fit task {config.env.task!r}: {error}") from None
     except ModuleNotFoundError as error:  # an optional package the task needs (its message names the install)
         raise ConfigError(f"Task {config.env.task!r} cannot be made: {error}") from None
     if config.ppo.network.name not in list_networks():
@@ -730,23 +731,6 @@ def _deep_copy(data: Any) -> Any:
     if isinstance(data, Path):
         return str(data)
     return data.item() if isinstance(data, np.generic) else data
-
-
-def _unknown_option(task: str, options: dict[str, Any]) -> str | None:
-    """"no option 'x' (did you mean 'y'?); its options: ..." for the first of `options` that task `task`'s
-    constructor does not take by name; None when it takes them all (or any keyword)."""
-    if is_gymnasium(task) or task not in list_tasks():
-        return None
-    parameters = inspect.signature(TASKS.get(task)).parameters
-    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values()):
-        return None
-    names = [name for name, p in parameters.items() if p.kind is not inspect.Parameter.VAR_POSITIONAL]
-    unknown = next((key for key in options if key not in names), None)
-    if unknown is None:
-        return None
-    close = difflib.get_close_matches(str(unknown), names, n=1)
-    hint = f" (did you mean {close[0]!r}?)" if close else ""
-    return f"it has no option {unknown!r}{hint}; its options: {', '.join(names)}."
 
 
 def _apply_override(data: dict[str, Any], override: str) -> None:
