@@ -76,7 +76,7 @@ def test_an_action_outside_a_discrete_space_and_a_frame_of_no_pixels_are_refused
             env.step(action)
     for action in (1, np.int64(0), np.array(1), jnp.int32(1)):
         env.step(action)
-    for size, given in (({"width": 0}, "width=0"), ({"height": -5}, "height=-5"), ({"width": "320"}, "width='320'")):
-        with pytest.raises(ValueError, match=rf"^width and height are the rendered frame's size in pixels, whole "
-                                             rf"numbers of at least 1; got {given}\.$"):
+    for size, given in (({"width": 0}, "0 x 240"), ({"height": -5}, "320 x -5"), ({"width": "320"}, "'320' x 240")):
+        with pytest.raises(ValueError, match=rf"^Frames are whole numbers of pixels, at least 1 x 1: width and "
+                                             rf"height, got {given}\.$"):
             GymEnv("CartPole", **size)

@@ -7,7 +7,6 @@ run their own functions, jitted for one environment. Ids are `AngoraJax/<Task>-v
 
 from __future__ import annotations
 
-import numbers
 from typing import Any
 
 import gymnasium
@@ -18,7 +17,7 @@ import numpy as np
 from angora_jax.envs.core import MODALITIES, Env, State, is_image
 from angora_jax.envs.cpu_env import CpuEnv, eager, single_env_functions
 from angora_jax.envs.registry import TASKS, make
-from angora_jax.envs.rendering import SceneRenderer, camera_named
+from angora_jax.envs.rendering import SceneRenderer, camera_named, check_pixels
 
 NAMESPACE = "AngoraJax"
 
@@ -37,10 +36,7 @@ class GymEnv(gymnasium.Env):
 
     def __init__(self, task: str, render_mode: str | None = None, width: int = 320, height: int = 240,
                  camera: str = "front", **options: Any):
-        for name, size in (("width", width), ("height", height)):
-            if isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < 1:
-                raise ValueError(f"width and height are the rendered frame's size in pixels, whole numbers of at least "
-                                 f"1; got {name}={size!r}.")
+        check_pixels(width, height)
         self._task = task
         self._env: Env = eager(make(task, **options))
         self._eager = isinstance(self._env, CpuEnv)

@@ -7,6 +7,7 @@ Rendering needs an OpenGL backend chosen by `MUJOCO_GL` before MuJoCo is importe
 from __future__ import annotations
 
 import copy
+import numbers
 import os
 import warnings
 from dataclasses import dataclass
@@ -131,3 +132,11 @@ class SceneRenderer:
 
     def close(self) -> None:
         self._renderer.close()
+
+
+def check_pixels(width: object, height: object) -> None:
+    """ValueError unless `width` and `height` are whole numbers of at least 1 (not bools): text ("320" from a widget)
+    or a fraction failed deep in a comparison or a format once the task was made."""
+    if any(isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < 1 for size in (width, height)):
+        raise ValueError(f"Frames are whole numbers of pixels, at least 1 x 1: width and height, got {width!r} x "
+                         f"{height!r}.")

@@ -10,7 +10,6 @@ Rendering needs an OpenGL backend (see `angora_jax.envs.rendering`: MUJOCO_GL=eg
 from __future__ import annotations
 
 import importlib.util
-import numbers
 import struct
 import warnings
 from pathlib import Path
@@ -22,7 +21,7 @@ import numpy as np
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.envs.registry import make
-from angora_jax.envs.rendering import RenderError, SceneRenderer, camera_named
+from angora_jax.envs.rendering import RenderError, SceneRenderer, camera_named, check_pixels
 from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.config import check_count, check_seed
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
@@ -124,14 +123,6 @@ def check_frames_fit(episodes: int, steps: int, width: int, height: int) -> None
                          f"that while the video is written, more than this machine's {memory / 1e9:,.0f} GB: render "
                          "fewer episodes "
                          "(--episodes) or smaller frames (--width, --height).")
-
-
-def check_pixels(width: object, height: object) -> None:
-    """ValueError unless `width` and `height` are whole numbers of at least 1 (not bools): text ("320" from a widget)
-    or a fraction failed deep in a comparison or a format once the task was made."""
-    if any(isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < 1 for size in (width, height)):
-        raise ValueError(f"Frames are whole numbers of pixels, at least 1 x 1: width and height, got {width!r} x "
-                         f"{height!r}.")
 
 
 def render_video(out: str | Path, run_dir: str | Path | None = None, *, task: str | None = None,
