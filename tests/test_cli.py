@@ -531,10 +531,17 @@ def test_a_jax_platforms_this_machine_cannot_start_exits_2_naming_it_even_in_doc
                                   "names on this machine (") and "unset JAX_PLATFORMS" in done.stderr, done.stderr
 
 
+def command_with_sighup(disposition: str = "SIG_DFL", before: str = "") -> list[str]:
+    """`angora-jax` started with SIGHUP at `disposition` (SIG_DFL, or SIG_IGN as under nohup) after the Python
+    statements `before`: a suite run under nohup passes its SIGHUP ignored on to every process it starts."""
+    return [sys.executable, "-c", f"import os, signal, sys; {before}signal.signal(signal.SIGHUP, "
+            f"signal.{disposition}); os.execv(sys.executable, [sys.executable, '-m', 'angora_jax.cli', *sys.argv[1:]])"]
+
+
 def start_training(argv: list[str]) -> tuple[subprocess.Popen, str]:
     """`angora-jax` ARGV in a process of its own; returns it once it announces that it compiles, with that line."""
-    process = subprocess.Popen([sys.executable, "-m", "angora_jax.cli", *argv], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen([*command_with_sighup(), *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
     line = process.stdout.readline()
     assert "compiling the first cycle" in line, (line, process.communicate())
     return process, line
@@ -575,6 +582,25 @@ def test_sigterm_while_python_compiles_ends_the_process_at_once(tmp_path):
 
 
 @pytest.mark.slow
+def test_sigint_stops_a_command_started_with_sigint_ignored_as_a_scripts_background_job_is(tmp_path):
+    """A script's background job starts with SIGINT ignored (bash without job control), and examples/multi_gpu_host.sh
+    forwards Ctrl-C to its processes with kill -INT: training must still stop with a checkpoint. (SIGHUP ignored,
+    nohup's request, is kept: the closed-terminal test.)"""
+    argv = ["train", "cartpole", *TINY, "ppo.num_cycles=100000", f"logging.run_root={tmp_path}", "logging.run_name=bg"]
+    start = command_with_sighup(before="signal.signal(signal.SIGINT, signal.SIG_IGN); ")
+    process = subprocess.Popen([*start, *argv], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    metrics = tmp_path / "bg" / "metrics.jsonl"
+    deadline = time.monotonic() + 120
+    while not (metrics.exists() and metrics.read_text().count("\n") >= 2):
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+        time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 128 + signal.SIGINT and "Interrupted by SIGINT" in err, err
+    assert aj.load_agent(tmp_path / "bg", "latest").cycle == len(read_metrics(tmp_path / "bg")) >= 2
+
+
+@pytest.mark.slow
 def test_sigterm_stops_the_command_with_a_checkpoint_and_a_second_one_does_not_cut_its_save_short(tmp_path):
     """A second SIGTERM (a launcher forwarding one that the process group got too) killed the process mid-save, with no
     message, half-written checkpoints and its lock left behind, and exit 143 that says a checkpoint was saved."""
@@ -605,11 +631,10 @@ def on_a_terminal(argv: list[str], ignore_hangup: bool = False) -> tuple[subproc
     ignored (`nohup`, or bash's `disown -h`). Returns the process and the terminal's own end: closing that end is
     closing the window (the kernel hangs the terminal up, sends the process SIGHUP, and fails its writes to it)."""
     terminal, process_end = os.openpty()
-    start = ("import fcntl, os, signal, sys, termios; fcntl.ioctl(0, termios.TIOCSCTTY, 0); "
-             f"{'signal.signal(signal.SIGHUP, signal.SIG_IGN); ' * ignore_hangup}"
-             "os.execv(sys.executable, [sys.executable, '-m', 'angora_jax.cli', *sys.argv[1:]])")
-    process = subprocess.Popen([sys.executable, "-c", start, *argv], stdin=process_end, stdout=process_end,
-                               stderr=process_end, start_new_session=True)
+    start = command_with_sighup("SIG_IGN" if ignore_hangup else "SIG_DFL",
+                                "import fcntl, termios; fcntl.ioctl(0, termios.TIOCSCTTY, 0); ")
+    process = subprocess.Popen([*start, *argv], stdin=process_end, stdout=process_end, stderr=process_end,
+                               start_new_session=True)
     os.close(process_end)
     os.set_blocking(terminal, False)
     return process, terminal

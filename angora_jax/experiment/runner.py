@@ -713,7 +713,9 @@ def _stop_requests() -> Iterator[_StopRequest]:
         return
     signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     previous = {signum: signal.getsignal(signum) for signum in signals}
-    held = [signum for signum in signals if previous[signum] is not signal.SIG_IGN]
+    # SIGHUP ignored is nohup's request to train on; SIGINT ignored is only how a script starts a background job
+    # (examples/multi_gpu_host.sh forwards Ctrl-C to its processes with kill -INT), which must still stop the run.
+    held = [signum for signum in signals if signum != signal.SIGHUP or previous[signum] is not signal.SIG_IGN]
     terminals = terminal_descriptors()  # now: once the terminal has hung up, isatty says no
 
     def again(signum, frame):
