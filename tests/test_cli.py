@@ -531,6 +531,18 @@ def test_a_jax_platforms_this_machine_cannot_start_exits_2_naming_it_even_in_doc
                                   "names on this machine (") and "unset JAX_PLATFORMS" in done.stderr, done.stderr
 
 
+@pytest.fixture
+def reaped():
+    """`reaped(process)` returns `process`, killed when the test ends if it still runs: a test that failed while its
+    process trained on (100,000 cycles) left it taking the cores from the tests after it."""
+    processes = []
+    yield lambda process: processes.append(process) or process
+    for process in processes:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+
+
 def command_with_sighup(disposition: str = "SIG_DFL", before: str = "") -> list[str]:
     """`angora-jax` started with SIGHUP at `disposition` (SIG_DFL, or SIG_IGN as under nohup) after the Python
     statements `before`: a suite run under nohup passes its SIGHUP ignored on to every process it starts."""
@@ -582,13 +594,13 @@ def test_sigterm_while_python_compiles_ends_the_process_at_once(tmp_path):
 
 
 @pytest.mark.slow
-def test_sigint_stops_a_command_started_with_sigint_ignored_as_a_scripts_background_job_is(tmp_path):
+def test_sigint_stops_a_command_started_with_sigint_ignored_as_a_scripts_background_job_is(tmp_path, reaped):
     """A script's background job starts with SIGINT ignored (bash without job control), and examples/multi_gpu_host.sh
     forwards Ctrl-C to its processes with kill -INT: training must still stop with a checkpoint. (SIGHUP ignored,
     nohup's request, is kept: the closed-terminal test.)"""
     argv = ["train", "cartpole", *TINY, "ppo.num_cycles=100000", f"logging.run_root={tmp_path}", "logging.run_name=bg"]
     start = command_with_sighup(before="signal.signal(signal.SIGINT, signal.SIG_IGN); ")
-    process = subprocess.Popen([*start, *argv], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    process = reaped(subprocess.Popen([*start, *argv], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
     metrics = tmp_path / "bg" / "metrics.jsonl"
     deadline = time.monotonic() + 120
     while not (metrics.exists() and metrics.read_text().count("\n") >= 2):
@@ -652,7 +664,7 @@ def logged_while_shown(process: subprocess.Popen, terminal: int, metrics: Path, 
 
 
 @pytest.mark.slow
-def test_closing_the_terminal_stops_training_with_a_checkpoint_and_with_sighup_ignored_it_trains_on(tmp_path):
+def test_closing_the_terminal_stops_training_with_a_checkpoint_and_with_sighup_ignored_it_trains_on(tmp_path, reaped):
     """Closing the terminal that runs `train` (a window, a dropped ssh session) sends SIGHUP, which killed the process
     with the cycles since its last checkpoint and left its lock. It now stops after its cycle and saves, as on
     SIGTERM, though every write to the closed terminal fails. Started with SIGHUP ignored, it trains on to its end;
@@ -660,6 +672,7 @@ def test_closing_the_terminal_stops_training_with_a_checkpoint_and_with_sighup_i
     argv = ["train", "cartpole", *TINY, "logging.progress=bar", "ppo.num_cycles=100000", "checkpoint.every=1000",
             f"logging.run_root={tmp_path}", "logging.run_name=closed"]
     process, terminal = on_a_terminal(argv)
+    reaped(process)
     logged_while_shown(process, terminal, tmp_path / "closed" / "metrics.jsonl", 2)
     os.close(terminal)
     assert process.wait(timeout=120) == 128 + signal.SIGHUP
@@ -670,6 +683,7 @@ def test_closing_the_terminal_stops_training_with_a_checkpoint_and_with_sighup_i
     # Training for 9 s, of which the terminal is open for the first cycle only.
     argv = [*argv[:-2], f"logging.run_root={tmp_path}", "logging.run_name=ignored", "--minutes", "0.15"]
     process, terminal = on_a_terminal(argv, ignore_hangup=True)
+    reaped(process)
     logged_while_shown(process, terminal, tmp_path / "ignored" / "metrics.jsonl", 1)
     os.close(terminal)
     closed_at = len(read_metrics(tmp_path / "ignored"))
