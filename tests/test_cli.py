@@ -601,11 +601,7 @@ def test_sigint_stops_a_command_started_with_sigint_ignored_as_a_scripts_backgro
     argv = ["train", "cartpole", *TINY, "ppo.num_cycles=100000", f"logging.run_root={tmp_path}", "logging.run_name=bg"]
     start = command_with_sighup(before="signal.signal(signal.SIGINT, signal.SIG_IGN); ")
     process = reaped(subprocess.Popen([*start, *argv], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
-    metrics = tmp_path / "bg" / "metrics.jsonl"
-    deadline = time.monotonic() + 120
-    while not (metrics.exists() and metrics.read_text().count("\n") >= 2):
-        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
-        time.sleep(0.2)
+    logged_while_shown(process, None, tmp_path / "bg" / "metrics.jsonl", 2)
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=120)
     assert process.returncode == 128 + signal.SIGINT and "Interrupted by SIGINT" in err, err
@@ -619,11 +615,7 @@ def test_sigterm_stops_the_command_with_a_checkpoint_and_a_second_one_does_not_c
     command = [sys.executable, "-m", "angora_jax.cli", "train", "cartpole", *TINY]
     command += ["ppo.num_cycles=100000", f"logging.run_root={tmp_path}", "logging.run_name=long"]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    metrics = tmp_path / "long" / "metrics.jsonl"
-    deadline = time.monotonic() + 120
-    while not (metrics.exists() and metrics.read_text().count("\n") >= 2):
-        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
-        time.sleep(0.2)
+    logged_while_shown(process, None, tmp_path / "long" / "metrics.jsonl", 2)
     process.send_signal(signal.SIGTERM)
     time.sleep(0.1)
     process.send_signal(signal.SIGTERM)
@@ -652,14 +644,15 @@ def on_a_terminal(argv: list[str], ignore_hangup: bool = False) -> tuple[subproc
     return process, terminal
 
 
-def logged_while_shown(process: subprocess.Popen, terminal: int, metrics: Path, cycles: int) -> None:
-    """Wait until METRICS holds CYCLES records, reading the terminal meanwhile as a terminal window does (a terminal
-    nobody reads fills and blocks the process's writes)."""
+def logged_while_shown(process: subprocess.Popen, terminal: int | None, metrics: Path, cycles: int) -> None:
+    """Wait until METRICS holds CYCLES records, reading the terminal meanwhile (when the process writes to one) as a
+    terminal window does (a terminal nobody reads fills and blocks the process's writes)."""
     deadline = time.monotonic() + 120
     while not (metrics.exists() and metrics.read_text().count("\n") >= cycles):
         assert process.poll() is None and time.monotonic() < deadline, process.communicate()
-        with contextlib.suppress(BlockingIOError, OSError):
-            os.read(terminal, 65536)
+        if terminal is not None:
+            with contextlib.suppress(BlockingIOError, OSError):
+                os.read(terminal, 65536)
         time.sleep(0.1)
 
 
