@@ -374,3 +374,66 @@ def test_a_run_trained_under_randomization_resumes_exactly(tmp_path, quick_compi
         if not np.array_equal(a, b):
             differ.append(jax.tree_util.keystr(path))
     assert differ in ([], [".actor.env_state.physics._impl.contact__geomcollisionid"]), differ
+
+
+@pytest.mark.parametrize("network", [
+    pytest.param({"name": "simple", "width": 8}, id="mlp"),
+    pytest.param({"name": "simple", "width": 8, "shared_trunk": True}, id="shared"),
+    pytest.param({"name": "gru", "width": 8, "cell_size": 8}, id="gru", marks=pytest.mark.slow),
+    pytest.param({"name": "cortical"}, id="cortical", marks=pytest.mark.slow)])
+def test_init_from_a_run_without_value_sees_physics_carries_its_value_function_over(network, monkeypatch):
+    """`ppo.init_from` a reach run trained without `value_sees_physics`, fine-tuned with it: the value function's
+    inputs gain 70 entries at the end of `asymmetric`. Everything carries over; the weights that read the new entries
+    start at zero, so the new model's policy and value are the source's whatever physics it is given. The source's
+    `asymmetric` statistics carry over for the entries it had (the new ones mean 0, variance 1, the count afresh so
+    the first batch sets them all), the other modalities' as they were. A source that misfits otherwise is refused."""
+    from types import SimpleNamespace
+
+    from angora_jax.nets import make_network
+    from angora_jax.ppo import NetworkConfig, PPOConfig, make_cycle
+    from angora_jax.ppo import cycle as cycle_module
+    from angora_jax.ppo.cycle import SavedRunMisfit, build_head, build_model, check_saved_values
+
+    plain = aj.make("ShadowHandReach", max_episode_steps=10)
+    sees = aj.make("ShadowHandReach", max_episode_steps=10, randomization={"joint_damping": [0.8, 1.2]},
+                   value_sees_physics=True)
+    config = PPOConfig(num_envs=2, rollout_length=8, chunk_length=8, minibatch_size=16, num_epochs=1,
+                       network=NetworkConfig(**network))
+    source = make_cycle(plain, None, config)[0](jax.random.key(1))
+    old = source.obs_stats.asymmetric
+    stats = source.obs_stats.replace(asymmetric=old.replace(mean=old.mean + 0.5, var=old.var * 2, count=old.count + 9))
+    monkeypatch.setattr(cycle_module, "read_saved_run", lambda _: SimpleNamespace(params=source.params,
+                                                                                 obs_stats=stats))
+    fine_tune = config.replace(init_from="runs/source")
+    check_saved_values(sees, fine_tune)
+    state = make_cycle(sees, None, fine_tune)[0](jax.random.key(2))
+
+    model = build_model(make_network(config.network), build_head(plain, config), config)
+    leaves, treedef = jax.tree.flatten(plain.observation_shapes())
+    keys = jax.random.split(jax.random.key(3), len(leaves) + 1)
+    obs = jax.tree.unflatten(treedef, [jax.random.normal(k, (BATCH, *leaf.shape))
+                                      for leaf, k in zip(leaves, keys[:-1], strict=True)])
+    physics = jax.random.normal(keys[-1], (BATCH, 70))
+    carry = model.initial_carry(BATCH)
+    _, policy, value = model.apply({"params": source.params}, carry, obs)
+    grown = obs.replace(asymmetric=jnp.concatenate([obs.asymmetric, physics], axis=-1))
+    _, policy_now, value_now = model.apply({"params": state.params}, carry, grown)
+    np.testing.assert_allclose(policy_now, policy, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(value_now, value, rtol=1e-5, atol=1e-5)
+
+    size = old.mean.shape[0]
+    asymmetric = state.obs_stats.asymmetric
+    assert asymmetric.mean.shape == (size + 70,)
+    np.testing.assert_array_equal(asymmetric.mean[:size], stats.asymmetric.mean)
+    np.testing.assert_array_equal(asymmetric.var[:size], stats.asymmetric.var)
+    np.testing.assert_array_equal(asymmetric.mean[size:], 0.0)
+    np.testing.assert_array_equal(asymmetric.var[size:], 1.0)
+    assert float(asymmetric.count) < 1e-3
+    np.testing.assert_array_equal(state.obs_stats.proprioception.mean, stats.proprioception.mean)
+    assert float(state.obs_stats.proprioception.count) == float(stats.proprioception.count)
+
+    first = jax.tree_util.tree_leaves_with_path(source.params)[0][0]
+    misfit = jax.tree_util.tree_map_with_path(lambda path, x: jnp.zeros((3, 3)) if path == first else x, source.params)
+    monkeypatch.setattr(cycle_module, "read_saved_run", lambda _: SimpleNamespace(params=misfit, obs_stats=stats))
+    with pytest.raises(SavedRunMisfit, match="do not fit this run's"):
+        check_saved_values(sees, fine_tune)

@@ -39,6 +39,13 @@ from angora_jax.ppo.blocks import (
 from angora_jax.ppo.config import PPOConfig, tile_shape
 from angora_jax.ppo.distributions import PolicyHead, make_head
 from angora_jax.ppo.gae import gae, next_values
+from angora_jax.ppo.grown_inputs import (
+    asymmetric_growth,
+    grown_params,
+    grown_stats,
+    grows_inputs_only,
+    rows_reading_new_inputs,
+)
 from angora_jax.ppo.losses import LossInputs, advantage_moments, normalized_advantages, ppo_loss
 from angora_jax.ppo.normalization import RunningMeanStd, discounted_returns, observation_stats
 from angora_jax.ppo.parallel import (
@@ -352,7 +359,12 @@ def make_cycle(
         init_fn = data_parallel(init, P(), specs, num_devices)
         cycle_fn = data_parallel(cycle, specs, (specs, P()), num_devices)
     if config.network.pretrained or config.init_from:
-        init_fn = _with_saved_values(init_fn, config.network.pretrained, config.init_from)
+        def rows_reading(params: Any, old_size: int) -> Any:
+            def value_of(p: Any, obs: Sensation) -> jax.Array:
+                return model.apply({"params": p}, network.initial_carry(obs.asymmetric.shape[0]), obs)[2]
+            return rows_reading_new_inputs(value_of, params, env.observation_shapes(), old_size, jax.random.key(0))
+
+        init_fn = _with_saved_values(init_fn, config.network.pretrained, config.init_from, rows_reading)
     if num_devices == 1:
         return init_fn, cycle_fn
     return lambda key: cycle_fn.place(init_fn(key)), cycle_fn
@@ -365,26 +377,60 @@ def partition_specs() -> TrainState:
                       actor=P(AXIS), key=P(), cycle=P())
 
 
-def _with_saved_values(init: Callable[[jax.Array], TrainState], pretrained: dict[str, str], init_from: str | None):
+def _with_saved_values(init: Callable[[jax.Array], TrainState], pretrained: dict[str, str], init_from: str | None,
+                       rows_reading: Callable[[Any, int], Any]):
     """`init` followed by loading a saved run's parameters and observation statistics (`init_from`), then the
     `pretrained` components over them; on the host, when first called, so their values are not baked into a
-    compiled program and a run only reads its sources when it starts from scratch."""
+    compiled program and a run only reads its sources when it starts from scratch. A saved run whose `asymmetric`
+    inputs were fewer (`grown_inputs`) has its value function's new input weights found by `rows_reading(params,
+    old_size)` and set to zero."""
     loaded = {}
 
     def init_with_saved_values(key: jax.Array) -> TrainState:
+        state = None
         if not loaded:
             if init_from:  # checked against the shapes first: a run that does not fit fails before any compile
                 saved, shapes = read_saved_run(init_from), jax.eval_shape(init, key)
-                loaded["run"] = (_fitting(shapes.params, saved.params, "network parameters", init_from),
-                                 _fitting(shapes.obs_stats, saved.obs_stats, "observation statistics", init_from))
+                growth = _saved_run_growth(shapes, saved, init_from)
+                state = init(key)
+                loaded["run"] = (_carried(state, saved, growth, rows_reading, init_from) if growth else
+                                 (_fitting(shapes.params, saved.params, "network parameters", init_from),
+                                  _fitting(shapes.obs_stats, saved.obs_stats, "observation statistics", init_from)))
             loaded["components"] = {path: load_component(source, path) for path, source in pretrained.items()}
-        state = init(key)
+        state = init(key) if state is None else state
         params, obs_stats = loaded.get("run", (state.params, state.obs_stats))
         for path, values in loaded["components"].items():
             params = with_component(params, path, values)
         return state.replace(params=jax.device_put(params), obs_stats=jax.device_put(obs_stats))
 
     return init_with_saved_values
+
+
+def _saved_run_growth(shapes: TrainState, saved: Any, source: str) -> int:
+    """0 when the saved run `source` fits `shapes` as it is; the entries `asymmetric` gained at its end when it fits
+    but for them (`grown_inputs`, e.g. `env.options.value_sees_physics` turned on); SavedRunMisfit otherwise."""
+    growth = asymmetric_growth(shapes.obs_stats, saved.obs_stats)
+    if growth and grows_inputs_only(shapes.params, saved.params, growth):
+        return growth
+    _fitting(shapes.params, saved.params, "network parameters", source)
+    _fitting(shapes.obs_stats, saved.obs_stats, "observation statistics", source)
+    return 0
+
+
+def _carried(state: TrainState, saved: Any, growth: int, rows_reading: Callable[[Any, int], Any],
+             source: str) -> tuple[Any, Sensation]:
+    """The saved run's parameters and observation statistics in `state`'s shapes, `asymmetric` having gained `growth`
+    entries: the weights that read them at zero (`grown_inputs`)."""
+    params = jax.device_get(state.params)
+    old_size = state.obs_stats.asymmetric.mean.shape[0] - growth
+    grown = grown_params(params, saved.params, rows_reading(params, old_size))
+    if grown is None:
+        raise SavedRunMisfit(f"ppo.init_from {source!r}: this run's value function reads {growth} more `asymmetric` "
+                             "inputs, but the weights that read them could not be told apart (a network that "
+                             "normalizes or mixes its inputs before its first dense layer); take the policy alone "
+                             "with ppo.network.pretrained={MODULE: SOURCE, ...} instead (docs/tasks.md, Domain "
+                             "randomization).")
+    return grown, grown_stats(jax.device_get(state.obs_stats), saved.obs_stats)
 
 
 class SavedRunMisfit(ValueError):
@@ -397,10 +443,9 @@ def _fitting(current: Any, saved: Any, what: str, source: str) -> Any:
     differing = shape_misfits(current, saved)
     if differing:
         value_only = all("['value" in misfit.split(":")[0] for misfit in differing)  # value_trunk, value, ...
-        hint = (" Only the value function's parameters differ (its inputs: env.options.value_sees_physics, for one): "
-                "to fine-tune the policy alone, take its modules with ppo.network.pretrained={MODULE: SOURCE, ...} "
-                "instead, the value function starting afresh (docs/tasks.md, Domain randomization)." if value_only
-                else "")
+        hint = (" Only the value function's parameters differ: to fine-tune the policy alone, take its modules with "
+                "ppo.network.pretrained={MODULE: SOURCE, ...} instead, the value function starting afresh "
+                "(docs/tasks.md, Domain randomization)." if value_only else "")
         raise SavedRunMisfit(f"ppo.init_from {source!r}: its {what} do not fit this run's ({'; '.join(differing[:4])})"
                              f"; give the saved run's network settings, on a task with its observation shapes.{hint}")
     return jax.tree.map(lambda old, new: jnp.asarray(new, dtype=old.dtype), current, saved)
@@ -424,8 +469,7 @@ def check_saved_values(env: Env, config: PPOConfig) -> None:
                                  "recordings name layers.") from None
     if config.init_from:
         saved = _read_source("ppo.init_from", config.init_from, read_saved_run, config.init_from)
-        _fitting(shapes.params, saved.params, "network parameters", config.init_from)
-        _fitting(shapes.obs_stats, saved.obs_stats, "observation statistics", config.init_from)
+        _saved_run_growth(shapes, saved, config.init_from)
     for path, source in config.network.pretrained.items():
         values = _read_source(f"ppo.network.pretrained[{path!r}]", source, load_component, source, path)
         differing = shape_misfits(component(shapes.params, path), values)
