@@ -378,7 +378,7 @@ def test_a_run_trained_under_randomization_resumes_exactly(tmp_path, quick_compi
 
 @pytest.mark.parametrize("network", [
     pytest.param({"name": "simple", "width": 8}, id="mlp"),
-    pytest.param({"name": "simple", "width": 8, "shared_trunk": True}, id="shared"),
+    pytest.param({"name": "simple", "width": 8, "shared_trunk": True}, id="shared", marks=pytest.mark.slow),
     pytest.param({"name": "gru", "width": 8, "cell_size": 8}, id="gru", marks=pytest.mark.slow),
     pytest.param({"name": "cortical"}, id="cortical", marks=pytest.mark.slow)])
 def test_init_from_a_run_without_value_sees_physics_carries_its_value_function_over(network, monkeypatch):
