@@ -80,3 +80,16 @@ def test_an_action_outside_a_discrete_space_and_a_frame_of_no_pixels_are_refused
         with pytest.raises(ValueError, match=rf"^Frames are whole numbers of pixels, at least 1 x 1: width and "
                                              rf"height, got {given}\.$"):
             GymEnv("CartPole", **size)
+
+
+def test_a_non_finite_action_in_a_box_space_is_refused():
+    """Pendulum through gymnasium took a NaN torque without a word and carried on with a NaN state: every later
+    observation and reward was NaN."""
+    env = GymEnv("Pendulum")
+    env.reset(seed=0)
+    for action in (np.array([np.nan], np.float32), np.array([np.inf]), [-np.inf]):
+        with pytest.raises(ValueError, match=r"^Pendulum takes actions of finite numbers within its action_space "
+                                             r"Box\(-2\.0, 2\.0, \(1,\), float32\), got .*(nan|inf)"):
+            env.step(action)
+    obs, reward, *_ = env.step(np.array([1.0], np.float32))
+    assert np.isfinite(obs["proprioception"]).all() and np.isfinite(reward)

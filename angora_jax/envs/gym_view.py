@@ -75,6 +75,10 @@ class GymEnv(gymnasium.Env):
             space = self.action_space
             raise ValueError(f"{self._task} takes one of the actions {space.start} to {space.start + space.n - 1} (its "
                              f"action_space is Discrete({space.n})), got {action!r}.")
+        if isinstance(self.action_space, gymnasium.spaces.Box) and not np.isfinite(
+                np.asarray(action, np.float64)).all():  # a NaN action makes a NaN physics state for every later step
+            raise ValueError(f"{self._task} takes actions of finite numbers within its action_space "
+                             f"{self.action_space}, got {action!r}.")
         self._state, _ = self._advance(self._state, jnp.asarray(action))
         terminated = bool(self._state.done) and not bool(self._state.truncated)
         return (self._observation(), float(self._state.reward), terminated, bool(self._state.truncated),
