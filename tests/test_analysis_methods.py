@@ -1088,3 +1088,28 @@ def test_a_plot_given_what_its_analysis_does_not_return_is_refused_and_one_into_
     with pytest.raises(ValueError, match=rf"^{tmp_path / 'notes.txt'} is a file, not a folder; give plot_timescales a "
                                          r"path in a folder you can write to\.$"):
         plot_timescales(timescales(data), tmp_path / "notes.txt" / "t.png")
+
+
+def test_a_recording_of_one_step_is_refused_by_decoding_and_timescales_naming_what_they_need(tmp_path, capsys):
+    """A recording of one step per episode (angora-jax record --steps 1) gave an R^2 of NaN when a fold held out one
+    step (scikit-learn's R^2 of one sample), and timescales of NaN that the command put down to a --max-lag too
+    short; with enough episodes decoding over episodes is defined and still computed."""
+    from angora_jax import cli
+    from angora_jax.analysis import save_activity
+
+    one_step = synthetic(episodes=5, steps=1)
+    with pytest.raises(ValueError, match=r"^Held-out R\^2 needs at least 2 steps in each fold's held-out episodes; 5 "
+                                         r"folds over 5 steps of 5 episodes leave 1 step in a fold: record more "
+                                         r"episodes or steps \(angora-jax record --episodes, --steps\), or decode "
+                                         r"with fewer folds \(--folds\)\.$"):
+        decode(one_step, folds=5)
+    with pytest.raises(ValueError, match=r"^Timescales need episodes alive for at least 2 consecutive steps .* the "
+                                         r"recording has 1 step per episode and none such: record more steps "
+                                         r"\(angora-jax record --steps\)\.$"):
+        timescales(one_step)
+    path = save_activity(one_step, tmp_path / "one_step.nc")
+    for argv, said in ((["decode", "--folds", "5"], "Held-out R^2 needs at least 2 steps"),
+                       (["timescales"], "Timescales need episodes alive for at least 2 consecutive steps")):
+        assert cli.main(["analyze", argv[0], str(path), *argv[1:]]) == 2
+        assert said in capsys.readouterr().err
+    assert np.isfinite(decode(synthetic(episodes=20, steps=1), folds=5)["r2"].values).all()

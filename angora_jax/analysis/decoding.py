@@ -50,7 +50,8 @@ def cross_validated_r2(features: np.ndarray, targets: np.ndarray, groups: np.nda
     outputs)` (R^2 weighted by each output's variance), groups `(samples,)`: samples of a group stay together.
     With `spans` (column slices of `targets`, one per variable) R^2 is per span, `(folds, len(spans))`, from one fit
     per fold for all outputs, each with its own penalty (`ridge_readout`): the fits' cost (the SVD of the units) hardly
-    grows with the outputs, so decoding every variable at once costs about what one does."""
+    grows with the outputs, so decoding every variable at once costs about what one does. ValueError when a fold
+    would hold out fewer than 2 samples (a recording of one step per episode and few episodes)."""
     return _cross_validated_r2s([features], targets, groups, folds, spans)[0]
 
 
@@ -61,6 +62,12 @@ def _cross_validated_r2s(feature_sets: Sequence[np.ndarray], targets: np.ndarray
     folds = check_folds(folds)
     columns = [slice(0, targets.shape[1])] if spans is None else list(spans)
     splits = list(GroupKFold(n_splits=folds).split(targets, targets, groups))
+    held_out = min(len(test) for _, test in splits)
+    if held_out < 2:  # R^2 of one step is undefined: scikit-learn's is NaN, and so the mean over the folds
+        raise ValueError(f"Held-out R^2 needs at least 2 steps in each fold's held-out episodes; {folds} folds over "
+                         f"{counted(len(groups), 'step')} of {counted(len(np.unique(groups)), 'episode')} leave "
+                         f"{counted(held_out, 'step')} in a fold: record more episodes or steps (angora-jax record "
+                         "--episodes, --steps)" + (", or decode with fewer folds (--folds)." if folds > 2 else "."))
 
     def fold_scores(job: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]) -> list[float]:
         features, (train, test) = job

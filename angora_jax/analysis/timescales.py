@@ -16,6 +16,7 @@ import xarray as xr
 from angora_jax.analysis.decoding import chosen_layers, lagged_steps, plot_path
 from angora_jax.analysis.parallel import map_in_threads
 from angora_jax.experiment.config import check_count
+from angora_jax.wording import counted
 
 
 def autocorrelation(dataset: xr.Dataset, layer: str, max_lag: int = 20) -> np.ndarray:
@@ -86,9 +87,15 @@ def timescales(dataset: xr.Dataset, layers: Sequence[str] | None = None, max_lag
     """Per layer: `autocorrelation` (layer x lag, the mean over its units), and per unit the timescale in s (the
     first lag, linearly interpolated, where its autocorrelation drops below 1/e; NaN when it stays above within
     `max_lag` or the unit is constant) summarised as `timescale_median` and `timescale_iqr_low/high` (layer).
-    `max_lag` stops at the recording's steps less one."""
+    `max_lag` stops at the recording's steps less one. ValueError when no episode is alive for 2 consecutive steps
+    (a recording of one step)."""
     layers = chosen_layers(dataset, layers)
     max_lag = _lags_within(dataset, check_count("max_lag", max_lag))  # a timescale needs a lag past 0
+    alive = dataset["alive"].values > 0
+    if not (alive[:, :-1] & alive[:, 1:]).any():  # else every timescale is NaN, as if longer than the lags
+        raise ValueError(f"Timescales need episodes alive for at least 2 consecutive steps (an autocorrelation at a "
+                         f"lag of 1 step); the recording has {counted(dataset.sizes['time'], 'step')} per episode "
+                         "and none such: record more steps (angora-jax record --steps).")
     dt = float(dataset.attrs.get("policy_step_s", 1.0))
     curves, medians, low, high = [], [], [], []
     for acf in map_in_threads(lambda layer: autocorrelation(dataset, layer, max_lag), layers):
