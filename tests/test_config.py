@@ -631,3 +631,39 @@ def test_a_run_root_that_is_a_file_or_inside_one_is_refused_before_anything_is_m
                                               r"\(e.g. logging.run_root=runs\)\.$"):
             aj.train("cartpole", [f"logging.run_root={root}", "logging.run_name=a"])
     assert file.read_text() == "mine" and sorted(tmp_path.iterdir()) == [file]
+
+
+def test_assigning_to_a_loaded_config_says_how_to_change_it_and_the_ways_it_names_work():
+    """`config.ppo.num_envs = 8` raised dataclasses' "cannot assign to field 'num_envs'", naming no way to change it;
+    every section of the config tree (down to a brain-area graph's areas) now names them, and they work."""
+    import jax
+
+    config = aj.load_config("shadow_reach_cortical_graph", ["logging.wandb.mode=disabled"])
+
+    def sections(settings):
+        yield settings
+        for f in dataclasses.fields(settings):
+            value = getattr(settings, f.name)
+            if dataclasses.is_dataclass(value):
+                yield from sections(value)
+            elif isinstance(value, dict):
+                yield from (v for v in value.values() if dataclasses.is_dataclass(v))
+
+    kinds = set()
+    for section in sections(config):
+        name = dataclasses.fields(section)[0].name
+        with pytest.raises(dataclasses.FrozenInstanceError, match=rf"^cannot assign to field {name!r}: this "
+                                                                  rf"{type(section).__name__} is frozen .* "
+                                                                  r"dataclasses\.replace\(section, .*aj\.load_config"):
+            setattr(section, name, None)
+        with pytest.raises(dataclasses.FrozenInstanceError, match="Make a changed copy with dataclasses.replace"):
+            delattr(section, name)
+        kinds.add(type(section).__name__)
+    assert {"Config", "PPOConfig", "NetworkConfig", "AreaGraph", "AreaSpec", "ValueSpec", "WandbConfig"} <= kinds, kinds
+    changed = dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, num_envs=8))
+    assert aj.load_config(changed).ppo.num_envs == 8 == aj.load_config("cartpole", ["ppo.num_envs=8"]).ppo.num_envs
+    # The graph is a flax module's attribute: still hashable and equal to a copy, so still a static argument of jit.
+    graph = config.ppo.network.graph
+    copy = dataclasses.replace(graph)
+    assert copy == graph and hash(copy) == hash(graph)
+    assert jax.jit(lambda x, graph: x * len(graph.areas), static_argnums=1)(1.0, copy) == len(graph.areas)

@@ -22,7 +22,7 @@ import reprlib
 import shlex
 import types
 import typing
-from dataclasses import dataclass, field
+from dataclasses import field
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +36,7 @@ from angora_jax.envs.registry import is_gymnasium, list_tasks, make, unknown_opt
 from angora_jax.envs.rendering import CAMERAS, RenderError, SceneRenderer
 from angora_jax.experiment.contracts import check_own_code
 from angora_jax.experiment.wandb_logging import WANDB_INSTALL, WANDB_MODES, WandbConfig
+from angora_jax.frozen_settings import settings
 from angora_jax.nets.registry import list_networks
 from angora_jax.ppo.config import (
     INT64_MAX,
@@ -161,7 +162,7 @@ def load_yaml(text: str) -> Any:
     return yaml.load(text, Loader=ConfigLoader)
 
 
-@dataclass(frozen=True)
+@settings
 class EnvConfig:
     """The task a run trains on.
 
@@ -175,7 +176,7 @@ class EnvConfig:
     options: dict[str, Any] = field(default_factory=dict)
 
 
-@dataclass(frozen=True)
+@settings
 class LoggingConfig:
     """Where a run is written and what is shown while it trains.
 
@@ -215,7 +216,7 @@ MAX_NAME_BYTES, MAX_PATH_BYTES = 255, 4095
 CHECKPOINT_KINDS = ("latest", "best", "snapshots")
 
 
-@dataclass(frozen=True)
+@settings
 class CheckpointConfig:
     """Which checkpoints a run keeps (all in `RUN_DIR/checkpoints`).
 
@@ -250,7 +251,7 @@ class CheckpointConfig:
     lean: tuple[str, ...] = ("best", "snapshots")
 
 
-@dataclass(frozen=True)
+@settings
 class VideoConfig:
     """A video of the current policy during training: one episode, mode actions, started with seed
     `evaluation.seed` (the episode `angora-jax render RUN_DIR --seed S` shows), rendered off screen on the C MuJoCo
@@ -274,7 +275,7 @@ class VideoConfig:
     height: int = bounded(240, 1, 16_384, why="pixels")
 
 
-@dataclass(frozen=True)
+@settings
 class EvaluationConfig:
     """Deterministic evaluation on held-out episodes during training. The training mean goes stale on tasks whose
     good policies end few episodes per cycle (a cube policy that keeps the cube for 50 goals), and it mixes the
@@ -298,7 +299,7 @@ class EvaluationConfig:
     video: VideoConfig | None = None
 
 
-@dataclass(frozen=True)
+@settings
 class DistributionConfig:
     """The devices of a data-parallel run.
 
@@ -311,7 +312,7 @@ class DistributionConfig:
     num_devices: int | str = count_field(1, why='devices, or "all"')
 
 
-@dataclass(frozen=True)
+@settings
 class Config:
     """Everything one experiment needs; `to_dict(config)` is its resolved form as saved with a run.
 

@@ -9,9 +9,10 @@ the same W&B run: its id is kept in `RUN_DIR/wandb/run_id`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from angora_jax.frozen_settings import settings
 
 WANDB_MODES = ("online", "offline", "disabled")
 # angora-jax is not on PyPI: its extras install from a clone; plain `pip install wandb` works anywhere.
@@ -19,7 +20,7 @@ WANDB_INSTALL = "pip install -c constraints.txt -e '.[wandb]' in a clone of ango
 RUN_ID_FILE = "run_id"
 
 
-@dataclass(frozen=True)
+@settings
 class WandbConfig:
     """Logging to Weights & Biases; the section is off (null) unless one of its keys is given.
 

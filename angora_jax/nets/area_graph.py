@@ -26,8 +26,9 @@ alone could not be computed and is refused.
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass, field
+from dataclasses import field
 
+from angora_jax.frozen_settings import settings
 from angora_jax.nets.activations import ACTIVATIONS
 from angora_jax.nets.models import POLICY_MODALITIES, RECURRENT_CELLS
 
@@ -37,7 +38,7 @@ VALUE_MODALITIES = (*POLICY_MODALITIES, VALUE_ONLY)
 RESERVED = ("value_net", "value")
 
 
-@dataclass(frozen=True)
+@settings
 class AreaSpec:
     """One area of a graph.
 
@@ -57,7 +58,7 @@ class AreaSpec:
     cell: str | None = None
 
 
-@dataclass(frozen=True)
+@settings
 class ValueSpec:
     """The value function of a graph.
 
@@ -71,7 +72,7 @@ class ValueSpec:
     sizes: tuple[int, ...] = (512, 512)
 
 
-@dataclass(frozen=True)
+@settings
 class AreaGraph:
     """The wiring of an `areas` network (see the module docstring for an example).
 

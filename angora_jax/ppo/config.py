@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass, field
 
 from angora_jax.envs.core import Env
+from angora_jax.frozen_settings import settings
 from angora_jax.nets.area_graph import AreaGraph, AreaSpec, ValueSpec, check_graph, policy_modalities
 from angora_jax.nets.cortical import area_sizes
 from angora_jax.nets.models import POLICY_MODALITIES, RECURRENT_CELLS
@@ -118,7 +119,7 @@ def quote_number(number: float) -> str:
     return repr(number)
 
 
-@dataclass(frozen=True)
+@settings
 class VisualConfig:
     """The visual area: a convolutional encoder of camera images (`angora_jax.nets.visual`), shared by the cameras,
     whose features (cameras x `features`) take the images' place in `vision` for the network.
@@ -134,7 +135,7 @@ class VisualConfig:
     features: int = count_field(64, why="features per camera")
 
 
-@dataclass(frozen=True)
+@settings
 class NetworkConfig:
     """Which registered network to build and its sizes; `None` sizes mean the model's own default.
 
@@ -203,7 +204,7 @@ class NetworkConfig:
         return self
 
 
-@dataclass(frozen=True)
+@settings
 class NormalizationConfig:
     """Running normalisation of observations (per modality) and of rewards (by the discounted return's std).
 
@@ -218,7 +219,7 @@ class NormalizationConfig:
     clip: float = bounded(10.0, 0, open_low=True, why="standard deviations")
 
 
-@dataclass(frozen=True)
+@settings
 class StopAt:
     """End a run early, with a checkpoint, after the first cycle whose training metric reaches a value (AngoraPy's
     `--stop-early`).
@@ -261,7 +262,7 @@ class StopAt:
         return f"{self.metric} {value:.4g} {'>=' if self.mode == 'max' else '<='} {self.value:g}"
 
 
-@dataclass(frozen=True)
+@settings
 class BlocksConfig:
     """Policy blocks after SAPG (Singla, Agarwal, Pathak, "SAPG: Split and Aggregate Policy Gradients", ICML 2024):
     the environments are split into `count` contiguous blocks, each acting with its own policy. The policies are one
@@ -293,7 +294,7 @@ class BlocksConfig:
         return self.count > 1
 
 
-@dataclass(frozen=True)
+@settings
 class PPOConfig:
     """One PPO run on a task given separately (the experiment config's `env` section names it). A cycle collects
     `num_envs * rollout_length` transitions, then runs `num_epochs` passes of minibatch updates over them.
