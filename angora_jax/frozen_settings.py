@@ -12,9 +12,10 @@ Settings = TypeVar("Settings", bound=type)
 
 def settings(cls: Settings) -> Settings:
     """`cls` as `dataclass(frozen=True)` makes it, except that assigning or deleting a field raises
-    dataclasses.FrozenInstanceError naming the ways to change a value: a changed copy (`dataclasses.replace`), or
-    overrides given when the config is loaded. dataclasses' own message, "cannot assign to field 'num_envs'", named
-    neither. Equality, hashing, pickling and `dataclasses.replace` are the dataclass's own."""
+    dataclasses.FrozenInstanceError naming the ways to change a value: overrides where the config is read
+    (`load_config`, `train`, a loaded Config included), or a changed copy (`dataclasses.replace`). dataclasses' own
+    message, "cannot assign to field 'num_envs'", named neither. Equality, hashing, pickling and
+    `dataclasses.replace` are the dataclass's own."""
     cls = dataclasses.dataclass(frozen=True)(cls)
     assign, delete = cls.__setattr__, cls.__delattr__
 
@@ -40,8 +41,6 @@ def _how_to_change(settings: object, verb: str, name: str, change: str) -> str:
     say it); `change` is the field's `name=value`."""
     kind = type(settings).__name__
     return (f"cannot {verb} field {name!r}: this {kind} is frozen (a config is checked as a whole, when it is "
-            "loaded or trained). Make a changed copy with dataclasses.replace, e.g. "
-            f"dataclasses.replace(section, {change}); for a field of a loaded config, config = "
-            "dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, num_envs=8)). Or give the change as an "
-            "override where the config is read: aj.load_config(SOURCE, ['ppo.num_envs=8']) or aj.train(SOURCE, "
-            "['ppo.num_envs=8']), SOURCE a config's name or file.")
+            "loaded or trained). Give the change as an override where the config is read, e.g. config = "
+            "aj.load_config(config, ['ppo.num_envs=8']) or aj.train(config, ['ppo.num_envs=8']); or make a changed "
+            f"copy with dataclasses.replace, e.g. dataclasses.replace(section, {change}).")

@@ -610,13 +610,19 @@ def test_a_config_given_as_what_is_no_name_path_or_dict_is_refused_naming_what_t
         aj.train(source)
 
 
-def test_a_config_loaded_already_given_to_load_config_is_returned_checked():
-    """`aj.load_config(config)` of a Config (loaded in an earlier cell) failed in pathlib; it is the config itself."""
+def test_a_config_loaded_already_given_to_load_config_is_returned_checked_and_takes_overrides():
+    """`aj.load_config(config)` of a Config (loaded in an earlier cell) failed in pathlib; it is the config itself.
+    Overrides with it were refused, by `train` too, pointing to a `replace()` a Config lacks: they apply to a copy, as
+    to the config's own file, and a bad one is refused by name as there; every shipped config survives the trip."""
     config = load_config("cartpole", ["ppo.num_cycles=3"])
     assert load_config(config) == config
-    with pytest.raises(ConfigError, match=r"^Overrides apply to a config loaded from a file or dict; change a Config "
-                                          r"with dataclasses.replace\(\)\.$"):
-        load_config(config, ["ppo.num_cycles=4"])
+    changed = load_config(config, ["ppo.num_cycles=4", "ppo.num_envs=8"])
+    assert (changed.ppo.num_cycles, changed.ppo.num_envs, config.ppo.num_cycles) == (4, 8, 3)
+    assert changed == load_config("cartpole", ["ppo.num_cycles=3", "ppo.num_cycles=4", "ppo.num_envs=8"])
+    with pytest.raises(ConfigError, match=r"Unknown key 'ppo.num_env'.*Did you mean 'ppo.num_envs'"):
+        load_config(config, ["ppo.num_env=8"])
+    for name in list_configs():
+        assert load_config(load_config(name), ["ppo.seed=0"]) == load_config(name, ["ppo.seed=0"]), name
 
 
 def test_a_run_root_that_is_a_file_or_inside_one_is_refused_before_anything_is_made(tmp_path: Path):
@@ -652,16 +658,16 @@ def test_assigning_to_a_loaded_config_says_how_to_change_it_and_the_ways_it_name
     kinds = set()
     for section in sections(config):
         name = dataclasses.fields(section)[0].name
-        with pytest.raises(dataclasses.FrozenInstanceError, match=rf"^cannot assign to field {name!r}: this "
-                                                                  rf"{type(section).__name__} is frozen .* "
-                                                                  r"dataclasses\.replace\(section, .*aj\.load_config"):
+        refusal = (rf"^cannot assign to field {name!r}: this {type(section).__name__} is frozen .*"
+                   r"aj\.load_config\(config, .*dataclasses\.replace\(section, ")
+        with pytest.raises(dataclasses.FrozenInstanceError, match=refusal):
             setattr(section, name, None)
-        with pytest.raises(dataclasses.FrozenInstanceError, match="Make a changed copy with dataclasses.replace"):
+        with pytest.raises(dataclasses.FrozenInstanceError, match="make a changed copy with dataclasses.replace"):
             delattr(section, name)
         kinds.add(type(section).__name__)
     assert {"Config", "PPOConfig", "NetworkConfig", "AreaGraph", "AreaSpec", "ValueSpec", "WandbConfig"} <= kinds, kinds
     changed = dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, num_envs=8))
-    assert aj.load_config(changed).ppo.num_envs == 8 == aj.load_config("cartpole", ["ppo.num_envs=8"]).ppo.num_envs
+    assert aj.load_config(changed).ppo.num_envs == 8 == aj.load_config(config, ["ppo.num_envs=8"]).ppo.num_envs
     # The graph is a flax module's attribute: still hashable and equal to a copy, so still a static argument of jit.
     graph = config.ppo.network.graph
     copy = dataclasses.replace(graph)

@@ -346,18 +346,18 @@ def load_config(source: str | Path | dict | None = None, overrides: typing.Itera
 
     Args:
         source: a YAML file path, the name of a shipped config (`list_configs()`, e.g. "cartpole"), a dict with the
-            same structure, or None for the defaults.
+            same structure, a `Config` (loaded earlier; the overrides apply to a copy), or None for the defaults.
         overrides: strings `key.sub=value`, the value in YAML syntax (one such string alone is one override).
 
     Raises:
         ConfigError: a missing file, bad YAML, an unknown key or a value of the wrong type.
     """
     if isinstance(source, Config):  # loaded in an earlier cell: itself, checked as `train` checks one
-        if override_strings(overrides):
-            raise ConfigError("Overrides apply to a config loaded from a file or dict; change a Config with "
-                              "dataclasses.replace().")
-        return checked(source)
-    data = _read(source)
+        if not override_strings(overrides):
+            return checked(source)
+        data = to_dict(checked(source))  # the form a run's config.yaml keeps, which loads back to the same Config
+    else:
+        data = _read(source)
     for override in override_strings(overrides):
         _apply_override(data, override)
     return _build(Config, data, "")

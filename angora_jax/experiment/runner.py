@@ -39,7 +39,6 @@ from angora_jax.experiment.config import (
     Config,
     ConfigError,
     check_count,
-    checked,
     load_config,
     num_devices,
     to_dict,
@@ -164,12 +163,7 @@ def train(
     """
     _check_call(on_cycle, minutes)
     compilation_cache.enable()
-    if not isinstance(config, Config):
-        config = load_config(config, overrides)
-    elif overrides:
-        raise ValueError("Overrides apply to a config loaded from a file or dict; change a Config with replace().")
-    else:
-        config = checked(config)
+    config = load_config(config, overrides)
     # Per key one level into each section (the dataclass fields, the same on every process), so the message names it.
     agree_on_settings({f"{section}.{key}" if key else section: value for section, values in to_dict(config).items()
                        for key, value in (values.items() if isinstance(values, dict) else [("", values)])},
