@@ -22,7 +22,8 @@ import angora_jax
 
 # "api": the package itself (`import angora_jax as aj`), the public API its __init__ gathers.
 LAYERS = {"wording": -1, "registry": 0, "whole_files": 0, "saved_files": 0, "opengl_backend": 0, "cpu_threads": 0,
-          "envs": 1, "nets": 2, "ppo": 3, "experiment": 4, "vision": 5, "analysis": 6, "api": 7, "cli": 8}
+          "frozen_settings": 0, "envs": 1, "nets": 2, "ppo": 3, "experiment": 4, "vision": 5, "analysis": 6, "api": 7,
+          "cli": 8}
 PACKAGE = Path(angora_jax.__file__).parent
 
 
