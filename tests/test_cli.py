@@ -172,6 +172,43 @@ def test_a_run_whose_config_is_empty_or_damaged_is_answered_with_the_runs_fix(te
     assert f"{run} has no checkpoint that keeps a copy of it" in capsys.readouterr().err
 
 
+def test_an_out_inside_a_runs_checkpoint_folder_is_refused_before_anything_is_written(capsys, tmp_path,
+                                                                                     monkeypatch):
+    """`evaluate RUN --out RUN/checkpoints/latest/2` wrote its JSON and plot into the checkpoint, which training
+    deletes with it when a later one replaces it (and `record`, `export`, `analyze`, `render`, `pretrain-vision` the
+    same into any run's checkpoints): each --out there is refused by name now, before the run is read, naming the
+    folder, and nothing in the checkpoints changes. `record` now checks its folder first, as the others did."""
+    import angora_jax.experiment.video as video
+
+    monkeypatch.setattr(video, "render_episodes", lambda *args, **kwargs: pytest.fail("rendered"))
+    monkeypatch.chdir(tmp_path)
+    run = tmp_path / "runs" / "a"
+    (run / "checkpoints" / "latest" / "3").mkdir(parents=True)
+    (run / "config.yaml").write_text("env: {task: CartPole}\n")
+    write_recording(tmp_path / "act.nc")
+    for argv in (["evaluate", "runs/a", "--out", "runs/a/checkpoints/latest/3"],
+                 ["evaluate", "runs/a", "--out", "runs/a/checkpoints"],
+                 ["export", "runs/a", "--out", "runs/a/checkpoints/latest/p.msgpack"],
+                 ["export", "runs/a", "--out", "runs/a/checkpoints/"],
+                 ["record", "runs/a", "--out", "runs/a/checkpoints/act.nc"],
+                 ["analyze", "ablate", "runs/a", "--lesion", "network.M1", "--out", "runs/a/checkpoints/new/a.png"],
+                 ["analyze", "decode", "act.nc", "--out", "runs/a/checkpoints/decode.png"],
+                 ["render", "--task", "ShadowHandReach", "--out", "runs/a/checkpoints/v.gif"],
+                 ["pretrain-vision", "--out", "runs/a/checkpoints/latest/encoder.msgpack"]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert "runs/a/checkpoints, the checkpoint folder of the run runs/a, which only training writes" in err, err
+        assert "Traceback" not in err, err
+    assert sorted(path.relative_to(run).as_posix() for path in run.rglob("*")) == [
+        "checkpoints", "checkpoints/latest", "checkpoints/latest/3", "config.yaml"]
+    # record checked no folder before its episodes either: a file on the way ended it only after them.
+    (tmp_path / "notes.txt").write_text("mine")
+    assert main(["record", "runs/a", "--out", "notes.txt/act.nc"]) == 2
+    assert f"--out notes.txt/act.nc: {tmp_path / 'notes.txt'} is a file" in capsys.readouterr().err
+    # A folder named checkpoints that is in no run is any folder.
+    assert main(["analyze", "decode", "act.nc", "--out", "checkpoints/decode.png"]) == 0
+
+
 def write_recording(path: Path) -> Path:
     """A small recording's layout (the episode and time dimensions, the alive mask, one layer) as NetCDF."""
     import xarray as xr

@@ -33,7 +33,7 @@ from sklearn.preprocessing import StandardScaler
 
 from angora_jax.analysis.parallel import map_in_threads
 from angora_jax.experiment.config import ConfigError, check_count, check_seed
-from angora_jax.whole_files import unwritable_folder
+from angora_jax.experiment.run_dir import unwritable_out
 from angora_jax.wording import counted
 
 # Ridge penalties per training sample: a fit on n samples is penalised n times this, so that the penalty chosen on
@@ -312,7 +312,7 @@ def plot_path(plot: str, result: object, needs: str, analysis: str, path: str | 
                  f"a Dataset without {needs}" if isinstance(result, xr.Dataset) else
                  f"{'an' if type(result).__name__[0] in 'AEIOU' else 'a'} {type(result).__name__}")
         raise TypeError(f"{plot} draws what {analysis} returns (a Dataset with {needs}), not {given}.")
-    if (why := unwritable_folder(path)) is not None:
+    if (why := unwritable_out(path)) is not None:
         raise ValueError(f"{why}; give {plot} a path in a folder you can write to.")
     Path(path).absolute().parent.mkdir(parents=True, exist_ok=True)
 

@@ -21,8 +21,8 @@ from angora_jax.cli.arguments import (
     refused_existing,
 )
 from angora_jax.experiment import Agent, load_agent
-from angora_jax.experiment.run_dir import CONFIG_FILE, numbered_paths, read_run_config
-from angora_jax.whole_files import unwritable_folder, written_whole
+from angora_jax.experiment.run_dir import CONFIG_FILE, numbered_paths, read_run_config, unwritable_out
+from angora_jax.whole_files import written_whole
 from angora_jax.wording import agreeing, counted
 
 
@@ -384,7 +384,7 @@ def output_path(analysis: str, given: str | None, directory: Path, stem: str) ->
         if any(refused_existing(f"analyze {analysis}", path, "analyses") for path in (out, out.with_suffix(".nc"))):
             return None
         # Asked before the analysis, which may take minutes: a mistyped folder otherwise failed only after it.
-        if (why := unwritable_folder(out)) is not None:
+        if (why := unwritable_out(out)) is not None:
             print(f"angora-jax analyze {analysis}: --out {out}: {why}; give a path in a folder you can write to.",
                   file=sys.stderr)
             return None

@@ -21,6 +21,7 @@ from angora_jax.cli.arguments import (
 from angora_jax.envs.rendering import CAMERAS, RenderError
 from angora_jax.experiment import ConfigError, RunDirError, evaluation, snapshot_cycles
 from angora_jax.experiment.agent import read_checkpoint
+from angora_jax.experiment.run_dir import unwritable_out
 from angora_jax.wording import counted
 
 
@@ -185,6 +186,9 @@ def command_record(args: argparse.Namespace) -> int:
               f"{out.with_suffix('.nc')}), not {out.name}.", file=sys.stderr)
         return EXIT_USAGE
     if refused_existing("record", out, "recordings"):
+        return EXIT_USAGE
+    if (why := unwritable_out(out)) is not None:  # before the episodes, which may take minutes
+        print(f"angora-jax record: --out {out}: {why}; give a path in a folder you can write to.", file=sys.stderr)
         return EXIT_USAGE
     checkpoint = checkpoint_of(args.checkpoint)
     try:

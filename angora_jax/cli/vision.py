@@ -11,8 +11,9 @@ import jax
 
 from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, positive_int, refused_existing, seed
 from angora_jax.envs.rendering import CAMERAS, RenderError
+from angora_jax.experiment.run_dir import unwritable_out
 from angora_jax.vision.estimator import ORIENTATIONS
-from angora_jax.whole_files import unwritable_folder, written_whole
+from angora_jax.whole_files import written_whole
 from angora_jax.wording import counted
 
 
@@ -64,7 +65,7 @@ def command_pretrain_vision(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     # The outputs are written after hours of rendering and training: their folder is checked first (the folders
     # missing under the nearest existing one are made then).
-    if (why := unwritable_folder(out)) is not None:
+    if (why := unwritable_out(out)) is not None:
         print(f"angora-jax pretrain-vision: --out {out}: {why}; give a file in a folder you can write to.",
               file=sys.stderr)
         return EXIT_USAGE

@@ -28,9 +28,9 @@ from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.experiment.agent import Agent, load_agent, read_checkpoint
 from angora_jax.experiment.config import ConfigError, check_count, check_seed, override_strings, to_dict
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
-from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths
+from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths, unwritable_out
 from angora_jax.ppo.evaluate import make_evaluate
-from angora_jax.whole_files import unwritable_folder, written_whole
+from angora_jax.whole_files import written_whole
 from angora_jax.wording import counted
 
 # Episodes run at once by default: enough to spread the fixed cost of each step's JAX calls, few enough that a small
@@ -179,7 +179,7 @@ def check_save_folder(save: bool | str | Path) -> None:
         raise ConfigError(f"save (--out) {folder} is a file, and an evaluation writes its JSON and box plot into a "
                           f"folder without overwriting anything: give a folder, a new or an existing one (e.g. "
                           f"{folder.parent / EVALUATIONS}).")
-    if (why := unwritable_folder(folder / "evaluation.json")) is not None:
+    if (why := unwritable_out(folder / "evaluation.json")) is not None:
         raise ConfigError(f"save (--out) {folder}: {why}; give a folder you can write to.")
 
 

@@ -20,8 +20,8 @@ from angora_jax.envs.core import Sensation
 from angora_jax.experiment.agent import Agent, acting_parts, load_agent
 from angora_jax.experiment.checkpoint import describe_misfits, misfits
 from angora_jax.experiment.config import load_config, to_dict
-from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError, run_dir_path, run_source
-from angora_jax.whole_files import unwritable_folder, written_whole
+from angora_jax.experiment.run_dir import CONFIG_FILE, RunDirError, run_dir_path, run_source, unwritable_out
+from angora_jax.whole_files import written_whole
 
 FORMAT = "angora_jax.policy/1"
 
@@ -34,14 +34,14 @@ def policy_path(out: str | Path, run_dir: str | Path) -> Path:
     when it is one, or ends with '/' (then made), as `<folder>/<run name>.msgpack` (as `cp` copies into a folder).
     ValueError, naming the name to give, for any other name (`x.txt`, `policy`): the file is msgpack, whatever its
     name, and a name without a suffix may have meant a folder; ValueError too when the folder it goes in cannot be
-    written (`unwritable_folder`)."""
+    written (`unwritable_out`)."""
     text, out = str(out), Path(out)
 
     def in_folder() -> Path:
         return out / f"{Path(run_source(run_dir)[0]).resolve().name}{SUFFIX}"
 
     into = out.is_dir() or text.endswith(("/", os.sep))
-    if (why := unwritable_folder(out / "policy" if into else out)) is not None:
+    if (why := unwritable_out(out / "policy" if into else out)) is not None:
         raise ValueError(f"--out {text}: {why}; give a path in a folder you can write to.")
     if into:
         return in_folder()

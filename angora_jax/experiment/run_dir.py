@@ -36,7 +36,7 @@ import yaml
 from angora_jax.experiment.config import Config, ConfigError, UnreadableConfigError, flatten, load_config, to_dict
 from angora_jax.registry.plugins import module_files, remember_definitions, remember_files
 from angora_jax.saved_files import USE, msgpack_kind
-from angora_jax.whole_files import written_whole
+from angora_jax.whole_files import unwritable_folder, written_whole
 
 CONFIG_FILE = "config.yaml"
 HYPERPARAMETERS_FILE = "hyperparameters.json"
@@ -280,6 +280,21 @@ def _as_given(path: str | Path, run: Path) -> Path:
     depth = len(given.resolve().relative_to(run).parts)
     short = given.parents[depth - 1] if depth <= len(given.parents) else run
     return short if short.resolve() == run else run
+
+
+def unwritable_out(out: str | Path) -> str | None:
+    """Why a command may write no file at `out` (an evaluation, an export, a recording, an analysis, a video, an
+    encoder), or None: `unwritable_folder`'s reasons, or `out` is inside a run's checkpoint folder, which only
+    training writes: a file there is deleted with the checkpoint it sits in when a later one replaces it, or sits
+    where the run's checkpoints are listed."""
+    folder = next((parent for parent in Path(out).resolve().parents
+                   if parent.name == CHECKPOINTS and (parent.parent / CONFIG_FILE).is_file()), None)
+    if folder is None:
+        return unwritable_folder(out)
+    run = _as_given(out, folder.parent)
+    return (f"that is inside {run / CHECKPOINTS}, the checkpoint folder of the run {run}, which only training writes "
+            "(a file there is deleted with the checkpoint it sits in, or taken for one): write outside it, e.g. in "
+            f"{run / EVALUATIONS}")
 
 
 def has_checkpoints(run_dir: str | Path) -> bool:

@@ -25,8 +25,9 @@ from angora_jax.envs.rendering import RenderError, SceneRenderer, camera_named, 
 from angora_jax.experiment.agent import Agent, load_agent
 from angora_jax.experiment.config import check_count, check_seed
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
+from angora_jax.experiment.run_dir import unwritable_out
 from angora_jax.ppo.memory import device_memory
-from angora_jax.whole_files import unwritable_folder, written_whole
+from angora_jax.whole_files import written_whole
 from angora_jax.wording import counted
 
 # The files `write_video` writes, by suffix: MP4 through imageio-ffmpeg, GIF through Pillow. Any other suffix (or none)
@@ -37,9 +38,9 @@ VIDEO_SUFFIXES = (".mp4", ".gif")
 
 def check_video_path(out: str | Path) -> Path:
     """`out` as a Path when a video can be written there: ValueError naming the suffixes otherwise, or the folder
-    that is a file or not writable (`unwritable_folder`), FileExistsError when a file or folder is there already
-    (nothing is overwritten). Checked before rendering, which takes minutes
-    for long episodes, so that a mistyped --out costs nothing."""
+    that is a file, not writable or a run's checkpoints (`unwritable_out`), FileExistsError when a file or folder is
+    there already (nothing is overwritten). Checked before rendering, which takes minutes for long episodes, so that
+    a mistyped --out costs nothing."""
     out = Path(out)
     if out.exists():
         raise FileExistsError(f"{out} exists already and is left untouched; choose another --out path.")
@@ -47,7 +48,7 @@ def check_video_path(out: str | Path) -> Path:
         suffix = f"ends in {out.suffix!r}" if out.suffix else "has no suffix"
         raise ValueError(f"--out {out} {suffix}, but a video is written as MP4 or GIF: give a name ending in .mp4 "
                          f"(imageio-ffmpeg) or .gif (Pillow), e.g. {out.with_suffix('.mp4')}.")
-    if (why := unwritable_folder(out)) is not None:
+    if (why := unwritable_out(out)) is not None:
         raise ValueError(f"--out {out}: {why}; give a path in a folder you can write to.")
     return out
 
