@@ -308,6 +308,27 @@ def test_the_lock_is_taken_by_one_of_two_processes_at_once(tmp_path):
     assert RunLock(tmp_path).holder() is None
 
 
+@pytest.mark.parametrize("damage", [{"pid": 10 ** 20}, {"pid": -5}, {"pid": 0}, {"pid": 1.5}, {"since": 1e300},
+                                    {"since": "nan"}, {"process_start": "0"}])
+def test_a_lock_file_with_a_value_no_writer_writes_reads_as_unreadable_not_a_traceback(damage, tmp_path):
+    """A lock file edited or damaged into a process id out of range (10**20), a time no clock shows (1e300, NaN) or
+    a start that is no number ended `check` and `resume` in OverflowError or ValueError tracebacks (os.kill,
+    time.localtime); a negative id, or a start no process has, was taken for a holder that ended, and the lock of a
+    process alive on this host (pid 1) taken over without --force. Each reads as unreadable now: a holder unknown,
+    refused without --force, described without a traceback."""
+    lock = {"host": socket.gethostname(), "pid": 1, "process_start": None, "since": time.time(), **damage}
+    (tmp_path / LOCK_FILE).write_text(json.dumps(lock))
+    holder = RunLock(tmp_path).holder()
+    assert holder.pid == -1 and not holder.is_gone() and not holder.runs_here()
+    assert "the lock file is unreadable: edited or damaged" in holder.describe()
+    with pytest.raises(RunLockedError, match="if no process trains it now, resume with --force to take the lock over"):
+        RunLock(tmp_path).acquire()
+    taker = RunLock(tmp_path)
+    taker.acquire(force=True)
+    assert RunLock(tmp_path).holder().pid == os.getpid()
+    taker.release()
+
+
 def takes_over(run: Path, lock: dict) -> None:
     """With LOCK written as the run's lock, this process acquires it (the holder is taken for gone) and releases it."""
     (run / LOCK_FILE).write_text(json.dumps(lock))

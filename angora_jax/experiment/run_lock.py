@@ -64,6 +64,18 @@ class LockHolder:
         return self.process_start is not None and _process_start(self.pid) != self.process_start
 
 
+def _written_holder(data: dict) -> LockHolder:
+    """The holder that a lock file's JSON names; ValueError (KeyError, TypeError, OverflowError) for values that no
+    writer of a lock writes (an edited or damaged file): a process id no process has (0 or below, past the system's
+    range, not a whole number), which `os.kill` refuses or takes for a process group; a start that is no whole number,
+    which no process's start equals, so that a live holder would be taken for one that ended; a time no clock shows."""
+    pid, start, since = data["pid"], data.get("process_start"), float(data["since"])
+    if type(pid) is not int or not 0 < pid < 2 ** 31 or not (start is None or type(start) is int):
+        raise ValueError(f"not a lock's holder: pid {pid!r}, process_start {start!r}")
+    time.localtime(since)  # OverflowError, ValueError or OSError for a time out of the clock's range (1e300, NaN)
+    return LockHolder(str(data["host"]), pid, start, since)
+
+
 def _stat_fields(pid: int) -> list[str] | None:
     """The fields of /proc/PID/stat after the process name (Linux), from field 3 (the state) on; None where /proc
     does not say."""
@@ -97,11 +109,10 @@ class RunLock:
     def holder(self) -> LockHolder | None:
         """The lock's holder, or None when nobody holds it; an unreadable lock file reads as a holder unknown."""
         try:
-            data = json.loads(self.path.read_text())
-            return LockHolder(str(data["host"]), int(data["pid"]), data.get("process_start"), float(data["since"]))
+            return _written_holder(json.loads(self.path.read_text()))
         except FileNotFoundError:
             return None
-        except (OSError, ValueError, KeyError, TypeError):
+        except (OSError, ValueError, KeyError, TypeError, OverflowError):
             return LockHolder("", -1, None, self.path.stat().st_mtime)
 
     def acquire(self, force: bool = False) -> None:
