@@ -72,6 +72,21 @@ def test_a_folder_with_a_page_of_its_own_is_refused_not_written_over(runs, tmp_p
         assert main(["report", str(runs[0].run_dir), "--out", str(tmp_path / "report")]) == 0
 
 
+def test_a_report_into_a_runs_checkpoint_folder_is_refused_naming_it(runs, tmp_path, capsys):
+    """`report RUN --out RUN/checkpoints/latest/3` (and monitor's) wrote its page and PNGs into the checkpoint, which
+    training deletes with them when a later one replaces it; refused now, as every other --out there, before anything
+    is written."""
+    run = tmp_path / "run"
+    shutil.copytree(runs[0].run_dir, run)
+    before = sorted(run.rglob("*"))
+    for argv in (["report", str(run), "--out", str(run / "checkpoints" / "latest" / "3")],
+                 ["report", str(runs[1].run_dir), "--out", str(run / "checkpoints" / "report")],
+                 ["monitor", str(run), "--no-serve", "--out", str(run / "checkpoints")]):
+        assert main(argv) == 2, argv
+        assert f"the checkpoint folder of the run {run}, which only training writes" in capsys.readouterr().err
+    assert sorted(run.rglob("*")) == before
+
+
 def test_a_folder_holding_a_file_named_like_a_curve_is_refused_and_a_report_cut_short_is_drawn_again(
         runs, tmp_path, capsys, monkeypatch):
     """`report RUN --out figures` into a folder of the user's holding an episode_return.png (and no index.html) wrote

@@ -31,6 +31,7 @@ from angora_jax.experiment.run_dir import (  # noqa: E402
     latest_video,
     not_a_run_dir,
     read_sessions,
+    unwritable_out,
 )
 from angora_jax.whole_files import written_whole  # noqa: E402
 from angora_jax.wording import counted
@@ -190,6 +191,8 @@ def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_second
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise RunDirError(f"{out} is a file, where the report's folder goes: move it away, or give another --out")
+    if (why := unwritable_out(out / "index.html")) is not None:
+        raise RunDirError(f"--out {out}: {why}; give another --out.")
     page = out / "index.html"
     if page.is_file() and PAGE_TITLE not in page.read_text(errors="replace"):
         raise RunDirError(f"{page} is a page of your own, not a report of runs, and the report would write over it "
