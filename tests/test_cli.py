@@ -209,6 +209,22 @@ def test_an_out_inside_a_runs_checkpoint_folder_is_refused_before_anything_is_wr
     assert main(["analyze", "decode", "act.nc", "--out", "checkpoints/decode.png"]) == 0
 
 
+def test_a_run_root_inside_a_runs_checkpoint_folder_is_refused_before_the_run_is_made(capsys, tmp_path, monkeypatch):
+    """`train CONFIG logging.run_root=RUN/checkpoints` made the new run inside the other run's checkpoint folder, which
+    only training writes, and trained it there, exit 0. Refused now, naming the folder, before any directory is made."""
+    monkeypatch.chdir(tmp_path)
+    run = tmp_path / "runs" / "a"
+    (run / "checkpoints" / "latest" / "3").mkdir(parents=True)
+    (run / "config.yaml").write_text("env: {task: CartPole}\n")
+    for root in ("runs/a/checkpoints", "runs/a/checkpoints/latest/new"):
+        assert main(["train", "cartpole", *TINY, "ppo.num_cycles=1", f"logging.run_root={root}"]) == 2
+        err = capsys.readouterr().err
+        assert f"logging.run_root={root} is inside runs/a/checkpoints, the checkpoint folder of the run runs/a, " \
+               "which only training writes" in err and "Traceback" not in err, err
+    assert sorted(path.relative_to(run).as_posix() for path in run.rglob("*")) == [
+        "checkpoints", "checkpoints/latest", "checkpoints/latest/3", "config.yaml"]
+
+
 def write_recording(path: Path) -> Path:
     """A small recording's layout (the episode and time dimensions, the alive mask, one layer) as NetCDF."""
     import xarray as xr

@@ -105,6 +105,9 @@ def create_run_dir(config: Config, claim: Callable[[Path], None] | None = None) 
         RunDirError: a named run directory exists already (nothing in it is touched).
     """
     root = config.logging.root
+    if (inside := in_checkpoints(root / "run")) is not None:
+        raise RunDirError(f"logging.run_root={config.logging.run_root} is {inside}: choose a folder for runs outside "
+                          "every run (e.g. logging.run_root=runs).")
     root.mkdir(parents=True, exist_ok=True)
     if config.logging.run_name is not None:
         path = root / config.logging.run_name
@@ -282,19 +285,29 @@ def _as_given(path: str | Path, run: Path) -> Path:
     return short if short.resolve() == run else run
 
 
+def _run_of_checkpoints(path: str | Path) -> Path | None:
+    """The run (as `path` names it) inside whose checkpoint folder `path` is, or None."""
+    folder = next((parent for parent in Path(path).resolve().parents
+                   if parent.name == CHECKPOINTS and (parent.parent / CONFIG_FILE).is_file()), None)
+    return None if folder is None else _as_given(path, folder.parent)
+
+
+def in_checkpoints(path: str | Path) -> str | None:
+    """Why nothing but training may write at `path`, or None: it is inside a run's checkpoint folder (a file there
+    is deleted with the checkpoint it sits in when a later one replaces it, or sits where the run's checkpoints are
+    listed), said as "inside RUN/checkpoints, the checkpoint folder of the run RUN, ..." with RUN as `path` names it."""
+    run = _run_of_checkpoints(path)
+    return None if run is None else (f"inside {run / CHECKPOINTS}, the checkpoint folder of the run {run}, which only "
+                                     "training writes (a file there is deleted with the checkpoint it sits in, or "
+                                     "taken for one)")
+
+
 def unwritable_out(out: str | Path) -> str | None:
     """Why a command may write no file at `out` (an evaluation, an export, a recording, an analysis, a video, an
-    encoder), or None: `unwritable_folder`'s reasons, or `out` is inside a run's checkpoint folder, which only
-    training writes: a file there is deleted with the checkpoint it sits in when a later one replaces it, or sits
-    where the run's checkpoints are listed."""
-    folder = next((parent for parent in Path(out).resolve().parents
-                   if parent.name == CHECKPOINTS and (parent.parent / CONFIG_FILE).is_file()), None)
-    if folder is None:
-        return unwritable_folder(out)
-    run = _as_given(out, folder.parent)
-    return (f"that is inside {run / CHECKPOINTS}, the checkpoint folder of the run {run}, which only training writes "
-            "(a file there is deleted with the checkpoint it sits in, or taken for one): write outside it, e.g. in "
-            f"{run / EVALUATIONS}")
+    encoder, a report), or None: `unwritable_folder`'s reasons, or it is `in_checkpoints`."""
+    if (inside := in_checkpoints(out)) is not None:
+        return f"that is {inside}: write outside it, e.g. in {_run_of_checkpoints(out) / EVALUATIONS}"
+    return unwritable_folder(out)
 
 
 def has_checkpoints(run_dir: str | Path) -> bool:
