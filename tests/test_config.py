@@ -54,9 +54,11 @@ def test_resolved_config_round_trips_through_a_dict():
     assert load_config(to_dict(config)) == config
 
 
-# The cube's variants trace the cube's physics once each; `make test-fast` checks one of them.
-@pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.slow) if name.startswith("shadow_ihom_")
-                                  else name for name in list_configs()])
+# The variants of the cube and of the MyoHand's tasks trace their costly scenes once each (3-6 s); `make test-fast`
+# checks the first config of each of those tasks, and every config of the others.
+@pytest.mark.parametrize("name", [
+    pytest.param(name, marks=pytest.mark.slow)
+    if name.startswith(("shadow_ihom_", "myohand_pose_", "myohand_reorient_")) else name for name in list_configs()])
 def test_shipped_configs_are_valid(name):
     validate(load_config(name))
 

@@ -201,17 +201,34 @@ def test_a_cell_run_again_registers_its_network_again_and_another_definition_of_
         register_network("user_cell", NETWORKS.get("simple"))
 
 
+def _edited_cell(width: int) -> None:
+    """A notebook cell that registers the network `user_edit`, run with this width."""
+    exec("import dataclasses\n"
+         "from angora_jax.nets import register_network\n"
+         "from angora_jax.nets.registry import NETWORKS\n"
+         "register_network('user_edit',\n"
+         f"                 lambda n: NETWORKS.get('simple')(dataclasses.replace(n, width={width})))\n",
+         {"__name__": "__main__"})
+
+
+def test_a_cell_edited_and_run_again_gives_the_same_config_new_programs(user_code):
+    """The fast counterpart of the test below: the process's programs for a config (`cycle_programs`) are kept while
+    no definition changes, and made anew once a cell has registered its network again (nothing compiled here)."""
+    _edited_cell(8)
+    config = aj.load_config("cartpole", [*TINY_PPO, "ppo.network.name=user_edit"])
+    env = aj.make("CartPole")
+    first = programs.cycle_programs(config, env)
+    assert programs.cycle_programs(config, env) is first, "kept while no definition changed"
+    _edited_cell(16)
+    assert programs.cycle_programs(config, env) is not first, "the edited network gets programs of its own"
+
+
+@pytest.mark.slow
 def test_a_cell_edited_and_run_again_trains_and_loads_its_new_network_not_the_compiled_old_one(user_code, tmp_path):
     """The compiled programs of a process are kept by config (`cycle_programs`, `_acting_parts`), and a config names a
     network, not its code: after a notebook cell that registers a network was edited and run again, training the
     same config reused the old network's programs (its widths), and loading the run failed in Flax."""
-    def cell(width: int) -> None:
-        exec("import dataclasses\n"
-             "from angora_jax.nets import register_network\n"
-             "from angora_jax.nets.registry import NETWORKS\n"
-             "register_network('user_edit',\n"
-             f"                 lambda n: NETWORKS.get('simple')(dataclasses.replace(n, width={width})))\n",
-             {"__name__": "__main__"})
+    cell = _edited_cell
 
     def trained(name: str) -> int:
         assert main(["train", "cartpole", *TINY_PPO, "ppo.num_cycles=1", "ppo.network.name=user_edit",

@@ -377,7 +377,7 @@ def test_a_run_trained_under_randomization_resumes_exactly(tmp_path, quick_compi
 
 
 @pytest.mark.parametrize("network", [
-    pytest.param({"name": "simple", "width": 8}, id="mlp"),
+    pytest.param({"name": "simple", "width": 8}, id="mlp", marks=pytest.mark.slow),
     pytest.param({"name": "simple", "width": 8, "shared_trunk": True}, id="shared", marks=pytest.mark.slow),
     pytest.param({"name": "gru", "width": 8, "cell_size": 8}, id="gru", marks=pytest.mark.slow),
     pytest.param({"name": "cortical"}, id="cortical", marks=pytest.mark.slow)])

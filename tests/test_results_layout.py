@@ -27,12 +27,12 @@ def expand(pattern: str) -> list[str]:
     return [p for alt in match[1].split(",") for p in expand(pattern[:match.start()] + alt + pattern[match.end():])]
 
 
-def resolves(cited: str, results: Path) -> bool:
-    """Whether a cited results path (a folder, a file or a pattern of files) names something under `results`."""
+def resolves(cited: str, results: Path, files: list[str]) -> bool:
+    """Whether a cited results path (a folder, a file or a pattern of files) names something under `results`, whose
+    files are `files` (paths relative to it)."""
     cited = cited.rstrip(".,;:")
     if not cited or cited.endswith("/") or "." not in cited and "*" not in cited:
         return (results / cited).is_dir()
-    files = [p.relative_to(results).as_posix() for p in results.rglob("*") if p.is_file()]
     return any(fnmatch.filter(files, pattern) for pattern in expand(cited))
 
 
@@ -47,11 +47,13 @@ def citations(text: str) -> list[str]:
 def unresolved(root: Path, results: Path) -> list[str]:
     """`file: cited path` for every citation under `root` that names nothing under `results`."""
     missing = []
+    files = [p.relative_to(results).as_posix() for p in results.rglob("*") if p.is_file()]
     for pattern in CITING:
         for path in sorted(root.glob(pattern)):
             if path.is_file() and path.resolve() != Path(__file__).resolve():
                 missing += [f"{path.relative_to(root)}: {cited}"
-                            for cited in citations(path.read_text(errors="replace")) if not resolves(cited, results)]
+                            for cited in citations(path.read_text(errors="replace"))
+                            if not resolves(cited, results, files)]
     return missing
 
 
