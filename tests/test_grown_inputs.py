@@ -48,8 +48,9 @@ def _stats(asymmetric: int, shift: float = 0.0, count: float = 1e-4) -> Sensatio
 @pytest.fixture(scope="module")
 def saved_and_current():
     model = _Value()
-    saved = model.init(jax.random.key(0), _obs(jax.random.key(1), OLD))["params"]
-    current = model.init(jax.random.key(2), _obs(jax.random.key(1), NEW))["params"]
+    init = jax.jit(model.init)
+    saved = init(jax.random.key(0), _obs(jax.random.key(1), OLD))["params"]
+    current = init(jax.random.key(2), _obs(jax.random.key(1), NEW))["params"]
     return model, saved, current
 
 
@@ -77,6 +78,7 @@ def test_the_rows_reading_the_new_entries_are_found_and_start_at_zero(saved_and_
     whatever they are."""
     model, saved, current = saved_and_current
 
+    @jax.jit
     def value_of(params, obs):
         return model.apply({"params": params}, obs)
 
