@@ -438,6 +438,20 @@ def test_a_quoted_no_for_a_true_or_false_task_option_is_refused_not_taken_as_tru
             make("ShadowHandReach", touch=value)
 
 
+def test_a_task_given_as_no_name_is_refused_saying_what_to_give():
+    """`aj.make(config)` (a Config where the task's name goes), `aj.make(agent)` or `aj.make(None)` failed with
+    "'Config' object has no attribute 'startswith'" from inside the registry."""
+    config = aj.load_config("cartpole")
+    with pytest.raises(TypeError, match=r"^make takes a task's name \(e\.g\. 'CartPole'; aj\.list_tasks\(\) lists "
+                                        r"them\), got a Config: aj\.make\(config\.env\.task, "
+                                        r"\*\*config\.env\.options\) makes its task\.$"):
+        aj.make(config)
+    for given, said in ((None, "None"), (3, "3 \\(int\\)"), (config.env, "an EnvConfig")):
+        with pytest.raises(TypeError, match=rf"^make takes a task's name .*, got {said}"):
+            aj.make_env(given)
+    assert aj.make(config.env.task, **config.env.options).max_episode_steps == 500
+
+
 def test_an_option_the_task_does_not_take_is_named_with_the_options_it_takes():
     """`aj.make("CartPole", max_episode_step=3)` (and the same keyword to gymnasium.make) said only Python's
     "CartPole.__init__() got an unexpected keyword argument 'max_episode_step'"; a config's env.options said more."""

@@ -27,6 +27,9 @@ def list_tasks() -> list[str]:
 def make(name: str, **options) -> Env:
     """Build the task `name`; `options` go to its constructor (e.g. reward coefficients, episode length).
     `gym:<id>` is any Gymnasium environment, simulated on the host (`angora_jax.envs.host`)."""
+    if not isinstance(name, str):
+        raise TypeError(f"make takes a task's name (e.g. 'CartPole'; aj.list_tasks() lists them), got "
+                        f"{_given_for_a_name(name)}.")
     if is_gymnasium(name):
         return make_gymnasium(name, **options)
     constructor = TASKS.get(name)
@@ -34,6 +37,21 @@ def make(name: str, **options) -> Env:
         raise TypeError(f"Task {name!r} {unknown}")
     _refuse_non_bools(name, constructor, options)
     return constructor(**options)
+
+
+def _given_for_a_name(given: object) -> str:
+    """What `make` was given where a task's name goes, and what to give instead when the given thing holds a task:
+    a Config (or its `env` section), an agent, an Env already made."""
+    kind = type(given).__name__
+    if isinstance(given, Env):
+        return f"the task itself (a {kind}): use it as it is"
+    if isinstance(getattr(given, "env", None), Env):
+        return f"a{'n' if kind[0] in 'AEIOU' else ''} {kind}: its task is {kind.lower()}.env"
+    section = getattr(given, "env", given)
+    if isinstance(getattr(section, "task", None), str) and isinstance(getattr(section, "options", None), dict):
+        return (f"a{'n' if kind[0] in 'AEIOU' else ''} {kind}: aj.make(config.env.task, **config.env.options) makes "
+                "its task")
+    return "None" if given is None else f"{given!r} ({kind})"
 
 
 def unknown_option(name: str, options: dict[str, Any]) -> str | None:
