@@ -666,6 +666,16 @@ def test_a_cycle_given_as_digits_or_a_numpy_integer_names_that_checkpoint(runs, 
     assert [r["cycle"] for r in resume(run, start_from="2").history] == [3, 4]
 
 
+@pytest.mark.parametrize("given", [True, 2.0, None, [2]])
+def test_a_checkpoint_that_is_no_name_or_whole_number_is_refused_as_such(runs, given):
+    """`checkpoint=True` (a widget's checkbox) read as cycle 1 and failed on a folder named "True": "Checkpoint
+    .../latest/True is damaged"; 2.0 (a cycle from a DataFrame's float column) and None were "No checkpoint 2.0",
+    though the run holds cycle 2."""
+    with pytest.raises(TypeError, match=rf"^A checkpoint is 'best', 'latest' or a cycle \(a whole number, e\.g\. 2\), "
+                                        rf"got {re.escape(repr(given))} \({type(given).__name__}\)\.$"):
+        aj.load_agent(runs[0].run_dir, given)
+
+
 @pytest.mark.parametrize("options, error, message", [
     ({"on_cycle": "print"}, TypeError, r"^on_cycle is called with each cycle's record \(a dict\), e.g. on_cycle=print "
                                        r"or on_cycle=records.append; got 'print' \(str\)\.$"),

@@ -129,10 +129,14 @@ def refuse_files_in_place(directory: Path) -> None:
 
 def checkpoint_name(which: Any) -> Any:
     """`which` as checkpoints are named: "latest" and "best" as they are, a cycle as an int also when it comes as
-    digits ("2", as typed) or as a numpy integer (a cycle read from an array, e.g. of `read_metrics`)."""
+    digits ("2", as typed) or as a numpy integer (a cycle read from an array, e.g. of `read_metrics`); TypeError for
+    anything else (True read as cycle 1, in a folder named "True"; 2.0 as no checkpoint)."""
     if isinstance(which, str):
         return int(which) if which.isdigit() else which
-    return int(which) if isinstance(which, numbers.Integral) and not isinstance(which, bool) else which
+    if isinstance(which, bool) or not isinstance(which, numbers.Integral):
+        raise TypeError(f"A checkpoint is 'best', 'latest' or a cycle (a whole number, e.g. 2), got {which!r} "
+                        f"({type(which).__name__}).")
+    return int(which)
 
 
 def describe_saved(saved: Mapping[str, list[int]]) -> str:
