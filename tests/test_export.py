@@ -182,6 +182,19 @@ def test_act_names_an_observation_or_carry_that_does_not_fit(lstm_run):
         agent.act(agent.initial_carry(2), obs)
 
 
+@pytest.mark.parametrize("size", [0, -1, 2.5, "4", True])
+def test_a_carry_for_no_whole_number_of_environments_is_refused_by_name(lstm_run, tmp_path, size):
+    """`agent.initial_carry(-1)` and `(2.5)` failed inside JAX ("broadcast_in_dim shape must have every element be
+    nonnegative", "Shapes must be 1D sequences of concrete values of integer type"); 0 gave an empty carry that no
+    observation fits. The exported policy's initial_carry is the agent's."""
+    agent = aj.load_agent(lstm_run)
+    policy = aj.load_policy(aj.export_policy(lstm_run, tmp_path / "p.msgpack"))
+    for make in (agent.initial_carry, policy.initial_carry):
+        with pytest.raises(ValueError, match=rf"^batch_size must be a whole number of at least 1, got {size!r}\.$"):
+            make(size)
+    assert jax.tree.leaves(agent.initial_carry(np.int64(3)))[0].shape[0] == 3
+
+
 def test_a_notebook_shows_an_agent_and_a_run_in_a_line_and_exports_from_python(lstm_run, tmp_path):
     """`agent` or `run` ending a cell printed 20 KB and 69 KB of arrays; export was only a command."""
     agent = aj.load_agent(lstm_run)

@@ -87,8 +87,9 @@ class Agent:
         return self.state.params
 
     def initial_carry(self, batch_size: int) -> Any:
-        """The recurrent state at an episode's start for `batch_size` environments."""
-        return self.network.initial_carry(batch_size)
+        """The recurrent state at an episode's start for `batch_size` environments (a whole number of at least 1:
+        -1 or 2.5 failed inside JAX, 0 gave a carry no observation fits)."""
+        return self.network.initial_carry(check_count("batch_size", batch_size))
 
     def apply(self, carry: Any, obs: Sensation, **apply_options: Any) -> Any:
         """One step of the model on raw observations (leaves `(B, size)`), normalised as in training.
