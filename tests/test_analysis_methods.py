@@ -754,6 +754,19 @@ def test_a_layer_or_variable_the_recording_lacks_is_named_with_the_nearest_and_a
         similarity(data, "input_proprioception", variables="input_proprio")
 
 
+def test_an_empty_choice_of_layers_is_refused_naming_the_recordings_layers():
+    """`layers=[]` (a filter that kept nothing): principal_components failed with "max() arg is an empty sequence",
+    the others with messages about something else, and similarity took every layer."""
+    data = graph_recording({"network.M1": 3, "network.PMC.0": 4, "network.PMC.1": 4})
+    for analysis in (timescales, cross_correlation, principal_components, decode):
+        with pytest.raises(ValueError, match=r"^layers=\[\] chooses no layer: name one or more of the recording's "
+                                             r"\(network.M1, network.PMC.0, network.PMC.1\), or leave layers out for "
+                                             r"all of them\.$"):
+            analysis(data, layers=[])
+    with pytest.raises(ValueError, match=r"^layers=\[\] chooses no layer"):
+        similarity(data, "input_proprioception", layers=[], feature=0)
+
+
 def test_probing_calls_from_python_name_a_wrong_argument_before_numpy_or_jax_fail_on_it():
     """Notebook trial: record_activity(episodes=0) failed inside NumPy, ablation({"SSC": "network.SSC_2"}) with
     "'str' object has no attribute 'compiled_once'", replaying another task's recording with a broadcasting error,

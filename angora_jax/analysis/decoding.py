@@ -244,6 +244,9 @@ def chosen_layers(dataset: xr.Dataset, layers: str | Sequence[str] | None) -> li
     """The layers an analysis of `dataset` takes: every recorded one for None, one name given as a string, else
     `layers`; a ValueError (`require`) for one the recording lacks."""
     chosen = recorded_layers(dataset) if layers is None else as_names(layers)
+    if not chosen and layers is not None:  # a filter that kept nothing: analyses of no layer, or a failure in NumPy
+        raise ValueError(f"layers={layers!r} chooses no layer: name one or more of the recording's "
+                         f"({', '.join(recorded_layers(dataset))}), or leave layers out for all of them.")
     require(dataset, chosen)
     return chosen
 

@@ -64,7 +64,7 @@ def layer_rdms(dataset: xr.Dataset, labels: np.ndarray, layers: Sequence[str] | 
 
     # The correlation between two conditions' mean patterns needs at least two units: a one-unit layer (the value
     # output) has none, so it is left out unless named.
-    layers = chosen_layers(dataset, layers) if layers else [
+    layers = chosen_layers(dataset, layers) if layers is not None else [
         layer for layer in recorded_layers(dataset) if method != "correlation" or units(layer) > 1]
     alive = labels.reshape(-1) >= 0
     rdms = [calc_rdm(_patterns(dataset[f"activity_{layer}"], labels, alive), method=method, descriptor="condition")
