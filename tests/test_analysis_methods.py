@@ -70,6 +70,19 @@ def test_a_one_unit_layer_is_left_out_of_correlation_rsa_unless_named_and_then_r
     assert "value" in similarity(data, "metric_x", bins=4, method="euclidean")["layer"].values
 
 
+@pytest.mark.parametrize("method, hint", [
+    ("Euclidean", r" Did you mean 'euclidean'\?"), ("cosine", ""),
+    ("crossnobis", r" \(crossnobis is cross-validated: it needs repeats of each condition, and similarity compares "
+                   r"their mean patterns\)"),
+])
+def test_an_rdm_method_rsatoolbox_does_not_compute_here_is_refused_naming_the_methods(method, hint):
+    """A misspelt method ("Euclidean", "cosine") ended in rsatoolbox's bare NotImplementedError (no message), and its
+    cross-validated methods in "AssertionError: cv_descriptor generation failed"."""
+    with pytest.raises(ConfigError, match=rf"^method must be one of 'correlation', 'euclidean', 'mahalanobis', "
+                                          rf"'poisson' \(rsatoolbox's RDM methods\), got {method!r}\.{hint}$"):
+        similarity(synthetic(), "metric_x", bins=4, method=method)
+
+
 def test_decoding_with_one_fold_is_refused_in_our_words():
     with pytest.raises(ConfigError, match=r"at least 2 folds \(--folds\), got 1"):
         decode(synthetic(episodes=4, steps=5), ["code"], ["metric_x"], folds=1)

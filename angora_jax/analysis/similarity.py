@@ -20,7 +20,7 @@ from rsatoolbox.rdm import RDMs, calc_rdm, compare
 from angora_jax.analysis.decoding import as_names, chosen_layers, plot_path, recorded_layers, require
 from angora_jax.analysis.units import as_scalar, is_unit
 from angora_jax.experiment.config import ConfigError, check_count
-from angora_jax.wording import counted
+from angora_jax.wording import counted, did_you_mean
 
 
 def condition_labels(dataset: xr.Dataset, variable: str, bins: int = 8, feature: int | None = None) -> np.ndarray:
@@ -51,14 +51,32 @@ def condition_labels(dataset: xr.Dataset, variable: str, bins: int = 8, feature:
     return compact
 
 
+# rsatoolbox's `calc_rdm` methods that an RDM of each condition's mean pattern can use: its cross-validated ones need
+# repeats of each condition.
+RDM_METHODS = ("correlation", "euclidean", "mahalanobis", "poisson")
+_CROSS_VALIDATED = ("crossnobis", "poisson_cv")
+
+
+def check_rdm_method(method: object) -> None:
+    """ConfigError naming the methods for a `method` not in `RDM_METHODS`: rsatoolbox raised a NotImplementedError
+    without a message for an unknown one, and an AssertionError for a cross-validated one."""
+    if isinstance(method, str) and method in RDM_METHODS:
+        return
+    why = (f" ({method} is cross-validated: it needs repeats of each condition, and similarity compares their mean "
+           "patterns)" if method in _CROSS_VALIDATED else did_you_mean(method, RDM_METHODS))
+    raise ConfigError(f"method must be one of {', '.join(map(repr, RDM_METHODS))} (rsatoolbox's RDM methods), got "
+                      f"{method!r}.{why}")
+
+
 def layer_rdms(dataset: xr.Dataset, labels: np.ndarray, layers: Sequence[str] | None = None,
                method: str = "correlation") -> RDMs:
     """One RDM per layer over the conditions in `labels` (from `condition_labels`), as rsatoolbox RDMs with the
     descriptor `layer`.
 
     Args:
-        method: any of rsatoolbox's `calc_rdm` methods ("correlation", "euclidean", ...).
+        method: one of `RDM_METHODS`, rsatoolbox's `calc_rdm` methods that need no repeats of a condition.
     """
+    check_rdm_method(method)
     def units(layer: str) -> int:
         return int(np.prod(dataset[f"activity_{layer}"].shape[2:]))
 
@@ -93,7 +111,8 @@ def similarity(dataset: xr.Dataset, condition: str, layers: Sequence[str] | None
                method: str = "correlation") -> xr.Dataset:
     """RSA of `layers` (default all) over bins of `condition` (see `condition_labels`), as a Dataset with `rdm`
     (layer x condition x condition_), `layer_similarity` (layer x layer_: Spearman correlation of their RDMs) and,
-    for `variables`, `model_similarity` (layer x variable: each layer's RDM against the variable's model RDM)."""
+    for `variables`, `model_similarity` (layer x variable: each layer's RDM against the variable's model RDM).
+    `method`: the layers' dissimilarity, one of `RDM_METHODS`."""
     variables = as_names(variables)
     require(dataset, (), variables)
     labels = condition_labels(dataset, condition, bins, feature)
