@@ -666,6 +666,19 @@ def test_a_cycle_given_as_digits_or_a_numpy_integer_names_that_checkpoint(runs, 
     assert [r["cycle"] for r in resume(run, start_from="2").history] == [3, 4]
 
 
+@pytest.mark.parametrize("flag", ["from_scratch", "exact", "force", "no_stop_at"])
+def test_a_flag_given_as_text_is_refused_before_the_run_is_touched(runs, tmp_path, flag):
+    """`resume(run, from_scratch="no")` (a widget's or a file's text) is a true value: it trained the run again from
+    cycle 0, its outputs moved to previous-1; `force="no"` would take over a live writer's lock."""
+    run = tmp_path / "run"
+    shutil.copytree(runs[0].run_dir, run)
+    before = sorted(path.name for path in run.iterdir())
+    with pytest.raises(TypeError, match=rf"^{flag} must be True or False, got 'no' \(str\): a non-empty string counts "
+                                        r"as True\.$"):
+        resume(run, **{flag: "no"})
+    assert sorted(path.name for path in run.iterdir()) == before
+
+
 @pytest.mark.parametrize("given", [True, 2.0, None, [2]])
 def test_a_checkpoint_that_is_no_name_or_whole_number_is_refused_as_such(runs, given):
     """`checkpoint=True` (a widget's checkbox) read as cycle 1 and failed on a folder named "True": "Checkpoint

@@ -13,6 +13,7 @@ from flax import serialization
 from tiny import TINY_PPO
 
 import angora_jax as aj
+from angora_jax.analysis import record_activity
 from angora_jax.cli import main
 from angora_jax.experiment import RunDirError
 from angora_jax.experiment.export import export_policy
@@ -193,6 +194,18 @@ def test_a_carry_for_no_whole_number_of_environments_is_refused_by_name(lstm_run
         with pytest.raises(ValueError, match=rf"^batch_size must be a whole number of at least 1, got {size!r}\.$"):
             make(size)
     assert jax.tree.leaves(agent.initial_carry(np.int64(3)))[0].shape[0] == 3
+
+
+def test_a_flag_of_an_agent_given_as_text_is_refused_not_read_as_true(lstm_run):
+    """`agent.evaluate(deterministic="no")` evaluated the mode, as "no" is a true value, and
+    `record_activity(agent, images="no")` was refused as images=True on a task without cameras."""
+    agent = aj.load_agent(lstm_run)
+    with pytest.raises(TypeError, match=r"^deterministic must be True or False, got 'no' \(str\)"):
+        agent.evaluate(2, deterministic="no")
+    with pytest.raises(TypeError, match=r"^images must be True or False, got 'no' \(str\)"):
+        record_activity(agent, episodes=2, steps=2, images="no")
+    with pytest.raises(TypeError, match=r"^stochastic must be True or False, got 0 \(int\)\.$"):
+        aj.render_frames(lstm_run, stochastic=0)
 
 
 def test_a_notebook_shows_an_agent_and_a_run_in_a_line_and_exports_from_python(lstm_run, tmp_path):

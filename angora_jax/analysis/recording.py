@@ -48,7 +48,7 @@ from angora_jax.analysis.decoding import check_recording
 from angora_jax.envs.cameras import check_path_renderer
 from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, check_agent, load_agent
-from angora_jax.experiment.config import check_count, check_seed, override_strings
+from angora_jax.experiment.config import check_count, check_flag, check_seed, override_strings
 from angora_jax.nets import ActorCritic
 from angora_jax.ppo.evaluate import make_evaluate
 from angora_jax.whole_files import written_whole
@@ -102,6 +102,7 @@ def record_activity(agent: Agent | str | Path, episodes: int = 64, steps: int | 
     episodes = check_count("episodes", episodes)
     steps = None if steps is None else check_count("steps", steps)
     seed = check_seed("seed", seed)
+    images = check_flag("images", images)
     env_overrides = override_strings(env_overrides, "env_overrides")
     if isinstance(agent, Agent):
         if env_overrides:

@@ -22,6 +22,7 @@ from angora_jax.experiment.config import (
     ConfigError,
     DistributionConfig,
     check_count,
+    check_flag,
     check_seed,
     load_config,
     override_strings,
@@ -142,6 +143,7 @@ class Agent:
         task metrics at episode ends (see `angora_jax.ppo.make_evaluate`)."""
         num_envs = check_count("num_envs", num_envs)
         seed = check_seed("seed", seed)
+        deterministic = check_flag("deterministic", deterministic)
         evaluate = self.compiled_once(("evaluate", num_envs, deterministic), lambda: make_evaluate(
             self.env, self.network, self.config.ppo, num_envs, deterministic))
         return {k: float(v) for k, v in evaluate(self.state, jax.random.key(seed)).items()}

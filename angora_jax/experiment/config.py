@@ -390,6 +390,15 @@ def check_count(name: str, value: object, least: int = 1) -> int:
     return int(value)
 
 
+def check_flag(name: str, value: object) -> bool:
+    """`value` as a bool; TypeError unless it is True or False (a numpy bool too): "no" or "false" from a widget or
+    a file, and any non-zero number, are true values that would silently do what was declined."""
+    if not isinstance(value, bool | np.bool_):
+        raise TypeError(f"{name} must be True or False, got {value!r} ({type(value).__name__})"
+                        f"{': a non-empty string counts as True' if isinstance(value, str) else ''}.")
+    return bool(value)
+
+
 def check_seed(name: str, value: object) -> int:
     """`value` as an int; ConfigError unless it is a seed, a whole number from 0 to SEED_MAX (an int or a numpy
     integer, not a bool), as ppo.seed is checked in a config: a seed given in Python as 1.5 or "3" failed inside a

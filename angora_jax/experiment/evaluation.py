@@ -26,7 +26,7 @@ from angora_jax.envs.cameras import check_path_renderer
 from angora_jax.envs.cpu_env import CpuEnv
 from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.experiment.agent import Agent, load_agent, read_checkpoint
-from angora_jax.experiment.config import ConfigError, check_count, check_seed, override_strings, to_dict
+from angora_jax.experiment.config import ConfigError, check_count, check_flag, check_seed, override_strings, to_dict
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
 from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths, unwritable_out
 from angora_jax.ppo.evaluate import make_evaluate
@@ -130,9 +130,7 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     episodes, batch, workers = (check_count(name, count) for name, count in
                                 (("episodes", episodes), ("batch", batch), ("workers", workers)))
     seed = check_seed("seed", seed)
-    if not isinstance(stochastic, bool | np.bool_):  # "no" or "false" from a widget or a file is a true value
-        raise TypeError(f"stochastic must be True or False, got {stochastic!r} ({type(stochastic).__name__})"
-                        f"{': a non-empty string counts as True' if isinstance(stochastic, str) else ''}.")
+    stochastic = check_flag("stochastic", stochastic)
     if path not in PATHS:
         raise ValueError(f"Unknown evaluation path {path!r}; choose one of {PATHS}.")
     check_save_folder(save)

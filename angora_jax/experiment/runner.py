@@ -39,6 +39,7 @@ from angora_jax.experiment.config import (
     Config,
     ConfigError,
     check_count,
+    check_flag,
     load_config,
     num_devices,
     to_dict,
@@ -235,6 +236,8 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
     """
     run_dir = run_dir_path(run_dir)
     _check_call(on_cycle, minutes)
+    exact, from_scratch, force, no_stop_at = (check_flag(name, flag) for name, flag in (
+        ("exact", exact), ("from_scratch", from_scratch), ("force", force), ("no_stop_at", no_stop_at)))
     compilation_cache.enable()
     agree_on_settings({"RUN_DIR": str(run_dir.absolute()), "--from": start_from, "--from-scratch": from_scratch,
                        "--num-cycles": num_cycles, "--no-stop-at": no_stop_at, "--exact": exact, "--force": force},

@@ -23,7 +23,7 @@ from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.envs.registry import make
 from angora_jax.envs.rendering import RenderError, SceneRenderer, camera_named, check_pixels
 from angora_jax.experiment.agent import Agent, load_agent
-from angora_jax.experiment.config import check_count, check_seed
+from angora_jax.experiment.config import check_count, check_flag, check_seed
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, random_policy, run_episodes
 from angora_jax.experiment.run_dir import unwritable_out
 from angora_jax.ppo.memory import device_memory
@@ -85,6 +85,7 @@ def render_episodes(run_dir: str | Path | Agent | None, task: str | None, checkp
     check_pixels(width, height)  # before the policy is loaded or the task made
     episodes = check_count("episodes", episodes)
     seed = check_seed("seed", seed)
+    stochastic = check_flag("stochastic", stochastic)
     with on_host():
         if run_dir is not None:
             agent = run_dir if isinstance(run_dir, Agent) else load_agent(run_dir, checkpoint)
