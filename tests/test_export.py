@@ -196,6 +196,15 @@ def test_a_carry_for_no_whole_number_of_environments_is_refused_by_name(lstm_run
     assert jax.tree.leaves(agent.initial_carry(np.int64(3)))[0].shape[0] == 3
 
 
+@pytest.mark.parametrize("out", [None, 3])
+def test_an_out_that_is_no_path_is_refused_by_name(lstm_run, out):
+    """`aj.export_policy(run_dir, None)` said only Python's "expected str, bytes or os.PathLike object, not
+    NoneType", naming no argument."""
+    with pytest.raises(TypeError, match=rf"^out is where the policy is written \(a \.msgpack file's path or a folder, "
+                                        rf"e\.g\. 'policy\.msgpack'\), got {out!r} \({type(out).__name__}\)\.$"):
+        aj.export_policy(lstm_run, out)
+
+
 def test_a_flag_of_an_agent_given_as_text_is_refused_not_read_as_true(lstm_run):
     """`agent.evaluate(deterministic="no")` evaluated the mode, as "no" is a true value, and
     `record_activity(agent, images="no")` was refused as images=True on a task without cameras."""

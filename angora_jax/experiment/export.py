@@ -34,7 +34,10 @@ def policy_path(out: str | Path, run_dir: str | Path) -> Path:
     when it is one, or ends with '/' (then made), as `<folder>/<run name>.msgpack` (as `cp` copies into a folder).
     ValueError, naming the name to give, for any other name (`x.txt`, `policy`): the file is msgpack, whatever its
     name, and a name without a suffix may have meant a folder; ValueError too when the folder it goes in cannot be
-    written (`unwritable_out`)."""
+    written (`unwritable_out`); TypeError for what is no path (None)."""
+    if not isinstance(out, str | os.PathLike):
+        raise TypeError(f"out is where the policy is written (a {SUFFIX} file's path or a folder, e.g. "
+                        f"'policy{SUFFIX}'), got {out!r} ({type(out).__name__}).")
     text, out = str(out), Path(out)
 
     def in_folder() -> Path:
