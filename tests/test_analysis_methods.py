@@ -83,6 +83,22 @@ def test_an_rdm_method_rsatoolbox_does_not_compute_here_is_refused_naming_the_me
         similarity(synthetic(), "metric_x", bins=4, method=method)
 
 
+def test_a_poisson_rdm_of_negative_activity_is_refused_naming_the_layer_and_of_rates_computed():
+    """rsatoolbox's poisson RDM takes logs of the condition means (plus a prior of 0.1): tanh units' negative means
+    gave NaN, which was put down to one-unit or constant patterns, and means in [-0.1, 0) a finite, meaningless
+    RDM."""
+    data = synthetic()
+    with pytest.raises(ValueError, match=r"^The poisson RDM treats activity as firing rates, which are not "
+                                         r"negative, but code \(down to -[\d.]+\), noise \(down to -[\d.]+\) hold "
+                                         r"negative values \(tanh or linear units\)"):
+        similarity(data, "metric_x", bins=4, method="poisson")
+    with pytest.raises(ValueError, match=r"but noise \(down to -[\d.]+\) holds negative"):
+        similarity(data, "metric_x", layers=["noise"], bins=4, method="poisson")
+    rates = data.assign(activity_code=np.abs(data["activity_code"]), activity_noise=np.exp(data["activity_noise"]))
+    result = similarity(rates, "metric_x", bins=4, method="poisson")
+    assert np.isfinite(result["rdm"].values).all() and (result["rdm"].values >= -1e-12).all()
+
+
 def test_decoding_with_one_fold_is_refused_in_our_words():
     with pytest.raises(ConfigError, match=r"at least 2 folds \(--folds\), got 1"):
         decode(synthetic(episodes=4, steps=5), ["code"], ["metric_x"], folds=1)

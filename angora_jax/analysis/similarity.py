@@ -85,8 +85,16 @@ def layer_rdms(dataset: xr.Dataset, labels: np.ndarray, layers: Sequence[str] | 
     layers = chosen_layers(dataset, layers) if layers is not None else [
         layer for layer in recorded_layers(dataset) if method != "correlation" or units(layer) > 1]
     alive = labels.reshape(-1) >= 0
-    rdms = [calc_rdm(_patterns(dataset[f"activity_{layer}"], labels, alive), method=method, descriptor="condition")
-            for layer in layers]
+    patterns = [_patterns(dataset[f"activity_{layer}"], labels, alive) for layer in layers]
+    if method == "poisson":  # rsatoolbox takes logs of the rates: NaN below -0.1 (its prior), meaningless below 0
+        negative = {layer: float(p.measurements.min()) for layer, p in zip(layers, patterns, strict=True)
+                    if p.measurements.size and p.measurements.min() < 0}
+        if negative:
+            which = ", ".join(f"{layer} (down to {low:.3g})" for layer, low in negative.items())
+            raise ValueError(f"The poisson RDM treats activity as firing rates, which are not negative, but {which} "
+                             f"{'hold' if len(negative) > 1 else 'holds'} negative values (tanh or linear units): use "
+                             "correlation or euclidean, or leave the layer out (--layers).")
+    rdms = [calc_rdm(pattern, method=method, descriptor="condition") for pattern in patterns]
     undefined = [layer for layer, rdm in zip(layers, rdms, strict=True) if np.isnan(rdm.dissimilarities).any()]
     if undefined:
         why = ", ".join(f"{layer} ({units(layer)} unit{'s' * (units(layer) > 1)})" for layer in undefined)
