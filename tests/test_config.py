@@ -526,6 +526,26 @@ def test_a_key_given_twice_is_refused_with_both_lines(tmp_path: Path, text, key,
         load_config("cartpole", ["ppo={gamma: 0.9, gamma: 0.8}"])
 
 
+@pytest.mark.parametrize("key, text, message", [
+    ("ppo.num_envs", "010", r"'010' \(line 1\) is octal in YAML 1.1, read as 8: write 10 \(or 8 if octal was meant\)"),
+    ("env.options.max_episode_steps", "-0100", r"'-0100' \(line 1\) is octal in YAML 1.1, read as -64"),
+    ("ppo.seed", "1:30", r"'1:30' \(line 1\) is a base-60 number in YAML 1.1, read as 90"),
+    ("ppo.learning_rate", "1:30.5", r"'1:30.5' \(line 1\) is a base-60 number in YAML 1.1, read as 90.5"),
+])
+def test_a_number_yaml_1_1_reads_as_octal_or_base_60_is_refused_not_misread(tmp_path: Path, key, text, message):
+    """PyYAML reads `010` as 8 and `1:30` as 90 (YAML 1.1): `ppo.num_envs=010` trained 8 environments."""
+    with pytest.raises(ConfigError, match=rf"Override '{key}={text}': {message}"):
+        load_config("cartpole", [f"{key}={text}"])
+    *sections, leaf = key.split(".")
+    (tmp_path / "run.yaml").write_text("".join(f"{'  ' * i}{s}:\n" for i, s in enumerate(sections))
+                                       + f"{'  ' * len(sections)}{leaf}: {text}\n")
+    with pytest.raises(ConfigError, match=rf"run.yaml.*{message.replace('line 1', f'line {len(sections) + 1}')}"):
+        load_config(tmp_path / "run.yaml")
+    # the same value as text, and what reads the same either way, are kept
+    assert load_config("cartpole", [f"logging.run_name='{text}'"]).logging.run_name == text
+    assert load_config("cartpole", ["ppo.seed=007", "evaluation.every=00", "ppo.learning_rate=0.010"]).ppo.seed == 7
+
+
 @pytest.mark.parametrize("text, message", [
     ("1: x\n", r"Key 1 \(int\) of the config is not a name: keys are words such as 'env'"),
     ("null: y\n", r"Key None \(NoneType\) of the config is not a name"),

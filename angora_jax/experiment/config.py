@@ -142,9 +142,10 @@ class ConfigLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
     def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
-        """The integer of `node`, refused when Python will not read it (over 4,300 digits: no setting takes one)."""
+        """The integer of `node`, refused when Python will not read it (over 4,300 digits: no setting takes one) or
+        when YAML 1.1 reads it otherwise than it reads (`misread_number`)."""
         try:
-            return super().construct_yaml_int(node)
+            return self.misread_number(node, super().construct_yaml_int(node))
         except ValueError:
             digits = sum(c.isdigit() for c in node.value)
             if digits <= 4300:  # a value tagged !!int that is no integer at all
@@ -153,8 +154,30 @@ class ConfigLoader(yaml.SafeLoader):
             raise YAMLRefused(f"the integer on line {node.start_mark.line + 1} has {digits:,} digits, more than any "
                               "setting takes: give a number in the key's range.") from None
 
+    def construct_yaml_float(self, node: yaml.ScalarNode) -> float:
+        """The float of `node`, refused when it is a base-60 number (`misread_number`)."""
+        return self.misread_number(node, super().construct_yaml_float(node))
+
+    @staticmethod
+    def misread_number(node: yaml.ScalarNode, value: Any) -> Any:
+        """`value`, refused where YAML 1.1 reads the text as no reader expects: `010` as octal 8 and `1:30` as base 60
+        (90), so that `num_envs: 010` trained 8 environments. A leading 0 that changes nothing (`007`) is kept."""
+        text = node.value.replace("_", "").lstrip("+-")
+        if ":" in text:
+            kind = "a base-60 number"
+            fix = "write the number itself, or quote the value to give it as text."
+        elif re.fullmatch(r"0[0-7]+", text) and int(text, 8) != int(text, 10):
+            kind = "octal"
+            fix = (f"write {int(node.value.replace('_', ''))} (or {value} if octal was meant), or quote the value to "
+                   "give it as text.")
+        else:
+            return value
+        raise YAMLRefused(f"{node.value!r} (line {node.start_mark.line + 1}) is {kind} in YAML 1.1, read as {value!r}: "
+                          f"{fix}")
+
 
 ConfigLoader.add_constructor("tag:yaml.org,2002:int", ConfigLoader.construct_yaml_int)
+ConfigLoader.add_constructor("tag:yaml.org,2002:float", ConfigLoader.construct_yaml_float)
 
 
 def load_yaml(text: str) -> Any:
