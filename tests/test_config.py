@@ -526,6 +526,20 @@ def test_a_key_given_twice_is_refused_with_both_lines(tmp_path: Path, text, key,
         load_config("cartpole", ["ppo={gamma: 0.9, gamma: 0.8}"])
 
 
+def test_a_section_left_empty_is_refused_not_reset_to_the_defaults(tmp_path: Path):
+    """`ppo:` with its keys commented out, over `extends: shadow_ihom`, trained with PPOConfig's defaults: the
+    shipped config's 11 ppo settings dropped without a word; `ppo=null` on the command line likewise."""
+    (tmp_path / "run.yaml").write_text("extends: shadow_ihom\nppo:\n#  num_envs: 8\n")
+    message = r"ppo is empty \(null\), which would set all its keys to their defaults: give its keys under it, or "
+    with pytest.raises(ConfigError, match=message):
+        load_config(tmp_path / "run.yaml")
+    with pytest.raises(ConfigError, match=message):
+        load_config("shadow_ihom", ["ppo="])
+    with pytest.raises(ConfigError, match=message.replace("ppo is", "ppo.network is")):
+        load_config("cartpole", ["ppo.network=null"])
+    assert load_config("cartpole", ["logging.wandb=null"]).logging.wandb is None  # an optional section: none
+
+
 @pytest.mark.parametrize("key, text, message", [
     ("ppo.num_envs", "010", r"'010' \(line 1\) is octal in YAML 1.1, read as 8: write 10 \(or 8 if octal was meant\)"),
     ("env.options.max_episode_steps", "-0100", r"'-0100' \(line 1\) is octal in YAML 1.1, read as -64"),

@@ -873,7 +873,10 @@ def _misspelt_below(cls: type, dotted: str, path: str) -> str:
 
 def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
     if dataclasses.is_dataclass(kind):
-        return _build(kind, {} if value is None else value, key)
+        if value is None:  # `ppo:` with its keys commented out, or `ppo=null`: over a shipped config, its keys lost
+            raise ConfigError(f"{key} is empty (null), which would set all its keys to their defaults: give its keys "
+                              f"under it, or leave it out (to keep what the config it extends sets).")
+        return _build(kind, value, key)
     if isinstance(kind, types.UnionType) or typing.get_origin(kind) is typing.Union:
         options = [arg for arg in typing.get_args(kind) if arg is not type(None)]
         if value is None and type(None) in typing.get_args(kind):
