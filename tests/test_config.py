@@ -526,6 +526,15 @@ def test_a_key_given_twice_is_refused_with_both_lines(tmp_path: Path, text, key,
         load_config("cartpole", ["ppo={gamma: 0.9, gamma: 0.8}"])
 
 
+def test_a_section_given_as_an_override_merges_into_the_configs_as_in_a_file():
+    """`ppo={num_envs: 1024}` on shadow_ihom trained with PPOConfig's defaults for its other ppo keys (the shipped
+    ones dropped without a word), and after `ppo.num_cycles=5` undid it; sections merge key by key, as `extends`
+    does, and a mapping of named entries (`ppo.network.graph.areas`) is still replaced whole."""
+    shipped = load_config("shadow_ihom").ppo
+    merged = load_config("shadow_ihom", ["ppo.num_cycles=5", "ppo={num_envs: 1024}"]).ppo
+    assert merged == dataclasses.replace(shipped, num_envs=1024, num_cycles=5)
+
+
 def test_a_section_left_empty_is_refused_not_reset_to_the_defaults(tmp_path: Path):
     """`ppo:` with its keys commented out, over `extends: shadow_ihom`, trained with PPOConfig's defaults: the
     shipped config's 11 ppo settings dropped without a word; `ppo=null` on the command line likewise."""

@@ -785,7 +785,23 @@ def _apply_override(data: dict[str, Any], override: str) -> None:
         node = node.setdefault(section, {})
         if not isinstance(node, dict):
             raise ConfigError(f"Override {override!r}: {'.'.join(sections[: depth + 1])} is a value, not a section.")
-    node[leaf] = value
+    both = isinstance(value, dict) and isinstance(node.get(leaf), dict) and _is_section(key)
+    node[leaf] = _merge(node[leaf], value) if both else value  # a section merges, as over `extends`
+
+
+def _is_section(key: str) -> bool:
+    """Whether the dotted `key` names a section of `Config` (`ppo`, `logging.wandb`), not a value such as a mapping
+    of named entries (`ppo.network.graph.areas`), which an override replaces whole."""
+    def section(kind: Any) -> Any:  # the dataclass of `kind` or of `kind | None`, else None
+        options = typing.get_args(kind) if isinstance(kind, types.UnionType) else (kind,)
+        return next((option for option in options if dataclasses.is_dataclass(option)), None)
+
+    kind: Any = Config
+    for part in key.split("."):
+        if section(kind) is None or part not in typing.get_type_hints(section(kind)):
+            return False
+        kind = typing.get_type_hints(section(kind))[part]
+    return section(kind) is not None
 
 
 def _paths_below(cls: type, key: str, prefix: str = "") -> list[str]:
