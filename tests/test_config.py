@@ -119,6 +119,10 @@ BAD = {
                                                  r"character '@' that cannot start any token at character 1\); quote "
                                                  r"the value to give it as text \('env.task=\"@x\"'\)\.$"),
     "override without =": (["ppo.num_cycles"], r"must look like key.sub=value, e.g. ppo.num_cycles=VALUE"),
+    "override with a colon": (["ppo.learning_rate:3e-4"],
+                              r"must look like key.sub=value, e.g. ppo.learning_rate=3e-4\.$"),
+    "override with YAML's colon": (["ppo.learning_rate: 3e-4"],
+                                   r"must look like key.sub=value, e.g. ppo.learning_rate=3e-4\.$"),
     "stop at a metric the task lacks": (["ppo.stop_at={metric: metric/goals_reached, value: 30}"],
                                         r"ppo.stop_at.metric.*episode_return"),
     "stop at an unknown mode": (["ppo.stop_at={value: 30, mode: above}"], r"ppo.stop_at.mode must be 'max' or 'min'"),

@@ -770,7 +770,8 @@ def _apply_override(data: dict[str, Any], override: str) -> None:
     key, sep, text = override.partition("=")
     if not sep or not key or any(not part for part in key.split(".")):
         spaced = override.split(None, 1)
-        example = ("=".join(spaced) if not sep and len(spaced) == 2 else
+        colon = re.fullmatch(r"([\w.]+):\s*(\S.*)", override) if not sep else None  # YAML's `key: value`
+        example = (f"{colon[1]}={colon[2]}" if colon else "=".join(spaced) if not sep and len(spaced) == 2 else
                    f"{key}=VALUE" if key and not sep and all(key.split(".")) else "ppo.num_cycles=20")
         raise ConfigError(f"Override {override!r} must look like key.sub=value, e.g. {example}.")
     try:
