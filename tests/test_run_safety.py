@@ -661,6 +661,20 @@ def test_a_file_where_a_checkpoint_kind_keeps_its_folder_is_named_before_anythin
     assert {path: path.read_bytes() for path in run.rglob("*") if path.is_file()} == before
 
 
+def test_a_resume_from_an_earlier_checkpoint_that_trains_nothing_is_refused_before_anything_moves(whole, tmp_path,
+                                                                                                  capsys):
+    """`--from 3 --num-cycles 3` trained nothing, exit 0 ("It was already complete"), after it had set aside the
+    latest checkpoint and the later records and cut config.yaml to 3 cycles: the run was left without a latest
+    checkpoint, which `check` called a problem and every plain resume refused."""
+    run = copy_of(whole, tmp_path)
+    before = {path: path.read_bytes() for path in run.rglob("*") if path.is_file()}
+    err = exits_2(["resume", str(run), "--from", "3", "--num-cycles", "3"], capsys)
+    assert "--from 3 with --num-cycles 3 trains nothing" in err and "--num-cycles 4" in err, err
+    assert "`angora-jax evaluate" in err and "--checkpoint 3" in err, err
+    assert {path: path.read_bytes() for path in run.rglob("*") if path.is_file()} == before
+    assert check_run(run).problems == []
+
+
 def test_a_run_root_under_the_home_folder_written_with_a_tilde_is_made_there(tmp_path, monkeypatch):
     """`logging.run_root=~/runs` reaches the config unexpanded (a shell expands a word's leading `~` only): the run
     goes to the home folder, never to a folder named `~` in the current one."""

@@ -272,6 +272,9 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
         if config.ppo != before and plan.cycle is not None and config.ppo.num_cycles < plan.cycle:
             raise ConfigError(f"--num-cycles {config.ppo.num_cycles} is below cycle {plan.cycle}, where {run_dir} "
                               "continues: ask for at least that many (num_cycles in Python).")
+        if plan.cycle is not None:
+            _refuse_rewind_that_trains_nothing(run_dir, plan.cycle, start_from, num_cycles, config, ended,
+                                               checkpoints)
         if plan.cycle is None:  # a start from cycle 0 reads its saved starting values (ppo.init_from, pretrained)
             check_sources(config, env)
         state = None
@@ -341,6 +344,26 @@ def _check_call(on_cycle: Any, minutes: Any) -> None:
                                 f"on_cycle=records.append; {name} takes {signature}.") from None
     if minutes is not None and (isinstance(minutes, bool) or not isinstance(minutes, numbers.Real) or not minutes > 0):
         raise ValueError(f"minutes (the call's time limit) must be > 0, got {minutes!r}.")
+
+
+def _refuse_rewind_that_trains_nothing(run_dir: Path, cycle: int, start_from: str | int, num_cycles: int | None,
+                                       config: Config, ended: str | None, checkpoints: Checkpoints) -> None:
+    """ConfigError when a resume from an earlier checkpoint (`--from`) would train nothing (`--num-cycles` at its
+    cycle, or `ppo.stop_at` reached by then) yet set aside the later latest checkpoints: the run was left without a
+    latest checkpoint, which every plain resume then refused."""
+    if not (cycle >= config.ppo.num_cycles or ended is not None) or not any(
+            step > cycle for step in checkpoints.steps("latest")):
+        return
+    why = (f"ppo.stop_at ended the run by then ({ended})" if ended is not None else
+           f"--num-cycles {num_cycles}" if num_cycles is not None else f"its ppo.num_cycles ({config.ppo.num_cycles})")
+    raise ConfigError(
+        f"--from {start_from} with {why} trains nothing (in Python: start_from={start_from!r}"
+        f"{f', num_cycles={num_cycles}' if num_cycles is not None else ''}): it would only set "
+        f"aside {run_dir}'s checkpoints after cycle {cycle}, its latest among them, and leave it with no latest "
+        f"checkpoint to resume from, so nothing was changed. To train on from cycle {cycle}: --num-cycles "
+        f"{cycle + 1} or more{' with --no-stop-at' if ended is not None else ''}; to use that checkpoint as it is: "
+        f"`angora-jax evaluate {run_dir} --checkpoint {cycle}` (or export, record, analyze with --checkpoint "
+        f"{cycle}).")
 
 
 def _refuse_edited(run_dir: Path, config: Config, checkpoints: Checkpoints) -> None:
