@@ -380,6 +380,34 @@ def test_a_holder_killed_but_never_reaped_is_taken_over(tmp_path):
         dead.wait()
 
 
+def test_a_run_copied_while_it_trains_is_resumed_and_the_original_keeps_its_writer(whole, tmp_path, capsys):
+    """`cp -r` of a run while it trained copied its writer.lock: `resume` of the copy said the copy "is being trained
+    by process N" and told to kill it (the original's trainer), `--force` was refused, and `check` called that
+    process the copy's writer. The lock records the run directory it was taken for, so the copy's is taken over; the
+    original's is not."""
+    original = copy_of(whole, tmp_path, "original")
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time; from angora_jax.experiment.run_lock import RunLock; "
+                               "RunLock(sys.argv[1]).acquire(); print('held', flush=True); time.sleep(120)",
+         str(original)], stdout=subprocess.PIPE, text=True, cwd=Path(__file__).parent.parent)
+    try:
+        assert holder.stdout.readline() == "held\n"
+        copy = tmp_path / "copy"
+        shutil.copytree(original, copy)
+        assert (copy / LOCK_FILE).is_file()
+        assert f"the lock was copied with the run from {original.resolve()}" in check_run(copy).format()
+        capsys.readouterr()
+        assert main(["resume", str(copy), "--num-cycles", str(CYCLES + 1)]) == 0
+        err = capsys.readouterr().err
+        assert f"it was copied with the run from {original.resolve()}, which process {holder.pid}" in err, err
+        assert [r["cycle"] for r in read_metrics(copy)][-1] == CYCLES + 1 and not (copy / LOCK_FILE).exists()
+        assert f"is being trained by process {holder.pid}" in exits_2(["resume", str(original)], capsys)
+        assert RunLock(original).holder().pid == holder.pid
+    finally:
+        holder.kill()
+        holder.wait()
+
+
 def test_a_save_cut_short_by_a_killed_writer_is_named_by_check_and_removed_by_resume(whole, tmp_path, capsys):
     """A writer killed while Orbax wrote a checkpoint in the background leaves its temporary folder (renamed to the
     cycle only once whole): `check` names it as unfinished, not as damage, and the next writer removes it before it

@@ -155,12 +155,16 @@ def check_run(run_dir: str | Path) -> RunCheck:
         result.problems.append(f"{edited.describe(run_dir)}. resume refuses to continue the run with other settings; "
                                f"`angora-jax check {run_dir} --restore-config` puts them back")
 
-    holder = RunLock(run_dir).holder()
-    gone = holder is not None and holder.is_gone()
+    lock = RunLock(run_dir)
+    holder = lock.holder()
+    copied = None if holder is None else lock.copied_from(holder)
+    gone = holder is not None and (copied is not None or holder.is_gone())
     if holder is None:
         result.findings.append("writer: none (no process trains it now)")
     else:
-        state = ("ended, so resume takes the lock over" if gone else
+        state = (f"the lock was copied with the run from {copied}, which that process trains: nobody writes this copy, "
+                 "so resume takes the lock over" if copied is not None else
+                 "ended, so resume takes the lock over" if gone else
                  "cannot tell whether it runs: resume --force takes the lock over" if holder.pid < 0 else
                  "running on this host: resume is refused until it stops" if holder.runs_here() else
                  "on another host, so this one cannot tell whether it runs: resume is refused, --force takes the "

@@ -29,12 +29,14 @@ class RunLockedError(RunDirError):
 @dataclass(frozen=True)
 class LockHolder:
     """Who holds a run's lock: host name, process id, the process's start on that host (clock ticks since boot, from
-    /proc; None elsewhere) and when it took the lock (Unix seconds)."""
+    /proc; None elsewhere), when it took the lock (Unix seconds) and the run directory it took it for (absolute; None
+    in locks written before it was recorded)."""
 
     host: str
     pid: int
     process_start: int | None
     since: float
+    run_dir: str | None = None
 
     def describe(self) -> str:
         since = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(self.since))
@@ -69,11 +71,12 @@ def _written_holder(data: dict) -> LockHolder:
     writer of a lock writes (an edited or damaged file): a process id no process has (0 or below, past the system's
     range, not a whole number), which `os.kill` refuses or takes for a process group; a start that is no whole number,
     which no process's start equals, so that a live holder would be taken for one that ended; a time no clock shows."""
-    pid, start, since = data["pid"], data.get("process_start"), float(data["since"])
-    if type(pid) is not int or not 0 < pid < 2 ** 31 or not (start is None or type(start) is int):
-        raise ValueError(f"not a lock's holder: pid {pid!r}, process_start {start!r}")
+    pid, start, since, run_dir = data["pid"], data.get("process_start"), float(data["since"]), data.get("run_dir")
+    if type(pid) is not int or not 0 < pid < 2 ** 31 or not (start is None or type(start) is int) or not (
+            run_dir is None or isinstance(run_dir, str)):
+        raise ValueError(f"not a lock's holder: pid {pid!r}, process_start {start!r}, run_dir {run_dir!r}")
     time.localtime(since)  # OverflowError, ValueError or OSError for a time out of the clock's range (1e300, NaN)
-    return LockHolder(str(data["host"]), pid, start, since)
+    return LockHolder(str(data["host"]), pid, start, since, run_dir)
 
 
 def _stat_fields(pid: int) -> list[str] | None:
@@ -115,12 +118,20 @@ class RunLock:
         except (OSError, ValueError, KeyError, TypeError, OverflowError):
             return LockHolder("", -1, None, self.path.stat().st_mtime)
 
+    def copied_from(self, holder: LockHolder) -> Path | None:
+        """The run directory this lock file was copied from with the run (`cp -r` of a run while it trained), when
+        the holder took it for that other directory, which still holds the same lock: the holder writes there, and
+        nobody writes this copy. None otherwise (a run moved while it trains is still written by its holder)."""
+        if holder.run_dir is None or Path(holder.run_dir) == self.path.parent.resolve():
+            return None
+        return Path(holder.run_dir) if RunLock(holder.run_dir).holder() == holder else None
+
     def acquire(self, force: bool = False) -> None:
         """Take the lock, or raise RunLockedError naming its holder and the fix. A holder that is gone (see module
         docstring) is replaced with a message on stderr; `force` also replaces a holder this host cannot check (on
         another host, or an unreadable lock file), never one alive on this host."""
         me = {"host": socket.gethostname(), "pid": os.getpid(), "process_start": _process_start(os.getpid()),
-              "since": time.time()}
+              "since": time.time(), "run_dir": str(self.path.parent.resolve())}
         # Written whole beside the lock, then linked into place: the link fails if the lock exists, so two processes
         # cannot both take it, and nobody reads a half-written lock.
         draft = self.path.with_name(f"{LOCK_FILE}.{me['pid']}.{me['host']}.tmp")
@@ -134,6 +145,12 @@ class RunLock:
                 holder = self.holder()
                 if holder is None:
                     continue  # released in between
+                if (original := self.copied_from(holder)) is not None:
+                    print(f"Taking over the writer lock of {self.path.parent}: it was copied with the run from "
+                          f"{original}, which {holder.describe()} trains; nobody writes this copy.",
+                          file=sys.stderr, flush=True)
+                    self.path.unlink(missing_ok=True)
+                    continue
                 if holder.pid == os.getpid() and holder.host == me["host"]:
                     raise RunLockedError(f"{self.path.parent} is already being written by this process (a second "
                                          "train or resume of the same run in one notebook?).")
