@@ -88,6 +88,12 @@ BAD = {
     "more devices than present": (["distribution.num_devices=64"], r"distribution.num_devices=64 but JAX sees only"),
     "device count not positive": (["distribution.num_devices=0"], r"distribution.num_devices must be >= 1, got 0"),
     "device count a word": (["distribution.num_devices=some"], r"distribution.num_devices must be a positive"),
+    "device count a yes/no word": (["distribution.num_devices=no"],
+                                   r"^distribution.num_devices must be an integer or a string, got False \(bool\)\. "
+                                   r"YAML reads yes, no, on, off, true and false as true or false: quote the value to "
+                                   r"give it as text\.$"),
+    "run name a yes/no word": (["logging.run_name=on"], r"^logging.run_name must be a string or null, got True "
+                                                        r"\(bool\)\. YAML reads yes, no"),
     "not a finite number": (["ppo.learning_rate=nan"], r"ppo.learning_rate must be a finite number, got 'nan'"),
     "infinite": (["ppo.gamma=.inf"], r"ppo.gamma must be a finite number"),
     "too many environments": (

@@ -901,6 +901,12 @@ def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
         for option in options[:-1]:
             with contextlib.suppress(ConfigError):
                 return _convert(option, value, key)
+        if len(options) > 1 and all(option in _SCALAR_WORDS for option in options):
+            # the last option's own refusal would name it alone ("must be a string" for `int | str`)
+            with contextlib.suppress(ConfigError):
+                return _convert(options[-1], value, key)
+            raise _not_a(" or ".join(_SCALAR_WORDS[option] for option in options), key, value,
+                         nullable=type(None) in typing.get_args(kind))
         return _convert(options[-1], value, key, nullable=type(None) in typing.get_args(kind))
     if kind is Any:
         return value
@@ -951,10 +957,20 @@ def _convert(kind: Any, value: Any, key: str, nullable: bool = False) -> Any:
             return number
     if kind is str and isinstance(value, str):
         return _check_text(key, value)
-    allowed = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(kind, str(kind))
-    allowed += " or null" if nullable else ""
+    raise _not_a(_SCALAR_WORDS.get(kind, str(kind)), key, value, nullable)
+
+
+_SCALAR_WORDS = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
+
+
+def _not_a(allowed: str, key: str, value: Any, nullable: bool) -> ConfigError:
+    """The refusal of `value` for `key`, which must be `allowed` (words); a yes/no word that YAML read as a bool where
+    no bool goes is named as such, with the quoting that gives it as text."""
     shown = quote_number(value) if isinstance(value, int) else _shorten(value)
-    raise ConfigError(f"{key} must be {allowed}, got {shown} ({type(value).__name__}).")
+    hint = (" YAML reads yes, no, on, off, true and false as true or false: quote the value to give it as text."
+            if isinstance(value, bool) and "true" not in allowed else "")
+    return ConfigError(f"{key} must be {allowed}{' or null' if nullable else ''}, got {shown} "
+                       f"({type(value).__name__}).{hint}")
 
 
 def _check_options(value: Any, key: str) -> None:
