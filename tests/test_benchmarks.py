@@ -360,6 +360,7 @@ def test_train_past_solve_stops_at_the_first_cycle_past_the_multiple():
         assert summary["stopped_cycle"] == 5 and summary["solve_time_multiple"] is None
 
 
+@pytest.mark.slow  # a training run and two evaluations; the stopping rule's fast counterpart is the test above
 def test_train_past_solve_trains_stops_and_evaluates_best_and_latest(tmp_path, capsys):
     """CartPole's return passes 40 in its first cycles; the run is stopped by its own SIGINT at 1.5 times that wall
     time, with a checkpoint of that cycle, and both checkpoints are evaluated and summarised. The same run name again,
