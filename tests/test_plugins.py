@@ -201,12 +201,13 @@ def test_a_cell_run_again_registers_its_network_again_and_another_definition_of_
         register_network("user_cell", NETWORKS.get("simple"))
 
 
-def _edited_cell(width: int) -> None:
-    """A notebook cell that registers the network `user_edit`, run with this width."""
+def _edited_cell(width: int, name: str = "user_edit") -> None:
+    """A notebook cell that registers the network `name`, run with this width. Each test takes its own name: the
+    fixture's clean-up removes a name without counting a replacement, so a later test's first cell would not."""
     exec("import dataclasses\n"
          "from angora_jax.nets import register_network\n"
          "from angora_jax.nets.registry import NETWORKS\n"
-         "register_network('user_edit',\n"
+         f"register_network({name!r},\n"
          f"                 lambda n: NETWORKS.get('simple')(dataclasses.replace(n, width={width})))\n",
          {"__name__": "__main__"})
 
@@ -214,12 +215,12 @@ def _edited_cell(width: int) -> None:
 def test_a_cell_edited_and_run_again_gives_the_same_config_new_programs(user_code):
     """The fast counterpart of the test below: the process's programs for a config (`cycle_programs`) are kept while
     no definition changes, and made anew once a cell has registered its network again (nothing compiled here)."""
-    _edited_cell(8)
-    config = aj.load_config("cartpole", [*TINY_PPO, "ppo.network.name=user_edit"])
+    _edited_cell(8, "user_edit_fast")
+    config = aj.load_config("cartpole", [*TINY_PPO, "ppo.network.name=user_edit_fast"])
     env = aj.make("CartPole")
     first = programs.cycle_programs(config, env)
     assert programs.cycle_programs(config, env) is first, "kept while no definition changed"
-    _edited_cell(16)
+    _edited_cell(16, "user_edit_fast")
     assert programs.cycle_programs(config, env) is not first, "the edited network gets programs of its own"
 
 
