@@ -407,7 +407,7 @@ def test_a_config_extends_another_by_name_or_relative_path(tmp_path: Path):
     assert {key for key, value in flatten(randomized).items() if flatten(fast).get(key) != value} == {
         f"env.options.randomization.{key}" for key in randomized["env"]["options"]["randomization"]} | {
         "ppo.num_cycles", "ppo.lr_decay"}
-    assert (randomized["ppo"]["num_cycles"], randomized["ppo"]["lr_decay"]) == (560, True)
+    assert (randomized["ppo"]["num_cycles"], randomized["ppo"]["lr_decay"]) == (900, True)
     # The 2-GPU recipe is the 4-GPU one at the same sizes per GPU: half the environments and minibatch samples.
     two = to_dict(load_config("shadow_ihom_2gpu"))
     assert {key for key, value in flatten(two).items() if flatten(four)[key] != value} == {
