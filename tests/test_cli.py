@@ -225,6 +225,34 @@ def test_a_run_root_inside_a_runs_checkpoint_folder_is_refused_before_the_run_is
         "checkpoints", "checkpoints/latest", "checkpoints/latest/3", "config.yaml"]
 
 
+def test_a_run_root_that_is_a_run_or_inside_one_is_refused_and_a_folder_with_only_a_config_is_not(capsys, tmp_path,
+                                                                                                     monkeypatch):
+    """`train CONFIG logging.run_root=runs/a` (the run, not the folder of runs) made the new run inside runs/a, exit 0,
+    to be copied, moved and deleted with it; so did `train` started inside a run's folder. Both refused now, naming the
+    run and the folder to give. A folder holding only the user's own config.yaml is no run: runs are made there."""
+    monkeypatch.chdir(tmp_path)
+    run = tmp_path / "runs" / "a"
+    run.mkdir(parents=True)
+    (run / "config.yaml").write_text("env: {task: CartPole}\n")
+    (run / "sessions.jsonl").write_text("")
+    for root, where in (("runs/a", "is the run runs/a"), ("runs/a/sweep/x", "is inside the run runs/a")):
+        assert main(["train", "cartpole", *TINY, "ppo.num_cycles=1", f"logging.run_root={root}"]) == 2
+        err = capsys.readouterr().err
+        assert f"logging.run_root={root} {where}, and a run made there would be copied, moved and deleted with it: " \
+               "choose a folder for runs outside every run (e.g. logging.run_root=runs). To continue runs/a: " \
+               "`angora-jax resume runs/a`." in err and "Traceback" not in err, err
+    monkeypatch.chdir(run)
+    assert main(["train", "cartpole", *TINY, "ppo.num_cycles=1"]) == 2
+    assert f"logging.run_root=runs is inside the run {run}," in capsys.readouterr().err
+    assert sorted(path.name for path in run.iterdir()) == ["config.yaml", "sessions.jsonl"]
+    project = tmp_path / "project"
+    project.mkdir()
+    (project / "config.yaml").write_text("extends: cartpole\n")
+    monkeypatch.chdir(project)
+    assert main(["train", "config.yaml", *TINY, "ppo.num_cycles=1", "logging.run_name=mine"]) == 0
+    assert (project / "runs" / "mine" / "config.yaml").is_file()
+
+
 def write_recording(path: Path) -> Path:
     """A small recording's layout (the episode and time dimensions, the alive mask, one layer) as NetCDF."""
     import xarray as xr

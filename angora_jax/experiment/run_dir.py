@@ -108,6 +108,11 @@ def create_run_dir(config: Config, claim: Callable[[Path], None] | None = None) 
     if (inside := in_checkpoints(root / "run")) is not None:
         raise RunDirError(f"logging.run_root={config.logging.run_root} is {inside}: choose a folder for runs outside "
                           "every run (e.g. logging.run_root=runs).")
+    if (run := _run_holding(root)) is not None:
+        where = "the run" if run.resolve() == root.resolve() else "inside the run"
+        raise RunDirError(f"logging.run_root={config.logging.run_root} is {where} {run}, and a run made there "
+                          f"would be copied, moved and deleted with it: choose a folder for runs outside every run "
+                          f"(e.g. logging.run_root={run.parent}). To continue {run}: `angora-jax resume {run}`.")
     root.mkdir(parents=True, exist_ok=True)
     if config.logging.run_name is not None:
         path = root / config.logging.run_name
@@ -290,6 +295,20 @@ def _run_of_checkpoints(path: str | Path) -> Path | None:
     folder = next((parent for parent in Path(path).resolve().parents
                    if parent.name == CHECKPOINTS and (parent.parent / CONFIG_FILE).is_file()), None)
     return None if folder is None else _as_given(path, folder.parent)
+
+
+def _run_holding(path: Path) -> Path | None:
+    """The run directory that `path` is or is inside (as `path` names it), or None. A run is a folder with a
+    config.yaml and one of the files or folders training writes beside it: a folder holding only a user's own
+    config.yaml is no run."""
+    traces = (HYPERPARAMETERS_FILE, CHECKPOINTS, SESSIONS_FILE, METRICS_FILE)
+    resolved = path.resolve()
+    run = next((folder for folder in (resolved, *resolved.parents) if (folder / CONFIG_FILE).is_file()
+                and any((folder / trace).exists() for trace in traces)), None)
+    if run is None:
+        return None
+    given = path if run == resolved else _as_given(path, run)
+    return run if given == Path() else given  # the working folder, named
 
 
 def in_checkpoints(path: str | Path) -> str | None:
