@@ -316,16 +316,19 @@ def in_checkpoints(path: str | Path) -> str | None:
     is deleted with the checkpoint it sits in when a later one replaces it, or sits where the run's checkpoints are
     listed), said as "inside RUN/checkpoints, the checkpoint folder of the run RUN, ..." with RUN as `path` names it."""
     run = _run_of_checkpoints(path)
-    return None if run is None else (f"inside {run / CHECKPOINTS}, the checkpoint folder of the run {run}, which only "
-                                     "training writes (a file there is deleted with the checkpoint it sits in, or "
-                                     "taken for one)")
+    return None if run is None else _inside_checkpoints_of(run)
+
+
+def _inside_checkpoints_of(run: Path) -> str:
+    return (f"inside {run / CHECKPOINTS}, the checkpoint folder of the run {run}, which only training writes (a file "
+            "there is deleted with the checkpoint it sits in, or taken for one)")
 
 
 def unwritable_out(out: str | Path) -> str | None:
     """Why a command may write no file at `out` (an evaluation, an export, a recording, an analysis, a video, an
     encoder, a report), or None: `unwritable_folder`'s reasons, or it is `in_checkpoints`."""
-    if (inside := in_checkpoints(out)) is not None:
-        return f"that is {inside}: write outside it, e.g. in {_run_of_checkpoints(out) / EVALUATIONS}"
+    if (run := _run_of_checkpoints(out)) is not None:
+        return f"that is {_inside_checkpoints_of(run)}: write outside it, e.g. in {run / EVALUATIONS}"
     return unwritable_folder(out)
 
 
