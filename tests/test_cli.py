@@ -253,6 +253,25 @@ def test_a_run_root_that_is_a_run_or_inside_one_is_refused_and_a_folder_with_onl
     assert (project / "runs" / "mine" / "config.yaml").is_file()
 
 
+def test_an_evaluation_written_into_another_run_is_refused_before_any_episode(capsys, tmp_path, monkeypatch):
+    """`evaluate runs/a --out runs/b/evaluation` wrote a's evaluation among b's, where it reads as b's (and a resume of
+    b from an earlier cycle sets it aside as one of b's later cycles). Refused now, exit 2, naming both runs; a folder
+    of its own run, or outside every run, is written as before."""
+    from angora_jax.experiment.evaluation import check_save_folder
+
+    monkeypatch.chdir(tmp_path)
+    for name in ("a", "b"):
+        (tmp_path / "runs" / name / "checkpoints" / "latest" / "3").mkdir(parents=True)
+        (tmp_path / "runs" / name / "config.yaml").write_text("env: {task: CartPole}\n")
+    assert main(["evaluate", "runs/a", "--episodes", "2", "--out", "runs/b/evaluation"]) == 2
+    err = capsys.readouterr().err
+    assert "save (--out) runs/b/evaluation is inside the run runs/b, not runs/a: an evaluation of runs/a there would " \
+           "be read as runs/b's. Give runs/a/evaluation (the default) or a folder outside every run." in err, err
+    assert "Traceback" not in err and not (tmp_path / "runs" / "b" / "evaluation").exists()
+    for own in ("runs/a/evaluation", "runs/a/mine", "elsewhere", str(tmp_path / "runs" / "a" / "x")):
+        check_save_folder(own, "runs/a")
+
+
 def write_recording(path: Path) -> Path:
     """A small recording's layout (the episode and time dimensions, the alive mask, one layer) as NetCDF."""
     import xarray as xr

@@ -28,7 +28,7 @@ from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.experiment.agent import Agent, load_agent, read_checkpoint
 from angora_jax.experiment.config import ConfigError, check_count, check_flag, check_seed, override_strings, to_dict
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
-from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths, unwritable_out
+from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths, run_holding, unwritable_out
 from angora_jax.ppo.evaluate import make_evaluate
 from angora_jax.whole_files import written_whole
 from angora_jax.wording import counted
@@ -133,7 +133,7 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     stochastic = check_flag("stochastic", stochastic)
     if path not in PATHS:
         raise ValueError(f"Unknown evaluation path {path!r}; choose one of {PATHS}.")
-    check_save_folder(save)
+    check_save_folder(save, run_dir)
     env_overrides = override_strings(env_overrides, "env_overrides")
     agent = load_agent(run_dir, checkpoint, env_overrides)
     checkpoint = read_checkpoint(run_dir, checkpoint)  # named as read: a run without a best evaluates its latest
@@ -164,9 +164,11 @@ def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int 
     return _evaluation(per_episode, meta, run_dir, save)
 
 
-def check_save_folder(save: bool | str | Path) -> None:
-    """ConfigError, before any episode runs, when `save` names a folder that no evaluation can be written into: a
-    file is there (never overwritten), a file is on its way, or it cannot be written; True and False pass."""
+def check_save_folder(save: bool | str | Path, run_dir: str | Path) -> None:
+    """ConfigError, before any episode runs, when `save` names a folder that no evaluation of `run_dir` can be
+    written into: a file is there (never overwritten), a file is on its way, it cannot be written, or it is inside
+    another run (read there as that run's, and set aside with its later cycles by its resume); True and False
+    pass."""
     if isinstance(save, bool):
         return
     if not isinstance(save, str | os.PathLike):
@@ -179,6 +181,10 @@ def check_save_folder(save: bool | str | Path) -> None:
                           f"{folder.parent / EVALUATIONS}).")
     if (why := unwritable_out(folder / "evaluation.json")) is not None:
         raise ConfigError(f"save (--out) {folder}: {why}; give a folder you can write to.")
+    if (other := run_holding(folder)) is not None and other.resolve() != Path(run_dir).resolve():
+        raise ConfigError(f"save (--out) {folder} is inside the run {other}, not {run_dir}: an evaluation of "
+                          f"{run_dir} there would be read as {other}'s. Give {Path(run_dir) / EVALUATIONS} (the "
+                          "default) or a folder outside every run.")
 
 
 def _evaluation(per_episode: dict[str, np.ndarray], meta: dict[str, Any], run_dir: str | Path,

@@ -108,7 +108,7 @@ def create_run_dir(config: Config, claim: Callable[[Path], None] | None = None) 
     if (inside := in_checkpoints(root / "run")) is not None:
         raise RunDirError(f"logging.run_root={config.logging.run_root} is {inside}: choose a folder for runs outside "
                           "every run (e.g. logging.run_root=runs).")
-    if (run := _run_holding(root)) is not None:
+    if (run := run_holding(root)) is not None:
         where = "the run" if run.resolve() == root.resolve() else "inside the run"
         raise RunDirError(f"logging.run_root={config.logging.run_root} is {where} {run}, and a run made there "
                           f"would be copied, moved and deleted with it: choose a folder for runs outside every run "
@@ -297,11 +297,12 @@ def _run_of_checkpoints(path: str | Path) -> Path | None:
     return None if folder is None else _as_given(path, folder.parent)
 
 
-def _run_holding(path: Path) -> Path | None:
+def run_holding(path: str | Path) -> Path | None:
     """The run directory that `path` is or is inside (as `path` names it), or None. A run is a folder with a
     config.yaml and one of the files or folders training writes beside it: a folder holding only a user's own
     config.yaml is no run."""
     traces = (HYPERPARAMETERS_FILE, CHECKPOINTS, SESSIONS_FILE, METRICS_FILE)
+    path = Path(path)
     resolved = path.resolve()
     run = next((folder for folder in (resolved, *resolved.parents) if (folder / CONFIG_FILE).is_file()
                 and any((folder / trace).exists() for trace in traces)), None)
