@@ -489,7 +489,7 @@ def test_another_process_failing_to_save_stops_this_one_after_its_own_save(tmp_p
     """A save that fails on one process of several must stop all: the others would wait in the next cycle."""
     calls = []
 
-    def agree(signum, failed, out_of_time=False):  # two agreements per cycle; the second is about the save
+    def agree(signum, failed, out_of_time=False, in_on_cycle=False):  # two per cycle; the second is the save's
         calls.append(failed)
         save_failed_elsewhere = len(calls) == 4  # cycle 2's save
         return StopDecision(signum, (1,) if save_failed_elsewhere else (), out_of_time)

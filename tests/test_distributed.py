@@ -87,7 +87,8 @@ def test_two_processes_with_jax_distributed_stop_together_train_in_sync_and_resu
 def test_a_failure_in_another_process_stops_this_one_after_the_same_cycle(tmp_path, monkeypatch):
     # What agree_to_stop reports when process 1 of two failed after this cycle (the real all-gather is exercised by
     # the two-process test above): this process stops too, naming it, and saves no checkpoint of that cycle.
-    monkeypatch.setattr(runner, "agree_to_stop", lambda signum, failed, out_of_time: StopDecision(signum, (1,)))
+    monkeypatch.setattr(runner, "agree_to_stop", lambda signum, failed, out_of_time, in_on_cycle: StopDecision(
+        signum, (1,)))
     overrides = [*TINY_PPO, "logging.progress=none", "logging.report=false", f"logging.run_root={tmp_path}"]
     with pytest.raises(ProcessFailed, match=r"Process\(es\) 1 of this run failed after cycle 1 .*angora-jax resume"):
         aj.train("cartpole", [*overrides, "logging.run_name=peer"])
@@ -95,6 +96,41 @@ def test_a_failure_in_another_process_stops_this_one_after_the_same_cycle(tmp_pa
     checkpoints = Checkpoints(tmp_path / "peer" / CHECKPOINTS, aj.load_config("cartpole").checkpoint, create=False)
     assert checkpoints.steps("latest") == []
     checkpoints.close()
+
+
+def test_an_on_cycle_failing_in_another_process_saves_the_cycle_in_every_process(tmp_path, monkeypatch):
+    """The user's on_cycle failed on one process of several: the cycle's state was whole, yet no process saved it,
+    so up to checkpoint.every cycles were lost (one process alone kept it). Now every process saves that cycle
+    together, then stops, and the message says the checkpoint is there."""
+    calls = []
+
+    def agree(signum, failed, out_of_time=False, in_on_cycle=False):  # after the cycle, then after the save
+        calls.append(failed)
+        return StopDecision(signum, (1,), in_on_cycle=True) if len(calls) == 1 else StopDecision(signum, ())
+
+    monkeypatch.setattr(runner, "agree_to_stop", agree)
+    overrides = [*TINY_PPO, "logging.progress=none", "logging.report=false", f"logging.run_root={tmp_path}",
+                 "checkpoint.every=50"]
+    with pytest.raises(ProcessFailed, match=r"Process\(es\) 1 of this run failed after cycle 1 in on_cycle .*with "
+                                            r"the checkpoint of that cycle saved by all.*angora-jax resume"):
+        aj.train("cartpole", [*overrides, "logging.run_name=peer"])
+    checkpoints = Checkpoints(tmp_path / "peer" / CHECKPOINTS, aj.load_config("cartpole").checkpoint, create=False)
+    assert checkpoints.steps("latest") == [1] and calls == [False, False]
+    checkpoints.close()
+
+
+@pytest.mark.parametrize("flags, failed, in_on_cycle", [
+    ([[0, 0, 0], [0, 2, 0]], (1,), True),  # the other process's on_cycle failed
+    ([[0, 2, 0], [0, 2, 0]], (0, 1), True),  # both processes' on_cycle
+    ([[0, 2, 0], [0, 1, 0]], (0, 1), False),  # one failed elsewhere (a disk filled): a save could wait forever
+    ([[0, 0, 0], [0, 0, 1]], (), False),
+])
+def test_processes_agree_that_every_failure_was_in_on_cycle_only_when_each_was(monkeypatch, flags, failed,
+                                                                              in_on_cycle):
+    monkeypatch.setattr(jax, "process_count", lambda: 2)
+    monkeypatch.setattr(distributed.multihost_utils, "process_allgather", lambda _: np.array(flags, np.int32))
+    decision = distributed.agree_to_stop(None, False)
+    assert (decision.failed, decision.in_on_cycle) == (failed, in_on_cycle)
 
 
 # Weak scaling in one process and strong scaling with one process per device cover both sizings and both launches.

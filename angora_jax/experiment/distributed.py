@@ -205,36 +205,44 @@ def agree_on_settings(settings: dict[str, Any], fix: str) -> None:
 @dataclass(frozen=True)
 class StopDecision:
     """What all processes do after a cycle: stop for `signum` (a signal some process received, else None), whether
-    processes `failed` (their indices) with an error of their own, and whether some process ran `out_of_time` (its
-    wall-clock limit for this session, `angora-jax train --minutes`)."""
+    processes `failed` (their indices) with an error of their own, whether some process ran `out_of_time` (its
+    wall-clock limit for this session, `angora-jax train --minutes`), and whether every failure was in `on_cycle`
+    (the user's code, after the cycle's state was whole: all processes can save it together)."""
 
     signum: int | None
     failed: tuple[int, ...]
     out_of_time: bool = False
+    in_on_cycle: bool = False
 
 
-def agree_to_stop(signum: int | None, failed: bool, out_of_time: bool = False) -> StopDecision:
+def agree_to_stop(signum: int | None, failed: bool, out_of_time: bool = False,
+                  in_on_cycle: bool = False) -> StopDecision:
     """The stop decision of all processes from this process's reasons: a signal it received (or None), whether it
-    failed and whether its time limit has passed. Any process's signal stops all (the highest signal number wins if
-    several differ); any failure is reported to all; one process out of time stops all (their clocks differ).
-    Every process must call it once per cycle, at the same point. On a single process it returns the reasons as they
-    are, without communication; with several it is one tiny all-gather of three int32 each."""
+    failed (`in_on_cycle`: in the user's `on_cycle`) and whether its time limit has passed. Any process's signal
+    stops all (the highest signal number wins if several differ); any failure is reported to all; one process out of
+    time stops all (their clocks differ). Every process must call it once per cycle, at the same point. On a single
+    process it returns the reasons as they are, without communication; with several it is one tiny all-gather of
+    three int32 each."""
+    failure = (2 if in_on_cycle else 1) if failed else 0
     if jax.process_count() == 1:
-        return StopDecision(signum, (jax.process_index(),) if failed else (), out_of_time)
-    flags = multihost_utils.process_allgather(np.array([signum or 0, int(failed), int(out_of_time)], np.int32))
-    return StopDecision(int(flags[:, 0].max()) or None, tuple(int(i) for i in np.flatnonzero(flags[:, 1])),
-                        bool(flags[:, 2].max()))
+        return StopDecision(signum, (jax.process_index(),) if failed else (), out_of_time, failure == 2)
+    flags = multihost_utils.process_allgather(np.array([signum or 0, failure, int(out_of_time)], np.int32))
+    failed_ones = np.flatnonzero(flags[:, 1])
+    return StopDecision(int(flags[:, 0].max()) or None, tuple(int(i) for i in failed_ones), bool(flags[:, 2].max()),
+                        failed_ones.size > 0 and bool((flags[failed_ones, 1] == 2).all()))
 
 
 class ProcessFailed(RuntimeError):
     """Another process of a multi-process run stopped with an error; this one stops after the same cycle."""
 
-    def __init__(self, processes: tuple[int, ...], cycle: int, run_dir: Path):
+    def __init__(self, processes: tuple[int, ...], cycle: int, run_dir: Path, saved: bool = False):
         self.processes, self.cycle = processes, cycle
+        kept = ("in on_cycle (their output has the error), so this process stops too, with the checkpoint of that "
+                "cycle saved by all" if saved else
+                "(their output has the error), so this process stops too, without a checkpoint of that cycle")
         super().__init__(
-            f"Process(es) {', '.join(map(str, processes))} of this run failed after cycle {cycle} (their output has "
-            "the error), so this process stops too, without a checkpoint of that cycle; after fixing the cause, "
-            f"continue with: angora-jax resume {run_dir} --distributed"
+            f"Process(es) {', '.join(map(str, processes))} of this run failed after cycle {cycle} {kept}; after "
+            f"fixing the cause, continue with: angora-jax resume {run_dir} --distributed"
         )
 
 

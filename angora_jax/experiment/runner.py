@@ -143,7 +143,8 @@ def train(
     """Train a new run: validate the config, create its run directory, then run all cycles.
 
     In a multi-process run (`angora_jax.experiment.distributed`) all processes stop after the same cycle: a signal to
-    any one interrupts all, and an error in one (e.g. in `on_cycle`) raises ProcessFailed in the others.
+    any one interrupts all, and an error in one raises ProcessFailed in the others. An error in `on_cycle` (on one
+    process or several) comes after the cycle's state is whole, so every process saves that cycle before stopping.
 
     Args:
         config: a Config, or anything `load_config` reads (YAML path, configs/ name, dict, None for defaults).
@@ -551,13 +552,18 @@ def _run(
                     failure = error
                 # Read the request once: a signal arriving during the save is acted on after the next cycle.
                 out_of_time = deadline is not None and time.monotonic() > deadline
-                decision = agree_to_stop(stop.signum, failure is not None, out_of_time)
-                if failure is not None:
-                    if in_on_cycle and jax.process_count() == 1:
-                        _keep_cycle_on_cycle_failed(failure, checkpoints, state, record, resolved, run_dir)
-                    raise failure
+                decision = agree_to_stop(stop.signum, failure is not None, out_of_time,
+                                         failure is not None and in_on_cycle)
                 if decision.failed:
-                    raise ProcessFailed(decision.failed, int(metrics["cycle"]), run_dir)
+                    if decision.in_on_cycle:  # the user's code failed after the cycle: every process saves it
+                        _save_together(checkpoints, state, record, resolved, True, run_dir)
+                    if failure is not None:
+                        if decision.in_on_cycle:
+                            failure.add_note(f"angora_jax: the run stopped after cycle {record['cycle']}, whose "
+                                             f"checkpoint is saved; fix on_cycle, then continue with "
+                                             f"aj.resume({str(run_dir)!r}, on_cycle=...).")
+                        raise failure
+                    raise ProcessFailed(decision.failed, int(metrics["cycle"]), run_dir, decision.in_on_cycle)
                 # The compiled cycle reduces its metrics over every device, so all processes decide this alike.
                 if stop_at is not None:
                     value, stop_pool = stop_at.compared(stop_pool, metrics)
@@ -669,17 +675,6 @@ def _save_together(checkpoints: Checkpoints, state: TrainState, record: dict[str
         raise ProcessFailed(saved.failed, int(record["cycle"]), run_dir)
     if error is not None:
         raise error
-
-
-def _keep_cycle_on_cycle_failed(failure: Exception, checkpoints: Checkpoints, state: TrainState,
-                                record: dict[str, Any], config: dict[str, Any], run_dir: Path) -> None:
-    """Save the cycle that `on_cycle` (the user's code: a live plot in a notebook) failed on, logged already, and say
-    so on `failure`: it ended the run with the cycles since the last checkpoint unsaved, and before the first one with
-    a run that resume refuses until told to start over. One process only: with several, the others learn only that
-    one failed, and save nothing more."""
-    _save_together(checkpoints, state, record, config, True, run_dir)
-    failure.add_note(f"angora_jax: the run stopped after cycle {record['cycle']}, whose checkpoint is saved; fix "
-                     f"on_cycle, then continue with aj.resume({str(run_dir)!r}, on_cycle=...).")
 
 
 def _warn_if_disk_is_small(run_dir: Path, config: Config, state: TrainState, cycles_left: int) -> None:
