@@ -183,6 +183,29 @@ def test_act_names_an_observation_or_carry_that_does_not_fit(lstm_run):
         agent.act(agent.initial_carry(2), obs)
 
 
+def test_act_samples_from_one_key_or_a_seed_and_names_what_to_pass_for_anything_else(lstm_run):
+    """An int key was taken by distrax as jax.random.PRNGKey's seed, and so were True and -1, without a word; text, a
+    float, a batch of keys, or an int traced under jax.jit failed deep inside JAX ("invalid PRNG key data",
+    "categorical accepts a single key ... Use jax.vmap")."""
+    agent = aj.load_agent(lstm_run)
+    obs = jax.vmap(agent.env.reset)(jax.random.split(jax.random.key(0), 8)).obs
+    carry = agent.initial_carry(8)
+    sampled = agent.act(carry, obs, jax.random.key(3))[1]
+    for same in (3, np.uint32(3), jax.random.PRNGKey(3)):
+        np.testing.assert_array_equal(agent.act(carry, obs, same)[1], sampled)
+    fix = r"^key must be one JAX key for the whole batch, e.g. jax.random.key\(0\) \(under jax.jit too\), or a seed"
+    for key, given in (("0", "'0'"), (1.5, "1.5"), (jax.random.split(jax.random.key(0), 8), r"an array of key<fry> "
+                                                                                          r"of shape \(8,\)")):
+        with pytest.raises(TypeError, match=rf"{fix}, a whole number from 0 to 4,294,967,295; got {given}\.$"):
+            agent.act(carry, obs, key)
+    with pytest.raises(TypeError, match=rf"{fix}.*got an array of int32 of shape \(\)\."):
+        jax.jit(agent.act)(carry, obs, 0)
+    for seed in (True, -1):
+        with pytest.raises(ValueError, match=rf"^key given as a seed must be a whole number from 0 to 4,294,967,295, "
+                                             rf"got {seed}\.$"):
+            agent.act(carry, obs, seed)
+
+
 @pytest.mark.parametrize("size", [0, -1, 2.5, "4", True])
 def test_a_carry_for_no_whole_number_of_environments_is_refused_by_name(lstm_run, tmp_path, size):
     """`agent.initial_carry(-1)` and `(2.5)` failed inside JAX ("broadcast_in_dim shape must have every element be

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import importlib.util
 import json
+import numbers
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -18,6 +19,7 @@ import jax.numpy as jnp
 from angora_jax.envs.core import Env, Sensation
 from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, checkpoint_name
 from angora_jax.experiment.config import (
+    SEED_MAX,
     Config,
     ConfigError,
     DistributionConfig,
@@ -127,13 +129,16 @@ class Agent:
             raise ValueError(f"The carry is for a batch of {counted(sorted(carried)[0], 'environment')} and obs for "
                              f"{batch}: start it with agent.initial_carry({batch}).")
 
-    def act(self, carry: Any, obs: Sensation, key: jax.Array | None = None) -> tuple[Any, jax.Array, jax.Array]:
-        """Choose actions for a batch of B environments: the head's mode, or a sample when `key` is given.
+    def act(self, carry: Any, obs: Sensation,
+            key: jax.Array | int | None = None) -> tuple[Any, jax.Array, jax.Array]:
+        """Choose actions for a batch of B environments: the head's mode, or a sample when `key` is given: one JAX
+        key for the whole batch (`jax.random.key(0)`) or a seed (an int, as `evaluate` takes one).
 
         carry: `initial_carry(B)` at episodes' starts, then what the previous call returned; obs: a Sensation of raw
         observations, leaves `(B, size)` (`jax.vmap(env.reset)(keys).obs`). Returns `(carry, env_actions, values)`:
         actions `(B, *action_shape)` ready for `jax.vmap(env.step)` (`(B,)` integers for discrete actions), values
         `(B,)` in the task's reward units (discounted return)."""
+        key = None if key is None else sampling_key(key)
         carry, policy_params, value = self.apply(carry, obs)
         action = self.head.mode(policy_params) if key is None else self.head.sample(policy_params, key)
         return carry, self.head.env_action(action), value
@@ -147,6 +152,23 @@ class Agent:
         evaluate = self.compiled_once(("evaluate", num_envs, deterministic), lambda: make_evaluate(
             self.env, self.network, self.config.ppo, num_envs, deterministic))
         return {k: float(v) for k, v in evaluate(self.state, jax.random.key(seed)).items()}
+
+
+def sampling_key(key: object) -> jax.Array:
+    """`Agent.act`'s `key` as one JAX key: a key (typed, or the raw uint32 words of `jax.random.PRNGKey`) as it is, an
+    int as the seed of `jax.random.key`, checked as `evaluate`'s seed is (True or -1 were taken as seeds without a
+    word). Anything else is a TypeError naming what to pass: text, a float, a batch of keys or an int traced under
+    jit failed deep inside JAX ("invalid PRNG key data", "categorical accepts a single key")."""
+    if isinstance(key, numbers.Integral):  # numpy integers too
+        return jax.random.key(check_seed("key given as a seed", key))
+    dtype, shape = getattr(key, "dtype", None), getattr(key, "shape", None)
+    if dtype is not None and jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key) and shape == ():
+        return key
+    if dtype == jnp.uint32 and shape is not None and len(shape) == 1:
+        return key
+    given = repr(key) if dtype is None else f"an array of {dtype} of shape {tuple(shape)}"
+    raise TypeError(f"key must be one JAX key for the whole batch, e.g. jax.random.key(0) (under jax.jit too), or a "
+                    f"seed, a whole number from 0 to {SEED_MAX:,}; got {given}.")
 
 
 def check_agent(agent: object) -> None:
