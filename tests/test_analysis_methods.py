@@ -1093,6 +1093,37 @@ def test_a_recording_that_lost_its_alive_steps_or_inputs_is_refused_naming_what_
         replay_activity(agent, recording.drop_vars("input_proprioception"))
 
 
+@pytest.mark.parametrize("emptied", ["no episode", "no step", "alive 0"])
+def test_a_recording_with_no_step_that_ran_is_refused_naming_how_to_record_one(emptied, tmp_path, capsys):
+    """A selection of episodes that kept none (or none alive) replayed as "batch_size must be a whole number of at
+    least 1, got 0", or, all dead, returned activity that every analysis leaves out; PCA failed in scikit-learn
+    ("Found array with 0 sample(s)") and tuning in NumPy (IndexError), a traceback from `angora-jax analyze`."""
+    from angora_jax import cli
+    from angora_jax.analysis import replay_activity
+
+    agent = graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)},
+                         "PMC": {"size": 4, "inputs": ("S1",), "cell": "rnn"}})
+    recording = graph_recording({"network.S1": 3, "network.PMC.0": 4, "network.PMC.1": 4})
+    recording = {"no episode": recording.isel(episode=[]), "no step": recording.isel(time=[]),
+                 "alive 0": recording.assign(alive=0 * recording["alive"])}[emptied]
+    held = {"no episode": "holds no episode", "no step": "holds no step",
+            "alive 0": "holds 3 episodes of 6 steps, with alive 0 at every step"}[emptied]
+    fix = (rf"{held}: analyses and replays read only the steps that ran \(alive 1\)\. Record one with episodes "
+           r"\(angora-jax record RUN_DIR --episodes N; in Python record_activity\(run_dir, episodes=N\)\)")
+    for analysis in (lambda data: replay_activity(agent, data), principal_components,
+                     lambda data: tuning_curves(data, "network.S1", "input_proprioception", feature=0)):
+        with pytest.raises(ValueError, match=rf"^This recording {fix}"):
+            analysis(recording)
+    if emptied == "no step":  # NetCDF 3 reads a dimension of length 0 back as none: the file is refused as unreadable
+        return
+    path = tmp_path / "empty.nc"
+    recording.to_netcdf(path, engine="scipy")  # as a notebook may save a selection: save_activity refuses it too
+    assert cli.main(["analyze", "tuning", str(path), "--layer", "network.S1", "--variable", "input_proprioception",
+                     "--feature", "0"]) == 2
+    err = capsys.readouterr().err
+    assert re.search(rf"^angora-jax analyze tuning: {re.escape(str(path))} {fix}", err) and "Traceback" not in err, err
+
+
 def test_no_component_and_a_negative_lag_are_refused_by_name():
     """principal_components(components=0) returned an empty result, and cross_correlation(max_lag=-1) failed in numpy:
     "attempt to get argmax of an empty sequence"; timescales(max_lag=0) gave every unit no timescale."""

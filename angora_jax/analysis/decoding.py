@@ -292,6 +292,8 @@ def check_recording(dataset: object) -> None:
             raise ValueError("This recording has no alive (which steps of each episode ran), which every analysis "
                              "reads: give the recording as record_activity returns it, or keep alive when selecting "
                              "its variables.")
+        if (why := nothing_ran(dataset)) is not None:
+            raise ValueError(f"This recording {why}")
         return
     if isinstance(dataset, str | Path):
         fix = (f"record one first: record_activity({str(dataset)!r})" if Path(dataset).is_dir() else
@@ -303,6 +305,21 @@ def check_recording(dataset: object) -> None:
         fix = "record one first: record_activity(agent)" if hasattr(dataset, "initial_carry") else "give one"
     raise TypeError(f"Analyses read a recording (the xarray Dataset that record_activity returns, or a file of "
                     f"save_activity read with xarray.load_dataset), not {given}: {fix}.")
+
+
+def nothing_ran(dataset: xr.Dataset) -> str | None:
+    """Why the recording `dataset` has no step that ran (the end of a sentence about it, with the fix), or None:
+    no episode or step (a selection of episodes that kept none), or `alive` 0 everywhere. Replaying one failed with
+    "batch_size must be a whole number of at least 1", or returned activity that every analysis leaves out; PCA,
+    tuning and similarity failed in scikit-learn or NumPy ("Found array with 0 sample(s)", IndexError)."""
+    if np.asarray(dataset["alive"].values).any():
+        return None
+    episodes, steps = dataset.sizes.get("episode", 0), dataset.sizes.get("time", 0)
+    held = (f"holds {counted(episodes, 'episode')} of {counted(steps, 'step')}, with alive 0 at every step"
+            if episodes and steps else f"holds no {'episode' if not episodes else 'step'}")
+    return (f"{held}: analyses and replays read only the steps that ran (alive 1). Record one with episodes "
+            "(angora-jax record RUN_DIR --episodes N; in Python record_activity(run_dir, episodes=N)), or select "
+            "episodes of one that keep some of their steps.")
 
 
 def plot_path(plot: str, result: object, needs: str, analysis: str, path: str | Path) -> None:

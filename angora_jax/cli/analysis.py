@@ -327,6 +327,8 @@ def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None 
     analysis>.png`, or the next free `-2`, `-3` ... name), print the summary; usage errors exit 2."""
     import xarray as xr
 
+    from angora_jax.analysis.decoding import nothing_ran
+
     recording = Path(args.recording)
     if (recording / CONFIG_FILE).is_file():
         raise FileNotFoundError(f"{recording} is a run directory, not a recording: record its activity first, "
@@ -352,6 +354,9 @@ def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None 
         print(f"angora-jax analyze {args.analysis}: {recording} is NetCDF but not a recording (it lacks the episode "
               "and time dimensions or the alive mask of angora-jax record; an analysis's numbers, perhaps). Make "
               "one with angora-jax record RUN_DIR --out FILE.nc.", file=sys.stderr)
+        return EXIT_USAGE
+    if (why := nothing_ran(data)) is not None:  # named by its file here, not as "This recording"
+        print(f"angora-jax analyze {args.analysis}: {recording} {why}", file=sys.stderr)
         return EXIT_USAGE
     try:
         result = compute(data)
