@@ -29,11 +29,21 @@ def source_run(tmp_path_factory) -> Path:
         return aj.train("cartpole", [*TINY, f"logging.run_root={root}", "logging.run_name=source"]).run_dir
 
 
-def refused(capsys, tmp_path: Path, *overrides: str) -> str:
-    """stderr of `angora-jax train cartpole` with `overrides`, which must exit 2 without a traceback and leave no run
+@pytest.fixture(scope="module")
+def mountain_car_run(tmp_path_factory, source_run) -> Path:
+    """A MountainCar run with discrete actions (the task's default), trained after `source_run` has compiled what the
+    two share."""
+    root = tmp_path_factory.mktemp("mountain_car")
+    with quick_compilation():
+        return aj.train("classic", [*TINY, "env.task=MountainCar", f"logging.run_root={root}",
+                                    "logging.run_name=discrete"]).run_dir
+
+
+def refused(capsys, tmp_path: Path, *overrides: str, config: str = "cartpole") -> str:
+    """stderr of `angora-jax train CONFIG` with `overrides`, which must exit 2 without a traceback and leave no run
     directory."""
     runs = tmp_path / "runs"
-    code = main(["train", "cartpole", *TINY, f"logging.run_root={runs}", "logging.run_name=new", *overrides])
+    code = main(["train", config, *TINY, f"logging.run_root={runs}", "logging.run_name=new", *overrides])
     err = capsys.readouterr().err
     assert code == 2, err
     assert "Traceback" not in err
@@ -97,6 +107,18 @@ def test_a_run_of_another_width_is_refused_naming_the_setting_that_differs(sourc
     assert "ppo.init_from" in err and str(source_run) in err and "do not fit" in err
     assert "(4, 8) here, (4, 64) in the source" in err
     assert "ppo.network.width=64" in err, "the saved run's setting that makes the difference"
+
+
+def test_a_run_of_other_task_options_is_refused_naming_only_the_options_that_change_its_shapes(mountain_car_run,
+                                                                                                capsys, tmp_path):
+    """Of the task options set otherwise, only those that change the observations or actions are named, and one the
+    saved run left to its default says so: a randomized cube run started from an unrandomized one listed every
+    randomization key, each as None in the saved run, and the episode length beside the option that made the misfit."""
+    err = refused(capsys, tmp_path, "env.task=MountainCar", "env.options={continuous: true, max_episode_steps: 50}",
+                  f"ppo.init_from={mountain_car_run}", config="classic")
+    assert "do not fit" in err and "(64, 1) here" in err, err
+    assert "The saved run has env.options.continuous not set (this run: env.options.continuous=True)." in err, err
+    assert "max_episode_steps" not in err, "an episode length changes no shape"
 
 
 def test_a_run_of_another_task_is_refused_naming_the_task_not_a_width(source_run, capsys, tmp_path):
