@@ -554,7 +554,7 @@ def _run(
                 out_of_time = deadline is not None and time.monotonic() > deadline
                 decision = agree_to_stop(stop.signum, failure is not None, out_of_time,
                                          failure is not None and in_on_cycle)
-                if decision.failed:
+                if failure is not None or decision.failed:
                     if decision.in_on_cycle:  # the user's code failed after the cycle: every process saves it
                         _save_together(checkpoints, state, record, resolved, True, run_dir)
                     if failure is not None:
