@@ -195,7 +195,9 @@ def test_act_samples_from_one_key_or_a_seed_and_names_what_to_pass_for_anything_
         np.testing.assert_array_equal(agent.act(carry, obs, same)[1], sampled)
     fix = r"^key must be one JAX key for the whole batch, e.g. jax.random.key\(0\) \(under jax.jit too\), or a seed"
     for key, given in (("0", "'0'"), (1.5, "1.5"), (jax.random.split(jax.random.key(0), 8), r"an array of key<fry> "
-                                                                                          r"of shape \(8,\)")):
+                                                                                          r"of shape \(8,\)"),
+                       (jax.random.key_data(jax.random.split(jax.random.key(0), 3)).ravel(),
+                        r"an array of uint32 of shape \(6,\)")):
         with pytest.raises(TypeError, match=rf"{fix}, a whole number from 0 to 4,294,967,295; got {given}\.$"):
             agent.act(carry, obs, key)
     with pytest.raises(TypeError, match=rf"{fix}.*got an array of int32 of shape \(\)\."):

@@ -164,7 +164,7 @@ def sampling_key(key: object) -> jax.Array:
     dtype, shape = getattr(key, "dtype", None), getattr(key, "shape", None)
     if dtype is not None and jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key) and shape == ():
         return key
-    if dtype == jnp.uint32 and shape is not None and len(shape) == 1:
+    if dtype == jnp.uint32 and shape == jax.random.key_data(jax.random.key(0)).shape:  # the default kind's words
         return key
     given = repr(key) if dtype is None else f"an array of {dtype} of shape {tuple(shape)}"
     raise TypeError(f"key must be one JAX key for the whole batch, e.g. jax.random.key(0) (under jax.jit too), or a "
