@@ -799,9 +799,10 @@ def _is_section(key: str) -> bool:
 
     kind: Any = Config
     for part in key.split("."):
-        if section(kind) is None or part not in typing.get_type_hints(section(kind)):
+        fields = typing.get_type_hints(cls) if (cls := section(kind)) is not None else {}
+        if part not in fields:
             return False
-        kind = typing.get_type_hints(section(kind))[part]
+        kind = fields[part]
     return section(kind) is not None
 
 

@@ -276,7 +276,7 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
         if plan.cycle is not None:
             _refuse_rewind_that_trains_nothing(run_dir, plan.cycle, start_from, num_cycles, config, ended,
                                                checkpoints)
-        if plan.cycle is None:  # a start from cycle 0 reads its saved starting values (ppo.init_from, pretrained)
+        else:  # a start from cycle 0 reads its saved starting values (ppo.init_from, pretrained)
             check_sources(config, env)
         state = None
         if plan.cycle is not None:
