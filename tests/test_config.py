@@ -8,6 +8,7 @@ import tracemalloc
 import typing
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 import yaml
@@ -197,6 +198,28 @@ def test_the_memory_bound_counts_every_stored_transition_of_a_cycle(rollout_leng
     assert memory.total - 4 * memory.env_state == 4 * rollout_length * 56
     if memory.available is not None:
         assert memory.max_envs == memory.available // (memory.env_state + rollout_length * 56)
+
+
+def test_the_memory_bound_and_the_observation_shapes_share_one_trace_of_reset():
+    """Tracing a MuJoCo task's reset takes seconds (the cube's: 3-4 s on a CPU core), and `validate`'s memory bound
+    and a run's set-up (the normalizer's shapes) each need its shapes: one trace per environment object serves both."""
+    from angora_jax.envs.classic.cartpole import CartPole
+    from angora_jax.ppo.memory import estimate_memory
+
+    traced = []
+
+    class Counted(CartPole):
+        def _reset(self, key):
+            traced.append(key)
+            return super()._reset(key)
+
+    env = Counted()
+    memory = estimate_memory(PPOConfig(num_envs=8, rollout_length=16, chunk_length=8, minibatch_size=32), env)
+    assert env.observation_shapes() == jax.eval_shape(CartPole().reset, jax.random.key(0)).obs
+    assert env.state_shapes().obs == env.observation_shapes() and len(traced) == 1, "traced again"
+    assert memory.env_state == sum(leaf.size * leaf.dtype.itemsize for leaf in jax.tree.leaves(env.state_shapes()))
+    Counted().observation_shapes()
+    assert len(traced) == 2, "another environment object has its own shapes"
 
 
 # A small valid graph on CartPole (proprioception only; goal is empty there), which each bad case below changes; the

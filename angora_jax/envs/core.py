@@ -281,9 +281,21 @@ class Env(abc.ABC):
         vector `(size,)`; none by default."""
         return {}
 
+    def state_shapes(self) -> State:
+        """Shapes and dtypes of one environment's state as `reset` returns it (leaves `jax.ShapeDtypeStruct`), without
+        simulating. Traced once per environment object: tracing a MuJoCo task's reset takes seconds, and a run's
+        checks (`validate`'s memory estimate) and set-up (the normalizer's shapes) each ask for it."""
+        cache = getattr(self, "__dict__", None)  # an Env subclass of the user's with __slots__: traced each time
+        if cache is not None and "_state_shapes" in cache:
+            return cache["_state_shapes"]
+        shapes = jax.eval_shape(self.reset, jax.random.key(0))
+        if cache is not None:
+            cache["_state_shapes"] = shapes
+        return shapes
+
     def observation_shapes(self) -> Sensation:
         """Shapes and dtypes of one observation, as a Sensation of `jax.ShapeDtypeStruct`, without simulating."""
-        return jax.eval_shape(self.reset, jax.random.key(0)).obs
+        return self.state_shapes().obs
 
 
 # The steps of an episode count in int32 (`State.steps`), so a time limit must fit one.

@@ -82,9 +82,9 @@ def estimate_memory(config: PPOConfig, env: Env, num_devices: int = 1) -> Memory
     if env.physics_info().get("impl") == "warp":
         # Warp's physics state is not counted (see above), and a batch of one traces the rest: camera vision on
         # Warp renders only in an environment sized for its batch.
-        state = jax.eval_shape(env.sized_for(1).reset, jax.random.key(0)).replace(physics=())
+        state = env.sized_for(1).state_shapes().replace(physics=())
     else:
-        state = jax.eval_shape(env.reset, jax.random.key(0))
+        state = env.state_shapes()
     obs_bytes = _nbytes(state.obs)
     action_bytes = max(1, env.action_spec.size) * 4
     transition = obs_bytes + action_bytes + 4 * (_SCALARS_PER_TRANSITION + len(env.metric_names))
