@@ -2,6 +2,7 @@
 a message that names the key and what is allowed."""
 
 import dataclasses
+import importlib.util
 import re
 import time
 import tracemalloc
@@ -220,6 +221,25 @@ def test_the_memory_bound_and_the_observation_shapes_share_one_trace_of_reset():
     assert memory.env_state == sum(leaf.size * leaf.dtype.itemsize for leaf in jax.tree.leaves(env.state_shapes()))
     Counted().observation_shapes()
     assert len(traced) == 2, "another environment object has its own shapes"
+
+
+@pytest.mark.skipif(importlib.util.find_spec("warp") is None, reason="MuJoCo Warp needs warp-lang")
+def test_on_warp_the_memory_bound_sizes_an_environment_only_for_camera_vision():
+    """On MuJoCo Warp the bound leaves the physics state out, so a task without camera vision is traced as it is;
+    sizing it for one would build it again (`validate` of the die's MyoHand on a CPU: 12.4 s so, 5.3 s not). Warp
+    renders camera vision only in an environment sized for its batch: a seeing task is traced as a batch of one."""
+    from angora_jax.envs.registry import make
+    from angora_jax.ppo.memory import estimate_memory
+
+    config = PPOConfig(num_envs=8, rollout_length=16, chunk_length=8, minibatch_size=32)
+    blind = make("ShadowHandReach", physics={"impl": "warp"})
+    memory = estimate_memory(config, blind)
+    assert not blind._sized, "sized for the estimate"
+    sized = jax.eval_shape(blind.sized_for(1).reset, jax.random.key(0)).replace(physics=())
+    assert memory.env_state == sum(leaf.size * leaf.dtype.itemsize for leaf in jax.tree.leaves(sized))
+    seeing = make("ShadowHandReach", vision={"cameras": ["front"], "width": 8, "height": 8}, physics={"impl": "warp"})
+    estimate_memory(config, seeing)
+    assert list(seeing._sized) == [1], "a seeing task traced unsized, where Warp cannot render"
 
 
 # A small valid graph on CartPole (proprioception only; goal is empty there), which each bad case below changes; the

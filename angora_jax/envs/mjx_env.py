@@ -291,6 +291,14 @@ class MjxEnv(MujocoEnv):
             self._sized[num_envs] = MjxEnv(self.task, self.frame_skip, self.max_episode_steps, warp_max_envs=num_envs)
         return self._sized[num_envs]
 
+    def state_shapes(self) -> State:
+        """As `Env.state_shapes`. Camera frames on Warp render only in an environment sized for its batch, so an
+        unsized one with cameras gives those of `sized_for(1)` (its physics sized for one); any other is traced as it
+        is, since sizing builds the environment again (seconds on a CPU: Warp's buffers put on the device anew)."""
+        if self.task.vision is not None and self._cameras is None:
+            return self.sized_for(1).state_shapes()
+        return super().state_shapes()
+
     def _reset(self, key: jax.Array) -> tuple[mjx.Data, Sensation, dict[str, jax.Array]]:
         pose_key, task_key = jax.random.split(key)
         randomizer = self.task.randomizer

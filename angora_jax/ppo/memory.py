@@ -79,12 +79,9 @@ class MemoryEstimate:
 
 def estimate_memory(config: PPOConfig, env: Env, num_devices: int = 1) -> MemoryEstimate:
     """The lower bound for training `env` with `config` on `num_devices` devices (environments split evenly)."""
+    state = env.state_shapes()
     if env.physics_info().get("impl") == "warp":
-        # Warp's physics state is not counted (see above), and a batch of one traces the rest: camera vision on
-        # Warp renders only in an environment sized for its batch.
-        state = env.sized_for(1).state_shapes().replace(physics=())
-    else:
-        state = env.state_shapes()
+        state = state.replace(physics=())  # Warp's physics state is not counted (see above)
     obs_bytes = _nbytes(state.obs)
     action_bytes = max(1, env.action_spec.size) * 4
     transition = obs_bytes + action_bytes + 4 * (_SCALARS_PER_TRANSITION + len(env.metric_names))
