@@ -8,6 +8,7 @@ read as a result.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -17,14 +18,18 @@ from pathlib import Path
 def written_whole(path: str | Path, replace: bool = True) -> Iterator[Path]:
     """Yield the temporary path to write `path`'s contents to (beside it, same extension, so writers that read the
     format from the name still can); when the block ends without an error it becomes `path`, else it is removed.
-    With `replace=False` an existing `path` is never overwritten: FileExistsError, and the new file is dropped."""
+    With `replace=False` an existing `path` is never overwritten: FileExistsError, before anything is written when it
+    exists already, and the new file dropped when another writer made it meanwhile."""
     path = Path(path)
     draft = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
+    if not replace and path.exists():  # named before writing, so a full disk is not blamed on the kept file
+        raise FileExistsError(f"{path} exists and is never overwritten.")
     try:
         yield draft
-        if not replace and path.exists():
-            raise FileExistsError(f"{path} exists and is never overwritten.")
-        os.replace(draft, path)
+        if replace:
+            os.replace(draft, path)
+        else:
+            _publish_new(draft, path)
     except OSError as error:
         # The system's message names the file asked for, not the draft: writers name the draft as a str or a Path
         # (imageio), or not at all (a full disk met when Pillow flushes). Errors of our own (errno None) keep theirs.
@@ -33,6 +38,22 @@ def written_whole(path: str | Path, replace: bool = True) -> Iterator[Path]:
         raise
     finally:
         draft.unlink(missing_ok=True)
+
+
+def _publish_new(draft: Path, path: Path) -> None:
+    """`draft` as `path`, which must not exist: a hard link, which the system refuses when `path` exists, so a second
+    writer that made it after the check above is not overwritten either. Where the file system has no hard links, a
+    check and a rename."""
+    try:
+        os.link(draft, path)
+    except FileExistsError:
+        raise FileExistsError(f"{path} exists and is never overwritten.") from None
+    except OSError as error:
+        if error.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EMLINK):
+            raise
+        if path.exists():
+            raise FileExistsError(f"{path} exists and is never overwritten.") from None
+        os.replace(draft, path)
 
 
 def unwritable_folder(out: str | Path) -> str | None:

@@ -877,6 +877,27 @@ def test_a_result_file_is_written_whole_or_not_at_all_and_never_over_a_kept_one(
     assert failed.value.filename == str(elsewhere), "the error names the file asked for, not its draft"
 
 
+def test_a_kept_file_is_refused_before_anything_is_written_and_never_lost_to_a_second_writer(tmp_path, monkeypatch):
+    """Refused before the block runs: a full disk met while writing under a name that is taken (an evaluation's
+    first numbered name) named the kept file. And published by a hard link, which the system refuses over a file that
+    another writer made after the check: a check and a rename replaced it."""
+    kept = tmp_path / "result.json"
+    kept.write_text("kept")
+    ran = []
+    with pytest.raises(FileExistsError, match="exists and is never overwritten"), \
+            written_whole(kept, replace=False) as draft:
+        ran.append(draft)
+    assert not ran and kept.read_text() == "kept"
+    late = tmp_path / "late.json"
+    with pytest.raises(FileExistsError, match="exists and is never overwritten"), \
+            written_whole(late, replace=False) as draft:
+        draft.write_text("ours")
+        late.write_text("the other writer's")
+        monkeypatch.setattr(Path, "exists", lambda self: False)  # the check, had it come after the other writer
+    monkeypatch.undo()
+    assert late.read_text() == "the other writer's" and sorted(tmp_path.iterdir()) == [late, kept]
+
+
 def test_ctrl_c_while_a_recording_is_written_exits_130_and_leaves_no_half_file(whole, tmp_path, monkeypatch, capsys):
     """A recording cut off while it is written would block the next `record` to the same --out ("exists"); it is
     written to a draft instead, renamed when whole."""
