@@ -223,6 +223,7 @@ def test_the_memory_bound_and_the_observation_shapes_share_one_trace_of_reset():
     assert len(traced) == 2, "another environment object has its own shapes"
 
 
+@pytest.mark.slow  # three Warp builds of the hand: 11 s of the fast tier
 @pytest.mark.skipif(importlib.util.find_spec("warp") is None, reason="MuJoCo Warp needs warp-lang")
 def test_on_warp_the_memory_bound_sizes_an_environment_only_for_camera_vision():
     """On MuJoCo Warp the bound leaves the physics state out, so a task without camera vision is traced as it is;
