@@ -2,6 +2,7 @@
 (`ppo.network.frozen`), named wrongly: `angora-jax train` exits 2 with the key, the offending module, file or run,
 and the fix, before it compiles anything or makes a run directory; never a traceback."""
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -206,3 +207,39 @@ def test_an_init_from_whose_value_function_alone_misfits_points_to_taking_the_po
     with pytest.raises(SavedRunMisfit) as refused:
         _fitting(ours, policy_too, "network parameters", "runs/src")
     assert "Only the value function's" not in str(refused.value)
+
+
+def test_a_memory_added_to_a_saved_mlp_starts_as_that_mlp_and_training_puts_it_to_use(source_run):
+    """`ppo.network.memory` with `ppo.init_from` a run of the same MLP without memory: the saved parameters carry
+    over, the GRU is initialized and its output layer is zero, so the policy and value start as the saved run's
+    whatever the GRU's state; a cycle of training moves the output layer off zero. Recurrent networks refuse it."""
+    import jax
+
+    from angora_jax.nets import make_network
+    from angora_jax.ppo import NetworkConfig, PPOConfig, make_cycle
+    from angora_jax.ppo.cycle import build_head, build_model
+
+    config = aj.load_config("cartpole", [*TINY, "ppo.network.memory=8", f"ppo.init_from={source_run}"])
+    env = aj.make(config.env.task, **config.env.options)
+    with quick_compilation():
+        init, cycle = make_cycle(env, None, config.ppo)
+        state = init(jax.random.key(0))
+        saved = aj.load_agent(source_run).state
+        assert set(state.params["network"]) == {*saved.params["network"], "policy_memory", "memory_out"}
+        np.testing.assert_array_equal(state.params["network"]["memory_out"]["kernel"], 0.0)
+
+        obs = jax.vmap(env.reset)(jax.random.split(jax.random.key(1), 5)).obs
+        obs = obs.replace(proprioception=jax.random.normal(jax.random.key(2), obs.proprioception.shape))
+        plain = config.ppo.replace(network=dataclasses.replace(config.ppo.network, memory=0))
+        with_memory = build_model(make_network(config.ppo.network), build_head(env, config.ppo), config.ppo)
+        without = build_model(make_network(plain.network), build_head(env, plain), plain)
+        remembered = jax.random.normal(jax.random.key(3), (5, 8))  # whatever the GRU holds
+        _, policy_now, value_now = with_memory.apply({"params": state.params}, remembered, obs)
+        _, policy, value = without.apply({"params": saved.params}, without.initial_carry(5), obs)
+        np.testing.assert_allclose(policy_now, policy, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(value_now, value, rtol=1e-6, atol=1e-6)
+
+        trained, _ = cycle(state)
+        assert np.abs(np.asarray(trained.params["network"]["memory_out"]["kernel"])).max() > 0
+    with pytest.raises(ValueError, match="network.memory adds a GRU to the simple and deeper networks"):
+        PPOConfig(network=NetworkConfig(name="lstm", memory=8)).validate()

@@ -52,25 +52,41 @@ def value_head(features: jax.Array, name: str = "value") -> jax.Array:
 
 
 class FeedForward(nn.Module):
-    """MLP policy and value; the carry is an empty `(B, 0)` array so it shares the recurrent training path.
+    """MLP policy and value, the policy with an optional memory; without one the carry is an empty `(B, 0)` array, so
+    it shares the recurrent training path.
 
     Attributes:
         sizes: units of each dense layer of a trunk.
         shared: one trunk over the policy modalities; the value head reads its features and `asymmetric`. Otherwise a
             separate value trunk reads all modalities including `asymmetric`.
+        memory: units of a GRU beside the policy trunk (0: none). It reads the policy's inputs, and its output is
+            added to the trunk's features through a layer that starts at zero (`memory_out`), so the network starts
+            as the MLP alone: `ppo.init_from` a run of the same MLP without memory gives its policy unchanged, and
+            training then lets it use what it remembers (a policy that infers the physics drawn by domain
+            randomization from what its actions did). The carry is the GRU's `(B, memory)` state.
     """
 
     sizes: tuple[int, ...] = (64, 64)
     shared: bool = False
+    memory: int = 0
     runs_sequences = True
 
+    # The modules that memory adds to the MLP: `ppo.init_from` a run without them keeps them as initialized.
+    MEMORY_MODULES = ("policy_memory", "memory_out")
+
     def initial_carry(self, batch_size: int) -> jax.Array:
-        return jnp.zeros((batch_size, 0), jnp.float32)
+        return initial_cell_carry("gru", self.memory, batch_size)
 
     @nn.compact
     def __call__(self, carry: jax.Array, obs: Sensation, resets: jax.Array | None = None,
                  initial: jax.Array | None = None) -> tuple[jax.Array, jax.Array, jax.Array]:
-        features = MLP(self.sizes, name="policy_trunk")(policy_inputs(obs))
+        inputs = policy_inputs(obs)
+        features = MLP(self.sizes, name="policy_trunk")(inputs)
+        if self.memory:
+            carry, remembered = run_cell(recurrent_cell("gru", self.memory, "policy_memory"), carry, inputs, resets,
+                                         initial)
+            features = features + nn.Dense(features.shape[-1], kernel_init=nn.initializers.zeros,
+                                           name="memory_out")(remembered)
         if self.shared:
             value = value_head(jnp.concatenate([features, obs.asymmetric], axis=-1))
         else:

@@ -23,6 +23,7 @@ class NetworkSettings(Protocol):
     width: int | None
     cell_size: int | None
     shared_trunk: bool
+    memory: int
     cell: str | None
     areas: dict[str, int]
     graph: AreaGraph | None
@@ -59,8 +60,8 @@ def _recurrent(cell: str, encoder: str, width: int, cell_size: int) -> Callable[
     return build
 
 
-register_network("simple", lambda c: FeedForward(sizes=(c.width or 64,) * 2, shared=c.shared_trunk))
-register_network("deeper", lambda c: FeedForward(sizes=(c.width or 64,) * 4, shared=c.shared_trunk))
+register_network("simple", lambda c: FeedForward(sizes=(c.width or 64,) * 2, shared=c.shared_trunk, memory=c.memory))
+register_network("deeper", lambda c: FeedForward(sizes=(c.width or 64,) * 4, shared=c.shared_trunk, memory=c.memory))
 register_network("rnn", _recurrent("rnn", "modality", width=64, cell_size=64))
 register_network("lstm", _recurrent("lstm", "modality", width=64, cell_size=64))
 register_network("gru", _recurrent("gru", "modality", width=64, cell_size=64))

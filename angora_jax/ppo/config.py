@@ -145,6 +145,9 @@ class NetworkConfig:
         width: units of the dense layers (embedding width for recurrent models; the value net's for cortical).
         cell_size: units of the recurrent cell (ignored by feed-forward models; the premotor PMC for cortical).
         shared_trunk: one trunk for policy and value (the value head also reads `asymmetric`) instead of two.
+        memory: units of a GRU beside the policy trunk of the simple and deeper networks (0: none), its output added
+            to the trunk's through a layer that starts at zero: `ppo.init_from` a run of the same network without
+            memory starts from its policy unchanged (`angora_jax.nets.models.FeedForward`).
         cell: the recurrent cell, "rnn", "lstm" or "gru", of the wide network (default lstm) and of the cortical model's
             premotor area PMC (default lstm); the rnn, lstm and gru networks are named for theirs.
         areas: the cortical model's area sizes that differ from AngoraPy's, e.g. `{SSC_1: 32, PMC: 64}`.
@@ -164,6 +167,7 @@ class NetworkConfig:
     width: int | None = count_field(None, why="units of the dense layers")
     cell_size: int | None = count_field(None, why="units of the recurrent cell")
     shared_trunk: bool = False
+    memory: int = bounded(0, 0, INT32_MAX, why="units of the GRU beside the policy trunk")
     cell: str | None = None
     areas: dict[str, int] = bounded(low=1, high=INT32_MAX, why="units of each area", factory=dict)
     graph: AreaGraph | None = None
@@ -180,6 +184,10 @@ class NetworkConfig:
         if self.cell is not None and self.name not in ("wide", "cortical"):
             raise ValueError(f"network.cell applies to the wide and cortical networks, not {self.name!r}: the rnn, "
                              "lstm and gru networks are named for their cell, and simple and deeper have none.")
+        if self.memory and self.name not in ("simple", "deeper"):
+            raise ValueError(f"network.memory adds a GRU to the simple and deeper networks, not to {self.name!r}: "
+                             "the rnn, lstm, gru, wide and cortical networks are recurrent already (network.cell_size "
+                             "sizes their cell).")
         if self.areas and self.name != "cortical":
             raise ValueError(f"network.areas sizes the cortical network's areas, not {self.name!r}'s (an areas graph "
                              "sizes its own: network.graph.areas.<name>.size).")

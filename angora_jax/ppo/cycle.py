@@ -13,6 +13,7 @@ from typing import Any
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import struct
 from jax.sharding import PartitionSpec as P
@@ -27,6 +28,7 @@ from angora_jax.nets.components import (
     stop_frozen_gradients,
     with_component,
 )
+from angora_jax.nets.models import FeedForward
 from angora_jax.nets.visual import make_visual_area
 from angora_jax.ppo.blocks import (
     LEADER,
@@ -391,8 +393,9 @@ def _with_saved_values(init: Callable[[jax.Array], TrainState], pretrained: dict
         if not loaded:
             if init_from:  # checked against the shapes first: a run that does not fit fails before any compile
                 saved, shapes = read_saved_run(init_from), jax.eval_shape(init, key)
-                growth = _saved_run_growth(shapes, saved, init_from)
+                growth = _saved_run_growth(shapes, _memory_added(shapes.params, saved), init_from)
                 state = init(key)
+                saved = _memory_added(jax.device_get(state.params), saved)
                 loaded["run"] = (_carried(state, saved, growth, rows_reading, init_from) if growth else
                                  (_fitting(shapes.params, saved.params, "network parameters", init_from),
                                   _fitting(shapes.obs_stats, saved.obs_stats, "observation statistics", init_from)))
@@ -404,6 +407,18 @@ def _with_saved_values(init: Callable[[jax.Array], TrainState], pretrained: dict
         return state.replace(params=jax.device_put(params), obs_stats=jax.device_put(obs_stats))
 
     return init_with_saved_values
+
+
+def _memory_added(params: Any, saved: Any) -> Any:
+    """The saved run `saved` with the memory modules of this run's `params` that its parameters lack taken from
+    `params` (`network.memory`, `FeedForward.MEMORY_MODULES`): a run of the MLP without memory starts the same MLP
+    with memory as itself, the memory's output layer being zero. `params` may hold shapes (`jax.eval_shape`), taken
+    as zeros of those shapes where only shapes are checked."""
+    ours, theirs = params.get("network", {}), saved.params.get("network", {})
+    added = {name: ours[name] for name in FeedForward.MEMORY_MODULES if name in ours and name not in theirs}
+    added = jax.tree.map(lambda leaf: np.zeros(leaf.shape, leaf.dtype) if isinstance(leaf, jax.ShapeDtypeStruct)
+                         else leaf, added)
+    return saved.replace(params={**saved.params, "network": {**theirs, **added}}) if added else saved
 
 
 def _saved_run_growth(shapes: TrainState, saved: Any, source: str) -> int:
@@ -469,7 +484,7 @@ def check_saved_values(env: Env, config: PPOConfig) -> None:
                                  "recordings name layers.") from None
     if config.init_from:
         saved = _read_source("ppo.init_from", config.init_from, read_saved_run, config.init_from)
-        _saved_run_growth(shapes, saved, config.init_from)
+        _saved_run_growth(shapes, _memory_added(shapes.params, saved), config.init_from)
     for path, source in config.network.pretrained.items():
         values = _read_source(f"ppo.network.pretrained[{path!r}]", source, load_component, source, path)
         differing = shape_misfits(component(shapes.params, path), values)
