@@ -366,7 +366,8 @@ def make_cycle(
                 return model.apply({"params": p}, network.initial_carry(obs.asymmetric.shape[0]), obs)[2]
             return rows_reading_new_inputs(value_of, params, env.observation_shapes(), old_size, jax.random.key(0))
 
-        init_fn = _with_saved_values(init_fn, config.network.pretrained, config.init_from, rows_reading)
+        init_fn = _with_saved_values(init_fn, config.network.pretrained, config.init_from, rows_reading,
+                                     config.network.memory)
     if num_devices == 1:
         return init_fn, cycle_fn
     return lambda key: cycle_fn.place(init_fn(key)), cycle_fn
@@ -380,12 +381,13 @@ def partition_specs() -> TrainState:
 
 
 def _with_saved_values(init: Callable[[jax.Array], TrainState], pretrained: dict[str, str], init_from: str | None,
-                       rows_reading: Callable[[Any, int], Any]):
+                       rows_reading: Callable[[Any, int], Any], memory: int):
     """`init` followed by loading a saved run's parameters and observation statistics (`init_from`), then the
     `pretrained` components over them; on the host, when first called, so their values are not baked into a
     compiled program and a run only reads its sources when it starts from scratch. A saved run whose `asymmetric`
     inputs were fewer (`grown_inputs`) has its value function's new input weights found by `rows_reading(params,
-    old_size)` and set to zero."""
+    old_size)` and set to zero; one without the memory this run adds (`memory` units, `_memory_added`) has it as
+    initialized."""
     loaded = {}
 
     def init_with_saved_values(key: jax.Array) -> TrainState:
@@ -393,9 +395,9 @@ def _with_saved_values(init: Callable[[jax.Array], TrainState], pretrained: dict
         if not loaded:
             if init_from:  # checked against the shapes first: a run that does not fit fails before any compile
                 saved, shapes = read_saved_run(init_from), jax.eval_shape(init, key)
-                growth = _saved_run_growth(shapes, _memory_added(shapes.params, saved), init_from)
+                growth = _saved_run_growth(shapes, _memory_added(shapes.params, saved, memory), init_from)
                 state = init(key)
-                saved = _memory_added(jax.device_get(state.params), saved)
+                saved = _memory_added(jax.device_get(state.params), saved, memory)
                 loaded["run"] = (_carried(state, saved, growth, rows_reading, init_from) if growth else
                                  (_fitting(shapes.params, saved.params, "network parameters", init_from),
                                   _fitting(shapes.obs_stats, saved.obs_stats, "observation statistics", init_from)))
@@ -409,11 +411,14 @@ def _with_saved_values(init: Callable[[jax.Array], TrainState], pretrained: dict
     return init_with_saved_values
 
 
-def _memory_added(params: Any, saved: Any) -> Any:
+def _memory_added(params: Any, saved: Any, memory: int) -> Any:
     """The saved run `saved` with the memory modules of this run's `params` that its parameters lack taken from
     `params` (`network.memory`, `FeedForward.MEMORY_MODULES`): a run of the MLP without memory starts the same MLP
     with memory as itself, the memory's output layer being zero. `params` may hold shapes (`jax.eval_shape`), taken
-    as zeros of those shapes where only shapes are checked."""
+    as zeros of those shapes where only shapes are checked. `saved` itself when this run has no memory (`memory` 0).
+    """
+    if not memory:
+        return saved
     ours, theirs = params.get("network", {}), saved.params.get("network", {})
     added = {name: ours[name] for name in FeedForward.MEMORY_MODULES if name in ours and name not in theirs}
     added = jax.tree.map(lambda leaf: np.zeros(leaf.shape, leaf.dtype) if isinstance(leaf, jax.ShapeDtypeStruct)
@@ -484,7 +489,7 @@ def check_saved_values(env: Env, config: PPOConfig) -> None:
                                  "recordings name layers.") from None
     if config.init_from:
         saved = _read_source("ppo.init_from", config.init_from, read_saved_run, config.init_from)
-        _saved_run_growth(shapes, _memory_added(shapes.params, saved), config.init_from)
+        _saved_run_growth(shapes, _memory_added(shapes.params, saved, config.network.memory), config.init_from)
     for path, source in config.network.pretrained.items():
         values = _read_source(f"ppo.network.pretrained[{path!r}]", source, load_component, source, path)
         differing = shape_misfits(component(shapes.params, path), values)
