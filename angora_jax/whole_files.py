@@ -23,7 +23,7 @@ def written_whole(path: str | Path, replace: bool = True) -> Iterator[Path]:
     path = Path(path)
     draft = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
     if not replace and path.exists():  # named before writing, so a full disk is not blamed on the kept file
-        raise FileExistsError(f"{path} exists and is never overwritten.")
+        raise _kept(path)
     try:
         yield draft
         if replace:
@@ -40,6 +40,11 @@ def written_whole(path: str | Path, replace: bool = True) -> Iterator[Path]:
         draft.unlink(missing_ok=True)
 
 
+def _kept(path: Path) -> FileExistsError:
+    """The refusal to write over the existing `path`."""
+    return FileExistsError(f"{path} exists and is never overwritten.")
+
+
 def _publish_new(draft: Path, path: Path) -> None:
     """`draft` as `path`, which must not exist: a hard link, which the system refuses when `path` exists, so a second
     writer that made it after the check above is not overwritten either. Where the file system has no hard links, a
@@ -47,12 +52,12 @@ def _publish_new(draft: Path, path: Path) -> None:
     try:
         os.link(draft, path)
     except FileExistsError:
-        raise FileExistsError(f"{path} exists and is never overwritten.") from None
+        raise _kept(path) from None
     except OSError as error:
         if error.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EMLINK):
             raise
         if path.exists():
-            raise FileExistsError(f"{path} exists and is never overwritten.") from None
+            raise _kept(path) from None
         os.replace(draft, path)
 
 
