@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import textwrap
 from pathlib import Path
 
 import matplotlib
@@ -84,12 +85,12 @@ def plot(rows: list[dict], labels: list[str], metric: str, title: str, path: Pat
         widths = [row["width"] for row in mine]
         mean = [row["mean"] for row in mine]
         stderr = [row["stderr"] for row in mine]
-        axis.plot(widths, mean, marker="o", color=f"C{i}", label=label)
-        axis.fill_between(widths, [m - s for m, s in zip(mean, stderr, strict=True)],
-                          [m + s for m, s in zip(mean, stderr, strict=True)], color=f"C{i}", alpha=0.25)
+        # Error bars rather than a band: a comparison at one width has no band to draw.
+        axis.errorbar(widths, mean, yerr=stderr, marker="o", capsize=4, color=f"C{i}", label=label)
     axis.set_xlabel("randomization width (1: the reference ranges)")
     axis.set_ylabel(f"{metric}, mean +- s.e.")
-    axis.set_title(title, fontsize=9)
+    # A run folder or config path can be long; wrapped, the title stays inside the figure.
+    axis.set_title(textwrap.fill(title, 90), fontsize=9)
     axis.grid(alpha=0.3)
     axis.legend()
     figure.tight_layout()
