@@ -20,6 +20,9 @@ from angora_jax.envs.shadow_hand.cube import CUBE_BODY, CUBE_JOINT, load_cube_sc
 from angora_jax.nets.visual import make_visual_encoder
 from angora_jax.vision import PoseEstimator, PoseNet, cube_masks, render_pose_dataset
 
+# Every program here runs once or twice on a few 32 x 32 frames: compiling is nearly all of the time.
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 SIZE = 32
 CAMERAS = ("front", "side")
 OPTIONS = {"widths": (4, 4, 4, 4), "features": 6}

@@ -381,7 +381,8 @@ def test_a_run_trained_under_randomization_resumes_exactly(tmp_path, quick_compi
     pytest.param({"name": "simple", "width": 8, "shared_trunk": True}, id="shared", marks=pytest.mark.slow),
     pytest.param({"name": "gru", "width": 8, "cell_size": 8}, id="gru", marks=pytest.mark.slow),
     pytest.param({"name": "cortical"}, id="cortical", marks=pytest.mark.slow)])
-def test_init_from_a_run_without_value_sees_physics_carries_its_value_function_over(network, monkeypatch):
+def test_init_from_a_run_without_value_sees_physics_carries_its_value_function_over(network, monkeypatch,
+                                                                                   quick_compiles):
     """`ppo.init_from` a reach run trained without `value_sees_physics`, fine-tuned with it: the value function's
     inputs gain 70 entries at the end of `asymmetric`. Everything carries over; the weights that read the new entries
     start at zero, so the new model's policy and value are the source's whatever physics it is given. The source's
