@@ -353,9 +353,10 @@ def test_a_recurrent_cell_is_no_dense_layer_and_its_lesion_names_what_to_lesion_
         lesion(agent, "network.PMC", [0])
 
 
-def test_analyze_crosscorrelation_prints_every_layer_s_column(tmp_path, capsys):
+def test_analyze_crosscorrelation_prints_every_layer_s_column(tmp_path, capsys, recwarn):
     """The lag table of many layers was printed through pandas' own repr, which hides the columns past 80 characters
-    behind "..." (15 of the reach model's 17 layers)."""
+    behind "..." (15 of the reach model's 17 layers). Its plot's legend of 66 pairs squeezed the axes away
+    (matplotlib: "Tight layout not applied"); it now stands beside them."""
     from angora_jax import cli
     from angora_jax.analysis import save_activity
 
@@ -365,6 +366,8 @@ def test_analyze_crosscorrelation_prints_every_layer_s_column(tmp_path, capsys):
     assert cli.main(["analyze", "crosscorrelation", str(path)]) == 0
     said = capsys.readouterr().out
     assert "..." not in said and all(f"area_with_a_long_name_{i}" in said.split("\n")[1] for i in range(12)), said
+    assert not [w for w in recwarn if "layout" in str(w.message)], [str(w.message) for w in recwarn]
+    assert (tmp_path / "many.crosscorrelation.png").read_bytes()[:4] == b"\x89PNG"
 
 
 def test_analyze_timescales_says_why_a_layer_has_none(tmp_path, capsys):

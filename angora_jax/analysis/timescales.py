@@ -159,15 +159,19 @@ def plot_cross_correlation(result: xr.Dataset, path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(5.5, 3.4))
     layers = list(result["layer"].values)
+    pairs = len(layers) * (len(layers) - 1) // 2
+    # A model of many areas has many pairs (17 layers: 136): the legend goes beside the axes, in columns of at most
+    # 25 entries, and the saved image grows to hold it (bbox_inches), rather than the legend covering the curves or
+    # squeezing the axes away.
+    columns = max(1, -(-pairs // 25))
+    fig, ax = plt.subplots(figsize=(5.5, max(3.4, 0.16 * min(pairs, 25))))
     for i, layer in enumerate(layers):
         for other in layers[i + 1:]:
             ax.plot(result["lag"].values, result["cross_correlation"].sel(layer=layer, other=other).values,
                     label=f"{str(layer).removeprefix('network.')} -> {str(other).removeprefix('network.')}")
     ax.axvline(0, color="k", lw=0.5)
     ax.set(xlabel="lag (s; > 0: the first leads)", ylabel="correlation of leading components")
-    ax.legend(fontsize="x-small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.01, 1), ncols=columns, borderaxespad=0)
+    fig.savefig(path, dpi=100, bbox_inches="tight")
     plt.close(fig)
