@@ -63,7 +63,7 @@ def test_step_size_settings_that_contradict_each_other_are_refused(overrides, me
         load_config("cartpole", overrides).ppo.validate()
 
 
-def test_an_adapted_rate_and_an_annealed_entropy_weight_continue_exactly_after_a_resume(tmp_path):
+def test_an_adapted_rate_and_an_annealed_entropy_weight_continue_exactly_after_a_resume(tmp_path, quick_compiles):
     """A KL target far above what tiny updates reach raises the rate by 1.5 at each of the cycle's 2 minibatch
     updates; the rate lives in the optimizer state, so the resumed second cycle starts from the first's."""
     overrides = [*TINY_PPO, "ppo.num_cycles=3", "ppo.learning_rate=1e-4", "ppo.target_kl=10.0", "ppo.lr_max=1e-2",

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from quick_compile import QUICK_SUBPROCESS
+from quick_compile import QUICK_SUBPROCESS, compile_quickly
 
 import angora_jax as aj
 from angora_jax.cli import main
@@ -40,12 +40,11 @@ def test_warp_steps_reach_as_c_mujoco_and_mjx_jax_do():
     actions = jnp.asarray(np.random.default_rng(0).uniform(-1, 1, (STEPS, BATCH, 20)), jnp.float32)
     keys = jax.random.split(jax.random.key(0), BATCH)
 
-    @jax.jit
     def run(keys, actions):
         first = jax.vmap(env.reset)(keys)
         return first, jax.lax.scan(lambda s, a: (jax.vmap(env.step)(s, a),) * 2, first, actions)[1]
 
-    first, warp = run(keys, actions)
+    first, warp = compile_quickly(run, keys, actions)(keys, actions)
     for b in range(BATCH):
         twin = cpu.reset(keys[b])
         np.testing.assert_allclose(first.info["goal"][b], twin.info["goal"], atol=1e-5)
