@@ -185,6 +185,26 @@ def test_bad_config_fails_naming_the_key(case):
         validate(load_config("cartpole", overrides))
 
 
+@pytest.mark.parametrize("overrides, named", [
+    (["ppo.network.width=100000000"], "ppo.network.width=100,000,000 makes a network of 20,000,001,500,000,003 "),
+    (["ppo.network.name=gru", "ppo.network.cell_size=3000000"], "ppo.network.cell_size=3,000,000 make a network"),
+    (["ppo.network.memory=3000000"], "ppo.network.memory=3,000,000 make a network")])
+def test_a_network_too_large_for_the_device_is_refused_before_anything_is_allocated(overrides, named, tmp_path, capsys):
+    """A mistyped width (100000000 for 1000) passed every check, then stalled while its parameters were allocated.
+    Counted from shapes: CartPole's 4 inputs, two dense layers of 10^8 and the heads give 2.0000001500000003e16
+    parameters; with their gradients and Adam's two moments 4 x 4 bytes each. 4,096 units or fewer are not traced."""
+    from angora_jax.cli import main
+    from angora_jax.envs.registry import make
+    from angora_jax.ppo.memory import CHECKED_ABOVE_UNITS, network_too_large
+
+    with pytest.raises(ConfigError, match=named + r".* GiB, against .* GiB on cpu device 0 .*Use fewer units"):
+        validate(load_config("cartpole", overrides))
+    assert main(["train", "cartpole", *overrides, f"logging.run_root={tmp_path}"]) == 2
+    assert "make" in capsys.readouterr().err and not list(tmp_path.iterdir()), "refused before a run was made"
+    width = load_config("cartpole", [f"ppo.network.width={CHECKED_ABOVE_UNITS}"]).ppo
+    assert network_too_large(width, make("CartPole")) is None
+
+
 @pytest.mark.parametrize("rollout_length", [16, 32])
 def test_the_memory_bound_counts_every_stored_transition_of_a_cycle(rollout_length):
     """CartPole stores per transition 4 observation floats, one action slot and 9 scalars (log-probability, value,

@@ -47,7 +47,7 @@ from angora_jax.ppo.config import (
     field_bounds,
     quote_number,
 )
-from angora_jax.ppo.memory import estimate_memory
+from angora_jax.ppo.memory import estimate_memory, network_too_large
 from angora_jax.ppo.parallel import per_device, resolve_num_devices
 from angora_jax.registry.plugins import ModuleNameError, defined_in_a_notebook, import_modules
 from angora_jax.wording import did_you_mean
@@ -598,6 +598,8 @@ def validate(config: Config, new_run: bool = True) -> Env:
         per_device(config.ppo, devices)
     except ValueError as error:
         raise ConfigError(str(error)) from None
+    if (too_large := network_too_large(config.ppo, env)) is not None:
+        raise ConfigError(too_large)
     memory = estimate_memory(config.ppo, env, devices)
     if not memory.fits():
         raise ConfigError(

@@ -4,10 +4,10 @@ allocated): sizes that cannot fit are refused before a run starts, with the esti
 Counted: the environment states the run keeps (one per environment: physics, observations, task state) and the
 transitions one cycle stores (`rollout_length` per environment: observations, action, log-probability, value,
 reward, flags, episode statistics, task metrics). Not counted: parameters and optimizer state (small next to these
-at the sizes that fail), the physics' temporaries and XLA's buffers, and on MuJoCo Warp the physics state (Warp's
-contact and constraint buffers are shared by the whole batch and sized to it, `Env.sized_for`, so one environment's
-state does not show what a batch costs), so a run that passes may still run out of memory, but one that fails cannot
-fit.
+at the sizes that fail; `network_too_large` checks a network of more than 4,096 units apart), the physics'
+temporaries and XLA's buffers, and on MuJoCo Warp the physics state (Warp's contact and constraint buffers are
+shared by the whole batch and sized to it, `Env.sized_for`, so one environment's state does not show what a batch
+costs), so a run that passes may still run out of memory, but one that fails cannot fit.
 """
 
 from __future__ import annotations
@@ -94,6 +94,49 @@ def estimate_memory(config: PPOConfig, env: Env, num_devices: int = 1) -> Memory
         available=device_memory(device),
         device=f"{device.platform} device {device.id} ({device.device_kind})",
     )
+
+
+# Network sizes up to this many units are not checked (`network_too_large`): the parameters are then small next to
+# the environments, and tracing a network's initialisation costs up to seconds on every validation.
+CHECKED_ABOVE_UNITS = 4096
+# Parameters, their gradients and Adam's two moments: the fewest copies of the parameters an update holds.
+_PARAMETER_COPIES = 4
+
+
+def network_too_large(config: PPOConfig, env: Env) -> str | None:
+    """None when the network fits on a device, else a sentence saying why not: the parameter count of a network
+    whose `width`, `cell_size` or `memory` is above `CHECKED_ABOVE_UNITS` (from shapes: nothing is allocated), with
+    the bytes of its parameters, gradients and optimizer moments, against the device's memory. A mistyped width
+    (100000000 for 1000) otherwise passes every other check and stalls while its parameters are allocated."""
+    network = config.network
+    sizes = {key: getattr(network, key) for key in ("width", "cell_size", "memory")}
+    if max((size or 0 for size in sizes.values()), default=0) <= CHECKED_ABOVE_UNITS:
+        return None
+    import jax.numpy as jnp
+
+    from angora_jax.nets import make_network
+    from angora_jax.ppo.cycle import build_head, build_model
+
+    module = make_network(network)
+    model = build_model(module, build_head(env, config), config)
+    observations = env.observation_shapes()
+
+    def parameters(key: jax.Array):
+        obs = jax.tree.map(lambda shape: jnp.zeros((1, *shape.shape), shape.dtype), observations)
+        return model.init(key, module.initial_carry(1), obs)["params"]
+
+    leaves = jax.tree.leaves(jax.eval_shape(parameters, jax.random.key(0)))
+    count = sum(int(np.prod(x.shape, dtype=np.int64)) for x in leaves)
+    needed = _PARAMETER_COPIES * sum(int(np.prod(x.shape, dtype=np.int64)) * x.dtype.itemsize for x in leaves)
+    device = jax.local_devices()[0]
+    available = device_memory(device)
+    if available is None or needed <= available:
+        return None
+    given = [f"ppo.network.{key}={size:,}" for key, size in sizes.items() if size]
+    return (f"{', '.join(given)} make{'s' if len(given) == 1 else ''} a network of {count:,} parameters: with their "
+            f"gradients and the optimizer's two moments at least {needed / GIB:,.1f} GiB, against "
+            f"{available / GIB:,.1f} GiB on {device.platform} device {device.id} ({device.device_kind}). Use fewer "
+            "units (the shipped configs use 32 to 512).")
 
 
 def device_memory(device: jax.Device) -> int | None:
