@@ -125,9 +125,10 @@ def network_too_large(config: PPOConfig, env: Env) -> str | None:
         obs = jax.tree.map(lambda shape: jnp.zeros((1, *shape.shape), shape.dtype), observations)
         return model.init(key, module.initial_carry(1), obs)["params"]
 
+    # `.size` is a Python int, exact at any size (an int64 product of shapes wraps around past 2**63).
     leaves = jax.tree.leaves(jax.eval_shape(parameters, jax.random.key(0)))
-    count = sum(int(np.prod(x.shape, dtype=np.int64)) for x in leaves)
-    needed = _PARAMETER_COPIES * sum(int(np.prod(x.shape, dtype=np.int64)) * x.dtype.itemsize for x in leaves)
+    count = sum(x.size for x in leaves)
+    needed = _PARAMETER_COPIES * sum(x.size * x.dtype.itemsize for x in leaves)
     device = jax.local_devices()[0]
     available = device_memory(device)
     if available is None or needed <= available:
