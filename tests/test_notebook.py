@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from quick_compile import QUICK_SUBPROCESS
+from quick_compile import QUICK_SUBPROCESS, QUICK_SUBPROCESS_NO_FUSION_EMITTERS
 
 # Each notebook trains and probes an agent: all of them are in the slow tier.
 pytestmark = pytest.mark.slow
@@ -173,7 +173,7 @@ def test_muscle_hand_notebook_trains_a_tiny_run_and_runs_the_three_muscle_analys
     probe names them, the empty one equal to the intact agent. Every figure is a PNG."""
     pytest.importorskip("myo_sim")
     result = run_notebook("muscle_hand.ipynb", tmp_path, epilogue=MUSCLE_FINDINGS, ANGORA_EPISODES="5",
-                          **QUICK_SUBPROCESS)
+                          **QUICK_SUBPROCESS_NO_FUSION_EMITTERS)
     found = json.loads(result.stdout.split("FINDINGS ", 1)[1].splitlines()[0])
     from angora_jax.analysis import PROBES
 
