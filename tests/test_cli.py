@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 import pytest
 from flax import serialization
-from quick_compile import QUICK_SUBPROCESS
+from quick_compile import QUICK_SUBPROCESS, QUICK_SUBPROCESS_NO_FUSION_EMITTERS
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -959,7 +959,7 @@ def test_the_myohand_pose_curriculum_trains_two_stages_then_evaluates_records_an
     root = tmp_path / "pose"
     venv = str(Path(sys.executable).parent)
     done = run_curriculum([str(root), *TINY_POSE], tmp_path, venv, EPISODES="3", RECORD_EPISODES="5",
-                          **QUICK_SUBPROCESS)
+                          **QUICK_SUBPROCESS_NO_FUSION_EMITTERS)
     assert done.returncode == 0, done.stderr[-3000:]
     first, second = (load_config(root / stage / "config.yaml") for stage in ("stage1", "stage2"))
     assert first.env.options["start_spread"] == 0.4 and first.ppo.init_from is None
