@@ -124,7 +124,7 @@ def test_cube_probing_notebook_runs_every_analysis_on_a_tiny_cube_run(tmp_path, 
 
     run = aj.train("shadow_ihom_cortical", [*TINY_CUBE, f"logging.run_root={tmp_path}", "logging.run_name=cube"])
     result = run_notebook("probe_a_cube_hand.ipynb", tmp_path, epilogue=CUBE_FINDINGS, ANGORA_RUN=str(run.run_dir),
-                          ANGORA_EPISODES="5", **QUICK_SUBPROCESS)
+                          ANGORA_EPISODES="5", **QUICK_SUBPROCESS_NO_FUSION_EMITTERS)
     found = json.loads(result.stdout.split("FINDINGS ", 1)[1].splitlines()[0])
     probe = PROBES["ShadowHandCube"]
     alive, lengths = found["alive"], found["lengths"]
