@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from quick_compile import QUICK_SUBPROCESS, QUICK_SUBPROCESS_NO_FUSION_EMITTERS
+from quick_compile import QUICK_SUBPROCESS_NO_FUSION_EMITTERS
 
 # Each notebook trains and probes an agent: all of them are in the slow tier.
 pytestmark = pytest.mark.slow
