@@ -949,8 +949,8 @@ def run_curriculum(arguments: list[str], cwd: Path, path: str, **environment: st
 
 @pytest.mark.slow
 def test_the_myohand_pose_curriculum_trains_two_stages_then_evaluates_records_and_analyzes(tmp_path):
-    """examples/myohand_pose_curriculum.sh on the CPU, shrunk (TINY_POSE; 3 evaluation and 5 recorded episodes; about
-    70 s of CPU): stage 1's config.yaml holds start_spread 0.4, stage 2's 1.0 and stage 1's latest checkpoint as
+    """examples/myohand_pose_curriculum.sh on the CPU, shrunk (TINY_POSE; 3 evaluation and 5 recorded episodes; 90-110
+    s of CPU on 2 cores): stage 1's config.yaml holds start_spread 0.4, stage 2's 1.0 and stage 1's latest checkpoint as
     init_from; the evaluation JSON (of start_spread 1), the recording and both analyses' numbers exist, parse and are
     printed where they went. Run again on the same ROOT it exits 2 naming the existing run, and changes nothing."""
     pytest.importorskip("myo_sim")
