@@ -30,7 +30,7 @@ from angora_jax.experiment.checkpoint import CheckpointError, Checkpoints, disk_
 from angora_jax.experiment.config import CheckpointConfig
 from angora_jax.experiment.doctor import Diagnosis
 from angora_jax.experiment.manifest import MANIFEST_FILE
-from angora_jax.experiment.monitor import set_aside_after
+from angora_jax.experiment.monitor import set_aside_after, set_aside_message
 from angora_jax.experiment.run_check import check_run
 from angora_jax.experiment.run_dir import (
     CHECKPOINTS,
@@ -218,7 +218,10 @@ def test_records_after_the_checkpoint_continued_from_move_to_a_side_file_with_da
     capsys.readouterr()
     resume(run, start_from=3)
     aside = run / "set-aside" / "resumed-from-cycle-3"
-    assert f"Checkpoints, evaluations and videos after cycle 3 are kept in {aside}." in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"Checkpoints, evaluations and videos after cycle 3 are kept in {aside}." in err
+    side_file = run / "metrics.after-cycle-3.jsonl"
+    assert f"Records after cycle 3 and 1 damaged line of metrics.jsonl are kept in {side_file}." in err, err
     assert sorted(p.name for p in (aside / EVALUATIONS).iterdir()) == ["latest-cycle6-mode-seed0.json",
                                                                        "latest-cycle6-mode-seed0.png"]
     assert sorted(p.name for p in (run / EVALUATIONS).iterdir()) == ["cycle3-mode-seed0.json",
@@ -230,6 +233,15 @@ def test_records_after_the_checkpoint_continued_from_move_to_a_side_file_with_da
     assert [json.loads(line)["cycle"] for line in side[:3]] == [4, 5, 6] and side[3].startswith('{"cycle": 7, "ep')
     assert sorted(p.name for p in (run / "set-aside" / "resumed-from-cycle-3" / CHECKPOINTS / "latest").iterdir()) \
         == ["6"]
+
+
+def test_the_set_aside_message_names_later_records_and_damaged_lines_apart(tmp_path):
+    """A resume past a last line cut mid-write moves only that line: the message named it "Records after cycle 3"."""
+    for lines, said in ((['{"cycle": 4}'], "Records after cycle 3 are"), (['{"cycle": 4, "ep'], "1 damaged line of "
+                        "metrics.jsonl is"), (['{"cycle": 4, "ep', "x"], "2 damaged lines of metrics.jsonl are")):
+        (tmp_path / "metrics.jsonl").write_text('{"cycle": 3}\n' + "\n".join(lines) + "\n")
+        side = set_aside_after(tmp_path, 3)
+        assert set_aside_message(side, 3) == f"{said} kept in {side}."
 
 
 def test_a_second_writer_is_refused_and_a_dead_holder_is_taken_over(whole, tmp_path, capsys):

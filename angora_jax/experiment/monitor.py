@@ -40,7 +40,7 @@ from angora_jax.ppo.cycle import TrainState
 from angora_jax.ppo.episode_pool import Pool
 from angora_jax.ppo.parallel import host_copy
 from angora_jax.whole_files import written_whole
-from angora_jax.wording import agreeing
+from angora_jax.wording import agreeing, counted
 
 
 def normalizer_summary(state: TrainState) -> dict[str, float]:
@@ -249,6 +249,17 @@ def set_aside_after(run_dir: str | Path, cycle: int) -> Path | None:
         side.unlink()
         raise
     return side
+
+
+def set_aside_message(side: Path, cycle: int) -> str:
+    """The sentence naming what `set_aside_after(run_dir, cycle)` moved into `side`: later cycles' records, damaged
+    lines (a record cut mid-write is no record of a later cycle), or both."""
+    lines = side.read_text(errors="replace").splitlines()
+    damaged = sum(_record(line) is None for line in lines)
+    what = counted(damaged, "damaged line") + " of metrics.jsonl"
+    if damaged < len(lines):
+        what = f"Records after cycle {cycle}" + f" and {what}" * bool(damaged)
+    return f"{what} {'is' if what.startswith('1 ') else 'are'} kept in {side}."
 
 
 def _json_value(value: Any) -> Any:

@@ -55,7 +55,14 @@ from angora_jax.experiment.distributed import (
 )
 from angora_jax.experiment.doctor import devices, versions
 from angora_jax.experiment.held_out import held_out_evaluation
-from angora_jax.experiment.monitor import Monitor, ended_by_stop_at, logged_cycles, set_aside_after, stop_at_pool
+from angora_jax.experiment.monitor import (
+    Monitor,
+    ended_by_stop_at,
+    logged_cycles,
+    set_aside_after,
+    set_aside_message,
+    stop_at_pool,
+)
 from angora_jax.experiment.programs import cycle_programs, initial_state_shape
 from angora_jax.experiment.progress import Progress
 from angora_jax.experiment.resume_plan import plan_resume, set_aside_checkpoints_after, set_aside_outputs
@@ -313,7 +320,7 @@ def resume(run_dir: str | Path, on_cycle: Callable[[dict[str, Any]], None] | Non
                           flush=True)
                 side = set_aside_after(run_dir, plan.cycle)
                 if side is not None:
-                    print(f"Records after cycle {plan.cycle} are kept in {side}.", file=sys.stderr, flush=True)
+                    print(set_aside_message(side, plan.cycle), file=sys.stderr, flush=True)
         _together(f"angora_jax resume {run_dir}")
         return _run(config, env, run_dir, state=state, on_cycle=on_cycle, minutes=minutes, ended=ended,
                     verified=verified)
