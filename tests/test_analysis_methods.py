@@ -23,6 +23,9 @@ from angora_jax.analysis import (
 )
 from angora_jax.analysis.decoding import cross_validated_r2
 from angora_jax.analysis.timescales import autocorrelation
+from angora_jax.envs import register
+from angora_jax.envs.classic import Pendulum
+from angora_jax.envs.core import ActionSpec
 from angora_jax.experiment import ConfigError
 
 DT = 0.02
@@ -908,9 +911,111 @@ def test_action_components_that_are_none_of_the_action_s_are_refused_by_name():
             silence_actions(agent, bad)
     assert silence_actions(agent, []) is agent and silence_actions(agent, np.arange(0)) is agent
     for given in ([0], [np.int64(0)], jnp.arange(1)):
-        assert silence_actions(agent, given).env.components == (0,)
+        silenced = silence_actions(agent, given)
+        assert np.asarray(silenced.state.silenced).tolist() == [True]
+        assert silenced.env is agent.env and silenced.compiled is agent.compiled, "the task and programs are shared"
     with pytest.raises(ConfigError, match="^Silencing action components forces them to 0"):
         silence_actions(graph_agent({"S1": {"size": 3, "inputs": ("proprioception",)}}), [0])
+
+
+class ThreeTorques(Pendulum):
+    """Pendulum turned by three torques at once (weighted 1, 0.5 and 0.25, so each action component moves it), whose
+    metrics `torque_<i>` are the action components it received at the step: what shows whether a path that acts for
+    a silenced agent held them at 0."""
+
+    metric_names = ("torque_0", "torque_1", "torque_2")
+
+    def __init__(self, max_episode_steps: int = 6):
+        super().__init__(max_episode_steps)
+        self.action_spec = ActionSpec(low=jnp.full((3,), -2.0), high=jnp.full((3,), 2.0))
+
+    def _step(self, physics, info, action, key):
+        torque = (action @ jnp.asarray([1.0, 0.5, 0.25]))[None]
+        physics, obs, reward, terminated, info, _ = super()._step(physics, info, torque, key)
+        return physics, obs, reward, terminated, info, {name: action[i] for i, name in enumerate(self.metric_names)}
+
+
+register("ThreeTorques", ThreeTorques)
+
+
+def three_torques_agent():
+    """An untrained agent of ThreeTorques (an MLP, Gaussian head; normaliser statistics of ones) with programs of
+    its own (`compiled`: a fresh dict)."""
+    from dataclasses import replace
+
+    import jax
+
+    from angora_jax.experiment.agent import Agent, acting_parts
+    from angora_jax.experiment.config import load_config
+    from angora_jax.nets import ActorCritic
+
+    config = load_config("pendulum", ["env.task=ThreeTorques", "ppo.network.width=8"])
+    env, network, head, template, _ = acting_parts(config)
+    obs = jax.vmap(env.reset)(jax.random.split(jax.random.key(1), 1)).obs
+    params = ActorCritic(network, head).init(jax.random.key(0), network.initial_carry(1), obs)["params"]
+    state = jax.tree.map(lambda leaf: jnp.ones(leaf.shape, leaf.dtype), template).replace(params=params)
+    return replace(Agent(config, env, network, head, state, 0), compiled={})
+
+
+def test_silenced_actions_share_one_program_with_the_intact_agent_and_each_reaches_the_task_as_0():
+    """A lesion per muscle compiled its own evaluation program (the mask was a constant of the task's step): 39
+    compiles for the MyoHand's `muscle_lesions`, tens of seconds each on a GPU. The mask is now data of the program:
+    the intact agent and every silenced variant trace it once, and each variant's silenced components reach the task
+    as 0 (its metrics torque_<i>) while the others move, so the outcomes differ from the intact agent's."""
+    from jax_events import jax_events
+
+    from angora_jax.analysis import ablation, silence_actions
+
+    agent = three_torques_agent()
+    lesions = {f"-{i}": silence_actions(agent, [i]) for i in range(3)}
+    lesions["-0 -2"] = silence_actions(lesions["-0"], [2])
+    with jax_events("jaxpr_trace_duration") as traced:
+        result = ablation(agent, lesions, episodes=4)
+    assert traced.count("evaluate") == 1, traced
+    torques = result["outcome_values"].sel(outcome=["torque_0", "torque_1", "torque_2"]).values  # lesion x i x ep.
+    assert np.all(torques[0] != 0), "the intact agent drives every component"
+    for row, silenced in enumerate(([0], [1], [2], [0, 2]), start=1):
+        moving = [i for i in range(3) if i not in silenced]
+        assert np.all(torques[row, silenced] == 0) and np.all(torques[row, moving] != 0), (silenced, torques[row])
+    returns = result["outcome_values"].sel(outcome="episode_return").values
+    assert np.all(returns[1:] != returns[0]), "each lesion changes what the task does"
+
+
+def test_silenced_actions_reach_the_task_as_0_on_every_path_that_acts_for_the_agent(tmp_path, monkeypatch):
+    """Every way an agent acts holds its silenced components at 0, while the policy (and the recorded `action`) is
+    untouched: Agent.act, Agent.evaluate, record_activity, and evaluate's eager path (that of videos too) and
+    batched path. A path that took the lesioned agent for the intact one would give the task nonzero torques."""
+    import jax
+
+    from angora_jax.analysis import record_activity, silence_actions
+    from angora_jax.experiment import evaluation
+
+    agent = three_torques_agent()
+    silenced = silence_actions(agent, [1])
+    obs = jax.vmap(agent.env.reset)(jax.random.split(jax.random.key(2), 3)).obs
+    intact_actions = np.asarray(agent.act(agent.initial_carry(3), obs)[1])
+    actions = np.asarray(silenced.act(silenced.initial_carry(3), obs)[1])
+    assert np.all(intact_actions != 0) and np.all(actions[:, 1] == 0)
+    np.testing.assert_array_equal(np.delete(actions, 1, axis=1), np.delete(intact_actions, 1, axis=1))
+    sampled = np.asarray(silenced.act(silenced.initial_carry(3), obs, jax.random.key(0))[1])
+    assert np.all(sampled[:, 1] == 0) and np.all(sampled[:, 0] != 0)
+
+    evaluated = silenced.evaluate(num_envs=3)
+    assert evaluated["metric/torque_1"] == 0 != evaluated["metric/torque_0"]
+    assert agent.evaluate(num_envs=3)["metric/torque_1"] != 0
+
+    recording = record_activity(silenced, episodes=3, steps=4)
+    assert np.all(recording["metric_torque_1"].values == 0) and np.all(recording["metric_torque_0"].values != 0)
+    assert np.all(recording["action"].values[..., 1] != 0), "the recorded action is the policy's"
+    assert np.all(record_activity(agent, episodes=3, steps=4)["metric_torque_1"].values != 0)
+
+    # evaluate() loads its agent from the run directory: here it is handed the lesioned one.
+    monkeypatch.setattr(evaluation, "load_agent", lambda *args: silenced)
+    for path in evaluation.PATHS:
+        episodes = evaluation.evaluate(tmp_path, episodes=3, batch=2, save=False, path=path).episodes
+        assert np.all(episodes["metric/torque_1"] == 0) and np.all(episodes["metric/torque_0"] != 0), path
+    monkeypatch.setattr(evaluation, "load_agent", lambda *args: agent)
+    assert np.all(evaluation.evaluate(tmp_path, episodes=3, save=False).episodes["metric/torque_1"] != 0)
 
 
 def test_fixed_point_starts_iterations_or_seed_out_of_range_are_refused_by_name():

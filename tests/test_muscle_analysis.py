@@ -161,18 +161,51 @@ def cpu_hand():
     return aj.make("MyoHandPose", backend="cpu")
 
 
-def test_a_silenced_muscle_gets_no_excitation_and_the_others_theirs(cpu_hand):
+def test_a_silenced_muscle_gets_no_excitation_on_the_c_mujoco_path_of_videos_and_the_others_theirs(cpu_hand,
+                                                                                                   monkeypatch):
+    """An untrained hand policy on the C MuJoCo twin, as a video (and `evaluate`'s CPU path) plays it: with muscle 7
+    silenced, its ctrl stays 0 at every step while the other muscles get what the intact policy sends them. (The
+    silenced agent once wrapped its task, which the eager path could not step on C MuJoCo: its video failed.)"""
     import jax
     import jax.numpy as jnp
 
-    from angora_jax.analysis.lesion import SilencedActions
+    from angora_jax.analysis import silence_actions
+    from angora_jax.experiment import video
+    from angora_jax.experiment.agent import Agent
+    from angora_jax.experiment.config import load_config
+    from angora_jax.nets import ActorCritic, make_network
+    from angora_jax.ppo.cycle import build_head
+    from angora_jax.ppo.evaluate import PolicyState
+    from angora_jax.ppo.normalization import observation_stats
 
-    env = SilencedActions(cpu_hand, (5,))
-    state = env.step(env.reset(jax.random.key(0)), jnp.full(MUSCLES, 0.3))
-    excitation = np.asarray(env.task_variables(state)["muscle_excitation"])
-    assert excitation[5] == 0.0
-    np.testing.assert_allclose(np.delete(excitation, 5), 0.3, rtol=1e-6)
-    assert env.sized_for(4) is env and env.data is cpu_hand.data, "the rest is the task's"
+    config = load_config("myohand_pose", ["ppo.network.width=8"])
+    network, head = make_network(config.ppo.network), build_head(cpu_hand, config.ppo)
+    obs = cpu_hand.reset(jax.random.key(0)).obs
+    params = ActorCritic(network, head).init(jax.random.key(0), network.initial_carry(1),
+                                         jax.tree.map(lambda x: x[None], obs))["params"]
+    state = PolicyState(params, observation_stats(obs), jnp.asarray(0, jnp.int32))
+    agent = Agent(config, cpu_hand, network, head, state, 0)
+    ctrls = []
+
+    class Renderer:  # what the video would draw: each step's MjData, its ctrl kept
+        def __init__(self, model, body, camera, width, height):
+            self.frame = np.zeros((height, width, 3), np.uint8)
+
+        def render(self, data):
+            ctrls.append(np.array(data.ctrl))
+            return self.frame
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(video, "SceneRenderer", Renderer)
+    sent = {}
+    for name, acting in (("intact", agent), ("silenced", silence_actions(agent, [7]))):
+        ctrls.clear()
+        video.render_episodes(acting, None, max_steps=2, width=8, height=8)
+        sent[name] = np.array(ctrls[1:])  # the reset's frame shows ctrl 0 everywhere
+    assert np.all(sent["silenced"][:, 7] == 0.0) and np.all(sent["intact"][:, 7] > 0.0)
+    np.testing.assert_array_equal(np.delete(sent["silenced"][0], 7), np.delete(sent["intact"][0], 7))
 
 
 # A MyoHandPose run of the brain-area model on MuJoCo Warp (on the CPU), 2 cycles of 4 environments: untrained, only
@@ -192,6 +225,8 @@ def test_a_muscles_lesion_zeroes_that_muscles_recorded_excitation_only_and_the_p
     hand lacks). The fast counterparts: the silenced step on the C MuJoCo twin above, and the analyses on synthetic
     data."""
     pytest.importorskip("myo_sim")
+    from jax_events import jax_events
+
     import angora_jax as aj
     from angora_jax.analysis import PROBES, record_activity, save_activity, silence_actions
     from angora_jax.cli import main
@@ -217,9 +252,14 @@ def test_a_muscles_lesion_zeroes_that_muscles_recorded_excitation_only_and_the_p
     assert np.all(np.isfinite(control)), "the random-weights control replayed the recording"
     assert main(["analyze", "synergies", str(path), "--max-synergies", "3"]) == 0
     assert xr.load_dataset(tmp_path / "hand.synergies.nc")["muscle"].values[24] == "FPL_r"
-    assert main(["analyze", "ablate", str(run.run_dir), "--checkpoint", "latest", "--action", "PQ_r", "--episodes", "4",
-                 "--out", str(tmp_path / "ablation.png")]) == 0
-    assert list(xr.load_dataset(tmp_path / "ablation.nc")["lesion"].values) == ["intact", "-action 7 (PQ_r)"]
+    with jax_events("jaxpr_trace_duration") as traced:  # the intact agent and its three lesions: one program
+        assert main(["analyze", "ablate", str(run.run_dir), "--checkpoint", "latest", "--action", "PQ_r", "24", "0",
+                     "--episodes", "4", "--out", str(tmp_path / "ablation.png")]) == 0
+    assert traced.count("evaluate") == 1, traced
+    ablated = xr.load_dataset(tmp_path / "ablation.nc")
+    assert list(ablated["lesion"].values) == ["intact", "-action 7 (PQ_r)", "-action 24 (FPL_r)", "-action 0 (ECRL_r)"]
+    assert np.all(ablated["outcome_values"].sel(lesion="intact", outcome="episode_return").values !=
+                  ablated["outcome_values"].sel(lesion="-action 24 (FPL_r)", outcome="episode_return").values)
     assert main(["analyze", "ablate", str(run.run_dir), "--checkpoint", "latest", "--action", str(MUSCLES)]) == 2
     capsys.readouterr()
     assert main(["analyze", "ablate", str(run.run_dir), "--checkpoint", "latest", "--action", "PQ"]) == 2

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -26,7 +25,6 @@ import xarray as xr
 from angora_jax.analysis.decoding import plot_path
 from angora_jax.analysis.recording import episode_outcomes
 from angora_jax.analysis.units import checked_units
-from angora_jax.envs.core import Env, Sensation, State
 from angora_jax.experiment.agent import Agent, check_agent
 from angora_jax.experiment.config import ConfigError, check_count, check_number, check_seed
 from angora_jax.wording import counted
@@ -125,8 +123,11 @@ def silence_actions(agent: Agent, components: Sequence[int] | np.ndarray) -> Age
     """`agent` whose action `components` (indices) are forced to 0 before they reach the task: a muscle's lesion on a
     muscle-driven task (MyoHand: component i is muscle i's excitation, so the muscle stays at rest however the
     policy drives it). The policy and its recorded `action` are untouched; the task sees the silenced action (a
-    recording's `task_muscle_excitation` holds the 0). The silenced agent's programs compile anew (the mask is part
-    of the task's step): a lesion per muscle costs one compile each.
+    recording's `task_muscle_excitation` holds the 0). The silenced components are a mask in the agent's state
+    (`SilencedPolicyState`), data of its compiled programs rather than a constant: the agent, every lesion of it and
+    any other mask run the same programs, so a lesion per muscle costs no compile of its own. Every path that acts
+    for the agent silences them: `ablation`, `episode_outcomes`, `record_activity`, `Agent.act`, `Agent.evaluate`,
+    the eager path and its videos. Silencing an agent again adds its components to those already silenced.
 
     Args:
         agent: the agent to lesion (continuous actions).
@@ -146,69 +147,10 @@ def silence_actions(agent: Agent, components: Sequence[int] | np.ndarray) -> Age
                                counts=f"{agent.config.env.task}'s action has {counted(spec.size, 'component')}")
     if not components.size:
         return agent
-    return replace(agent, env=SilencedActions(agent.env, tuple(int(c) for c in components)), compiled={})
-
-
-class SilencedActions(Env):
-    """`env` with its action `components` forced to 0 in every step (`silence_actions`); everything else is `env`'s.
-
-    Attributes:
-        env: the task.
-        components: the silenced action indices.
-    """
-
-    def __init__(self, env: Env, components: tuple[int, ...]):
-        self.env = env
-        self.components = components
-        self.action_spec, self.max_episode_steps = env.action_spec, env.max_episode_steps
-        self.dt, self.metric_names = env.dt, env.metric_names
-        self._keep = np.ones(env.action_spec.shape, np.float32)
-        self._keep[..., list(components)] = 0.0
-
-    def __getattr__(self, name: str) -> Any:
-        # What a particular backend adds (the MuJoCo task, the C MuJoCo data) reads through. `env` is set in __init__;
-        # asked for before that (copy and pickle make instances without it), it is missing rather than recursing.
-        if name == "env":
-            raise AttributeError(name)
-        return getattr(self.env, name)
-
-    def _silenced(self, action: jax.Array) -> jax.Array:
-        return jnp.asarray(action, jnp.float32) * self._keep
-
-    def _reset(self, key: jax.Array) -> Any:
-        return self.env._reset(key)
-
-    def _step(self, physics: Any, info: dict[str, jax.Array], action: jax.Array, key: jax.Array) -> Any:
-        return self.env._step(physics, info, self._silenced(action), key)
-
-    def reset(self, key: jax.Array) -> State:
-        return self.env.reset(key)
-
-    def step(self, state: State, action: jax.Array) -> State:
-        return self.env.step(state, self._silenced(action))
-
-    def advance(self, state: State, action: jax.Array) -> tuple[State, jax.Array]:
-        return self.env.advance(state, self._silenced(action))
-
-    def sized_for(self, num_envs: int) -> Env:
-        sized = self.env.sized_for(num_envs)
-        return self if sized is self.env else SilencedActions(sized, self.components)
-
-    def data_parallel_problem(self) -> str | None:
-        return self.env.data_parallel_problem()
-
-    def physics_info(self, num_envs: int | None = None) -> dict[str, Any]:
-        return self.env.physics_info(num_envs)
-
-    @property
-    def sees_images(self) -> bool:
-        return self.env.sees_images
-
-    def task_variables(self, state: State) -> dict[str, jax.Array]:
-        return self.env.task_variables(state)
-
-    def observation_shapes(self) -> Sensation:
-        return self.env.observation_shapes()
+    state = agent.acting_state
+    silenced = np.array(state.silenced, bool)  # a copy: the mask of `agent` stays as it was
+    silenced[..., components] = True
+    return replace(agent, state=state.replace(silenced=jnp.asarray(silenced)))
 
 
 def ablation(agent: Agent, lesions: Mapping[str, Agent], episodes: int = 256, steps: int | None = None,

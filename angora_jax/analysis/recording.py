@@ -8,7 +8,9 @@ Episodes run batched on the training path (MJX for MuJoCo tasks, one compiled pr
                                                        their module path, e.g. network.policy_trunk.Dense_0)
     input_<modality>   (episode, time, <modality>_feature)  raw observation (before normalisation)
     input_vision       (episode, time, camera, y, x, channel)  camera images (uint8), only with `images=True`
-    action             (episode, time, action_dim)     the action sent to the environment
+    action             (episode, time, action_dim)     the action the policy sent to the environment (a
+                                                       silenced component, `silence_actions`, reached the
+                                                       task as 0)
     reward, value      (episode, time)                 reward of the step, value estimate of the observation
     metric_<name>      (episode, time)                 the task's metrics at the step (e.g. goals_reached)
     task_<name>        (episode, time, <name>_component)  the state's task variables (`Env.task_variables`), seen
@@ -50,7 +52,7 @@ from angora_jax.envs.core import Sensation, is_image
 from angora_jax.experiment.agent import Agent, check_agent, load_agent
 from angora_jax.experiment.config import check_count, check_flag, check_seed, override_strings
 from angora_jax.nets import ActorCritic
-from angora_jax.ppo.evaluate import make_evaluate
+from angora_jax.ppo.evaluate import make_evaluate, sent_to_task
 from angora_jax.whole_files import written_whole
 from angora_jax.wording import counted
 
@@ -61,7 +63,8 @@ RECORDING_CHUNK = 100
 
 def layer_activity(agent: Agent, carry: Any, obs: Any) -> tuple[Any, jax.Array, jax.Array, dict[str, jax.Array]]:
     """One step of `agent` on raw observations with every layer's output: (carry, env action (mode), value,
-    {layer name: (B, units)})."""
+    {layer name: (B, units)}). The action is the policy's, silenced components included: the task receives
+    `sent_to_task(agent.state, action)`."""
     (carry, policy_params, value), state = agent.apply(carry, obs, capture_intermediates=_captures_activity,
                                                        mutable=["intermediates"])
     layers = {}
@@ -123,9 +126,11 @@ def _run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: i
     `(time, episode, ...)`: inputs, action, value, reward, metrics, alive, steps, task (variables) and every layer's
     activity ("layers"). `steps` policy steps, or with None until every episode has ended (at most the task's
     episode length): the time axis then ends with the longest episode's last step. Compiled once per agent kind,
-    episode count and length: parameters and normaliser statistics are arguments, so variants of an agent (random
-    weights, lesions) reuse the program. Steps run in chunks, each copied to the host as it ends, since a whole
-    cube episode of every layer for hundreds of episodes does not fit in GPU memory."""
+    episode count and length: parameters, normaliser statistics and silenced action components are arguments
+    (`Agent.acting_state`), so variants of an agent (random weights, lesions, silenced muscles) reuse the program.
+    The recorded `action` is the policy's; the task receives it with the silenced components at 0. Steps run in
+    chunks, each copied to the host as it ends, since a whole cube episode of every layer for hundreds of episodes
+    does not fit in GPU memory."""
     env = agent.env.sized_for(episodes)
     limit = steps or env.max_episode_steps
     chunk = min(RECORDING_CHUNK, limit)
@@ -136,12 +141,12 @@ def _run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: i
             (episodes,), jnp.float32)
 
     def advance(policy_state, carry):
-        acting = replace(agent, state=policy_state)
+        acting = replace(agent, state=policy_state)  # never `agent.state`: that of the agent that compiled this
 
         def step(carry, _):
             state, net_carry, alive = carry
             net_carry, action, value, layers = layer_activity(acting, net_carry, state.obs)
-            next_state = jax.vmap(env.step)(state, action)
+            next_state = jax.vmap(env.step)(state, sent_to_task(policy_state, action))
             record = {"inputs": state.obs, "action": action, "value": value, "reward": next_state.reward,
                       "metrics": next_state.metrics, "alive": alive, "steps": state.steps,
                       "task": jax.vmap(env.task_variables)(state), "layers": layers}
@@ -154,11 +159,12 @@ def _run_episodes(agent: Agent, episodes: int, steps: int | None = None, seed: i
     # The shapes of a chunk's record, traced but not compiled: a recording too large for memory is refused before
     # XLA compiles or allocates it (`record --episodes 1000000` of CartPole ran over 5 minutes on 2 cores without
     # reaching the check after its first chunk).
-    _, first = jax.eval_shape(programs[1], agent.state, jax.eval_shape(programs[0], jax.random.key(seed)))
+    policy_state = agent.acting_state
+    _, first = jax.eval_shape(programs[1], policy_state, jax.eval_shape(programs[0], jax.random.key(seed)))
     _check_fits_in_memory(first, episodes, chunk, limit)
     carry, records, done = programs[0](jax.random.key(seed)), [], 0
     while done < limit:
-        carry, record = programs[1](agent.state, carry)
+        carry, record = programs[1](policy_state, carry)
         records.append(jax.device_get(record))
         done += chunk
         if steps is None and not np.any(np.asarray(carry[2])):
@@ -185,15 +191,16 @@ def episode_outcomes(agent: Agent, episodes: int = 256, steps: int | None = None
     """Per episode `(episodes,)` of `agent` (the policy's mode) from the starts of `seed`: episode_return (rewards
     through the episode's last step), episode_length (policy steps) and each task metric at the episode's last step
     (or at step `steps` when it has not ended by then). Runs the evaluation's program (`ppo.make_evaluate`), compiled
-    once per agent kind, episode count and limit: lesioned variants of an agent share it. The episodes are those
-    `record_activity` records with the same seed. ConfigError for counts or a seed that `record_activity` refuses."""
+    once per agent kind, episode count and limit: the agent and its lesioned variants share it, silenced action
+    components included (`Agent.acting_state`). The episodes are those `record_activity` records with the same seed.
+    ConfigError for counts or a seed that `record_activity` refuses."""
     check_agent(agent)
     episodes = check_count("episodes", episodes)
     steps = None if steps is None else check_count("steps", steps)
     seed = check_seed("seed", seed)
     program = agent.compiled_once(("outcomes", episodes, steps), lambda: make_evaluate(
         agent.env, agent.network, agent.config.ppo, episodes, per_episode=True, steps=steps))
-    totals = jax.device_get(program(agent.state, jax.random.key(seed)))
+    totals = jax.device_get(program(agent.acting_state, jax.random.key(seed)))
     return {name.removeprefix("metric/"): np.asarray(value) for name, value in totals.items()}
 
 

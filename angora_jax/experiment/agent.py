@@ -38,7 +38,7 @@ from angora_jax.nets import ActorCritic, make_network
 from angora_jax.nets.components import register_run_reader
 from angora_jax.ppo.cycle import build_head, build_model
 from angora_jax.ppo.distributions import PolicyHead
-from angora_jax.ppo.evaluate import PolicyState, make_evaluate
+from angora_jax.ppo.evaluate import PolicyState, SilencedPolicyState, make_evaluate, sent_to_task
 from angora_jax.ppo.normalization import normalize_observation
 from angora_jax.registry import generation
 from angora_jax.saved_files import USE, msgpack_kind
@@ -54,11 +54,13 @@ class Agent:
         env: its task.
         network: the policy/value network module.
         head: the policy head.
-        state: the restored `PolicyState` (params, normaliser statistics).
+        state: the restored `PolicyState` (params, normaliser statistics); a `SilencedPolicyState` for an agent whose
+            action components are silenced (`analysis.silence_actions`).
         cycle: the training cycle it was saved at.
         compiled: jitted functions of this agent's kind (see `compiled_once`), shared by every agent that `load_agent`
-            makes from runs with the same task, network and head: parameters are their arguments, so evaluating another
-            checkpoint, or the same one again, does not compile again.
+            makes from runs with the same task, network and head, and by their lesioned variants: parameters,
+            normaliser statistics and silenced action components are their arguments (`acting_state`), so evaluating
+            another checkpoint or lesion, or the same one again, does not compile again.
     """
 
     config: Config
@@ -88,6 +90,17 @@ class Agent:
     @property
     def params(self) -> Any:
         return self.state.params
+
+    @property
+    def acting_state(self) -> PolicyState:
+        """`state` as the compiled programs take it: a `SilencedPolicyState`, silencing no action component for an
+        intact agent of continuous actions, so that the agent and its variants with silenced components share every
+        program (one compile for all of `analysis.muscle_lesions`, not one per muscle); `state` itself for discrete
+        actions, which are never silenced."""
+        if isinstance(self.state, SilencedPolicyState) or self.env.action_spec.discrete:
+            return self.state
+        return SilencedPolicyState(params=self.state.params, obs_stats=self.state.obs_stats, cycle=self.state.cycle,
+                                   silenced=jnp.zeros(self.env.action_spec.shape, bool))
 
     def initial_carry(self, batch_size: int) -> Any:
         """The recurrent state at an episode's start for `batch_size` environments (a whole number of at least 1:
@@ -136,12 +149,13 @@ class Agent:
 
         carry: `initial_carry(B)` at episodes' starts, then what the previous call returned; obs: a Sensation of raw
         observations, leaves `(B, size)` (`jax.vmap(env.reset)(keys).obs`). Returns `(carry, env_actions, values)`:
-        actions `(B, *action_shape)` ready for `jax.vmap(env.step)` (`(B,)` integers for discrete actions), values
-        `(B,)` in the task's reward units (discounted return)."""
+        actions `(B, *action_shape)` ready for `jax.vmap(env.step)` (`(B,)` integers for discrete actions), 0 in the
+        components the agent silences (`analysis.silence_actions`), values `(B,)` in the task's reward units
+        (discounted return)."""
         key = None if key is None else sampling_key(key)
         carry, policy_params, value = self.apply(carry, obs)
         action = self.head.mode(policy_params) if key is None else self.head.sample(policy_params, key)
-        return carry, self.head.env_action(action), value
+        return carry, sent_to_task(self.state, self.head.env_action(action)), value
 
     def evaluate(self, num_envs: int = 16, seed: int = 0, deterministic: bool = True) -> dict[str, float]:
         """One episode in each of `num_envs` fresh environments; means of episode_return, episode_length and the
@@ -151,7 +165,7 @@ class Agent:
         deterministic = check_flag("deterministic", deterministic)
         evaluate = self.compiled_once(("evaluate", num_envs, deterministic), lambda: make_evaluate(
             self.env, self.network, self.config.ppo, num_envs, deterministic))
-        return {k: float(v) for k, v in evaluate(self.state, jax.random.key(seed)).items()}
+        return {k: float(v) for k, v in evaluate(self.acting_state, jax.random.key(seed)).items()}
 
 
 def sampling_key(key: object) -> jax.Array:

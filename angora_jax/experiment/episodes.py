@@ -51,12 +51,13 @@ def on_host() -> Iterator[jax.Device]:
 def agent_policy(agent: Agent, stochastic: bool = False) -> Policy:
     """The agent's step for a batch of environments (see `Policy`), jitted once per batch size, on the host CPU: the
     head's mode, or with `stochastic` a sample from the row's key. Each row is computed as a batch of one (`rowwise`),
-    so its actions do not depend on the batch. Parameters and normaliser statistics are arguments of the compiled
-    function, not constants: agents of the same kind share it (`Agent.compiled`)."""
+    so its actions do not depend on the batch. The agent's state (parameters, normaliser statistics and silenced
+    action components, `Agent.acting_state`) is an argument of the compiled function, not a constant: agents of the
+    same kind and their lesioned variants share it (`Agent.compiled`)."""
     fresh = jax.tree.map(lambda x: x[0], agent.initial_carry(1))  # one row's carry at an episode's start
 
-    def act(params, obs_stats, carry, obs, keys, steps, starting):
-        acting = replace(agent, state=agent.state.replace(params=params, obs_stats=obs_stats))
+    def act(state, carry, obs, keys, steps, starting):
+        acting = replace(agent, state=state)  # never `agent.state`: that of the agent that compiled the function
 
         def row(carry, obs, key, step, start):
             carry = jax.tree.map(lambda c, f: jnp.where(start, f, c), carry, fresh)
@@ -68,10 +69,10 @@ def agent_policy(agent: Agent, stochastic: bool = False) -> Policy:
 
     compiled = agent.compiled_once(("policy", stochastic), lambda: jax.jit(act))
     cpu = jax.devices("cpu")[0]
-    params, obs_stats = jax.device_put((agent.params, agent.state.obs_stats), cpu)
+    state = jax.device_put(agent.acting_state, cpu)
     # The carry is committed to the host like everything else, so that the first call compiles for the later ones.
-    return lambda carry, obs, keys, steps, starting: compiled(params, obs_stats, jax.device_put(carry, cpu), obs,
-                                                              keys, steps, starting)
+    return lambda carry, obs, keys, steps, starting: compiled(state, jax.device_put(carry, cpu), obs, keys, steps,
+                                                              starting)
 
 
 def random_policy(env: Env) -> Policy:

@@ -203,12 +203,13 @@ def _evaluation(per_episode: dict[str, np.ndarray], meta: dict[str, Any], run_di
 def _evaluate_batched(agent: Agent, run_dir: str | Path, checkpoint: str | int, episodes: int, stochastic: bool,
                       seed: int, save: bool | str | Path, changed: dict[str, Any]) -> Evaluation:
     """`evaluate` on the batched training path: one compiled program runs all `episodes` at once."""
+    state = agent.acting_state  # the silenced action components are its data: one program for any lesion
     compiled = agent.compiled_once(("batched", episodes, stochastic), lambda: make_evaluate(
         agent.env, agent.network, agent.config.ppo, episodes, not stochastic, per_episode=True
-    ).lower(agent.state, jax.random.key(seed)).compile())
+    ).lower(state, jax.random.key(seed)).compile())
     start = time.perf_counter()
     per_episode = {name: np.asarray(v) for name, v in jax.block_until_ready(
-        compiled(agent.state, jax.random.key(seed))).items()}
+        compiled(state, jax.random.key(seed))).items()}
     wall = time.perf_counter() - start
     env = agent.env.sized_for(episodes)
     physics = f"batched {type(env).__name__} ({getattr(env, 'impl', 'jax')}) on {jax.devices()[0].device_kind}"

@@ -29,6 +29,27 @@ class PolicyState:
     cycle: jax.Array
 
 
+@struct.dataclass
+class SilencedPolicyState(PolicyState):
+    """A `PolicyState` whose policy acts with some action components held at 0 before they reach the task (a
+    denervated muscle: `analysis.silence_actions`): `silenced`, bool of the action's shape, True where the task
+    receives 0 whatever the policy sends (`sent_to_task`). The mask is data of the programs that take the state, not
+    a constant compiled into them, so an agent and all its variants with other masks of the same shape run the same
+    programs (`Agent.acting_state`). For acting only: checkpoints and exported policies hold the plain
+    `PolicyState`."""
+
+    silenced: jax.Array
+
+
+def sent_to_task(state: Any, action: jax.Array) -> jax.Array:
+    """`action` (environment actions, `(..., *action_shape)`) as the task receives it from a policy acting with
+    `state`: 0 in the components a `SilencedPolicyState` silences; as it is for any other state (a `PolicyState`, a
+    `TrainState`)."""
+    if not isinstance(state, SilencedPolicyState):
+        return action
+    return jnp.where(state.silenced, jnp.zeros_like(action), action)
+
+
 def make_evaluate(
     env: Env, network: nn.Module | None, config: PPOConfig, num_envs: int, deterministic: bool = True,
     per_episode: bool = False, steps: int | None = None,
@@ -41,9 +62,11 @@ def make_evaluate(
     so long limits (a cube episode may last 5,000 steps) cost only the steps the longest episode takes. Metrics:
     episode_return and episode_length (means over environments), `metric/<name>` at each episode's end (or at the
     last step run, for an episode that `steps` cut short); with `per_episode`, each environment's values (arrays
-    `(num_envs,)`) instead of the means. The whole loop is one program call. A host loop over chunks of steps gives
-    MuJoCo Warp new buffer addresses at each call, so new CUDA graphs; such a loop of 50 calls per lesion segfaulted
-    on an H100 (benchmarks/results/probing/cube_cortical_probe_h100.md), and this program did not.
+    `(num_envs,)`) instead of the means. A `SilencedPolicyState` holds its silenced action components at 0 before
+    they reach the task (`sent_to_task`), with the same program for any mask of that shape. The whole loop is one
+    program call. A host loop over chunks of steps gives MuJoCo Warp new buffer addresses at each call, so new CUDA
+    graphs; such a loop of 50 calls per lesion segfaulted on an H100
+    (benchmarks/results/probing/cube_cortical_probe_h100.md), and this program did not.
     """
     env = env.sized_for(num_envs)
     limit = steps or env.max_episode_steps
@@ -63,7 +86,7 @@ def make_evaluate(
                 obs = normalize_observation(state.obs_stats, obs, config.normalization.clip)
             net_carry, policy_params, _ = model.apply({"params": state.params}, net_carry, obs)
             action = head.mode(policy_params) if deterministic else head.sample(policy_params, key)
-            env_state = jax.vmap(env.step)(env_state, head.env_action(action))
+            env_state = jax.vmap(env.step)(env_state, sent_to_task(state, head.env_action(action)))
             ended = running * env_state.done
             totals = {
                 "episode_return": totals["episode_return"] + running * env_state.reward,
