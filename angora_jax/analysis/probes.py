@@ -56,7 +56,8 @@ def cube_lesions(agent: Agent) -> dict[str, Agent]:
 def muscle_lesions(agent: Agent) -> dict[str, Agent]:
     """A muscle-driven hand's lesions of `agent` (name -> lesioned agent): each muscle silenced on its own (its
     excitation held at 0, `silence_actions`; named `-<actuator name>`), M1 and the muscle sense, and the empty lesion
-    (no muscle; it must equal the intact agent). Each muscle's lesion compiles its own evaluation program."""
+    (no muscle; it must equal the intact agent). The silenced muscle is data of the compiled programs: the muscles'
+    lesions and the intact agent share one evaluation program."""
     model = agent.env.task.model
     muscles = {f"-{mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i)}": silence_actions(agent, [i])
                for i in range(model.nu)}
