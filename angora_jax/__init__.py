@@ -4,23 +4,36 @@ The notebook API: `make_env(task, **options)`, `load_config(path_or_name, overri
 `angora-jax train` does: run directory, checkpoints, metrics, report), `load_agent(run_dir)`, `evaluate(run_dir)`
 (episode statistics on the eager CPU path), `render_frames(run_dir)` (video frames), `export_policy(run_dir, file)`
 and `load_policy(file)` (the policy in one file, used without the run directory; `angora-jax export` writes it too).
+Each is imported when first used (angora_jax.lazy_names), so that `import angora_jax` and every `angora-jax` command
+start without JAX.
 """
+
+from typing import TYPE_CHECKING
 
 # First: cpu_threads sizes XLA's CPU thread pool before anything starts JAX; opengl_backend imports MuJoCo, naming a
 # MUJOCO_GL that cannot load.
 from angora_jax import cpu_threads, opengl_backend  # noqa: F401
-from angora_jax.envs import list_tasks, make
-from angora_jax.envs.gym_view import register_gymnasium_envs
-from angora_jax.experiment import list_configs, load_agent, load_config, resume, train
-from angora_jax.experiment.evaluation import evaluate
-from angora_jax.experiment.export import export_policy, load_policy
-from angora_jax.experiment.video import render_frames
-from angora_jax.vision import estimator as _registers_the_pose_estimator_reader  # noqa: F401  (see envs.shadow_hand)
+from angora_jax.envs.registry import register_gymnasium_envs
+from angora_jax.lazy_names import lazy_names
+from angora_jax.registry import registered_by
 
-make_env = make
+if TYPE_CHECKING:  # the names this package gives, each imported when first used (angora_jax.lazy_names)
+    from angora_jax.envs import list_tasks, make
+    from angora_jax.envs import make as make_env
+    from angora_jax.experiment import list_configs, load_agent, load_config, resume, train
+    from angora_jax.experiment.evaluation import evaluate
+    from angora_jax.experiment.export import export_policy, load_policy
+    from angora_jax.experiment.video import render_frames
+
+# Lower layers read saved runs and pose estimators through readers that higher ones register when imported: name
+# those modules, for the first read to import (see nets.components, envs.shadow_hand).
+registered_by("angora_jax.nets.components", "angora_jax.experiment.agent")
+registered_by("angora_jax.envs.shadow_hand", "angora_jax.vision.estimator")
 register_gymnasium_envs()
 
 __all__ = [
     "evaluate", "export_policy", "list_configs", "list_tasks", "load_agent", "load_config", "load_policy", "make",
     "make_env", "render_frames", "resume", "train",
 ]
+
+lazy_names(__name__)

@@ -3,27 +3,33 @@ envs -> nets -> ppo -> experiment -> vision -> analysis (it looks inside agents 
 package's public API (its `__init__`) -> cli, with angora_jax.registry, angora_jax.whole_files (result files
 written whole or not at all, which networks' component files need too), angora_jax.saved_files (which kind of
 saved file a file is, for messages in every layer), angora_jax.wording (did-you-mean hints and count words, for
-messages in every layer, below registry too, whose refusals use it) and angora_jax.cpu_threads (XLA's CPU thread
-pool, sized before JAX starts) below all. Where a lower layer needs something
-of a higher one (reading a saved run's policy for `init_from`, reading a pose estimator file for the cube), the higher
-one registers it with the lower (`nets.components.register_run_reader`,
-`envs.shadow_hand.register_pose_estimator_reader`). Inside a layer, no modules import each other in a circle (what two
-need of each other goes into a module below both). Imports only for type hints (under `if TYPE_CHECKING:`) never run
-and are not counted."""
+messages in every layer, below registry too, whose refusals use it), angora_jax.lazy_names (a package's public
+names, each imported when first used) and angora_jax.cpu_threads (XLA's CPU thread pool, sized before JAX starts)
+below all. Where a lower layer needs something of a higher one (reading a saved run's policy for `init_from`, reading
+a pose estimator file for the cube), the higher one registers it with the lower (`nets.components.register_run_reader`,
+`envs.shadow_hand.register_pose_estimator_reader`), and the package's `__init__` names the higher module for the lower
+one to import at its first read (`registry.registered_by`). Inside a layer, no modules import each other in a circle
+(what two need of each other goes into a module below both). Imports under `if TYPE_CHECKING:` are not counted: for
+type hints they never run, and in a package's `__init__` they declare its public names, imported when first used from
+its own modules (checked below)."""
 
 import ast
+import importlib
 import subprocess
 import sys
+import textwrap
+import types
 from pathlib import Path
 
 import pytest
 
 import angora_jax
+from angora_jax.lazy_names import declared_imports
 
 # "api": the package itself (`import angora_jax as aj`), the public API its __init__ gathers.
 LAYERS = {"wording": -1, "registry": 0, "whole_files": 0, "saved_files": 0, "opengl_backend": 0, "cpu_threads": 0,
-          "frozen_settings": 0, "envs": 1, "nets": 2, "ppo": 3, "experiment": 4, "vision": 5, "analysis": 6, "api": 7,
-          "cli": 8}
+          "frozen_settings": 0, "lazy_names": 0, "envs": 1, "nets": 2, "ppo": 3, "experiment": 4, "vision": 5,
+          "analysis": 6, "api": 7, "cli": 8}
 PACKAGE = Path(angora_jax.__file__).parent
 
 
@@ -178,3 +184,57 @@ def test_the_package_and_the_command_load_mujoco_mjx_only_when_a_task_needs_it()
     done = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.split() == ["False", "True"], done.stdout
+
+
+def test_a_package_gives_its_public_names_from_its_own_modules_when_first_used():
+    """A package's `__init__` declares its public names (its `__all__`) under `if TYPE_CHECKING:`, and each is imported
+    from its module when first used (angora_jax.lazy_names): a subpackage's come from its own modules (the top
+    package, the public API, gathers every layer's); each resolves and `dir()` lists it."""
+    packages = {module_name(init): declared_imports(init.read_text()) for init in sorted(PACKAGE.rglob("__init__.py"))}
+    lazy = {package: declared for package, declared in packages.items() if declared}
+    assert {f"angora_jax{sub}" for sub in ("", ".envs", ".experiment", ".ppo", ".vision")} <= set(lazy)
+    for package, declared in lazy.items():
+        if package != "angora_jax":
+            outside = sorted(module for module, _ in declared.values() if not module.startswith(f"{package}."))
+            assert not outside, f"{package} gives names of modules outside it: {outside}"
+        module = importlib.import_module(package)
+        assert sorted(module.__all__) == sorted(declared), package
+        for name in module.__all__:
+            value = getattr(module, name)
+            assert not isinstance(value, types.ModuleType) and name in dir(module), f"{package}.{name}"
+
+
+def test_the_package_imports_jax_and_the_tasks_only_when_used():
+    """`import angora_jax` imports neither JAX nor distrax, Orbax or a task: the shipped tasks are listed, and their
+    Gymnasium ids registered, from `envs.registry.SHIPPED_TASKS`; making one imports its module alone; a submodule
+    named as a public name of its package (`angora_jax.ppo.train`) leaves the name to the function; a lower layer's
+    reader imports the module that registers it (`registry.registered_by`); and each shipped task is registered by
+    the module the table names."""
+    check = textwrap.dedent("""
+        import importlib, sys
+        import gymnasium
+        import angora_jax as aj
+        from angora_jax.envs.registry import SHIPPED_TASKS, TASKS
+        heavy = ("jax", "distrax", "orbax.checkpoint", "angora_jax.experiment.config", "angora_jax.envs.classic")
+        print([module for module in heavy if module in sys.modules])
+        ids = {id for id in gymnasium.registry if id.startswith("AngoraJax/")}
+        print(TASKS.names(plugins=False) == sorted(SHIPPED_TASKS), ids == {f"AngoraJax/{t}-v0" for t in SHIPPED_TASKS})
+        aj.make("CartPole")
+        print("angora_jax.envs.classic" in sys.modules, "angora_jax.envs.shadow_hand" in sys.modules)
+        import angora_jax.ppo.train
+        from angora_jax.ppo import train
+        print(train is sys.modules["angora_jax.ppo.train"].train)
+        from angora_jax.nets import components
+        try:
+            components.read_saved_run("no_such_run")
+        except Exception as error:
+            print(type(error).__name__, "angora_jax.experiment.agent" in sys.modules)
+        for module in dict.fromkeys(SHIPPED_TASKS.values()):
+            importlib.import_module(module)
+            print(all(name in TASKS._shipped_factories for name, by in SHIPPED_TASKS.items() if by == module))
+        print(sorted(TASKS._shipped_factories) == sorted(SHIPPED_TASKS), TASKS._factories)
+    """)
+    done = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.splitlines() == ["[]", "True True", "True False", "True", "FileNotFoundError True",
+                                        "True", "True", "True", "True", "True {}"], done.stdout

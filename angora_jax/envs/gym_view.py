@@ -16,10 +16,11 @@ import numpy as np
 
 from angora_jax.envs.core import MODALITIES, Env, State, is_image
 from angora_jax.envs.cpu_env import CpuEnv, eager, single_env_functions
-from angora_jax.envs.registry import TASKS, make
-from angora_jax.envs.rendering import SceneRenderer, camera_named, check_pixels
 
-NAMESPACE = "AngoraJax"
+# NAMESPACE and register_gymnasium_envs, once defined here, are found here still: envs.registry holds them, so that
+# `import angora_jax` registers the tasks' ids without importing this view and JAX.
+from angora_jax.envs.registry import NAMESPACE, make, register_gymnasium_envs  # noqa: F401
+from angora_jax.envs.rendering import SceneRenderer, camera_named, check_pixels
 
 
 class GymEnv(gymnasium.Env):
@@ -102,12 +103,3 @@ def _space(modality: Any) -> gymnasium.spaces.Box:
         return gymnasium.spaces.Box(0, 255, modality.shape, np.uint8)
     return gymnasium.spaces.Box(-np.inf, np.inf, modality.shape, np.float32)
 
-
-def register_gymnasium_envs() -> None:
-    """Register `AngoraJax/<Task>-v0` for every task registered so far and not with Gymnasium yet; call it again after
-    registering a task of your own."""
-    # The names so far, without loading plugins: `import angora_jax` calls this (angora_jax.registry.plugins: why).
-    for task in TASKS.names(plugins=False):
-        env_id = f"{NAMESPACE}/{task}-v0"
-        if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=GymEnv, kwargs={"task": task})

@@ -1,17 +1,38 @@
-"""Task registry: `make(name, **options)` builds an environment by name; `list_tasks()` lists the names."""
+"""Task registry: `make(name, **options)` builds an environment by name; `list_tasks()` lists the names;
+`register_gymnasium_envs()` gives each task a Gymnasium id.
+
+It imports neither JAX nor a task until a task is made or asked about (the environments' modules, JAX and the host
+view of Gymnasium's environments are imported inside its functions): `import angora_jax` lists the tasks to register
+their Gymnasium ids, which would otherwise cost every `angora-jax` command a second."""
 
 from __future__ import annotations
 
 import difflib
 import inspect
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from angora_jax.envs.core import Env
-from angora_jax.envs.host import PREFIX, make_gymnasium
+import gymnasium
+
 from angora_jax.registry import Registry
 
-TASKS: Registry[Callable[..., Env]] = Registry("task", "tasks")
+if TYPE_CHECKING:
+    from angora_jax.envs.core import Env
+
+# The tasks shipped in angora_jax.envs, by the module that registers each, imported when one of its tasks is first
+# made or asked about (`Registry`); tests/test_layering.py checks that each module registers exactly these.
+SHIPPED_TASKS = {
+    **dict.fromkeys(("CartPole", "Pendulum", "Acrobot", "MountainCar", "MountainCarContinuous"),
+                    "angora_jax.envs.classic"),
+    **dict.fromkeys(("Hopper", "Walker2d", "HalfCheetah", "Swimmer", "Ant", "Humanoid", "InvertedPendulum",
+                     "InvertedDoublePendulum", "Reacher"), "angora_jax.envs.locomotion"),
+    **dict.fromkeys(("MyoHandPose", "MyoHandReach", "MyoHandReorient"), "angora_jax.envs.myohand"),
+    **dict.fromkeys(("ShadowHandReach", "ShadowHandFreeReach", "ShadowHandReachSequential",
+                     "ShadowHandFreeReachSequential", "ShadowHandCube"), "angora_jax.envs.shadow_hand"),
+}
+TASKS: Registry[Callable[..., Env]] = Registry("task", "tasks", SHIPPED_TASKS)
+# Gymnasium's namespace of the tasks' ids: `gymnasium.make("AngoraJax/ShadowHandReach-v0")`.
+NAMESPACE = "AngoraJax"
 
 
 def register(name: str, factory: Callable[..., Env]) -> None:
@@ -31,6 +52,8 @@ def make(name: str, **options) -> Env:
         raise TypeError(f"make takes a task's name (e.g. 'CartPole'; aj.list_tasks() lists them), got "
                         f"{_given_for_a_name(name)}.")
     if is_gymnasium(name):
+        from angora_jax.envs.host import make_gymnasium
+
         return make_gymnasium(name, **options)
     constructor = TASKS.get(name)
     if (unknown := unknown_option(name, options)) is not None:
@@ -42,6 +65,8 @@ def make(name: str, **options) -> Env:
 def _given_for_a_name(given: object) -> str:
     """What `make` was given where a task's name goes, and what to give instead when the given thing holds a task:
     a Config (or its `env` section), an agent, an Env already made."""
+    from angora_jax.envs.core import Env
+
     kind = type(given).__name__
     if isinstance(given, Env):
         return f"the task itself (a {kind}): use it as it is"
@@ -90,4 +115,16 @@ def _refuse_non_bools(name: str, constructor: Any, options: dict[str, Any]) -> N
 
 def is_gymnasium(name: str) -> bool:
     """Whether task `name` is a Gymnasium id run on the host (`gym:<id>`) rather than a registered task."""
+    from angora_jax.envs.host import PREFIX
+
     return name.startswith(PREFIX)
+
+
+def register_gymnasium_envs() -> None:
+    """Register `AngoraJax/<Task>-v0` for every task registered so far and not with Gymnasium yet; call it again after
+    registering a task of your own. Gymnasium imports the view (`angora_jax.envs.gym_view.GymEnv`) when it makes one."""
+    # The names so far, without loading plugins: `import angora_jax` calls this (angora_jax.registry.plugins: why).
+    for task in TASKS.names(plugins=False):
+        env_id = f"{NAMESPACE}/{task}-v0"
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point="angora_jax.envs.gym_view:GymEnv", kwargs={"task": task})

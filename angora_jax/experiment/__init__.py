@@ -6,23 +6,28 @@ reports. The `angora-jax` command is a thin layer over these functions.
     agent = load_agent(run.run_dir)                            # best checkpoint: act, evaluate, probe
 """
 
-from angora_jax.experiment.agent import Agent, load_agent, snapshot_cycles
-from angora_jax.experiment.checkpoint import Checkpoints
-from angora_jax.experiment.config import (
-    CheckpointConfig,
-    Config,
-    ConfigError,
-    DistributionConfig,
-    EnvConfig,
-    LoggingConfig,
-    list_configs,
-    load_config,
-    to_dict,
-    validate,
-)
-from angora_jax.experiment.monitor import read_metrics
-from angora_jax.experiment.run_dir import RunDirError
-from angora_jax.experiment.runner import TrainingInterrupted, TrainingRun, resume, train
+from typing import TYPE_CHECKING
+
+from angora_jax.lazy_names import lazy_names
+
+if TYPE_CHECKING:  # the names this package gives, each imported when first used (angora_jax.lazy_names)
+    from angora_jax.experiment.agent import Agent, load_agent, snapshot_cycles
+    from angora_jax.experiment.checkpoint import Checkpoints
+    from angora_jax.experiment.config import (
+        CheckpointConfig,
+        Config,
+        ConfigError,
+        DistributionConfig,
+        EnvConfig,
+        LoggingConfig,
+        list_configs,
+        load_config,
+        to_dict,
+        validate,
+    )
+    from angora_jax.experiment.monitor import read_metrics
+    from angora_jax.experiment.run_dir import RunDirError
+    from angora_jax.experiment.runner import TrainingInterrupted, TrainingRun, resume, train
 
 __all__ = [
     "Agent",
@@ -46,3 +51,5 @@ __all__ = [
     "train",
     "validate",
 ]
+
+lazy_names(__name__)

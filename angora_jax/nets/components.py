@@ -20,6 +20,7 @@ import numpy as np
 import optax
 from flax import serialization
 
+from angora_jax.registry import import_registrar
 from angora_jax.saved_files import COMPONENT, USE, content_kind
 from angora_jax.whole_files import written_whole
 
@@ -35,7 +36,8 @@ _run_reader: Callable[[str], Any] | None = None
 
 def register_run_reader(reader: Callable[[str], Any]) -> None:
     """Make `reader(source) -> saved policy` the way `read_saved_run` (and so `init_from` and run-directory
-    components) reads runs. angora_jax.experiment registers its `saved_policy` when it is imported."""
+    components) reads runs. angora_jax.experiment registers its `saved_policy` when it is imported (the first read
+    imports it where `import angora_jax` did not)."""
     global _run_reader
     _run_reader = reader
 
@@ -43,6 +45,8 @@ def register_run_reader(reader: Callable[[str], Any]) -> None:
 def read_saved_run(source: str | Path) -> Any:
     """The saved policy (`params`, `obs_stats`) of the run `source` ("RUN_DIR[:best|latest|<cycle>]"), read by the
     registered reader; RuntimeError naming the fix when none is registered."""
+    if _run_reader is None:  # `import angora_jax` names the module that registers it, without importing it
+        import_registrar(__name__)
     if _run_reader is None:
         raise RuntimeError(f"Reading the saved run {str(source)!r} needs angora_jax.experiment, which registers the "
                            "run-directory reader: import angora_jax first.")

@@ -17,7 +17,6 @@ from angora_jax.nets.area_graph import AreaGraph, AreaSpec, ValueSpec, check_gra
 from angora_jax.nets.cortical import area_sizes
 from angora_jax.nets.models import POLICY_MODALITIES, RECURRENT_CELLS
 from angora_jax.nets.visual import make_visual_area
-from angora_jax.ppo.distributions import list_heads
 from angora_jax.ppo.episode_pool import Pool, compared_value
 from angora_jax.wording import counted
 
@@ -406,8 +405,12 @@ class PPOConfig:
         self.network.validate()
         if self.stop_at is not None:
             self.stop_at.validate()
-        if self.head != "auto" and self.head not in list_heads():
-            raise ValueError(f"ppo.head must be 'auto' or one of {list_heads()}, got {self.head!r}.")
+        if self.head != "auto":
+            # Here, not at the top: the heads' module imports distrax and TensorFlow Probability (0.7 s).
+            from angora_jax.ppo.distributions import list_heads
+
+            if self.head not in list_heads():
+                raise ValueError(f"ppo.head must be 'auto' or one of {list_heads()}, got {self.head!r}.")
         if self.init_from is not None and (not isinstance(self.init_from, str) or not self.init_from):
             raise ValueError(f"ppo.init_from names a saved run, RUN_DIR[:best|latest|<cycle>]; got "
                              f"{self.init_from!r}.")

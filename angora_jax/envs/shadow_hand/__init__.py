@@ -19,6 +19,7 @@ from angora_jax.envs.shadow_hand.ihom import Ihom, IhomReward, PoseNoise, PoseRe
 from angora_jax.envs.shadow_hand.model import PhysicsSettings, add_touch_sensors, load_scene
 from angora_jax.envs.shadow_hand.reach import REWARD_PRESETS as REACH_REWARDS
 from angora_jax.envs.shadow_hand.reach import Reach, ReachReward
+from angora_jax.registry import import_registrar
 
 
 def build(backend: str, task: MujocoTask, frame_skip: int, max_episode_steps: int, settings: PhysicsSettings,
@@ -87,13 +88,15 @@ _pose_estimator_reader: Callable[[str], PoseReader] | None = None
 
 def register_pose_estimator_reader(reader: Callable[[str], PoseReader]) -> None:
     """Make `reader(file) -> pose estimator` the way `make_ihom` reads its `pose_estimator` file; angora_jax.vision
-    registers `PoseEstimator.load` when it is imported (as `import angora_jax` does)."""
+    registers `PoseEstimator.load` when it is imported (the first read imports it after `import angora_jax`)."""
     global _pose_estimator_reader
     _pose_estimator_reader = reader
 
 
 def read_pose_estimator(file: str) -> PoseReader:
     """The pose estimator saved in `file`, read by the registered reader; RuntimeError naming the fix without one."""
+    if _pose_estimator_reader is None:  # `import angora_jax` names the module that registers it, without importing it
+        import_registrar(__name__)
     if _pose_estimator_reader is None:
         raise RuntimeError(f"Reading the pose estimator {file!r} needs angora_jax.vision, which registers the reader: "
                            "import angora_jax (or angora_jax.vision) first.")
