@@ -308,7 +308,7 @@ def test_another_process_failing_exits_1_with_the_message_not_a_traceback(capsys
     def fail(config, minutes=None):
         raise ProcessFailed((1,), 3, tmp_path / "run")
 
-    monkeypatch.setattr(cli.training, "train", fail)
+    monkeypatch.setattr(runner, "train", fail)
     assert main(["train", "cartpole"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("angora-jax train: Process(es) 1 of this run failed after cycle 3")
@@ -321,7 +321,7 @@ def test_an_interrupted_job_says_so_once_from_process_0(capsys, tmp_path, monkey
     def interrupted(config, minutes=None):
         raise TrainingInterrupted(signal.SIGINT, tmp_path / "run", 3)
 
-    monkeypatch.setattr(cli.training, "train", interrupted)
+    monkeypatch.setattr(runner, "train", interrupted)
     monkeypatch.setattr(jax, "process_index", lambda: 1)
     assert main(["train", "cartpole"]) == 128 + signal.SIGINT and capsys.readouterr().err == ""
     monkeypatch.setattr(jax, "process_index", lambda: 0)
@@ -331,7 +331,7 @@ def test_an_interrupted_job_says_so_once_from_process_0(capsys, tmp_path, monkey
 
 def test_overrides_may_follow_the_options_and_other_strays_are_usage_errors(capsys, monkeypatch):
     seen = []
-    monkeypatch.setattr(cli.training, "train", lambda config, minutes: seen.append(config) or "run")
+    monkeypatch.setattr(runner, "train", lambda config, minutes: seen.append(config) or "run")
     monkeypatch.setattr(cli.training, "print_finished", lambda run: None)
     assert main(["train", "cartpole", "ppo.seed=1", "--minutes", "5", "ppo.num_envs=8"]) == 0
     assert [(config.ppo.seed, config.ppo.num_envs) for config in seen] == [(1, 8)]

@@ -204,17 +204,18 @@ def test_a_package_gives_its_public_names_from_its_own_modules_when_first_used()
             assert not isinstance(value, types.ModuleType) and name in dir(module), f"{package}.{name}"
 
 
-def test_the_package_imports_jax_and_the_tasks_only_when_used():
-    """`import angora_jax` imports neither JAX nor distrax, Orbax or a task: the shipped tasks are listed, and their
-    Gymnasium ids registered, from `envs.registry.SHIPPED_TASKS`; making one imports its module alone; a submodule
-    named as a public name of its package (`angora_jax.ppo.train`) leaves the name to the function; a lower layer's
-    reader imports the module that registers it (`registry.registered_by`); and each shipped task is registered by
-    the module the table names."""
+def test_the_package_and_the_command_import_jax_and_the_tasks_only_when_used():
+    """`import angora_jax` and the command's parser (every command, `--help` and a mistyped verb among them) import
+    neither JAX nor distrax, Orbax or a task: the shipped tasks are listed, and their Gymnasium ids registered, from
+    `envs.registry.SHIPPED_TASKS`; making one imports its module alone; a submodule named as a public name of its
+    package (`angora_jax.ppo.train`) leaves the name to the function; a lower layer's reader imports the module that
+    registers it (`registry.registered_by`); and each shipped task is registered by the module the table names."""
     check = textwrap.dedent("""
         import importlib, sys
         import gymnasium
-        import angora_jax as aj
+        import angora_jax as aj, angora_jax.cli
         from angora_jax.envs.registry import SHIPPED_TASKS, TASKS
+        angora_jax.cli.parser()
         heavy = ("jax", "distrax", "orbax.checkpoint", "angora_jax.experiment.config", "angora_jax.envs.classic")
         print([module for module in heavy if module in sys.modules])
         ids = {id for id in gymnasium.registry if id.startswith("AngoraJax/")}

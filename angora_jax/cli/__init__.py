@@ -39,10 +39,7 @@ import sys
 from angora_jax.cli import analysis, configs, evaluation, reports, training, vision
 from angora_jax.cli.arguments import EXIT_FAILED, EXIT_USAGE, add_import_option
 from angora_jax.cli.errors import device_memory_message, os_error_message, platform_message
-from angora_jax.experiment import ConfigError, RunDirError, TrainingInterrupted
-from angora_jax.experiment.distributed import ProcessFailed, is_main_process, lost_process_cause, lost_process_exit
 from angora_jax.experiment.terminal import discard, terminal_descriptors
-from angora_jax.ppo import TrainingDivergedError
 from angora_jax.registry.plugins import UserCodeError, import_modules
 
 # The verbs in the order `angora-jax --help` lists them, each added by the module of its group.
@@ -99,7 +96,8 @@ def main(argv: list[str] | None = None) -> int:
     except UserCodeError as error:
         print(f"angora-jax {args.command}: {error}", file=sys.stderr)
         return EXIT_USAGE
-    except (ConfigError, RunDirError, FileNotFoundError) as error:
+    except (*raised("angora_jax.experiment.config:ConfigError", "angora_jax.experiment.run_dir:RunDirError"),
+            FileNotFoundError) as error:
         # The system's own FileNotFoundError names a path and an errno; ours carry their whole message.
         system = isinstance(error, FileNotFoundError) and error.errno is not None
         print(f"angora-jax {args.command}: {os_error_message(error, args.command) if system else error}",
@@ -115,7 +113,9 @@ def main(argv: list[str] | None = None) -> int:
             return 128 + signal.SIGHUP
         print(f"angora-jax {args.command}: {os_error_message(error, args.command)}", file=sys.stderr)
         return EXIT_USAGE
-    except TrainingInterrupted as stop:
+    except raised("angora_jax.experiment.runner:TrainingInterrupted") as stop:
+        from angora_jax.experiment.distributed import is_main_process  # imported by the runner that raised it
+
         if is_main_process():  # every process of a job stopped after the same cycle: one says so, not one each
             print(f"angora-jax {args.command}: {stop}", file=sys.stderr)
         return 128 + stop.signum
@@ -123,7 +123,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"angora-jax {args.command}: interrupted (Ctrl-C); the files it wrote are whole, none was left "
               "half-written.", file=sys.stderr)
         return 128 + signal.SIGINT
-    except (TrainingDivergedError, ProcessFailed) as error:
+    except raised("angora_jax.ppo.train:TrainingDivergedError",
+                  "angora_jax.experiment.distributed:ProcessFailed") as error:
         print(f"angora-jax {args.command}: {error}", file=sys.stderr)
         return EXIT_FAILED
     except Exception as error:
@@ -131,11 +132,25 @@ def main(argv: list[str] | None = None) -> int:
         if platform is not None:
             print(f"angora-jax {args.command}: {platform}", file=sys.stderr)
             return EXIT_USAGE
-        lost = lost_process_cause(error)
-        if lost is not None:  # a process of the job is gone (kill -9): no traceback, no wait at the shutdown
-            lost_process_exit(lost)
+        if "angora_jax.experiment.distributed" in sys.modules:  # no job of several processes without it
+            from angora_jax.experiment.distributed import lost_process_cause, lost_process_exit
+
+            lost = lost_process_cause(error)
+            if lost is not None:  # a process of the job is gone (kill -9): no traceback, no wait at the shutdown
+                lost_process_exit(lost)
         message = device_memory_message(error, args.command)
         if message is None:
             raise
         print(f"angora-jax {args.command}: {message}", file=sys.stderr)
         return EXIT_USAGE
+
+
+def raised(*classes: str) -> tuple[type[BaseException], ...]:
+    """The exception classes among `classes` ("module:Class") whose modules are imported: only those can have been
+    raised, and importing the others on the way out (JAX, Orbax) would cost seconds for nothing."""
+    found = []
+    for name in classes:
+        module, _, attribute = name.partition(":")
+        if module in sys.modules:
+            found.append(getattr(sys.modules[module], attribute))
+    return tuple(found)

@@ -6,7 +6,7 @@ import argparse
 import sys
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -20,10 +20,14 @@ from angora_jax.cli.arguments import (
     positive_int,
     refused_existing,
 )
-from angora_jax.experiment import Agent, load_agent
-from angora_jax.experiment.run_dir import CONFIG_FILE, numbered_paths, read_run_config, unwritable_out
 from angora_jax.whole_files import written_whole
 from angora_jax.wording import agreeing, counted
+
+if TYPE_CHECKING:
+    from angora_jax.experiment import Agent, Config
+
+# The handlers import what they run (JAX, the analyses, runs) inside them: the parser, which every command builds, and
+# `--help` need none of it.
 
 
 def add_analyze(commands: argparse._SubParsersAction) -> None:
@@ -187,6 +191,22 @@ def _table(array: Any, digits: int) -> str:
     return array.to_pandas().round(digits).to_string()
 
 
+def read_run_config(run_dir: str | Path) -> Config:
+    """`angora_jax.experiment.run_dir.read_run_config`, imported when first called (a test hands an analysis a run
+    of its own by replacing this)."""
+    from angora_jax.experiment.run_dir import read_run_config
+
+    return read_run_config(run_dir)
+
+
+def load_agent(run_dir: str | Path, checkpoint: str | int, env_overrides: Sequence[str]) -> Agent:
+    """`angora_jax.load_agent`, imported when first called (a test hands an analysis an agent of its own by
+    replacing this)."""
+    from angora_jax.experiment.agent import load_agent
+
+    return load_agent(run_dir, checkpoint, env_overrides)
+
+
 def _recorded_agent(args: argparse.Namespace, data: Any, env_options: Sequence[str] = ()) -> Agent:
     """The agent of `--run` at the checkpoint the recording `data` was made from (its `cycle`), unless --checkpoint
     names one; ValueError when that holds another cycle than the recording's: fixed points, controls and filters of
@@ -328,6 +348,7 @@ def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None 
     import xarray as xr
 
     from angora_jax.analysis.decoding import nothing_ran
+    from angora_jax.experiment.run_dir import CONFIG_FILE
 
     recording = Path(args.recording)
     if (recording / CONFIG_FILE).is_file():
@@ -375,6 +396,8 @@ def output_path(analysis: str, given: str | None, directory: Path, stem: str) ->
     its numbers exist: then None, after saying so on stderr. Without --out, the first of `directory/<stem>.png`,
     `<stem>-2.png`, ... that neither file takes: a second analysis of the same recording with other options keeps
     the first's results."""
+    from angora_jax.experiment.run_dir import numbered_paths, unwritable_out
+
     if given:
         out = Path(given)
         from matplotlib.backend_bases import FigureCanvasBase

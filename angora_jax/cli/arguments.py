@@ -8,8 +8,10 @@ import dataclasses
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from angora_jax.experiment.config import Config, load_config
+if TYPE_CHECKING:
+    from angora_jax.experiment.config import Config
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
@@ -177,5 +179,7 @@ def add_import_option(command: argparse.ArgumentParser) -> None:
 def config_with_imports(args: argparse.Namespace) -> Config:
     """The config that `train` would use: `args.config` with `args.overrides`, and the --import modules added to its
     `imports` (after the config's own, each once), so that the run records them."""
+    from angora_jax.experiment.config import load_config  # JAX: not for parsing the command line
+
     config = load_config(args.config, args.overrides)
     return dataclasses.replace(config, imports=tuple(dict.fromkeys([*config.imports, *args.imports])))

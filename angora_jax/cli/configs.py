@@ -8,20 +8,15 @@ import math
 import sys
 import time
 
-import jax
 import numpy as np
 import yaml
 
 from angora_jax.cli.arguments import EXIT_FAILED, EXIT_OK, EXIT_USAGE, config_with_imports, positive_int, seed
-from angora_jax.envs import list_tasks, make
-from angora_jax.envs.random_rollout import batched_reset, episode_mean, make_random_rollout
-from angora_jax.experiment import list_configs
-from angora_jax.experiment.config import to_dict, validate
-from angora_jax.experiment.config_reference import reference_markdown
-from angora_jax.experiment.sources import check_sources
-from angora_jax.nets import list_networks
-from angora_jax.ppo import list_heads
+from angora_jax.envs import list_tasks
 from angora_jax.wording import counted
+
+# The handlers import what they run (JAX, configs, networks) inside them: the parser, which every command builds, and
+# `--help` need none of it.
 
 
 def add_config(commands: argparse._SubParsersAction) -> None:
@@ -37,7 +32,7 @@ def add_config(commands: argparse._SubParsersAction) -> None:
     show.set_defaults(handler=command_config_show)
     reference = config_commands.add_parser("reference", help="print every config key with its type, default and "
                                                              "description (Markdown; docs/config.md)")
-    reference.set_defaults(handler=lambda args: print(reference_markdown(), end="") or EXIT_OK)
+    reference.set_defaults(handler=command_config_reference)
 
 
 def add_list_configs(commands: argparse._SubParsersAction) -> None:
@@ -81,6 +76,9 @@ def command_config_show(args: argparse.Namespace) -> int:
     fitted to the network, traced but not compiled). Without the sources' check a missing init_from passed here and
     failed only when the job started. What it cannot check is the run directory itself: `train` refuses a
     logging.run_name taken when the job starts, which may differ from now."""
+    from angora_jax.experiment.config import to_dict, validate
+    from angora_jax.experiment.sources import check_sources
+
     config = config_with_imports(args)
     check_sources(config, validate(config))
     print(f"# {args.config} {' '.join(args.overrides)}".rstrip() + ": what `angora-jax train` would use")
@@ -88,7 +86,16 @@ def command_config_show(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def command_config_reference(args: argparse.Namespace) -> int:
+    from angora_jax.experiment.config_reference import reference_markdown
+
+    print(reference_markdown(), end="")
+    return EXIT_OK
+
+
 def command_list_configs(args: argparse.Namespace) -> int:
+    from angora_jax.experiment.config import list_configs
+
     shipped = list_configs()
     width = max(map(len, shipped))
     for name, description in shipped.items():
@@ -106,6 +113,9 @@ def command_doctor(args: argparse.Namespace) -> int:
 
 
 def command_list_models(args: argparse.Namespace) -> int:
+    from angora_jax.nets import list_networks
+    from angora_jax.ppo.distributions import list_heads
+
     print("networks (ppo.network.name):", ", ".join(list_networks()))
     print("policy heads (ppo.head):", ", ".join(["auto", *list_heads()]))
     return EXIT_OK
@@ -123,6 +133,11 @@ def command_run(args: argparse.Namespace) -> int:
 def run_random(task: str, num_envs: int, num_steps: int, seed: int) -> dict[str, float]:
     """Roll out a random policy in `num_envs` batched environments for `num_steps` policy steps under one jit and
     print compile time, throughput and rewards. Returns the printed numbers."""
+    import jax
+
+    from angora_jax.envs import make
+    from angora_jax.envs.random_rollout import batched_reset, episode_mean, make_random_rollout
+
     env = make(task).sized_for(num_envs)
     rollout = jax.jit(make_random_rollout(env, num_envs, num_steps))
     reset = jax.jit(batched_reset, static_argnums=(0, 2))

@@ -6,9 +6,6 @@ import errno
 import os
 import traceback
 
-from angora_jax.experiment.doctor import CUDA_INSTALL
-from angora_jax.experiment.run_dir import NO_ROOM
-
 # What to do about the errors the operating system reports, by errno.
 OS_ERROR_FIXES = {
     errno.ENOSPC: "free space on that disk (or move the run root to a larger one)",
@@ -58,6 +55,8 @@ def device_memory_message(error: BaseException, command: str = "train") -> str |
     other error. A full disk, which TensorStore also reports as RESOURCE_EXHAUSTED, is not taken for it."""
     import jax
 
+    from angora_jax.experiment.run_dir import NO_ROOM
+
     on_gpu = jax.default_backend() == "gpu"
     while error is not None:
         text = str(error)
@@ -96,6 +95,8 @@ def platform_message(error: BaseException) -> str | None:
     frames = traceback.extract_tb(error.__traceback__)
     if not chosen or not frames or os.path.basename(frames[-1].filename) != "xla_bridge.py":
         return None
+    from angora_jax.experiment.doctor import CUDA_INSTALL  # JAX: only for this message
+
     cause = str(error).split(" (set JAX_PLATFORMS")[0] or f"JAX raised {type(error).__name__}"
     return (f"JAX cannot start the platform that JAX_PLATFORMS={chosen} names on this machine ({cause[:300]}): unset "
             "JAX_PLATFORMS to let JAX use what this machine has (`angora-jax doctor` then lists its devices); for an "

@@ -19,10 +19,11 @@ from angora_jax.cli.arguments import (
     seed,
 )
 from angora_jax.envs.rendering import CAMERAS, RenderError
-from angora_jax.experiment import ConfigError, RunDirError, evaluation, snapshot_cycles
-from angora_jax.experiment.agent import read_checkpoint
-from angora_jax.experiment.run_dir import unwritable_out
+from angora_jax.experiment.evaluation_settings import DEFAULT_BATCH, PATHS
 from angora_jax.wording import counted
+
+# The handlers import what they run (JAX, the agent, runs) inside them: the parser, which every command builds, and
+# `--help` need none of it.
 
 
 def add_evaluate(commands: argparse._SubParsersAction) -> None:
@@ -42,9 +43,9 @@ def add_evaluate(commands: argparse._SubParsersAction) -> None:
     evaluate.add_argument(
         "--stochastic", "--sample", action="store_true", help="sample actions instead of taking the mode"
     )
-    evaluate.add_argument("--batch", type=positive_int, default=evaluation.DEFAULT_BATCH,
+    evaluate.add_argument("--batch", type=positive_int, default=DEFAULT_BATCH,
                           help="episodes run at once (default: %(default)s); results do not depend on it")
-    evaluate.add_argument("--path", choices=evaluation.PATHS, default="cpu",
+    evaluate.add_argument("--path", choices=PATHS, default="cpu",
                           help="cpu: the eager path on the host (default): C MuJoCo for MuJoCo tasks, a task's "
                                "own JAX steps for others; batched: all episodes at once on the training path (MJX, "
                                "the GPU when there is one)")
@@ -106,6 +107,9 @@ def add_record(commands: argparse._SubParsersAction) -> None:
 
 
 def command_evaluate(args: argparse.Namespace) -> int:
+    from angora_jax.experiment import evaluation
+    from angora_jax.experiment.agent import snapshot_cycles
+
     if args.checkpoint == "snapshots":
         checkpoints = snapshot_cycles(args.run_dir)
         if not checkpoints:
@@ -156,6 +160,7 @@ def command_render(args: argparse.Namespace) -> int:
 
 
 def command_export(args: argparse.Namespace) -> int:
+    from angora_jax.experiment.agent import read_checkpoint
     from angora_jax.experiment.export import export_policy, policy_path
 
     asked = checkpoint_of(args.checkpoint)
@@ -179,6 +184,8 @@ def command_export(args: argparse.Namespace) -> int:
 
 def command_record(args: argparse.Namespace) -> int:
     from angora_jax.analysis import record_activity, save_activity
+    from angora_jax.experiment import ConfigError, RunDirError
+    from angora_jax.experiment.run_dir import unwritable_out
 
     out = Path(args.out)
     if out.suffix.lower() != ".nc":

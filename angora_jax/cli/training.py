@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from typing import TYPE_CHECKING
 
 from angora_jax.cli.arguments import (
     EXIT_OK,
@@ -15,13 +16,13 @@ from angora_jax.cli.arguments import (
     checkpoint_of,
     config_with_imports,
 )
-from angora_jax.experiment import ConfigError, TrainingRun, read_metrics, resume, train
-from angora_jax.experiment.distributed import initialize, is_main_process
-from angora_jax.experiment.run_check import check_run, restore_config
-from angora_jax.experiment.run_dir import read_run_config
-from angora_jax.experiment.runner import signals_exit_while_preparing
-from angora_jax.ppo.config import INT32_MAX
 from angora_jax.wording import counted
+
+if TYPE_CHECKING:
+    from angora_jax.experiment import TrainingRun
+
+# The handlers import what they run (JAX, the trainer) inside them: the parser, which every command builds, and
+# `--help` need none of it.
 
 
 def add_train(commands: argparse._SubParsersAction) -> None:
@@ -53,7 +54,7 @@ def add_resume(commands: argparse._SubParsersAction) -> None:
         help="train the run again from cycle 0 with its config; the earlier metrics, checkpoints, report, videos and "
              "evaluations move to RUN_DIR/previous-N/")
     resume.add_argument(
-        "--num-cycles", type=bounded_int(1, INT32_MAX, "the cycle counter is a 32-bit integer"), default=None,
+        "--num-cycles", type=bounded_int(1, 2**31 - 1, "the cycle counter is a 32-bit integer"), default=None,
         metavar="N",
         help="train to N cycles in all instead of the run's ppo.num_cycles (recorded in its config.yaml): to train a "
              "finished run longer, or stop one sooner")
@@ -84,12 +85,16 @@ def add_check(commands: argparse._SubParsersAction) -> None:
 
 
 def start_distributed(args: argparse.Namespace) -> None:
+    from angora_jax.experiment import ConfigError
+
     if args.distributed:
         # JAX waits silently (5 minutes, then an abort) for processes that never join: say what is waited for.
         where = args.coordinator or "the cluster's coordinator"
         of = f"process {args.process_id} of {args.num_processes}" if args.num_processes is not None else "a process"
         print(f"Joining the jax.distributed job at {where} as {of} (JAX waits up to 5 minutes for all of them) ...",
               file=sys.stderr, flush=True)
+        from angora_jax.experiment.distributed import initialize
+
         try:
             initialize(args.coordinator, args.num_processes, args.process_id, args.local_devices)
         except ValueError as error:  # JAX's checks of the job's settings, before it connects to anything
@@ -106,14 +111,21 @@ def start_distributed(args: argparse.Namespace) -> None:
 
 def command_train(args: argparse.Namespace) -> int:
     start_distributed(args)
+    config = config_with_imports(args)  # first: a mistyped name or key is told without importing the trainer
+    from angora_jax.experiment.distributed import is_main_process
+    from angora_jax.experiment.runner import signals_exit_while_preparing, train
+
     with signals_exit_while_preparing():
-        run = train(config_with_imports(args), minutes=args.minutes)
+        run = train(config, minutes=args.minutes)
     if is_main_process():
         print_finished(run)
     return EXIT_OK
 
 
 def command_resume(args: argparse.Namespace) -> int:
+    from angora_jax.experiment.distributed import is_main_process
+    from angora_jax.experiment.runner import resume, signals_exit_while_preparing
+
     start_distributed(args)
     with signals_exit_while_preparing():
         run = resume(args.run_dir, minutes=args.minutes, exact=args.exact, start_from=checkpoint_of(args.start_from),
@@ -125,6 +137,8 @@ def command_resume(args: argparse.Namespace) -> int:
 
 
 def command_check(args: argparse.Namespace) -> int:
+    from angora_jax.experiment.run_check import check_run, restore_config
+
     if args.restore_config:
         print(restore_config(args.run_dir))
     found = check_run(args.run_dir)
@@ -133,6 +147,9 @@ def command_check(args: argparse.Namespace) -> int:
 
 
 def print_finished(run: TrainingRun) -> None:
+    from angora_jax.experiment.monitor import read_metrics
+    from angora_jax.experiment.run_dir import read_run_config
+
     cycle = int(run.state.cycle)
     print(f"Run {run.run_dir}: {counted(cycle, 'cycle')} done ({len(run.history)} in this session).")
     if run.stopped_at is not None:

@@ -7,12 +7,9 @@ import sys
 import time
 from pathlib import Path
 
-import jax
-
 from angora_jax.cli.arguments import EXIT_OK, EXIT_USAGE, positive_int, refused_existing, seed
 from angora_jax.envs.rendering import CAMERAS, RenderError
-from angora_jax.experiment.run_dir import unwritable_out
-from angora_jax.vision.estimator import ORIENTATIONS
+from angora_jax.vision.orientations import ORIENTATIONS
 from angora_jax.whole_files import written_whole
 from angora_jax.wording import counted
 
@@ -44,6 +41,9 @@ def add_pretrain_vision(commands: argparse._SubParsersAction) -> None:
 def command_pretrain_vision(args: argparse.Namespace) -> int:
     import json
 
+    import jax
+
+    from angora_jax.experiment.run_dir import unwritable_out
     from angora_jax.nets.components import save_component
     from angora_jax.nets.visual import VISUAL_ENCODERS
     from angora_jax.vision import pretrain_pose_encoder, render_pose_dataset

@@ -28,14 +28,12 @@ from angora_jax.envs.eager_batch import EagerBatch, batch_functions
 from angora_jax.experiment.agent import Agent, load_agent, read_checkpoint
 from angora_jax.experiment.config import ConfigError, check_count, check_flag, check_seed, override_strings, to_dict
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
+from angora_jax.experiment.evaluation_settings import DEFAULT_BATCH, PATHS
 from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths, run_holding, unwritable_out
 from angora_jax.ppo.evaluate import make_evaluate
 from angora_jax.whole_files import written_whole
 from angora_jax.wording import counted
 
-# Episodes run at once by default: enough to spread the fixed cost of each step's JAX calls, few enough that a small
-# evaluation still fills the batch.
-DEFAULT_BATCH = 32
 
 @dataclass(frozen=True)
 class Evaluation:
@@ -98,9 +96,6 @@ def agreement(a: np.ndarray, b: np.ndarray, bound: float = 3.0) -> dict[str, flo
     if a.shape == b.shape:
         result["stderr_paired"] = summarize(a - b)["stderr"]
     return result
-
-
-PATHS = ("cpu", "batched")
 
 
 def evaluate(run_dir: str | Path, checkpoint: str | int = "best", episodes: int = 480, stochastic: bool = False,

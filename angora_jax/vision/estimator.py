@@ -30,9 +30,8 @@ from jax.scipy.spatial.transform import Rotation
 from angora_jax.envs.shadow_hand import register_pose_estimator_reader
 from angora_jax.nets.visual import make_visual_encoder
 from angora_jax.saved_files import POSE_ESTIMATOR, content_kind
+from angora_jax.vision.orientations import ORIENTATIONS
 from angora_jax.whole_files import written_whole
-
-ORIENTATIONS = {"quaternion": 4, "6d": 6}  # the head's outputs per orientation representation
 
 
 def _unit(x: jax.Array) -> jax.Array:
