@@ -15,11 +15,13 @@ import pytest
 import yaml
 
 import angora_jax as aj
+from angora_jax.cli import main
 from angora_jax.envs.randomization import Randomization
 from angora_jax.experiment.config import (
     Config,
     ConfigError,
     check_count,
+    check_each_key_once,
     check_number,
     checked,
     flatten,
@@ -598,6 +600,16 @@ def test_a_key_given_twice_is_refused_with_both_lines(tmp_path: Path, text, key,
         load_config(tmp_path / "run.yaml")
     with pytest.raises(ConfigError, match=r"Override 'ppo={gamma: 0.9, gamma: 0.8}': key 'gamma' appears twice"):
         load_config("cartpole", ["ppo={gamma: 0.9, gamma: 0.8}"])
+
+
+def test_a_key_overridden_twice_is_refused_with_both_overrides_named(capsys):
+    """Trust trial: `train cartpole ppo.learning_rate=1e-3 ppo.learning_rate=2e-3` trained at 2e-3 without a word."""
+    with pytest.raises(ConfigError, match=r"ppo.learning_rate is given twice, 'ppo.learning_rate=1e-3' and then "
+                                          r"'ppo.learning_rate = 2e-3': give it once."):
+        check_each_key_once(["ppo.learning_rate=1e-3", "ppo.num_envs=8", "ppo.learning_rate = 2e-3"])
+    check_each_key_once(["ppo.network.width=8", "ppo.network={name: gru}", "ppo.num_envs=8"])
+    assert main(["train", "cartpole", "ppo.seed=1", "ppo.seed=1"]) == 2
+    assert "ppo.seed is given twice" in capsys.readouterr().err
 
 
 def test_a_section_given_as_an_override_merges_into_the_configs_as_in_a_file():

@@ -370,10 +370,11 @@ def load_config(source: str | Path | dict | None = None, overrides: typing.Itera
     Args:
         source: a YAML file path, the name of a shipped config (`list_configs()`, e.g. "cartpole"), a dict with the
             same structure, a `Config` (loaded earlier; the overrides apply to a copy), or None for the defaults.
-        overrides: strings `key.sub=value`, the value in YAML syntax (one such string alone is one override).
+        overrides: strings `key.sub=value`, the value in YAML syntax (one such string alone is one override); a
+            later one of the same key replaces an earlier (`check_each_key_once` refuses that on a command line).
 
     Raises:
-        ConfigError: a missing file, bad YAML, an unknown key or a value of the wrong type.
+        ConfigError: a missing file, bad YAML, an unknown key, a value of the wrong type.
     """
     if isinstance(source, Config):  # loaded in an earlier cell: itself, checked as `train` checks one
         if not override_strings(overrides):
@@ -402,6 +403,18 @@ def override_strings(overrides: typing.Iterable[str] | str | None, name: str = "
              if isinstance(item, str) or (isinstance(item, tuple | list) and len(item) == 2)]
     raise ConfigError(f"{name} are KEY=VALUE strings, the value in YAML syntax: give "
                       f"{pairs or ['ppo.num_cycles=20']!r}, not {given}.")
+
+
+def check_each_key_once(overrides: typing.Iterable[str]) -> None:
+    """ConfigError naming a key that the KEY=VALUE strings `overrides` (a command line's) give twice: there the later
+    replaced the earlier without a word (`train cartpole ppo.learning_rate=1e-3 ppo.learning_rate=2e-3` trained at
+    2e-3), where a key twice in a YAML mapping is refused. Programs composing overrides may rely on the later one."""
+    given: dict[str, str] = {}
+    for override in overrides:
+        key = override.partition("=")[0].strip()
+        if key in given:
+            raise ConfigError(f"{key} is given twice, {given[key]!r} and then {override!r}: give it once.")
+        given[key] = override
 
 
 def check_count(name: str, value: object, least: int = 1) -> int:
