@@ -179,8 +179,9 @@ def add_import_option(command: argparse.ArgumentParser) -> None:
 def config_with_imports(args: argparse.Namespace) -> Config:
     """The config that `train` would use: `args.config` with `args.overrides`, and the --import modules added to its
     `imports` (after the config's own, each once), so that the run records them."""
-    from angora_jax.experiment.config import check_each_key_once, load_config  # JAX: not for parsing the command line
+    from angora_jax.experiment.config import load_config, repeated_keys  # JAX: not for parsing the command line
 
-    check_each_key_once(args.overrides)
+    for repeated in repeated_keys(args.overrides):
+        print(f"angora-jax: {repeated}", file=sys.stderr)
     config = load_config(args.config, args.overrides)
     return dataclasses.replace(config, imports=tuple(dict.fromkeys([*config.imports, *args.imports])))

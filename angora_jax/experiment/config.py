@@ -371,7 +371,7 @@ def load_config(source: str | Path | dict | None = None, overrides: typing.Itera
         source: a YAML file path, the name of a shipped config (`list_configs()`, e.g. "cartpole"), a dict with the
             same structure, a `Config` (loaded earlier; the overrides apply to a copy), or None for the defaults.
         overrides: strings `key.sub=value`, the value in YAML syntax (one such string alone is one override); a
-            later one of the same key replaces an earlier (`check_each_key_once` refuses that on a command line).
+            later one of the same key replaces an earlier (`repeated_keys` names them).
 
     Raises:
         ConfigError: a missing file, bad YAML, an unknown key, a value of the wrong type.
@@ -405,16 +405,16 @@ def override_strings(overrides: typing.Iterable[str] | str | None, name: str = "
                       f"{pairs or ['ppo.num_cycles=20']!r}, not {given}.")
 
 
-def check_each_key_once(overrides: typing.Iterable[str]) -> None:
-    """ConfigError naming a key that the KEY=VALUE strings `overrides` (a command line's) give twice: there the later
-    replaced the earlier without a word (`train cartpole ppo.learning_rate=1e-3 ppo.learning_rate=2e-3` trained at
-    2e-3), where a key twice in a YAML mapping is refused. Programs composing overrides may rely on the later one."""
-    given: dict[str, str] = {}
+def repeated_keys(overrides: typing.Iterable[str]) -> list[str]:
+    """A sentence per key that the KEY=VALUE strings `overrides` give more than once, naming its overrides and that
+    the last one is used (`load_config` applies them in order). Command lines built from a shared part and a
+    particular one (`angora-jax train cartpole $COMMON ppo.num_envs=8`) repeat keys on purpose; a key pasted twice
+    (`ppo.learning_rate=1e-3 ppo.learning_rate=2e-3`) trained at 2e-3 without a word."""
+    given: dict[str, list[str]] = {}
     for override in overrides:
-        key = override.partition("=")[0].strip()
-        if key in given:
-            raise ConfigError(f"{key} is given twice, {given[key]!r} and then {override!r}: give it once.")
-        given[key] = override
+        given.setdefault(override.partition("=")[0].strip(), []).append(override)
+    return [f"{key} is given {len(each)} times ({', then '.join(repr(o) for o in each)}): the last one is used."
+            for key, each in given.items() if len(each) > 1]
 
 
 def check_count(name: str, value: object, least: int = 1) -> int:
