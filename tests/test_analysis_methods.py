@@ -23,7 +23,7 @@ from angora_jax.analysis import (
 )
 from angora_jax.analysis.decoding import cross_validated_r2
 from angora_jax.analysis.timescales import autocorrelation
-from angora_jax.envs import register
+from angora_jax.envs import list_tasks, register
 from angora_jax.envs.classic import Pendulum
 from angora_jax.envs.core import ActionSpec
 from angora_jax.experiment import ConfigError
@@ -935,9 +935,6 @@ class ThreeTorques(Pendulum):
         return physics, obs, reward, terminated, info, {name: action[i] for i, name in enumerate(self.metric_names)}
 
 
-register("ThreeTorques", ThreeTorques)
-
-
 def three_torques_agent():
     """An untrained agent of ThreeTorques (an MLP, Gaussian head; normaliser statistics of ones) with programs of
     its own (`compiled`: a fresh dict)."""
@@ -949,6 +946,8 @@ def three_torques_agent():
     from angora_jax.experiment.config import load_config
     from angora_jax.nets import ActorCritic
 
+    if "ThreeTorques" not in list_tasks():  # registered when first needed, not when pytest collects this file in
+        register("ThreeTorques", ThreeTorques)  # every worker, where the other files' tests would list it as a task
     config = load_config("pendulum", ["env.task=ThreeTorques", "ppo.network.width=8"])
     env, network, head, template, _ = acting_parts(config)
     obs = jax.vmap(env.reset)(jax.random.split(jax.random.key(1), 1)).obs
