@@ -4,26 +4,24 @@ The notebook API: `make_env(task, **options)`, `load_config(path_or_name, overri
 `angora-jax train` does: run directory, checkpoints, metrics, report), `load_agent(run_dir)`, `evaluate(run_dir)`
 (episode statistics on the eager CPU path), `render_frames(run_dir)` (video frames), `export_policy(run_dir, file)`
 and `load_policy(file)` (the policy in one file, used without the run directory; `angora-jax export` writes it too).
-Each is imported when first used (angora_jax.lazy_names), so that `import angora_jax` and every `angora-jax` command
-start without JAX.
+Each is imported when first used (lazy_loader, from __init__.pyi), so that `import angora_jax` and every `angora-jax`
+command start without JAX.
 """
 
-from typing import TYPE_CHECKING
+import lazy_loader
 
 # First: cpu_threads sizes XLA's CPU thread pool before anything starts JAX; opengl_backend imports MuJoCo, naming a
 # MUJOCO_GL that cannot load.
 from angora_jax import cpu_threads, opengl_backend  # noqa: F401
-from angora_jax.envs.registry import register_gymnasium_envs
-from angora_jax.lazy_names import lazy_names
+from angora_jax.envs.registry import list_tasks, make, register_gymnasium_envs
+from angora_jax.envs.registry import make as make_env
 from angora_jax.registry import registered_by
 
-if TYPE_CHECKING:  # the names this package gives, each imported when first used (angora_jax.lazy_names)
-    from angora_jax.envs import list_tasks, make
-    from angora_jax.envs import make as make_env
-    from angora_jax.experiment import list_configs, load_agent, load_config, resume, train
-    from angora_jax.experiment.evaluation import evaluate
-    from angora_jax.experiment.export import export_policy, load_policy
-    from angora_jax.experiment.video import render_frames
+# The rest of the API and the subpackages as attributes (`aj.experiment`), each imported when first used: __init__.pyi
+# lists them, where type checkers, editors and the API pages read them. make, make_env and list_tasks are imported
+# above, as envs.registry is imported anyway (register_gymnasium_envs) and lazy_loader takes no alias (`as`) from a
+# stub; so the API is `__all__` below, not lazy_loader's list (which has the subpackages and not make_env).
+__getattr__ = lazy_loader.attach_stub(__name__, __file__)[0]
 
 # Lower layers read saved runs and pose estimators through readers that higher ones register when imported: name
 # those modules, for the first read to import (see nets.components, envs.shadow_hand).
@@ -36,4 +34,6 @@ __all__ = [
     "make_env", "render_frames", "resume", "train",
 ]
 
-lazy_names(__name__)
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

@@ -1,17 +1,16 @@
-"""The packages form layers, and each imports only its own and those below it, at import time or inside a function:
-envs -> nets -> ppo -> experiment -> vision -> analysis (it looks inside agents and pose estimators) -> the
-package's public API (its `__init__`) -> cli, with angora_jax.registry, angora_jax.whole_files (result files
-written whole or not at all, which networks' component files need too), angora_jax.saved_files (which kind of
-saved file a file is, for messages in every layer), angora_jax.wording (did-you-mean hints and count words, for
-messages in every layer, below registry too, whose refusals use it), angora_jax.lazy_names (a package's public
-names, each imported when first used) and angora_jax.cpu_threads (XLA's CPU thread pool, sized before JAX starts)
-below all. Where a lower layer needs something of a higher one (reading a saved run's policy for `init_from`, reading
-a pose estimator file for the cube), the higher one registers it with the lower (`nets.components.register_run_reader`,
-`envs.shadow_hand.register_pose_estimator_reader`), and the package's `__init__` names the higher module for the lower
-one to import at its first read (`registry.registered_by`). Inside a layer, no modules import each other in a circle
-(what two need of each other goes into a module below both). Imports under `if TYPE_CHECKING:` are not counted: for
-type hints they never run, and in a package's `__init__` they declare its public names, imported when first used from
-its own modules (checked below)."""
+"""The packages form layers, and each imports only its own and those below it, at import time or inside a function: envs
+-> nets -> ppo -> experiment -> vision -> analysis (it looks inside agents and pose estimators) -> the package's
+public API (its `__init__`) -> cli, with angora_jax.registry, angora_jax.whole_files (result files written whole or
+not at all, which networks' component files need too), angora_jax.saved_files (which kind of saved file a file is,
+for messages in every layer), angora_jax.wording (did-you-mean hints and count words, for messages in every layer,
+below registry too, whose refusals use it) and angora_jax.cpu_threads (XLA's CPU thread pool, sized before JAX
+starts) below all. Where a lower layer needs something of a higher one (reading a saved run's policy for `init_from`,
+reading a pose estimator file for the cube), the higher one registers it with the lower
+(`nets.components.register_run_reader`, `envs.shadow_hand.register_pose_estimator_reader`), and the package's
+`__init__` names the higher module for the lower one to import at its first read (`registry.registered_by`). Inside a
+layer, no modules import each other in a circle (what two need of each other goes into a module below both). Imports
+under `if TYPE_CHECKING:` are not counted: for type hints they never run. A package's public names come from its
+`__init__.pyi` stub (lazy_loader imports each when first used, from its own modules: checked below)."""
 
 import ast
 import importlib
@@ -24,11 +23,10 @@ from pathlib import Path
 import pytest
 
 import angora_jax
-from angora_jax.lazy_names import declared_imports
 
 # "api": the package itself (`import angora_jax as aj`), the public API its __init__ gathers.
 LAYERS = {"wording": -1, "registry": 0, "whole_files": 0, "saved_files": 0, "opengl_backend": 0, "cpu_threads": 0,
-          "frozen_settings": 0, "lazy_names": 0, "envs": 1, "nets": 2, "ppo": 3, "experiment": 4, "vision": 5,
+          "frozen_settings": 0, "envs": 1, "nets": 2, "ppo": 3, "experiment": 4, "vision": 5,
           "analysis": 6, "api": 7, "cli": 8}
 PACKAGE = Path(angora_jax.__file__).parent
 
@@ -186,22 +184,47 @@ def test_the_package_and_the_command_load_mujoco_mjx_only_when_a_task_needs_it()
     assert done.stdout.split() == ["False", "True"], done.stdout
 
 
+def stub_imports(stub: Path) -> tuple[dict[str, str], set[str], set[str], list[str] | None]:
+    """({name -> module it comes from}, {subpackages}, {aliases}, its `__all__`) of a package's `__init__.pyi`:
+    lazy_loader.attach_stub reads `from .module import name` and `from . import subpackage` (`name as other` names
+    it `other` for type checkers only); an alias, `other = name`, is for type checkers alone."""
+    package, names, subpackages, aliases, listed = module_name(stub.with_suffix(".py")), {}, set(), set(), None
+    for node in ast.parse(stub.read_text()).body:
+        if isinstance(node, ast.Assign):
+            (target,) = node.targets
+            if target.id == "__all__":
+                listed = ast.literal_eval(node.value)
+            else:
+                aliases.add(target.id)
+        elif isinstance(node, ast.ImportFrom):
+            assert node.level == 1, f"{stub}: lazy_loader takes relative imports only"
+            if node.module:
+                names.update({alias.asname or alias.name: f"{package}.{node.module}" for alias in node.names})
+            else:
+                subpackages.update(alias.name for alias in node.names)
+    return names, subpackages, aliases, listed
+
+
 def test_a_package_gives_its_public_names_from_its_own_modules_when_first_used():
-    """A package's `__init__` declares its public names (its `__all__`) under `if TYPE_CHECKING:`, and each is imported
-    from its module when first used (angora_jax.lazy_names): a subpackage's come from its own modules (the top
-    package, the public API, gathers every layer's); each resolves and `dir()` lists it."""
-    packages = {module_name(init): declared_imports(init.read_text()) for init in sorted(PACKAGE.rglob("__init__.py"))}
-    lazy = {package: declared for package, declared in packages.items() if declared}
-    assert {f"angora_jax{sub}" for sub in ("", ".envs", ".experiment", ".ppo", ".vision")} <= set(lazy)
-    for package, declared in lazy.items():
-        if package != "angora_jax":
-            outside = sorted(module for module, _ in declared.values() if not module.startswith(f"{package}."))
-            assert not outside, f"{package} gives names of modules outside it: {outside}"
+    """A package's public names (its `__all__`) are the imports of its `__init__.pyi` stub, where type checkers, editors
+    and the API pages read them, and lazy_loader imports each from its module when first used: a subpackage's come
+    from its own modules (the top package, the public API, gathers every layer's, and gives the subpackages as
+    attributes); each resolves and `dir()` lists it; the top package's make, make_env and list_tasks, imported by its
+    `__init__`, are the stub's too."""
+    stubs = {module_name(stub.with_suffix(".py")): stub_imports(stub) for stub in sorted(PACKAGE.rglob("__init__.pyi"))}
+    assert {f"angora_jax{sub}" for sub in ("", ".envs", ".experiment", ".ppo", ".vision")} <= set(stubs)
+    for package, (declared, subpackages, aliases, listed) in stubs.items():
         module = importlib.import_module(package)
-        assert sorted(module.__all__) == sorted(declared), package
+        if package != "angora_jax":
+            outside = sorted(source for source in declared.values() if not source.startswith(f"{package}."))
+            assert not outside, f"{package} gives names of modules outside it: {outside}"
+            assert not subpackages, package
+        assert sorted(module.__all__) == sorted({*declared, *aliases}) == sorted(listed or module.__all__), package
         for name in module.__all__:
             value = getattr(module, name)
             assert not isinstance(value, types.ModuleType) and name in dir(module), f"{package}.{name}"
+        for name in subpackages:
+            assert getattr(module, name) is importlib.import_module(f"{package}.{name}"), f"{package}.{name}"
 
 
 def test_the_package_and_the_command_import_jax_and_the_tasks_only_when_used():

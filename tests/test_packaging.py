@@ -22,4 +22,5 @@ def test_the_wheel_ships_every_config(tmp_path):
     assert {f"angora_jax/configs/{name}.yaml" for name in list_configs()} <= names
     assert "angora_jax/cli/__init__.py" in names and "angora_jax/envs/shadow_hand/ihom.py" in names
     assert "angora_jax/envs/myohand/reachable_postures.npz" in names, "MyoHandPose(targets=\"reachable\") draws from it"
+    assert "angora_jax/ppo/__init__.pyi" in names, "lazy_loader reads each package's public names from its stub"
     assert not any(name.startswith("configs/") for name in names)

@@ -1,14 +1,8 @@
 """Environments: the pure `reset`/`step` contract, the task registry and the tasks (each task's module is imported
 when the task is first made or asked about: `registry.SHIPPED_TASKS`)."""
 
-from typing import TYPE_CHECKING
+import lazy_loader
 
-from angora_jax.lazy_names import lazy_names
-
-if TYPE_CHECKING:  # the names this package gives, each imported when first used (angora_jax.lazy_names)
-    from angora_jax.envs.core import ActionSpec, Env, Sensation, State
-    from angora_jax.envs.registry import list_tasks, make, register
-
-__all__ = ["ActionSpec", "Env", "Sensation", "State", "list_tasks", "make", "register"]
-
-lazy_names(__name__)
+# The names this package gives (its __all__), each imported when first used: __init__.pyi lists them, where type
+# checkers, editors and the API pages read them.
+__getattr__, __dir__, __all__ = lazy_loader.attach_stub(__name__, __file__)

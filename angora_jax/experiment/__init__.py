@@ -6,50 +6,8 @@ reports. The `angora-jax` command is a thin layer over these functions.
     agent = load_agent(run.run_dir)                            # best checkpoint: act, evaluate, probe
 """
 
-from typing import TYPE_CHECKING
+import lazy_loader
 
-from angora_jax.lazy_names import lazy_names
-
-if TYPE_CHECKING:  # the names this package gives, each imported when first used (angora_jax.lazy_names)
-    from angora_jax.experiment.agent import Agent, load_agent, snapshot_cycles
-    from angora_jax.experiment.checkpoint import Checkpoints
-    from angora_jax.experiment.config import (
-        CheckpointConfig,
-        Config,
-        ConfigError,
-        DistributionConfig,
-        EnvConfig,
-        LoggingConfig,
-        list_configs,
-        load_config,
-        to_dict,
-        validate,
-    )
-    from angora_jax.experiment.monitor import read_metrics
-    from angora_jax.experiment.run_dir import RunDirError
-    from angora_jax.experiment.runner import TrainingInterrupted, TrainingRun, resume, train
-
-__all__ = [
-    "Agent",
-    "CheckpointConfig",
-    "Checkpoints",
-    "Config",
-    "ConfigError",
-    "DistributionConfig",
-    "EnvConfig",
-    "LoggingConfig",
-    "RunDirError",
-    "TrainingInterrupted",
-    "TrainingRun",
-    "list_configs",
-    "load_agent",
-    "load_config",
-    "read_metrics",
-    "resume",
-    "snapshot_cycles",
-    "to_dict",
-    "train",
-    "validate",
-]
-
-lazy_names(__name__)
+# The names this package gives (its __all__), each imported when first used: __init__.pyi lists them, where type
+# checkers, editors and the API pages read them.
+__getattr__, __dir__, __all__ = lazy_loader.attach_stub(__name__, __file__)
