@@ -618,6 +618,19 @@ def test_a_full_disk_tells_of_the_runs_checkpoints_only_under_a_verb_that_trains
         assert message.startswith("No space left on device (v.gif): free space") and "run stopped" not in message
 
 
+def test_a_run_one_may_only_read_is_evaluated_with_out_and_resumed_as_ones_own_copy():
+    """A colleague's run (or one on a shared mount) that this user may not write to: evaluate said "choose another
+    place or fix its permissions" without naming --out, the place it takes; resume, which can write nowhere else,
+    offered another place too."""
+    denied = OSError(errno.EACCES, "Permission denied", "runs/ro/evaluation")
+    message = os_error_message(denied, "evaluate")
+    assert message.startswith("Permission denied (runs/ro/evaluation): you may not write or read there") and \
+        "--out FOLDER" in message and "logging.run_root" in message, message
+    message = os_error_message(OSError(errno.EPERM, "Operation not permitted", "runs/ro/writer.lock"), "resume")
+    assert "resume writes into the run: fix its permissions, or copy the run" in message, message
+    assert "chmod -R u+w MY_RUN" in message and "--out" not in message, message
+
+
 def test_a_jax_platforms_this_machine_cannot_start_exits_2_naming_it_even_in_doctor():
     """`JAX_PLATFORMS=cuda` (a cluster's job script) where JAX has no CUDA plugin: JAX's bare AssertionError, then
     another while the CLI asked whether a process of a distributed job was lost, two tracebacks and exit 1, in

@@ -6,6 +6,9 @@ import errno
 import os
 import traceback
 
+_NOT_YOURS = ("you may not write or read there: choose a place of your own (a new run: logging.run_root; what "
+              "evaluate, record, render, export and report write: --out FOLDER) or fix its permissions")
+
 # What to do about the errors the operating system reports, by errno.
 OS_ERROR_FIXES = {
     errno.ENOSPC: "free space on that disk (or move the run root to a larger one)",
@@ -13,8 +16,8 @@ OS_ERROR_FIXES = {
     errno.EFBIG: "a file reached this process's file-size limit: raise it (`ulimit -f unlimited`, or the job's limit)",
     errno.EROFS: "the file system is read-only: choose a writable place (logging.run_root, --out; evaluating a run "
                  "there: evaluate --out FOLDER)",
-    errno.EACCES: "you may not write or read there: choose another place or fix its permissions",
-    errno.EPERM: "you may not write or read there: choose another place or fix its permissions",
+    errno.EACCES: _NOT_YOURS,
+    errno.EPERM: _NOT_YOURS,
     errno.ENAMETOOLONG: "shorten the path or name",
     errno.EIO: "the disk or network file system failed: check the mount, then retry",
     errno.ENOTDIR: "a part of the path is a file, not a folder: fix the path",
@@ -36,6 +39,10 @@ def os_error_message(error: OSError, command: str = "train") -> str:
     `resume`)."""
     where = f" ({error.filename})" if error.filename else ""
     fix = OS_ERROR_FIXES.get(error.errno, "fix the cause and retry")
+    if command == "resume" and error.errno in (errno.EACCES, errno.EPERM):
+        # resume writes into the run itself, so no other place will do.
+        fix = ("resume writes into the run: fix its permissions, or copy the run to a folder of your own "
+               "and make it yours (cp -r RUN_DIR MY_RUN; chmod -R u+w MY_RUN), then resume the copy")
     during_a_run = command in TRAINING_VERBS and error.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO)
     return f"{error.strerror or error}{where}: {fix}." + (
         " A run stopped by it keeps every checkpoint saved before: `angora-jax check RUN_DIR` shows them, "
