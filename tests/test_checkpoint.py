@@ -29,7 +29,7 @@ from angora_jax.experiment import (
     snapshot_cycles,
     validate,
 )
-from angora_jax.experiment.checkpoint import CheckpointError
+from angora_jax.experiment.checkpoint import CheckpointError, cycles_to_offer
 from angora_jax.experiment.config import CheckpointConfig, ConfigError
 from angora_jax.experiment.monitor import set_aside_after
 from angora_jax.experiment.programs import cycle_programs
@@ -422,6 +422,15 @@ def test_a_lean_checkpoint_resumes_with_fresh_environments_only_when_not_asked_f
     assert int(again.state.cycle) == 4 and again.history == [] and "fresh environments" not in capsys.readouterr().err
 
 
+def test_a_missing_cycle_is_answered_with_the_saved_cycles_nearest_it():
+    """A run keeping snapshots every 20 cycles up to 280, asked for cycle 50, was offered "a cycle (160, 180, ...,
+    280, 289)", as if nothing before 160 were kept."""
+    saved = [*range(20, 281, 20), 289]
+    assert cycles_to_offer(saved, 50) == "a cycle near 50 (20, 40, 60, 80, 100, 120, 140, 160)"
+    assert cycles_to_offer(saved, 285) == "a cycle near 285 (160, 180, 200, 220, 240, 260, 280, 289)"
+    assert cycles_to_offer(saved, "bset") == "a cycle (160, 180, 200, 220, 240, 260, 280, 289)"
+
+
 def test_checkpoint_kinds_and_monitor_records(runs, tmp_path):
     whole = runs[0]
     checkpoints = Checkpoints(whole.run_dir / CHECKPOINTS, config(tmp_path, "whole").checkpoint, create=False)
@@ -435,7 +444,8 @@ def test_checkpoint_kinds_and_monitor_records(runs, tmp_path):
     resumed = Checkpoints(runs[3].run_dir / CHECKPOINTS, config(tmp_path, "split").checkpoint, create=False)
     assert resumed.steps("best") == checkpoints.steps("best"), "the resumed run's pool went on where it stopped"
     resumed.close()
-    with pytest.raises(FileNotFoundError, match="No checkpoint 3. Saved: .*snapshots of cycles 2, 4; ask for"):
+    with pytest.raises(FileNotFoundError, match=r"No checkpoint 3. Saved: .*snapshots of cycles 2, 4; ask for .*"
+                                                r"or a cycle near 3 \(2, 4\)\.$"):
         checkpoints.restore(whole.state, 3)
     checkpoints.close()
     record = whole.history[0]

@@ -139,6 +139,16 @@ def checkpoint_name(which: Any) -> Any:
     return int(which)
 
 
+def cycles_to_offer(cycles: list[int], asked: object) -> str:
+    """The saved cycles an error names instead of a missing one: the 8 nearest to a cycle asked for (a run keeping
+    hundreds of snapshots answered a request for cycle 50 with its last 8, as if nothing earlier were kept), else
+    the latest 8."""
+    if isinstance(asked, int) and not isinstance(asked, bool):
+        near = sorted(sorted(cycles, key=lambda cycle: (abs(cycle - asked), cycle))[:8])
+        return f"a cycle near {asked} ({', '.join(map(str, near))})"
+    return f"a cycle ({', '.join(map(str, cycles[-8:]))})"
+
+
 def describe_saved(saved: Mapping[str, list[int]]) -> str:
     """`{"latest": [6], "snapshots": [3, 6, 9]}` in words: "latest of cycle 6; snapshots of cycles 3-9 every 3"."""
     return "; ".join(f"{kind} of cycle{'s' if len(cycles) > 1 else ''} {cycle_ranges(sorted(cycles), every=True)}"
@@ -472,7 +482,7 @@ class Checkpoints:
         saved = {kind: cycles for kind, cycles in existing.items() if cycles}
         kinds = [repr(kind) for kind in ("latest", "best") if kind in saved]
         cycles = sorted({cycle for found in saved.values() for cycle in found})
-        choices = " or ".join([*kinds, f"a cycle ({', '.join(map(str, cycles[-8:]))})"])
+        choices = " or ".join([*kinds, cycles_to_offer(cycles, which)])
         raise FileNotFoundError(f"No checkpoint {which!r}. Saved: {describe_saved(saved)}; ask for {choices}.")
 
     def verified(self) -> dict[tuple[str, int], str | None]:
