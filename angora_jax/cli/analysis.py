@@ -366,10 +366,14 @@ def _analyze(args: argparse.Namespace, compute, plot, summary, stem: str | None 
         data = xr.load_dataset(recording)
     except Exception as error:  # a file that is not NetCDF, or cut short or damaged: xarray's readers raise
         # ValueError, OSError or TypeError, and scipy's reader IndexError or KeyError for a header cut short
-        cause = (str(error).splitlines() or [""])[0]
+        cause = (str(error).splitlines() or [""])[0].rstrip(".: ")
+        with recording.open("rb") as file:
+            netcdf = file.read(4)[:3] in (b"CDF", b"\x89HD")  # classic NetCDF's or HDF5's (NetCDF-4's) first bytes
+        fix = ("It starts as NetCDF does, so it is likely cut short or damaged (a copy that stopped, a disk that "
+               "filled while it was written): copy it again, or record again with" if netcdf else "Make one with")
         print(f"angora-jax analyze {args.analysis}: {recording} is not a recording that this machine can read (a "
-              f"NetCDF file from angora-jax record): {type(error).__name__}: {cause}. Make one with angora-jax "
-              "record RUN_DIR --out FILE.nc.", file=sys.stderr)
+              f"NetCDF file from angora-jax record): {type(error).__name__}: {cause}. {fix} angora-jax record "
+              "RUN_DIR --out FILE.nc.", file=sys.stderr)
         return EXIT_USAGE
     if not {"episode", "time"} <= set(data.dims) or "alive" not in data:
         print(f"angora-jax analyze {args.analysis}: {recording} is NetCDF but not a recording (it lacks the episode "
