@@ -72,6 +72,18 @@ def test_a_folder_with_a_page_of_its_own_is_refused_not_written_over(runs, tmp_p
         assert main(["report", str(runs[0].run_dir), "--out", str(tmp_path / "report")]) == 0
 
 
+def test_a_report_into_a_run_directory_itself_is_refused_naming_its_report_folder(runs, tmp_path, capsys):
+    """`report RUN --out RUN` wrote index.html and a dozen PNGs among the run's config.yaml, metrics.jsonl and
+    checkpoints, with exit 0."""
+    run = tmp_path / "run"
+    shutil.copytree(runs[0].run_dir, run)
+    before = sorted(path.name for path in run.iterdir())
+    assert main(["report", str(run), "--out", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {run} is a run directory itself" in err and f"({run / 'report'}, where" in err, err
+    assert sorted(path.name for path in run.iterdir()) == before
+
+
 def test_a_report_into_a_runs_checkpoint_folder_is_refused_naming_it(runs, tmp_path, capsys):
     """`report RUN --out RUN/checkpoints/latest/3` (and monitor's) wrote its page and PNGs into the checkpoint, which
     training deletes with them when a later one replaces it; refused now, as every other --out there, before anything

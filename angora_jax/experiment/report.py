@@ -193,6 +193,10 @@ def write_report(run_dirs: list[str | Path], out_dir: str | Path, refresh_second
         raise RunDirError(f"{out} is a file, where the report's folder goes: move it away, or give another --out")
     if (why := unwritable_out(out / "index.html")) is not None:
         raise RunDirError(f"--out {out}: {why}; give another --out.")
+    if (out / CONFIG_FILE).is_file():  # its page and a PNG per curve would lie among the run's own files
+        raise RunDirError(f"--out {out} is a run directory itself: a run's report goes in its report folder "
+                          f"({out / 'report'}, where `angora-jax report {out}` writes it without --out); give that "
+                          "or another folder.")
     page = out / "index.html"
     if page.is_file() and PAGE_TITLE not in page.read_text(errors="replace"):
         raise RunDirError(f"{page} is a page of your own, not a report of runs, and the report would write over it "
