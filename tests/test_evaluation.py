@@ -559,6 +559,12 @@ def test_an_out_that_is_a_file_or_lies_in_one_is_refused_before_any_episode_runs
     assert main(["evaluate", str(run_dir), "--episodes", "1", "--out", str(in_the_way / "evaluations")]) == 2
     assert f"{in_the_way} is a file, not a folder; give a folder you can write to" in capsys.readouterr().err
     assert in_the_way.read_text() == "mine"
+    # The run directory itself: its JSON and box plot lay among the run's config.yaml and metrics.jsonl, exit 0.
+    before = sorted(path.name for path in run_dir.iterdir())
+    assert main(["evaluate", str(run_dir), "--episodes", "1", "--out", str(run_dir)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out) {run_dir} is a run directory itself" in err and f"({run_dir / 'evaluation'}, the default)" in err
+    assert sorted(path.name for path in run_dir.iterdir()) == before
 
 def test_render_shows_a_trained_reach_policy_acting(cortical_reach, tmp_path, opengl):
     """`angora-jax render RUN_DIR` on the session's trained reach run (the policy branch of experiment/video.py): the

@@ -29,7 +29,7 @@ from angora_jax.experiment.agent import Agent, load_agent, read_checkpoint
 from angora_jax.experiment.config import ConfigError, check_count, check_flag, check_seed, override_strings, to_dict
 from angora_jax.experiment.episodes import agent_policy, episode_keys, on_host, run_episodes
 from angora_jax.experiment.evaluation_settings import DEFAULT_BATCH, PATHS
-from angora_jax.experiment.run_dir import EVALUATIONS, numbered_paths, run_holding, unwritable_out
+from angora_jax.experiment.run_dir import CONFIG_FILE, EVALUATIONS, numbered_paths, run_holding, unwritable_out
 from angora_jax.ppo.evaluate import make_evaluate
 from angora_jax.whole_files import written_whole
 from angora_jax.wording import counted
@@ -176,6 +176,9 @@ def check_save_folder(save: bool | str | Path, run_dir: str | Path) -> None:
                           f"{folder.parent / EVALUATIONS}).")
     if (why := unwritable_out(folder / "evaluation.json")) is not None:
         raise ConfigError(f"save (--out) {folder}: {why}; give a folder you can write to.")
+    if (folder / CONFIG_FILE).is_file():  # its JSON and box plot would lie among the run's own files
+        raise ConfigError(f"save (--out) {folder} is a run directory itself: a run's evaluations go in its "
+                          f"{EVALUATIONS} folder ({folder / EVALUATIONS}, the default): give that or another folder.")
     if (other := run_holding(folder)) is not None and other.resolve() != Path(run_dir).resolve():
         raise ConfigError(f"save (--out) {folder} is inside the run {other}, not {run_dir}: an evaluation of "
                           f"{run_dir} there would be read as {other}'s. Give {Path(run_dir) / EVALUATIONS} (the "
