@@ -356,12 +356,20 @@ def test_a_recurrent_cell_is_no_dense_layer_and_its_lesion_names_what_to_lesion_
         lesion(agent, "network.PMC", [0])
 
 
-def test_analyze_crosscorrelation_prints_every_layer_s_column(tmp_path, capsys, recwarn):
+def test_analyze_crosscorrelation_prints_every_layer_s_column(tmp_path, capsys, recwarn, monkeypatch):
     """The lag table of many layers was printed through pandas' own repr, which hides the columns past 80 characters
     behind "..." (15 of the reach model's 17 layers). Its plot's legend of 66 pairs squeezed the axes away
-    (matplotlib: "Tight layout not applied"); it now stands beside them."""
+    (matplotlib: "Tight layout not applied"); it now stands beside them. Its curves took matplotlib's 10 colours in
+    turn, so pairs 1, 11, 21, ... looked alike; each pair now has a colour and line style of its own."""
+    from matplotlib.axes import Axes
+
     from angora_jax import cli
     from angora_jax.analysis import save_activity
+
+    looks = []  # each curve's colour and line style, as asked of matplotlib
+    plot = Axes.plot
+    monkeypatch.setattr(Axes, "plot", lambda ax, *args, **kwargs: (
+        looks.append((tuple(kwargs.get("color", ())), str(kwargs.get("linestyle")))), plot(ax, *args, **kwargs))[1])
 
     base = synthetic()
     layers = {f"activity_area_with_a_long_name_{i}": base["activity_code"] + i for i in range(12)}
@@ -371,6 +379,7 @@ def test_analyze_crosscorrelation_prints_every_layer_s_column(tmp_path, capsys, 
     assert "..." not in said and all(f"area_with_a_long_name_{i}" in said.split("\n")[1] for i in range(12)), said
     assert not [w for w in recwarn if "layout" in str(w.message)], [str(w.message) for w in recwarn]
     assert (tmp_path / "many.crosscorrelation.png").read_bytes()[:4] == b"\x89PNG"
+    assert len(looks) == 91 and len(set(looks)) == 91, looks  # 14 layers' pairs: 12 layers here, 2 in synthetic()
 
 
 def test_analyze_timescales_says_why_a_layer_has_none(tmp_path, capsys):

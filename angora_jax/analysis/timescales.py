@@ -166,10 +166,16 @@ def plot_cross_correlation(result: xr.Dataset, path: str) -> None:
     # squeezing the axes away.
     columns = max(1, -(-pairs // 25))
     fig, ax = plt.subplots(figsize=(5.5, max(3.4, 0.16 * min(pairs, 25))))
-    for i, layer in enumerate(layers):
-        for other in layers[i + 1:]:
-            ax.plot(result["lag"].values, result["cross_correlation"].sel(layer=layer, other=other).values,
-                    label=f"{str(layer).removeprefix('network.')} -> {str(other).removeprefix('network.')}")
+    # Matplotlib's 10 colours repeated from the 11th pair on, so two curves read alike: 20 colours times 7 line
+    # styles tell 140 pairs apart (17 layers, the reach model's); past that the printed lag table and the .nc are the
+    # readable output.
+    dashes = ("-", "--", ":", "-.", (0, (3, 1, 1, 1, 1, 1)), (0, (5, 2, 1, 2)), (0, (1, 3)))
+    styles = [(plt.cm.tab20(k % 20), dashes[k // 20 % len(dashes)]) for k in range(pairs)]
+    pair_names = [(layer, other) for i, layer in enumerate(layers) for other in layers[i + 1:]]
+    for (layer, other), (colour, style) in zip(pair_names, styles, strict=True):
+        name = f"{str(layer).removeprefix('network.')} -> {str(other).removeprefix('network.')}"
+        ax.plot(result["lag"].values, result["cross_correlation"].sel(layer=layer, other=other).values, color=colour,
+                linestyle=style, label=name)
     ax.axvline(0, color="k", lw=0.5)
     ax.set(xlabel="lag (s; > 0: the first leads)", ylabel="correlation of leading components")
     ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.01, 1), ncols=columns, borderaxespad=0)
