@@ -189,6 +189,28 @@ def _two_cli_processes(tmp_path: Path, overrides: list[list[str]]) -> list[subpr
         for index in range(2)]
 
 
+def test_a_process_whose_job_never_comes_together_exits_2_naming_what_to_check(tmp_path):
+    """Process 1 started with a mistyped --coordinator (no process 0 there), and process 0 of a job whose process 1
+    never started, waited JAX's 5 minutes, then ended in JAX's C++ abort: exit code 134 and a stack trace. Each now
+    exits 2 at --join-minutes, naming the settings to check, with nothing written."""
+    started = time.monotonic()
+    processes = [subprocess.Popen(
+        [sys.executable, "-m", "angora_jax.cli", "train", "cartpole", "--distributed", "--coordinator",
+         _free_address(), "--num-processes", "2", "--process-id", str(index), "--join-minutes", "0.1",
+         f"logging.run_root={tmp_path}"],
+        cwd=TESTS, env=os.environ | QUICK_SUBPROCESS, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for index in (0, 1)]
+    outputs = [process.communicate(timeout=120) for process in processes]
+    assert [process.returncode for process in processes] == [2, 2], [err[-2000:] for _, err in outputs]
+    for index, (_, err) in enumerate(outputs):
+        assert "Traceback" not in err and "Joining the jax.distributed job at localhost:" in err, err
+        assert (f"angora-jax train: the jax.distributed job did not come together within 0.1 minutes: process "
+                f"{index} of 2 waited at localhost:") in err and "the same --coordinator HOST:PORT" in err, err
+        assert "own --process-id from 0 to N-1" in err and "Nothing was written." in err, err
+    assert time.monotonic() - started < 90, "exited at --join-minutes, not at JAX's 5 minutes"
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.slow
 def test_processes_started_with_other_settings_exit_2_naming_the_key_before_making_a_run_directory(tmp_path):
     # Before: process 1's ppo.gamma=0.9 trained silently into a run whose config.yaml says 0.99, and processes given

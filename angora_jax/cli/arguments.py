@@ -151,6 +151,9 @@ def add_distributed_flags(command: argparse.ArgumentParser) -> None:
     command.add_argument("--process-id", type=non_negative_int, help="this process's index (default: from the cluster)")
     command.add_argument("--local-devices", type=device_ids, metavar="IDS",
                          help="this process's GPUs on its host, e.g. 0 or 2,3 (default: from the cluster, else all)")
+    command.add_argument("--join-minutes", type=positive_float, default=5.0, metavar="MINUTES",
+                         help="how long each process waits for all of the job's processes to join before it exits "
+                              "with code 2 naming the settings to check (default: 5)")
 
 
 

@@ -88,15 +88,18 @@ def start_distributed(args: argparse.Namespace) -> None:
     from angora_jax.experiment import ConfigError
 
     if args.distributed:
-        # JAX waits silently (5 minutes, then an abort) for processes that never join: say what is waited for.
+        # JAX waits silently (5 minutes, then a C++ abort) for processes that never join: say what is waited for.
         where = args.coordinator or "the cluster's coordinator"
         of = f"process {args.process_id} of {args.num_processes}" if args.num_processes is not None else "a process"
-        print(f"Joining the jax.distributed job at {where} as {of} (JAX waits up to 5 minutes for all of them) ...",
-              file=sys.stderr, flush=True)
+        print(f"Joining the jax.distributed job at {where} as {of} (waiting up to {args.join_minutes:g} minutes for "
+              "all of them) ...", file=sys.stderr, flush=True)
         from angora_jax.experiment.distributed import initialize
 
         try:
-            initialize(args.coordinator, args.num_processes, args.process_id, args.local_devices)
+            initialize(args.coordinator, args.num_processes, args.process_id, args.local_devices,
+                       join_seconds=60 * args.join_minutes, command=args.command)
+        except ConfigError:  # already says what to do
+            raise
         except ValueError as error:  # JAX's checks of the job's settings, before it connects to anything
             raise ConfigError(
                 f"--distributed could not set up the job: {error} Outside a cluster that JAX detects (SLURM, Open "
@@ -104,9 +107,9 @@ def start_distributed(args: argparse.Namespace) -> None:
                 "process (examples/multi_gpu_host.sh); under SLURM, start it with srun (examples/slurm_train.sh)."
             ) from error
     elif any(value is not None for value in (args.coordinator, args.num_processes, args.process_id,
-                                             args.local_devices)):
-        raise ConfigError("--coordinator, --num-processes, --process-id and --local-devices set up a jax.distributed "
-                          "job: add --distributed (or leave them out for a single process).")
+                                             args.local_devices)) or args.join_minutes != 5.0:
+        raise ConfigError("--coordinator, --num-processes, --process-id, --local-devices and --join-minutes set up a "
+                          "jax.distributed job: add --distributed (or leave them out for a single process).")
 
 
 def command_train(args: argparse.Namespace) -> int:

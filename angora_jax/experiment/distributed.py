@@ -37,6 +37,8 @@ def initialize(
     num_processes: int | None = None,
     process_id: int | None = None,
     local_device_ids: list[int] | None = None,
+    join_seconds: float = 300.0,
+    command: str = "train",
 ) -> None:
     """Start this process's part of a multi-process job; call it first, before any JAX computation.
 
@@ -52,10 +54,47 @@ def initialize(
         process_id: this process's index among them.
         local_device_ids: this process's GPUs on its host instead (elsewhere than a cluster: process i of one host
             takes `[i]`); JAX_LOCAL_DEVICE_IDS sets it too.
+        join_seconds: how long to wait for every process to join. Past it the process exits with code 2 and a
+            message naming the settings to check (JAX itself would end it with a C++ abort, exit code 134, after
+            its `initialization_timeout`, which is set past this).
+        command: the verb named in that message (`angora-jax train`, `resume`).
     """
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
-    jax.distributed.initialize(coordinator_address, num_processes, process_id, local_device_ids=local_device_ids)
+    deadline = threading.Timer(join_seconds, _not_joined, args=(coordinator_address, num_processes, process_id,
+                                                                join_seconds, command))
+    deadline.daemon = True
+    deadline.start()
+    try:
+        jax.distributed.initialize(coordinator_address, num_processes, process_id, local_device_ids=local_device_ids,
+                                   initialization_timeout=int(join_seconds) + 60)
+    except jax.errors.JaxRuntimeError as error:
+        cause = (str(error).splitlines() or [""])[0]
+        if "Failed to start RPC server" in cause:  # process 0 could not listen there
+            raise ConfigError(
+                f"--distributed: process 0 could not start the job's coordinator at {coordinator_address} ({cause}): "
+                "another program holds that port (a job or a run still going or just ended, or a second process given "
+                "--process-id 0): give every process another --coordinator port, one free on process 0's host, and "
+                "each its own --process-id.") from error
+        raise ConfigError(f"--distributed could not join the job at {coordinator_address} ({cause}): check that "
+                          "every process has the same --coordinator and --num-processes and its own --process-id, "
+                          "then start them all again.") from error
+    finally:
+        deadline.cancel()
     watch_the_other_processes()
+
+
+def _not_joined(coordinator_address: str | None, num_processes: int | None, process_id: int | None,
+                join_seconds: float, command: str) -> None:
+    """End this process, still inside `jax.distributed.initialize`, with exit code 2 and what to check: from a timer
+    thread, since JAX's own end of the wait is a C++ abort that no Python code can intercept."""
+    where = coordinator_address or "the coordinator that the cluster names"
+    this = f"process {process_id} of {num_processes}" if num_processes is not None else "this process"
+    print(f"angora-jax {command}: the jax.distributed job did not come together within {join_seconds / 60:g} "
+          f"minutes: {this} waited at {where} for the others. Start every process with the same --coordinator "
+          "HOST:PORT (process 0's host, a port free there) and --num-processes N, each with its own --process-id "
+          "from 0 to N-1; hosts must reach that port through any firewall; and a slow start (a busy cluster queue) "
+          "takes a larger --join-minutes. Nothing was written.", file=sys.stderr, flush=True)
+    os._exit(2)  # the main thread is blocked in JAX's C++ client: no exception can reach it
 
 
 # The key under which process 0 tells the others the port that it watches them on, and the job's token: a connection
