@@ -192,16 +192,25 @@ def _two_cli_processes(tmp_path: Path, overrides: list[list[str]]) -> list[subpr
 def test_a_process_whose_job_never_comes_together_exits_2_naming_what_to_check(tmp_path):
     """Process 1 started with a mistyped --coordinator (no process 0 there), and process 0 of a job whose process 1
     never started, waited JAX's 5 minutes, then ended in JAX's C++ abort: exit code 134 and a stack trace. Each now
-    exits 2 at --join-minutes, naming the settings to check, with nothing written."""
+    exits 2 at --join-minutes, naming the settings to check, with nothing written. Process 0 given a port that
+    another program holds ended in a traceback (JaxRuntimeError: Failed to start RPC server), exit code 1."""
     started = time.monotonic()
-    processes = [subprocess.Popen(
-        [sys.executable, "-m", "angora_jax.cli", "train", "cartpole", "--distributed", "--coordinator",
-         _free_address(), "--num-processes", "2", "--process-id", str(index), "--join-minutes", "0.1",
-         f"logging.run_root={tmp_path}"],
-        cwd=TESTS, env=os.environ | QUICK_SUBPROCESS, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        for index in (0, 1)]
-    outputs = [process.communicate(timeout=120) for process in processes]
-    assert [process.returncode for process in processes] == [2, 2], [err[-2000:] for _, err in outputs]
+    with socket.socket() as taken:
+        taken.bind(("localhost", 0))
+        taken.listen()
+        addresses = [_free_address(), _free_address(), f"localhost:{taken.getsockname()[1]}"]
+        processes = [subprocess.Popen(
+            [sys.executable, "-m", "angora_jax.cli", "train", "cartpole", "--distributed", "--coordinator", address,
+             "--num-processes", "2", "--process-id", str(index), "--join-minutes", "0.1",
+             f"logging.run_root={tmp_path}"],
+            cwd=TESTS, env=os.environ | QUICK_SUBPROCESS, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            for index, address in zip((0, 1, 0), addresses, strict=True)]
+        outputs = [process.communicate(timeout=120) for process in processes]
+    assert [process.returncode for process in processes] == [2, 2, 2], [err[-2000:] for _, err in outputs]
+    port_taken = outputs.pop()[1]
+    assert "Traceback" not in port_taken and (f"angora-jax train: --distributed: process 0 could not start the job's "
+                                              f"coordinator at {addresses[2]} (") in port_taken, port_taken
+    assert "another program holds that port" in port_taken and "another --coordinator port" in port_taken
     for index, (_, err) in enumerate(outputs):
         assert "Traceback" not in err and "Joining the jax.distributed job at localhost:" in err, err
         assert (f"angora-jax train: the jax.distributed job did not come together within 0.1 minutes: process "

@@ -60,6 +60,9 @@ def initialize(
         command: the verb named in that message (`angora-jax train`, `resume`).
     """
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    if process_id == 0 and coordinator_address and (taken := _port_taken(coordinator_address)) is not None:
+        # Checked here first: JAX, failing to listen there, at times crashes (SIGSEGV) before it can raise.
+        raise ConfigError(_port_taken_message(coordinator_address, taken))
     deadline = threading.Timer(join_seconds, _not_joined, args=(coordinator_address, num_processes, process_id,
                                                                 join_seconds, command))
     deadline.daemon = True
@@ -70,17 +73,31 @@ def initialize(
     except jax.errors.JaxRuntimeError as error:
         cause = (str(error).splitlines() or [""])[0]
         if "Failed to start RPC server" in cause:  # process 0 could not listen there
-            raise ConfigError(
-                f"--distributed: process 0 could not start the job's coordinator at {coordinator_address} ({cause}): "
-                "another program holds that port (a job or a run still going or just ended, or a second process given "
-                "--process-id 0): give every process another --coordinator port, one free on process 0's host, and "
-                "each its own --process-id.") from error
+            raise ConfigError(_port_taken_message(coordinator_address, cause)) from error
         raise ConfigError(f"--distributed could not join the job at {coordinator_address} ({cause}): check that "
                           "every process has the same --coordinator and --num-processes and its own --process-id, "
                           "then start them all again.") from error
     finally:
         deadline.cancel()
     watch_the_other_processes()
+
+
+def _port_taken(address: str) -> str | None:
+    """Why process 0 cannot listen on `address`'s port on every interface, as JAX's coordinator does; None if it can."""
+    family = socket.AF_INET6 if socket.has_dualstack_ipv6() else socket.AF_INET
+    try:
+        socket.create_server(("", int(address.rsplit(":", 1)[1])), family=family,
+                             dualstack_ipv6=family == socket.AF_INET6).close()
+    except OSError as error:
+        return os.strerror(error.errno) if error.errno else str(error)
+    return None
+
+
+def _port_taken_message(address: str | None, cause: str) -> str:
+    return (f"--distributed: process 0 could not start the job's coordinator at {address} ({cause}): another program "
+            "holds that port (a job or a run still going or just ended, or a second process given --process-id 0): "
+            "give every process another --coordinator port, one free on process 0's host, and each its own "
+            "--process-id.")
 
 
 def _not_joined(coordinator_address: str | None, num_processes: int | None, process_id: int | None,
