@@ -348,6 +348,21 @@ def test_overrides_may_follow_the_options_and_other_strays_are_usage_errors(caps
     assert "(ppo.lr_max=1e-3)" in err and "--num-cycles N" in err and "ppo.init_from=RUN_DIR:latest" in err
 
 
+def test_version_is_printed_and_only_the_config_is_asked_for(capsys):
+    """`angora-jax --version` was "the following arguments are required: command"; `angora-jax train` alone said
+    "required: config, KEY=VALUE", as if overrides were."""
+    from importlib.metadata import version
+
+    with pytest.raises(SystemExit) as stop:
+        main(["--version"])
+    assert stop.value.code == 0 and capsys.readouterr().out == f"angora-jax {version('angora-jax')}\n"
+    for verb in (["train"], ["config", "show"]):
+        with pytest.raises(SystemExit) as stop:
+            main(verb)
+        assert stop.value.code == 2 and capsys.readouterr().err.rstrip().endswith(
+            "error: the following arguments are required: config")
+
+
 @pytest.mark.parametrize("command", ["evaluate", "render"])
 def test_episode_count_below_one_is_a_usage_error(command, capsys):
     with pytest.raises(SystemExit) as stop:

@@ -52,12 +52,24 @@ VERBS = (training.add_train, training.add_resume, training.add_check, evaluation
 def parser() -> argparse.ArgumentParser:
     """The whole command line: `angora-jax` and each verb's parser, its handler set as `handler`."""
     top = argparse.ArgumentParser(prog="angora-jax", description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    top.add_argument("--version", action="version", version=f"angora-jax {installed_version()}",
+                     help="print the installed angora-jax's version (`angora-jax doctor`: JAX's, MuJoCo's, devices)")
     commands = top.add_subparsers(dest="command", required=True)
     for add_verb in VERBS:
         add_verb(commands)
     for verb in leaf_parsers(top):
         add_import_option(verb)
     return top
+
+
+def installed_version() -> str:
+    """angora-jax's version as installed (its package metadata), read without importing JAX."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("angora-jax")
+    except PackageNotFoundError:  # run from a checkout that was never installed
+        return "(not installed: run from a source checkout)"
 
 
 def leaf_parsers(command: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:

@@ -28,7 +28,7 @@ def add_config(commands: argparse._SubParsersAction) -> None:
                                                    "(saved sources such as ppo.init_from included), without running "
                                                    "anything")
     show.add_argument("config", help="YAML path or the name of a shipped config (see list-configs)")
-    show.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. ppo.num_envs=32")
+    show.add_argument("overrides", nargs="*", default=[], metavar="KEY=VALUE", help="e.g. ppo.num_envs=32")
     show.set_defaults(handler=command_config_show)
     reference = config_commands.add_parser("reference", help="print every config key with its type, default and "
                                                              "description (Markdown; docs/config.md)")

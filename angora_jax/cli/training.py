@@ -29,7 +29,8 @@ def add_train(commands: argparse._SubParsersAction) -> None:
     """The `train` verb: its arguments and its handler."""
     train = commands.add_parser("train", help="train a new run from a YAML config (see list-configs)")
     train.add_argument("config", help="YAML path or the name of a shipped config (e.g. cartpole; see list-configs)")
-    train.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. ppo.num_cycles=20 ppo.network.name=lstm")
+    train.add_argument("overrides", nargs="*", default=[], metavar="KEY=VALUE",  # a default: argparse names it optional
+                       help="e.g. ppo.num_cycles=20 ppo.network.name=lstm")
     add_time_limit(train)
     add_distributed_flags(train)
     train.set_defaults(handler=command_train)
