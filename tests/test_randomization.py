@@ -23,6 +23,11 @@ from angora_jax.envs.eager_batch import EagerBatch
 from angora_jax.envs.randomization import DELAY_KEY, INFO_KEY
 from angora_jax.experiment.evaluation import evaluate
 
+# Every program here runs a few steps or a cycle or three, and none compares itself with an optimised one: the whole
+# file compiles quickly (tests/quick_compile.py), its tests sharing JAX's in-process caches (the four `init_from`
+# networks compile the task's reset and the eager operations once, not once each).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 BATCH, STEPS = 3, 6
 # Converged solves, so that Warp and C MuJoCo agree within test_warp.py's tolerance (2e-3 rad).
 WARP = {"impl": "warp", "iterations": 50, "ls_iterations": 50}
@@ -180,7 +185,7 @@ def test_randomized_fields_change_mjx_jax_physics_and_ones_give_the_unrandomized
 
 
 @pytest.mark.slow
-def test_evaluate_runs_a_policy_under_randomization_given_as_an_env_option(tmp_path, capsys, quick_compiles):
+def test_evaluate_runs_a_policy_under_randomization_given_as_an_env_option(tmp_path, capsys):
     """A reach run trains under randomization, its value function seeing the drawn physics; `angora-jax evaluate
     --env-option randomization=...` on the batched path (Warp) plays its policy in other randomized worlds (other
     ranges: the value function's inputs keep their size), recorded as a changed task; the CPU path (C MuJoCo slots,
@@ -341,7 +346,7 @@ def test_the_cube_size_scales_its_geoms_mass_and_inertia_on_every_path(inputs, p
 
 
 @pytest.mark.slow
-def test_a_run_trained_under_randomization_resumes_exactly(tmp_path, quick_compiles):
+def test_a_run_trained_under_randomization_resumes_exactly(tmp_path):
     """Reach under randomization (every kind: fields, delay, noise), 12-step episodes so that auto-resets draw new
     worlds and delays mid-run: stopped after its first cycle (`minutes`) and resumed, it ends as the run that was not
     stopped, metrics and the whole state (drawn factors and delay queues in the environments' info included) bit for
@@ -381,8 +386,7 @@ def test_a_run_trained_under_randomization_resumes_exactly(tmp_path, quick_compi
     pytest.param({"name": "simple", "width": 8, "shared_trunk": True}, id="shared", marks=pytest.mark.slow),
     pytest.param({"name": "gru", "width": 8, "cell_size": 8}, id="gru", marks=pytest.mark.slow),
     pytest.param({"name": "cortical"}, id="cortical", marks=pytest.mark.slow)])
-def test_init_from_a_run_without_value_sees_physics_carries_its_value_function_over(network, monkeypatch,
-                                                                                   quick_compiles):
+def test_init_from_a_run_without_value_sees_physics_carries_its_value_function_over(network, monkeypatch):
     """`ppo.init_from` a reach run trained without `value_sees_physics`, fine-tuned with it: the value function's
     inputs gain 70 entries at the end of `asymmetric`. Everything carries over; the weights that read the new entries
     start at zero, so the new model's policy and value are the source's whatever physics it is given. The source's
