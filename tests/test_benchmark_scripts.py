@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 import pytest
 from benchmark_results import BENCHMARKS, results
-from quick_compile import QUICK_SUBPROCESS
+from quick_compile import QUICK_SUBPROCESS_NO_FUSION_EMITTERS
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -85,8 +85,9 @@ def test_cell_unroll_times_one_recurrent_config_looped_and_unrolled(tmp_path, qu
 def test_train_throughput_trains_shipped_configs_as_they_are(tmp_path, monkeypatch):
     """`--configs`: each config's own network, rollout and minibatch share, at the given batch size; with several
     configs or sizes, each measured in its own process, all rows in one file in order. Those processes time one
-    cycle each, so they compile quickly (tests/quick_compile.py)."""
-    for name, value in QUICK_SUBPROCESS.items():
+    cycle each, so they compile quickly, XLA's CPU fusion emitters off (tests/quick_compile.py; they set no XLA_FLAGS
+    of their own)."""
+    for name, value in QUICK_SUBPROCESS_NO_FUSION_EMITTERS.items():
         monkeypatch.setenv(name, value)
     out = tmp_path / "configs.json"
     train_throughput.main(["--configs", "cartpole", "--num-envs", "4", "8", "--repeats", "1", "--out", str(out)])

@@ -14,7 +14,7 @@ import pytest
 import yaml
 from benchmark_results import BENCHMARKS, results
 from brax.envs.wrappers import training as brax_training
-from quick_compile import QUICK_SUBPROCESS
+from quick_compile import QUICK_SUBPROCESS, QUICK_SUBPROCESS_NO_FUSION_EMITTERS
 from scipy import stats
 
 from angora_jax.envs.registry import make
@@ -37,7 +37,8 @@ EPISODE = 4
 WORST_STEP = math.pi**2 + 6.4 + 0.004
 
 # Every program this file compiles trains or times a few tiny cycles, and so do those of the processes that the ladder
-# and time_to_solve start (QUICK_SUBPROCESS): all compile quickly (tests/quick_compile.py).
+# and time_to_solve start (QUICK_SUBPROCESS; the ladder's and paper_figures' also with XLA's CPU fusion emitters off:
+# time_to_solve's learning keeps them): all compile quickly (tests/quick_compile.py).
 pytestmark = pytest.mark.usefixtures("quick_file_compiles")
 
 
@@ -122,7 +123,7 @@ def test_own_recipes_train_ours_from_its_config_and_brax_from_its_recipe(pendulu
 
 @pytest.mark.slow
 def test_ladder_measures_each_rung_in_its_own_process_and_reports_failures(monkeypatch):
-    for name, value in QUICK_SUBPROCESS.items():
+    for name, value in QUICK_SUBPROCESS_NO_FUSION_EMITTERS.items():
         monkeypatch.setenv(name, value)
     settings = {"options": {}, "steps": 2, "rollout_length": 4, "chunk_length": 4, "minibatches": 2, "epochs": 1,
                 "model": "simple", "repeats": 1}
@@ -393,10 +394,11 @@ def test_train_past_solve_trains_stops_and_evaluates_best_and_latest(tmp_path, c
 @pytest.mark.slow
 def test_paper_figures_runs_each_task_and_head_per_seed_and_says_which_head_won(tmp_path):
     script = os.path.join(os.path.dirname(side.__file__), "paper_figures.py")
-    # Smoke runs of two cycles: compiling is nearly all of their time, so XLA compiles them quickly (QUICK_SUBPROCESS).
+    # Smoke runs of two cycles: compiling is nearly all of their time, so XLA compiles them quickly, its CPU fusion
+    # emitters off (QUICK_SUBPROCESS_NO_FUSION_EMITTERS: the script's processes set no XLA_FLAGS of their own).
     subprocess.run([sys.executable, script, "--figure", "8", "--tasks", "Pendulum", "--seeds", "3", "--parallel", "2",
                     "--smoke", "--evaluate", "3", "--out", str(tmp_path), "--name", "fig8"], check=True,
-                   env=os.environ | QUICK_SUBPROCESS)
+                   env=os.environ | QUICK_SUBPROCESS_NO_FUSION_EMITTERS)
     record = json.loads((tmp_path / "fig8.json").read_text())
     runs = record["runs"]
     assert sorted((r["head"], r["seed"]) for r in runs) == [("beta", 3), ("gaussian", 3)]

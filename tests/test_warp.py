@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from quick_compile import QUICK_SUBPROCESS, compile_quickly
+from quick_compile import QUICK_SUBPROCESS_NO_FUSION_EMITTERS, compile_quickly
 
 import angora_jax as aj
 from angora_jax.cli import main
@@ -92,12 +92,12 @@ def test_a_warp_run_evaluates_on_the_batched_path_as_on_c_mujoco(two_devices, qu
 @pytest.fixture(scope="module")
 def two_devices(tmp_path_factory):
     """tests/warp_parallel.py's results; a subprocess because the CPU device count is fixed when JAX starts. Its
-    runs are a few cycles long, so it compiles quickly (tests/quick_compile.py)."""
+    runs are a few cycles long, so it compiles quickly, XLA's CPU fusion emitters off (tests/quick_compile.py)."""
     root = tmp_path_factory.mktemp("runs")
+    flags = f"{QUICK_SUBPROCESS_NO_FUSION_EMITTERS['XLA_FLAGS']} --xla_force_host_platform_device_count=2"
     done = subprocess.run(
         [sys.executable, str(TESTS / "warp_parallel.py"), str(root)],
-        cwd=TESTS, env=os.environ | QUICK_SUBPROCESS | {"XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} "
-                                                                     "--xla_force_host_platform_device_count=2"},
+        cwd=TESTS, env=os.environ | QUICK_SUBPROCESS_NO_FUSION_EMITTERS | {"XLA_FLAGS": flags},
         capture_output=True, text=True, timeout=600,
     )
     assert done.returncode == 0, done.stderr[-3000:]
