@@ -172,9 +172,13 @@ def test_act_names_an_observation_or_carry_that_does_not_fit(lstm_run):
     assert agent.act(carry, obs)[1].shape == (4,)
     with pytest.raises(TypeError, match=r"obs must be a Sensation .* got ndarray"):
         agent.act(carry, np.zeros((4, 4), np.float32))
+    one = agent.env.reset(jax.random.key(0)).obs
     with pytest.raises(ValueError, match=r"obs.proprioception has shape \(4,\); this agent \(CartPole\) reads \(B, 4\) "
-                                         r"for a batch of B environments: batch one observation with obs\[None\]"):
-        agent.act(agent.initial_carry(1), agent.env.reset(jax.random.key(0)).obs)
+                                         r"for a batch of B environments: make one observation a batch of 1 with "
+                                         r"jax.tree.map\(lambda x: x\[None\], obs\)"):
+        agent.act(agent.initial_carry(1), one)
+    # What the message says works (it said obs[None], which a Sensation does not take).
+    assert agent.act(agent.initial_carry(1), jax.tree.map(lambda x: x[None], one))[1].shape == (1,)
     wide = obs.replace(proprioception=np.zeros((4, 7), np.float32))
     with pytest.raises(ValueError, match=r"obs.proprioception has shape \(4, 7\).*observations of another task\?"):
         agent.act(carry, wide)

@@ -134,7 +134,8 @@ class Agent:
             if len(shape) < 2 or (not images and shape[-1] != sizes[name]):
                 raise ValueError(
                     f"obs.{name} has shape {shape}; this agent ({self.config.env.task}) reads (B, {sizes[name]}) for "
-                    f"a batch of B environments" + (": batch one observation with obs[None] or jax.vmap(env.reset)"
+                    f"a batch of B environments" + (": make one observation a batch of 1 with jax.tree.map(lambda x: "
+                                                    "x[None], obs), or draw a batch with jax.vmap(env.reset)"
                                                     if len(shape) < 2 else ": observations of another task?"))
             batch = shape[0] if batch is None else batch
         carried = {jnp.shape(leaf)[0] for leaf in jax.tree.leaves(carry) if jnp.ndim(leaf)}
