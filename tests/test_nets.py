@@ -98,14 +98,16 @@ def test_modalities_enter_separately():
 
 
 def test_cortical_areas_are_named_sized_and_recurrent():
+    """Shapes only, so traced (`jax.eval_shape`): 1 s of CPU instead of 11 run op by op. The cortical model is run
+    in test_the_shipped_cortical_graph_is_the_builtin_cortical_model."""
     obs = hand_like_obs(jax.random.key(0))
     for cell, carry_shapes in [("rnn", (BATCH, 16)), ("lstm", ((BATCH, 16), (BATCH, 16))), ("gru", (BATCH, 16))]:
         network = make_network(NetworkConfig(name="cortical", cell=cell, cell_size=16, width=8, areas={"M1": 24}))
-        params = network.init(jax.random.key(0), network.initial_carry(BATCH), obs)["params"]
+        params = jax.eval_shape(network.init, jax.random.key(0), network.initial_carry(BATCH), obs)["params"]
         assert set(AREA_SIZES) <= set(params) and params["M1"]["kernel"].shape[-1] == 24
         assert params["SSC_1"]["kernel"].shape == (48, 128), "SSC reads proprioception (and touch, empty here)"
         assert params["MCC"]["kernel"].shape == (15 + 64, 64), "MCC reads the goal and SSC"
-        carry, features, _ = network.apply({"params": params}, network.initial_carry(BATCH), obs)
+        carry, features, _ = jax.eval_shape(network.apply, {"params": params}, network.initial_carry(BATCH), obs)
         assert jax.tree.map(jnp.shape, carry) == {"PMC": carry_shapes} and features.shape == (BATCH, 24)
     for bad, match in [({"areas": {"V9": 3}}, "Unknown areas \\['V9'\\]"), ({"cell": "lstm2"}, "network.cell must be"),
                        ({"name": "simple", "cell": "gru"}, "network.cell applies to the wide and cortical networks")]:
