@@ -602,7 +602,7 @@ def test_a_key_given_twice_is_refused_with_both_lines(tmp_path: Path, text, key,
         load_config("cartpole", ["ppo={gamma: 0.9, gamma: 0.8}"])
 
 
-def test_a_key_overridden_twice_is_named_with_the_one_used(capsys, tmp_path):
+def test_a_key_overridden_twice_is_named_with_the_one_used(capsys, tmp_path, quick_compiles):
     """Trust trial: `train cartpole ppo.learning_rate=1e-3 ppo.learning_rate=2e-3` trained at 2e-3 without a word.
     The last one still wins (command lines built from a shared part repeat keys on purpose), and is named."""
     assert repeated_keys(["ppo.learning_rate=1e-3", "ppo.num_envs=8", "ppo.learning_rate = 2e-3"]) == [
