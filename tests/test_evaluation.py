@@ -17,6 +17,7 @@ import pytest
 import xarray as xr
 import yaml
 from jax_events import jax_events
+from quick_compile import quick_compilation
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -44,12 +45,14 @@ EPISODES = 4
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
     """A short recurrent CartPole run, trained under one folder and then moved to another (the folder it was trained
-    in is gone), as a run copied from another machine is."""
+    in is gone), as a run copied from another machine is. Its 20 cycles compile quickly (tests/quick_compile.py); the
+    evaluations compile as usual."""
     root = tmp_path_factory.mktemp("runs")
     overrides = [*TINY_PPO, "ppo.num_cycles=20", "ppo.network.name=lstm", f"logging.run_root={root / 'trained'}",
                  "logging.run_name=cartpole", "logging.report=false", "logging.progress=none",
                  "checkpoint.snapshot_every=10"]
-    trained = aj.train(aj.load_config("cartpole", overrides)).run_dir
+    with quick_compilation():
+        trained = aj.train(aj.load_config("cartpole", overrides)).run_dir
     moved = Path(shutil.move(trained, root / "cartpole"))
     shutil.rmtree(root / "trained")
     return moved
