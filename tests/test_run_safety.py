@@ -20,6 +20,7 @@ import orbax.checkpoint as ocp
 import pytest
 import xarray as xr
 import yaml
+from quick_compile import QUICK_SUBPROCESS
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -52,6 +53,10 @@ CYCLES = 6
 # Wall-clock, memory and compilation-cache readings differ between any two runs; everything else must match exactly.
 UNTIMED = {"seconds", "steps_per_second", "compile_seconds", "time", "memory/host_peak_bytes", "compile_cache_hits",
            "compile_cache_misses"}
+
+# Every run here is a few tiny cycles (tests/quick_compile.py), the processes that are killed and resumed too: their
+# records must match `whole`'s exactly, so they compile as it does.
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
 
 
 def settings(root: Path, name: str, cycles: int = CYCLES) -> list[str]:
@@ -578,7 +583,7 @@ def kill_at_random(root: Path, name: str, rng: random.Random) -> None:
         argv = ["train", "cartpole", *settings(root, name)]
     earlier = len(list(run.glob("previous-*")))
     process = subprocess.Popen([sys.executable, "-m", "angora_jax.cli", *argv], stdout=subprocess.DEVNULL,
-                               stderr=subprocess.PIPE, text=True)
+                               stderr=subprocess.PIPE, text=True, env=os.environ | QUICK_SUBPROCESS)
     target = rng.randint(logged + 1, CYCLES - 1)
     deadline = time.monotonic() + 120
     logged_now = lambda: len(read_metrics(run)) if run.exists() else 0  # noqa: E731  (the process makes the run)
