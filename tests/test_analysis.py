@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import xarray as xr
 from benchmark_results import BENCHMARKS, results
+from quick_compile import quick_compilation
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -50,9 +51,12 @@ LAYER = "network.policy_trunk.Dense_1"
 
 @pytest.fixture(scope="module")
 def agent(tmp_path_factory):
+    """A CartPole agent trained for 3 cycles, compiled quickly (tests/quick_compile.py); what it records compiles as
+    usual."""
     root = tmp_path_factory.mktemp("runs")
-    run = aj.train("cartpole", [*TINY_PPO, "ppo.num_cycles=3", f"logging.run_root={root}", "logging.run_name=r",
-                                "logging.progress=none", "logging.report=false"])
+    with quick_compilation():
+        run = aj.train("cartpole", [*TINY_PPO, "ppo.num_cycles=3", f"logging.run_root={root}", "logging.run_name=r",
+                                    "logging.progress=none", "logging.report=false"])
     return aj.load_agent(run.run_dir, "latest")
 
 

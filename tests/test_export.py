@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from benchmark_results import BENCHMARKS, results
 from flax import serialization
+from quick_compile import quick_compilation
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -25,9 +26,12 @@ import exported_policy  # noqa: E402
 
 @pytest.fixture(scope="module")
 def lstm_run(tmp_path_factory):
+    """A recurrent CartPole run of 2 cycles, compiled quickly (tests/quick_compile.py); its policy compiles as usual."""
     root = tmp_path_factory.mktemp("runs")
-    return aj.train("cartpole", [*TINY_PPO, "ppo.num_cycles=2", "ppo.network.name=lstm", "logging.progress=none",
-                                 "logging.report=false", f"logging.run_root={root}", "logging.run_name=lstm"]).run_dir
+    with quick_compilation():
+        return aj.train("cartpole", [*TINY_PPO, "ppo.num_cycles=2", "ppo.network.name=lstm", "logging.progress=none",
+                                     "logging.report=false", f"logging.run_root={root}",
+                                     "logging.run_name=lstm"]).run_dir
 
 
 def rollout(act, carry, env, steps=6, batch=3):
