@@ -28,6 +28,9 @@ from angora_jax.ppo import parallel
 TESTS = Path(__file__).resolve().parent
 BENCHMARKS = TESTS.parent / "benchmarks"
 
+# The runs in this process are a cycle or two of a tiny CartPole (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 
 @pytest.mark.slow
 @pytest.mark.parametrize("variant, devices_per_process", [("cartpole", 2), ("warp", 1)])
