@@ -45,6 +45,10 @@ TINY = [
     "logging.report=false",
 ]
 
+# The runs in this process are a cycle or a few of a tiny task (tests/quick_compile.py); its processes say for
+# themselves how they compile.
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 
 def test_list_commands(capsys):
     assert main(["list-tasks"]) == 0
