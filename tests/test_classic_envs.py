@@ -9,6 +9,9 @@ import pytest
 from angora_jax.envs.classic import Acrobot, CartPole, MountainCar, Pendulum
 from angora_jax.envs.registry import make
 
+# Every program here is a step or a few (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 
 @pytest.fixture(scope="module")
 def cartpole():

@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from flax import serialization
-from quick_compile import quick_compilation
 from tiny import TINY_PPO
 
 import angora_jax as aj
@@ -19,6 +18,9 @@ from angora_jax.experiment.export import export_policy
 from angora_jax.experiment.sources import check_sources
 from angora_jax.nets.components import save_component
 
+# Every run here is one cycle of a tiny task, module fixtures included (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 TINY = [*TINY_PPO, "ppo.num_cycles=1", "logging.report=false", "logging.progress=none"]
 
 
@@ -26,8 +28,7 @@ TINY = [*TINY_PPO, "ppo.num_cycles=1", "logging.report=false", "logging.progress
 def source_run(tmp_path_factory) -> Path:
     """A CartPole run of the default width (64) with one checkpoint: what other runs start from or take parts of."""
     root = tmp_path_factory.mktemp("source")
-    with quick_compilation():
-        return aj.train("cartpole", [*TINY, f"logging.run_root={root}", "logging.run_name=source"]).run_dir
+    return aj.train("cartpole", [*TINY, f"logging.run_root={root}", "logging.run_name=source"]).run_dir
 
 
 @pytest.fixture(scope="module")
@@ -35,9 +36,8 @@ def mountain_car_run(tmp_path_factory, source_run) -> Path:
     """A MountainCar run with discrete actions (the task's default), trained after `source_run` has compiled what the
     two share."""
     root = tmp_path_factory.mktemp("mountain_car")
-    with quick_compilation():
-        return aj.train("classic", [*TINY, "env.task=MountainCar", f"logging.run_root={root}",
-                                    "logging.run_name=discrete"]).run_dir
+    return aj.train("classic", [*TINY, "env.task=MountainCar", f"logging.run_root={root}",
+                                "logging.run_name=discrete"]).run_dir
 
 
 def refused(capsys, tmp_path: Path, *overrides: str, config: str = "cartpole") -> str:
@@ -221,25 +221,24 @@ def test_a_memory_added_to_a_saved_mlp_starts_as_that_mlp_and_training_puts_it_t
 
     config = aj.load_config("cartpole", [*TINY, "ppo.network.memory=8", f"ppo.init_from={source_run}"])
     env = aj.make(config.env.task, **config.env.options)
-    with quick_compilation():
-        init, cycle = make_cycle(env, None, config.ppo)
-        state = init(jax.random.key(0))
-        saved = aj.load_agent(source_run).state
-        assert set(state.params["network"]) == {*saved.params["network"], "policy_memory", "memory_out"}
-        np.testing.assert_array_equal(state.params["network"]["memory_out"]["kernel"], 0.0)
+    init, cycle = make_cycle(env, None, config.ppo)
+    state = init(jax.random.key(0))
+    saved = aj.load_agent(source_run).state
+    assert set(state.params["network"]) == {*saved.params["network"], "policy_memory", "memory_out"}
+    np.testing.assert_array_equal(state.params["network"]["memory_out"]["kernel"], 0.0)
 
-        obs = jax.vmap(env.reset)(jax.random.split(jax.random.key(1), 5)).obs
-        obs = obs.replace(proprioception=jax.random.normal(jax.random.key(2), obs.proprioception.shape))
-        plain = config.ppo.replace(network=dataclasses.replace(config.ppo.network, memory=0))
-        with_memory = build_model(make_network(config.ppo.network), build_head(env, config.ppo), config.ppo)
-        without = build_model(make_network(plain.network), build_head(env, plain), plain)
-        remembered = jax.random.normal(jax.random.key(3), (5, 8))  # whatever the GRU holds
-        _, policy_now, value_now = with_memory.apply({"params": state.params}, remembered, obs)
-        _, policy, value = without.apply({"params": saved.params}, without.initial_carry(5), obs)
-        np.testing.assert_allclose(policy_now, policy, rtol=1e-6, atol=1e-6)
-        np.testing.assert_allclose(value_now, value, rtol=1e-6, atol=1e-6)
+    obs = jax.vmap(env.reset)(jax.random.split(jax.random.key(1), 5)).obs
+    obs = obs.replace(proprioception=jax.random.normal(jax.random.key(2), obs.proprioception.shape))
+    plain = config.ppo.replace(network=dataclasses.replace(config.ppo.network, memory=0))
+    with_memory = build_model(make_network(config.ppo.network), build_head(env, config.ppo), config.ppo)
+    without = build_model(make_network(plain.network), build_head(env, plain), plain)
+    remembered = jax.random.normal(jax.random.key(3), (5, 8))  # whatever the GRU holds
+    _, policy_now, value_now = with_memory.apply({"params": state.params}, remembered, obs)
+    _, policy, value = without.apply({"params": saved.params}, without.initial_carry(5), obs)
+    np.testing.assert_allclose(policy_now, policy, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(value_now, value, rtol=1e-6, atol=1e-6)
 
-        trained, _ = cycle(state)
-        assert np.abs(np.asarray(trained.params["network"]["memory_out"]["kernel"])).max() > 0
+    trained, _ = cycle(state)
+    assert np.abs(np.asarray(trained.params["network"]["memory_out"]["kernel"])).max() > 0
     with pytest.raises(ValueError, match="network.memory adds a GRU to the simple and deeper networks"):
         PPOConfig(network=NetworkConfig(name="lstm", memory=8)).validate()

@@ -18,6 +18,9 @@ from angora_jax.ppo.grown_inputs import (
 )
 from angora_jax.ppo.normalization import RunningMeanStd
 
+# Every program here runs once or a few times on a small network (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 OLD, NEW, GOAL = 5, 8, 3
 
 

@@ -16,6 +16,9 @@ from angora_jax.analysis import visual
 from angora_jax.experiment import ConfigError
 from angora_jax.nets.visual import make_visual_encoder
 
+# Every program here runs briefly on a small seeing network (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 SIZE = 32
 
 
