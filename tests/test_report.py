@@ -19,6 +19,9 @@ from angora_jax.experiment import read_metrics
 from angora_jax.experiment.live_report import LiveReport
 from angora_jax.experiment.report import RunRecord, group_band, load_run, seed_groups
 
+# Every run here is a few cycles of a tiny CartPole, module fixtures included (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 TINY = [
     *TINY_PPO,
     "ppo.num_cycles=3",

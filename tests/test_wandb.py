@@ -14,6 +14,9 @@ from wandb.proto import wandb_internal_pb2
 import angora_jax as aj
 from angora_jax.experiment.config import ConfigError, load_config, validate
 
+# Every run here is a few cycles of a tiny CartPole, module fixtures included (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 # W&B's transaction log (`run-ID.wandb`) is LevelDB's log format after a 7-byte header: 32 KiB blocks of chunks, each
 # with a 7-byte header (CRC, length, type: 1 whole record, 2 first part, 3 middle, 4 last), of protobuf `Record`s.
 BLOCK, CHUNK_HEADER, FILE_HEADER = 32768, 7, b":W&B\xe1\xbe\x00"
