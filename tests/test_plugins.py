@@ -409,6 +409,10 @@ BACKEND = """
 import base64, hashlib, tomllib, zipfile
 from pathlib import Path
 
+# Every run here is a cycle of a tiny CartPole with tasks and networks of its own, or refused before it trains; the
+# other files that train the tiny CartPole compile quickly too, and share its programs (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 
 def build_wheel(wheel_directory, config_settings=None, metadata_directory=None):
     project = tomllib.loads(Path("pyproject.toml").read_text())["project"]
