@@ -26,6 +26,10 @@ from angora_jax.nets.registry import NETWORKS
 from angora_jax.ppo.distributions import HEADS
 from angora_jax.registry import plugins
 
+# Every run here is a cycle of a tiny CartPole with tasks and networks of its own, or refused before it trains; the
+# other files that train the tiny CartPole compile quickly too, and share its programs (tests/quick_compile.py).
+pytestmark = pytest.mark.usefixtures("quick_file_compiles")
+
 ROOT = Path(__file__).resolve().parents[1]
 # A task of the user's: CartPole under another name, so that nothing new compiles.
 USER_TASK = """
@@ -408,10 +412,6 @@ def test_installed_plugins_load_at_the_first_registry_lookup_and_a_broken_one_is
 BACKEND = """
 import base64, hashlib, tomllib, zipfile
 from pathlib import Path
-
-# Every run here is a cycle of a tiny CartPole with tasks and networks of its own, or refused before it trains; the
-# other files that train the tiny CartPole compile quickly too, and share its programs (tests/quick_compile.py).
-pytestmark = pytest.mark.usefixtures("quick_file_compiles")
 
 
 def build_wheel(wheel_directory, config_settings=None, metadata_directory=None):
